@@ -1,0 +1,180 @@
+"""Extrinsic calibration from keypoint observations of many frames.
+
+A fixed camera sees the robot in F joint configurations. Every keypoint of every frame is a
+2D-3D correspondence with the same `T_cam_base`, so `calibrate_all` solves one pose from all of
+them together (not an average of per-frame poses): hypotheses from single-frame solutions and
+from random minimal samples across frames are ranked by MSAC, and the best is refined with a
+robust loss and outlier rejection. `calibrate_each` solves every frame alone (moving camera).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from dream.camera import CameraIntrinsics
+from dream.errors import CalibrationError, InputError
+from dream.pnp import (
+    NoSolution,
+    PoseFit,
+    SolverSettings,
+    check_correspondences,
+    degeneracy,
+    initial_pose,
+    refine_best,
+    solve_pnp,
+)
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Observations:
+    """2D keypoint observations with their 3D positions in the base frame.
+
+    Attributes:
+        P_base: (F, K, 3) keypoint positions from forward kinematics, m.
+        uv: (F, K, 2) observed pixels, NaN where a keypoint was not found.
+        confidence: (F, K) detection confidence (1 for labels), weights of the fit.
+        frame_names: F names. keypoint_names: K names.
+    """
+
+    P_base: np.ndarray
+    uv: np.ndarray
+    confidence: np.ndarray
+    frame_names: tuple[str, ...]
+    keypoint_names: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        F, K = len(self.frame_names), len(self.keypoint_names)
+        for name, shape in (("P_base", (F, K, 3)), ("uv", (F, K, 2)), ("confidence", (F, K))):
+            a = np.asarray(getattr(self, name), dtype=float)
+            if a.shape != shape:
+                raise InputError(f"observations {name} has shape {a.shape}, expected {shape}")
+            object.__setattr__(self, name, a)
+
+    @property
+    def found(self) -> np.ndarray:
+        """(F, K) True where a keypoint was observed."""
+        return np.all(np.isfinite(self.uv), -1) & np.isfinite(self.confidence) & \
+            (self.confidence > 0)
+
+
+@dataclass(frozen=True)
+class FrameSolution:
+    """A frame's own single-frame solution (or why there is none)."""
+
+    name: str
+    fit: PoseFit | NoSolution
+    keypoints_found: int
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """Outcome of a calibration.
+
+    Attributes:
+        mode: "all" (one pose from every frame) or "each" (one pose per frame).
+        fit: the reported extrinsic's fit; in "each" mode the best-determined frame's.
+        frames: per-frame single-frame solutions.
+        residuals_px: (F, K, 2) residuals of every observation under the pose reported for its
+            frame (the joint pose in "all" mode), NaN where none.
+        inlier: (F, K) observations kept by the fit that reports them.
+    """
+
+    mode: str
+    fit: PoseFit
+    frames: tuple[FrameSolution, ...]
+    residuals_px: np.ndarray
+    inlier: np.ndarray
+
+    @property
+    def frames_used(self) -> int:
+        if self.mode == "all":
+            return int(np.any(self.inlier, axis=1).sum())
+        return sum(isinstance(f.fit, PoseFit) for f in self.frames)
+
+    def T_cam_base_of_frame(self, i: int) -> np.ndarray | None:
+        """The extrinsic reported for frame i (None when that frame has no solution)."""
+        if self.mode == "all":
+            return self.fit.T_cam_base
+        fit = self.frames[i].fit
+        return fit.T_cam_base if isinstance(fit, PoseFit) else None
+
+
+def solve_frames(obs: Observations, camera: CameraIntrinsics,
+                 settings: SolverSettings) -> tuple[FrameSolution, ...]:
+    """Every frame solved alone; a frame without a solution says why."""
+    out = []
+    for i, name in enumerate(obs.frame_names):
+        found = obs.found[i]
+        fit = solve_pnp(obs.P_base[i], np.where(found[:, None], obs.uv[i], np.nan), camera,
+                        confidence=np.where(found, obs.confidence[i], 0.0), settings=settings)
+        if isinstance(fit, NoSolution):
+            log.debug("frame %s: %s", name, fit.reason)
+        out.append(FrameSolution(name, fit, int(found.sum())))
+    return tuple(out)
+
+
+def _random_hypotheses(P: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
+                       settings: SolverSettings) -> list[np.ndarray]:
+    rng = np.random.default_rng(settings.seed)
+    hypotheses = []
+    n = len(P)
+    if n < settings.ransac_sample_size:
+        return hypotheses
+    for _ in range(settings.ransac_hypotheses):
+        sample = rng.choice(n, settings.ransac_sample_size, replace=False)
+        if degeneracy(P[sample], settings) is None:
+            T = initial_pose(P[sample], uv[sample], camera)
+            if not isinstance(T, NoSolution):
+                hypotheses.append(T)
+    return hypotheses
+
+
+def calibrate_all(obs: Observations, camera: CameraIntrinsics,
+                  settings: SolverSettings | None = None,
+                  frames: tuple[FrameSolution, ...] | None = None) -> CalibrationResult:
+    """One `T_cam_base` minimising the robust reprojection error over all frames at once."""
+    settings = settings or SolverSettings()
+    frames = frames if frames is not None else solve_frames(obs, camera, settings)
+    found = obs.found
+    P = obs.P_base.reshape(-1, 3)
+    uv = np.where(found[..., None], obs.uv, np.nan).reshape(-1, 2)
+    conf = np.where(found, obs.confidence, 0.0).reshape(-1)
+    P, uv, conf, usable = check_correspondences(P, uv, conf)
+    reason = degeneracy(P[usable], settings)
+    if reason is not None:
+        raise CalibrationError(f"no extrinsic can be solved: {reason} over all frames",)
+    hypotheses = [f.fit.T_cam_base for f in frames if isinstance(f.fit, PoseFit)]
+    all_points = initial_pose(P[usable], uv[usable], camera)
+    if not isinstance(all_points, NoSolution):
+        hypotheses.append(all_points)
+    hypotheses += _random_hypotheses(P[usable], uv[usable], camera, settings)
+    fit = refine_best(P, uv, camera, hypotheses, conf, usable, settings)
+    if isinstance(fit, NoSolution):
+        raise CalibrationError(f"no extrinsic can be solved: {fit.reason}")
+    shape = obs.uv.shape
+    return CalibrationResult("all", fit, frames, fit.residuals_px.reshape(shape),
+                             fit.inlier.reshape(shape[:2]))
+
+
+def calibrate_each(obs: Observations, camera: CameraIntrinsics,
+                   settings: SolverSettings | None = None) -> CalibrationResult:
+    """Every frame solved alone; the reported fit is the best-determined frame's."""
+    settings = settings or SolverSettings()
+    frames = solve_frames(obs, camera, settings)
+    solved = [(i, f.fit) for i, f in enumerate(frames) if isinstance(f.fit, PoseFit)]
+    if not solved:
+        reasons = sorted({f.fit.reason for f in frames})
+        raise CalibrationError("no frame could be solved alone: " + "; ".join(reasons))
+    F, K = obs.uv.shape[:2]
+    residuals = np.full((F, K, 2), np.nan)
+    inlier = np.zeros((F, K), bool)
+    for i, fit in solved:
+        residuals[i] = fit.residuals_px
+        inlier[i] = fit.inlier
+    best = min(solved, key=lambda s: np.trace(s[1].covariance))[1]
+    return CalibrationResult("each", best, frames, residuals, inlier)

@@ -1,0 +1,292 @@
+"""`dream` command line: thin wrappers around the library. Every failure is one line on stderr."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import tempfile
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from dream import __version__
+from dream.camera import CameraIntrinsics
+from dream.errors import DreamError, InputError
+from dream.pnp import RobustLoss, SolverSettings
+
+log = logging.getLogger("dream")
+
+EXIT_ERROR = 2
+EXIT_INTERRUPTED = 130
+
+
+def _parse_intrinsics(text: str | None) -> CameraIntrinsics | None:
+    """'fx,fy,cx,cy,width,height' (size optional: taken from the images)."""
+    if text is None:
+        return None
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) not in (4, 6):
+        raise InputError(f"--intrinsics '{text}' is not fx,fy,cx,cy[,width,height]")
+    if len(values) == 4:
+        values += [1, 1]  # size placeholder; the reader replaces it with the image size
+    return CameraIntrinsics(*values[:4], int(values[4]), int(values[5]))
+
+
+def _read(args: argparse.Namespace):
+    from dream.io import read_sequence
+
+    return read_sequence(args.data, intrinsics=_parse_intrinsics(getattr(args, "intrinsics", None)),
+                         robot=getattr(args, "robot", None))
+
+
+def cmd_robots(args: argparse.Namespace) -> int:
+    from dream.robot import builtin_robots
+
+    for entry in builtin_robots():
+        print(f"{entry.name}: {entry.description}")
+        print(f"  keypoints: {', '.join(entry.keypoints)}")
+    return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    seq = _read(args)
+    cam = seq.camera
+    print(f"data:      {args.data} ({len(seq)} frames)")
+    print(f"robot:     {seq.robot}")
+    dist = "none" if cam.distortion is None else ", ".join(f"{c:.4g}" for c in cam.distortion)
+    print(f"camera:    {cam.width}x{cam.height} fx={cam.fx:.2f} fy={cam.fy:.2f} cx={cam.cx:.2f} "
+          f"cy={cam.cy:.2f} distortion: {dist}")
+    frames = seq.frames
+    print(f"images:    {sum(f.image_path is not None for f in frames)}   masks: "
+          f"{sum(f.mask_path is not None for f in frames)}   timestamps: "
+          f"{sum(f.timestamp is not None for f in frames)}")
+    labelled = sum(f.uv_labels is not None for f in frames)
+    print(f"labels:    {labelled} frames with 2D keypoint labels "
+          f"({', '.join(seq.keypoint_names) or 'none'})")
+    truth = sum(f.T_cam_base_true is not None for f in frames)
+    print(f"truth:     {truth} frames with ground-truth pose; reference extrinsic: "
+          f"{'yes' if seq.T_cam_base_reference is not None else 'no'}")
+    if frames[0].timestamp is not None and len(frames) > 1:
+        t = np.array([f.timestamp for f in frames if f.timestamp is not None])
+        print(f"time:      {t[-1] - t[0]:.3f} s, median period {np.median(np.diff(t)):.4f} s")
+    q = seq.joints
+    print("joints (min .. max):")
+    for name, lo, hi in zip(seq.joint_names, q.min(0), q.max(0), strict=True):
+        print(f"  {name:24s} {lo:+.4f} .. {hi:+.4f}")
+    return 0
+
+
+def cmd_overlay(args: argparse.Namespace) -> int:
+    from dream.overlay import write_skeleton_overlays
+    from dream.pipeline import robot_for
+    from dream.result import read_result
+
+    seq = _read(args)
+    robot = robot_for(seq, args.robot)
+    if args.extrinsic is not None:
+        T = read_result(args.extrinsic)["T_cam_base"]
+        poses = np.broadcast_to(T, (len(seq), 4, 4))
+    else:
+        from dream.pipeline import truth_poses
+
+        if not seq.has_ground_truth:
+            raise InputError("the data has no reference extrinsic", args.data,
+                             "pass --extrinsic RESULT.json")
+        poses = truth_poses(seq)
+    n = write_skeleton_overlays(seq, robot, poses, Path(args.out), limit=args.limit)
+    print(f"wrote {n} overlay images to {args.out}")
+    return 0
+
+
+def _settings(args: argparse.Namespace) -> SolverSettings:
+    return SolverSettings(loss=RobustLoss(args.loss, args.loss_scale_px), seed=args.seed)
+
+
+def run_calibrate(args: argparse.Namespace, out=None) -> dict:
+    from dream.pipeline import calibrate, observations_from_labels, robot_for, truth_poses
+    from dream.result import result_to_dict, write_json_atomic
+
+    out = out or sys.stdout
+    seq = _read(args)
+    keypoints = seq.keypoint_names if args.use_labels else None
+    robot = robot_for(seq, args.robot, keypoints)
+    obs = observations_from_labels(seq, robot)
+    result = calibrate(seq, obs, args.frames, _settings(args))
+    doc = result_to_dict(result, obs, robot=args.robot or seq.robot)
+    if args.overlays:
+        from dream.overlay import write_result_overlays
+
+        write_result_overlays(seq, robot, obs, result, Path(args.overlays))
+    write_json_atomic(args.out, doc)
+    _print_summary(doc, out)
+    T_true = truth_poses(seq)
+    if args.frames == "all" and np.all(np.isfinite(T_true[0])):
+        from dream.metrics import pose_errors
+
+        t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true[0])
+        print(f"error vs ground truth: camera position {t_err * 1000:.2f} mm, rotation "
+              f"{np.rad2deg(r_err):.3f} deg", file=out)
+    print(f"wrote {args.out}", file=out)
+    return doc
+
+
+def _print_summary(doc: dict, out) -> None:
+    T = np.asarray(doc["T_cam_base"])
+    with np.printoptions(precision=5, suppress=True):
+        print("T_cam_base (maps base-frame points into the camera frame):", file=out)
+        print(T, file=out)
+    c = np.asarray(doc["T_base_cam"])[:3, 3]
+    sc = np.asarray(doc["sigma_camera_position_base_m"])
+    st = np.asarray(doc["sigma_translation_m"])
+    sr = np.rad2deg(np.asarray(doc["sigma_rotation_rad"]))
+    print(f"camera position in base frame: [{c[0]:+.4f}, {c[1]:+.4f}, {c[2]:+.4f}] m  "
+          f"(1-sigma {sc[0] * 1e3:.2f}, {sc[1] * 1e3:.2f}, {sc[2] * 1e3:.2f} mm)", file=out)
+    print(f"1-sigma translation (camera axes): {st[0] * 1e3:.2f}, {st[1] * 1e3:.2f}, "
+          f"{st[2] * 1e3:.2f} mm; rotation: {sr[0]:.3f}, {sr[1]:.3f}, {sr[2]:.3f} deg", file=out)
+    print(f"reprojection RMSE {doc['rmse_px']:.3f} px over {doc['keypoints_used']} keypoints "
+          f"in {doc['frames_used']} frames ({doc['frames_mode']} mode)", file=out)
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    run_calibrate(args)
+    return 0
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from dream.pipeline import evaluate, robot_for
+    from dream.result import read_result, write_json_atomic
+
+    seq = _read(args)
+    doc = read_result(args.result)
+    names = [k["name"] for f in doc.get("per_frame", [])[:1] for k in f.get("keypoints", [])]
+    robot = robot_for(seq, args.robot or doc.get("robot"), tuple(names) or None)
+    metrics = evaluate(seq, robot, doc)
+    write_json_atomic(args.out, metrics)
+    add, t, r = metrics["add_m"], metrics["translation_error_m"], metrics["rotation_error_rad"]
+    fmt = lambda v, s=1.0: "n/a" if v is None else f"{v * s:.3f}"  # noqa: E731
+    print(f"ADD mean {fmt(add['mean'], 1e3)} mm, median {fmt(add['median'], 1e3)} mm, "
+          f"ADD AUC {metrics['add_auc']:.4f} (0-{metrics['add_auc_threshold_m']} m, "
+          f"{metrics['frames_in_add_auc']} frames)")
+    kp = metrics["keypoint_l2_px"]
+    print(f"keypoint L2 mean {fmt(kp['mean'])} px, median {fmt(kp['median'])} px, PCK AUC "
+          f"{metrics['pck_auc']:.4f} (0-{metrics['pck_auc_threshold_px']:g} px)")
+    print(f"camera position error median {fmt(t['median'], 1e3)} mm, rotation error median "
+          f"{fmt(r['median'], np.rad2deg(1))} deg")
+    print(f"wrote {args.out}")
+    return 0
+
+
+def cmd_sample(args: argparse.Namespace) -> int:
+    from dream.io import write_dream
+    from dream.sample import SampleSpec, make_sample
+
+    spec = SampleSpec(robot=args.robot, num_frames=args.num, pixel_noise_px=args.noise_px,
+                      outlier_fraction=args.outliers, seed=args.seed)
+    write_dream(make_sample(spec), Path(args.out), overwrite=args.overwrite)
+    print(f"wrote {spec.num_frames} keypoint-only frames of {spec.robot} to {args.out}")
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """The main job on the embedded default: sample -> calibrate (labels) -> print -> eval."""
+    from dream.io import write_dream
+    from dream.sample import SampleSpec, make_sample
+
+    work = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="dream-demo-"))
+    data = work / "sample"
+    spec = SampleSpec(seed=args.seed, outlier_fraction=0.1)
+    print(f"built-in synthetic sample: {spec.num_frames} frames of {spec.robot}, "
+          f"{spec.pixel_noise_px:g} px noise, {spec.outlier_fraction:.0%} outlier labels -> {data}")
+    write_dream(make_sample(spec), data, overwrite=True)
+    ns = argparse.Namespace(data=str(data), use_labels=True, robot=None, frames="all",
+                            out=str(work / "result.json"), overlays=None, loss="huber",
+                            loss_scale_px=3.0, seed=0, intrinsics=None)
+    run_calibrate(ns)
+    print(f"same as: dream calibrate --data {data} --use-labels --out {work / 'result.json'}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="dream", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"dream {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def add(name: str, fn: Callable[[argparse.Namespace], int], help_: str):
+        p = sub.add_parser(name, help=help_, description=help_)
+        p.set_defaults(func=fn)
+        return p
+
+    def data_args(p, required=True):
+        p.add_argument("--data", required=required, help="dataset folder (DREAM layout, "
+                       "panda_teleop, franka_offline) or ManiUniCon .npz")
+        p.add_argument("--robot", help="built-in robot name or URDF path (default: the data's)")
+        p.add_argument("--intrinsics", help="fx,fy,cx,cy[,width,height] for data without them")
+
+    add("robots", cmd_robots, "list built-in robots and their default keypoints")
+    p = add("info", cmd_info, "summarise a dataset: frames, robot, camera, labels, truth")
+    p.add_argument("data", help="dataset folder or .npz")
+    p.add_argument("--intrinsics", help="fx,fy,cx,cy[,width,height] for data without them")
+    p.add_argument("--robot", help=argparse.SUPPRESS)
+
+    p = add("overlay", cmd_overlay, "draw projected keypoints and skeleton on the images")
+    p.add_argument("data", help="dataset folder or .npz")
+    p.add_argument("--out", required=True, help="folder for the overlay PNGs")
+    p.add_argument("--extrinsic", help="RESULT.json to draw with (default: the data's reference)")
+    p.add_argument("--robot", help="built-in robot name or URDF path (default: the data's)")
+    p.add_argument("--intrinsics", help="fx,fy,cx,cy[,width,height] for data without them")
+    p.add_argument("--limit", type=int, default=None, help="draw at most this many frames")
+
+    p = add("calibrate", cmd_calibrate, "solve T_cam_base from keypoints of many frames")
+    data_args(p)
+    p.add_argument("--use-labels", action="store_true", required=True,
+                   help="take 2D observations from the labels (projected_location)")
+    p.add_argument("--out", required=True, help="RESULT.json to write")
+    p.add_argument("--frames", choices=("all", "each"), default="all",
+                   help="all: one extrinsic from every frame (fixed camera); each: per frame")
+    p.add_argument("--overlays", help="folder for per-frame overlays and a summary image")
+    p.add_argument("--loss", choices=("huber", "cauchy", "l2"), default="huber")
+    p.add_argument("--loss-scale-px", type=float, default=RobustLoss().scale_px)
+    p.add_argument("--seed", type=int, default=0, help="seed of the RANSAC sampling")
+
+    p = add("eval", cmd_eval, "score a RESULT.json against the data's ground truth")
+    data_args(p)
+    p.add_argument("--result", required=True, help="RESULT.json of dream calibrate")
+    p.add_argument("--out", required=True, help="METRICS.json to write")
+
+    p = add("sample", cmd_sample, "write the built-in keypoint-only synthetic sample")
+    p.add_argument("--out", required=True)
+    p.add_argument("--robot", default="panda")
+    p.add_argument("--num", type=int, default=20, help="frames")
+    p.add_argument("--noise-px", type=float, default=1.0)
+    p.add_argument("--outliers", type=float, default=0.0, help="fraction of random labels")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--overwrite", action="store_true")
+
+    p = add("demo", cmd_demo, "calibrate the built-in synthetic sample and report the error")
+    p.add_argument("--out", help="working folder (default: a new temporary folder)")
+    p.add_argument("--seed", type=int, default=0)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return args.func(args)
+    except DreamError as exc:
+        print(f"dream {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        print(f"dream {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

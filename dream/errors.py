@@ -1,0 +1,38 @@
+"""One exception hierarchy. Every message says what is wrong and what to do about it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class DreamError(Exception):
+    """Base class of every error the project raises on purpose.
+
+    The command line turns any `DreamError` into one line on stderr and a non-zero exit.
+    """
+
+
+class InputError(DreamError):
+    """A file or value given by the user is missing, unreadable or malformed.
+
+    Args:
+        problem: what is wrong, e.g. "joint 3 is NaN".
+        path: the file (or folder) concerned, when there is one.
+        fix: what the user should do, e.g. "write 7 finite joint angles in radians".
+    """
+
+    def __init__(self, problem: str, path: str | Path | None = None, fix: str | None = None):
+        self.problem = problem
+        self.path = None if path is None else Path(path)
+        self.fix = fix
+        where = f"{self.path}: " if self.path is not None else ""
+        how = f" Fix: {fix}" if fix else ""
+        super().__init__(f"{where}{problem.rstrip('.')}.{how}")
+
+
+class RobotError(DreamError):
+    """Unknown robot, unknown link or joint, or joint values that do not fit the robot."""
+
+
+class CalibrationError(DreamError):
+    """The calibration cannot be solved from the given observations (too few keypoints...)."""

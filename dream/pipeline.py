@@ -1,0 +1,127 @@
+"""Glue between a `Sequence`, a `Robot` and the solvers: observations, truth, evaluation."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+
+from dream.calibrate import CalibrationResult, Observations, calibrate_all, calibrate_each
+from dream.camera import project
+from dream.errors import InputError, RobotError
+from dream.metrics import (
+    ADD_AUC_STEP_M,
+    ADD_AUC_THRESHOLD_M,
+    MIN_INFRAME_KEYPOINTS,
+    PCK_AUC_STEP_PX,
+    PCK_AUC_THRESHOLD_PX,
+    add_per_frame,
+    auc,
+    keypoint_errors,
+    pose_errors,
+    summarise,
+)
+from dream.pnp import SolverSettings
+from dream.robot import Robot, load_robot
+from dream.sequence import Sequence
+from dream.transforms import transform_points
+
+log = logging.getLogger(__name__)
+
+
+def robot_for(sequence: Sequence, robot: str | None = None,
+              keypoints: tuple[str, ...] | None = None) -> Robot:
+    """The robot of a sequence (or the one named), with the given keypoints or its defaults."""
+    return load_robot(robot or sequence.robot, list(keypoints) if keypoints else None)
+
+
+def joints_in_robot_order(sequence: Sequence, robot: Robot) -> np.ndarray:
+    """(F, J) joints of the sequence reordered to the robot's joint names."""
+    try:
+        return robot.joints_from_named(list(sequence.joint_names), sequence.joints)
+    except RobotError as exc:
+        raise InputError(f"the data's joints do not fit robot '{robot.name}': {exc}",
+                         sequence.source) from None
+
+
+def observations_from_labels(sequence: Sequence, robot: Robot) -> Observations:
+    """Observations from the 2D labels; labels outside the image count as not observed."""
+    if not sequence.has_labels:
+        raise InputError("the data has no 2D keypoint labels (projected_location)",
+                         sequence.source, "use --model with a detector instead of --use-labels")
+    P_base = robot.forward_kinematics(joints_in_robot_order(sequence, robot))
+    uv = sequence.uv_labels()
+    uv = np.where(sequence.camera.in_image(uv)[..., None], uv, np.nan)
+    confidence = np.where(np.all(np.isfinite(uv), -1), 1.0, 0.0)
+    return Observations(P_base, uv, confidence, tuple(f.name for f in sequence.frames),
+                        robot.keypoint_names)
+
+
+def calibrate(sequence: Sequence, obs: Observations, mode: str = "all",
+              settings: SolverSettings | None = None) -> CalibrationResult:
+    if mode == "all":
+        return calibrate_all(obs, sequence.camera, settings)
+    if mode == "each":
+        return calibrate_each(obs, sequence.camera, settings)
+    raise InputError(f"unknown frames mode '{mode}'", fix="use --frames all or --frames each")
+
+
+def truth_poses(sequence: Sequence) -> np.ndarray:
+    """(F, 4, 4) ground-truth extrinsic per frame, NaN where the data has none."""
+    out = np.full((len(sequence), 4, 4), np.nan)
+    for i, frame in enumerate(sequence.frames):
+        T = sequence.T_cam_base_truth(frame)
+        if T is not None:
+            out[i] = T
+    return out
+
+
+def evaluate(sequence: Sequence, robot: Robot, result_doc: dict[str, Any]) -> dict[str, Any]:
+    """METRICS.json of `dream eval`: the result against the sequence's ground truth."""
+    if not sequence.has_ground_truth:
+        raise InputError("the data has no ground truth or reference extrinsic", sequence.source,
+                         "evaluate on data with location/quaternion_xyzw or a reference")
+    names = [f.name for f in sequence.frames]
+    by_name = {f["frame"]: f for f in result_doc.get("per_frame", [])}
+    mode = result_doc.get("frames_mode", "all")
+    T_true = truth_poses(sequence)
+    has_truth = np.all(np.isfinite(T_true.reshape(len(names), -1)), axis=1)
+    T_est = np.full((len(names), 4, 4), np.nan)
+    for i, name in enumerate(names):
+        if mode == "all":
+            T_est[i] = result_doc["T_cam_base"]
+        elif by_name.get(name, {}).get("T_cam_base") is not None:
+            T_est[i] = np.asarray(by_name[name]["T_cam_base"], dtype=float)
+    P_base = robot.forward_kinematics(joints_in_robot_order(sequence, robot))
+    T_true_safe = np.where(has_truth[:, None, None], T_true, np.eye(4))
+    uv_true = project(sequence.camera, transform_points(T_true_safe[:, None], P_base))
+    in_frame = sequence.camera.in_image(uv_true) & np.all(np.isfinite(uv_true), -1)
+    in_frame &= has_truth[:, None]
+    counted = in_frame.sum(1) >= MIN_INFRAME_KEYPOINTS
+    add = add_per_frame(P_base[has_truth], T_est[has_truth], T_true[has_truth])
+    add_counted = add[counted[has_truth]]
+    uv_det = np.full(uv_true.shape, np.nan)
+    kp_index = {k: j for j, k in enumerate(robot.keypoint_names)}
+    for i, name in enumerate(names):
+        for kp in by_name.get(name, {}).get("keypoints", []):
+            j = kp_index.get(kp.get("name"))
+            if j is not None and kp.get("uv") is not None:
+                uv_det[i, j] = kp["uv"]
+    kp_err = keypoint_errors(uv_det, uv_true, in_frame)
+    t_err, r_err = pose_errors(T_est[has_truth], T_true[has_truth])
+    solved = np.all(np.isfinite(T_est[has_truth].reshape(-1, 16)), axis=1)
+    return {
+        "frames": len(names),
+        "frames_with_truth": int(has_truth.sum()),
+        "frames_in_add_auc": int(counted.sum()),
+        "frames_mode": mode,
+        "add_m": summarise(add_counted),
+        "add_auc": auc(add_counted, ADD_AUC_THRESHOLD_M, ADD_AUC_STEP_M),
+        "add_auc_threshold_m": ADD_AUC_THRESHOLD_M,
+        "keypoint_l2_px": summarise(kp_err),
+        "pck_auc": auc(kp_err, PCK_AUC_THRESHOLD_PX, PCK_AUC_STEP_PX),
+        "pck_auc_threshold_px": PCK_AUC_THRESHOLD_PX,
+        "translation_error_m": summarise(np.where(solved, t_err, np.inf)),
+        "rotation_error_rad": summarise(np.where(solved, r_err, np.inf)),
+    }

@@ -1,0 +1,359 @@
+"""Perspective-n-point: initial pose by SQPnP, then robust Levenberg-Marquardt on SE(3).
+
+All functions take base-frame points `P_base` (N, 3) and observed pixels `uv` (N, 2) and return
+`T_cam_base`. A pose update is `P_cam = exp(delta_rot) R P_base + t + delta_t`, so the
+6-vector `xi = (delta_rot, delta_t)` lives in the camera frame: rotation in rad about the camera
+axes, translation in m along them. Covariances and sigmas use this order and these frames.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from dream.camera import CameraIntrinsics, pixels_to_normalized, project_with_jacobian
+from dream.errors import InputError
+from dream.transforms import R_from_rotvec, T_from_rotvec_t, make_T, skew
+
+log = logging.getLogger(__name__)
+
+MIN_KEYPOINTS = 4
+RAYLEIGH_MEDIAN = float(np.sqrt(2.0 * np.log(2.0)))  # median of |e| / sigma for 2D Gaussian e
+_DAMPING_FACTOR = 10.0   # LM lambda is multiplied / divided by this on a rejected / kept step
+_MIN_DAMPING = 1e-12
+_MAX_DAMPING = 1e12      # a step is given up when lambda exceeds this (converged)
+_TINY = 1e-300           # keeps the damping positive for a zero diagonal entry
+
+
+@dataclass(frozen=True)
+class RobustLoss:
+    """Robust loss on the pixel distance |e| of each keypoint.
+
+    kind: "huber" (quadratic up to `scale_px`, then linear), "cauchy" or "l2".
+    """
+
+    kind: str = "huber"
+    scale_px: float = 3.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("huber", "cauchy", "l2"):
+            raise InputError(f"unknown robust loss '{self.kind}'", fix="use huber, cauchy or l2")
+        if not (np.isfinite(self.scale_px) and self.scale_px > 0):
+            raise InputError(f"robust loss scale must be a positive number of pixels, got "
+                             f"{self.scale_px}")
+
+    def rho(self, r: np.ndarray) -> np.ndarray:
+        """Cost of distances r >= 0 (equals r^2 / 2 near zero)."""
+        k = self.scale_px
+        if self.kind == "l2":
+            return 0.5 * r * r
+        if self.kind == "huber":
+            return np.where(r <= k, 0.5 * r * r, k * (r - 0.5 * k))
+        return 0.5 * k * k * np.log1p((r / k) ** 2)
+
+    def weight(self, r: np.ndarray) -> np.ndarray:
+        """IRLS weight rho'(r) / r."""
+        k = self.scale_px
+        if self.kind == "l2":
+            return np.ones_like(r)
+        if self.kind == "huber":
+            return np.where(r <= k, 1.0, k / np.maximum(r, 1e-300))
+        return 1.0 / (1.0 + (r / k) ** 2)
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """Parameters of the pose solvers. Pixels unless named otherwise."""
+
+    loss: RobustLoss = field(default_factory=RobustLoss)
+    min_keypoints: int = MIN_KEYPOINTS
+    max_iterations: int = 100
+    step_tolerance: float = 1e-12       # stop when |xi| falls below (rad, m)
+    initial_damping: float = 1e-3       # Levenberg-Marquardt lambda, relative to diag(H)
+    collinear_ratio: float = 1e-3       # degenerate below: 2nd / 1st singular value of points
+    max_condition: float = 1e12         # degenerate above: condition number of J^T W J
+    ransac_hypotheses: int = 200        # random samples across frames (multi-frame solve)
+    ransac_sample_size: int = 6
+    ransac_threshold_px: float = 10.0   # MSAC truncation when ranking hypotheses
+    inlier_sigma_factor: float = 4.0    # keypoints beyond this many robust sigmas are outliers
+    min_inlier_threshold_px: float = 2.0
+    outlier_rounds: int = 3             # reject -> refit rounds
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.min_keypoints < MIN_KEYPOINTS:
+            raise InputError(f"min_keypoints must be >= {MIN_KEYPOINTS}")
+        if self.ransac_sample_size < MIN_KEYPOINTS:
+            raise InputError(f"ransac_sample_size must be >= {MIN_KEYPOINTS}")
+        for name in ("ransac_threshold_px", "inlier_sigma_factor", "min_inlier_threshold_px"):
+            if not getattr(self, name) > 0:
+                raise InputError(f"{name} must be positive")
+
+
+@dataclass(frozen=True)
+class NoSolution:
+    """A structured failure: why this set of observations gives no pose."""
+
+    reason: str
+
+
+@dataclass(frozen=True)
+class PoseFit:
+    """A refined pose and its fit.
+
+    Attributes:
+        T_cam_base: (4, 4) extrinsic.
+        residuals_px: (N, 2) projected minus observed pixels, NaN for unused (non-finite) input.
+        inlier: (N,) True for keypoints kept in the final fit.
+        weights: (N,) final weights (confidence x robust weight), 0 for outliers.
+        covariance: (6, 6) covariance of xi = (delta_rot rad, delta_t m), camera frame, scaled by
+            the residual variance.
+        rmse_px: RMS pixel distance over inliers.
+        iterations: LM iterations of the last refit.
+    """
+
+    T_cam_base: np.ndarray
+    residuals_px: np.ndarray
+    inlier: np.ndarray
+    weights: np.ndarray
+    covariance: np.ndarray
+    rmse_px: float
+    iterations: int
+
+    @property
+    def sigma_rotation_rad(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.covariance)[:3])
+
+    @property
+    def sigma_translation_m(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.covariance)[3:])
+
+    @property
+    def num_inliers(self) -> int:
+        return int(self.inlier.sum())
+
+
+def check_correspondences(P_base: np.ndarray, uv: np.ndarray,
+                           confidence: np.ndarray | None) -> tuple[np.ndarray, ...]:
+    P_base = np.asarray(P_base, dtype=float)
+    uv = np.asarray(uv, dtype=float)
+    if P_base.ndim != 2 or P_base.shape[1] != 3:
+        raise InputError(f"P_base has shape {P_base.shape}, expected (N, 3)")
+    if uv.shape != (len(P_base), 2):
+        raise InputError(f"uv has shape {uv.shape}, expected ({len(P_base)}, 2)")
+    if confidence is None:
+        confidence = np.ones(len(P_base))
+    confidence = np.asarray(confidence, dtype=float)
+    if confidence.shape != (len(P_base),):
+        raise InputError(f"confidence has shape {confidence.shape}, expected ({len(P_base)},)")
+    usable = np.all(np.isfinite(P_base), 1) & np.all(np.isfinite(uv), 1) & \
+        np.isfinite(confidence) & (confidence > 0)
+    return P_base, uv, confidence, usable
+
+
+def degeneracy(P_base: np.ndarray, settings: SolverSettings) -> str | None:
+    """Why these 3D points cannot fix a pose, or None when they can."""
+    if len(P_base) < settings.min_keypoints:
+        return (f"only {len(P_base)} usable keypoints, at least {settings.min_keypoints} "
+                f"are needed")
+    s = np.linalg.svd(P_base - P_base.mean(0), compute_uv=False)
+    if s[0] <= 0 or s[1] / s[0] < settings.collinear_ratio:
+        return "the keypoints are (nearly) collinear or coincident"
+    return None
+
+
+def initial_pose(P_base: np.ndarray, uv: np.ndarray,
+                 camera: CameraIntrinsics) -> np.ndarray | NoSolution:
+    """T_cam_base from SQPnP on undistorted normalised points (no refinement)."""
+    xy = pixels_to_normalized(camera, uv)
+    try:
+        ok, rvec, tvec = cv2.solvePnP(P_base.reshape(-1, 1, 3), xy.reshape(-1, 1, 2), np.eye(3),
+                                      None, flags=cv2.SOLVEPNP_SQPNP)
+    except cv2.error as exc:
+        return NoSolution(f"SQPnP failed ({str(exc).splitlines()[0]})")
+    if not ok or not np.all(np.isfinite(rvec)) or not np.all(np.isfinite(tvec)):
+        return NoSolution("SQPnP found no pose")
+    return T_from_rotvec_t(rvec.ravel(), tvec.ravel())
+
+
+def linearise(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
+               T: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Residuals (N, 2) and d residual / d xi (N, 2, 6); None if a point is behind the camera."""
+    RP = P_base @ T[:3, :3].T
+    P_cam = RP + T[:3, 3]
+    if np.any(P_cam[:, 2] <= 0):
+        return None
+    uv_hat, J_uv_P = project_with_jacobian(camera, P_cam)
+    J_P_xi = np.concatenate([-skew(RP), np.broadcast_to(np.eye(3), RP.shape + (3,))], axis=2)
+    return uv_hat - uv, J_uv_P @ J_P_xi
+
+
+def _cost(e: np.ndarray, confidence: np.ndarray, loss: RobustLoss) -> float:
+    return float(np.sum(confidence * loss.rho(np.linalg.norm(e, axis=1))))
+
+
+class _BehindCamera(Exception):
+    """Internal: the starting pose puts keypoints behind the camera."""
+
+
+def apply_increment(T: np.ndarray, xi: np.ndarray) -> np.ndarray:
+    """The update matching the Jacobians: P_cam = exp(xi_rot) R P_base + t + xi_t."""
+    return make_T(R_from_rotvec(xi[:3]) @ T[:3, :3], T[:3, 3] + xi[3:])
+
+
+def levenberg_marquardt(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
+                        T_init: np.ndarray, confidence: np.ndarray,
+                        settings: SolverSettings) -> tuple[np.ndarray, int]:
+    """Minimise sum_i c_i rho(|project(T P_i) - uv_i|) over T (IRLS inside LM).
+
+    Returns the optimum and the number of iterations. Inputs must be finite.
+    """
+    loss = settings.loss
+    T = T_init.copy()
+    lin = linearise(P_base, uv, camera, T)
+    if lin is None:
+        raise _BehindCamera()
+    e, J = lin
+    cost = _cost(e, confidence, loss)
+    lam = settings.initial_damping
+    iterations = 0
+    while iterations < settings.max_iterations:
+        iterations += 1
+        w = confidence * loss.weight(np.linalg.norm(e, axis=1))
+        H = np.einsum("n,nki,nkj->ij", w, J, J)
+        g = np.einsum("n,nki,nk->i", w, J, e)
+        improved = False
+        while lam < _MAX_DAMPING:
+            xi = np.linalg.solve(H + lam * np.diag(np.diag(H) + _TINY), -g)
+            T_new = apply_increment(T, xi)
+            lin_new = linearise(P_base, uv, camera, T_new)
+            new_cost = np.inf if lin_new is None else _cost(lin_new[0], confidence, loss)
+            if new_cost <= cost:
+                T, (e, J), cost = T_new, lin_new, new_cost
+                lam = max(lam / _DAMPING_FACTOR, _MIN_DAMPING)
+                improved = True
+                break
+            lam *= _DAMPING_FACTOR
+        if not improved or np.linalg.norm(xi) < settings.step_tolerance:
+            break
+    return T, iterations
+
+
+def covariance_at(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T: np.ndarray,
+                  weights: np.ndarray) -> tuple[np.ndarray, float]:
+    """Residual-scaled covariance (6, 6) of xi at T, and the condition number of J^T W J."""
+    lin = linearise(P_base, uv, camera, T)
+    if lin is None:
+        return np.full((6, 6), np.nan), np.inf
+    e, J = lin
+    H = np.einsum("n,nki,nkj->ij", weights, J, J)
+    dof = 2 * int(np.count_nonzero(weights)) - 6
+    s2 = float(np.sum(weights * np.sum(e * e, 1)) / dof) if dof > 0 else np.nan
+    cond = np.linalg.cond(H)
+    if not np.isfinite(cond):
+        return np.full((6, 6), np.nan), np.inf
+    return s2 * np.linalg.inv(H), float(cond)
+
+
+def fit_pose(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T_init: np.ndarray,
+             *, confidence: np.ndarray | None = None, inlier: np.ndarray | None = None,
+             settings: SolverSettings | None = None) -> PoseFit | NoSolution:
+    """Robust refinement from T_init with rounds of outlier rejection.
+
+    `inlier` (N,) optionally restricts the first round to a subset (e.g. RANSAC inliers).
+    Non-finite rows of P_base / uv and zero confidences are ignored.
+    """
+    settings = settings or SolverSettings()
+    P_base, uv, confidence, usable = check_correspondences(P_base, uv, confidence)
+    keep = usable if inlier is None else usable & np.asarray(inlier, bool)
+    T = np.asarray(T_init, dtype=float)
+    iterations = 0
+    for _ in range(settings.outlier_rounds + 1):
+        reason = degeneracy(P_base[keep], settings)
+        if reason is not None:
+            return NoSolution(reason)
+        try:
+            T, iterations = levenberg_marquardt(P_base[keep], uv[keep], camera, T,
+                                                confidence[keep], settings)
+        except _BehindCamera:
+            return NoSolution("the initial pose puts keypoints behind the camera")
+        lin = linearise(P_base[usable], uv[usable], camera, T)
+        if lin is None:
+            return NoSolution("the solution puts keypoints behind the camera")
+        dist = np.full(len(P_base), np.inf)
+        dist[usable] = np.linalg.norm(lin[0], axis=1)
+        sigma = np.median(dist[keep]) / RAYLEIGH_MEDIAN
+        threshold = max(settings.min_inlier_threshold_px, settings.inlier_sigma_factor * sigma)
+        new_keep = usable & (dist <= threshold)
+        if np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+    reason = degeneracy(P_base[keep], settings)
+    if reason is not None:
+        return NoSolution(reason)
+    weights = np.zeros(len(P_base))
+    weights[keep] = confidence[keep] * settings.loss.weight(dist[keep])
+    covariance, cond = covariance_at(P_base[keep], uv[keep], camera, T, weights[keep])
+    if cond > settings.max_condition:
+        return NoSolution(f"the pose is not determined by these keypoints (condition number "
+                          f"{cond:.1e})")
+    residuals = np.full((len(P_base), 2), np.nan)
+    residuals[usable] = linearise(P_base[usable], uv[usable], camera, T)[0]
+    rmse = float(np.sqrt(np.mean(np.sum(residuals[keep] ** 2, 1))))
+    return PoseFit(T, residuals, keep, weights, covariance, rmse, iterations)
+
+
+def solve_pnp(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, *,
+              confidence: np.ndarray | None = None,
+              settings: SolverSettings | None = None) -> PoseFit | NoSolution:
+    """Pose of one frame: SQPnP on all usable keypoints and on leave-one-out subsets (to survive
+    a wrong detection), the hypothesis with the lowest truncated cost refined robustly."""
+    settings = settings or SolverSettings()
+    P_base, uv, confidence, usable = check_correspondences(P_base, uv, confidence)
+    reason = degeneracy(P_base[usable], settings)
+    if reason is not None:
+        return NoSolution(reason)
+    idx = np.flatnonzero(usable)
+    subsets = [idx]
+    if len(idx) > settings.min_keypoints:
+        subsets += [np.delete(idx, i) for i in range(len(idx))]
+    hypotheses = []
+    for subset in subsets:
+        if degeneracy(P_base[subset], settings) is None:
+            T = initial_pose(P_base[subset], uv[subset], camera)
+            if not isinstance(T, NoSolution):
+                hypotheses.append(T)
+    return refine_best(P_base, uv, camera, hypotheses, confidence, usable, settings)
+
+
+def msac_score(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T: np.ndarray,
+               threshold_px: float) -> tuple[float, np.ndarray]:
+    """Truncated squared error (lower is better) and the inlier mask of a hypothesis."""
+    P_cam = P_base @ T[:3, :3].T + T[:3, 3]
+    front = P_cam[:, 2] > 0
+    d2 = np.full(len(P_base), np.inf)
+    if np.any(front):
+        uv_hat, _ = project_with_jacobian(camera, P_cam[front])
+        d2[front] = np.sum((uv_hat - uv[front]) ** 2, 1)
+    inlier = d2 <= threshold_px ** 2
+    return float(np.sum(np.minimum(d2, threshold_px ** 2))), inlier
+
+
+def refine_best(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
+                hypotheses: list[np.ndarray], confidence: np.ndarray, usable: np.ndarray,
+                settings: SolverSettings) -> PoseFit | NoSolution:
+    """Rank hypotheses by MSAC score over the usable keypoints and refine the best one."""
+    if not hypotheses:
+        return NoSolution("no initial pose could be found")
+    scored = [(msac_score(P_base[usable], uv[usable], camera, T, settings.ransac_threshold_px), i)
+              for i, T in enumerate(hypotheses)]
+    (_, inlier_usable), best = min(scored, key=lambda s: s[0][0])
+    inlier = np.zeros(len(P_base), bool)
+    inlier[np.flatnonzero(usable)[inlier_usable]] = True
+    if inlier.sum() < settings.min_keypoints:
+        inlier = usable
+    return fit_pose(P_base, uv, camera, hypotheses[best], confidence=confidence, inlier=inlier,
+                    settings=settings)

@@ -1,0 +1,110 @@
+"""Where robot description files live: example-robot-data's share folder and `package://` URIs.
+
+example-robot-data is installed by pip as a cmeel package: its files are under
+`<site-packages>/cmeel.prefix/share/example-robot-data/...`, and a URI `package://X/rest` of its
+URDFs names `cmeel.prefix/share/X/rest`. The folder is found by searching the import path, never
+through a hard-coded site-packages path.
+"""
+
+from __future__ import annotations
+
+import functools
+import site
+import sys
+from pathlib import Path
+
+from dream.errors import InputError
+
+CMEEL_PREFIX = "cmeel.prefix"
+ROBOT_DATA_PACKAGE = "example-robot-data"
+PACKAGE_SCHEME = "package://"
+FILE_SCHEME = "file://"
+
+
+def _candidate_site_dirs() -> list[Path]:
+    """Folders that may hold `cmeel.prefix`: the import path and the site-packages folders."""
+    dirs: list[str] = list(sys.path)
+    try:
+        dirs += site.getsitepackages()
+    except AttributeError:  # some embedded interpreters have no getsitepackages
+        pass
+    dirs.append(site.getusersitepackages())
+    seen: list[Path] = []
+    for d in dirs:
+        if d and Path(d) not in seen:
+            seen.append(Path(d))
+    return seen
+
+
+@functools.lru_cache(maxsize=1)
+def share_dir() -> Path:
+    """The cmeel `share` folder that holds example-robot-data (one folder per ROS package).
+
+    Raises:
+        InputError: example-robot-data is not installed in this interpreter's environment.
+    """
+    for d in _candidate_site_dirs():
+        # cmeel puts its own site-packages (cmeel.prefix/lib/pythonX.Y/site-packages) on sys.path
+        for base in (d, *d.parents[:4]):
+            share = base / CMEEL_PREFIX / "share"
+            if (share / ROBOT_DATA_PACKAGE).is_dir():
+                return share
+    raise InputError(f"the {ROBOT_DATA_PACKAGE} robot models are not installed",
+                     fix="pip install example-robot-data")
+
+
+def robot_data_dir() -> Path:
+    """example-robot-data's own folder: `<share>/example-robot-data` (holds `robots/...`)."""
+    return share_dir() / ROBOT_DATA_PACKAGE
+
+
+def resolve_resource(uri: str, urdf_path: str | Path, must_exist: bool = True) -> Path:
+    """The file a URDF's resource reference (mesh filename) names.
+
+    `package://X/rest` is looked up in an ancestor folder of the URDF named X (the usual ROS
+    source layout), then in the cmeel share folder (`<share>/X/rest`). `file://` and absolute
+    paths are taken as they are; anything else is relative to the URDF's folder.
+
+    Args:
+        uri: the reference as written in the URDF.
+        urdf_path: the URDF file that contains it.
+        must_exist: raise when the file does not exist (else return the best candidate).
+
+    Raises:
+        InputError: the file does not exist (when `must_exist`), or the URI is malformed.
+    """
+    urdf_path = Path(urdf_path)
+    candidates: list[Path] = []
+    if uri.startswith(PACKAGE_SCHEME):
+        package, _, rest = uri[len(PACKAGE_SCHEME):].partition("/")
+        if not package or not rest:
+            raise InputError(f"malformed resource URI '{uri}'", urdf_path,
+                             fix="write package://PACKAGE/path/to/file")
+        candidates += [parent / rest for parent in urdf_path.resolve().parents
+                       if parent.name == package]
+        try:
+            candidates.append(share_dir() / package / rest)
+        except InputError:
+            pass  # no example-robot-data: only the URDF's own tree can hold the package
+    elif uri.startswith(FILE_SCHEME):
+        candidates.append(Path(uri[len(FILE_SCHEME):]))
+    else:
+        candidates.append(Path(uri) if Path(uri).is_absolute() else urdf_path.parent / uri)
+    for c in candidates:
+        if c.is_file():
+            return c
+    if must_exist or not candidates:
+        raise InputError(f"resource '{uri}' not found (looked in: "
+                         f"{', '.join(str(c) for c in candidates) or 'nowhere'})", urdf_path,
+                         fix="install the package that holds it or fix the path in the URDF")
+    return candidates[-1]
+
+
+def filename_handler(urdf_path: str | Path):
+    """A `filename_handler` for `yourdfpy.URDF.load` that resolves as `resolve_resource` does."""
+    urdf_path = Path(urdf_path)
+
+    def handler(fname: str) -> str:
+        return str(resolve_resource(fname, urdf_path, must_exist=False))
+
+    return handler

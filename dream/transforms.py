@@ -1,0 +1,143 @@
+"""Rigid transforms named with their frames (pytransform3d style).
+
+`T_a_b` is a 4x4 homogeneous matrix mapping points in frame b to frame a: `P_a = T_a_b @ P_b`.
+Rotations are stored as 3x3 matrices; `rotvec` is a Rodrigues vector (axis * angle, rad);
+quaternions are `[x, y, z, w]` (`quaternion_xyzw`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from dream.errors import InputError
+
+WORLD_UP = np.array([0.0, 0.0, 1.0])  # robot base z axis points up
+
+
+def _check_shape(name: str, a: np.ndarray, shape_tail: tuple[int, ...]) -> np.ndarray:
+    a = np.asarray(a, dtype=float)
+    if a.ndim < len(shape_tail) or a.shape[a.ndim - len(shape_tail):] != shape_tail:
+        raise InputError(f"{name} has shape {a.shape}, expected (..., {shape_tail})")
+    return a
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrices of vectors, shape (..., 3) -> (..., 3, 3)."""
+    v = _check_shape("v", v, (3,))
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
+                     np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+
+
+def R_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
+    """Rodrigues vectors (..., 3) -> rotation matrices (..., 3, 3)."""
+    rotvec = _check_shape("rotvec", rotvec, (3,))
+    return Rotation.from_rotvec(rotvec.reshape(-1, 3)).as_matrix().reshape(rotvec.shape + (3,))
+
+
+def rotvec_from_R(R: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) -> Rodrigues vectors (..., 3), angle in [0, pi]."""
+    R = _check_shape("R", R, (3, 3))
+    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-1])
+
+
+def quaternion_xyzw_from_R(R: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) -> unit quaternions [x, y, z, w] with w >= 0."""
+    R = _check_shape("R", R, (3, 3))
+    q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()
+    q = np.where(q[:, 3:4] < 0, -q, q)
+    return q.reshape(R.shape[:-2] + (4,))
+
+
+def R_from_quaternion_xyzw(quaternion_xyzw: np.ndarray) -> np.ndarray:
+    """Quaternions [x, y, z, w] (..., 4), normalised here -> rotation matrices (..., 3, 3)."""
+    q = _check_shape("quaternion_xyzw", quaternion_xyzw, (4,))
+    norm = np.linalg.norm(q, axis=-1)
+    if not np.all(np.isfinite(q)) or np.any(norm < 1e-12):
+        raise InputError("quaternion_xyzw must be finite and non-zero")
+    return Rotation.from_quat(q.reshape(-1, 4)).as_matrix().reshape(q.shape[:-1] + (3, 3))
+
+
+def make_T(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Homogeneous transforms (..., 4, 4) from rotations (..., 3, 3) and translations (..., 3)."""
+    R = _check_shape("R", R, (3, 3))
+    t = _check_shape("t", t, (3,))
+    T = np.zeros(np.broadcast_shapes(R.shape[:-2], t.shape[:-1]) + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = t
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def T_from_rotvec_t(rotvec: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Pose from a Rodrigues vector and a translation (OpenCV's rvec, tvec)."""
+    return make_T(R_from_rotvec(rotvec), t)
+
+
+def rotvec_t_from_T(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rotvec, t) of a pose (..., 4, 4)."""
+    T = _check_shape("T", T, (4, 4))
+    return rotvec_from_R(T[..., :3, :3]), T[..., :3, 3].copy()
+
+
+def T_from_quaternion_xyzw_t(quaternion_xyzw: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Pose from a quaternion [x, y, z, w] and a translation."""
+    return make_T(R_from_quaternion_xyzw(quaternion_xyzw), t)
+
+
+def invert_T(T_a_b: np.ndarray) -> np.ndarray:
+    """T_b_a from T_a_b, shape (..., 4, 4)."""
+    T_a_b = _check_shape("T_a_b", T_a_b, (4, 4))
+    R_t = np.swapaxes(T_a_b[..., :3, :3], -1, -2)
+    return make_T(R_t, -np.einsum("...ij,...j->...i", R_t, T_a_b[..., :3, 3]))
+
+
+def compose(T_a_b: np.ndarray, T_b_c: np.ndarray) -> np.ndarray:
+    """T_a_c = T_a_b @ T_b_c (broadcasting over leading axes)."""
+    return _check_shape("T_a_b", T_a_b, (4, 4)) @ _check_shape("T_b_c", T_b_c, (4, 4))
+
+
+def transform_points(T_a_b: np.ndarray, P_b: np.ndarray) -> np.ndarray:
+    """P_a = R P_b + t for points (..., 3); T_a_b (4, 4) or broadcastable (..., 4, 4)."""
+    T_a_b = _check_shape("T_a_b", T_a_b, (4, 4))
+    P_b = _check_shape("P_b", P_b, (3,))
+    if T_a_b.ndim == 2:
+        return P_b @ T_a_b[:3, :3].T + T_a_b[:3, 3]
+    return np.einsum("...ij,...j->...i", T_a_b[..., :3, :3], P_b) + T_a_b[..., :3, 3]
+
+
+def is_rigid(T: np.ndarray, atol: float = 1e-6) -> bool:
+    """True when T is a finite 4x4 homogeneous transform with an orthonormal, det +1 rotation."""
+    T = np.asarray(T, dtype=float)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        return False
+    R = T[:3, :3]
+    return (np.allclose(R @ R.T, np.eye(3), atol=atol) and abs(np.linalg.det(R) - 1) < atol
+            and np.allclose(T[3], [0, 0, 0, 1], atol=atol))
+
+
+def rotation_angle_between(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
+    """Geodesic angle (rad) between rotations (..., 3, 3)."""
+    R_rel = np.swapaxes(R_a, -1, -2) @ R_b
+    cos = (np.trace(R_rel, axis1=-2, axis2=-1) - 1.0) / 2.0
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
+def look_at(position_base: np.ndarray, target_base: np.ndarray, roll_rad: float = 0.0,
+            up_base: np.ndarray = WORLD_UP) -> np.ndarray:
+    """T_cam_base of a camera at `position_base` whose optical axis passes through
+    `target_base`, image 'up' towards `up_base`, then rolled about the optical axis."""
+    z = np.asarray(target_base, float) - np.asarray(position_base, float)
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up_base)
+    if np.linalg.norm(x) < 1e-9:
+        raise InputError("the camera looks straight along the up direction",
+                         fix="move the camera or change up_base")
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    c, s = np.cos(roll_rad), np.sin(roll_rad)
+    x, y = c * x + s * y, -s * x + c * y
+    T_base_cam = make_T(np.stack([x, y, z], axis=1), np.asarray(position_base, float))
+    return invert_T(T_base_cam)

@@ -1,0 +1,1 @@
+"""ONNX export and torch-free onnxruntime inference (issue 5)."""

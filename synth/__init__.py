@@ -1,0 +1,1 @@
+"""Domain-randomised MuJoCo renders of URDF arms, written in the DREAM layout (issue 3)."""

@@ -1,0 +1,156 @@
+"""End to end through the command line: sample -> calibrate -> eval, real data, bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dream.camera import project
+from dream.cli import main
+from dream.io import read_sequence, write_dream
+from dream.metrics import pose_errors
+from dream.robot import load_robot
+from dream.transforms import transform_points
+
+
+def run(argv: list[str], capsys) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def sample_dir(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("sample") / "data"
+    assert main(["sample", "--out", str(out), "--num", "15", "--outliers", "0.1",
+                 "--seed", "3"]) == 0
+    return out
+
+
+def test_sample_calibrate_eval_end_to_end(sample_dir, tmp_path, capsys):
+    result = tmp_path / "result.json"
+    code, out, err = run(["calibrate", "--data", sample_dir, "--use-labels", "--out", result],
+                         capsys)
+    assert code == 0, err
+    assert "error vs ground truth" in out
+    doc = json.loads(result.read_text())
+    for key in ("T_cam_base", "translation_m", "quaternion_xyzw", "rmse_px", "frames_used",
+                "keypoints_used", "sigma_translation_m", "sigma_rotation_rad", "per_frame"):
+        assert key in doc
+    assert doc["frames_used"] == 15 and len(doc["per_frame"]) == 15
+    kp = doc["per_frame"][0]["keypoints"][0]
+    assert set(kp) == {"name", "uv", "confidence", "inlier"}
+    truth = read_sequence(sample_dir).T_cam_base_reference
+    t_err, r_err = pose_errors(np.array(doc["T_cam_base"]), truth)
+    assert t_err < 3 * np.linalg.norm(doc["sigma_camera_position_base_m"]) + 1e-4
+    metrics_path = tmp_path / "metrics.json"
+    code, out, err = run(["eval", "--data", sample_dir, "--result", result, "--out",
+                          metrics_path], capsys)
+    assert code == 0, err
+    metrics = json.loads(metrics_path.read_text())
+    assert metrics["add_auc"] > 0.9
+    assert metrics["translation_error_m"]["median"] == pytest.approx(t_err)
+    assert 0.5 < metrics["keypoint_l2_px"]["median"] < 2.0  # 1 px noise per axis
+    # each mode: every frame alone
+    code, _, err = run(["calibrate", "--data", sample_dir, "--use-labels", "--frames", "each",
+                        "--out", tmp_path / "each.json"], capsys)
+    assert code == 0, err
+    each = json.loads((tmp_path / "each.json").read_text())
+    assert each["frames_mode"] == "each"
+    solved = [np.array(f["T_cam_base"]) for f in each["per_frame"] if f["T_cam_base"]]
+    unsolved = [f for f in each["per_frame"] if not f["T_cam_base"]]
+    assert len(solved) >= 8 and all("no_solution_reason" in f for f in unsolved)
+    assert np.median([pose_errors(T, truth)[0] for T in solved]) < 0.05
+
+
+def test_overlays_are_written_for_keypoint_only_data(sample_dir, tmp_path, capsys):
+    code, _, err = run(["calibrate", "--data", sample_dir, "--use-labels", "--out",
+                        tmp_path / "r.json", "--overlays", tmp_path / "ov"], capsys)
+    assert code == 0, err
+    assert (tmp_path / "ov" / "summary.png").is_file()
+    assert len(list((tmp_path / "ov").glob("*.result.png"))) == 15
+
+
+def test_panda_teleop_recovers_its_reference_from_projected_labels(realdata, tmp_path, capsys):
+    seq = read_sequence(realdata / "panda_teleop")
+    robot = load_robot("panda")
+    q = robot.joints_from_named(list(seq.joint_names), seq.joints)
+    T_ref = seq.T_cam_base_reference
+    uv = project(seq.camera, transform_points(T_ref, robot.forward_kinematics(q)))
+    # Every keypoint of every frame lies inside the image with the reference extrinsic.
+    assert seq.camera.in_image(uv).all()
+    labelled = replace(seq, keypoint_names=robot.keypoint_names, frames=tuple(
+        replace(f, uv_labels=uv[i], image_path=None, mask_path=None)
+        for i, f in enumerate(seq.frames)))
+    data = tmp_path / "teleop_labels"
+    write_dream(labelled, data)
+    code, out, err = run(["calibrate", "--data", data, "--use-labels", "--out",
+                          tmp_path / "r.json"], capsys)
+    assert code == 0, err
+    T = np.array(json.loads((tmp_path / "r.json").read_text())["T_cam_base"])
+    t_err, r_err = pose_errors(T, T_ref)
+    assert t_err < 1e-9 and r_err < 1e-9
+
+
+def test_overlay_on_panda_teleop(realdata, tmp_path, capsys):
+    code, out, err = run(["overlay", realdata / "panda_teleop", "--out", tmp_path, "--limit",
+                          "3"], capsys)
+    assert code == 0, err
+    assert len(list(tmp_path.glob("*.png"))) == 3
+
+
+def test_info_and_robots(realdata, capsys):
+    code, out, _ = run(["info", realdata / "panda_teleop"], capsys)
+    assert code == 0 and "275 frames" in out and "reference extrinsic: yes" in out
+    code, out, _ = run(["robots"], capsys)
+    assert code == 0 and all(name in out for name in ("panda", "ur5", "xarm7"))
+
+
+def _one_error_line(code: int, err: str) -> str:
+    assert code != 0
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+def test_bad_input_gives_one_line_and_no_output(sample_dir, tmp_path, capsys):
+    result = tmp_path / "r.json"
+    line = _one_error_line(*run(["calibrate", "--data", tmp_path / "missing", "--use-labels",
+                                 "--out", result], capsys)[::2])
+    assert "missing" in line
+    # NaN joints in one frame file
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    for f in sample_dir.iterdir():
+        (bad / f.name).write_bytes(f.read_bytes())
+    doc = json.loads((bad / "000004.json").read_text())
+    doc["sim_state"]["joints"][2]["position"] = "nan"
+    (bad / "000004.json").write_text(json.dumps(doc))
+    line = _one_error_line(*run(["calibrate", "--data", bad, "--use-labels", "--out", result],
+                                capsys)[::2])
+    assert "000004.json" in line
+    line = _one_error_line(*run(["calibrate", "--data", sample_dir, "--use-labels", "--robot",
+                                 "nosuchbot", "--out", result], capsys)[::2])
+    assert "nosuchbot" in line
+    assert not result.exists()
+
+
+def test_console_script_runs_as_a_process(sample_dir, tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "dream.cli", "calibrate", "--data",
+                           str(sample_dir), "--use-labels", "--robot", "ur5", "--out",
+                           str(tmp_path / "r.json")], capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+
+
+def test_demo(tmp_path, capsys):
+    code, out, err = run(["demo", "--out", tmp_path], capsys)
+    assert code == 0, err
+    assert "error vs ground truth" in out and "1-sigma" in out

@@ -1,0 +1,132 @@
+"""Random pose -> project -> solve -> compare, single and multi-frame, with noise and outliers."""
+
+import numpy as np
+import pytest
+from scenes import CAMERA, random_scene
+
+from dream.calibrate import Observations, calibrate_all, calibrate_each
+from dream.crb import extrinsic_crb
+from dream.errors import CalibrationError
+from dream.pnp import NoSolution, PoseFit, SolverSettings, solve_pnp
+from dream.transforms import rotvec_from_R
+
+DISTORTED = CAMERA.with_distortion((0.12, -0.2, 0.001, -0.002, 0.05))
+
+
+def xi_error(T_est: np.ndarray, T_true: np.ndarray) -> np.ndarray:
+    """xi = (rot, trans) such that T_true = (exp(rot) R_est, t_est + trans)."""
+    return np.concatenate([rotvec_from_R(T_true[:3, :3] @ T_est[:3, :3].T),
+                           T_true[:3, 3] - T_est[:3, 3]])
+
+
+@pytest.mark.parametrize("camera", [CAMERA, DISTORTED])
+def test_single_frame_exact_without_noise(camera, rng):
+    for _ in range(20):
+        obs, T, _ = random_scene(rng, 1, keypoints=7, camera=camera)
+        fit = solve_pnp(obs.P_base[0], obs.uv[0], camera)
+        assert isinstance(fit, PoseFit)
+        assert np.abs(xi_error(fit.T_cam_base, T)).max() < 1e-9
+        assert fit.rmse_px < 1e-8
+
+
+@pytest.mark.parametrize("camera", [CAMERA, DISTORTED])
+def test_multi_frame_exact_without_noise(camera, rng):
+    for _ in range(5):
+        obs, T, _ = random_scene(rng, 10, camera=camera)
+        result = calibrate_all(obs, camera)
+        assert np.abs(xi_error(result.fit.T_cam_base, T)).max() < 1e-9
+        assert result.fit.num_inliers == 70
+
+
+def test_noisy_errors_are_within_the_cramer_rao_bound(rng):
+    # Mahalanobis distance of the error under the CRB: E[e^T CRB^-1 e] = 6 for an efficient
+    # estimator; allow sampling spread of 40 trials.
+    for frames in (1, 20):
+        d2 = []
+        for _ in range(40):
+            obs, T, _ = random_scene(rng, frames, noise_px=1.0)
+            result = calibrate_all(obs, CAMERA, SolverSettings(ransac_hypotheses=20))
+            crb = extrinsic_crb(obs.P_base.reshape(-1, 3), CAMERA, T, 1.0)
+            e = xi_error(result.fit.T_cam_base, T)
+            d2.append(e @ np.linalg.solve(crb, e))
+        ratio = np.mean(d2) / 6.0
+        assert ratio < 1.5, (frames, ratio)
+
+
+def test_thirty_percent_outliers_stay_within_twice_the_clean_error(rng):
+    clean, dirty = [], []
+    for trial in range(15):
+        seed = 1000 + trial
+        obs, T, _ = random_scene(np.random.default_rng(seed), 20, noise_px=1.0)
+        obs_bad, T_bad, _ = random_scene(np.random.default_rng(seed), 20, noise_px=1.0,
+                                         outlier_fraction=0.3)
+        assert np.allclose(T, T_bad)
+        clean.append(np.linalg.norm(xi_error(calibrate_all(obs, CAMERA).fit.T_cam_base, T)[3:]))
+        bad = calibrate_all(obs_bad, CAMERA)
+        dirty.append(np.linalg.norm(xi_error(bad.fit.T_cam_base, T)[3:]))
+        # the random pixels are rejected, the true keypoints kept
+        assert bad.fit.num_inliers <= 0.8 * 140
+    assert np.sqrt(np.mean(np.square(dirty))) <= 2.0 * np.sqrt(np.mean(np.square(clean)))
+
+
+def test_wrong_detection_in_a_single_frame_is_rejected(rng):
+    obs, T, _ = random_scene(rng, 1, keypoints=7, noise_px=0.5)
+    uv = obs.uv[0].copy()
+    uv[3] += [80.0, -60.0]
+    fit = solve_pnp(obs.P_base[0], uv, CAMERA)
+    assert isinstance(fit, PoseFit)
+    assert not fit.inlier[3] and fit.inlier.sum() == 6
+    assert np.linalg.norm(fit.T_cam_base[:3, 3] - T[:3, 3]) < 0.05
+
+
+def test_too_few_and_degenerate_keypoints_give_no_solution(rng):
+    obs, _, _ = random_scene(rng, 1, keypoints=7)
+    uv = obs.uv[0].copy()
+    uv[3:] = np.nan
+    result = solve_pnp(obs.P_base[0], uv, CAMERA)
+    assert isinstance(result, NoSolution) and "3 usable keypoints" in result.reason
+    line = np.outer(np.linspace(0, 1, 6), [0.1, 0.2, 0.3])
+    result = solve_pnp(line, np.full((6, 2), 100.0), CAMERA)
+    assert isinstance(result, NoSolution) and "collinear" in result.reason
+
+
+def test_multi_frame_with_three_keypoints_per_frame_still_solves(rng):
+    # No frame can be solved alone, yet all frames together fix the pose.
+    obs, T, _ = random_scene(rng, 10, keypoints=3, noise_px=0.0)
+    result = calibrate_all(obs, CAMERA)
+    assert all(isinstance(f.fit, NoSolution) for f in result.frames)
+    assert np.abs(xi_error(result.fit.T_cam_base, T)).max() < 1e-9
+
+
+def test_calibrate_with_nothing_usable_raises(rng):
+    obs, _, _ = random_scene(rng, 3)
+    empty = Observations(obs.P_base, np.full(obs.uv.shape, np.nan), obs.confidence,
+                         obs.frame_names, obs.keypoint_names)
+    with pytest.raises(CalibrationError, match="usable keypoints"):
+        calibrate_all(empty, CAMERA)
+    with pytest.raises(CalibrationError):
+        calibrate_each(empty, CAMERA)
+
+
+def test_each_mode_solves_every_frame(rng):
+    obs, T, _ = random_scene(rng, 5, noise_px=0.0)
+    result = calibrate_each(obs, CAMERA)
+    for i in range(5):
+        assert np.allclose(result.T_cam_base_of_frame(i), T, atol=1e-9)
+
+
+def test_confidence_weights_downweight_bad_keypoints(rng):
+    obs, T, _ = random_scene(rng, 10, noise_px=0.0)
+    uv = obs.uv.copy()
+    uv[:, 0] += 1.2  # a biased keypoint, inside the 2 px minimum inlier threshold
+    conf = np.ones(obs.confidence.shape)
+    conf[:, 0] = 1e-3
+    biased = Observations(obs.P_base, uv, np.ones_like(conf), obs.frame_names,
+                          obs.keypoint_names)
+    weighted = Observations(obs.P_base, uv, conf, obs.frame_names, obs.keypoint_names)
+    fit_biased = calibrate_all(biased, CAMERA).fit
+    fit_weighted = calibrate_all(weighted, CAMERA).fit
+    assert fit_biased.inlier.reshape(10, 7)[:, 0].sum() >= 8  # mostly kept: it drags the fit
+    e_biased = np.linalg.norm(xi_error(fit_biased.T_cam_base, T))
+    e_weighted = np.linalg.norm(xi_error(fit_weighted.T_cam_base, T))
+    assert e_weighted < 0.5 * e_biased

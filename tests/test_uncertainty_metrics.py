@@ -1,0 +1,87 @@
+import numpy as np
+import pytest
+from scenes import CAMERA, random_scene
+from test_pnp import xi_error
+
+from dream.calibrate import calibrate_all
+from dream.crb import extrinsic_crb
+from dream.errors import CalibrationError, InputError
+from dream.metrics import add_per_frame, auc, keypoint_errors, pose_errors
+from dream.pnp import SolverSettings
+from dream.result import camera_position_covariance
+from dream.transforms import T_from_rotvec_t, invert_T
+
+Z95 = 1.959964
+
+
+def test_95_percent_intervals_cover_the_truth_90_to_98_percent_of_the_time():
+    rng = np.random.default_rng(7)
+    covered, coverage_c = [], []
+    for _ in range(120):
+        obs, T, _ = random_scene(rng, 5, noise_px=rng.uniform(0.5, 2.0))
+        fit = calibrate_all(obs, CAMERA, SolverSettings(ransac_hypotheses=10)).fit
+        e = xi_error(fit.T_cam_base, T)
+        sigma = np.sqrt(np.diag(fit.covariance))
+        covered.extend(np.abs(e) <= Z95 * sigma)
+        # the camera position in the base frame, propagated
+        c_err = invert_T(fit.T_cam_base)[:3, 3] - invert_T(T)[:3, 3]
+        sigma_c = np.sqrt(np.diag(camera_position_covariance(fit.T_cam_base, fit.covariance)))
+        coverage_c.extend(np.abs(c_err) <= Z95 * sigma_c)
+    assert 0.90 <= np.mean(covered) <= 0.98, np.mean(covered)
+    assert 0.90 <= np.mean(coverage_c) <= 0.98, np.mean(coverage_c)
+
+
+def test_crb_matches_monte_carlo_covariance():
+    rng = np.random.default_rng(3)
+    obs, T, uv_true = random_scene(rng, 10, noise_px=0.0)
+    crb = extrinsic_crb(obs.P_base.reshape(-1, 3), CAMERA, T, 1.0)
+    errors = []
+    for _ in range(150):
+        noisy = type(obs)(obs.P_base, uv_true + rng.normal(0, 1.0, uv_true.shape),
+                          obs.confidence, obs.frame_names, obs.keypoint_names)
+        fit = calibrate_all(noisy, CAMERA, SolverSettings(ransac_hypotheses=0)).fit
+        errors.append(xi_error(fit.T_cam_base, T))
+    mc = np.cov(np.array(errors).T)
+    ratio = np.diag(mc) / np.diag(crb)
+    assert np.all((ratio > 0.7) & (ratio < 1.4)), ratio
+
+
+def test_crb_rejects_unidentifiable_scenes():
+    P = np.outer(np.linspace(0.1, 1, 5), [1.0, 0.5, 0.2])
+    with pytest.raises(CalibrationError):
+        extrinsic_crb(P, CAMERA, T_from_rotvec_t(np.zeros(3), [0, 0, 3.0]), 1.0)
+    with pytest.raises(InputError):
+        extrinsic_crb(P, CAMERA, np.eye(4), 0.0)
+
+
+def test_auc_follows_dreams_definition():
+    # All values at 0: AUC 1. All at half the range: the curve is 0 then 1 -> about 0.5.
+    assert auc(np.zeros(10), 0.1, 1e-5) == pytest.approx(1.0, abs=1e-4)
+    assert auc(np.full(10, 0.05), 0.1, 1e-5) == pytest.approx(0.5, abs=1e-3)
+    assert auc(np.array([np.inf] * 5), 0.1, 1e-5) == 0.0
+    # Uniform values on [0, 0.1]: the accuracy curve is the identity -> 0.5
+    assert auc(np.linspace(0, 0.1, 10001), 0.1, 1e-5) == pytest.approx(0.5, abs=1e-3)
+    # a failure halves the curve
+    assert auc(np.array([0.0, np.inf]), 0.1, 1e-5) == pytest.approx(0.5, abs=1e-4)
+    with pytest.raises(InputError):
+        auc(np.array([np.nan]), 0.1, 1e-5)
+
+
+def test_add_and_pose_errors():
+    P = np.array([[[0.0, 0, 0], [0.1, 0, 0], [0, 0.2, 0.3]]] * 2)
+    T = T_from_rotvec_t(np.array([0.1, 0.2, 0.3]), np.array([0.1, 0, 1.5]))
+    shifted = T.copy()
+    shifted[:3, 3] += [0.003, 0.004, 0.0]  # 5 mm everywhere
+    add = add_per_frame(P, np.stack([shifted, np.full((4, 4), np.nan)]), np.stack([T, T]))
+    assert add[0] == pytest.approx(0.005) and add[1] == np.inf
+    t_err, r_err = pose_errors(shifted, T)
+    assert t_err == pytest.approx(0.005) and r_err == pytest.approx(0.0, abs=1e-7)
+    rotated = T_from_rotvec_t(np.array([0, 0, 0.01]), np.zeros(3)) @ T
+    assert pose_errors(rotated, T)[1] == pytest.approx(0.01)
+
+
+def test_keypoint_errors_count_missing_detections_as_failures():
+    uv_true = np.zeros((1, 3, 2))
+    uv_det = np.array([[[3.0, 4.0], [np.nan, np.nan], [100.0, 0.0]]])
+    d = keypoint_errors(uv_det, uv_true, np.array([[True, True, False]]))
+    assert d.tolist() == [5.0, np.inf]

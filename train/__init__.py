@@ -1,0 +1,1 @@
+"""Keypoint belief-map network and its Lightning training (issue 4)."""
