@@ -22,19 +22,20 @@ EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 
 
-def _parse_intrinsics(text: str | None) -> CameraIntrinsics | None:
-    """'fx,fy,cx,cy,width,height' (size optional: taken from the images)."""
+def _parse_intrinsics(text: str | None) -> CameraIntrinsics | tuple[float, ...] | None:
+    """'fx,fy,cx,cy' (size from the images) or 'fx,fy,cx,cy,width,height'."""
     if text is None:
         return None
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError:
-        values = []
-    if len(values) not in (4, 6):
-        raise InputError(f"--intrinsics '{text}' is not fx,fy,cx,cy[,width,height]")
-    if len(values) == 4:
-        values += [1, 1]  # size placeholder; the reader replaces it with the image size
-    return CameraIntrinsics(*values[:4], int(values[4]), int(values[5]))
+    from dream.io import parse_intrinsics_text
+
+    parts = text.split(",")
+    if len(parts) == 6:
+        try:
+            w, h = int(parts[4]), int(parts[5])
+        except ValueError:
+            raise InputError(f"--intrinsics '{text}': width and height must be integers") from None
+        return CameraIntrinsics(*parse_intrinsics_text(",".join(parts[:4])), w, h)
+    return parse_intrinsics_text(text)
 
 
 def _read(args: argparse.Namespace):
@@ -108,8 +109,9 @@ def _settings(args: argparse.Namespace) -> SolverSettings:
 
 
 def run_calibrate(args: argparse.Namespace, out=None) -> dict:
+    from dream.io import write_json_atomic
     from dream.pipeline import calibrate, observations_from_labels, robot_for, truth_poses
-    from dream.result import result_to_dict, write_json_atomic
+    from dream.result import result_to_dict
 
     out = out or sys.stdout
     seq = _read(args)
@@ -158,8 +160,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    from dream.io import write_json_atomic
     from dream.pipeline import evaluate, robot_for
-    from dream.result import read_result, write_json_atomic
+    from dream.result import read_result
 
     seq = _read(args)
     doc = read_result(args.result)

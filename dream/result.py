@@ -107,12 +107,3 @@ def read_result(path: str | Path) -> dict[str, Any]:
                                                   for f in per_frame):
         raise InputError("per_frame must be a list of objects with a 'frame' name", path)
     return doc
-
-
-def write_json_atomic(path: str | Path, doc: Any) -> None:
-    """Write JSON to a temporary sibling and rename it: never a half-written file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
-    tmp.replace(path)

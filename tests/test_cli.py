@@ -154,3 +154,20 @@ def test_demo(tmp_path, capsys):
     code, out, err = run(["demo", "--out", tmp_path], capsys)
     assert code == 0, err
     assert "error vs ground truth" in out and "1-sigma" in out
+
+
+def test_maniunicon_npz_with_intrinsics_on_the_command_line(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    npz = tmp_path / "episode.npz"
+    np.savez(npz, rgb_images=rng.integers(0, 255, (3, 24, 32, 3), dtype=np.uint8),
+             captured_joint_values=rng.uniform(-1, 1, (3, 8)),
+             target_joint_values=rng.uniform(-1, 1, (3, 8)))
+    line = _one_error_line(*run(["info", npz], capsys)[::2])
+    assert "--intrinsics" in line
+    code, out, err = run(["info", npz, "--intrinsics", "30,31,16,12"], capsys)
+    assert code == 0, err
+    assert "32x24 fx=30.00 fy=31.00" in out and "3 frames" in out
+    code, out, err = run(["info", npz, "--intrinsics", "30,31,16,12,32,24"], capsys)
+    assert code == 0, err
+    line = _one_error_line(*run(["info", npz, "--intrinsics", "30,31,16,12,64,48"], capsys)[::2])
+    assert "32x24" in line

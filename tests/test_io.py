@@ -278,8 +278,9 @@ def test_franka_offline_real() -> None:
 
 
 @needs_realdata
-def test_real_sets_survive_a_dream_round_trip(tmp_path: Path) -> None:
-    sequence = read_sequence(REALDATA / "franka_offline")
+@pytest.mark.parametrize("name", ["franka_offline", "panda_teleop"])
+def test_real_sets_survive_a_dream_round_trip(tmp_path: Path, name: str) -> None:
+    sequence = read_sequence(REALDATA / name)
     back = read_sequence(write_dream(sequence, tmp_path / "out"))
     assert_same_sequence(sequence, back)
 
@@ -333,6 +334,9 @@ def test_maniunicon_with_argument(tmp_path: Path) -> None:
     assert sequence.camera.fy == 31.0
     camera = CameraIntrinsics(30, 31, 16, 12, WIDTH, HEIGHT)
     assert read_sequence(tmp_path, intrinsics=camera).camera == camera
+    wrong_size = CameraIntrinsics(30, 31, 16, 12, 2 * WIDTH, HEIGHT)
+    with pytest.raises(InputError, match="images are"):
+        read_sequence(tmp_path, intrinsics=wrong_size)
     assert read_sequence(tmp_path / "ep.npz", joint_names=["a", "b"],
                          intrinsics=fx_fy_cx_cy).joints.shape == (3, 2)
 

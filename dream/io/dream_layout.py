@@ -52,6 +52,7 @@ REFERENCE_KEY = "reference_T_cam_base"
 DEFAULT_CAMERA_NAME = "camera"
 RIGID_ATOL = 1e-4  # tolerance of a written 4x4 pose's rotation block being orthonormal
 QUATERNION_NORM_ATOL = 1e-3  # how far from unit length a written quaternion may be
+CENTIMETRE_SUSPECT_DEPTH_M = 20.0  # keypoints this deep (median) were probably written in cm
 PNG_SUFFIXES = (".png",)
 JPEG_SUFFIXES = (".jpg", ".jpeg")
 FIX_CAMERA = ('write {"camera_settings": [{"intrinsic_settings": {"fx", "fy", "cx", "cy", '
@@ -385,8 +386,18 @@ def read_dream(path: str | Path, *, joint_names: SequenceOf[str] | None = None,
                         joint_names=names, keypoint_names=keypoint_names, frames=tuple(frames),
                         T_cam_base_reference=settings.T_cam_base_reference, source=folder,
                         camera_name=settings.name)
+    _warn_if_centimetres(sequence)
     logger.info("read %d DREAM frames from %s", len(frames), folder)
     return sequence
+
+
+def _warn_if_centimetres(sequence: Sequence) -> None:
+    depths = [f.P_cam_labels[:, 2] for f in sequence.frames if f.P_cam_labels is not None]
+    finite = np.concatenate(depths)[np.isfinite(np.concatenate(depths))] if depths else []
+    if len(finite) and np.median(np.abs(finite)) > CENTIMETRE_SUSPECT_DEPTH_M:
+        logger.warning("%s: keypoint locations lie %.0f m from the camera (median); they look "
+                       "like centimetres, but DREAM files must be in metres", sequence.source,
+                       float(np.median(np.abs(finite))))
 
 
 # ----------------------------------------------------------------------------- writing

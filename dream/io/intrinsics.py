@@ -1,7 +1,8 @@
 """Camera intrinsics from the places the readers find them: an argument, `K.txt`, a JSON file.
 
 The `intrinsics` argument of the readers is either a full `CameraIntrinsics` or the four numbers
-(fx, fy, cx, cy) in pixels; the image size then comes from the images.
+(fx, fy, cx, cy) in pixels; the image size then comes from the images. A full `CameraIntrinsics`
+must have the images' size.
 """
 
 from __future__ import annotations
