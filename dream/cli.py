@@ -7,6 +7,7 @@ import logging
 import sys
 import tempfile
 from collections.abc import Callable, Sequence
+from importlib.metadata import entry_points
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ from dream.pnp import RobustLoss, SolverSettings
 
 log = logging.getLogger("dream")
 
+ENTRY_POINT_GROUP = "dream.commands"
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 
@@ -274,7 +276,21 @@ def build_parser() -> argparse.ArgumentParser:
     p = add("demo", cmd_demo, "calibrate the built-in synthetic sample and report the error")
     p.add_argument("--out", help="working folder (default: a new temporary folder)")
     p.add_argument("--seed", type=int, default=0)
+    _add_stage_commands(sub)
     return parser
+
+
+def _add_stage_commands(sub: argparse._SubParsersAction) -> None:
+    """Commands of the other stages (synth, train, export), found through the `dream.commands`
+    entry points so that the core imports none of them. Each entry point is a function
+    `register(subparsers)` that adds its parser and sets `func`; it must import nothing heavy."""
+    for entry in sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name):
+        try:
+            register = entry.load()
+        except ImportError as exc:
+            log.warning("command '%s' is unavailable (%s)", entry.name, exc)
+            continue
+        register(sub)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

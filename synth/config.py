@@ -1,0 +1,272 @@
+"""Domain-randomisation recipe: every range a named field, loaded from YAML (`configs/synth/`).
+
+Units: metres, radians, pixels. A range is a `[low, high]` pair drawn uniformly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from dream.errors import InputError
+
+Range = tuple[float, float]
+
+
+def _range(name: str, value: Any, lo_limit: float = -np.inf, hi_limit: float = np.inf) -> Range:
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a [low, high] pair of numbers, got {value!r}") from None
+    if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
+        raise InputError(f"{name} must satisfy low <= high, got [{lo}, {hi}]")
+    if lo < lo_limit or hi > hi_limit:
+        raise InputError(f"{name} must lie within [{lo_limit}, {hi_limit}], got [{lo}, {hi}]")
+    return lo, hi
+
+
+def _probability(name: str, value: float) -> float:
+    if not 0.0 <= float(value) <= 1.0:
+        raise InputError(f"{name} is a probability in [0, 1], got {value}")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class CameraShell:
+    """Camera on a spherical shell around the robot, aimed near `target_m`."""
+
+    radius_m: Range = (1.0, 2.0)
+    azimuth_rad: Range = (-np.pi, np.pi)
+    elevation_rad: Range = (-0.1, 1.1)          # above the base's horizontal plane
+    target_m: tuple[float, float, float] = (0.0, 0.0, 0.4)
+    target_jitter_m: float = 0.15               # aim point uniform in a cube of this half-size
+    roll_rad: Range = (-0.3, 0.3)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "radius_m", _range("camera.radius_m", self.radius_m, 1e-3))
+        object.__setattr__(self, "azimuth_rad", _range("camera.azimuth_rad", self.azimuth_rad))
+        object.__setattr__(self, "elevation_rad",
+                           _range("camera.elevation_rad", self.elevation_rad, -1.5, 1.5))
+        object.__setattr__(self, "roll_rad", _range("camera.roll_rad", self.roll_rad))
+        object.__setattr__(self, "target_m", tuple(float(v) for v in self.target_m))
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Fixed target camera (fx, fy, cx, cy; optional plumb_bob), or a random horizontal field of
+    view (`hfov_rad`, square pixels, centred principal point) when `fx` is None."""
+
+    width: int = 320
+    height: int = 240
+    fx: float | None = None
+    fy: float | None = None
+    cx: float | None = None
+    cy: float | None = None
+    distortion: tuple[float, float, float, float, float] | None = None
+    hfov_rad: Range = (0.9, 1.3)
+
+    def __post_init__(self) -> None:
+        fixed = [self.fx, self.fy, self.cx, self.cy]
+        if any(v is not None for v in fixed) and any(v is None for v in fixed):
+            raise InputError("intrinsics: give all of fx, fy, cx, cy (fixed camera) or none "
+                             "(random field of view)")
+        object.__setattr__(self, "hfov_rad", _range("intrinsics.hfov_rad", self.hfov_rad, 0.05,
+                                                    3.0))
+        if self.distortion is not None:
+            object.__setattr__(self, "distortion", tuple(float(c) for c in self.distortion))
+
+    @property
+    def fixed(self) -> bool:
+        return self.fx is not None
+
+
+@dataclass(frozen=True)
+class Joints:
+    """Joint configurations: uniform within the limits (`range_fraction` of each range, centred),
+    or around configurations of a joint log (`log`: a file of one joint vector a line, rad)."""
+
+    range_fraction: float = 1.0
+    log: str | None = None
+    log_noise_rad: float = 0.05
+    extra: float = 0.0                  # value of joints that move no keypoint (e.g. fingers)
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.range_fraction <= 1.0:
+            raise InputError("joints.range_fraction must be in (0, 1]")
+
+
+@dataclass(frozen=True)
+class Lights:
+    count: tuple[int, int] = (1, 4)
+    radius_m: Range = (1.0, 3.0)         # distance of each light from the robot
+    elevation_rad: Range = (0.2, 1.4)
+    intensity: Range = (0.3, 1.0)        # diffuse level of each light
+    color_jitter: float = 0.2            # per-channel multiplicative jitter of white
+    ambient: Range = (0.05, 0.4)
+    specular: Range = (0.0, 0.3)
+
+    def __post_init__(self) -> None:
+        lo, hi = self.count
+        if not 1 <= lo <= hi:
+            raise InputError("lights.count must be [low, high] with 1 <= low <= high")
+        object.__setattr__(self, "count", (int(lo), int(hi)))
+
+
+@dataclass(frozen=True)
+class Appearance:
+    """Robot colours: the real ones with `keep_real_colors_prob`, else jittered per link."""
+
+    keep_real_colors_prob: float = 0.5
+    hue_jitter: float = 0.5              # fraction of the hue circle
+    saturation: Range = (0.0, 0.8)
+    value_scale: Range = (0.5, 1.2)
+    specular: Range = (0.0, 0.8)
+    shininess: Range = (0.0, 1.0)
+    reflectance: Range = (0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        _probability("appearance.keep_real_colors_prob", self.keep_real_colors_prob)
+
+
+@dataclass(frozen=True)
+class Background:
+    """Procedural backgrounds (weights per kind) and, when `photos` is a folder, photos."""
+
+    kinds: dict[str, float] = field(default_factory=lambda: {
+        "noise": 1.0, "checkers": 1.0, "stripes": 1.0, "gradient": 1.0, "shapes": 1.0,
+        "photo": 0.0})
+    photos: str | None = None
+    floor_prob: float = 0.5
+    texture_size: int = 128
+
+    def __post_init__(self) -> None:
+        known = {"noise", "checkers", "stripes", "gradient", "shapes", "photo"}
+        unknown = set(self.kinds) - known
+        if unknown:
+            raise InputError(f"background.kinds has unknown kinds {sorted(unknown)}; use "
+                             f"{sorted(known)}")
+        if any(w < 0 for w in self.kinds.values()) or sum(self.kinds.values()) <= 0:
+            raise InputError("background.kinds weights must be >= 0 with a positive sum")
+        _probability("background.floor_prob", self.floor_prob)
+
+
+@dataclass(frozen=True)
+class Distractors:
+    count: tuple[int, int] = (0, 6)
+    size_m: Range = (0.03, 0.25)
+    distance_m: Range = (0.4, 1.5)        # from the robot's aim point
+    occluder_prob: float = 0.3            # per distractor: placed between camera and robot
+    textured_prob: float = 0.5
+
+    def __post_init__(self) -> None:
+        lo, hi = self.count
+        if not 0 <= lo <= hi:
+            raise InputError("distractors.count must be [low, high] with 0 <= low <= high")
+        object.__setattr__(self, "count", (int(lo), int(hi)))
+        _probability("distractors.occluder_prob", self.occluder_prob)
+
+
+@dataclass(frozen=True)
+class SequenceOptions:
+    """`random`: independent frames. `fixed_camera`: one camera, N joint configurations.
+    `trajectory`: one camera and a smooth timed joint trajectory through random waypoints."""
+
+    mode: str = "random"
+    fps: float = 30.0
+    waypoint_period_s: float = 1.5
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("random", "fixed_camera", "trajectory"):
+            raise InputError(f"sequence.mode '{self.mode}' must be random, fixed_camera or "
+                             f"trajectory")
+        if not (self.fps > 0 and self.waypoint_period_s > 0):
+            raise InputError("sequence.fps and sequence.waypoint_period_s must be positive")
+
+
+@dataclass(frozen=True)
+class Output:
+    image_format: str = "png"
+    jpeg_quality: int = 95
+    depth: bool = False                    # also write NNNNNN.depth.png (uint16 millimetres)
+
+    def __post_init__(self) -> None:
+        if self.image_format not in ("png", "jpg"):
+            raise InputError("output.image_format must be png or jpg")
+
+
+@dataclass(frozen=True)
+class SynthConfig:
+    camera: CameraShell = field(default_factory=CameraShell)
+    intrinsics: Intrinsics = field(default_factory=Intrinsics)
+    joints: Joints = field(default_factory=Joints)
+    lights: Lights = field(default_factory=Lights)
+    appearance: Appearance = field(default_factory=Appearance)
+    background: Background = field(default_factory=Background)
+    distractors: Distractors = field(default_factory=Distractors)
+    sequence: SequenceOptions = field(default_factory=SequenceOptions)
+    output: Output = field(default_factory=Output)
+
+    def to_dict(self) -> dict[str, Any]:
+        return _plain(dataclasses.asdict(self))
+
+
+SECTIONS: dict[str, type] = {f.name: f.default_factory for f in dataclasses.fields(SynthConfig)}
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    return value
+
+
+def _build(cls: type, values: Any, where: str) -> Any:
+    if values is None:
+        return cls()
+    if not isinstance(values, dict):
+        raise InputError(f"{where or 'the config'} must be a mapping, got {type(values).__name__}")
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(values) - names
+    if unknown:
+        raise InputError(f"unknown key(s) {sorted(unknown)} in {where or 'the config'}; known: "
+                         f"{sorted(names)}")
+    kwargs = {}
+    for key, value in values.items():
+        if cls is SynthConfig:
+            kwargs[key] = _build(SECTIONS[key], value, key)
+        else:
+            kwargs[key] = tuple(value) if isinstance(value, list) else value
+    try:
+        return cls(**kwargs)
+    except TypeError as exc:
+        raise InputError(f"{where or 'config'}: {exc}") from None
+
+
+def config_from_dict(values: dict[str, Any] | None) -> SynthConfig:
+    return _build(SynthConfig, values or {}, "")
+
+
+def load_config(path: str | Path | None) -> SynthConfig:
+    """The recipe in a YAML file (None: the defaults). Errors name the file."""
+    if path is None:
+        return SynthConfig()
+    path = Path(path)
+    try:
+        values = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise InputError("synth config not found", path,
+                         "give a YAML from configs/synth/") from None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise InputError(f"not a readable YAML file ({str(exc).splitlines()[0]})", path) from None
+    try:
+        return config_from_dict(values)
+    except InputError as exc:
+        raise InputError(str(exc), path) from None

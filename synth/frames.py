@@ -1,0 +1,214 @@
+"""One synthetic frame: apply its randomisation to the MuJoCo scene, render, label.
+
+`FrameMaker.make(index)` depends only on (seed, index): every randomised model field is set
+for every frame, so the order in which a process renders frames does not matter.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from dream.camera import CameraIntrinsics
+from dream.robot import Robot
+from dream.transforms import invert_T, transform_points
+from synth.config import SynthConfig
+from synth.generate import RenderedFrame
+from synth.gl import mujoco
+from synth.labels import keypoint_labels
+from synth.randomize import (
+    DistractorParams,
+    FrameParams,
+    load_joint_log,
+    sample_frame,
+    sample_intrinsics,
+)
+from synth.render import BACKGROUND_GEOM, SceneRenderer
+from synth.scene import RobotScene, build_scene
+from synth.scene_options import SceneOptions
+from synth.textures import list_photos, random_texture
+
+log = logging.getLogger(__name__)
+
+MAX_LIGHTS = 7                  # OpenGL's fixed pipeline has 8 lights; the headlight takes one
+NUM_TEXTURES = 4                # randomisable distractor textures in the scene
+FLOOR_TEXTURE_PX = 128          # redrawn every frame, so kept small
+FLOOR_MIN_CAMERA_HEIGHT_M = 0.02  # below this the floor is hidden (it would hide the robot)
+HEADLIGHT_DIFFUSE = 0.15        # a little light from the camera, so no frame is black
+PARKED_Z_M = -100.0             # unused distractors wait here, out of every view
+GEOM_TYPES = {"box": mujoco.mjtGeom.mjGEOM_BOX, "sphere": mujoco.mjtGeom.mjGEOM_SPHERE,
+              "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
+              "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE,
+              "ellipsoid": mujoco.mjtGeom.mjGEOM_ELLIPSOID}
+
+
+def nominal_camera(config: SynthConfig) -> CameraIntrinsics:
+    """The camera of `_camera_settings.json`: the fixed one, or the middle field of view."""
+    c = config.intrinsics
+    if c.fixed:
+        return sample_intrinsics(np.random.default_rng(0), config)
+    f = (c.width / 2) / np.tan(np.mean(c.hfov_rad) / 2)
+    return CameraIntrinsics(f, f, (c.width - 1) / 2, (c.height - 1) / 2, c.width, c.height,
+                            c.distortion)
+
+
+def _primitive_size(kind: str, size: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """MuJoCo size (3,), bounding radius and half-extents of the axis-aligned box in the
+    geom frame, for a primitive drawn with half-sizes `size`."""
+    a, b, c = size
+    if kind == "sphere":
+        return np.array([a, 0, 0]), a, np.full(3, a)
+    if kind in ("cylinder", "capsule"):
+        cap = a if kind == "capsule" else 0.0
+        return np.array([a, b, 0]), float(np.hypot(a, b) + cap), np.array([a, a, b + cap])
+    return np.array([a, b, c]), float(np.linalg.norm(size)), np.array([a, b, c])
+
+
+class FrameMaker:
+    """Renders and labels frames of one robot under one recipe and seed."""
+
+    def __init__(self, robot: Robot, config: SynthConfig, seed: int) -> None:
+        self.robot, self.config, self.seed = robot, config, seed
+        options = SceneOptions(num_lights=min(MAX_LIGHTS, config.lights.count[1]),
+                               num_distractors=config.distractors.count[1],
+                               num_textures=NUM_TEXTURES,
+                               texture_size=config.background.texture_size, floor=True,
+                               floor_texture_size=FLOOR_TEXTURE_PX)
+        self.scene: RobotScene = build_scene(robot, options)
+        self.nominal_camera = nominal_camera(config)
+        self.renderer = SceneRenderer(self.scene, self.nominal_camera)
+        self.joint_log = load_joint_log(config.joints.log, robot) if config.joints.log else None
+        self.photos = list_photos(config.background.photos) if config.background.photos else ()
+        model = self.scene.model
+        self.default_rgba = self.scene.default_geom_rgba[self.scene.robot_geom_ids].copy()
+        self.distractor_set = set(self.scene.distractor_geom_ids.tolist())
+        if self.scene.floor_geom_id >= 0:
+            self.distractor_set.add(int(self.scene.floor_geom_id))
+        self.floor_group = int(model.geom_group[self.scene.floor_geom_id])
+        self.hidden_group = int(np.flatnonzero(self.renderer.options.geom_groups() == 0)[-1])
+        self.ray_groups = np.asarray(self.renderer.options.geom_groups(), np.uint8)
+        self.link_names = tuple(self.scene.link_names)
+
+    def close(self) -> None:
+        self.renderer.close()
+
+    def params(self, index: int) -> FrameParams:
+        return sample_frame(self.seed, index, self.robot, self.config, self.default_rgba,
+                            len(self.scene.light_ids), len(self.scene.distractor_geom_ids),
+                            len(self.scene.texture_ids), self.joint_log)
+
+    # ----- applying the randomisation --------------------------------------------------------
+
+    def _apply_lights(self, p: FrameParams) -> None:
+        model = self.scene.model
+        for slot, light_id in enumerate(self.scene.light_ids):
+            on = slot < len(p.scene.lights)
+            model.light_active[light_id] = on
+            if on:
+                light = p.scene.lights[slot]
+                model.light_pos[light_id] = light.position_m
+                aim = np.asarray(self.config.camera.target_m) - light.position_m
+                model.light_dir[light_id] = aim / np.linalg.norm(aim)
+                model.light_diffuse[light_id] = light.diffuse
+                model.light_specular[light_id] = light.specular
+                model.light_ambient[light_id] = 0.0
+        model.vis.headlight.ambient[:] = p.scene.ambient
+        model.vis.headlight.diffuse[:] = HEADLIGHT_DIFFUSE
+        model.vis.headlight.specular[:] = 0.0
+
+    def _apply_robot(self, p: FrameParams) -> None:
+        model, scene = self.scene.model, self.scene
+        rgba = self.default_rgba if p.scene.robot_rgba is None else p.scene.robot_rgba
+        model.geom_rgba[scene.robot_geom_ids] = rgba
+        model.mat_specular[scene.robot_material_id] = p.scene.robot_specular
+        model.mat_shininess[scene.robot_material_id] = p.scene.robot_shininess
+
+    def _apply_textures(self, p: FrameParams) -> None:
+        model, scene = self.scene.model, self.scene
+        rng = np.random.default_rng(p.scene.texture_seed)
+        kinds = {k: w for k, w in self.config.background.kinds.items() if k != "photo"}
+        used = {d.texture for d in p.scene.distractors if d.texture >= 0}
+        textures = [(t, int(scene.texture_ids[t])) for t in sorted(used)]
+        if p.scene.floor and scene.floor_texture_id >= 0:
+            textures.append((-1, int(scene.floor_texture_id)))
+        for _, tex in textures:
+            h, w = int(model.tex_height[tex]), int(model.tex_width[tex])
+            n = int(model.tex_nchannel[tex])
+            image = random_texture(rng, h, w, kinds)
+            adr = int(model.tex_adr[tex])
+            model.tex_data[adr:adr + h * w * n] = image[..., :n].reshape(-1)
+            self.renderer.upload_texture(tex)
+
+    def _apply_distractors(self, p: FrameParams) -> None:
+        model, scene = self.scene.model, self.scene
+        for slot, (body, geom) in enumerate(zip(scene.distractor_body_ids,
+                                                scene.distractor_geom_ids, strict=True)):
+            d: DistractorParams | None = p.scene.distractors[slot] \
+                if slot < len(p.scene.distractors) else None
+            if d is None:
+                model.body_pos[body] = [0.0, 0.0, PARKED_Z_M]
+                continue
+            size, rbound, half = _primitive_size(d.kind, d.size_m)
+            model.body_pos[body] = d.position_m
+            model.body_quat[body] = d.quaternion_wxyz
+            model.geom_type[geom] = GEOM_TYPES[d.kind]
+            model.geom_size[geom] = size
+            model.geom_rbound[geom] = rbound
+            model.geom_aabb[geom] = np.concatenate([np.zeros(3), half])
+            model.geom_rgba[geom] = d.rgba
+            model.geom_matid[geom] = scene.material_ids[d.texture] if d.texture >= 0 else -1
+
+    def _apply_floor(self, p: FrameParams) -> None:
+        if self.scene.floor_geom_id < 0:
+            return
+        camera_z = invert_T(p.scene.T_cam_base)[2, 3]
+        show = p.scene.floor and camera_z > FLOOR_MIN_CAMERA_HEIGHT_M
+        self.scene.model.geom_group[self.scene.floor_geom_id] = \
+            self.floor_group if show else self.hidden_group
+
+    # ----- rendering and labels ------------------------------------------------------------------
+
+    def _ray_hits(self, P_cam: np.ndarray, T_cam_base: np.ndarray):
+        """First geom met by rays from the camera centre to each keypoint."""
+        model, data = self.scene.model, self.renderer.data
+        T_base_cam = invert_T(T_cam_base)
+        origin = T_base_cam[:3, 3].copy()
+        links, distractor, distance = [], [], []
+        geom_id = np.zeros(1, np.int32)
+        for P in P_cam:
+            direction = T_base_cam[:3, :3] @ (P / np.linalg.norm(P))
+            d = mujoco.mj_ray(model, data, origin, direction, self.ray_groups, 1, -1, geom_id)
+            g = int(geom_id[0])
+            hit = d >= 0 and g >= 0
+            distance.append(d if hit else np.inf)
+            link = int(self.scene.geom_link_index[g]) if hit else 0
+            links.append(self.link_names[link - 1] if link > 0 else None)
+            distractor.append(hit and g in self.distractor_set)
+        return links, np.array(distractor), np.array(distance)
+
+    def make(self, index: int) -> RenderedFrame:
+        p = self.params(index)
+        self._apply_lights(p)
+        self._apply_robot(p)
+        self._apply_textures(p)
+        self._apply_distractors(p)
+        self._apply_floor(p)
+        camera = p.scene.camera
+        self.renderer.set_camera(camera)
+        extra = {name: self.config.joints.extra for name in self.scene.extra_joint_names}
+        self.renderer.set_state(p.joints, p.scene.T_cam_base, extra)
+        out = self.renderer.render(rgb=True, segmentation=True, depth=self.config.output.depth)
+        rgb = out.rgb.copy()
+        background = out.geom_ids == BACKGROUND_GEOM
+        if background.any():
+            bg = random_texture(np.random.default_rng(p.scene.background_seed), camera.height,
+                                camera.width, self.config.background.kinds, self.photos)
+            rgb[background] = bg[background]
+        P_cam = transform_points(p.scene.T_cam_base, self.robot.forward_kinematics(p.joints))
+        hits = self._ray_hits(P_cam, p.scene.T_cam_base)
+        labels = keypoint_labels(self.robot, P_cam, camera, *hits)
+        return RenderedFrame(index=index, rgb=rgb, link_ids=out.link_ids, depth=out.depth,
+                             camera=camera, T_cam_base=p.scene.T_cam_base, joints=p.joints,
+                             P_cam=labels.P_cam, uv=labels.uv, in_frame=labels.in_frame,
+                             occlusion=labels.occlusion, timestamp=p.timestamp)

@@ -1,0 +1,288 @@
+"""Writing a synthetic dataset in the DREAM layout, in parallel, resumable.
+
+A frame is complete when its `NNNNNN.json` exists: images are written first, the JSON last,
+each atomically (temporary name + rename). A run that is killed leaves only complete frames
+(and stray temporaries, removed on resume); running the same command again renders the missing
+frames. Every frame depends only on (seed, frame index), so the result equals an uninterrupted
+run. `_synth.json` records what was asked (robot, keypoints, seed, recipe); resuming with other
+settings is refused.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import multiprocessing as mp
+import os
+import sys
+import time
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from dream import __version__
+from dream.camera import CameraIntrinsics
+from dream.errors import DreamError, InputError
+from dream.io import write_json_atomic
+from dream.io.dream_layout import camera_settings_json, frame_json
+from dream.robot import load_robot
+from dream.sequence import Frame, Sequence
+from synth.config import SynthConfig, config_from_dict
+
+log = logging.getLogger(__name__)
+
+SYNTH_INFO = "_synth.json"
+CAMERA_SETTINGS = "_camera_settings.json"
+TMP_MARK = ".tmp-"
+DEPTH_UNIT_M = 1e-3           # depth PNGs store millimetres in uint16
+CHUNK_FRAMES = 8              # frames handed to a worker at a time
+PROGRESS_PERIOD_S = 1.0
+PNG_COMPRESSION = 1           # zlib level: fast, files about 20 % larger than the default
+
+
+@dataclass(frozen=True)
+class SynthJob:
+    """What to generate. `robot` is a built-in name or a URDF path (then `keypoints` needed)."""
+
+    robot: str
+    out_dir: Path
+    num_frames: int
+    config: SynthConfig
+    seed: int = 0
+    keypoints: tuple[str, ...] | None = None
+    workers: int = 1
+
+    def __post_init__(self) -> None:
+        if self.num_frames < 1:
+            raise InputError(f"--num must be >= 1, got {self.num_frames}")
+        if self.workers < 1:
+            raise InputError(f"--workers must be >= 1, got {self.workers}")
+        object.__setattr__(self, "out_dir", Path(self.out_dir))
+
+    def info(self) -> dict[str, Any]:
+        """The provenance written to `_synth.json` (compared on resume; num_frames may grow)."""
+        return {"robot": self.robot, "keypoints": list(self.keypoints or []), "seed": self.seed,
+                "config": self.config.to_dict(), "generator_version": __version__}
+
+
+@dataclass(frozen=True)
+class RenderedFrame:
+    """One frame's pixels and labels, ready to write."""
+
+    index: int
+    rgb: np.ndarray                   # (H, W, 3) uint8
+    link_ids: np.ndarray              # (H, W) uint16, 0 background, link index + 1
+    depth: np.ndarray | None          # (H, W) float32 m, inf background
+    camera: CameraIntrinsics
+    T_cam_base: np.ndarray
+    joints: np.ndarray
+    P_cam: np.ndarray
+    uv: np.ndarray
+    in_frame: np.ndarray
+    occlusion: tuple[str, ...]
+    timestamp: float | None
+
+
+def frame_name(index: int) -> str:
+    return f"{index:06d}"
+
+
+def _write_bytes_atomic(path: Path, data: bytes) -> None:
+    tmp = path.with_name(f"{TMP_MARK}{os.getpid()}-{path.name}")
+    tmp.write_bytes(data)
+    tmp.replace(path)
+
+
+def _encode(ext: str, image: np.ndarray, params: list[int] | None = None) -> bytes:
+    ok, buf = cv2.imencode(ext, image, params or [])
+    if not ok:
+        raise InputError(f"could not encode a {ext} image")
+    return buf.tobytes()
+
+
+def frame_document(job: SynthJob, robot_name: str, joint_names: tuple[str, ...],
+                   keypoint_names: tuple[str, ...], frame: RenderedFrame,
+                   nominal: CameraIntrinsics) -> dict[str, Any]:
+    """The frame JSON of SPEC.md plus extensions: per-keypoint `in_frame` and `occlusion`, the
+    frame's own intrinsics when they differ from `_camera_settings.json`, and its seed."""
+    name = frame_name(frame.index)
+    one = Sequence(robot=robot_name, camera=frame.camera, joint_names=joint_names,
+                   keypoint_names=keypoint_names,
+                   frames=(Frame(name, frame.joints, timestamp=frame.timestamp,
+                                 uv_labels=frame.uv, P_cam_labels=frame.P_cam,
+                                 T_cam_base_true=frame.T_cam_base),))
+    doc = frame_json(one, one.frames[0])
+    for kp, in_frame, occlusion in zip(doc["objects"][0]["keypoints"], frame.in_frame,
+                                       frame.occlusion, strict=True):
+        kp["in_frame"] = bool(in_frame)
+        kp["occlusion"] = occlusion
+    if frame.camera != nominal:
+        cam = frame.camera
+        doc["camera_intrinsics"] = {"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy}
+    doc["synth"] = {"seed": job.seed, "index": frame.index}
+    return doc
+
+
+def write_frame(out_dir: Path, doc: dict[str, Any], frame: RenderedFrame,
+                config: SynthConfig) -> None:
+    """Images first, the JSON last: the frame exists only once it is complete."""
+    stem = out_dir / frame_name(frame.index)
+    bgr = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR)
+    if config.output.image_format == "jpg":
+        rgb_bytes = _encode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, config.output.jpeg_quality])
+    else:
+        rgb_bytes = _encode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION])
+    _write_bytes_atomic(stem.with_name(stem.name + f".rgb.{config.output.image_format}"),
+                        rgb_bytes)
+    ids = frame.link_ids.astype(np.uint8 if frame.link_ids.max(initial=0) < 256 else np.uint16)
+    _write_bytes_atomic(stem.with_name(stem.name + ".seg.png"),
+                        _encode(".png", ids, [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION]))
+    if frame.depth is not None and config.output.depth:
+        mm = np.where(np.isfinite(frame.depth), np.rint(frame.depth / DEPTH_UNIT_M), 0)
+        _write_bytes_atomic(stem.with_name(stem.name + ".depth.png"),
+                            _encode(".png", np.clip(mm, 0, 65535).astype(np.uint16)))
+    write_json_atomic(stem.with_name(stem.name + ".json"), doc)
+
+
+def done_indices(out_dir: Path) -> set[int]:
+    return {int(p.name[:6]) for p in out_dir.glob("[0-9][0-9][0-9][0-9][0-9][0-9].json")}
+
+
+def prepare_output(job: SynthJob, overwrite: bool) -> set[int]:
+    """Create or check the output folder; returns the frames already complete."""
+    out = job.out_dir
+    info_path = out / SYNTH_INFO
+    if out.exists() and any(out.iterdir()):
+        if not info_path.is_file():
+            raise InputError("the output folder exists and is not a dream synth folder", out,
+                             "choose an empty or new --out")
+        try:
+            previous = json.loads(info_path.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise InputError(f"unreadable {SYNTH_INFO} ({exc})", info_path) from None
+        if previous != json.loads(json.dumps(job.info())):
+            if not overwrite:
+                raise InputError("the output folder holds a run with other settings (robot, "
+                                 "keypoints, seed or recipe)", out,
+                                 "use the same settings to resume, or --overwrite")
+            for p in out.iterdir():
+                if p.is_file():
+                    p.unlink()
+        for p in out.glob(f"{TMP_MARK}*"):
+            p.unlink()
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(info_path, job.info())
+    return done_indices(out)
+
+
+# ------------------------------------------------------------------------------ workers
+
+_STATE: dict[str, Any] = {}
+
+
+def _worker_init(job: SynthJob) -> None:
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    from synth.frames import FrameMaker
+
+    robot = load_robot(job.robot, list(job.keypoints) if job.keypoints else None)
+    _STATE["job"] = job
+    _STATE["maker"] = FrameMaker(robot, job.config, job.seed)
+    _STATE["robot"] = robot
+
+
+def _worker_render(indices: list[int]) -> list[int]:
+    job: SynthJob = _STATE["job"]
+    maker = _STATE["maker"]
+    robot = _STATE["robot"]
+    for i in indices:
+        frame = maker.make(i)
+        doc = frame_document(job, robot.name if job.keypoints is None else job.robot,
+                             robot.joint_names, robot.keypoint_names, frame, maker.nominal_camera)
+        write_frame(job.out_dir, doc, frame, job.config)
+    return indices
+
+
+def _worker_close() -> None:
+    maker = _STATE.pop("maker", None)
+    if maker is not None:
+        maker.close()
+
+
+def _chunks(indices: list[int], size: int) -> Iterator[list[int]]:
+    for start in range(0, len(indices), size):
+        yield indices[start:start + size]
+
+
+class Progress:
+    """A one-line progress report on stderr (frames, rate, time left)."""
+
+    def __init__(self, total: int, already: int, stream=None) -> None:
+        self.total, self.done, self.start = total, already, time.perf_counter()
+        self.already = already
+        self.stream = stream or sys.stderr
+        self.last = 0.0
+
+    def update(self, n: int) -> None:
+        self.done += n
+        now = time.perf_counter()
+        if now - self.last >= PROGRESS_PERIOD_S or self.done == self.total:
+            self.last = now
+            rate = (self.done - self.already) / max(now - self.start, 1e-9)
+            left = (self.total - self.done) / rate if rate > 0 else float("inf")
+            print(f"\rsynth: {self.done}/{self.total} frames, {rate:.1f} frames/s, "
+                  f"{left:.0f} s left ", end="", file=self.stream, flush=True)
+            if self.done == self.total:
+                print(file=self.stream, flush=True)
+
+
+def generate(job: SynthJob, overwrite: bool = False,
+             on_progress: Callable[[int], None] | None = None) -> dict[str, Any]:
+    """Render the missing frames of `job`; returns counts and the rate."""
+    robot = load_robot(job.robot, list(job.keypoints) if job.keypoints else None)
+    done = prepare_output(job, overwrite)
+    todo = [i for i in range(job.num_frames) if i not in done]
+    from synth.frames import nominal_camera
+
+    nominal = nominal_camera(job.config)
+    settings = Sequence(robot=robot.name, camera=nominal, joint_names=robot.joint_names,
+                        keypoint_names=robot.keypoint_names,
+                        frames=(Frame("0", np.zeros(len(robot.joint_names))),))
+    write_json_atomic(job.out_dir / CAMERA_SETTINGS, camera_settings_json(settings))
+    progress = Progress(job.num_frames, len(done))
+    report = on_progress or progress.update
+    start = time.perf_counter()
+    if todo:
+        _run(job, todo, report)
+    seconds = time.perf_counter() - start
+    return {"frames": job.num_frames, "rendered": len(todo), "skipped": len(done),
+            "seconds": seconds, "frames_per_s": len(todo) / seconds if todo else 0.0}
+
+
+def _run(job: SynthJob, todo: list[int], report: Callable[[int], None]) -> None:
+    if job.workers == 1:
+        _worker_init(job)
+        try:
+            for chunk in _chunks(todo, CHUNK_FRAMES):
+                report(len(_worker_render(chunk)))
+        finally:
+            _worker_close()
+        return
+    ctx = mp.get_context("spawn")
+    chunks: Iterable[list[int]] = _chunks(todo, CHUNK_FRAMES)
+    with ctx.Pool(job.workers, initializer=_worker_init, initargs=(job,)) as pool:
+        try:
+            for chunk in pool.imap_unordered(_worker_render, chunks):
+                report(len(chunk))
+        except DreamError:
+            pool.terminate()
+            raise
+
+
+def config_of(out_dir: Path) -> SynthConfig:
+    """The recipe a synth folder was made with."""
+    info = json.loads((Path(out_dir) / SYNTH_INFO).read_text())
+    return config_from_dict(info["config"])

@@ -1,0 +1,234 @@
+"""Per-frame domain-randomisation parameters: a pure function of (config, seed, frame index).
+
+Every frame's randomness comes from `frame_rng(seed, index)`, so any frame can be regenerated
+alone. In the sequence modes (`fixed_camera`, `trajectory`) the camera and the scene (lights,
+colours, background, distractors) come from `sequence_rng(seed)` and stay fixed; only the joints
+change, as in measured calibration data.
+"""
+
+from __future__ import annotations
+
+import colorsys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dream.camera import CameraIntrinsics
+from dream.errors import InputError
+from dream.robot import Robot
+from dream.transforms import look_at
+from synth.config import SynthConfig
+
+SEQUENCE_STREAM = 0x5E0     # spawn key of the per-sequence random stream
+FRAME_STREAM = 0xF4A        # spawn key of the per-frame random streams
+DISTRACTOR_TYPES = ("box", "sphere", "cylinder", "capsule", "ellipsoid")
+OCCLUDER_PATH_FRACTION = (0.4, 0.85)   # where on the camera -> robot segment an occluder sits
+OCCLUDER_AIM_JITTER_M = 0.3            # the segment ends this far (per axis) around the target
+OCCLUDER_MAX_HALF_ANGLE_RAD = 0.08     # an occluder's half-size, as seen from the camera
+OCCLUDER_MAX_OFFSET = 2.0              # sideways shift from the segment, in occluder sizes
+
+
+def frame_rng(seed: int, index: int) -> np.random.Generator:
+    return np.random.default_rng([seed, FRAME_STREAM, index])
+
+
+def sequence_rng(seed: int) -> np.random.Generator:
+    return np.random.default_rng([seed, SEQUENCE_STREAM])
+
+
+@dataclass(frozen=True)
+class LightParams:
+    position_m: np.ndarray      # (3,) base frame
+    diffuse: np.ndarray         # (3,) RGB in [0, 1]
+    specular: np.ndarray        # (3,)
+
+
+@dataclass(frozen=True)
+class DistractorParams:
+    kind: str                   # one of DISTRACTOR_TYPES
+    size_m: np.ndarray          # (3,) MuJoCo geom size (half-extents / radius, half-length)
+    position_m: np.ndarray      # (3,) base frame
+    quaternion_wxyz: np.ndarray  # (4,) MuJoCo order
+    rgba: np.ndarray            # (4,)
+    texture: int                # index into the scene's textures, -1 for plain colour
+
+
+@dataclass(frozen=True)
+class SceneParams:
+    """What stays fixed along a sequence (and is redrawn per frame in `random` mode)."""
+
+    camera: CameraIntrinsics
+    T_cam_base: np.ndarray
+    lights: tuple[LightParams, ...]
+    ambient: np.ndarray         # (3,)
+    robot_rgba: np.ndarray | None   # (n_robot_geoms, 4), None = real colours
+    robot_specular: float
+    robot_shininess: float
+    floor: bool
+    distractors: tuple[DistractorParams, ...]
+    texture_seed: int           # textures (floor, distractors) are drawn from this
+    background_seed: int        # the 2D background is drawn from this
+
+
+@dataclass(frozen=True)
+class FrameParams:
+    index: int
+    scene: SceneParams
+    joints: np.ndarray          # (J,) in robot.joint_names order
+    timestamp: float | None
+
+
+def sample_intrinsics(rng: np.random.Generator, config: SynthConfig) -> CameraIntrinsics:
+    c = config.intrinsics
+    if c.fixed:
+        return CameraIntrinsics(c.fx, c.fy, c.cx, c.cy, c.width, c.height, c.distortion)
+    f = (c.width / 2) / np.tan(rng.uniform(*c.hfov_rad) / 2)
+    return CameraIntrinsics(f, f, (c.width - 1) / 2, (c.height - 1) / 2, c.width, c.height,
+                            c.distortion)
+
+
+def sample_camera_pose(rng: np.random.Generator, config: SynthConfig) -> np.ndarray:
+    """T_cam_base on the configured shell, aimed near the target."""
+    s = config.camera
+    radius = rng.uniform(*s.radius_m)
+    azimuth = rng.uniform(*s.azimuth_rad)
+    elevation = rng.uniform(*s.elevation_rad)
+    target = np.asarray(s.target_m) + rng.uniform(-1, 1, 3) * s.target_jitter_m
+    position = target + radius * np.array([np.cos(elevation) * np.cos(azimuth),
+                                           np.cos(elevation) * np.sin(azimuth),
+                                           np.sin(elevation)])
+    return look_at(position, target, rng.uniform(*s.roll_rad))
+
+
+def _jitter_color(rng: np.random.Generator, rgba: np.ndarray, config: SynthConfig) -> np.ndarray:
+    a = config.appearance
+    h, _, v = colorsys.rgb_to_hsv(*np.clip(rgba[:3], 0, 1))
+    h = (h + rng.uniform(-a.hue_jitter, a.hue_jitter) + rng.random()) % 1.0
+    s = rng.uniform(*a.saturation)
+    v = np.clip(max(v, 0.2) * rng.uniform(*a.value_scale), 0, 1)
+    return np.array([*colorsys.hsv_to_rgb(h, s, v), rgba[3]])
+
+
+def sample_scene(rng: np.random.Generator, config: SynthConfig, default_rgba: np.ndarray,
+                 num_lights_max: int, num_distractors_max: int,
+                 num_textures: int) -> SceneParams:
+    """Camera, lights, appearance, floor and distractors. `default_rgba` (n_robot_geoms, 4)."""
+    camera = sample_intrinsics(rng, config)
+    T_cam_base = sample_camera_pose(rng, config)
+    lc = config.lights
+    n_lights = min(int(rng.integers(lc.count[0], lc.count[1] + 1)), num_lights_max)
+    lights = []
+    for _ in range(n_lights):
+        r, az, el = rng.uniform(*lc.radius_m), rng.uniform(-np.pi, np.pi), \
+            rng.uniform(*lc.elevation_rad)
+        pos = np.asarray(config.camera.target_m) + r * np.array(
+            [np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        tint = 1.0 + rng.uniform(-lc.color_jitter, lc.color_jitter, 3)
+        lights.append(LightParams(pos, np.clip(rng.uniform(*lc.intensity) * tint, 0, 1),
+                                  np.full(3, rng.uniform(*lc.specular))))
+    ambient = np.full(3, rng.uniform(*lc.ambient))
+    ap = config.appearance
+    robot_rgba = None
+    if rng.random() >= ap.keep_real_colors_prob:
+        robot_rgba = np.stack([_jitter_color(rng, c, config) for c in default_rgba])
+    specular, shininess = rng.uniform(*ap.specular), rng.uniform(*ap.shininess)
+    floor = bool(rng.random() < config.background.floor_prob)
+    dc = config.distractors
+    n_dis = min(int(rng.integers(dc.count[0], dc.count[1] + 1)), num_distractors_max)
+    target = np.asarray(config.camera.target_m)
+    camera_position = -T_cam_base[:3, :3].T @ T_cam_base[:3, 3]
+    distractors = []
+    for _ in range(n_dis):
+        kind = DISTRACTOR_TYPES[int(rng.integers(len(DISTRACTOR_TYPES)))]
+        size = rng.uniform(*dc.size_m, 3) / 2
+        if rng.random() < dc.occluder_prob:
+            position, size = _occluder_placement(rng, camera_position, target, size)
+        else:
+            direction = rng.normal(size=3)
+            position = target + direction / np.linalg.norm(direction) * rng.uniform(*dc.distance_m)
+        q = rng.normal(size=4)
+        rgba = np.array([*rng.random(3), 1.0])
+        texture = int(rng.integers(num_textures)) if num_textures and \
+            rng.random() < dc.textured_prob else -1
+        distractors.append(DistractorParams(kind, size, position, q / np.linalg.norm(q), rgba,
+                                            texture))
+    return SceneParams(camera, T_cam_base, tuple(lights), ambient, robot_rgba, float(specular),
+                       float(shininess), floor, tuple(distractors),
+                       int(rng.integers(2 ** 31)), int(rng.integers(2 ** 31)))
+
+
+def _occluder_placement(rng: np.random.Generator, camera_position: np.ndarray,
+                        target: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A distractor part-way between the camera and a point of the robot, small enough and
+    offset sideways so that it hides part of the robot, not all of it."""
+    aim = target + rng.uniform(-1, 1, 3) * OCCLUDER_AIM_JITTER_M
+    line = aim - camera_position
+    fraction = rng.uniform(*OCCLUDER_PATH_FRACTION)
+    distance = fraction * np.linalg.norm(line)
+    size = np.minimum(size, OCCLUDER_MAX_HALF_ANGLE_RAD * distance)
+    side = np.cross(line, rng.normal(size=3))
+    side /= np.linalg.norm(side)
+    offset = rng.uniform(0.0, OCCLUDER_MAX_OFFSET) * float(size.max()) * side
+    return camera_position + fraction * line + offset, size
+
+
+def load_joint_log(path: str | Path, robot: Robot) -> np.ndarray:
+    """(M, J) joint vectors, one a line (whitespace or comma separated), rad."""
+    path = Path(path)
+    try:
+        rows = [line.replace(",", " ").split() for line in path.read_text().splitlines()
+                if line.strip() and not line.lstrip().startswith("#")]
+        q = np.array(rows, dtype=float)
+    except FileNotFoundError:
+        raise InputError("joint log not found", path, "give joints.log as a text file") from None
+    except (OSError, ValueError) as exc:
+        raise InputError(f"unreadable joint log ({exc})", path,
+                         f"write one line of {len(robot.joint_names)} numbers per "
+                         f"configuration") from None
+    if q.ndim != 2 or q.shape[1] != len(robot.joint_names) or not np.all(np.isfinite(q)):
+        raise InputError(f"the joint log must hold rows of {len(robot.joint_names)} finite "
+                         f"numbers ({', '.join(robot.joint_names)})", path)
+    return q
+
+
+def sample_joints(rng: np.random.Generator, robot: Robot, config: SynthConfig,
+                  joint_log: np.ndarray | None) -> np.ndarray:
+    """(J,) joints uniform within limits, or around a random configuration of the log."""
+    lo, hi = robot.joint_lower, robot.joint_upper
+    if joint_log is not None:
+        q = joint_log[int(rng.integers(len(joint_log)))]
+        return np.clip(q + rng.normal(0, config.joints.log_noise_rad, q.shape), lo, hi)
+    mid, half = (lo + hi) / 2, (hi - lo) / 2 * config.joints.range_fraction
+    return rng.uniform(mid - half, mid + half)
+
+
+def trajectory_joints(seed: int, index: int, robot: Robot, config: SynthConfig,
+                      joint_log: np.ndarray | None) -> np.ndarray:
+    """Joints at frame `index` of a smooth trajectory through random waypoints (cosine blend,
+    zero velocity at each waypoint, so the path stays inside the joint limits)."""
+    t = index / config.sequence.fps
+    k = int(t // config.sequence.waypoint_period_s)
+    s = (t - k * config.sequence.waypoint_period_s) / config.sequence.waypoint_period_s
+    a = sample_joints(np.random.default_rng([seed, SEQUENCE_STREAM, k]), robot, config, joint_log)
+    b = sample_joints(np.random.default_rng([seed, SEQUENCE_STREAM, k + 1]), robot, config,
+                      joint_log)
+    return a + (b - a) * (1 - np.cos(np.pi * s)) / 2
+
+
+def sample_frame(seed: int, index: int, robot: Robot, config: SynthConfig,
+                 default_rgba: np.ndarray, num_lights_max: int, num_distractors_max: int,
+                 num_textures: int, joint_log: np.ndarray | None = None) -> FrameParams:
+    """All randomness of frame `index`."""
+    mode = config.sequence.mode
+    rng = frame_rng(seed, index)
+    limits = (default_rgba, num_lights_max, num_distractors_max, num_textures)
+    if mode == "random":
+        scene = sample_scene(rng, config, *limits)
+        return FrameParams(index, scene, sample_joints(rng, robot, config, joint_log), None)
+    scene = sample_scene(sequence_rng(seed), config, *limits)
+    timestamp = index / config.sequence.fps
+    if mode == "fixed_camera":
+        return FrameParams(index, scene, sample_joints(rng, robot, config, joint_log), timestamp)
+    return FrameParams(index, scene, trajectory_joints(seed, index, robot, config, joint_log),
+                       timestamp)

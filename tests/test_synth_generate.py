@@ -1,0 +1,149 @@
+"""`dream synth`: labels agree with renders, every robot, kill and resume, sequences."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from test_synth_scene import _write_user_robot
+
+from dream.cli import main
+from dream.errors import InputError
+from dream.io import read_sequence
+from dream.metrics import pose_errors
+from dream.robot import load_robot
+from synth.config import config_from_dict
+from synth.generate import SynthJob, generate
+from synth.render import RenderOptions, SceneRenderer
+from synth.scene import SceneOptions, build_scene
+
+MARKER_RADIUS_M = 0.012
+MIN_MARKER_PIXELS = 12
+CENTROID_TOLERANCE_PX = 0.5
+FIXED = {"width": 320, "height": 240, "fx": 330.0, "fy": 318.0, "cx": 165.2, "cy": 116.8}
+
+
+def quiet(job: SynthJob) -> dict:
+    return generate(job, on_progress=lambda n: None)
+
+
+@pytest.mark.parametrize("distortion", [None, [0.08, -0.04, 0.001, -0.0008, 0.0]])
+def test_written_labels_lie_on_rendered_keypoint_markers(tmp_path, distortion):
+    intrinsics = dict(FIXED, distortion=distortion)
+    config = config_from_dict({"intrinsics": intrinsics, "camera": {"radius_m": [1.3, 1.8]}})
+    out = tmp_path / "set"
+    quiet(SynthJob("panda", out, 6, config, seed=11))
+    seq = read_sequence(out)
+    assert seq.camera.distortion == (None if distortion is None else tuple(distortion))
+    robot = load_robot("panda")
+    scene = build_scene(robot, SceneOptions(keypoint_markers=True,
+                                            marker_radius_m=MARKER_RADIUS_M))
+    options = RenderOptions(show_robot=False, show_floor=False, show_distractors=False,
+                            show_markers=True)
+    checked, worst = 0, 0.0
+    with SceneRenderer(scene, seq.camera, options) as renderer:
+        for frame in seq.frames:
+            renderer.set_state(frame.joints, frame.T_cam_base_true)
+            ids = renderer.render(rgb=False, segmentation=True).geom_ids
+            for k, geom in enumerate(scene.marker_geom_ids):
+                v, u = np.nonzero(ids == geom)
+                if len(u) < MIN_MARKER_PIXELS or u.min() == 0 or v.min() == 0 or \
+                        u.max() == seq.camera.width - 1 or v.max() == seq.camera.height - 1:
+                    continue
+                error = np.hypot(u.mean() - frame.uv_labels[k, 0], v.mean() - frame.uv_labels[k, 1])
+                worst = max(worst, error)
+                checked += 1
+    assert checked >= 20
+    assert worst < CENTROID_TOLERANCE_PX, worst
+
+
+@pytest.mark.parametrize("robot", ["ur5", "xarm7"])
+def test_other_builtin_robots(tmp_path, robot):
+    out = tmp_path / robot
+    quiet(SynthJob(robot, out, 2, config_from_dict({}), seed=1))
+    seq = read_sequence(out)
+    assert seq.robot == robot and len(seq) == 2
+    assert seq.keypoint_names == load_robot(robot).keypoint_names
+    mask = cv2.imread(str(out / "000000.seg.png"), cv2.IMREAD_UNCHANGED)
+    assert mask.shape == (240, 320) and mask.max() > 0
+
+
+def test_user_urdf(tmp_path):
+    urdf = _write_user_robot(tmp_path)
+    out = tmp_path / "user"
+    quiet(SynthJob(str(urdf), out, 2, config_from_dict({}), seed=2, keypoints=("base", "tip")))
+    doc = json.loads((out / "000001.json").read_text())
+    assert [k["name"] for k in doc["objects"][0]["keypoints"]] == ["base", "tip"]
+    assert all({"in_frame", "occlusion", "projected_location"} <= set(k)
+               for k in doc["objects"][0]["keypoints"])
+
+
+def _synth_cmd(out: Path, workers: int) -> list[str]:
+    return [sys.executable, "-m", "dream.cli", "synth", "--robot", "panda", "--num", "40",
+            "--out", str(out), "--seed", "7", "--workers", str(workers)]
+
+
+def _same_dataset(a: Path, b: Path) -> None:
+    names_a = sorted(p.name for p in a.iterdir())
+    assert names_a == sorted(p.name for p in b.iterdir())
+    for name in names_a:
+        if name.endswith(".json"):
+            assert json.loads((a / name).read_text()) == json.loads((b / name).read_text()), name
+        else:
+            ia = cv2.imread(str(a / name), cv2.IMREAD_UNCHANGED)
+            ib = cv2.imread(str(b / name), cv2.IMREAD_UNCHANGED)
+            assert np.array_equal(ia, ib), name
+
+
+def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
+    killed, whole = tmp_path / "killed", tmp_path / "whole"
+    proc = subprocess.Popen(_synth_cmd(killed, 2), start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if len(list(killed.glob("*.json"))) >= 10:  # settings + camera + 8 frames
+            break
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    frames_before = len(list(killed.glob("[0-9]*.json")))
+    assert 1 <= frames_before < 40, frames_before
+    subprocess.run(_synth_cmd(killed, 1), check=True, capture_output=True)
+    subprocess.run(_synth_cmd(whole, 1), check=True, capture_output=True)
+    assert not list(killed.glob(".tmp-*"))
+    _same_dataset(killed, whole)
+
+
+def test_resume_with_other_settings_is_refused(tmp_path, capsys):
+    out = tmp_path / "set"
+    quiet(SynthJob("panda", out, 2, config_from_dict({}), seed=1))
+    with pytest.raises(InputError, match="other settings"):
+        quiet(SynthJob("panda", out, 2, config_from_dict({}), seed=2))
+    code = main(["synth", "--robot", "panda", "--num", "2", "--out", str(out), "--seed", "3"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "other settings" in err
+
+
+def test_rendered_sequence_calibrates_back_to_its_camera(tmp_path, capsys):
+    config = config_from_dict({"intrinsics": FIXED, "sequence": {"mode": "trajectory",
+                                                                 "fps": 10.0}})
+    out = tmp_path / "seq"
+    quiet(SynthJob("panda", out, 20, config, seed=5))
+    seq = read_sequence(out)
+    stamps = [f.timestamp for f in seq.frames]
+    assert np.allclose(np.diff(stamps), 0.1)
+    truth = seq.frames[0].T_cam_base_true
+    assert all(np.array_equal(f.T_cam_base_true, truth) for f in seq.frames)
+    assert main(["calibrate", "--data", str(out), "--use-labels", "--out",
+                 str(tmp_path / "r.json")]) == 0
+    T = np.array(json.loads((tmp_path / "r.json").read_text())["T_cam_base"])
+    t_err, r_err = pose_errors(T, truth)
+    assert t_err < 1e-6 and r_err < 1e-6

@@ -1,0 +1,100 @@
+"""Synth recipe, per-frame randomness and labels: the parts that need no rendering."""
+
+import numpy as np
+import pytest
+
+from dream.errors import InputError
+from dream.robot import load_robot
+from dream.transforms import transform_points
+from synth.config import config_from_dict, load_config
+from synth.labels import OCCLUDED_DISTRACTOR, OCCLUDED_SELF, OUT_OF_FRAME, VISIBLE, keypoint_labels
+from synth.randomize import sample_frame, trajectory_joints
+
+PANDA = load_robot("panda")
+RGBA = np.tile([0.9, 0.9, 0.9, 1.0], (5, 1))
+
+
+def frame(seed, index, config):
+    return sample_frame(seed, index, PANDA, config, RGBA, 4, 6, 4)
+
+
+@pytest.mark.parametrize("values, words", [
+    ({"camera": {"radius": [1, 2]}}, "unknown key"),
+    ({"camera": {"radius_m": [2, 1]}}, "low <= high"),
+    ({"lights": {"count": [0, 2]}}, "lights.count"),
+    ({"intrinsics": {"fx": 100}}, "all of fx, fy, cx, cy"),
+    ({"sequence": {"mode": "loop"}}, "sequence.mode"),
+    ({"background": {"kinds": {"plaid": 1}}}, "unknown kinds"),
+    ({"nonsense": {}}, "unknown key"),
+])
+def test_bad_recipes_are_refused_with_the_reason(values, words):
+    with pytest.raises(InputError, match=words):
+        config_from_dict(values)
+
+
+def test_shipped_recipes_load():
+    for name in ("default", "panda_teleop_like"):
+        load_config(f"configs/synth/{name}.yaml")
+    with pytest.raises(InputError, match="not found"):
+        load_config("configs/synth/missing.yaml")
+
+
+def test_each_frame_depends_only_on_seed_and_index():
+    config = config_from_dict({})
+    a, b = frame(5, 17, config), frame(5, 17, config)
+    assert np.array_equal(a.joints, b.joints)
+    assert np.array_equal(a.scene.T_cam_base, b.scene.T_cam_base)
+    assert a.scene.background_seed == b.scene.background_seed
+    c = frame(5, 18, config)
+    assert not np.array_equal(a.joints, c.joints)
+    assert not np.array_equal(a.scene.T_cam_base, c.scene.T_cam_base)
+    assert not np.array_equal(frame(6, 17, config).joints, a.joints)
+
+
+def test_sequence_modes_fix_the_camera_and_scene():
+    for mode in ("fixed_camera", "trajectory"):
+        config = config_from_dict({"sequence": {"mode": mode, "fps": 30}})
+        f0, f9 = frame(1, 0, config), frame(1, 9, config)
+        assert np.array_equal(f0.scene.T_cam_base, f9.scene.T_cam_base)
+        assert f0.scene.background_seed == f9.scene.background_seed
+        assert f0.scene is not f9.scene and len(f0.scene.lights) == len(f9.scene.lights)
+        assert f9.timestamp == pytest.approx(9 / 30)
+        assert not np.array_equal(f0.joints, f9.joints)
+
+
+def test_trajectory_is_smooth_and_within_limits():
+    config = config_from_dict({"sequence": {"mode": "trajectory", "fps": 30,
+                                            "waypoint_period_s": 1.0}})
+    q = np.array([trajectory_joints(2, i, PANDA, config, None) for i in range(120)])
+    assert np.all(q >= PANDA.joint_lower - 1e-12) and np.all(q <= PANDA.joint_upper + 1e-12)
+    step = np.abs(np.diff(q, axis=0)).max()
+    span = (PANDA.joint_upper - PANDA.joint_lower).max()
+    assert step < span * np.pi / 2 / 30  # max speed of the cosine blend, per frame
+
+
+def test_occlusion_rule():
+    config = config_from_dict({})
+    f = frame(0, 3, config)
+    K = len(PANDA.keypoint_names)
+    P_cam = transform_points(f.scene.T_cam_base, PANDA.forward_kinematics(f.joints))
+    kw = dict(robot=PANDA, P_cam=P_cam, camera=f.scene.camera)
+    labels = keypoint_labels(**kw)
+    assert all(o in (VISIBLE, OUT_OF_FRAME) for o in labels.occlusion)
+    assert [o == OUT_OF_FRAME for o in labels.occlusion] == list(~labels.in_frame)
+    dist = np.linalg.norm(labels.P_cam, axis=1)
+    inside = labels.in_frame
+    # a distractor just in front of every keypoint
+    occ = keypoint_labels(**kw, hit_link=[None] * K, hit_distractor=np.ones(K, bool),
+                          hit_distance_m=dist - 0.01)
+    assert all(o == OCCLUDED_DISTRACTOR for o, i in zip(occ.occlusion, inside, strict=True) if i)
+    # the base link far in front of the hand: self-occlusion; the hand's own link: visible
+    hand = PANDA.keypoint_names.index("panda_hand")
+    links = [None] * K
+    links[hand] = "panda_link0"
+    occ = keypoint_labels(**kw, hit_link=links, hit_distractor=np.zeros(K, bool),
+                          hit_distance_m=np.where(np.arange(K) == hand, dist - 0.3, np.inf))
+    assert occ.occlusion[hand] == (OCCLUDED_SELF if inside[hand] else OUT_OF_FRAME)
+    links[hand] = "panda_link7"
+    occ = keypoint_labels(**kw, hit_link=links, hit_distractor=np.zeros(K, bool),
+                          hit_distance_m=np.where(np.arange(K) == hand, dist - 0.3, np.inf))
+    assert occ.occlusion[hand] in (VISIBLE, OUT_OF_FRAME)
