@@ -27,7 +27,7 @@ import numpy as np
 from dream import __version__
 from dream.camera import CameraIntrinsics
 from dream.errors import DreamError, InputError
-from dream.io import write_json_atomic
+from dream.io import is_temporary, write_bytes_atomic, write_json_atomic
 from dream.io.dream_layout import camera_settings_json, frame_json
 from dream.robot import load_robot
 from dream.sequence import Frame, Sequence
@@ -37,7 +37,6 @@ log = logging.getLogger(__name__)
 
 SYNTH_INFO = "_synth.json"
 CAMERA_SETTINGS = "_camera_settings.json"
-TMP_MARK = ".tmp-"
 DEPTH_UNIT_M = 1e-3           # depth PNGs store millimetres in uint16
 CHUNK_FRAMES = 8              # frames handed to a worker at a time
 PROGRESS_PERIOD_S = 1.0
@@ -91,12 +90,6 @@ def frame_name(index: int) -> str:
     return f"{index:06d}"
 
 
-def _write_bytes_atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f"{TMP_MARK}{os.getpid()}-{path.name}")
-    tmp.write_bytes(data)
-    tmp.replace(path)
-
-
 def _encode(ext: str, image: np.ndarray, params: list[int] | None = None) -> bytes:
     ok, buf = cv2.imencode(ext, image, params or [])
     if not ok:
@@ -136,20 +129,32 @@ def write_frame(out_dir: Path, doc: dict[str, Any], frame: RenderedFrame,
         rgb_bytes = _encode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, config.output.jpeg_quality])
     else:
         rgb_bytes = _encode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION])
-    _write_bytes_atomic(stem.with_name(stem.name + f".rgb.{config.output.image_format}"),
+    write_bytes_atomic(stem.with_name(stem.name + f".rgb.{config.output.image_format}"),
                         rgb_bytes)
     ids = frame.link_ids.astype(np.uint8 if frame.link_ids.max(initial=0) < 256 else np.uint16)
-    _write_bytes_atomic(stem.with_name(stem.name + ".seg.png"),
+    write_bytes_atomic(stem.with_name(stem.name + ".seg.png"),
                         _encode(".png", ids, [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION]))
     if frame.depth is not None and config.output.depth:
         mm = np.where(np.isfinite(frame.depth), np.rint(frame.depth / DEPTH_UNIT_M), 0)
-        _write_bytes_atomic(stem.with_name(stem.name + ".depth.png"),
+        write_bytes_atomic(stem.with_name(stem.name + ".depth.png"),
                             _encode(".png", np.clip(mm, 0, 65535).astype(np.uint16)))
     write_json_atomic(stem.with_name(stem.name + ".json"), doc)
 
 
 def done_indices(out_dir: Path) -> set[int]:
     return {int(p.name[:6]) for p in out_dir.glob("[0-9][0-9][0-9][0-9][0-9][0-9].json")}
+
+
+def check_inputs(config: SynthConfig, robot) -> None:
+    """Fail before anything is written when the recipe names a missing photo folder or an
+    unreadable joint log."""
+    from synth.randomize import load_joint_log
+    from synth.textures import list_photos
+
+    if config.background.photos:
+        list_photos(config.background.photos)
+    if config.joints.log:
+        load_joint_log(config.joints.log, robot)
 
 
 def prepare_output(job: SynthJob, overwrite: bool) -> set[int]:
@@ -172,8 +177,9 @@ def prepare_output(job: SynthJob, overwrite: bool) -> set[int]:
             for p in out.iterdir():
                 if p.is_file():
                     p.unlink()
-        for p in out.glob(f"{TMP_MARK}*"):
-            p.unlink()
+        for p in out.iterdir():
+            if is_temporary(p):
+                p.unlink()
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(info_path, job.info())
     return done_indices(out)
@@ -243,6 +249,7 @@ def generate(job: SynthJob, overwrite: bool = False,
              on_progress: Callable[[int], None] | None = None) -> dict[str, Any]:
     """Render the missing frames of `job`; returns counts and the rate."""
     robot = load_robot(job.robot, list(job.keypoints) if job.keypoints else None)
+    check_inputs(job.config, robot)
     done = prepare_output(job, overwrite)
     todo = [i for i in range(job.num_frames) if i not in done]
     from synth.frames import nominal_camera

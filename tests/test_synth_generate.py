@@ -17,7 +17,7 @@ from test_synth_scene import _write_user_robot
 
 from dream.cli import main
 from dream.errors import InputError
-from dream.io import read_sequence
+from dream.io import is_temporary, read_sequence
 from dream.metrics import pose_errors
 from dream.robot import load_robot
 from synth.config import config_from_dict
@@ -118,7 +118,7 @@ def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
     assert 1 <= frames_before < 40, frames_before
     subprocess.run(_synth_cmd(killed, 1), check=True, capture_output=True)
     subprocess.run(_synth_cmd(whole, 1), check=True, capture_output=True)
-    assert not list(killed.glob(".tmp-*"))
+    assert not [p for p in killed.iterdir() if is_temporary(p)]
     _same_dataset(killed, whole)
 
 
@@ -147,3 +147,42 @@ def test_rendered_sequence_calibrates_back_to_its_camera(tmp_path, capsys):
     T = np.array(json.loads((tmp_path / "r.json").read_text())["T_cam_base"])
     t_err, r_err = pose_errors(T, truth)
     assert t_err < 1e-6 and r_err < 1e-6
+
+
+def test_occlusion_flags_agree_with_the_robot_mask(tmp_path):
+    config = config_from_dict({"distractors": {"count": [4, 6], "occluder_prob": 0.8}})
+    out = tmp_path / "occ"
+    quiet(SynthJob("panda", out, 24, config, seed=4))
+    seen = {"visible": [], "distractor": []}
+    for i in range(24):
+        doc = json.loads((out / f"{i:06d}.json").read_text())
+        mask = cv2.imread(str(out / f"{i:06d}.seg.png"), cv2.IMREAD_UNCHANGED)
+        for kp in doc["objects"][0]["keypoints"]:
+            if kp["occlusion"] in seen:
+                u, v = np.rint(kp["projected_location"]).astype(int)
+                seen[kp["occlusion"]].append(mask[v, u] > 0)
+    assert len(seen["distractor"]) >= 5 and len(seen["visible"]) >= 50
+    assert not any(seen["distractor"])           # a distractor covers that pixel
+    assert np.mean(seen["visible"]) > 0.9        # the robot is there (edges may miss)
+
+
+def test_photo_backgrounds(tmp_path):
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for i, colour in enumerate([(0, 0, 255), (0, 255, 0)]):
+        cv2.imwrite(str(photos / f"p{i}.png"), np.full((60, 80, 3), colour, np.uint8))
+    config = config_from_dict({"background": {"kinds": {"photo": 1.0, "noise": 0.0},
+                                              "photos": str(photos), "floor_prob": 0.0},
+                               "distractors": {"count": [0, 0]}})
+    out = tmp_path / "bg"
+    quiet(SynthJob("panda", out, 3, config, seed=0))
+    for i in range(3):
+        rgb = cv2.imread(str(out / f"{i:06d}.rgb.png"))
+        mask = cv2.imread(str(out / f"{i:06d}.seg.png"), cv2.IMREAD_UNCHANGED)
+        background = rgb[mask == 0]
+        # pure red or pure green photo pixels (BGR), not a procedural pattern
+        assert np.all((background == [0, 0, 255]).all(1) | (background == [0, 255, 0]).all(1))
+    with pytest.raises(InputError, match="photo folder not found"):
+        config = config_from_dict({"background": {"photos": str(tmp_path / "none")}})
+        quiet(SynthJob("panda", tmp_path / "x", 1, config))
+    assert not (tmp_path / "x").exists()

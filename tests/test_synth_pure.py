@@ -98,3 +98,20 @@ def test_occlusion_rule():
     occ = keypoint_labels(**kw, hit_link=links, hit_distractor=np.zeros(K, bool),
                           hit_distance_m=np.where(np.arange(K) == hand, dist - 0.3, np.inf))
     assert occ.occlusion[hand] in (VISIBLE, OUT_OF_FRAME)
+
+
+def test_joints_drawn_around_a_joint_log(tmp_path):
+    from synth.randomize import load_joint_log, sample_joints
+
+    log_q = np.array([[0.1, -0.5, 0.2, -2.0, 0.3, 1.5, 0.7], [0.0, 0.2, 0.0, -1.0, 0.0, 1.0, 0.0]])
+    path = tmp_path / "log.txt"
+    path.write_text("# joints, rad\n" + "\n".join(" ".join(map(str, q)) for q in log_q))
+    q_log = load_joint_log(path, PANDA)
+    config = config_from_dict({"joints": {"log": str(path), "log_noise_rad": 0.01}})
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        q = sample_joints(rng, PANDA, config, q_log)
+        assert np.min(np.abs(q - log_q).max(axis=1)) < 0.06
+    path.write_text("1 2 3\n")
+    with pytest.raises(InputError, match="rows of 7"):
+        load_joint_log(path, PANDA)

@@ -5,7 +5,7 @@
 `load_image` / `load_mask` fetch a frame's pixels. Every input problem is an `InputError`.
 """
 
-from dream.io.atomic import atomic_directory, write_json_atomic
+from dream.io.atomic import atomic_directory, is_temporary, write_bytes_atomic, write_json_atomic
 from dream.io.detect import FORMATS, detect_format
 from dream.io.dream_layout import read_dream, write_dream
 from dream.io.franka_offline import read_franka_offline
@@ -20,6 +20,7 @@ __all__ = [
     "atomic_directory",
     "detect_format",
     "image_size",
+    "is_temporary",
     "load_image",
     "load_mask",
     "load_mask_ids",
@@ -29,6 +30,7 @@ __all__ = [
     "read_maniunicon",
     "read_panda_teleop",
     "read_sequence",
+    "write_bytes_atomic",
     "write_dream",
     "write_json_atomic",
 ]

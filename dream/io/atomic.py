@@ -24,6 +24,7 @@ from dream.io.fields import one_line, os_reason
 logger = logging.getLogger(__name__)
 
 JSON_INDENT = 2
+TEMPORARY_KINDS = ("tmp", "old")  # the `kind` part of temporary sibling names
 _TOKEN_BYTES = 4  # random suffix of temporary names, so concurrent writers never collide
 
 
@@ -57,12 +58,16 @@ def write_json_atomic(path: str | Path, obj: Any, indent: int | None = JSON_INDE
     Floats are written with Python's repr, so reading them back gives the same values.
     Raises `InputError` when the value holds NaN/infinity or the file cannot be written.
     """
+    return write_bytes_atomic(path, dumps(obj, indent).encode("utf-8"))
+
+
+def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
+    """Write `data` to `path` atomically (temporary sibling file, fsync, `os.replace`)."""
     path = Path(path)
-    text = dumps(obj, indent)
     tmp = _temporary_sibling(path, "tmp")
     try:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(text)
+        with open(tmp, "wb") as fh:
+            fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
@@ -74,6 +79,13 @@ def write_json_atomic(path: str | Path, obj: Any, indent: int | None = JSON_INDE
         if tmp.exists():
             tmp.unlink()
     return path
+
+
+def is_temporary(path: Path) -> bool:
+    """True for a leftover temporary of `write_*_atomic` or `atomic_directory` (a process that
+    was killed mid-write leaves these behind; they are safe to delete)."""
+    name = Path(path).name
+    return name.startswith(".") and any(f".{kind}-" in name for kind in TEMPORARY_KINDS)
 
 
 def _is_empty_dir(path: Path) -> bool:
