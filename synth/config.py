@@ -142,7 +142,7 @@ class Background:
         "photo": 0.0})
     photos: str | None = None
     floor_prob: float = 0.5
-    texture_size: int = 128
+    texture_size: int = 64
 
     def __post_init__(self) -> None:
         known = {"noise", "checkers", "stripes", "gradient", "shapes", "photo"}

@@ -33,7 +33,7 @@ log = logging.getLogger(__name__)
 
 MAX_LIGHTS = 7                  # OpenGL's fixed pipeline has 8 lights; the headlight takes one
 NUM_TEXTURES = 4                # randomisable distractor textures in the scene
-FLOOR_TEXTURE_PX = 128          # redrawn every frame, so kept small
+FLOOR_TEXTURE_PX = 64           # redrawn and uploaded every frame, so kept small (tiled)
 FLOOR_MIN_CAMERA_HEIGHT_M = 0.02  # below this the floor is hidden (it would hide the robot)
 HEADLIGHT_DIFFUSE = 0.15        # a little light from the camera, so no frame is black
 PARKED_Z_M = -100.0             # unused distractors wait here, out of every view

@@ -17,6 +17,7 @@ import os
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -122,7 +123,9 @@ def frame_document(job: SynthJob, robot_name: str, joint_names: tuple[str, ...],
 
 def write_frame(out_dir: Path, doc: dict[str, Any], frame: RenderedFrame,
                 config: SynthConfig) -> None:
-    """Images first, the JSON last: the frame exists only once it is complete."""
+    """Images first, the JSON last: the frame exists only once it is complete. Atomic renames
+    without fsync: a killed process leaves whole files; a power cut may need a re-run with
+    --overwrite."""
     stem = out_dir / frame_name(frame.index)
     bgr = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR)
     if config.output.image_format == "jpg":
@@ -130,15 +133,17 @@ def write_frame(out_dir: Path, doc: dict[str, Any], frame: RenderedFrame,
     else:
         rgb_bytes = _encode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION])
     write_bytes_atomic(stem.with_name(stem.name + f".rgb.{config.output.image_format}"),
-                        rgb_bytes)
+                       rgb_bytes, durable=False)
     ids = frame.link_ids.astype(np.uint8 if frame.link_ids.max(initial=0) < 256 else np.uint16)
     write_bytes_atomic(stem.with_name(stem.name + ".seg.png"),
-                        _encode(".png", ids, [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION]))
+                       _encode(".png", ids, [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION]),
+                       durable=False)
     if frame.depth is not None and config.output.depth:
         mm = np.where(np.isfinite(frame.depth), np.rint(frame.depth / DEPTH_UNIT_M), 0)
         write_bytes_atomic(stem.with_name(stem.name + ".depth.png"),
-                            _encode(".png", np.clip(mm, 0, 65535).astype(np.uint16)))
-    write_json_atomic(stem.with_name(stem.name + ".json"), doc)
+                           _encode(".png", np.clip(mm, 0, 65535).astype(np.uint16)),
+                           durable=False)
+    write_json_atomic(stem.with_name(stem.name + ".json"), doc, durable=False)
 
 
 def done_indices(out_dir: Path) -> set[int]:
@@ -201,18 +206,27 @@ def _worker_init(job: SynthJob) -> None:
 
 
 def _worker_render(indices: list[int]) -> list[int]:
+    """Render `indices`; encoding and writing run on a thread, overlapping the next render
+    (both release the GIL). Returns once every frame of the chunk is on disk."""
     job: SynthJob = _STATE["job"]
     maker = _STATE["maker"]
     robot = _STATE["robot"]
+    writer: ThreadPoolExecutor = _STATE.setdefault("writer", ThreadPoolExecutor(1))
+    pending = []
     for i in indices:
         frame = maker.make(i)
         doc = frame_document(job, robot.name if job.keypoints is None else job.robot,
                              robot.joint_names, robot.keypoint_names, frame, maker.nominal_camera)
-        write_frame(job.out_dir, doc, frame, job.config)
+        pending.append(writer.submit(write_frame, job.out_dir, doc, frame, job.config))
+    for future in pending:
+        future.result()
     return indices
 
 
 def _worker_close() -> None:
+    writer = _STATE.pop("writer", None)
+    if writer is not None:
+        writer.shutdown(wait=True)
     maker = _STATE.pop("maker", None)
     if maker is not None:
         maker.close()

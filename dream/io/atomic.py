@@ -52,24 +52,29 @@ def dumps(obj: Any, indent: int | None = JSON_INDENT) -> str:
                          fix="write null instead of NaN or infinity") from None
 
 
-def write_json_atomic(path: str | Path, obj: Any, indent: int | None = JSON_INDENT) -> Path:
-    """Write `obj` as JSON to `path` atomically (temporary sibling file, fsync, `os.replace`).
+def write_json_atomic(path: str | Path, obj: Any, indent: int | None = JSON_INDENT,
+                      durable: bool = True) -> Path:
+    """Write `obj` as JSON to `path` atomically (see `write_bytes_atomic` for `durable`).
 
     Floats are written with Python's repr, so reading them back gives the same values.
     Raises `InputError` when the value holds NaN/infinity or the file cannot be written.
     """
-    return write_bytes_atomic(path, dumps(obj, indent).encode("utf-8"))
+    return write_bytes_atomic(path, dumps(obj, indent).encode("utf-8"), durable)
 
 
-def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
-    """Write `data` to `path` atomically (temporary sibling file, fsync, `os.replace`)."""
+def write_bytes_atomic(path: str | Path, data: bytes, durable: bool = True) -> Path:
+    """Write `data` to `path` atomically (temporary sibling file, `os.replace`).
+
+    The rename makes a killed process leave either the old file or the new one. `durable`
+    also fsyncs before the rename (survives a power cut; slow on some disks)."""
     path = Path(path)
     tmp = _temporary_sibling(path, "tmp")
     try:
         with open(tmp, "wb") as fh:
             fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
+            if durable:
+                fh.flush()
+                os.fsync(fh.fileno())
         os.replace(tmp, path)
     except OSError as exc:
         raise InputError(f"cannot write the file ({os_reason(exc)})", path,

@@ -1,0 +1,242 @@
+"""Belief maps -> 2D keypoints: smoothing, threshold, local maxima, ambiguity, sub-pixel peak.
+
+Shared by training (validation metrics) and inference; numpy and scipy only.
+
+Coordinate spaces (pixels, u right, v down, the centre of the top-left pixel at (0, 0)):
+- map: a belief map of `h` x `w` pixels, one map pixel = `stride` input pixels;
+- input: the network input (`dream.preprocess`): `u_input = (u_map + 0.5) * stride - 0.5`;
+- image: the camera image, through `dream.preprocess.InputTransform.input_to_image`.
+
+The records are named after their space: `PeaksInMap` (`uv_map`), `PeaksInInput` (`uv_input`),
+`PeaksInImage` (`uv_image`); a keypoint not found has NaN coordinates, `found` False and a
+`reason` from `REASONS`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from dream.errors import InputError
+from dream.preprocess import InputTransform
+
+FOUND = "found"
+BELOW_THRESHOLD = "below_threshold"  # no local maximum reaches the threshold
+AMBIGUOUS = "ambiguous"              # a distant second peak is nearly as high as the best
+OUT_OF_FRAME = "out_of_frame"        # the refined centre lies outside the map
+REASONS = (FOUND, BELOW_THRESHOLD, AMBIGUOUS, OUT_OF_FRAME)
+_LOCAL_MAX_SIZE = 3         # a local maximum is the largest value of its 3x3 neighbourhood
+_MIN_FIT_PIXELS = 6         # unknowns of the 2D quadratic fit
+_VALID_STRIDES = (1, 2, 4)
+
+
+@dataclass(frozen=True)
+class PeakParams:
+    """Every constant of the peak finder. Distances in map pixels; values on the belief scale
+    (a perfect peak is 1).
+
+    Attributes:
+        smoothing_sigma: Gaussian smoothing before the local-maximum search (0: none).
+        threshold: a peak counts only when its value on the smoothed map reaches this.
+        ambiguity_ratio: not found when the second-highest peak farther than
+            `ambiguity_min_distance` from the best is higher than this fraction of the best.
+        ambiguity_min_distance: peaks closer than this to the best are the same peak.
+        refine_radius: half size of the window of the sub-pixel fit ((2r+1)^2 pixels).
+        refine_floor: pixels of the window below this fraction of the peak value are left
+            out of the fit (they carry the noise and the tails, not the peak's shape).
+    """
+
+    smoothing_sigma: float = 1.0
+    threshold: float = 0.1
+    ambiguity_ratio: float = 0.5
+    ambiguity_min_distance: float = 4.0
+    refine_radius: int = 2
+    refine_floor: float = 0.05
+
+    def __post_init__(self) -> None:
+        for name in ("smoothing_sigma", "threshold", "ambiguity_ratio", "ambiguity_min_distance",
+                     "refine_floor"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not np.isfinite(float(value)) or float(value) < 0:
+                raise InputError(f"peak parameter {name} must be a finite number >= 0, got "
+                                 f"{value!r}")
+            object.__setattr__(self, name, float(value))
+        if self.threshold <= 0:
+            raise InputError(f"peak threshold must be > 0, got {self.threshold}")
+        if self.ambiguity_ratio > 1:
+            raise InputError(f"ambiguity_ratio must be in [0, 1], got {self.ambiguity_ratio}")
+        if self.refine_floor >= 1:
+            raise InputError(f"refine_floor must be in [0, 1), got {self.refine_floor}")
+        if isinstance(self.refine_radius, bool) or int(self.refine_radius) != self.refine_radius \
+                or self.refine_radius < 1:
+            raise InputError(f"refine_radius must be an integer >= 1, got {self.refine_radius!r}")
+        object.__setattr__(self, "refine_radius", int(self.refine_radius))
+
+
+@dataclass(frozen=True)
+class PeaksInMap:
+    """Peaks of K belief maps, in map pixels.
+
+    Attributes:
+        uv_map: (K, 2) sub-pixel peak, map pixels; NaN where not found.
+        confidence: (K,) the belief map's value at the peak pixel (the local maximum of the
+            smoothed map; 0 where there is none, the best peak's for ambiguous and
+            out-of-frame keypoints). The threshold applies to the smoothed map, whose peaks
+            are lower: sigma^2 / (sigma^2 + smoothing_sigma^2) for a Gaussian of sigma.
+        found: (K,) bool.
+        reason: K strings from `REASONS`.
+        map_width, map_height: size of the belief maps, px.
+    """
+
+    uv_map: np.ndarray
+    confidence: np.ndarray
+    found: np.ndarray
+    reason: tuple[str, ...]
+    map_width: int
+    map_height: int
+
+    def to_input(self, stride: int) -> PeaksInInput:
+        """The same peaks in input pixels (the map is `stride` times smaller than the input)."""
+        return PeaksInInput(map_to_input(self.uv_map, stride), self.confidence, self.found,
+                            self.reason)
+
+
+@dataclass(frozen=True)
+class PeaksInInput:
+    """Peaks in network-input pixels; fields as `PeaksInMap`, `uv_input` (K, 2)."""
+
+    uv_input: np.ndarray
+    confidence: np.ndarray
+    found: np.ndarray
+    reason: tuple[str, ...]
+
+    def to_image(self, transform: InputTransform) -> PeaksInImage:
+        """The same peaks in camera-image pixels."""
+        return PeaksInImage(transform.input_to_image(self.uv_input), self.confidence, self.found,
+                            self.reason)
+
+
+@dataclass(frozen=True)
+class PeaksInImage:
+    """Peaks in camera-image pixels; fields as `PeaksInMap`, `uv_image` (K, 2)."""
+
+    uv_image: np.ndarray
+    confidence: np.ndarray
+    found: np.ndarray
+    reason: tuple[str, ...]
+
+
+def _check_stride(stride: int) -> int:
+    if isinstance(stride, bool) or stride not in _VALID_STRIDES:
+        raise InputError(f"output stride must be one of {_VALID_STRIDES}, got {stride!r}")
+    return int(stride)
+
+
+def map_to_input(uv_map: np.ndarray, stride: int) -> np.ndarray:
+    """Map pixels (..., 2) -> input pixels (..., 2): `(uv_map + 0.5) * stride - 0.5`."""
+    uv = np.asarray(uv_map, dtype=float)
+    return (uv + 0.5) * _check_stride(stride) - 0.5
+
+
+def input_to_map(uv_input: np.ndarray, stride: int) -> np.ndarray:
+    """Input pixels (..., 2) -> map pixels (..., 2): `(uv_input + 0.5) / stride - 0.5`."""
+    uv = np.asarray(uv_input, dtype=float)
+    return (uv + 0.5) / _check_stride(stride) - 0.5
+
+
+def _fit_quadratic_log(window: np.ndarray, du: np.ndarray, dv: np.ndarray,
+                       floor: float) -> np.ndarray | None:
+    """Offset (du, dv) of the maximum of a 2D quadratic fitted to log(values), weighted by the
+    squared values (Guo's weighting); exact for a sampled Gaussian. None when the fit has no
+    maximum."""
+    peak = window.max()
+    keep = window > floor * peak
+    if keep.sum() < _MIN_FIT_PIXELS:
+        return None
+    y, x, z = dv[keep], du[keep], window[keep]
+    A = np.stack([np.ones_like(x), x, y, x * x, y * y, x * y], axis=1)
+    w = z  # rows scaled by z -> least squares weighted by z^2
+    coef, *_ = np.linalg.lstsq(A * w[:, None], np.log(z) * w, rcond=None)
+    _, b, c, d, e, f = coef
+    H = np.array([[2 * d, f], [f, 2 * e]])
+    if not (H[0, 0] < 0 and np.linalg.det(H) > 0):
+        return None
+    return np.linalg.solve(H, -np.array([b, c]))
+
+
+def _refine(belief: np.ndarray, u: int, v: int, params: PeakParams) -> np.ndarray:
+    """Sub-pixel peak (u, v) in map pixels near the integer maximum (u, v) of one (h, w) map."""
+    h, w = belief.shape
+    r = params.refine_radius
+    v0, v1, u0, u1 = max(v - r, 0), min(v + r + 1, h), max(u - r, 0), min(u + r + 1, w)
+    window = belief[v0:v1, u0:u1].astype(float)
+    dv, du = np.mgrid[v0 - v:v1 - v, u0 - u:u1 - u].astype(float)
+    offset = _fit_quadratic_log(window, du, dv, params.refine_floor)
+    if offset is None or np.any(np.abs(offset) > r):
+        weights = np.clip(window, 0.0, None)
+        total = weights.sum()
+        offset = np.array([0.0, 0.0]) if total <= 0 else \
+            np.array([(weights * du).sum(), (weights * dv).sum()]) / total
+    return np.array([u, v], dtype=float) + offset
+
+
+def _find_one(belief: np.ndarray, smoothed: np.ndarray,
+              params: PeakParams) -> tuple[np.ndarray, float, str]:
+    is_max = (smoothed == ndimage.maximum_filter(smoothed, size=_LOCAL_MAX_SIZE,
+                                                  mode="constant", cval=-np.inf))
+    is_max &= smoothed >= params.threshold
+    vs, us = np.nonzero(is_max)
+    nan2 = np.full(2, np.nan)
+    if len(vs) == 0:
+        return nan2, 0.0, BELOW_THRESHOLD
+    values = smoothed[vs, us]
+    best = int(np.argmax(values))
+    far = np.hypot(us - us[best], vs - vs[best]) > params.ambiguity_min_distance
+    best_value = float(belief[vs[best], us[best]])
+    if np.any(far) and values[far].max() > params.ambiguity_ratio * values[best]:
+        return nan2, best_value, AMBIGUOUS
+    uv = _refine(belief, int(us[best]), int(vs[best]), params)
+    h, w = belief.shape
+    if not (-0.5 <= uv[0] <= w - 0.5 and -0.5 <= uv[1] <= h - 0.5):
+        return nan2, best_value, OUT_OF_FRAME
+    return uv, best_value, FOUND
+
+
+def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInMap:
+    """The peak of each of K belief maps.
+
+    Args:
+        belief: (K, h, w) belief maps (float; a perfect peak is 1 on a 0 background).
+        params: the peak finder's constants (default `PeakParams()`).
+
+    Returns:
+        `PeaksInMap` with (K, 2) `uv_map` in map pixels, NaN where not found.
+    """
+    params = PeakParams() if params is None else params
+    belief = np.asarray(belief)
+    if belief.ndim != 3 or belief.shape[1] < 1 or belief.shape[2] < 1:
+        raise InputError(f"belief maps have shape {belief.shape}, expected (K, h, w)")
+    if not np.all(np.isfinite(belief)):
+        raise InputError("belief maps contain NaN or infinity")
+    belief = belief.astype(np.float64)
+    K, h, w = belief.shape
+    uv = np.full((K, 2), np.nan)
+    confidence = np.zeros(K)
+    reasons: list[str] = []
+    for k in range(K):
+        smoothed = belief[k] if params.smoothing_sigma == 0 else ndimage.gaussian_filter(
+            belief[k], params.smoothing_sigma, mode="constant", cval=0.0)
+        uv[k], confidence[k], reason = _find_one(belief[k], smoothed, params)
+        reasons.append(reason)
+    found = np.array([r == FOUND for r in reasons], dtype=bool)
+    for a in (uv, confidence, found):
+        a.setflags(write=False)
+    return PeaksInMap(uv, confidence, found, tuple(reasons), w, h)
+
+
+def find_peaks_in_image(belief: np.ndarray, stride: int, transform: InputTransform,
+                        params: PeakParams | None = None) -> PeaksInImage:
+    """`find_peaks` on (K, h, w) maps of one image, converted to camera-image pixels."""
+    return find_peaks(belief, params).to_input(stride).to_image(transform)

@@ -1,0 +1,126 @@
+"""Belief map -> peak finder -> keypoint: sub-pixel accuracy, ambiguity, borders, coordinates."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dream.errors import InputError
+from dream.peaks import (
+    AMBIGUOUS,
+    BELOW_THRESHOLD,
+    FOUND,
+    OUT_OF_FRAME,
+    PeakParams,
+    find_peaks,
+    find_peaks_in_image,
+    input_to_map,
+    map_to_input,
+)
+from dream.preprocess import Preprocess
+from train.targets import belief_maps
+
+MAP_W, MAP_H = 48, 40
+SIGMA = 2.0
+TOLERANCE_PX = 0.05
+
+
+def gaussian_map(uv_map: np.ndarray, sigma: float = SIGMA, width: int = MAP_W,
+                 height: int = MAP_H) -> np.ndarray:
+    """(K, h, w) Gaussians with peak 1 at (K, 2) map pixels (stride 1: map = input)."""
+    return belief_maps(np.atleast_2d(uv_map), width, height, 1, sigma)
+
+
+def test_subpixel_peak_recovered_at_random_positions(rng):
+    uv = np.column_stack([rng.uniform(3, MAP_W - 4, 400), rng.uniform(3, MAP_H - 4, 400)])
+    for sigma in (1.0, 2.0, 3.0):
+        peaks = find_peaks(gaussian_map(uv, sigma))
+        assert peaks.found.all() and set(peaks.reason) == {FOUND}
+        err = np.linalg.norm(peaks.uv_map - uv, axis=1)
+        assert err.max() < TOLERANCE_PX, (sigma, err.max())
+        assert np.all(peaks.confidence > 0.5)
+
+
+def test_subpixel_peak_with_noise_stays_close(rng):
+    uv = np.column_stack([rng.uniform(5, MAP_W - 6, 100), rng.uniform(5, MAP_H - 6, 100)])
+    maps = gaussian_map(uv) + rng.normal(0, 0.02, (100, MAP_H, MAP_W)).astype(np.float32)
+    peaks = find_peaks(maps)
+    assert peaks.found.all()
+    assert np.median(np.linalg.norm(peaks.uv_map - uv, axis=1)) < 0.15
+
+
+def test_belief_target_peak_sits_on_the_stride_mapped_keypoint():
+    uv_input = np.array([[17.3, 9.8], [np.nan, np.nan]])
+    maps = belief_maps(uv_input, 64, 48, 4, 1.5)
+    assert maps.shape == (2, 12, 16) and maps.dtype == np.float32
+    assert not maps[1].any()  # absent keypoint: all zero
+    peaks = find_peaks(maps, PeakParams(smoothing_sigma=0))
+    assert peaks.found.tolist() == [True, False] and peaks.reason[1] == BELOW_THRESHOLD
+    np.testing.assert_allclose(peaks.uv_map[0], input_to_map(uv_input[0], 4), atol=1e-6)
+    np.testing.assert_allclose(peaks.to_input(4).uv_input[0], uv_input[0], atol=1e-5)
+    # peak value 1 at an integer map position
+    exact = belief_maps(np.array([map_to_input([5.0, 7.0], 2)]), 32, 32, 2, 2.0)
+    assert exact[0, 7, 5] == pytest.approx(1.0) and exact.max() == pytest.approx(1.0)
+
+
+def test_two_equal_peaks_are_ambiguous_but_a_weak_second_peak_is_not():
+    two = gaussian_map(np.array([[10.2, 12.0]])) + gaussian_map(np.array([[35.0, 25.5]])) * 0.9
+    peaks = find_peaks(two)
+    assert not peaks.found[0] and peaks.reason[0] == AMBIGUOUS
+    assert np.isnan(peaks.uv_map[0]).all()
+    weak = gaussian_map(np.array([[10.2, 12.0]])) + gaussian_map(np.array([[35.0, 25.5]])) * 0.3
+    peaks = find_peaks(weak)
+    assert peaks.found[0]
+    np.testing.assert_allclose(peaks.uv_map[0], [10.2, 12.0], atol=0.1)
+    # the ratio is a parameter
+    assert find_peaks(weak, PeakParams(ambiguity_ratio=0.2)).reason[0] == AMBIGUOUS
+
+
+def test_out_of_frame_keypoint_is_not_found():
+    outside = np.array([[-1.5, 20.0], [MAP_W + 0.5, 3.0], [20.0, -30.0], [np.nan, np.nan]])
+    peaks = find_peaks(gaussian_map(outside))
+    assert not peaks.found.any()
+    assert peaks.reason[0] == OUT_OF_FRAME and peaks.reason[1] == OUT_OF_FRAME
+    assert peaks.reason[2] == BELOW_THRESHOLD and peaks.reason[3] == BELOW_THRESHOLD
+
+
+def test_keypoint_near_the_border_is_found(rng):
+    near = np.array([[0.3, 20.0], [MAP_W - 1.2, 5.0], [10.0, 0.0], [MAP_W - 1.0, MAP_H - 1.0],
+                     [-0.4, 15.0]])
+    peaks = find_peaks(gaussian_map(near))
+    assert peaks.found.all(), peaks.reason
+    np.testing.assert_allclose(peaks.uv_map, near, atol=TOLERANCE_PX)
+    # a mostly outside Gaussian is found only when it reaches the threshold
+    faint = gaussian_map(np.array([[-0.45, 20.0]])) * 0.08
+    assert find_peaks(faint, PeakParams(threshold=0.1)).reason[0] == BELOW_THRESHOLD
+    assert find_peaks(faint, PeakParams(threshold=0.01)).found[0]
+
+
+def test_map_input_image_conversions_round_trip(rng):
+    uv_map = rng.uniform(-1, 40, (20, 2))
+    for stride in (1, 2, 4):
+        uv_input = map_to_input(uv_map, stride)
+        np.testing.assert_allclose(input_to_map(uv_input, stride), uv_map, atol=1e-12)
+    # centre of map pixel 0 = centre of input pixels 0..s-1
+    assert map_to_input(np.zeros(2), 4).tolist() == [1.5, 1.5]
+    pre = Preprocess(64, 48, mode="letterbox")
+    t = pre.transform_for(640, 400)
+    uv_image = np.array([[100.0, 200.0], [639.0, 0.0]])
+    uv_in = t.image_to_input(uv_image)
+    maps = belief_maps(uv_in, 64, 48, 2, 1.5)
+    peaks = find_peaks_in_image(maps, 2, t)
+    np.testing.assert_allclose(peaks.uv_image, uv_image, atol=TOLERANCE_PX * 2 * 10)
+    assert peaks.found.all()
+
+
+def test_bad_inputs_are_input_errors():
+    with pytest.raises(InputError):
+        find_peaks(np.zeros((4, 4)))
+    with pytest.raises(InputError):
+        find_peaks(np.full((1, 4, 4), np.nan))
+    with pytest.raises(InputError):
+        PeakParams(threshold=0)
+    with pytest.raises(InputError):
+        PeakParams(ambiguity_ratio=1.5)
+    with pytest.raises(InputError):
+        map_to_input(np.zeros(2), 3)

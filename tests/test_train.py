@@ -1,0 +1,327 @@
+"""The learned stage on a tiny drawn dataset: config, targets, augmentation, model, training,
+checkpoints, resuming and the `dream train` command. Skipped without the training extras."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("lightning")
+pytest.importorskip("albumentations")
+
+from lightning.pytorch.callbacks import Callback  # noqa: E402
+
+from dream.cli import main  # noqa: E402
+from dream.errors import InputError  # noqa: E402
+from dream.io import read_sequence  # noqa: E402
+from dream.peaks import find_peaks, input_to_map  # noqa: E402
+from dream.preprocess import Preprocess  # noqa: E402
+from tests.trainkit import make_drawn_dataset  # noqa: E402
+from train.augment import Augment  # noqa: E402
+from train.checkpoint import load_checkpoint  # noqa: E402
+from train.config import AugmentConfig, ModelConfig, load_config  # noqa: E402
+from train.data import KeypointDataset, make_datasets, resolve_from_data  # noqa: E402
+from train.model import build_model  # noqa: E402
+from train.module import lr_factor  # noqa: E402
+from train.run import run_training  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = REPO / "configs" / "train" / "tiny.yaml"
+PANDA_CPU = REPO / "configs" / "train" / "panda_cpu.yaml"
+NUM_FRAMES = 32
+
+
+@pytest.fixture(scope="module")
+def drawn(tmp_path_factory) -> Path:
+    return make_drawn_dataset(tmp_path_factory.mktemp("drawn") / "data", NUM_FRAMES)
+
+
+def tiny(data: Path, *overrides: str):
+    return load_config(TINY, [f"data.train=[{data}]", *overrides])
+
+
+class CaptureOutputs(Callback):
+    """Keeps the trained network's eval-mode output on a fixed input at the end of training."""
+
+    def __init__(self, x: torch.Tensor):
+        self.x, self.belief = x, None
+
+    def on_train_end(self, trainer, pl_module) -> None:
+        pl_module.model.eval()
+        with torch.no_grad():
+            self.belief = pl_module.model(self.x).belief.clone()
+
+
+@pytest.fixture(scope="module")
+def trained(drawn, tmp_path_factory):
+    x = torch.randn(2, 3, 96, 128, generator=torch.Generator().manual_seed(0))
+    capture = CaptureOutputs(x)
+    run_dir = tmp_path_factory.mktemp("run")
+    result = run_training(tiny(drawn), run_dir, callbacks=[capture])
+    return result, capture
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+# ---------------------------------------------------------------- config
+
+def test_recipes_load_and_overrides_are_typed(drawn):
+    config = load_config(TINY, ["trainer.max_epochs=3", f"data.train=[{drawn},{drawn}]",
+                                "data.val=" + str(drawn), "augment.scale=[0.9, 1.1]",
+                                "trainer.devices=2", "model.num_keypoints=null"])
+    assert config.trainer.max_epochs == 3 and config.data.train == (str(drawn), str(drawn))
+    assert config.data.val == (str(drawn),) and config.augment.scale == (0.9, 1.1)
+    assert config.trainer.devices == 2 and config.model.num_keypoints is None
+    assert config.input == Preprocess(128, 96, mode="letterbox")
+    panda = load_config(PANDA_CPU)
+    assert panda.input.input_width % panda.model.network_stride == 0
+
+
+@pytest.mark.parametrize(("override", "words"), [
+    ("model.widht=3", ["unknown config key 'model.widht'", "model.base_width"]),
+    ("modell.base_width=3", ["unknown config key 'modell'"]),
+    ("trainer.max_epochs=many", ["trainer.max_epochs", "expected int"]),
+    ("model.output_stride=3", ["model.output_stride", "must be one of"]),
+    ("augment.blur_limit=[4,6]", ["augment.blur_limit", "odd"]),
+    ("trainer.max_epochs", ["not KEY=VALUE"]),
+])
+def test_bad_config_is_one_clear_input_error(override, words):
+    with pytest.raises(InputError) as info:
+        load_config(TINY, [override])
+    message = str(info.value)
+    assert "\n" not in message
+    for word in words:
+        assert word in message
+
+
+def test_unknown_key_in_a_recipe_names_the_file(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("trainer:\n  max_epoch: 3\n")
+    with pytest.raises(InputError, match=r"bad.yaml.*trainer.max_epoch"):
+        load_config(bad)
+
+
+# ---------------------------------------------------------------- targets, data, augmentation
+
+def test_dataset_sample_targets_peak_at_the_keypoints(drawn):
+    config = resolve_from_data(tiny(drawn, "input.input_width=96", "input.input_height=96"),
+                               [read_sequence(drawn)])
+    train, val = make_datasets(config, [read_sequence(drawn)])
+    assert len(train) + len(val) == NUM_FRAMES and len(val) == 4
+    sample = val[0]
+    K = len(config.data.keypoints)
+    assert sample["image"].shape == (3, 96, 96) and sample["belief"].shape == (K, 48, 48)
+    assert sample["mask"].shape == (1, 48, 48) and bool(sample["has_mask"])
+    uv_input = sample["uv_input"].numpy()
+    labels = val.labels(0)
+    t = config.input.transform_for(128, 96)
+    np.testing.assert_allclose(uv_input, t.image_to_input(labels), atol=1e-4)
+    peaks = find_peaks(sample["belief"].numpy())
+    inside = np.all((uv_input > 1) & (uv_input < 94), axis=1)
+    np.testing.assert_allclose(peaks.uv_map[inside], input_to_map(uv_input[inside], 2), atol=0.05)
+    assert sample["mask"].max() > 0.5  # the drawn robot is in the mask target
+
+
+def _blob(width, height, uv, sigma=2.5):
+    u, v = np.meshgrid(np.arange(width), np.arange(height))
+    return np.exp(-((u - uv[0]) ** 2 + (v - uv[1]) ** 2) / (2 * sigma ** 2))
+
+
+def _centroid(channel):
+    channel = np.clip(channel - 0.05 * channel.max(), 0, None)
+    v, u = np.mgrid[:channel.shape[0], :channel.shape[1]]
+    return np.array([(channel * u).sum(), (channel * v).sum()]) / channel.sum()
+
+
+def test_affine_augmentation_moves_pixels_and_keypoints_identically(rng):
+    off = {name: 0.0 for name in AugmentConfig.__dataclass_fields__ if name.endswith("_p")}
+    config = AugmentConfig(**{**off, "affine_p": 1.0}, scale=(0.8, 1.3), translate=0.1,
+                           rotate_rad=0.52)
+    augment = Augment(config, seed=3)
+    W, H = 160, 120
+    for _ in range(8):
+        uv = np.array([rng.uniform(50, 110), rng.uniform(40, 80)])
+        image = (np.repeat(_blob(W, H, uv)[..., None], 3, axis=2) * 255).round().astype(np.uint8)
+        keypoints = np.array([uv, [np.nan, np.nan], [-30.0, 60.0], [W + 0.5, 10.0]])
+        out, uv_out, _ = augment(image, keypoints)
+        assert out.shape == image.shape
+        np.testing.assert_allclose(_centroid(out[..., 0].astype(float)), uv_out[0], atol=0.1)
+        assert np.isnan(uv_out[1]).all()  # absent stays absent
+        for k in (2, 3):  # out of frame stays out of frame, or becomes absent (on the fill)
+            u, v = uv_out[k]
+            assert np.isnan(u) or not (-0.5 <= u <= W - 0.5 and -0.5 <= v <= H - 0.5)
+
+
+def test_full_augmentation_keeps_shapes_and_absent_keypoints(drawn, rng):
+    augment = Augment(AugmentConfig(**{name: 1.0 for name in AugmentConfig.__dataclass_fields__
+                                       if name.endswith("_p")}), seed=1)
+    image = rng.integers(0, 255, (96, 128, 3), dtype=np.uint8)
+    uv = np.array([[10.0, 20.0], [np.nan, np.nan], [200.0, 50.0]])
+    mask = np.zeros((96, 128), bool)
+    mask[40:50, 60:70] = True
+    out, uv_out, mask_out = augment(image, uv, mask)
+    assert out.shape == image.shape and out.dtype == np.uint8 and mask_out.shape == mask.shape
+    assert np.isnan(uv_out[1]).all() and np.isfinite(uv_out[[0, 2]]).all()
+    assert mask_out.dtype == bool
+    # photometric transforms alone never move keypoints
+    photometric = Augment(AugmentConfig(affine_p=0.0, gauss_noise_p=1, iso_noise_p=1,
+                                        brightness_contrast_p=1, hue_saturation_p=1, blur_p=1,
+                                        motion_blur_p=1, jpeg_p=1), seed=2)
+    _, same, _ = photometric(image, uv)
+    np.testing.assert_array_equal(same, uv)
+    # one shared random stream: reseeding reproduces the result
+    augment.reseed(5)
+    a = augment(image, uv, mask)[0]
+    augment.reseed(5)
+    np.testing.assert_array_equal(augment(image, uv, mask)[0], a)
+
+
+# ---------------------------------------------------------------- model
+
+@pytest.mark.parametrize(("stride", "skip", "mask"), [(1, "concat", True), (2, "add", False),
+                                                      (4, "concat", True)])
+def test_model_output_shapes(stride, skip, mask):
+    config = ModelConfig(num_keypoints=5, base_width=8, num_stages=3, blocks_per_stage=1,
+                         decoder_width=16, output_stride=stride, skip=skip, mask_head=mask)
+    out = build_model(config)(torch.zeros(2, 3, 48, 64))
+    assert out.belief.shape == (2, 5, 48 // stride, 64 // stride)
+    assert (out.mask is not None) == mask
+    if mask:
+        assert out.mask.shape == (2, 1, 48 // stride, 64 // stride)
+    with pytest.raises(InputError):
+        build_model(config)(torch.zeros(1, 3, 40, 64))
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")
+def test_model_exports_to_onnx(tmp_path):
+    """torch 2.13's default (torch.export-based) exporter; onnxruntime gives the same maps."""
+    ort = pytest.importorskip("onnxruntime")
+    config = ModelConfig(num_keypoints=3, base_width=8, num_stages=3, blocks_per_stage=1,
+                         decoder_width=16, output_stride=2)
+    model = build_model(config).eval()
+    x = torch.randn(1, 3, 48, 64)
+    path = tmp_path / "m.onnx"
+    torch.onnx.export(model, (x,), str(path), input_names=["image"],
+                      output_names=["belief", "mask"], dynamo=True, verbose=False)
+    belief, mask = ort.InferenceSession(str(path)).run(None, {"image": x.numpy()})
+    with torch.no_grad():
+        out = model(x)
+    np.testing.assert_allclose(belief, out.belief.numpy(), atol=1e-4)
+    np.testing.assert_allclose(mask, out.mask.numpy(), atol=1e-4)
+
+
+def test_schedule_warms_up_then_decays():
+    f = [lr_factor(s, 100, "onecycle", 0.1, 0.01) for s in range(100)]
+    assert f[0] == pytest.approx(0.1) and f[9] == pytest.approx(1.0)
+    assert all(a >= b for a, b in zip(f[10:], f[11:], strict=False)) and f[-1] < 0.02
+    assert lr_factor(50, 100, "constant", 0.1, 0.01) == 1.0
+
+
+# ---------------------------------------------------------------- training
+
+def test_tiny_recipe_learns(trained):
+    result, _ = trained
+    rows = _rows(result.run_dir / "metrics.csv")
+    assert [int(r["epoch"]) for r in rows] == list(range(len(rows))) and len(rows) == 40
+    first, last = float(rows[0]["train/loss"]), float(rows[-1]["train/loss"])
+    assert last < 0.5 * first
+    # better than predicting empty maps, whose MSE is mean(target^2)
+    _, val = make_datasets(result.config, [read_sequence(result.config.data.train[0])])
+    zero_mse = float(np.mean([np.mean(val[i]["belief"].numpy() ** 2) for i in range(len(val))]))
+    assert float(rows[-1]["val/belief_mse"]) < 0.8 * zero_mse
+    assert float(rows[-1]["val/found_rate"]) > 0
+    for name in ("last.ckpt", "best.ckpt", "config.yaml"):
+        assert (result.run_dir / name).is_file()
+
+
+def test_checkpoint_rebuilds_the_same_model(trained):
+    result, capture = trained
+    model, config = load_checkpoint(result.run_dir / "last.ckpt")
+    assert config.data.robot == "panda" and len(config.data.keypoints) == 7
+    assert config.data.keypoints[0] == "panda_link0"
+    assert config.model.num_keypoints == 7 and config.input == result.config.input
+    assert config == result.config
+    with torch.no_grad():
+        belief = model(capture.x).belief
+    torch.testing.assert_close(belief, capture.belief)
+    assert load_config(result.run_dir / "config.yaml") == config
+
+
+class StopAtEpoch(Callback):
+    """Kills a run (an exception) when epoch `epoch` starts."""
+
+    def __init__(self, epoch: int):
+        self.epoch = epoch
+
+    def on_train_epoch_start(self, trainer, pl_module) -> None:
+        if trainer.current_epoch == self.epoch:
+            raise KeyError("killed")
+
+
+def test_killed_run_resumes_from_its_last_epoch(drawn, tmp_path):
+    config = tiny(drawn, "trainer.max_epochs=3", "data.val_fraction=0")
+    with pytest.raises(KeyError):
+        run_training(config, tmp_path, callbacks=[StopAtEpoch(2)])
+    assert [int(r["epoch"]) for r in _rows(tmp_path / "metrics.csv")] == [0, 1]
+    steps_per_epoch = int(_rows(tmp_path / "metrics.csv")[0]["step"])
+    result = run_training(config, tmp_path)
+    rows = _rows(tmp_path / "metrics.csv")
+    assert [int(r["epoch"]) for r in rows] == [0, 1, 2]
+    assert int(rows[-1]["step"]) == 3 * steps_per_epoch  # epochs 0 and 1 were not repeated
+    assert result.epochs == 3
+    ckpt = torch.load(tmp_path / "last.ckpt", map_location="cpu", weights_only=True)
+    assert ckpt["global_step"] == 3 * steps_per_epoch
+    # a longer recipe continues the finished run
+    run_training(tiny(drawn, "trainer.max_epochs=4", "data.val_fraction=0"), tmp_path)
+    assert [int(r["epoch"]) for r in _rows(tmp_path / "metrics.csv")] == [0, 1, 2, 3]
+    # another network cannot resume it
+    with pytest.raises(InputError, match="cannot resume"):
+        run_training(tiny(drawn, "model.base_width=8", "data.val_fraction=0"), tmp_path)
+
+
+def test_dream_train_command_end_to_end(drawn, tmp_path, capsys):
+    out = tmp_path / "run"
+    code = main(["train", "--config", str(TINY), "--set", f"data.train=[{drawn}]",
+                 "--set", "trainer.max_steps=5", "--set", "input.input_width=96",
+                 "--set", "input.input_height=96", "--out", str(out)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "trained 2 epochs" in captured.out  # 5 steps of 4 per epoch: rounded up to 2 epochs
+    for name in ("last.ckpt", "best.ckpt", "config.yaml", "metrics.csv"):
+        assert (out / name).is_file()
+    config = load_config(out / "config.yaml")
+    assert config.trainer.max_steps == 5 and config.input.input_width == 96
+    assert config.data.keypoints is not None and config.model.num_keypoints == 7
+
+    code = main(["train", "--config", str(TINY), "--set", "model.widht=3", "--out",
+                 str(tmp_path / "bad")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.count("\n") == 1 and "unknown config key 'model.widht'" in err
+    assert not (tmp_path / "bad").exists()
+
+
+def test_dream_cli_does_not_import_torch():
+    code = ("import sys, dream.cli\n"
+            "dream.cli.build_parser()\n"  # loads train.cli through the entry point
+            "bad = [m for m in sys.modules if m.split('.')[0] in "
+            "('torch', 'lightning', 'albumentations')]\n"
+            "print(bad); sys.exit(1 if bad else 0)\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=REPO)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_dataset_rejects_data_without_the_keypoints(drawn):
+    seq = read_sequence(drawn)
+    with pytest.raises(InputError, match="none of the keypoints"):
+        KeypointDataset([seq], ["tool0"], Preprocess(64, 48), 2, 1.5)

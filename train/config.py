@@ -1,0 +1,507 @@
+"""Training configuration: frozen dataclasses, loaded from YAML with dotted command-line overrides.
+
+A recipe (`configs/train/<name>.yaml`) gives any subset of the sections below; everything else
+keeps its default. `--set model.base_width=16 --set data.train=[DIR1,DIR2]` overrides one key
+(the value is parsed as YAML). An unknown key, a value of the wrong type or an invalid value is an
+`InputError` naming the key. The resolved config (with the keypoints, robot and number of
+keypoints taken from the data) is written beside the checkpoints and stored inside them.
+
+Sections: `model` (`ModelConfig`), `input` (`dream.preprocess.Preprocess`), `data`, `augment`,
+`optim`, `loss`, `trainer`, `eval` (with `eval.peaks`: `dream.peaks.PeakParams`).
+
+Multi-GPU and multi-node training is Lightning's DDP, switched by config only:
+`trainer.accelerator=gpu trainer.devices=4 trainer.strategy=ddp trainer.num_nodes=2`
+(launch one process per node with the usual MASTER_ADDR / NODE_RANK environment, or under
+SLURM / torchrun, which Lightning detects). `data.batch_size` is per device.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from dream.errors import InputError
+from dream.peaks import PeakParams
+from dream.preprocess import Preprocess
+
+OUTPUT_STRIDES = (1, 2, 4)
+SKIP_MODES = ("concat", "add")
+UPSAMPLE_MODES = ("bilinear", "nearest")
+SCHEDULES = ("onecycle", "cosine", "constant")
+MONITOR_MODES = ("min", "max")
+DEFAULT_INPUT = Preprocess(input_width=256, input_height=192)
+
+
+def _require(ok: bool, key: str, problem: str) -> None:
+    if not ok:
+        raise InputError(f"config {key}: {problem}", fix="correct the recipe YAML or the --set "
+                         "override")
+
+
+def _unit(value: float, key: str) -> None:
+    _require(0.0 <= value <= 1.0, key, f"must be a probability in [0, 1], got {value}")
+
+
+def _ordered_pair(pair: tuple[float, float], key: str, low: float | None = None) -> None:
+    _require(pair[0] <= pair[1], key, f"must be (low, high) with low <= high, got {pair}")
+    if low is not None:
+        _require(pair[0] >= low, key, f"must be >= {low}, got {pair}")
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """The belief-map network (`train.model.build_model`).
+
+    Attributes:
+        num_keypoints: belief maps K; null: the number of keypoints of the training data.
+        base_width: channels of the stem and the first encoder stage; stage i has
+            base_width * 2^i channels (at most `max_width`).
+        num_stages: encoder stages after the stride-2 stem, each halving the resolution: the
+            deepest features have stride 2^(num_stages + 1).
+        blocks_per_stage: residual basic blocks per encoder stage (ResNet-18: 2).
+        max_width: cap on encoder channels.
+        decoder_width: cap on decoder channels (a decoder level has min(decoder_width, the
+            encoder's channels at that stride)).
+        output_stride: input pixels per belief-map pixel: 1, 2 or 4 (DREAM's F, H, Q).
+        skip: how the decoder merges skip features: "concat" or "add".
+        upsample: "bilinear" (align_corners=False) or "nearest".
+        mask_head: also predict the robot mask (1-channel logits at the output stride).
+    """
+
+    num_keypoints: int | None = None
+    base_width: int = 32
+    num_stages: int = 4
+    blocks_per_stage: int = 2
+    max_width: int = 256
+    decoder_width: int = 128
+    output_stride: int = 2
+    skip: str = "concat"
+    upsample: str = "bilinear"
+    mask_head: bool = True
+
+    def __post_init__(self) -> None:
+        if self.num_keypoints is not None:
+            _require(self.num_keypoints >= 1, "model.num_keypoints", "must be >= 1 or null")
+        for name in ("base_width", "num_stages", "blocks_per_stage", "max_width",
+                     "decoder_width"):
+            _require(getattr(self, name) >= 1, f"model.{name}", "must be >= 1")
+        _require(self.output_stride in OUTPUT_STRIDES, "model.output_stride",
+                 f"must be one of {OUTPUT_STRIDES}, got {self.output_stride}")
+        _require(self.skip in SKIP_MODES, "model.skip", f"must be one of {SKIP_MODES}")
+        _require(self.upsample in UPSAMPLE_MODES, "model.upsample",
+                 f"must be one of {UPSAMPLE_MODES}")
+
+    @property
+    def network_stride(self) -> int:
+        """Stride of the deepest features: input sizes must be multiples of it."""
+        return 2 ** (self.num_stages + 1)
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Datasets (DREAM-layout folders) and targets.
+
+    Attributes:
+        train: training folders. val: validation folders; when empty, `val_fraction` of the
+            training frames (every 1/val_fraction-th frame) is held out instead.
+        keypoints: keypoint names, in belief-map order; null: the first training set's.
+        robot: robot name; null: the first training set's (recorded in checkpoints).
+        belief_sigma: Gaussian sigma of the belief targets, map pixels.
+        use_masks: train the mask head on frames that have a robot mask.
+        batch_size: images per step (per device).
+        num_workers: data-loading processes (0: in the training process).
+    """
+
+    train: tuple[str, ...] = ()
+    val: tuple[str, ...] = ()
+    val_fraction: float = 0.1
+    keypoints: tuple[str, ...] | None = None
+    robot: str | None = None
+    belief_sigma: float = 2.0
+    use_masks: bool = True
+    batch_size: int = 16
+    num_workers: int = 1
+
+    def __post_init__(self) -> None:
+        _require(0.0 <= self.val_fraction < 1.0, "data.val_fraction", "must be in [0, 1)")
+        _require(self.belief_sigma > 0, "data.belief_sigma", "must be > 0 (map pixels)")
+        _require(self.batch_size >= 1, "data.batch_size", "must be >= 1")
+        _require(self.num_workers >= 0, "data.num_workers", "must be >= 0")
+        if self.keypoints is not None:
+            _require(len(self.keypoints) >= 1 and len(set(self.keypoints)) == len(self.keypoints),
+                     "data.keypoints", "must be distinct names (or null)")
+
+
+@dataclass(frozen=True)
+class AugmentConfig:
+    """Image augmentation (albumentations; `train.augment`). `*_p` are probabilities; the
+    geometric transform moves the keypoints with the image.
+
+    Attributes:
+        enabled: false switches every augmentation off.
+        affine_p, scale, translate, rotate_rad: random scale in `scale`, shift up to
+            `translate` of the image size, rotation up to +-rotate_rad radians.
+        gauss_noise_p, gauss_noise_std: additive noise, std as a fraction of 255.
+        iso_noise_p, iso_color_shift, iso_intensity: camera sensor noise.
+        brightness_contrast_p, brightness, contrast: +- limits (fractions).
+        hue_saturation_p, hue_shift, saturation_shift, value_shift: +- limits (OpenCV units).
+        blur_p, blur_limit: box blur, odd kernel sizes.
+        motion_blur_p, motion_blur_limit: motion blur, odd kernel sizes (centred).
+        jpeg_p, jpeg_quality: JPEG re-compression quality range.
+    """
+
+    enabled: bool = True
+    affine_p: float = 0.7
+    scale: tuple[float, float] = (0.8, 1.2)
+    translate: float = 0.1
+    rotate_rad: float = 0.26
+    gauss_noise_p: float = 0.3
+    gauss_noise_std: tuple[float, float] = (0.01, 0.06)
+    iso_noise_p: float = 0.2
+    iso_color_shift: tuple[float, float] = (0.01, 0.05)
+    iso_intensity: tuple[float, float] = (0.1, 0.5)
+    brightness_contrast_p: float = 0.5
+    brightness: float = 0.25
+    contrast: float = 0.25
+    hue_saturation_p: float = 0.3
+    hue_shift: float = 10.0
+    saturation_shift: float = 20.0
+    value_shift: float = 10.0
+    blur_p: float = 0.1
+    blur_limit: tuple[int, int] = (3, 5)
+    motion_blur_p: float = 0.1
+    motion_blur_limit: tuple[int, int] = (3, 7)
+    jpeg_p: float = 0.3
+    jpeg_quality: tuple[int, int] = (40, 95)
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            if f.name.endswith("_p"):
+                _unit(getattr(self, f.name), f"augment.{f.name}")
+        _ordered_pair(self.scale, "augment.scale", low=0.01)
+        _require(0 <= self.translate < 1, "augment.translate", "must be in [0, 1)")
+        _ordered_pair(self.gauss_noise_std, "augment.gauss_noise_std", low=0.0)
+        _ordered_pair(self.iso_color_shift, "augment.iso_color_shift", low=0.0)
+        _ordered_pair(self.iso_intensity, "augment.iso_intensity", low=0.0)
+        for name in ("blur_limit", "motion_blur_limit"):
+            pair = getattr(self, name)
+            _ordered_pair(pair, f"augment.{name}", low=3)
+            _require(pair[0] % 2 == 1 and pair[1] % 2 == 1, f"augment.{name}",
+                     f"kernel sizes must be odd (centred), got {pair}")
+        _ordered_pair(self.jpeg_quality, "augment.jpeg_quality", low=1)
+        _require(self.jpeg_quality[1] <= 100, "augment.jpeg_quality", "must be <= 100")
+        for name in ("rotate_rad", "brightness", "contrast", "hue_shift", "saturation_shift",
+                     "value_shift"):
+            _require(getattr(self, name) >= 0, f"augment.{name}", "must be >= 0")
+
+
+@dataclass(frozen=True)
+class OptimConfig:
+    """AdamW and its learning-rate schedule (per optimiser step).
+
+    Attributes:
+        lr: peak learning rate. weight_decay: AdamW's decoupled weight decay.
+        schedule: "onecycle" (linear warm-up, cosine down to lr * final_lr_fraction),
+            "cosine" (the same without warm-up) or "constant".
+        warmup_fraction: part of the steps spent warming up ("onecycle").
+        final_lr_fraction: last learning rate / lr.
+    """
+
+    lr: float = 2e-3
+    weight_decay: float = 1e-4
+    schedule: str = "onecycle"
+    warmup_fraction: float = 0.05
+    final_lr_fraction: float = 0.01
+
+    def __post_init__(self) -> None:
+        _require(self.lr > 0, "optim.lr", "must be > 0")
+        _require(self.weight_decay >= 0, "optim.weight_decay", "must be >= 0")
+        _require(self.schedule in SCHEDULES, "optim.schedule", f"must be one of {SCHEDULES}")
+        _require(0 <= self.warmup_fraction < 1, "optim.warmup_fraction", "must be in [0, 1)")
+        _require(0 <= self.final_lr_fraction <= 1, "optim.final_lr_fraction",
+                 "must be in [0, 1]")
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """loss = belief_weight * MSE(belief maps) + mask_weight * BCE(mask logits), the mask term
+    only over frames with a mask and when the model has a mask head.
+
+    Attributes:
+        belief_weight: weight of the per-pixel mean squared error of the belief maps.
+        mask_weight: weight of the per-pixel binary cross-entropy of the robot mask.
+    """
+
+    belief_weight: float = 1.0
+    mask_weight: float = 0.01
+
+    def __post_init__(self) -> None:
+        _require(self.belief_weight > 0, "loss.belief_weight", "must be > 0")
+        _require(self.mask_weight >= 0, "loss.mask_weight", "must be >= 0")
+
+
+@dataclass(frozen=True)
+class TrainerConfig:
+    """Lightning Trainer settings (`accelerator`, `devices`, `strategy`, `num_nodes` switch
+    GPUs and DDP; see the module docstring).
+
+    Attributes:
+        max_epochs: epochs (a resumed run continues up to this).
+        max_steps: a budget of optimiser steps, rounded up to whole epochs (so that the run
+            ends validated and checkpointed): the run stops after whichever of max_epochs and
+            ceil(max_steps / steps per epoch) epochs comes first (null: epochs only). A step
+            budget fixes the training time whatever the dataset size; the learning-rate
+            schedule spans the run.
+        num_threads: torch CPU threads; null: every core of the machine.
+        seed: seeds torch, numpy and the augmentation.
+        progress_bar: Lightning's progress bar; false: one logging line every
+            `log_every_n_steps` steps and per epoch.
+        monitor, monitor_mode: the validation metric that picks `best.ckpt`.
+        gradient_clip_val: clip gradient norms to this (null: no clipping).
+        checkpoint_every_n_steps: also refresh last.ckpt every N optimiser steps (0: only at
+            epoch ends), so a long epoch killed midway loses little.
+    """
+
+    max_epochs: int = 10
+    max_steps: int | None = None
+    accelerator: str = "auto"
+    devices: int | str = "auto"
+    strategy: str = "auto"
+    num_nodes: int = 1
+    precision: str = "32-true"
+    num_threads: int | None = None
+    seed: int = 0
+    log_every_n_steps: int = 10
+    val_every_n_epochs: int = 1
+    progress_bar: bool = True
+    monitor: str = "val/loss"
+    monitor_mode: str = "min"
+    gradient_clip_val: float | None = 1.0
+    checkpoint_every_n_steps: int = 0
+
+    def __post_init__(self) -> None:
+        _require(self.max_epochs >= 1, "trainer.max_epochs", "must be >= 1")
+        if self.max_steps is not None:
+            _require(self.max_steps >= 1, "trainer.max_steps", "must be >= 1 or null")
+        _require(self.num_nodes >= 1, "trainer.num_nodes", "must be >= 1")
+        if self.num_threads is not None:
+            _require(self.num_threads >= 1, "trainer.num_threads", "must be >= 1 or null")
+        _require(self.log_every_n_steps >= 1, "trainer.log_every_n_steps", "must be >= 1")
+        _require(self.val_every_n_epochs >= 1, "trainer.val_every_n_epochs", "must be >= 1")
+        _require(self.monitor_mode in MONITOR_MODES, "trainer.monitor_mode",
+                 f"must be one of {MONITOR_MODES}")
+        _require(self.checkpoint_every_n_steps >= 0, "trainer.checkpoint_every_n_steps",
+                 "must be >= 0")
+        if self.gradient_clip_val is not None:
+            _require(self.gradient_clip_val > 0, "trainer.gradient_clip_val", "must be > 0")
+
+    @property
+    def threads(self) -> int:
+        return self.num_threads or os.cpu_count() or 1
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """Validation metrics: keypoints through the real peak finder, errors in input pixels.
+
+    Attributes:
+        peaks: the peak finder's parameters (`dream.peaks.PeakParams`).
+        pck_threshold_px: PCK counts a keypoint correct within this many input pixels.
+    """
+
+    peaks: PeakParams = field(default_factory=PeakParams)
+    pck_threshold_px: float = 5.0
+
+    def __post_init__(self) -> None:
+        _require(self.pck_threshold_px > 0, "eval.pck_threshold_px", "must be > 0")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything a training run needs; stored in its checkpoints (nanoGPT style)."""
+
+    model: ModelConfig = field(default_factory=ModelConfig)
+    input: Preprocess = DEFAULT_INPUT
+    data: DataConfig = field(default_factory=DataConfig)
+    augment: AugmentConfig = field(default_factory=AugmentConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    trainer: TrainerConfig = field(default_factory=TrainerConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+
+    def __post_init__(self) -> None:
+        n = self.model.network_stride
+        _require(self.input.input_width % n == 0 and self.input.input_height % n == 0,
+                 "input", f"input size {self.input.input_width}x{self.input.input_height} must "
+                 f"be a multiple of the network stride {n} (2^(model.num_stages + 1))")
+        if self.data.keypoints is not None and self.model.num_keypoints is not None:
+            _require(len(self.data.keypoints) == self.model.num_keypoints, "model.num_keypoints",
+                     f"is {self.model.num_keypoints} but data.keypoints names "
+                     f"{len(self.data.keypoints)}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain nested dict (lists, numbers, strings, None): YAML/JSON/checkpoint-safe."""
+        return _plain(dataclasses.asdict(self))
+
+    def replace(self, **sections: Any) -> TrainConfig:
+        return dataclasses.replace(self, **sections)
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value
+
+
+# ------------------------------------------------------------------ building from plain data
+
+def _type_name(tp: Any) -> str:
+    return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
+
+
+def _coerce(value: Any, tp: Any, key: str) -> Any:
+    """`value` (from YAML) as type `tp`, or an InputError naming `key`."""
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        options = typing.get_args(tp)
+        if value is None and type(None) in options:
+            return None
+        errors = []
+        for option in options:
+            if option is type(None):
+                continue
+            try:
+                return _coerce(value, option, key)
+            except InputError as exc:
+                errors.append(exc)
+        raise errors[-1] if len(errors) == 1 else InputError(
+            f"config {key}: expected {' or '.join(_type_name(o) for o in options)}, got "
+            f"{value!r}")
+    if dataclasses.is_dataclass(tp):
+        return _build(tp, value, key)
+    if origin is tuple:
+        args = typing.get_args(tp)
+        if isinstance(value, (str, int, float)) and len(args) == 2 and args[1] is Ellipsis:
+            value = [value]  # `--set data.train=DIR`: one folder
+        if not isinstance(value, (list, tuple)):
+            raise InputError(f"config {key}: expected a list, got {value!r}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_coerce(v, args[0], f"{key}[{i}]") for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise InputError(f"config {key}: expected {len(args)} values, got {value!r}")
+        return tuple(_coerce(v, a, f"{key}[{i}]") for i, (v, a) in enumerate(zip(value, args,
+                                                                                 strict=True)))
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+    elif tp is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        if isinstance(value, float) and value.is_integer():
+            return int(value)
+    elif tp is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+    elif tp is str:
+        if isinstance(value, (str, Path)):
+            return str(value)
+    else:
+        raise InputError(f"config {key}: unsupported field type {tp}")
+    raise InputError(f"config {key}: expected {_type_name(tp)}, got {value!r}",
+                     fix="correct the recipe YAML or the --set override")
+
+
+def _build(cls: type, doc: Any, key: str) -> Any:
+    if not isinstance(doc, dict):
+        raise InputError(f"config {key or 'file'}: expected a mapping of keys, got {doc!r}")
+    hints = typing.get_type_hints(cls)
+    names = [f.name for f in dataclasses.fields(cls)]
+    for name in doc:
+        if name not in names:
+            where = f"{key}.{name}" if key else str(name)
+            valid = ", ".join(f"{key}.{n}" if key else n for n in names)
+            raise InputError(f"unknown config key '{where}'", fix=f"use one of: {valid}")
+    kwargs = {name: _coerce(doc[name], hints[name], f"{key}.{name}" if key else name)
+              for name in names if name in doc}
+    return cls(**kwargs)
+
+
+def _merge(base: dict[str, Any], update: dict[str, Any], key: str) -> dict[str, Any]:
+    """Deep-merge `update` into a copy of `base`; keys must exist in `base`."""
+    out = dict(base)
+    for name, value in update.items():
+        where = f"{key}.{name}" if key else str(name)
+        if name not in base:
+            valid = ", ".join(f"{key}.{n}" if key else str(n) for n in base)
+            raise InputError(f"unknown config key '{where}'", fix=f"use one of: {valid}")
+        if isinstance(base[name], dict) and isinstance(value, dict):
+            out[name] = _merge(base[name], value, where)
+        else:
+            out[name] = value
+    return out
+
+
+def config_from_dict(doc: dict[str, Any], base: TrainConfig | None = None) -> TrainConfig:
+    """A `TrainConfig` from a (partial) nested dict over `base` (default: the defaults)."""
+    base_doc = (base or TrainConfig()).to_dict()
+    if not isinstance(doc, dict):
+        raise InputError(f"config: expected a mapping of sections, got {doc!r}")
+    return _build(TrainConfig, _merge(base_doc, doc, ""), "")
+
+
+def parse_override(text: str) -> dict[str, Any]:
+    """'a.b.c=value' -> {'a': {'b': {'c': value}}}, the value parsed as YAML."""
+    key, sep, raw = text.partition("=")
+    key = key.strip()
+    if not sep or not key or any(not part for part in key.split(".")):
+        raise InputError(f"override '{text}' is not KEY=VALUE",
+                         fix="write e.g. --set trainer.max_epochs=3")
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else None
+    except yaml.YAMLError as exc:
+        raise InputError(f"override '{text}': the value is not valid YAML ({exc})") from None
+    doc: dict[str, Any] = value
+    for part in reversed(key.split(".")):
+        doc = {part: doc}
+    return doc
+
+
+def load_config(path: str | Path | None, overrides: typing.Sequence[str] = ()) -> TrainConfig:
+    """The recipe at `path` (YAML; None: the defaults) with `KEY=VALUE` overrides applied."""
+    doc: dict[str, Any] = {}
+    if path is not None:
+        path = Path(path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise InputError(f"cannot read the config ({exc.strerror or exc})", path,
+                             "give the path of a YAML recipe, e.g. configs/train/tiny.yaml"
+                             ) from None
+        try:
+            doc = yaml.safe_load(text) or {}
+        except yaml.YAMLError as exc:
+            raise InputError(f"the config is not valid YAML ({exc})", path) from None
+        if not isinstance(doc, dict):
+            raise InputError("the config must be a mapping of sections", path)
+    merged = TrainConfig().to_dict()
+    try:
+        merged = _merge(merged, doc, "")
+    except InputError as exc:
+        raise InputError(exc.problem, path, exc.fix) from None
+    for text in overrides:
+        merged = _merge(merged, parse_override(text), "")
+    return _build(TrainConfig, merged, "")
+
+
+def dump_config(config: TrainConfig) -> str:
+    """YAML text of the resolved config (loads back with `load_config`)."""
+    return yaml.safe_dump(config.to_dict(), sort_keys=False, default_flow_style=None)

@@ -1,0 +1,195 @@
+"""Training data: DREAM-layout folders -> augmented, preprocessed tensors with belief targets.
+
+One sample: image -> augmentation (keypoints and mask carried along) -> preprocessing (resize or
+letterbox to the network input) -> targets built from the keypoints after both. Keypoints are
+taken from each frame's `uv_labels` (image pixels, NaN where absent), reordered to the config's
+keypoint names (a name a dataset lacks is absent in all its frames). Frames without an image or
+without labels are skipped.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence as SequenceOf
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset, get_worker_info
+
+from dream.errors import InputError
+from dream.io import load_image, load_mask, read_sequence
+from dream.preprocess import Preprocess
+from dream.sequence import Frame, Sequence
+from train.augment import Augment
+from train.config import TrainConfig
+from train.targets import belief_maps, map_size, mask_map
+
+logger = logging.getLogger(__name__)
+
+_SEED_MODULUS = 2 ** 32
+
+
+def read_folders(folders: SequenceOf[str]) -> list[Sequence]:
+    """Read DREAM-layout (or any `dream.io` layout) folders; at least one is required."""
+    if not folders:
+        raise InputError("no dataset folders given", fix="set data.train=[DIR, ...] in the recipe "
+                         "or with --set")
+    return [read_sequence(folder) for folder in folders]
+
+
+def resolve_from_data(config: TrainConfig, sequences: SequenceOf[Sequence]) -> TrainConfig:
+    """Fill `data.keypoints`, `data.robot` and `model.num_keypoints` from the first training
+    sequence where the config leaves them null."""
+    first = sequences[0]
+    keypoints = config.data.keypoints or first.keypoint_names
+    if not keypoints:
+        raise InputError("the training data names no keypoints", first.source,
+                         "write keypoints with projected_location in the frame files")
+    data = replace(config.data, keypoints=tuple(keypoints), robot=config.data.robot or first.robot)
+    model = replace(config.model, num_keypoints=config.model.num_keypoints or len(keypoints))
+    return config.replace(data=data, model=model)
+
+
+@dataclass(frozen=True)
+class _Item:
+    sequence: int
+    frame: int
+
+
+class KeypointDataset(Dataset):
+    """Samples of one or more sequences.
+
+    Args:
+        sequences: the sequences (their frames with an image and labels are used).
+        keypoint_names: belief-map order.
+        preprocess: image -> network input.
+        stride: output stride of the network (input px per map px).
+        sigma: belief Gaussian sigma, map px.
+        augment: random augmentation, or None (validation).
+        use_masks: load robot masks where frames have them.
+        frame_filter: one bool per usable frame (with an image and labels, in order): keep it.
+
+    A sample is a dict of tensors: `image` (3, H, W) float32 normalised, `belief` (K, H/s, W/s),
+    `uv_input` (K, 2) keypoints in input pixels after augmentation (NaN: absent), `mask`
+    (1, H/s, W/s) robot fraction, `has_mask` () bool, `index` () int.
+    """
+
+    def __init__(self, sequences: SequenceOf[Sequence], keypoint_names: SequenceOf[str],
+                 preprocess: Preprocess, stride: int, sigma: float,
+                 augment: Augment | None = None, use_masks: bool = True,
+                 frame_filter: SequenceOf[bool] | None = None):
+        self.sequences = list(sequences)
+        self.keypoint_names = tuple(keypoint_names)
+        self.preprocess = preprocess
+        self.stride = stride
+        self.sigma = sigma
+        self.augment = augment
+        self.use_masks = use_masks
+        map_size(preprocess.input_width, preprocess.input_height, stride)
+        self._columns = [self._column_map(seq) for seq in self.sequences]
+        items = []
+        skipped = 0
+        for s, seq in enumerate(self.sequences):
+            for f, frame in enumerate(seq.frames):
+                if frame.image_path is None or frame.uv_labels is None:
+                    skipped += 1
+                    continue
+                items.append(_Item(s, f))
+        if frame_filter is not None:
+            if len(frame_filter) != len(items):
+                raise InputError(f"frame filter has {len(frame_filter)} entries for "
+                                 f"{len(items)} frames")
+            items = [item for item, keep in zip(items, frame_filter, strict=True) if keep]
+        if skipped:
+            logger.warning("%d frames without an image or labels are skipped", skipped)
+        self.items = items
+
+    def _column_map(self, seq: Sequence) -> np.ndarray:
+        """(K,) index into the sequence's keypoints for each name, -1 where it has none."""
+        index = {name: i for i, name in enumerate(seq.keypoint_names)}
+        columns = np.array([index.get(name, -1) for name in self.keypoint_names])
+        if np.all(columns < 0):
+            raise InputError(f"the data has none of the keypoints {', '.join(self.keypoint_names)}"
+                             f" (it has {', '.join(seq.keypoint_names) or 'none'})", seq.source,
+                             "train on data of the same robot or set data.keypoints")
+        return columns
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def frame(self, index: int) -> tuple[Sequence, Frame]:
+        item = self.items[index]
+        seq = self.sequences[item.sequence]
+        return seq, seq.frames[item.frame]
+
+    def labels(self, index: int) -> np.ndarray:
+        """(K, 2) image-pixel labels of a sample in belief-map order, NaN where absent."""
+        item = self.items[index]
+        seq = self.sequences[item.sequence]
+        columns = self._columns[item.sequence]
+        uv = np.full((len(columns), 2), np.nan)
+        have = columns >= 0
+        uv[have] = seq.frames[item.frame].uv_labels[columns[have]]
+        return uv
+
+    def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
+        seq, frame = self.frame(index)
+        image = load_image(frame, seq.camera)
+        uv = self.labels(index)
+        mask = load_mask(frame, seq.camera) if self.use_masks and frame.mask_path else None
+        if self.augment is not None:
+            image, uv, mask = self.augment(image, uv, mask)
+        x, transform = self.preprocess.apply(image)
+        uv_input = transform.image_to_input(uv)
+        pre = self.preprocess
+        belief = belief_maps(uv_input, pre.input_width, pre.input_height, self.stride, self.sigma)
+        if mask is not None:
+            mask_target = mask_map(pre.apply_mask(mask), self.stride)
+        else:
+            mask_target = np.zeros((1,) + belief.shape[1:], np.float32)
+        return {"image": torch.from_numpy(x), "belief": torch.from_numpy(belief),
+                "uv_input": torch.from_numpy(uv_input.astype(np.float32)),
+                "mask": torch.from_numpy(mask_target),
+                "has_mask": torch.tensor(mask is not None), "index": torch.tensor(index)}
+
+
+def _reseed_worker(worker_id: int) -> None:
+    """DataLoader `worker_init_fn`: a different augmentation stream in every worker."""
+    info = get_worker_info()
+    if info is not None and getattr(info.dataset, "augment", None) is not None:
+        info.dataset.augment.reseed(info.seed % _SEED_MODULUS)
+
+
+def make_datasets(config: TrainConfig, train_sequences: SequenceOf[Sequence],
+                  val_sequences: SequenceOf[Sequence] = ()
+                  ) -> tuple[KeypointDataset, KeypointDataset]:
+    """Training and validation datasets of a resolved config. Without validation sequences,
+    every round(1 / val_fraction)-th training frame is held out."""
+    data = config.data
+    common = dict(keypoint_names=data.keypoints, preprocess=config.input,
+                  stride=config.model.output_stride, sigma=data.belief_sigma,
+                  use_masks=data.use_masks and config.model.mask_head)
+    augment = Augment(config.augment, seed=config.trainer.seed) if config.augment.enabled \
+        else None
+    if val_sequences:
+        train = KeypointDataset(train_sequences, augment=augment, **common)
+        val = KeypointDataset(val_sequences, **common)
+    else:
+        n = len(KeypointDataset(train_sequences, **common))
+        every = round(1 / data.val_fraction) if data.val_fraction > 0 else 0
+        held = np.zeros(n, bool) if every == 0 or n < 2 else (np.arange(n) % every == every - 1)
+        train = KeypointDataset(train_sequences, augment=augment, frame_filter=~held, **common)
+        val = KeypointDataset(train_sequences, frame_filter=held, **common)
+    if len(train) == 0:
+        raise InputError("no training frames with an image and keypoint labels",
+                         fix="point data.train at DREAM folders with images and labels")
+    logger.info("%d training and %d validation frames", len(train), len(val))
+    return train, val
+
+
+def make_loader(dataset: KeypointDataset, config: TrainConfig, shuffle: bool) -> DataLoader:
+    workers = config.data.num_workers
+    return DataLoader(dataset, batch_size=config.data.batch_size, shuffle=shuffle,
+                      num_workers=workers, persistent_workers=workers > 0,
+                      worker_init_fn=_reseed_worker, drop_last=False)

@@ -1,0 +1,124 @@
+"""The LightningModule: one shared step for train / val / test, AdamW, warm-up + cosine schedule.
+
+loss = belief_weight * MSE(belief, target) + mask_weight * BCE(mask logits, robot fraction),
+the mask term over the samples that have a mask. Validation and test also run the real peak
+finder (`dream.peaks`) on the predicted maps and report the keypoint L2 error (median and mean,
+input pixels), PCK at `eval.pck_threshold_px` and the detection rate. Under DDP these are averaged
+over the ranks (each rank's median, an approximation).
+
+The checkpoint carries the resolved config (keypoint names, robot, preprocessing included) under
+`CHECKPOINT_KEY`, so `train.checkpoint.load_checkpoint` rebuilds the network from the file alone.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import lightning as L
+import torch
+from torch.nn import functional as F
+
+from train.checkpoint import CHECKPOINT_KEY, checkpoint_payload
+from train.config import TrainConfig
+from train.metrics import KeypointErrors, keypoint_errors, summarize
+from train.model import build_model
+
+TRAIN, VAL, TEST = "train", "val", "test"
+
+
+def lr_factor(step: int, total_steps: int, schedule: str, warmup_fraction: float,
+              final_fraction: float) -> float:
+    """Learning rate / peak learning rate at optimiser step `step` of `total_steps`.
+
+    "onecycle": linear warm-up over `warmup_fraction` of the steps, then cosine down to
+    `final_fraction`; "cosine": the same without warm-up; "constant": 1.
+    """
+    if schedule == "constant":
+        return 1.0
+    warmup = int(warmup_fraction * total_steps) if schedule == "onecycle" else 0
+    if step < warmup:
+        return (step + 1) / warmup
+    progress = min(1.0, (step - warmup) / max(1, total_steps - warmup))
+    return final_fraction + (1 - final_fraction) * 0.5 * (1 + math.cos(math.pi * progress))
+
+
+class BeliefModule(L.LightningModule):
+    """Training wrapper of `train.model.BeliefNet` for a resolved `TrainConfig` (keypoints and
+    num_keypoints set)."""
+
+    def __init__(self, config: TrainConfig):
+        super().__init__()
+        self.config = config
+        self.model = build_model(config.model)
+        self._results: dict[str, list[KeypointErrors]] = {VAL: [], TEST: []}
+
+    def forward(self, image: torch.Tensor):
+        return self.model(image)
+
+    def _step(self, batch: dict[str, torch.Tensor], stage: str) -> torch.Tensor:
+        """The one step of every stage: loss, and keypoint errors outside training."""
+        out = self.model(batch["image"])
+        weights = self.config.loss
+        belief_loss = F.mse_loss(out.belief, batch["belief"])
+        loss = weights.belief_weight * belief_loss
+        n = batch["image"].shape[0]
+        has_mask = batch["has_mask"]
+        if out.mask is not None and weights.mask_weight > 0 and bool(has_mask.any()):
+            mask_loss = F.binary_cross_entropy_with_logits(out.mask[has_mask],
+                                                           batch["mask"][has_mask])
+            loss = loss + weights.mask_weight * mask_loss
+            self.log(f"{stage}/mask_bce", mask_loss, on_step=False, on_epoch=True, batch_size=n,
+                     sync_dist=stage != TRAIN)
+        on_step = stage == TRAIN
+        self.log(f"{stage}/belief_mse", belief_loss, on_step=False, on_epoch=True, batch_size=n,
+                 sync_dist=stage != TRAIN)
+        self.log(f"{stage}/loss", loss, on_step=on_step, on_epoch=True, prog_bar=True,
+                 batch_size=n, sync_dist=stage != TRAIN)
+        if stage != TRAIN:
+            pre = self.config.input
+            self._results[stage].append(keypoint_errors(
+                out.belief.detach().float().cpu().numpy(), batch["uv_input"].cpu().numpy(),
+                self.config.model.output_stride, pre.input_width, pre.input_height,
+                self.config.eval.peaks))
+        return loss
+
+    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        return self._step(batch, TRAIN)
+
+    def validation_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        return self._step(batch, VAL)
+
+    def test_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        return self._step(batch, TEST)
+
+    def _log_keypoint_metrics(self, stage: str) -> None:
+        summary = summarize(self._results[stage], self.config.eval.pck_threshold_px)
+        self._results[stage] = []
+        pck = f"{stage}/pck@{self.config.eval.pck_threshold_px:g}px"
+        self.log_dict({f"{stage}/l2_median_px": summary["l2_median_px"],
+                       f"{stage}/l2_mean_px": summary["l2_mean_px"], pck: summary["pck"],
+                       f"{stage}/found_rate": summary["found_rate"]}, sync_dist=True,
+                      prog_bar=False)
+
+    def on_validation_epoch_end(self) -> None:
+        self._log_keypoint_metrics(VAL)
+
+    def on_test_epoch_end(self) -> None:
+        self._log_keypoint_metrics(TEST)
+
+    def configure_optimizers(self) -> dict[str, Any]:
+        optim = self.config.optim
+        decay, no_decay = [], []
+        for param in self.model.parameters():  # no weight decay on biases and norms
+            (decay if param.ndim >= 2 else no_decay).append(param)
+        optimizer = torch.optim.AdamW([{"params": decay, "weight_decay": optim.weight_decay},
+                                       {"params": no_decay, "weight_decay": 0.0}], lr=optim.lr)
+        total = max(1, int(self.trainer.estimated_stepping_batches))
+        scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: lr_factor(
+            step, total, optim.schedule, optim.warmup_fraction, optim.final_lr_fraction))
+        return {"optimizer": optimizer,
+                "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        checkpoint[CHECKPOINT_KEY] = checkpoint_payload(self.config)

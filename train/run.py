@@ -1,0 +1,223 @@
+"""One training run: data -> resolved config -> Lightning Trainer -> checkpoints and metrics.
+
+A run folder holds `config.yaml` (the resolved config), `last.ckpt` (refreshed every epoch, every
+`trainer.checkpoint_every_n_steps` steps and on an exception or Ctrl-C), `best.ckpt` (the best
+`trainer.monitor`) and `metrics.csv` (one row per epoch). Running again into a folder that has a
+`last.ckpt` resumes from it (epoch, optimiser and schedule), e.g. after a kill or with a larger
+`trainer.max_epochs`; the model, input and keypoints must be those of the checkpoint.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import logging
+import math
+import os
+import time
+import warnings
+from collections.abc import Sequence as SequenceOf
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import torch
+from lightning.pytorch.callbacks import Callback, ModelCheckpoint
+
+from dream.errors import InputError
+from train.checkpoint import checkpoint_config
+from train.config import TrainConfig, dump_config
+from train.data import make_datasets, make_loader, read_folders, resolve_from_data
+from train.module import BeliefModule
+
+logger = logging.getLogger(__name__)
+
+LAST = "last"
+BEST = "best"
+CHECKPOINT_SUFFIX = ".ckpt"
+CONFIG_FILE = "config.yaml"
+METRICS_FILE = "metrics.csv"
+_FALLBACK_MONITOR = "train/loss_epoch"  # when there is no validation data
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """Where a run wrote its outputs, and its last epoch's metrics."""
+
+    run_dir: Path
+    last_checkpoint: Path
+    best_checkpoint: Path
+    config: TrainConfig
+    metrics: dict[str, float]
+    epochs: int
+
+
+def _write_text_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def _scalar(value: Any) -> float:
+    return float(value.detach().cpu()) if isinstance(value, torch.Tensor) else float(value)
+
+
+class EpochCsv(Callback):
+    """Appends one row per epoch to `metrics.csv`: epoch, step, wall time, learning rate and every
+    logged epoch metric. A resumed run keeps the rows of the epochs before its start."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.rows: list[dict[str, Any]] = []
+        self.elapsed_before = 0.0
+        self._start = time.perf_counter()
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._start = time.perf_counter()
+        start_epoch = trainer.current_epoch
+        if self.path.exists():
+            with open(self.path, newline="", encoding="utf-8") as fh:
+                self.rows = [r for r in csv.DictReader(fh) if int(r["epoch"]) < start_epoch]
+            if self.rows:
+                self.elapsed_before = float(self.rows[-1]["wall_s"])
+
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if trainer.sanity_checking or not trainer.is_global_zero:
+            return
+        row: dict[str, Any] = {"epoch": trainer.current_epoch, "step": trainer.global_step,
+                               "wall_s": round(self.elapsed_before + time.perf_counter()
+                                               - self._start, 2),
+                               "lr": trainer.optimizers[0].param_groups[0]["lr"]}
+        for key, value in sorted(trainer.callback_metrics.items()):
+            if not key.endswith("_step"):
+                row[key.removesuffix("_epoch")] = _scalar(value)
+        self.rows.append(row)
+        columns: list[str] = []
+        for r in self.rows:
+            columns += [c for c in r if c not in columns]
+        out = io.StringIO()
+        writer = csv.DictWriter(out, fieldnames=columns, restval="")
+        writer.writeheader()
+        writer.writerows(self.rows)
+        _write_text_atomic(self.path, out.getvalue())
+
+
+class LogLines(Callback):
+    """Progress as logging lines (when the progress bar is off): every `every` steps and at each
+    epoch end, with the throughput in images per second."""
+
+    def __init__(self, every: int):
+        self.every = every
+        self._t0 = time.perf_counter()
+        self._images = 0
+
+    def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._t0, self._images = time.perf_counter(), 0
+
+    def on_train_batch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, outputs: Any,
+                           batch: Any, batch_idx: int) -> None:
+        self._images += int(batch["image"].shape[0])
+        if trainer.global_step % self.every == 0 and trainer.is_global_zero:
+            rate = self._images / max(time.perf_counter() - self._t0, 1e-9)
+            loss = trainer.callback_metrics.get("train/loss_step")
+            logger.info("epoch %d step %d loss %.5f lr %.2e %.1f images/s", trainer.current_epoch,
+                        trainer.global_step, math.nan if loss is None else _scalar(loss),
+                        trainer.optimizers[0].param_groups[0]["lr"], rate)
+
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if not trainer.is_global_zero:
+            return
+        metrics = {k.removesuffix("_epoch"): _scalar(v)
+                   for k, v in trainer.callback_metrics.items() if not k.endswith("_step")}
+        text = "  ".join(f"{k} {v:.4g}" for k, v in sorted(metrics.items()))
+        rate = self._images / max(time.perf_counter() - self._t0, 1e-9)
+        logger.info("epoch %d done (%.1f images/s): %s", trainer.current_epoch, rate, text)
+
+
+def _check_resumable(config: TrainConfig, checkpoint: Path) -> None:
+    """The checkpoint's network must be the one this config builds."""
+    saved = checkpoint_config(checkpoint)
+    for section in ("model", "input"):
+        if getattr(saved, section) != getattr(config, section):
+            raise InputError(f"cannot resume: the checkpoint's {section} settings differ from "
+                             f"the config's", checkpoint, "use the same recipe, or a new --out "
+                             "folder for a new run")
+    if saved.data.keypoints != config.data.keypoints:
+        raise InputError("cannot resume: the checkpoint was trained on other keypoints",
+                         checkpoint, "use a new --out folder for a new run")
+
+
+def _trainer(config: TrainConfig, run_dir: Path, has_val: bool,
+             callbacks: SequenceOf[Callback]) -> tuple[L.Trainer, ModelCheckpoint]:
+    tc = config.trainer
+    last = ModelCheckpoint(dirpath=run_dir, filename=LAST, monitor=None, save_top_k=1,
+                           every_n_epochs=1, save_on_train_epoch_end=True, save_on_exception=True,
+                           enable_version_counter=False)
+    best = ModelCheckpoint(dirpath=run_dir, filename=BEST,
+                           monitor=tc.monitor if has_val else _FALLBACK_MONITOR,
+                           mode=tc.monitor_mode if has_val else "min", save_top_k=1,
+                           auto_insert_metric_name=False, enable_version_counter=False)
+    savers = [best, last]
+    if tc.checkpoint_every_n_steps:  # mid-epoch refreshes of the same last.ckpt
+        savers.append(ModelCheckpoint(dirpath=run_dir, filename=LAST, monitor=None, save_top_k=1,
+                                      every_n_train_steps=tc.checkpoint_every_n_steps,
+                                      enable_version_counter=False))
+    all_callbacks: list[Callback] = [EpochCsv(run_dir / METRICS_FILE), *callbacks]
+    if not tc.progress_bar:
+        all_callbacks.append(LogLines(tc.log_every_n_steps))
+    all_callbacks += savers
+    trainer = L.Trainer(
+        default_root_dir=run_dir, max_epochs=tc.max_epochs, accelerator=tc.accelerator,
+        devices=tc.devices, strategy=tc.strategy, num_nodes=tc.num_nodes,
+        precision=tc.precision, callbacks=all_callbacks, logger=False,
+        enable_progress_bar=tc.progress_bar, enable_model_summary=tc.progress_bar,
+        log_every_n_steps=tc.log_every_n_steps, check_val_every_n_epoch=tc.val_every_n_epochs,
+        limit_val_batches=None if has_val else 0, num_sanity_val_steps=0,
+        gradient_clip_val=tc.gradient_clip_val)
+    return trainer, best
+
+
+def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | None = None,
+                 callbacks: SequenceOf[Callback] = ()) -> TrainResult:
+    """Train `config` into `run_dir` (created if needed).
+
+    Args:
+        config: the recipe (data folders in `data.train` / `data.val`).
+        run_dir: the run folder; its `last.ckpt`, when present, is resumed from.
+        resume: resume from this checkpoint instead (any path).
+        callbacks: extra Lightning callbacks (e.g. a held-out evaluation).
+    """
+    run_dir = Path(run_dir)
+    torch.set_num_threads(config.trainer.threads)
+    L.seed_everything(config.trainer.seed, workers=True, verbose=False)
+    train_sequences = read_folders(config.data.train)
+    val_sequences = read_folders(config.data.val) if config.data.val else []
+    config = resolve_from_data(config, train_sequences)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    last_path = run_dir / f"{LAST}{CHECKPOINT_SUFFIX}"
+    ckpt_path = Path(resume) if resume is not None else (last_path if last_path.exists() else None)
+    if ckpt_path is not None:
+        _check_resumable(config, ckpt_path)
+        logger.info("resuming from %s", ckpt_path)
+    _write_text_atomic(run_dir / CONFIG_FILE, dump_config(config))
+    train_set, val_set = make_datasets(config, train_sequences, val_sequences)
+    train_loader = make_loader(train_set, config, shuffle=True)
+    val_loader = make_loader(val_set, config, shuffle=False) if len(val_set) else None
+    module = BeliefModule(config)
+    trainer, best = _trainer(config, run_dir, val_loader is not None, callbacks)
+    if config.trainer.max_steps is not None:
+        per_device = math.ceil(len(train_set) / trainer.world_size)
+        steps_per_epoch = math.ceil(per_device / config.data.batch_size)
+        epochs = min(config.trainer.max_epochs, math.ceil(config.trainer.max_steps
+                                                          / steps_per_epoch))
+        trainer.fit_loop.max_epochs = epochs
+        logger.info("step budget %d: %d epochs of %d steps", config.trainer.max_steps, epochs,
+                    steps_per_epoch)
+    with warnings.catch_warnings():  # the run folder holds config.yaml (and, resuming, more)
+        warnings.filterwarnings("ignore", message=r".*exists and is not empty")
+        trainer.fit(module, train_loader, val_loader, ckpt_path=ckpt_path)
+    metrics = {k.removesuffix("_epoch"): _scalar(v) for k, v in trainer.callback_metrics.items()
+               if not k.endswith("_step")}
+    best_path = Path(best.best_model_path) if best.best_model_path else last_path
+    return TrainResult(run_dir, last_path, best_path, config, metrics, trainer.current_epoch)
