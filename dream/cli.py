@@ -110,16 +110,58 @@ def _settings(args: argparse.Namespace) -> SolverSettings:
     return SolverSettings(loss=RobustLoss(args.loss, args.loss_scale_px), seed=args.seed)
 
 
+def _detect(args: argparse.Namespace, seq, out):
+    """Robot and observations from the keypoint network of `--model` (onnxruntime, no torch),
+    with a progress line on stderr every `PROGRESS_EVERY_FRAMES` frames."""
+    from dream.detect import (
+        DEFAULT_BATCH_SIZE,
+        PROGRESS_EVERY_FRAMES,
+        check_images,
+        detect_keypoints,
+        load_keypoint_model,
+        load_model_robot,
+    )
+
+    check_images(seq)
+    model = load_keypoint_model(args.model, threads=getattr(args, "threads", None))
+    robot = load_model_robot(seq, model, args.robot)
+    trained_on = getattr(model, "robot", None)
+    if trained_on is not None and trained_on != robot.name:
+        log.warning("the model was trained on robot '%s', the data is of '%s'", trained_on,
+                    robot.name)
+    batch = getattr(args, "batch", None) or DEFAULT_BATCH_SIZE
+    every = PROGRESS_EVERY_FRAMES
+
+    def progress(done: int, total: int) -> None:  # a line each time `every` is crossed
+        if done == total or done // every > (done - batch) // every:
+            print(f"detected keypoints in {done}/{total} frames", file=sys.stderr)
+
+    obs = detect_keypoints(seq, robot, model, batch_size=batch,
+                           peak_params=getattr(model, "peak_params", None),
+                           progress=progress if len(seq) > every else None)
+    print(f"{args.model}: found {int(obs.found.sum())} of {obs.found.size} keypoints in "
+          f"{len(seq)} frames", file=out)
+    return robot, obs
+
+
 def run_calibrate(args: argparse.Namespace, out=None) -> dict:
+    """`dream calibrate`: observations from the labels (`--use-labels`) or from a keypoint
+    network (`--model MODEL.onnx`, run by the `dream.model_loaders` entry point: onnxruntime,
+    no torch) -> RESULT.json, plus RESULT.ros.txt and RESULT.T_base_cam.txt for robot
+    software (`dream.ros`)."""
     from dream.io import write_json_atomic
     from dream.pipeline import calibrate, observations_from_labels, robot_for, truth_poses
     from dream.result import result_to_dict
+    from dream.ros import write_robot_files
 
     out = out or sys.stdout
     seq = _read(args)
-    keypoints = seq.keypoint_names if args.use_labels else None
-    robot = robot_for(seq, args.robot, keypoints)
-    obs = observations_from_labels(seq, robot)
+    if getattr(args, "model", None) is not None:
+        robot, obs = _detect(args, seq, out)
+    else:
+        keypoints = seq.keypoint_names if args.use_labels else None
+        robot = robot_for(seq, args.robot, keypoints)
+        obs = observations_from_labels(seq, robot)
     result = calibrate(seq, obs, args.frames, _settings(args))
     doc = result_to_dict(result, obs, robot=args.robot or seq.robot)
     if args.overlays:
@@ -127,6 +169,8 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
 
         write_result_overlays(seq, robot, obs, result, Path(args.overlays))
     write_json_atomic(args.out, doc)
+    ros_path, matrix_path = write_robot_files(args.out, np.asarray(doc["T_cam_base"]),
+                                              robot.base_link)
     _print_summary(doc, out)
     T_true = truth_poses(seq)
     if args.frames == "all" and np.all(np.isfinite(T_true[0])):
@@ -135,7 +179,8 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
         t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true[0])
         print(f"error vs ground truth: camera position {t_err * 1000:.2f} mm, rotation "
               f"{np.rad2deg(r_err):.3f} deg", file=out)
-    print(f"wrote {args.out}", file=out)
+    print(f"wrote {args.out}, {ros_path} (ROS static_transform_publisher: x y z qx qy qz qw "
+          f"{robot.base_link} camera_optical_frame) and {matrix_path} (T_base_cam)", file=out)
     return doc
 
 
@@ -249,8 +294,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = add("calibrate", cmd_calibrate, "solve T_cam_base from keypoints of many frames")
     data_args(p)
-    p.add_argument("--use-labels", action="store_true", required=True,
-                   help="take 2D observations from the labels (projected_location)")
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--model", metavar="MODEL.onnx",
+                        help="detect the keypoints with this network (dream export; runs with "
+                             "onnxruntime, no torch)")
+    source.add_argument("--use-labels", action="store_true",
+                        help="take 2D observations from the labels (projected_location)")
     p.add_argument("--out", required=True, help="RESULT.json to write")
     p.add_argument("--frames", choices=("all", "each"), default="all",
                    help="all: one extrinsic from every frame (fixed camera); each: per frame")
@@ -258,6 +307,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--loss", choices=("huber", "cauchy", "l2"), default="huber")
     p.add_argument("--loss-scale-px", type=float, default=RobustLoss().scale_px)
     p.add_argument("--seed", type=int, default=0, help="seed of the RANSAC sampling")
+    p.add_argument("--threads", type=int, default=None,
+                   help="--model: onnxruntime threads (default: every core)")
+    p.add_argument("--batch", type=int, default=None,
+                   help="--model: images per network call (default 8)")
 
     p = add("eval", cmd_eval, "score a RESULT.json against the data's ground truth")
     data_args(p)

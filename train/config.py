@@ -237,14 +237,18 @@ class LossConfig:
     Attributes:
         belief_weight: weight of the per-pixel mean squared error of the belief maps.
         mask_weight: weight of the per-pixel binary cross-entropy of the robot mask.
+        foreground_weight: belief pixels are weighted by 1 + foreground_weight * target
+            (0: plain MSE, as DREAM).
     """
 
     belief_weight: float = 1.0
     mask_weight: float = 0.01
+    foreground_weight: float = 0.0
 
     def __post_init__(self) -> None:
         _require(self.belief_weight > 0, "loss.belief_weight", "must be > 0")
         _require(self.mask_weight >= 0, "loss.mask_weight", "must be >= 0")
+        _require(self.foreground_weight >= 0, "loss.foreground_weight", "must be >= 0")
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,44 @@
+"""`dream export`: registered through the `dream.commands` entry point; imports torch only when run.
+
+    dream export --checkpoint runs/tiny/best.ckpt --out model.onnx
+
+Writes a self-describing ONNX model (see `export.onnx_export`) that `dream calibrate --model`
+runs with onnxruntime alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from dream.errors import InputError
+
+    try:
+        from export.onnx_export import PARITY_ATOL, export_model  # torch from here on
+    except ImportError as exc:
+        raise InputError(f"dream export needs torch and onnx ({exc})",
+                         fix="install the training extras: pip install -e '.[train]'") from None
+
+    report = export_model(args.checkpoint, args.out, opset=args.opset)
+    meta = report.metadata
+    pre = meta.preprocess
+    diffs = ", ".join(f"{name} {diff:.2g}" for name, diff in report.max_abs_diff.items())
+    print(f"robot {meta.robot}, {len(meta.keypoint_names)} keypoints: "
+          f"{', '.join(meta.keypoint_names)}")
+    print(f"input {pre.input_width}x{pre.input_height} ({pre.mode}), output stride "
+          f"{meta.output_stride}, outputs {', '.join(report.output_names)}")
+    print(f"onnxruntime vs torch, max |difference|: {diffs} (limit {PARITY_ATOL:g})")
+    print(f"wrote {report.path}")
+    return 0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the `export` command to `dream`'s sub-commands."""
+    help_ = "export a dream train checkpoint to a self-describing ONNX model"
+    p = subparsers.add_parser("export", help=help_, description=help_)
+    p.add_argument("--checkpoint", required=True, help="a .ckpt written by dream train")
+    p.add_argument("--out", required=True, help="the .onnx file to write")
+    p.add_argument("--opset", type=int, default=None,
+                   help="ONNX opset (default: the exporter's)")
+    p.set_defaults(func=cmd_export)

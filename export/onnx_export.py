@@ -1,0 +1,210 @@
+"""Checkpoint -> self-describing ONNX model, checked against torch in onnxruntime.
+
+    from export.onnx_export import export_onnx
+    export_onnx("runs/tiny/best.ckpt", "model.onnx")
+
+`KeypointExportWrapper` is the exported module (segment-anything style: the training network is
+wrapped, not changed): input `image` (N, 3, H, W) normalised RGB with a dynamic batch axis,
+outputs `belief` (N, K, H/s, W/s) and, when the network has a mask head, `mask` (N, 1, H/s, W/s)
+logits. The export uses torch's default exporter (`torch.onnx.export(..., dynamo=True)`), as
+`tests/test_train.py` checks. The model's description is written into the file as
+metadata_props (`export.runner.ModelMetadata`). Before the file appears, onnxruntime runs it on
+a random batch of another size than the traced one and every output must match torch within
+`PARITY_ATOL` (absolute); otherwise nothing is written and an `InputError` says so.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import secrets
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import onnx
+import torch
+from torch import nn
+
+from dream import __version__
+from dream.detect import BELIEF_OUTPUT, MASK_OUTPUT
+from dream.errors import InputError
+from dream.io.fields import one_line, os_reason
+from export.runner import INPUT_NAME, ModelMetadata, OnnxKeypointModel
+from train.checkpoint import load_checkpoint
+from train.config import TrainConfig
+from train.model import BeliefNet
+
+log = logging.getLogger(__name__)
+
+ONNX_SUFFIX = ".onnx"
+PARITY_ATOL = 1e-4        # largest absolute difference onnxruntime vs torch, belief scale
+TRACE_BATCH = 2           # batch of the traced example (not 0 or 1: those would be specialised)
+PARITY_BATCH = 3          # batch of the parity check (another size: the axis must be dynamic)
+PARITY_SEED = 0
+BATCH_AXIS = "batch"
+_EXPORTER_LOGGERS = ("torch.onnx._internal.exporter._registration",)
+_TOKEN_BYTES = 4
+
+
+class KeypointExportWrapper(nn.Module):
+    """The exported graph: a `BeliefNet` returning named tensors instead of a NamedTuple.
+
+    `forward(image)` -> (belief,) or (belief, mask), in the order of `output_names`.
+    """
+
+    def __init__(self, net: BeliefNet):
+        super().__init__()
+        self.net = net
+        self.output_names = (BELIEF_OUTPUT, MASK_OUTPUT) if net.mask_head is not None \
+            else (BELIEF_OUTPUT,)
+
+    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        out = self.net(image)
+        return (out.belief, out.mask) if out.mask is not None else (out.belief,)
+
+
+@dataclass(frozen=True)
+class ExportReport:
+    """What `export_model` wrote.
+
+    Attributes:
+        path: the .onnx file.
+        metadata: the description stored in it.
+        output_names: the graph's outputs, in order.
+        max_abs_diff: per output, the largest |onnxruntime - torch| on the parity batch.
+    """
+
+    path: Path
+    metadata: ModelMetadata
+    output_names: tuple[str, ...]
+    max_abs_diff: dict[str, float]
+
+
+def config_sha256(config: TrainConfig) -> str:
+    """sha256 of the config's canonical JSON (sorted keys, no spaces)."""
+    text = json.dumps(config.to_dict(), sort_keys=True, separators=(",", ":"), ensure_ascii=True)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def metadata_for(config: TrainConfig, checkpoint: str | Path | None = None) -> ModelMetadata:
+    """The ONNX metadata of a checkpoint's resolved config."""
+    if not config.data.keypoints or not config.data.robot:
+        raise InputError("the checkpoint's config names no keypoints or robot", checkpoint,
+                         "export a checkpoint written by dream train")
+    return ModelMetadata(robot=config.data.robot, keypoint_names=tuple(config.data.keypoints),
+                         preprocess=config.input, output_stride=config.model.output_stride,
+                         dream_version=__version__, config_sha256=config_sha256(config),
+                         belief_sigma=config.data.belief_sigma, peak_params=config.eval.peaks)
+
+
+@contextmanager
+def _quiet_exporter() -> Iterator[None]:
+    """Silence the exporter's notes about optional packages (torchvision ops) and torch's
+    internal deprecation warnings; errors still raise."""
+    loggers = [logging.getLogger(name) for name in _EXPORTER_LOGGERS]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", category=FutureWarning, module=r"(torch|copyreg)")
+            warnings.filterwarnings("ignore", category=DeprecationWarning, module=r"torch")
+            yield
+    finally:
+        for lg, level in zip(loggers, levels, strict=True):
+            lg.setLevel(level)
+
+
+def to_onnx_proto(wrapper: KeypointExportWrapper, width: int, height: int,
+                  opset: int | None = None) -> onnx.ModelProto:
+    """The wrapper as an ONNX model with a dynamic batch axis (torch's default exporter)."""
+    example = torch.zeros(TRACE_BATCH, 3, height, width)
+    batch = torch.export.Dim(BATCH_AXIS, min=1)
+    with _quiet_exporter():
+        program = torch.onnx.export(wrapper, (example,), None, input_names=[INPUT_NAME],
+                                    output_names=list(wrapper.output_names), dynamo=True,
+                                    dynamic_shapes={"image": {0: batch}}, opset_version=opset,
+                                    verbose=False)
+    return program.model_proto
+
+
+def parity(wrapper: KeypointExportWrapper, model: OnnxKeypointModel,
+           batch: int = PARITY_BATCH, seed: int = PARITY_SEED) -> dict[str, float]:
+    """Per output, the largest |onnxruntime - torch| on a random (batch, 3, H, W) input."""
+    pre = model.preprocess
+    x = torch.randn(batch, 3, pre.input_height, pre.input_width,
+                    generator=torch.Generator().manual_seed(seed))
+    with torch.no_grad():
+        expected = dict(zip(wrapper.output_names, wrapper(x), strict=True))
+    got = model.run(x.numpy())
+    if set(got) != set(expected):
+        raise InputError(f"the ONNX outputs {sorted(got)} differ from torch's "
+                         f"{sorted(expected)}", model.path)
+    return {name: float(np.max(np.abs(got[name] - expected[name].numpy())))
+            for name in wrapper.output_names}
+
+
+def _temporary_sibling(path: Path) -> Path:
+    return path.with_name(f".{path.name}.tmp-{os.getpid()}-{secrets.token_hex(_TOKEN_BYTES)}")
+
+
+def export_model(checkpoint: str | Path, out: str | Path, opset: int | None = None,
+                 atol: float = PARITY_ATOL) -> ExportReport:
+    """Export a `dream train` checkpoint to `out` (.onnx), checked against torch.
+
+    Args:
+        checkpoint: a .ckpt written by `dream train` (it carries its config).
+        out: the .onnx file to write (atomically: complete or absent).
+        opset: ONNX opset (None: the exporter's default).
+        atol: largest absolute difference onnxruntime vs torch accepted, per output.
+
+    Raises:
+        InputError: unreadable checkpoint, bad output path, or onnxruntime disagreeing with
+            torch (then no file is left behind).
+    """
+    out = Path(out)
+    if out.suffix.lower() != ONNX_SUFFIX:
+        raise InputError("the output must be a .onnx file", out, "name it e.g. model.onnx")
+    net, config = load_checkpoint(checkpoint)
+    metadata = metadata_for(config, checkpoint)
+    wrapper = KeypointExportWrapper(net).eval()
+    pre = config.input
+    proto = to_onnx_proto(wrapper, pre.input_width, pre.input_height, opset)
+    onnx.helper.set_model_props(proto, metadata.to_props())
+    onnx.checker.check_model(proto)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the output folder ({os_reason(exc)})", out.parent,
+                         "choose a writable location") from None
+    tmp = _temporary_sibling(out)
+    try:
+        try:
+            onnx.save_model(proto, str(tmp))
+        except (OSError, ValueError) as exc:
+            raise InputError(f"cannot write the model ({one_line(exc)})", out,
+                             "check that the folder is writable and the disk has space") from None
+        diffs = parity(wrapper, OnnxKeypointModel(tmp))
+        worst = max(diffs, key=diffs.get)
+        if not diffs[worst] <= atol:
+            raise InputError(f"onnxruntime's '{worst}' output differs from torch by "
+                             f"{diffs[worst]:.3g} (> {atol:g}); no model was written", out,
+                             "report it, or retry with another --opset")
+        os.replace(tmp, out)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    log.info("exported %s: outputs %s, max |onnxruntime - torch| %s", out,
+             ", ".join(wrapper.output_names), diffs)
+    return ExportReport(out, metadata, wrapper.output_names, diffs)
+
+
+def export_onnx(checkpoint: str | Path, out: str | Path) -> Path:
+    """Export a checkpoint to `out` (see `export_model`); returns the written path."""
+    return export_model(checkpoint, out).path
