@@ -156,6 +156,11 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
 
     out = out or sys.stdout
     seq = _read(args)
+    polish = getattr(args, "polish", False)
+    if polish:
+        from dream.polish import check_polish_input
+
+        check_polish_input(seq, args.frames)
     if getattr(args, "model", None) is not None:
         robot, obs = _detect(args, seq, out)
     else:
@@ -164,6 +169,13 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
         obs = observations_from_labels(seq, robot)
     result = calibrate(seq, obs, args.frames, _settings(args))
     doc = result_to_dict(result, obs, robot=args.robot or seq.robot)
+    if polish:
+        from dream.polish import polish_calibration, result_doc_with_polish
+
+        report = polish_calibration(seq, robot, result, obs)
+        doc = result_doc_with_polish(doc, report)
+        print(f"silhouette polish ({len(report.frames)} frames with masks, "
+              f"{report.seconds:.1f} s): {report.reason}", file=out)
     if args.overlays:
         from dream.overlay import write_result_overlays
 
@@ -304,6 +316,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", choices=("all", "each"), default="all",
                    help="all: one extrinsic from every frame (fixed camera); each: per frame")
     p.add_argument("--overlays", help="folder for per-frame overlays and a summary image")
+    p.add_argument("--polish", action="store_true",
+                   help="refine the extrinsic by aligning the robot's rendered silhouette with "
+                        "the data's masks; kept only when the IoU improves without spoiling "
+                        "the keypoint fit (needs masks and --frames all)")
     p.add_argument("--loss", choices=("huber", "cauchy", "l2"), default="huber")
     p.add_argument("--loss-scale-px", type=float, default=RobustLoss().scale_px)
     p.add_argument("--seed", type=int, default=0, help="seed of the RANSAC sampling")

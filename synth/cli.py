@@ -12,7 +12,7 @@ def cmd_synth(args: argparse.Namespace) -> int:
 
     keypoints = tuple(k for k in args.keypoints.split(",") if k) if args.keypoints else None
     job = SynthJob(robot=args.robot, out_dir=Path(args.out), num_frames=args.num,
-                   config=load_config(args.config), seed=args.seed, keypoints=keypoints,
+                   config=load_config(args.config, args.set), seed=args.seed, keypoints=keypoints,
                    workers=args.workers)
     stats = generate(job, overwrite=args.overwrite)
     print(f"{args.out}: {stats['rendered']} frames rendered, {stats['skipped']} already there, "
@@ -28,6 +28,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--num", type=int, required=True, help="number of frames")
     p.add_argument("--out", required=True, help="output folder (resumed when it exists)")
     p.add_argument("--config", help="YAML recipe (default: configs/synth/default.yaml values)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a recipe key (repeatable), e.g. camera.radius_m=[1.0,1.5]")
     p.add_argument("--workers", type=int, default=1, help="parallel rendering processes")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--overwrite", action="store_true",

@@ -6,14 +6,15 @@ Units: metres, radians, pixels. A range is a `[low, high]` pair drawn uniformly.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from dream.errors import InputError
+from dream.recipe import load_recipe, plain, recipe_from_dict
 
 Range = tuple[float, float]
 
@@ -212,61 +213,13 @@ class SynthConfig:
     output: Output = field(default_factory=Output)
 
     def to_dict(self) -> dict[str, Any]:
-        return _plain(dataclasses.asdict(self))
-
-
-SECTIONS: dict[str, type] = {f.name: f.default_factory for f in dataclasses.fields(SynthConfig)}
-
-
-def _plain(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, (np.floating, np.integer)):
-        return value.item()
-    return value
-
-
-def _build(cls: type, values: Any, where: str) -> Any:
-    if values is None:
-        return cls()
-    if not isinstance(values, dict):
-        raise InputError(f"{where or 'the config'} must be a mapping, got {type(values).__name__}")
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = set(values) - names
-    if unknown:
-        raise InputError(f"unknown key(s) {sorted(unknown)} in {where or 'the config'}; known: "
-                         f"{sorted(names)}")
-    kwargs = {}
-    for key, value in values.items():
-        if cls is SynthConfig:
-            kwargs[key] = _build(SECTIONS[key], value, key)
-        else:
-            kwargs[key] = tuple(value) if isinstance(value, list) else value
-    try:
-        return cls(**kwargs)
-    except TypeError as exc:
-        raise InputError(f"{where or 'config'}: {exc}") from None
+        return plain(dataclasses.asdict(self))
 
 
 def config_from_dict(values: dict[str, Any] | None) -> SynthConfig:
-    return _build(SynthConfig, values or {}, "")
+    return recipe_from_dict(SynthConfig, values or {})
 
 
-def load_config(path: str | Path | None) -> SynthConfig:
-    """The recipe in a YAML file (None: the defaults). Errors name the file."""
-    if path is None:
-        return SynthConfig()
-    path = Path(path)
-    try:
-        values = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise InputError("synth config not found", path,
-                         "give a YAML from configs/synth/") from None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise InputError(f"not a readable YAML file ({str(exc).splitlines()[0]})", path) from None
-    try:
-        return config_from_dict(values)
-    except InputError as exc:
-        raise InputError(str(exc), path) from None
+def load_config(path: str | Path | None, overrides: Sequence[str] = ()) -> SynthConfig:
+    """The recipe in a YAML file (None: the defaults) with `KEY=VALUE` overrides."""
+    return load_recipe(SynthConfig, path, overrides, "a YAML recipe from configs/synth/")

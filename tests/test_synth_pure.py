@@ -19,13 +19,14 @@ def frame(seed, index, config):
 
 
 @pytest.mark.parametrize("values, words", [
-    ({"camera": {"radius": [1, 2]}}, "unknown key"),
+    ({"camera": {"radius": [1, 2]}}, "unknown config key .camera.radius."),
     ({"camera": {"radius_m": [2, 1]}}, "low <= high"),
     ({"lights": {"count": [0, 2]}}, "lights.count"),
     ({"intrinsics": {"fx": 100}}, "all of fx, fy, cx, cy"),
     ({"sequence": {"mode": "loop"}}, "sequence.mode"),
     ({"background": {"kinds": {"plaid": 1}}}, "unknown kinds"),
-    ({"nonsense": {}}, "unknown key"),
+    ({"nonsense": {}}, "unknown config key .nonsense."),
+    ({"lights": {"intensity": "bright"}}, "lights.intensity"),
 ])
 def test_bad_recipes_are_refused_with_the_reason(values, words):
     with pytest.raises(InputError, match=words):
@@ -35,8 +36,10 @@ def test_bad_recipes_are_refused_with_the_reason(values, words):
 def test_shipped_recipes_load():
     for name in ("default", "panda_teleop_like"):
         load_config(f"configs/synth/{name}.yaml")
-    with pytest.raises(InputError, match="not found"):
+    with pytest.raises(InputError, match="No such file"):
         load_config("configs/synth/missing.yaml")
+    recipe = load_config("configs/synth/default.yaml", ["camera.radius_m=[1.5, 1.6]"])
+    assert recipe.camera.radius_m == (1.5, 1.6) and recipe.lights.count == (1, 4)
 
 
 def test_each_frame_depends_only_on_seed_and_index():

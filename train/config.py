@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +29,7 @@ import yaml
 from dream.errors import InputError
 from dream.peaks import PeakParams
 from dream.preprocess import Preprocess
+from dream.recipe import load_recipe, plain, recipe_from_dict
 
 OUTPUT_STRIDES = (1, 2, 4)
 SKIP_MODES = ("concat", "add")
@@ -352,158 +352,21 @@ class TrainConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain nested dict (lists, numbers, strings, None): YAML/JSON/checkpoint-safe."""
-        return _plain(dataclasses.asdict(self))
+        return plain(dataclasses.asdict(self))
 
     def replace(self, **sections: Any) -> TrainConfig:
         return dataclasses.replace(self, **sections)
 
 
-def _plain(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    return value
-
-
-# ------------------------------------------------------------------ building from plain data
-
-def _type_name(tp: Any) -> str:
-    return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
-
-
-def _coerce(value: Any, tp: Any, key: str) -> Any:
-    """`value` (from YAML) as type `tp`, or an InputError naming `key`."""
-    origin = typing.get_origin(tp)
-    if origin in (typing.Union, types.UnionType):
-        options = typing.get_args(tp)
-        if value is None and type(None) in options:
-            return None
-        errors = []
-        for option in options:
-            if option is type(None):
-                continue
-            try:
-                return _coerce(value, option, key)
-            except InputError as exc:
-                errors.append(exc)
-        raise errors[-1] if len(errors) == 1 else InputError(
-            f"config {key}: expected {' or '.join(_type_name(o) for o in options)}, got "
-            f"{value!r}")
-    if dataclasses.is_dataclass(tp):
-        return _build(tp, value, key)
-    if origin is tuple:
-        args = typing.get_args(tp)
-        if isinstance(value, (str, int, float)) and len(args) == 2 and args[1] is Ellipsis:
-            value = [value]  # `--set data.train=DIR`: one folder
-        if not isinstance(value, (list, tuple)):
-            raise InputError(f"config {key}: expected a list, got {value!r}")
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_coerce(v, args[0], f"{key}[{i}]") for i, v in enumerate(value))
-        if len(value) != len(args):
-            raise InputError(f"config {key}: expected {len(args)} values, got {value!r}")
-        return tuple(_coerce(v, a, f"{key}[{i}]") for i, (v, a) in enumerate(zip(value, args,
-                                                                                 strict=True)))
-    if tp is bool:
-        if isinstance(value, bool):
-            return value
-    elif tp is int:
-        if isinstance(value, int) and not isinstance(value, bool):
-            return value
-        if isinstance(value, float) and value.is_integer():
-            return int(value)
-    elif tp is float:
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            return float(value)
-    elif tp is str:
-        if isinstance(value, (str, Path)):
-            return str(value)
-    else:
-        raise InputError(f"config {key}: unsupported field type {tp}")
-    raise InputError(f"config {key}: expected {_type_name(tp)}, got {value!r}",
-                     fix="correct the recipe YAML or the --set override")
-
-
-def _build(cls: type, doc: Any, key: str) -> Any:
-    if not isinstance(doc, dict):
-        raise InputError(f"config {key or 'file'}: expected a mapping of keys, got {doc!r}")
-    hints = typing.get_type_hints(cls)
-    names = [f.name for f in dataclasses.fields(cls)]
-    for name in doc:
-        if name not in names:
-            where = f"{key}.{name}" if key else str(name)
-            valid = ", ".join(f"{key}.{n}" if key else n for n in names)
-            raise InputError(f"unknown config key '{where}'", fix=f"use one of: {valid}")
-    kwargs = {name: _coerce(doc[name], hints[name], f"{key}.{name}" if key else name)
-              for name in names if name in doc}
-    return cls(**kwargs)
-
-
-def _merge(base: dict[str, Any], update: dict[str, Any], key: str) -> dict[str, Any]:
-    """Deep-merge `update` into a copy of `base`; keys must exist in `base`."""
-    out = dict(base)
-    for name, value in update.items():
-        where = f"{key}.{name}" if key else str(name)
-        if name not in base:
-            valid = ", ".join(f"{key}.{n}" if key else str(n) for n in base)
-            raise InputError(f"unknown config key '{where}'", fix=f"use one of: {valid}")
-        if isinstance(base[name], dict) and isinstance(value, dict):
-            out[name] = _merge(base[name], value, where)
-        else:
-            out[name] = value
-    return out
-
-
 def config_from_dict(doc: dict[str, Any], base: TrainConfig | None = None) -> TrainConfig:
     """A `TrainConfig` from a (partial) nested dict over `base` (default: the defaults)."""
-    base_doc = (base or TrainConfig()).to_dict()
-    if not isinstance(doc, dict):
-        raise InputError(f"config: expected a mapping of sections, got {doc!r}")
-    return _build(TrainConfig, _merge(base_doc, doc, ""), "")
-
-
-def parse_override(text: str) -> dict[str, Any]:
-    """'a.b.c=value' -> {'a': {'b': {'c': value}}}, the value parsed as YAML."""
-    key, sep, raw = text.partition("=")
-    key = key.strip()
-    if not sep or not key or any(not part for part in key.split(".")):
-        raise InputError(f"override '{text}' is not KEY=VALUE",
-                         fix="write e.g. --set trainer.max_epochs=3")
-    try:
-        value = yaml.safe_load(raw) if raw.strip() else None
-    except yaml.YAMLError as exc:
-        raise InputError(f"override '{text}': the value is not valid YAML ({exc})") from None
-    doc: dict[str, Any] = value
-    for part in reversed(key.split(".")):
-        doc = {part: doc}
-    return doc
+    return recipe_from_dict(TrainConfig, doc, base)
 
 
 def load_config(path: str | Path | None, overrides: typing.Sequence[str] = ()) -> TrainConfig:
     """The recipe at `path` (YAML; None: the defaults) with `KEY=VALUE` overrides applied."""
-    doc: dict[str, Any] = {}
-    if path is not None:
-        path = Path(path)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise InputError(f"cannot read the config ({exc.strerror or exc})", path,
-                             "give the path of a YAML recipe, e.g. configs/train/tiny.yaml"
-                             ) from None
-        try:
-            doc = yaml.safe_load(text) or {}
-        except yaml.YAMLError as exc:
-            raise InputError(f"the config is not valid YAML ({exc})", path) from None
-        if not isinstance(doc, dict):
-            raise InputError("the config must be a mapping of sections", path)
-    merged = TrainConfig().to_dict()
-    try:
-        merged = _merge(merged, doc, "")
-    except InputError as exc:
-        raise InputError(exc.problem, path, exc.fix) from None
-    for text in overrides:
-        merged = _merge(merged, parse_override(text), "")
-    return _build(TrainConfig, merged, "")
+    return load_recipe(TrainConfig, path, overrides,
+                       "a YAML recipe, e.g. configs/train/tiny.yaml")
 
 
 def dump_config(config: TrainConfig) -> str:

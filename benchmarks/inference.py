@@ -1,0 +1,94 @@
+"""Per-frame inference cost: onnxruntime against torch eager, and the share of peak finding +
+PnP, measured in one run on the same images, batch 1, the same thread count.
+
+    python benchmarks/inference.py --checkpoint RUN_DIR/best.ckpt --data DATA_DIR
+        [--frames 50] [--threads 2]
+
+Targets: onnxruntime / torch eager latency <= 0.75; (peak finding + single-frame PnP) / network
+time <= 10 %.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dream.detect import prepare_batch
+from dream.io import load_image, read_sequence
+from dream.peaks import find_peaks_in_image
+from dream.pipeline import joints_in_robot_order, robot_for
+from dream.pnp import solve_pnp
+from export.onnx_export import export_onnx
+from export.runner import OnnxKeypointModel
+from train.checkpoint import load_checkpoint
+
+WARMUP_FRAMES = 5
+
+
+def median_ms(fn, inputs) -> float:
+    for x in inputs[:WARMUP_FRAMES]:
+        fn(x)
+    times = []
+    for x in inputs:
+        start = time.perf_counter()
+        fn(x)
+        times.append(time.perf_counter() - start)
+    return 1e3 * float(np.median(times))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--checkpoint", required=True)
+    parser.add_argument("--data", required=True, help="DREAM-layout folder with images")
+    parser.add_argument("--frames", type=int, default=50)
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    net, config = load_checkpoint(args.checkpoint)
+    net.eval()
+    with tempfile.TemporaryDirectory() as tmp:
+        onnx_path = export_onnx(args.checkpoint, Path(tmp) / "model.onnx")
+        runner = OnnxKeypointModel(onnx_path, threads=args.threads)
+        seq = read_sequence(args.data)
+        frames = seq.frames[:args.frames]
+        images = [load_image(f, seq.camera) for f in frames]
+        inputs = [prepare_batch([im], runner.preprocess) for im in images]
+        batches = [b for b, _ in inputs]
+
+        def torch_eager(x):
+            with torch.inference_mode():
+                return net(torch.from_numpy(x)).belief.numpy()
+
+        def onnx(x):
+            return runner.run(x)["belief"]
+
+        t_torch = median_ms(torch_eager, batches)
+        t_onnx = median_ms(onnx, batches)
+        robot = robot_for(seq, None, runner.keypoint_names)
+        P_base = robot.forward_kinematics(joints_in_robot_order(seq, robot))
+        beliefs = [onnx(b)[0] for b in batches]
+        post = list(zip(beliefs, [t[0] for _, t in inputs], P_base[:len(frames)], strict=True))
+
+        def peaks_and_pnp(item):
+            belief, transform, P = item
+            peaks = find_peaks_in_image(belief, runner.stride, transform, runner.peak_params)
+            return solve_pnp(P, peaks.uv_image, seq.camera, confidence=peaks.confidence)
+
+        t_post = median_ms(peaks_and_pnp, post)
+    i = config.input
+    print(f"{len(frames)} frames of {args.data}, input {i.input_width}x{i.input_height}, "
+          f"batch 1, {args.threads} threads")
+    print(f"torch eager:          {t_torch:7.2f} ms/frame")
+    print(f"onnxruntime:          {t_onnx:7.2f} ms/frame   ratio {t_onnx / t_torch:.2f} "
+          f"(target <= 0.75)")
+    print(f"peaks + PnP:          {t_post:7.2f} ms/frame   {100 * t_post / t_onnx:.1f} % of the "
+          f"onnxruntime network time (target <= 10 %)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,602 @@
+"""Silhouette polish: refine a keypoint calibration's `T_cam_base` with the robot masks.
+
+The keypoints fix the extrinsic from a handful of link origins per frame; the robot's outline in
+the masks (`NNNNNN.seg.png` of the DREAM layout, franka_offline's `mask/`) holds thousands of
+further constraints. The polish aligns the silhouette rendered from the URDF's visual meshes
+(`dream.silhouette`) with the observed masks of every frame at once (fixed camera), on the CPU.
+
+Objective (a one-sided, signed chamfer distance with continuous model points):
+    For the current pose, render each search frame's silhouette and keep the mesh vertices that
+    project within `contour_band_px` of its outline: they are the model's contour points, 3D
+    points that move continuously with the pose (a rendered outline moves in whole pixels).
+    Each contour point i of frame f gives the residual
+        r_i = D_f(project(T P_i)) - s_i,
+    where D_f is the signed distance to the observed mask's outline (pixels; negative inside;
+    bilinear in the distance transform of the mask, so smooth in the pose) and s_i the same
+    signed distance measured in the rendered silhouette where the point was selected. s_i makes
+    the residuals exactly zero when the rendered and observed silhouettes agree, so points a
+    little inside the outline do not pull it outwards. Points farther than `max_residual_px`
+    from agreement (occluders, parts the mask misses, mask noise) get no weight, the rest a
+    Huber weight (scale `huber_scale_px`). Observed outline that no model contour explains
+    (cables, a gripper the URDF lacks) pulls nothing: the distance is one-sided on purpose.
+Optimiser:
+    Levenberg-Marquardt over the 6-vector xi of `dream.pnp` (P_cam = exp(xi_rot) R P + t + xi_t)
+    with the analytic Jacobian (distance-field gradient x projection Jacobian), a few steps on
+    a fixed set of contour points, then the silhouettes are rendered again and the points
+    re-selected (as in ICP), until the pose stops moving. Derivative-free searches
+    (Nelder-Mead, Powell) on 1 - IoU were not used: IoU is piecewise constant in the pose, and
+    each of their hundreds of evaluations renders every frame. The search runs on at most
+    `max_search_frames` frames (evenly spaced, non-empty masks) with masks shrunk to at most
+    `search_width_px` pixels wide.
+Acceptance:
+    The silhouette IoU (exact rasterisation, full resolution) is measured on every frame given
+    before and after. The polished pose is kept only when the mean IoU grows by more than
+    `min_iou_gain` and the RMS reprojection error of the calibration's inlier keypoints stays
+    within max(`max_rmse_factor` x before, before + `rmse_margin_px`); otherwise the keypoint
+    pose is kept and `reason` says why.
+
+Command line (`dream calibrate --polish`): data without any mask, or `--frames each`, is one
+error line and exit code 2 before anything is solved (a polish that was asked for is never
+skipped silently). RESULT.json gets a `polish` object (iou_before, iou_after: means; kept;
+reason; per-frame IoUs, keypoint RMSEs, both poses); when kept, its pose fields are the
+polished pose's.
+
+Public API:
+    PolishParams, KeypointSet, PolishResult, signed_distance(mask)
+    polish(meshes, joints, masks, camera, T_cam_base, keypoints, params, frame_names) (pure)
+    check_polish_input(sequence, mode); polish_calibration(sequence, robot, result, obs, params)
+    polish_to_dict(result); result_doc_with_polish(doc, result)
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence as SequenceOf
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from dream.calibrate import CalibrationResult, Observations
+from dream.camera import CameraIntrinsics, project
+from dream.errors import InputError
+from dream.pnp import apply_increment, linearise
+from dream.robot import Robot
+from dream.sequence import Sequence
+from dream.silhouette import (
+    DEFAULT_MAX_TRIANGLES,
+    RobotMeshes,
+    load_robot_meshes,
+    render_points,
+    silhouette_iou,
+    vertices_in_base,
+)
+from dream.transforms import invert_T, quaternion_xyzw_from_R, rotation_angle_between
+
+log = logging.getLogger(__name__)
+
+EDGE_OFFSET_PX = 0.5        # a boundary pixel's centre lies half a pixel from the outline
+DAMPING_FACTOR = 10.0       # LM lambda is multiplied / divided by this on a rejected / kept step
+MAX_DAMPING = 1e8           # the inner loop stops when lambda exceeds this
+TINY = 1e-300               # keeps the damping positive for a zero diagonal entry
+COVERED_FRACTION = 0.5      # a shrunk mask's pixel is robot when this much of it was robot
+
+
+@dataclass(frozen=True)
+class PolishParams:
+    """Every constant of the silhouette polish. Metres, radians, pixels.
+
+    Attributes:
+        max_search_frames: frames used by the pose search (evenly spaced among those given).
+        max_eval_frames: frames whose IoU decides (`polish_calibration` loads at most this
+            many masks; `polish` scores every frame it is given).
+        search_width_px: masks and camera are shrunk to at most this width during the search.
+        max_triangles: triangle budget of the robot's meshes (`dream.silhouette`).
+        contour_band_px: a vertex is a contour point when it projects this close to the
+            rendered outline (search resolution).
+        huber_scale_px: Huber scale of the contour residuals (search resolution).
+        max_residual_px: residuals beyond this get no weight (search resolution).
+        outer_iterations: render -> select contour points -> LM rounds.
+        inner_iterations: LM steps on one set of contour points.
+        initial_damping: LM lambda, relative to diag(J^T W J).
+        step_tolerance_px: stop when a round moves the contour points less (RMS, search
+            resolution).
+        max_points_per_frame: contour points used per frame and round (evenly spaced).
+        min_contour_points: fewer contour points in the search frames end the search.
+        min_iou_gain: the mean IoU must grow by more than this for the polish to be kept.
+        max_rmse_factor, rmse_margin_px: the inlier keypoints' RMSE at the polished pose must
+            not exceed max(factor x RMSE before, RMSE before + margin).
+    """
+
+    max_search_frames: int = 10
+    max_eval_frames: int = 40
+    search_width_px: int = 320
+    max_triangles: int = DEFAULT_MAX_TRIANGLES
+    contour_band_px: float = 2.0
+    huber_scale_px: float = 1.0
+    max_residual_px: float = 15.0
+    outer_iterations: int = 20
+    inner_iterations: int = 3
+    initial_damping: float = 1e-4
+    step_tolerance_px: float = 0.05
+    max_points_per_frame: int = 1500
+    min_contour_points: int = 20
+    min_iou_gain: float = 0.002
+    max_rmse_factor: float = 1.5
+    rmse_margin_px: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("max_search_frames", "max_eval_frames", "search_width_px", "max_triangles",
+                     "outer_iterations", "inner_iterations", "min_contour_points",
+                     "max_points_per_frame"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or int(value) != value or value < 1:
+                raise InputError(f"polish parameter {name} must be a positive integer, got "
+                                 f"{value}")
+            object.__setattr__(self, name, int(value))
+        for name in ("contour_band_px", "huber_scale_px", "max_residual_px", "initial_damping",
+                     "step_tolerance_px", "max_rmse_factor"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise InputError(f"polish parameter {name} must be a positive number, got "
+                                 f"{value}")
+        for name in ("min_iou_gain", "rmse_margin_px"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise InputError(f"polish parameter {name} must be a number >= 0, got {value}")
+        if self.max_rmse_factor < 1:
+            raise InputError(f"max_rmse_factor must be >= 1, got {self.max_rmse_factor}")
+        if self.max_residual_px <= self.huber_scale_px:
+            raise InputError("max_residual_px must exceed huber_scale_px")
+
+
+@dataclass(frozen=True)
+class KeypointSet:
+    """The keypoint observations that guard the polish: inliers of the calibration.
+
+    Attributes:
+        P_base: (N, 3) keypoint positions in the base frame, m.
+        uv: (N, 2) their observed pixels.
+    """
+
+    P_base: np.ndarray
+    uv: np.ndarray
+
+    def __post_init__(self) -> None:
+        P = np.array(self.P_base, dtype=float)
+        uv = np.array(self.uv, dtype=float)
+        if P.ndim != 2 or P.shape[1] != 3 or uv.shape != (len(P), 2):
+            raise InputError(f"keypoints have shapes {P.shape} and {uv.shape}, expected (N, 3) "
+                             "and (N, 2)")
+        if len(P) == 0 or not (np.all(np.isfinite(P)) and np.all(np.isfinite(uv))):
+            raise InputError("the keypoint guard needs at least one finite observation")
+        P.setflags(write=False)
+        uv.setflags(write=False)
+        object.__setattr__(self, "P_base", P)
+        object.__setattr__(self, "uv", uv)
+
+    def rmse_px(self, camera: CameraIntrinsics, T_cam_base: np.ndarray) -> float:
+        """RMS pixel distance between the projections at `T_cam_base` and the observations."""
+        uv = project(camera, self.P_base @ T_cam_base[:3, :3].T + T_cam_base[:3, 3])
+        d2 = np.sum((uv - self.uv) ** 2, axis=1)
+        return float(np.sqrt(np.mean(d2))) if np.all(np.isfinite(d2)) else float("inf")
+
+
+@dataclass(frozen=True)
+class PolishResult:
+    """Outcome of a polish.
+
+    Attributes:
+        T_before: (4, 4) the keypoint extrinsic.
+        T_polished: (4, 4) the silhouette optimum, whether kept or not.
+        T_after: (4, 4) the extrinsic kept: `T_polished` when `kept`, else `T_before`.
+        frames: names of the frames scored.
+        iou_before, iou_after: (E,) silhouette IoU per frame at `T_before` / `T_polished`.
+        kept: whether the polished pose was kept.
+        reason: why (one sentence).
+        rmse_before, rmse_after: inlier keypoint RMSE (px) at `T_before` / `T_polished`; NaN
+            without keypoints.
+        search_frames: names of the frames the search used.
+        rounds: render / select / LM rounds run; contour_points: in the last round.
+        seconds: wall time of the polish.
+    """
+
+    T_before: np.ndarray
+    T_polished: np.ndarray
+    T_after: np.ndarray
+    frames: tuple[str, ...]
+    iou_before: np.ndarray
+    iou_after: np.ndarray
+    kept: bool
+    reason: str
+    rmse_before: float
+    rmse_after: float
+    search_frames: tuple[str, ...] = field(default=())
+    rounds: int = 0
+    contour_points: int = 0
+    seconds: float = 0.0
+
+    @property
+    def iou_before_mean(self) -> float:
+        return float(np.mean(self.iou_before))
+
+    @property
+    def iou_after_mean(self) -> float:
+        return float(np.mean(self.iou_after))
+
+    @property
+    def correction(self) -> tuple[float, float]:
+        """(camera position change m, rotation change rad) from T_before to T_polished."""
+        c0 = invert_T(self.T_before)[:3, 3]
+        c1 = invert_T(self.T_polished)[:3, 3]
+        angle = rotation_angle_between(self.T_before[:3, :3], self.T_polished[:3, :3])
+        return float(np.linalg.norm(c1 - c0)), float(angle)
+
+
+# ----- pieces --------------------------------------------------------------------------------
+
+def _scaled_camera(camera: CameraIntrinsics, width: int, height: int) -> CameraIntrinsics:
+    """The same camera seen at another image size (pixel centres kept at integers)."""
+    sx, sy = width / camera.width, height / camera.height
+    return CameraIntrinsics(camera.fx * sx, camera.fy * sy, (camera.cx + EDGE_OFFSET_PX) * sx
+                            - EDGE_OFFSET_PX, (camera.cy + EDGE_OFFSET_PX) * sy - EDGE_OFFSET_PX,
+                            width, height, camera.distortion)
+
+
+def _shrink_mask(mask: np.ndarray, width: int, height: int) -> np.ndarray:
+    """A bool mask resized by area averaging; robot where at least half a pixel is robot."""
+    if mask.shape == (height, width):
+        return mask
+    area = cv2.resize(mask.astype(np.float32), (width, height), interpolation=cv2.INTER_AREA)
+    return area >= COVERED_FRACTION
+
+
+def signed_distance(mask: np.ndarray) -> np.ndarray:
+    """(H, W) signed distance (pixels) of each pixel centre to the mask's outline, negative
+    inside; +-0.5 on the boundary pixels, so zero half-way between them."""
+    m = np.asarray(mask, dtype=bool).astype(np.uint8)
+    if m.ndim != 2 or m.size == 0:
+        raise InputError(f"mask has shape {m.shape}, expected (H, W)")
+    d_out = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    d_in = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return np.where(m > 0, EDGE_OFFSET_PX - d_in, d_out - EDGE_OFFSET_PX).astype(float)
+
+
+def _bilinear(images: np.ndarray, frame: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Values of images (F, H, W) at pixels uv (N, 2) of frames `frame` (N,), clamped."""
+    _, H, W = images.shape
+    x = np.clip(uv[:, 0], 0.0, W - 1.0)
+    y = np.clip(uv[:, 1], 0.0, H - 1.0)
+    x0 = np.minimum(np.floor(x).astype(np.int64), max(W - 2, 0))
+    y0 = np.minimum(np.floor(y).astype(np.int64), max(H - 2, 0))
+    x1 = np.minimum(x0 + 1, W - 1)
+    y1 = np.minimum(y0 + 1, H - 1)
+    ax, ay = x - x0, y - y0
+    return ((images[frame, y0, x0] * (1 - ax) + images[frame, y0, x1] * ax) * (1 - ay)
+            + (images[frame, y1, x0] * (1 - ax) + images[frame, y1, x1] * ax) * ay)
+
+
+def _evenly_spaced(candidates: np.ndarray, n: int) -> np.ndarray:
+    if len(candidates) <= n:
+        return candidates
+    return candidates[np.unique(np.round(np.linspace(0, len(candidates) - 1, n)).astype(int))]
+
+
+@dataclass(frozen=True)
+class _Contour:
+    """Contour points of one round: base-frame points, frame index, selection distance."""
+
+    P_base: np.ndarray   # (N, 3)
+    frame: np.ndarray    # (N,)
+    s: np.ndarray        # (N,)
+
+
+def _select_contour(P_frames: np.ndarray, faces: np.ndarray, T: np.ndarray,
+                    camera: CameraIntrinsics, params: PolishParams) -> _Contour:
+    points, frames, dists = [], [], []
+    for f, P in enumerate(P_frames):
+        rendered = render_points(P, faces, T, camera)
+        if not rendered.any():
+            continue
+        uv = project(camera, P @ T[:3, :3].T + T[:3, 3])
+        ok = np.all(np.isfinite(uv), axis=1) & camera.in_image(uv)
+        s = np.full(len(P), np.inf)
+        s[ok] = _bilinear(signed_distance(rendered)[None], np.zeros(int(ok.sum()), np.int64),
+                          uv[ok])
+        pick = np.flatnonzero(np.abs(s) <= params.contour_band_px)
+        pick = _evenly_spaced(pick, params.max_points_per_frame)
+        points.append(P[pick])
+        frames.append(np.full(len(pick), f))
+        dists.append(s[pick])
+    if not points:
+        return _Contour(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0))
+    return _Contour(np.concatenate(points), np.concatenate(frames), np.concatenate(dists))
+
+
+class _Objective:
+    """Huber cost of the contour residuals, truncated at `max_residual_px`."""
+
+    def __init__(self, sdf: np.ndarray, camera: CameraIntrinsics, params: PolishParams):
+        self.sdf = sdf
+        self.grad_y, self.grad_x = np.gradient(sdf, axis=(1, 2))
+        self.camera = camera
+        self.k = params.huber_scale_px
+        self.cut = params.max_residual_px
+
+    def residuals(self, contour: _Contour, T: np.ndarray, jacobian: bool
+                  ) -> tuple[np.ndarray, np.ndarray | None] | None:
+        lin = linearise(contour.P_base, np.zeros((len(contour.P_base), 2)), self.camera, T)
+        if lin is None:
+            return None
+        uv, J_uv = lin
+        r = _bilinear(self.sdf, contour.frame, uv) - contour.s
+        if not jacobian:
+            return r, None
+        g = np.stack([_bilinear(self.grad_x, contour.frame, uv),
+                      _bilinear(self.grad_y, contour.frame, uv)], axis=1)
+        return r, np.einsum("nk,nkj->nj", g, J_uv)
+
+    def rho(self, r: np.ndarray) -> np.ndarray:
+        a = np.minimum(np.abs(r), self.cut)
+        return np.where(a <= self.k, 0.5 * a * a, self.k * (a - 0.5 * self.k))
+
+    def weight(self, r: np.ndarray) -> np.ndarray:
+        a = np.abs(r)
+        return np.where(a > self.cut, 0.0, np.where(a <= self.k, 1.0, self.k / np.maximum(a, TINY)))
+
+    def cost(self, contour: _Contour, T: np.ndarray) -> float:
+        out = self.residuals(contour, T, jacobian=False)
+        return float("inf") if out is None else float(np.sum(self.rho(out[0])))
+
+
+def _lm_steps(objective: _Objective, contour: _Contour, T: np.ndarray,
+              params: PolishParams) -> np.ndarray:
+    """A few Levenberg-Marquardt steps on one set of contour points."""
+    out = objective.residuals(contour, T, jacobian=True)
+    if out is None:
+        return T
+    r, J = out
+    cost = float(np.sum(objective.rho(r)))
+    lam = params.initial_damping
+    for _ in range(params.inner_iterations):
+        w = objective.weight(r)
+        H = J.T @ (w[:, None] * J)
+        g = J.T @ (w * r)
+        improved = False
+        while lam < MAX_DAMPING:
+            try:
+                xi = np.linalg.solve(H + lam * np.diag(np.diag(H) + TINY), -g)
+            except np.linalg.LinAlgError:
+                lam *= DAMPING_FACTOR
+                continue
+            T_new = apply_increment(T, xi)
+            new_cost = objective.cost(contour, T_new)
+            if new_cost < cost:
+                T, cost = T_new, new_cost
+                r, J = objective.residuals(contour, T, jacobian=True)
+                lam = max(lam / DAMPING_FACTOR, TINY)
+                improved = True
+                break
+            lam *= DAMPING_FACTOR
+        if not improved:
+            break
+    return T
+
+
+def _rms_motion_px(P_base: np.ndarray, T0: np.ndarray, T1: np.ndarray,
+                   camera: CameraIntrinsics) -> float:
+    uv0 = project(camera, P_base @ T0[:3, :3].T + T0[:3, 3])
+    uv1 = project(camera, P_base @ T1[:3, :3].T + T1[:3, 3])
+    d2 = np.sum((uv1 - uv0) ** 2, axis=1)
+    return float(np.sqrt(np.mean(d2))) if np.all(np.isfinite(d2)) else float("inf")
+
+
+def _refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
+                 camera: CameraIntrinsics, T_cam_base: np.ndarray,
+                 params: PolishParams) -> tuple[np.ndarray, int, int]:
+    """The silhouette optimum near `T_cam_base` (search resolution already applied).
+
+    Args:
+        P_frames: (F, V, 3) mesh vertices of each frame in the base frame, m.
+        faces: (T, 3) triangles. masks: (F, H, W) observed masks at `camera`'s size.
+    Returns:
+        (T (4, 4), rounds run, contour points of the last round).
+    """
+    objective = _Objective(np.stack([signed_distance(m) for m in masks]), camera, params)
+    T = np.array(T_cam_base, dtype=float)
+    rounds, points = 0, 0
+    for rounds in range(1, params.outer_iterations + 1):
+        contour = _select_contour(P_frames, faces, T, camera, params)
+        points = len(contour.s)
+        if points < params.min_contour_points:
+            log.info("silhouette polish: only %d contour points, stopping", points)
+            break
+        T_new = _lm_steps(objective, contour, T, params)
+        moved = _rms_motion_px(contour.P_base, T, T_new, camera)
+        T = T_new
+        log.debug("silhouette polish round %d: %d points, moved %.3g px", rounds, points, moved)
+        if moved < params.step_tolerance_px:
+            break
+    return T, rounds, points
+
+
+# ----- the polish ----------------------------------------------------------------------------
+
+def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
+           camera: CameraIntrinsics, T_cam_base: np.ndarray, keypoints: KeypointSet | None,
+           params: PolishParams | None = None,
+           frame_names: SequenceOf[str] | None = None) -> PolishResult:
+    """Refine `T_cam_base` by aligning rendered and observed robot silhouettes (module doc).
+
+    Args:
+        meshes: the robot's meshes (`dream.silhouette.load_robot_meshes`).
+        joints: (F, J) joint vectors of the frames, in `meshes.robot.joint_names` order.
+        masks: (F, H, W) bool observed robot masks at the camera's resolution.
+        camera: the camera's intrinsics.
+        T_cam_base: (4, 4) the starting (keypoint) extrinsic.
+        keypoints: the calibration's inlier observations (the guard), or None for no guard.
+        params: the constants; default `PolishParams()`.
+        frame_names: F names (default "0", "1", ...).
+    Returns:
+        A `PolishResult`; `T_after` is the pose to use.
+    Raises:
+        InputError: shapes that disagree, no frame with a non-empty mask.
+    """
+    start = time.perf_counter()
+    params = params or PolishParams()
+    robot = meshes.robot
+    q = np.asarray(joints, dtype=float)
+    masks = np.asarray(masks)
+    T0 = np.asarray(T_cam_base, dtype=float)
+    if q.ndim != 2 or q.shape[1] != robot.num_joints:
+        raise InputError(f"joints have shape {q.shape}, expected (F, {robot.num_joints})")
+    F = len(q)
+    if masks.shape != (F, camera.height, camera.width):
+        raise InputError(f"masks have shape {masks.shape}, expected ({F}, {camera.height}, "
+                         f"{camera.width}) (one per frame, at the camera's resolution)")
+    if T0.shape != (4, 4) or not np.all(np.isfinite(T0)):
+        raise InputError("T_cam_base must be a finite 4x4 matrix")
+    names = tuple(str(n) for n in frame_names) if frame_names is not None else tuple(
+        str(i) for i in range(F))
+    if len(names) != F:
+        raise InputError(f"{len(names)} frame names for {F} frames")
+    masks = masks.astype(bool)
+    non_empty = np.flatnonzero(masks.reshape(F, -1).any(axis=1))
+    if not len(non_empty):
+        raise InputError("every robot mask is empty; the silhouette polish needs masks that "
+                         "show the robot")
+    P_all = vertices_in_base(meshes, q)                                    # (F, V, 3)
+    search = _evenly_spaced(non_empty, params.max_search_frames)
+    width = min(camera.width, params.search_width_px)
+    height = max(1, int(round(camera.height * width / camera.width)))
+    small = _scaled_camera(camera, width, height)
+    small_masks = np.stack([_shrink_mask(masks[i], width, height) for i in search])
+    T1, rounds, points = _refine_pose(P_all[search], meshes.faces, small_masks, small, T0, params)
+
+    def ious(T: np.ndarray) -> np.ndarray:
+        return np.array([silhouette_iou(render_points(P_all[i], meshes.faces, T, camera),
+                                        masks[i]) for i in range(F)])
+
+    iou0, iou1 = ious(T0), ious(T1)
+    if keypoints is not None:
+        rmse0, rmse1 = keypoints.rmse_px(camera, T0), keypoints.rmse_px(camera, T1)
+    else:
+        rmse0 = rmse1 = float("nan")
+    kept, reason = _decide(float(iou0.mean()), float(iou1.mean()), rmse0, rmse1,
+                           keypoints is not None, params)
+    log.info("silhouette polish: %s", reason)
+    return PolishResult(T_before=T0, T_polished=T1, T_after=T1 if kept else T0, frames=names,
+                        iou_before=iou0, iou_after=iou1, kept=kept, reason=reason,
+                        rmse_before=rmse0, rmse_after=rmse1,
+                        search_frames=tuple(names[i] for i in search), rounds=rounds,
+                        contour_points=points, seconds=time.perf_counter() - start)
+
+
+def _decide(iou0: float, iou1: float, rmse0: float, rmse1: float, guarded: bool,
+            params: PolishParams) -> tuple[bool, str]:
+    gain = iou1 - iou0
+    ious = f"mean IoU {iou0:.4f} -> {iou1:.4f}"
+    if not gain > params.min_iou_gain:
+        return False, (f"not kept: {ious} gains {gain:+.4f}, not more than "
+                       f"{params.min_iou_gain:g}")
+    if not guarded:
+        return True, f"kept: {ious} (no keypoints to check)"
+    allowed = max(params.max_rmse_factor * rmse0, rmse0 + params.rmse_margin_px)
+    rmses = f"keypoint RMSE {rmse0:.3f} -> {rmse1:.3f} px"
+    if not rmse1 <= allowed:
+        return False, f"not kept: {ious} but {rmses}, above the {allowed:.3f} px allowed"
+    return True, f"kept: {ious}, {rmses} (at most {allowed:.3f} px allowed)"
+
+
+# ----- glue for `dream calibrate --polish` ---------------------------------------------------
+
+def check_polish_input(sequence: Sequence, mode: str) -> None:
+    """Refuse a polish that cannot run: a moving camera (`--frames each`) or no masks.
+
+    Raises:
+        InputError: one line naming the data and the fix.
+    """
+    if mode != "all":
+        raise InputError("--polish refines one extrinsic of a fixed camera", sequence.source,
+                         "use --frames all, or drop --polish")
+    if not any(f.mask_path is not None for f in sequence.frames):
+        raise InputError(f"--polish needs robot masks, and none of the {len(sequence)} frames "
+                         "has one", sequence.source,
+                         "add NNNNNN.seg.png masks (DREAM layout) or mask/ (franka_offline), "
+                         "or drop --polish")
+
+
+def polish_calibration(sequence: Sequence, robot: Robot, result: CalibrationResult,
+                       obs: Observations, params: PolishParams | None = None) -> PolishResult:
+    """Polish an "all"-mode calibration of `sequence` with its masks (at most
+    `max_eval_frames`, evenly spaced), guarded by the calibration's inlier keypoints."""
+    from dream.io import load_mask
+    from dream.pipeline import joints_in_robot_order
+
+    params = params or PolishParams()
+    check_polish_input(sequence, result.mode)
+    with_mask = np.flatnonzero([f.mask_path is not None for f in sequence.frames])
+    chosen = _evenly_spaced(with_mask, params.max_eval_frames)
+    frames = [sequence.frames[i] for i in chosen]
+    masks = np.stack([load_mask(f, sequence.camera) for f in frames])
+    joints = joints_in_robot_order(sequence, robot)[chosen]
+    inlier = result.inlier & obs.found
+    keypoints = KeypointSet(obs.P_base[inlier], obs.uv[inlier]) if inlier.any() else None
+    meshes = load_robot_meshes(robot, params.max_triangles)
+    return polish(meshes, joints, masks, sequence.camera, result.fit.T_cam_base, keypoints,
+                  params, [f.name for f in frames])
+
+
+def _floats(a: np.ndarray) -> list[float]:
+    return [float(x) for x in a]
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def polish_to_dict(res: PolishResult) -> dict[str, Any]:
+    """The `polish` object of RESULT.json."""
+    moved_m, moved_rad = res.correction
+    return {
+        "iou_before": res.iou_before_mean,
+        "iou_after": res.iou_after_mean,
+        "kept": bool(res.kept),
+        "reason": res.reason,
+        "frames": list(res.frames),
+        "iou_before_per_frame": _floats(res.iou_before),
+        "iou_after_per_frame": _floats(res.iou_after),
+        "rmse_px_before": _finite_or_none(res.rmse_before),
+        "rmse_px_after": _finite_or_none(res.rmse_after),
+        "T_cam_base_keypoints": res.T_before.tolist(),
+        "T_cam_base_polished": res.T_polished.tolist(),
+        "camera_position_change_m": moved_m,
+        "rotation_change_rad": moved_rad,
+        "search_frames": list(res.search_frames),
+        "seconds": res.seconds,
+    }
+
+
+def result_doc_with_polish(doc: dict[str, Any], res: PolishResult) -> dict[str, Any]:
+    """A copy of a RESULT.json document with its `polish` object; when the polish is kept, the
+    pose fields (`T_cam_base`, `translation_m`, `quaternion_xyzw`, `T_base_cam`,
+    `sigma_camera_position_base_m`) and `rmse_px` describe the polished pose (the sigmas and
+    covariance stay those of the keypoint fit)."""
+    from dream.result import camera_position_covariance
+
+    out = dict(doc)
+    out["polish"] = polish_to_dict(res)
+    if res.kept:
+        T = res.T_after
+        out["T_cam_base"] = T.tolist()
+        out["translation_m"] = T[:3, 3].tolist()
+        out["quaternion_xyzw"] = quaternion_xyzw_from_R(T[:3, :3]).tolist()
+        out["T_base_cam"] = invert_T(T).tolist()
+        if np.isfinite(res.rmse_after):
+            out["rmse_px"] = float(res.rmse_after)
+        if doc.get("covariance_xi") is not None:
+            cov = camera_position_covariance(T, np.asarray(doc["covariance_xi"], dtype=float))
+            out["sigma_camera_position_base_m"] = np.sqrt(np.diag(cov)).tolist()
+    return out

@@ -1,0 +1,417 @@
+"""Robot silhouettes rendered on the CPU from the URDF's visual meshes (numpy + OpenCV only).
+
+Geometry: every `<visual>` of every link (mesh files read with trimesh, with their scene-graph
+transforms, COLLADA unit and URDF `scale`; boxes, cylinders and spheres tessellated) is placed
+in its link frame by the visual `<origin>`, once per robot, and decimated by vertex clustering
+on one grid for the whole robot so that the total number of triangles fits a budget (the
+silhouette is what matters: clustering on a grid of cell c moves the outline by less than c).
+
+Rendering: the vertices are posed by `Robot.link_poses`, mapped into the camera by
+`T_cam_base`, projected with `dream.camera.project` (distortion included) and every triangle is
+filled by an exact pixel-centre rule: a pixel is robot when its centre (u, v integer, SPEC.md)
+lies inside or on the edge of a projected triangle, as a GPU rasteriser samples it. (OpenCV's
+`fillPoly` rounds the vertices and draws the edges, which grows every outline by about half a
+pixel; a silhouette fit would turn that into a depth bias, so the fill is done here in numpy,
+vectorised over triangles grouped by the size of their bounding box.) Triangles with a vertex
+closer than `MIN_DEPTH_M` to the camera plane, or behind it, are skipped.
+
+Public API:
+    load_robot_meshes(robot, max_triangles) -> RobotMeshes
+    vertices_in_base(meshes, joints) -> (..., V, 3)
+    rasterize_triangles(uv_triangles, height, width) -> bool (H, W)
+    render_points(P_base, faces, T_cam_base, camera) -> bool (H, W)
+    render_silhouette(meshes, joints, T_cam_base, camera) -> bool (H, W)
+    silhouette_iou(a, b) -> float
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dream.camera import CameraIntrinsics, project
+from dream.errors import InputError, RobotError
+from dream.robot import Robot, filename_handler, resolve_resource
+
+log = logging.getLogger(__name__)
+
+DEFAULT_MAX_TRIANGLES = 50000   # triangle budget of a whole robot after decimation
+MIN_DEPTH_M = 1e-3              # vertices nearer the camera plane than this count as behind it
+CLUSTER_ROUNDS = 12             # grid-size adjustments when decimating to the budget
+CLUSTER_MARGIN = 1.05           # grow the grid this much more than the estimate asks
+CYLINDER_SECTIONS = 32          # tessellation of URDF cylinders
+SPHERE_SUBDIVISIONS = 2         # icosphere subdivisions of URDF spheres
+MAX_BLOCK_PIXELS = 4_000_000    # candidate pixels tested at once by the rasteriser
+METRE_UNITS = ("meters", "meter", "metres", "metre", "m")
+
+
+def _frozen(a: np.ndarray, dtype: type) -> np.ndarray:
+    a = np.array(a, dtype=dtype)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class RobotMeshes:
+    """A robot's visual triangles, each vertex attached to one link frame.
+
+    Attributes:
+        robot: the kinematics that poses the links.
+        links: L link names that carry geometry.
+        vertices: (V, 3) vertex positions in their link frame, m.
+        vertex_link: (V,) index into `links` of each vertex's link.
+        faces: (T, 3) vertex indices of the triangles.
+        cell_m: the decimation grid (0 when the meshes were not decimated).
+    """
+
+    robot: Robot
+    links: tuple[str, ...]
+    vertices: np.ndarray
+    vertex_link: np.ndarray
+    faces: np.ndarray
+    cell_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.robot, Robot):
+            raise InputError("RobotMeshes.robot must be a dream.robot.Robot")
+        object.__setattr__(self, "links", tuple(self.links))
+        vertices = _frozen(self.vertices, float)
+        vertex_link = _frozen(self.vertex_link, np.int64)
+        faces = _frozen(self.faces, np.int64)
+        if vertices.ndim != 2 or vertices.shape[1] != 3 or not np.all(np.isfinite(vertices)):
+            raise InputError(f"mesh vertices have shape {vertices.shape} or are not finite",
+                             fix="give (V, 3) finite vertices in metres")
+        if vertex_link.shape != (len(vertices),) or (vertex_link.size and (
+                vertex_link.min() < 0 or vertex_link.max() >= len(self.links))):
+            raise InputError("vertex_link must give one link index per vertex")
+        if faces.ndim != 2 or faces.shape[1] != 3 or (faces.size and (
+                faces.min() < 0 or faces.max() >= len(vertices))):
+            raise InputError(f"faces have shape {faces.shape} or index missing vertices",
+                             fix="give (T, 3) indices into the vertices")
+        if not (np.isfinite(self.cell_m) and self.cell_m >= 0):
+            raise InputError(f"cell_m must be >= 0 metres, got {self.cell_m}")
+        object.__setattr__(self, "vertices", vertices)
+        object.__setattr__(self, "vertex_link", vertex_link)
+        object.__setattr__(self, "faces", faces)
+
+    @property
+    def num_triangles(self) -> int:
+        return len(self.faces)
+
+
+# ----- loading -------------------------------------------------------------------------------
+
+def _unit_factor(scene, path: Path) -> float:
+    """The COLLADA `<unit meter=...>` factor that trimesh records in its metadata."""
+    units = str(scene.metadata.get("units", "meters") or "meters").strip().lower()
+    if units in METRE_UNITS:
+        return 1.0
+    head, _, tail = units.partition("*")
+    try:
+        factor = float(head)
+    except ValueError:
+        factor = None
+    if factor is None or tail.strip() not in METRE_UNITS or not factor > 0:
+        log.warning("%s: unknown mesh units '%s'; taking metres", path, units)
+        return 1.0
+    return factor
+
+
+def _load_mesh_file(path: Path, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (N, 3) in the visual frame, m, and faces (T, 3) of every triangle in a file."""
+    import trimesh  # slow import
+
+    try:
+        scene = trimesh.load(str(path), force="scene")
+    except (ValueError, KeyError, IndexError, TypeError, AttributeError, OSError) as e:
+        raise InputError(f"cannot read the mesh ({type(e).__name__}: {e})", path,
+                         fix="give a mesh file trimesh reads (DAE, STL, OBJ, PLY, GLB)") from e
+    vertices, faces, count = [], [], 0
+    for node in scene.graph.nodes_geometry:
+        T, name = scene.graph[node]
+        mesh = scene.geometry[name]
+        f = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64)
+        if f.ndim != 2 or f.shape[1] != 3 or not len(f):
+            continue  # point clouds, paths
+        v = np.asarray(mesh.vertices, dtype=float) @ T[:3, :3].T + T[:3, 3]
+        vertices.append(v)
+        faces.append(f + count)
+        count += len(v)
+    if not faces:
+        raise InputError("the mesh holds no triangles", path, fix="give a triangle mesh")
+    factor = _unit_factor(scene, path) * scale
+    return np.concatenate(vertices) * factor, np.concatenate(faces)
+
+
+def _primitive(geometry) -> tuple[np.ndarray, np.ndarray] | None:
+    import trimesh
+
+    if geometry.box is not None:
+        mesh = trimesh.creation.box(extents=np.asarray(geometry.box.size, dtype=float))
+    elif geometry.cylinder is not None:
+        mesh = trimesh.creation.cylinder(radius=float(geometry.cylinder.radius),
+                                         height=float(geometry.cylinder.length),
+                                         sections=CYLINDER_SECTIONS)
+    elif geometry.sphere is not None:
+        mesh = trimesh.creation.icosphere(subdivisions=SPHERE_SUBDIVISIONS,
+                                          radius=float(geometry.sphere.radius))
+    else:
+        return None
+    return np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int64)
+
+
+def _link_geometry(urdf_path: Path) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(link, vertices in the link frame, faces) of every link with visuals, URDF order."""
+    import yourdfpy  # slow import (trimesh)
+
+    try:
+        urdf = yourdfpy.URDF.load(str(urdf_path), load_meshes=False, build_scene_graph=False,
+                                  load_collision_meshes=False,
+                                  build_collision_scene_graph=False,
+                                  filename_handler=filename_handler(urdf_path))
+    except (ValueError, KeyError, AttributeError, TypeError, IndexError, OSError) as e:
+        raise InputError(f"cannot read the URDF's visuals ({type(e).__name__}: {e})", urdf_path,
+                         fix="give a valid URDF file") from e
+    out = []
+    for link in urdf.robot.links:
+        vertices, faces, count = [], [], 0
+        for visual in link.visuals:
+            geometry = visual.geometry
+            if geometry is None:
+                continue
+            if geometry.mesh is not None:
+                path = resolve_resource(geometry.mesh.filename, urdf_path)
+                scale = geometry.mesh.scale
+                scale = np.ones(3) if scale is None else np.broadcast_to(
+                    np.asarray(scale, dtype=float), (3,))
+                v, f = _load_mesh_file(path, scale)
+                if np.prod(np.sign(scale)) < 0:
+                    f = f[:, ::-1]
+            else:
+                prim = _primitive(geometry)
+                if prim is None:
+                    continue
+                v, f = prim
+            T = np.eye(4) if visual.origin is None else np.asarray(visual.origin, dtype=float)
+            vertices.append(v @ T[:3, :3].T + T[:3, 3])
+            faces.append(f + count)
+            count += len(v)
+        if faces:
+            out.append((link.name, np.concatenate(vertices), np.concatenate(faces)))
+    return out
+
+
+def decimate(vertices: np.ndarray, faces: np.ndarray,
+             cell_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex clustering: vertices in one grid cell merge into their mean; collapsed and
+    repeated triangles are dropped.
+
+    Args:
+        vertices: (N, 3), m. faces: (T, 3) indices. cell_m: grid cell edge, m (> 0).
+    Returns:
+        (vertices (N', 3), faces (T', 3)).
+    """
+    vertices = np.asarray(vertices, dtype=float)
+    faces = np.asarray(faces, dtype=np.int64)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise InputError(f"vertices have shape {vertices.shape}, expected (N, 3)")
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise InputError(f"faces have shape {faces.shape}, expected (T, 3)")
+    if not (np.isfinite(cell_m) and cell_m > 0):
+        raise InputError(f"decimation cell must be a positive number of metres, got {cell_m}")
+    cells = np.floor(vertices / cell_m).astype(np.int64)
+    _, cluster = np.unique(cells, axis=0, return_inverse=True)
+    cluster = cluster.reshape(-1)
+    n = int(cluster.max()) + 1 if len(cluster) else 0
+    counts = np.bincount(cluster, minlength=n).astype(float)
+    merged = np.stack([np.bincount(cluster, vertices[:, k], minlength=n) for k in range(3)], 1)
+    merged /= counts[:, None]
+    f = cluster[faces]
+    keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
+    f = f[keep]
+    _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+    f = f[np.sort(first)]
+    used = np.unique(f)
+    remap = np.full(n, -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return merged[used], remap[f]
+
+
+def _triangle_area(vertices: np.ndarray, faces: np.ndarray) -> float:
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    return float(0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum())
+
+
+def _decimate_all(parts: list[tuple[str, np.ndarray, np.ndarray]],
+                  max_triangles: int) -> tuple[list[tuple[str, np.ndarray, np.ndarray]], float]:
+    total = sum(len(f) for _, _, f in parts)
+    if total <= max_triangles:
+        return parts, 0.0
+    area = sum(_triangle_area(v, f) for _, v, f in parts)
+    # vertex clustering leaves about 2 triangles per occupied cell, about area / cell^2 cells
+    cell = float(np.sqrt(2.0 * area / max_triangles))
+    out = parts
+    for _ in range(CLUSTER_ROUNDS):
+        out = [(name, *decimate(v, f, cell)) for name, v, f in parts]
+        count = sum(len(f) for _, _, f in out)
+        if count <= max_triangles:
+            break
+        cell *= float(np.sqrt(count / max_triangles)) * CLUSTER_MARGIN
+    else:
+        log.warning("decimation stopped at %d triangles (budget %d)", count, max_triangles)
+    return out, cell
+
+
+@functools.lru_cache(maxsize=8)
+def _cached_geometry(urdf_path: Path, mtime_ns: int, max_triangles: int
+                     ) -> tuple[tuple[tuple[str, np.ndarray, np.ndarray], ...], float]:
+    parts = _link_geometry(urdf_path)
+    original = sum(len(f) for _, _, f in parts)
+    parts, cell = _decimate_all(parts, max_triangles)
+    log.info("%s: %d visual triangles, %d after decimation (grid %.4f m)", urdf_path.name,
+             original, sum(len(f) for _, _, f in parts), cell)
+    return tuple(parts), cell
+
+
+def load_robot_meshes(robot: Robot, max_triangles: int = DEFAULT_MAX_TRIANGLES) -> RobotMeshes:
+    """The robot's visual meshes in their link frames, decimated to `max_triangles`.
+
+    Read once per URDF file and budget (cached). Links whose pose the robot's kinematics cannot
+    compute (unsupported joints on their chain) are left out with a warning.
+
+    Raises:
+        InputError: unreadable URDF or mesh file, a URDF without any visual geometry, or a
+            budget below one triangle.
+    """
+    if not isinstance(robot, Robot):
+        raise InputError("load_robot_meshes needs a dream.robot.Robot (use load_robot)")
+    if int(max_triangles) != max_triangles or max_triangles < 1:
+        raise InputError(f"max_triangles must be a positive integer, got {max_triangles}")
+    path = Path(robot.urdf_path).resolve()
+    try:
+        mtime = path.stat().st_mtime_ns
+    except OSError as e:
+        raise InputError(f"cannot read the URDF ({e.strerror})", path) from e
+    parts, cell = _cached_geometry(path, mtime, int(max_triangles))
+    links, vertices, vertex_link, faces, count = [], [], [], [], 0
+    for name, v, f in parts:
+        try:
+            robot.link_poses(robot.rest_joints, [name])
+        except RobotError as e:
+            log.warning("link '%s' is not rendered: %s", name, e)
+            continue
+        vertex_link.append(np.full(len(v), len(links)))
+        links.append(name)
+        vertices.append(v)
+        faces.append(f + count)
+        count += len(v)
+    if not links:
+        raise InputError("the URDF has no visual geometry on links below the robot's base",
+                         path, fix="give a URDF with <visual> meshes or primitives")
+    return RobotMeshes(robot, tuple(links), np.concatenate(vertices),
+                       np.concatenate(vertex_link), np.concatenate(faces), cell)
+
+
+# ----- rendering -----------------------------------------------------------------------------
+
+def vertices_in_base(meshes: RobotMeshes, joints: np.ndarray) -> np.ndarray:
+    """Mesh vertices in the robot base frame for joint vectors (..., J): shape (..., V, 3)."""
+    T = meshes.robot.link_poses(joints, meshes.links)            # (..., L, 4, 4)
+    T_vertex = np.take(T, meshes.vertex_link, axis=-3)            # (..., V, 4, 4)
+    return (np.einsum("...ij,...j->...i", T_vertex[..., :3, :3], meshes.vertices)
+            + T_vertex[..., :3, 3])
+
+
+def _pow2_ceil(n: np.ndarray) -> np.ndarray:
+    return np.left_shift(1, np.ceil(np.log2(np.maximum(n, 1))).astype(np.int64))
+
+
+def rasterize_triangles(uv_triangles: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Pixels whose centre lies inside (or on the edge of) at least one triangle.
+
+    Args:
+        uv_triangles: (T, 3, 2) triangle corners in pixels (SPEC.md convention); rows with a
+            non-finite corner are skipped.
+        height, width: image size in pixels.
+    Returns:
+        (height, width) bool.
+    """
+    tri = np.asarray(uv_triangles, dtype=float)
+    if tri.ndim != 3 or tri.shape[1:] != (3, 2):
+        raise InputError(f"uv_triangles has shape {tri.shape}, expected (T, 3, 2)")
+    if int(height) != height or int(width) != width or height < 1 or width < 1:
+        raise InputError(f"image size must be positive integers, got {width}x{height}")
+    height, width = int(height), int(width)
+    mask = np.zeros(height * width, dtype=bool)
+    tri = tri[np.all(np.isfinite(tri), axis=(1, 2))]
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    lo = np.ceil(np.clip(tri.min(axis=1), -1.0, [width, height])).astype(np.int64)
+    hi = np.floor(np.clip(tri.max(axis=1), -1.0, [width, height])).astype(np.int64)
+    lo = np.maximum(lo, 0)
+    hi = np.minimum(hi, [width - 1, height - 1])
+    size = hi - lo + 1
+    ok = (area2 != 0) & np.all(size > 0, axis=1)
+    tri, area2, lo, size = tri[ok], area2[ok], lo[ok], size[ok]
+    sign = np.sign(area2)
+    edges = [(tri[:, 0], tri[:, 1]), (tri[:, 1], tri[:, 2]), (tri[:, 2], tri[:, 0])]
+    box = _pow2_ceil(size)                                           # (T, 2) block sizes
+    keys = box[:, 0] * (2 * max(width, height) + 1) + box[:, 1]
+    for key in np.unique(keys):
+        members = np.flatnonzero(keys == key)
+        bw, bh = (int(x) for x in box[members[0]])
+        ox, oy = (g.reshape(-1) for g in np.meshgrid(np.arange(bw), np.arange(bh)))
+        step = max(1, MAX_BLOCK_PIXELS // (bw * bh))
+        for start in range(0, len(members), step):
+            idx = members[start:start + step]
+            px = lo[idx, 0, None] + ox
+            py = lo[idx, 1, None] + oy
+            inside = (ox < size[idx, 0, None]) & (oy < size[idx, 1, None])
+            for p0, p1 in edges:
+                e = ((p1[idx, 0, None] - p0[idx, 0, None]) * (py - p0[idx, 1, None])
+                     - (p1[idx, 1, None] - p0[idx, 1, None]) * (px - p0[idx, 0, None]))
+                inside &= sign[idx, None] * e >= 0
+            mask[(py * width + px)[inside]] = True
+    return mask.reshape(height, width)
+
+
+def render_points(P_base: np.ndarray, faces: np.ndarray, T_cam_base: np.ndarray,
+                  camera: CameraIntrinsics) -> np.ndarray:
+    """The silhouette (H, W) bool of triangles `faces` (T, 3) over base-frame vertices (V, 3)."""
+    P_base = np.asarray(P_base, dtype=float)
+    T = np.asarray(T_cam_base, dtype=float)
+    if P_base.ndim != 2 or P_base.shape[1] != 3:
+        raise InputError(f"P_base has shape {P_base.shape}, expected (V, 3)")
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise InputError("T_cam_base must be a finite 4x4 matrix")
+    P_cam = P_base @ T[:3, :3].T + T[:3, 3]
+    P_cam[P_cam[:, 2] < MIN_DEPTH_M] = np.nan   # behind: projects to NaN, triangle skipped
+    uv = project(camera, P_cam)
+    return rasterize_triangles(uv[np.asarray(faces)], camera.height, camera.width)
+
+
+def render_silhouette(robot_meshes: RobotMeshes, joints: np.ndarray, T_cam_base: np.ndarray,
+                      camera: CameraIntrinsics) -> np.ndarray:
+    """The robot's silhouette seen by `camera` at `T_cam_base` with joints (J,): (H, W) bool."""
+    q = np.asarray(joints, dtype=float)
+    if q.shape != (robot_meshes.robot.num_joints,):
+        raise InputError(f"joints have shape {q.shape}, expected "
+                         f"({robot_meshes.robot.num_joints},) "
+                         f"({', '.join(robot_meshes.robot.joint_names)})")
+    return render_points(vertices_in_base(robot_meshes, q), robot_meshes.faces, T_cam_base,
+                         camera)
+
+
+def silhouette_iou(a: np.ndarray, b: np.ndarray) -> float:
+    """Intersection over union of two (H, W) masks; 1.0 when both are empty."""
+    a = np.asarray(a, dtype=bool)
+    b = np.asarray(b, dtype=bool)
+    if a.shape != b.shape or a.ndim != 2:
+        raise InputError(f"masks have shapes {a.shape} and {b.shape}, expected one (H, W)")
+    union = int(np.count_nonzero(a | b))
+    return 1.0 if union == 0 else int(np.count_nonzero(a & b)) / union
+

@@ -1,0 +1,252 @@
+"""Silhouette rendering (`dream.silhouette`) and the silhouette polish (`dream.polish`).
+
+The masks are rendered by `render_silhouette` itself at a known pose, so the polish must find
+that pose back; a comparison with MuJoCo's renders is left to the synth stage (no synth import).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from dream.camera import CameraIntrinsics, project
+from dream.cli import main
+from dream.errors import InputError
+from dream.io import read_sequence, write_dream
+from dream.metrics import pose_errors
+from dream.polish import KeypointSet, PolishParams, polish, signed_distance
+from dream.robot import load_robot
+from dream.sample import random_joints
+from dream.sequence import Frame, Sequence
+from dream.silhouette import (
+    load_robot_meshes,
+    rasterize_triangles,
+    render_silhouette,
+    silhouette_iou,
+)
+from dream.transforms import T_from_rotvec_t, look_at, transform_points
+
+WIDTH, HEIGHT = 320, 240
+CAMERA = CameraIntrinsics(250.0, 250.0, (WIDTH - 1) / 2, (HEIGHT - 1) / 2, WIDTH, HEIGHT)
+TARGET = np.array([0.0, 0.0, 0.4])      # the camera aims at this point of the base frame, m
+NUM_FRAMES = 5
+PERTURB_M = 0.01
+PERTURB_RAD = np.deg2rad(1.0)
+GUARD_OFFSET_M = 0.03
+
+
+@pytest.fixture(scope="module")
+def panda():
+    return load_robot("panda")
+
+
+@pytest.fixture(scope="module")
+def meshes(panda):
+    return load_robot_meshes(panda)
+
+
+def camera_pose(rng: np.random.Generator, distance=(1.2, 1.8)) -> np.ndarray:
+    d = rng.uniform(*distance)
+    azimuth = rng.uniform(0, 2 * np.pi)
+    elevation = rng.uniform(0.15, 0.6)
+    direction = np.array([np.cos(elevation) * np.cos(azimuth),
+                          np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
+    return look_at(TARGET + d * direction, TARGET)
+
+
+def perturbed(T: np.ndarray, rng: np.random.Generator, shift_m: float,
+              angle_rad: float) -> np.ndarray:
+    axis = rng.normal(size=3)
+    shift = rng.normal(size=3)
+    out = T_from_rotvec_t(axis / np.linalg.norm(axis) * angle_rad, np.zeros(3)) @ T
+    out[:3, 3] += shift / np.linalg.norm(shift) * shift_m
+    return out
+
+
+def scene(panda, meshes, seed: int):
+    rng = np.random.default_rng(seed)
+    T_true = camera_pose(rng)
+    joints = random_joints(rng, panda, NUM_FRAMES, 0.8)
+    masks = np.stack([render_silhouette(meshes, q, T_true, CAMERA) for q in joints])
+    return rng, T_true, joints, masks
+
+
+def keypoints_at(panda, joints, T: np.ndarray) -> KeypointSet:
+    P = panda.forward_kinematics(joints).reshape(-1, 3)
+    return KeypointSet(P, project(CAMERA, transform_points(T, P)))
+
+
+# ----- rendering -----------------------------------------------------------------------------
+
+def test_rasteriser_fills_exactly_the_pixel_centres_inside():
+    square = np.array([[[10.3, 10.3], [20.7, 10.3], [20.7, 20.7]],
+                       [[10.3, 10.3], [20.7, 20.7], [10.3, 20.7]]])
+    mask = rasterize_triangles(square, 40, 40)
+    ys, xs = np.nonzero(mask)
+    assert (xs.min(), xs.max(), ys.min(), ys.max(), mask.sum()) == (11, 20, 11, 20, 100)
+    rng = np.random.default_rng(0)
+    tri = rng.uniform(-5, 45, (30, 3, 2))
+    got = rasterize_triangles(tri, 40, 40)
+    v, u = np.mgrid[0:40, 0:40]
+    expected = np.zeros((40, 40), bool)
+    for a, b, c in tri:
+        e = [(q[0] - p[0]) * (v - p[1]) - (q[1] - p[1]) * (u - p[0])
+             for p, q in ((a, b), (b, c), (c, a))]
+        expected |= np.all([x >= 0 for x in e], 0) | np.all([x <= 0 for x in e], 0)
+    assert np.array_equal(got, expected)
+    assert not rasterize_triangles(np.full((2, 3, 2), np.nan), 10, 10).any()
+
+
+def test_silhouette_covers_the_keypoints(panda, meshes):
+    rng = np.random.default_rng(1)
+    inside = []
+    for _ in range(4):
+        T = camera_pose(rng)
+        q = random_joints(rng, panda, 1, 0.8)[0]
+        mask = render_silhouette(meshes, q, T, CAMERA)
+        uv = project(CAMERA, transform_points(T, panda.forward_kinematics(q)))
+        ok = CAMERA.in_image(uv)
+        # a link origin inside or within 2 px of the outline (origins on a surface)
+        near = signed_distance(mask)[np.round(uv[ok, 1]).astype(int),
+                                     np.round(uv[ok, 0]).astype(int)] <= 2.0
+        inside += list(near)
+    assert np.mean(inside) >= 0.9, np.mean(inside)
+
+
+def test_silhouette_is_empty_for_a_camera_looking_away(panda, meshes):
+    q = panda.rest_joints
+    position = np.array([1.5, 0.0, 0.5])
+    away = look_at(position, position + np.array([1.0, 0.3, 0.0]))
+    assert not render_silhouette(meshes, q, away, CAMERA).any()
+    behind = look_at(position, TARGET)
+    behind[:3, 3] -= np.array([0.0, 0.0, 5.0])       # everything behind the camera plane
+    assert not render_silhouette(meshes, q, behind, CAMERA).any()
+    assert render_silhouette(meshes, q, look_at(position, TARGET), CAMERA).any()
+
+
+def test_silhouette_area_scales_with_inverse_square_distance(panda, meshes):
+    camera = CameraIntrinsics(1200.0, 1200.0, 319.5, 239.5, 640, 480)
+    q = random_joints(np.random.default_rng(2), panda, 1, 0.5)[0]
+    direction = np.array([0.8, 0.5, 0.33]) / np.linalg.norm([0.8, 0.5, 0.33])
+    area_d2 = []
+    for d in (4.0, 6.0, 8.0):
+        mask = render_silhouette(meshes, q, look_at(TARGET + d * direction, TARGET), camera)
+        assert not (mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+        area_d2.append(mask.sum() * d * d)
+    assert np.ptp(area_d2) / np.mean(area_d2) < 0.05, area_d2
+
+
+def test_render_silhouette_checks_its_input(meshes):
+    with pytest.raises(InputError, match="joints"):
+        render_silhouette(meshes, np.zeros(3), np.eye(4), CAMERA)
+    with pytest.raises(InputError, match="masks have shapes"):
+        silhouette_iou(np.zeros((2, 3), bool), np.zeros((3, 2), bool))
+
+
+# ----- polish --------------------------------------------------------------------------------
+
+def test_polish_recovers_a_perturbed_pose(panda, meshes):
+    rng, T_true, joints, masks = scene(panda, meshes, seed=3)
+    T0 = perturbed(T_true, rng, PERTURB_M, PERTURB_RAD)
+    res = polish(meshes, joints, masks, CAMERA, T0, keypoints_at(panda, joints, T_true))
+    t0, r0 = pose_errors(T0, T_true)
+    t1, r1 = pose_errors(res.T_after, T_true)
+    assert res.kept, res.reason
+    assert res.iou_before_mean < 0.95 and res.iou_after_mean > 0.97
+    assert t1 < t0 / 2 and r1 < r0 / 2, (t0, t1, r0, r1)
+    assert res.rmse_after < res.rmse_before
+    assert res.iou_before.shape == res.iou_after.shape == (NUM_FRAMES,)
+
+
+def test_polish_keeps_a_correct_pose(panda, meshes):
+    _, T_true, joints, masks = scene(panda, meshes, seed=4)
+    res = polish(meshes, joints, masks, CAMERA, T_true, keypoints_at(panda, joints, T_true))
+    assert res.iou_before_mean == 1.0
+    assert not res.kept and "not kept" in res.reason
+    assert np.array_equal(res.T_after, T_true)
+    t, r = pose_errors(res.T_polished, T_true)
+    assert t < 2e-3 and r < np.deg2rad(0.1)
+
+
+def test_polish_refuses_to_break_the_keypoint_fit(panda, meshes):
+    rng, T_mask, joints, masks = scene(panda, meshes, seed=5)
+    T_keypoints = perturbed(T_mask, rng, GUARD_OFFSET_M, 0.0)
+    res = polish(meshes, joints, masks, CAMERA, T_keypoints,
+                 keypoints_at(panda, joints, T_keypoints))
+    assert res.iou_after_mean > res.iou_before_mean + 0.05  # the silhouettes wanted it
+    assert not res.kept and "keypoint RMSE" in res.reason
+    assert np.array_equal(res.T_after, T_keypoints)
+    assert res.rmse_after > res.rmse_before + 1.0
+
+
+def test_polish_checks_its_input(panda, meshes):
+    with pytest.raises(InputError, match="min_iou_gain"):
+        PolishParams(min_iou_gain=-1.0)
+    with pytest.raises(InputError, match="max_search_frames"):
+        PolishParams(max_search_frames=0)
+    joints = random_joints(np.random.default_rng(0), panda, 2)
+    with pytest.raises(InputError, match="masks have shape"):
+        polish(meshes, joints, np.zeros((2, 10, 10), bool), CAMERA, np.eye(4), None)
+    with pytest.raises(InputError, match="empty"):
+        polish(meshes, joints, np.zeros((2, HEIGHT, WIDTH), bool), CAMERA, np.eye(4), None)
+
+
+# ----- command line --------------------------------------------------------------------------
+
+def masked_dataset(panda, meshes, folder: Path, seed: int = 6, frames: int = 6) -> np.ndarray:
+    """A DREAM-layout folder with labels and masks of a true pose; returns that pose."""
+    rng = np.random.default_rng(seed)
+    T_true = camera_pose(rng)
+    joints = random_joints(rng, panda, frames, 0.8)
+    uv = project(CAMERA, transform_points(T_true, panda.forward_kinematics(joints)))
+    uv = uv + rng.normal(0.0, 0.5, uv.shape)
+    src = folder / "masks"
+    src.mkdir(parents=True)
+    out = []
+    for i, q in enumerate(joints):
+        path = src / f"{i}.png"
+        cv2.imwrite(str(path), render_silhouette(meshes, q, T_true, CAMERA).astype(np.uint8))
+        out.append(Frame(name=f"{i:06d}", joints=q, mask_path=path, uv_labels=uv[i],
+                         T_cam_base_true=T_true))
+    seq = Sequence(robot="panda", camera=CAMERA, joint_names=panda.joint_names,
+                   keypoint_names=panda.keypoint_names, frames=tuple(out),
+                   T_cam_base_reference=T_true)
+    write_dream(seq, folder / "data")
+    return T_true
+
+
+def test_calibrate_with_polish_end_to_end(panda, meshes, tmp_path, capsys):
+    T_true = masked_dataset(panda, meshes, tmp_path)
+    data = tmp_path / "data"
+    assert sum(f.mask_path is not None for f in read_sequence(data).frames) == 6
+    result = tmp_path / "result.json"
+    code = main(["calibrate", "--data", str(data), "--use-labels", "--polish", "--out",
+                 str(result)])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert "silhouette polish (6 frames with masks" in out
+    doc = json.loads(result.read_text())
+    p = doc["polish"]
+    assert {"iou_before", "iou_after", "kept", "reason"} <= set(p)
+    assert isinstance(p["kept"], bool) and p["iou_before"] > 0.9
+    assert len(p["iou_after_per_frame"]) == 6
+    final = p["T_cam_base_polished"] if p["kept"] else p["T_cam_base_keypoints"]
+    assert np.allclose(doc["T_cam_base"], final)
+    t, _ = pose_errors(np.array(doc["T_cam_base"]), T_true)
+    assert t < 0.01
+
+
+def test_calibrate_polish_without_masks_is_one_clear_error(tmp_path, capsys):
+    data = tmp_path / "sample"
+    assert main(["sample", "--out", str(data), "--num", "5"]) == 0
+    capsys.readouterr()
+    code = main(["calibrate", "--data", str(data), "--use-labels", "--polish", "--out",
+                 str(tmp_path / "r.json")])
+    _, err = capsys.readouterr()
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1 and "--polish needs robot masks" in err
+    assert not (tmp_path / "r.json").exists()
