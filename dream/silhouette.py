@@ -33,9 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
+from dream.arrays import read_only
 from dream.camera import CameraIntrinsics, project
 from dream.errors import InputError, RobotError
-from dream.robot import Robot, filename_handler, resolve_resource
+from dream.robot import Robot
+from dream.robot.visuals import BOX, CYLINDER, MESH, LinkVisual, load_mesh_parts, read_link_visuals
 
 log = logging.getLogger(__name__)
 
@@ -46,13 +48,7 @@ CLUSTER_MARGIN = 1.05           # grow the grid this much more than the estimate
 CYLINDER_SECTIONS = 32          # tessellation of URDF cylinders
 SPHERE_SUBDIVISIONS = 2         # icosphere subdivisions of URDF spheres
 MAX_BLOCK_PIXELS = 4_000_000    # candidate pixels tested at once by the rasteriser
-METRE_UNITS = ("meters", "meter", "metres", "metre", "m")
 
-
-def _frozen(a: np.ndarray, dtype: type) -> np.ndarray:
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,9 +75,9 @@ class RobotMeshes:
         if not isinstance(self.robot, Robot):
             raise InputError("RobotMeshes.robot must be a dream.robot.Robot")
         object.__setattr__(self, "links", tuple(self.links))
-        vertices = _frozen(self.vertices, float)
-        vertex_link = _frozen(self.vertex_link, np.int64)
-        faces = _frozen(self.faces, np.int64)
+        vertices = read_only(self.vertices, float)
+        vertex_link = read_only(self.vertex_link, np.int64)
+        faces = read_only(self.faces, np.int64)
         if vertices.ndim != 2 or vertices.shape[1] != 3 or not np.all(np.isfinite(vertices)):
             raise InputError(f"mesh vertices have shape {vertices.shape} or are not finite",
                              fix="give (V, 3) finite vertices in metres")
@@ -105,103 +101,40 @@ class RobotMeshes:
 
 # ----- loading -------------------------------------------------------------------------------
 
-def _unit_factor(scene, path: Path) -> float:
-    """The COLLADA `<unit meter=...>` factor that trimesh records in its metadata."""
-    units = str(scene.metadata.get("units", "meters") or "meters").strip().lower()
-    if units in METRE_UNITS:
-        return 1.0
-    head, _, tail = units.partition("*")
-    try:
-        factor = float(head)
-    except ValueError:
-        factor = None
-    if factor is None or tail.strip() not in METRE_UNITS or not factor > 0:
-        log.warning("%s: unknown mesh units '%s'; taking metres", path, units)
-        return 1.0
-    return factor
-
-
-def _load_mesh_file(path: Path, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (N, 3) in the visual frame, m, and faces (T, 3) of every triangle in a file."""
-    import trimesh  # slow import
-
-    try:
-        scene = trimesh.load(str(path), force="scene")
-    except (ValueError, KeyError, IndexError, TypeError, AttributeError, OSError) as e:
-        raise InputError(f"cannot read the mesh ({type(e).__name__}: {e})", path,
-                         fix="give a mesh file trimesh reads (DAE, STL, OBJ, PLY, GLB)") from e
-    vertices, faces, count = [], [], 0
-    for node in scene.graph.nodes_geometry:
-        T, name = scene.graph[node]
-        mesh = scene.geometry[name]
-        f = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64)
-        if f.ndim != 2 or f.shape[1] != 3 or not len(f):
-            continue  # point clouds, paths
-        v = np.asarray(mesh.vertices, dtype=float) @ T[:3, :3].T + T[:3, 3]
-        vertices.append(v)
-        faces.append(f + count)
-        count += len(v)
-    if not faces:
-        raise InputError("the mesh holds no triangles", path, fix="give a triangle mesh")
-    factor = _unit_factor(scene, path) * scale
-    return np.concatenate(vertices) * factor, np.concatenate(faces)
-
-
-def _primitive(geometry) -> tuple[np.ndarray, np.ndarray] | None:
+def _primitive(visual: LinkVisual) -> tuple[np.ndarray, np.ndarray]:
+    """Triangles of a URDF box, cylinder or sphere (`LinkVisual.size` holds half-sizes)."""
     import trimesh
 
-    if geometry.box is not None:
-        mesh = trimesh.creation.box(extents=np.asarray(geometry.box.size, dtype=float))
-    elif geometry.cylinder is not None:
-        mesh = trimesh.creation.cylinder(radius=float(geometry.cylinder.radius),
-                                         height=float(geometry.cylinder.length),
+    if visual.kind == BOX:
+        mesh = trimesh.creation.box(extents=2.0 * visual.size)
+    elif visual.kind == CYLINDER:
+        mesh = trimesh.creation.cylinder(radius=float(visual.size[0]),
+                                         height=2.0 * float(visual.size[1]),
                                          sections=CYLINDER_SECTIONS)
-    elif geometry.sphere is not None:
-        mesh = trimesh.creation.icosphere(subdivisions=SPHERE_SUBDIVISIONS,
-                                          radius=float(geometry.sphere.radius))
     else:
-        return None
+        mesh = trimesh.creation.icosphere(subdivisions=SPHERE_SUBDIVISIONS,
+                                          radius=float(visual.size[0]))
     return np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int64)
 
 
 def _link_geometry(urdf_path: Path) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """(link, vertices in the link frame, faces) of every link with visuals, URDF order."""
-    import yourdfpy  # slow import (trimesh)
-
-    try:
-        urdf = yourdfpy.URDF.load(str(urdf_path), load_meshes=False, build_scene_graph=False,
-                                  load_collision_meshes=False,
-                                  build_collision_scene_graph=False,
-                                  filename_handler=filename_handler(urdf_path))
-    except (ValueError, KeyError, AttributeError, TypeError, IndexError, OSError) as e:
-        raise InputError(f"cannot read the URDF's visuals ({type(e).__name__}: {e})", urdf_path,
-                         fix="give a valid URDF file") from e
     out = []
-    for link in urdf.robot.links:
+    for link, visuals in read_link_visuals(urdf_path).items():
         vertices, faces, count = [], [], 0
-        for visual in link.visuals:
-            geometry = visual.geometry
-            if geometry is None:
-                continue
-            if geometry.mesh is not None:
-                path = resolve_resource(geometry.mesh.filename, urdf_path)
-                scale = geometry.mesh.scale
-                scale = np.ones(3) if scale is None else np.broadcast_to(
-                    np.asarray(scale, dtype=float), (3,))
-                v, f = _load_mesh_file(path, scale)
-                if np.prod(np.sign(scale)) < 0:
-                    f = f[:, ::-1]
+        for visual in visuals:
+            if visual.kind == MESH:
+                pieces = [(p.vertices, p.faces)
+                          for p in load_mesh_parts(visual.mesh_path, visual.mesh_scale)]
             else:
-                prim = _primitive(geometry)
-                if prim is None:
-                    continue
-                v, f = prim
-            T = np.eye(4) if visual.origin is None else np.asarray(visual.origin, dtype=float)
-            vertices.append(v @ T[:3, :3].T + T[:3, 3])
-            faces.append(f + count)
-            count += len(v)
+                pieces = [_primitive(visual)]
+            T = visual.T_link_visual
+            for v, f in pieces:
+                vertices.append(np.asarray(v, dtype=float) @ T[:3, :3].T + T[:3, 3])
+                faces.append(np.asarray(f, dtype=np.int64) + count)
+                count += len(v)
         if faces:
-            out.append((link.name, np.concatenate(vertices), np.concatenate(faces)))
+            out.append((link, np.concatenate(vertices), np.concatenate(faces)))
     return out
 
 

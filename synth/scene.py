@@ -18,11 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
+from dream.arrays import read_only
 from dream.errors import RobotError
 from dream.robot import Robot
+from dream.robot.visuals import MESH, read_link_visuals
 from synth import scene_cache
 from synth.gl import mujoco
-from synth.meshes import MESH, read_link_visuals
 from synth.scene_options import SceneOptions
 from synth.scene_spec import (
     CAMERA_NAME,
@@ -44,10 +45,9 @@ __all__ = ["RobotScene", "SceneOptions", "build_scene"]
 logger = logging.getLogger(__name__)
 
 
-def _frozen(a, dtype=np.int32) -> np.ndarray:
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
+def _frozen(a, dtype: type = np.int32) -> np.ndarray:
+    """Read-only ids (int32 unless told otherwise)."""
+    return read_only(a, dtype)
 
 
 def _id(model: mujoco.MjModel, kind: mujoco.mjtObj, name: str) -> int:

@@ -24,8 +24,8 @@ import numpy as np
 
 from dream.robot import Robot
 from dream.robot.tree import CONTINUOUS, FIXED, PRISMATIC, ROTATING_TYPES
+from dream.robot.visuals import MESH, LinkVisual, load_mesh_parts
 from synth.gl import mujoco
-from synth.meshes import MESH, LinkVisual, load_mesh_parts
 from synth.scene_options import SceneOptions
 
 logger = logging.getLogger(__name__)

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dream.arrays import read_only
 from dream.errors import RobotError
 from dream.robot.kinematics import (
     IDENTITY_R,
@@ -41,11 +42,6 @@ class _JointSource:
     multiplier: float
     constant: float
 
-
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, dtype=float)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,8 +119,8 @@ class Robot:
         object.__setattr__(self, "joint_names", names)
         object.__setattr__(self, "_sources", sources)
         limits = [tree.joints[tree.joint_index[n]] for n in names]
-        object.__setattr__(self, "joint_lower", _readonly([j.lower for j in limits]))
-        object.__setattr__(self, "joint_upper", _readonly([j.upper for j in limits]))
+        object.__setattr__(self, "joint_lower", read_only([j.lower for j in limits]))
+        object.__setattr__(self, "joint_upper", read_only([j.upper for j in limits]))
         object.__setattr__(self, "skeleton_edges", self._skeleton(keypoints))
 
     # ----- structure -----------------------------------------------------------------------

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dream.arrays import read_only
 from dream.errors import InputError, RobotError
 
 FIXED = "fixed"
@@ -30,11 +31,6 @@ UNIT_TOLERANCE = 1e-9  # |axis| may differ from 1 by this much before it is reno
 MIN_AXIS_NORM = 1e-12  # a shorter axis has no direction
 MIN_OFFSET_M = 1e-12  # a shorter origin translation has no direction to stretch along
 
-
-def _frozen_array(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, dtype=float)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True)
@@ -95,8 +91,8 @@ class JointModel:
         if not (self.lower <= self.upper):
             raise InputError(f"joint '{self.name}' has lower limit {self.lower} above upper "
                              f"limit {self.upper}")
-        object.__setattr__(self, "origin", _frozen_array(origin))
-        object.__setattr__(self, "axis", _frozen_array(axis))
+        object.__setattr__(self, "origin", read_only(origin))
+        object.__setattr__(self, "axis", read_only(axis))
 
     @property
     def moves(self) -> bool:

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dream.arrays import read_only
 from dream.errors import InputError
 from dream.robot.resources import filename_handler, resolve_resource
 
@@ -33,12 +34,8 @@ BOX = "box"
 CYLINDER = "cylinder"
 SPHERE = "sphere"
 VISUAL_KINDS = (MESH, BOX, CYLINDER, SPHERE)
+METRE_UNITS = ("meters", "meter", "metres", "metre", "m")
 
-
-def _frozen(a: np.ndarray, dtype: type) -> np.ndarray:
-    a = np.array(a, dtype=dtype)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True, eq=False)
@@ -56,8 +53,8 @@ class MeshPart:
     rgba: np.ndarray | None
 
     def __post_init__(self) -> None:
-        vertices = _frozen(self.vertices, np.float32)
-        faces = _frozen(self.faces, np.int32)
+        vertices = read_only(self.vertices, np.float32)
+        faces = read_only(self.faces, np.int32)
         if vertices.ndim != 2 or vertices.shape[1] != 3 or not np.all(np.isfinite(vertices)):
             raise InputError(f"mesh vertices have shape {vertices.shape} or are not finite",
                              fix="give (N, 3) finite vertices")
@@ -97,12 +94,12 @@ class LinkVisual:
         if self.kind not in VISUAL_KINDS:
             raise InputError(f"visual of link '{self.link}' has kind '{self.kind}'",
                              fix=f"use one of {', '.join(VISUAL_KINDS)}")
-        T = _frozen(self.T_link_visual, float)
+        T = read_only(self.T_link_visual, float)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise InputError(f"visual origin of link '{self.link}' is not a finite 4x4 matrix")
         object.__setattr__(self, "T_link_visual", T)
-        size = _frozen(self.size, float)
-        scale = _frozen(self.mesh_scale, float)
+        size = read_only(self.size, float)
+        scale = read_only(self.mesh_scale, float)
         if size.shape != (3,) or np.any(size < 0) or not np.all(np.isfinite(size)):
             raise InputError(f"visual of link '{self.link}' has an invalid size {self.size}",
                              fix="give non-negative sizes in metres")
@@ -121,7 +118,7 @@ def _check_rgba(rgba: np.ndarray, what: str) -> np.ndarray:
     a = np.asarray(rgba, dtype=float).reshape(-1)
     if a.shape != (4,) or not np.all(np.isfinite(a)):
         raise InputError(f"{what} must be 4 finite numbers (r, g, b, a), got {rgba}")
-    return _frozen(np.clip(a, 0.0, 1.0), float)
+    return read_only(np.clip(a, 0.0, 1.0), float)
 
 
 # ----- URDF visuals --------------------------------------------------------------------------
@@ -195,17 +192,17 @@ def _material_rgba(material, named: Mapping) -> np.ndarray | None:
 # ----- mesh files ----------------------------------------------------------------------------
 
 def _unit_scale(scene, path: Path) -> float:
-    """The COLLADA `<unit meter=...>` factor that trimesh records but does not apply."""
-    units = str(scene.metadata.get("units", "meters") or "meters").strip()
-    if units in ("meters", "meter", "m"):
+    """The COLLADA `<unit meter=...>` factor that trimesh records in its metadata but does
+    not apply."""
+    units = str(scene.metadata.get("units", "meters") or "meters").strip().lower()
+    if units in METRE_UNITS:
         return 1.0
     head, _, tail = units.partition("*")
     try:
         factor = float(head)
     except ValueError:
-        logger.warning("%s: unknown mesh units '%s'; taking metres", path, units)
-        return 1.0
-    if tail.strip() not in ("meters", "meter"):
+        factor = None
+    if factor is None or tail.strip() not in METRE_UNITS or not factor > 0:
         logger.warning("%s: unknown mesh units '%s'; taking metres", path, units)
         return 1.0
     return factor
