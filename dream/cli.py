@@ -160,19 +160,35 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
     if polish:
         from dream.polish import check_polish_input
 
-        check_polish_input(seq, args.frames)
+        check_polish_input(seq, args.frames,
+                           network_masks=getattr(args, "model", None) is not None)
     if getattr(args, "model", None) is not None:
         robot, obs = _detect(args, seq, out)
     else:
         keypoints = seq.keypoint_names if args.use_labels else None
         robot = robot_for(seq, args.robot, keypoints)
         obs = observations_from_labels(seq, robot)
+    if getattr(args, "model_extension", None):
+        from dream.diagnose.run import apply_extension_to_observations
+        from dream.extension import read_extension
+
+        extension = read_extension(args.model_extension)
+        seq, obs = apply_extension_to_observations(seq, robot, obs, extension)
+        print(f"model extension {args.model_extension}: "
+              f"{', '.join(extension.effects) or 'no effect'}", file=out)
     result = calibrate(seq, obs, args.frames, _settings(args))
     doc = result_to_dict(result, obs, robot=args.robot or seq.robot)
     if polish:
         from dream.polish import polish_calibration, result_doc_with_polish
 
-        report = polish_calibration(seq, robot, result, obs)
+        predict = None
+        if not any(f.mask_path is not None for f in seq.frames):
+            from dream.detect import load_keypoint_model, predict_masks
+
+            model = load_keypoint_model(args.model, threads=getattr(args, "threads", None))
+            predict = lambda idx: predict_masks(seq, model, idx)  # noqa: E731
+            print("no masks in the data: the polish uses the network's mask head", file=out)
+        report = polish_calibration(seq, robot, result, obs, predict_masks=predict)
         doc = result_doc_with_polish(doc, report)
         print(f"silhouette polish ({len(report.frames)} frames with masks, "
               f"{report.seconds:.1f} s): {report.reason}", file=out)
@@ -194,6 +210,42 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
     print(f"wrote {args.out}, {ros_path} (ROS static_transform_publisher: x y z qx qy qz qw "
           f"{robot.base_link} camera_optical_frame) and {matrix_path} (T_base_cam)", file=out)
     return doc
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    """`dream diagnose`: residual analysis, effect catalog, cross-validated model selection."""
+    from dream.diagnose.run import run_diagnosis
+    from dream.diagnose.select import DiagnoseSettings
+    from dream.pipeline import observations_from_labels, robot_for
+
+    seq = _read(args)
+    if args.model is not None:
+        robot, obs = _detect(args, seq, sys.stdout)
+    else:
+        robot = robot_for(seq, args.robot, seq.keypoint_names)
+        obs = observations_from_labels(seq, robot)
+    effects = tuple(e.strip() for e in args.effects.split(",")) if args.effects else None
+    settings = DiagnoseSettings(**({"effects": effects} if effects else {}),
+                                folds=args.folds)
+    doc = run_diagnosis(seq, robot, obs, args.out, settings,
+                        progress=lambda message: print(message, file=sys.stderr))
+    gain = doc["gain"]
+    print(f"baseline: held-out RMSE {gain['heldout_rmse_px_before']:.3f} px")
+    print(f"verdict: {', '.join(doc['verdict']) or 'no significant effect'}")
+    for effect in doc["effects"]:
+        if effect["name"] in doc["verdict"]:
+            print(f"  {effect['name']}: {effect['params']}")
+    print(f"extended model: held-out RMSE {gain['heldout_rmse_px_after']:.3f} px")
+    truth = doc.get("truth")
+    if truth:
+        for label in ("before", "after"):
+            t = truth[label]
+            print(f"vs ground truth {label}: camera position {1000 * t['translation_error_m']:.2f}"
+                  f" mm, rotation {np.rad2deg(t['rotation_error_rad']):.3f} deg, ADD "
+                  f"{1000 * t['add_mean_m']:.2f} mm")
+    print(f"wrote {Path(args.out) / 'diagnosis.json'}, {doc['extended_model']} and "
+          f"{Path(args.out) / 'report.md'} ({doc['seconds']:.1f} s)")
+    return 0
 
 
 def _print_summary(doc: dict, out) -> None:
@@ -254,22 +306,52 @@ def cmd_sample(args: argparse.Namespace) -> int:
     return 0
 
 
+BUNDLED_MODEL = Path(__file__).resolve().parent / "models" / "panda_cpu.onnx"
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
-    """The main job on the embedded default: sample -> calibrate (labels) -> print -> eval."""
-    from dream.io import write_dream
-    from dream.sample import SampleSpec, make_sample
+    """The main job on the embedded default scene: render -> detect (bundled model) ->
+    calibrate -> print the extrinsic, its uncertainty and its error -> overlays.
+    `--keypoints-only`: the keypoint-only sample calibrated from its labels (no rendering)."""
+    import importlib
 
     work = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="dream-demo-"))
-    data = work / "sample"
-    spec = SampleSpec(seed=args.seed, outlier_fraction=0.1)
-    print(f"built-in synthetic sample: {spec.num_frames} frames of {spec.robot}, "
-          f"{spec.pixel_noise_px:g} px noise, {spec.outlier_fraction:.0%} outlier labels -> {data}")
-    write_dream(make_sample(spec), data, overwrite=True)
-    ns = argparse.Namespace(data=str(data), use_labels=True, robot=None, frames="all",
-                            out=str(work / "result.json"), overlays=None, loss="huber",
-                            loss_scale_px=3.0, seed=0, intrinsics=None)
+    if args.keypoints_only:
+        from dream.io import write_dream
+        from dream.sample import SampleSpec, make_sample
+
+        data = work / "sample"
+        spec = SampleSpec(seed=0 if args.seed is None else args.seed, outlier_fraction=0.1)
+        print(f"built-in synthetic sample: {spec.num_frames} frames of {spec.robot}, "
+              f"{spec.pixel_noise_px:g} px noise, {spec.outlier_fraction:.0%} outlier labels "
+              f"-> {data}")
+        write_dream(make_sample(spec), data, overwrite=True)
+        ns = argparse.Namespace(data=str(data), use_labels=True, robot=None, frames="all",
+                                out=str(work / "result.json"), overlays=None, loss="huber",
+                                loss_scale_px=3.0, seed=0, intrinsics=None)
+        run_calibrate(ns)
+        print(f"same as: dream calibrate --data {data} --use-labels --out "
+              f"{work / 'result.json'}")
+        return 0
+    model = Path(args.model) if args.model else BUNDLED_MODEL
+    if not model.is_file():
+        raise InputError("the keypoint model is missing", model,
+                         "reinstall the project (the bundled model ships in dream/models/), "
+                         "give --model MODEL.onnx, or run dream demo --keypoints-only")
+    demo = importlib.import_module("synth.demo")  # the renderer (MuJoCo), loaded only here
+    seed = demo.DEMO_SEED if args.seed is None else args.seed
+    data = work / "scene"
+    print(f"rendering the demo scene: {demo.DEMO_FRAMES} frames of {demo.DEMO_ROBOT}, one fixed "
+          f"camera, seed {seed} -> {data}")
+    demo.render_demo_scene(data, seed=seed)
+    ns = argparse.Namespace(data=str(data), model=str(model), use_labels=False, robot=None,
+                            frames="all", out=str(work / "result.json"),
+                            overlays=str(work / "overlays"), polish=False, loss="huber",
+                            loss_scale_px=RobustLoss().scale_px, seed=0, intrinsics=None,
+                            threads=None, batch=None, model_extension=None)
     run_calibrate(ns)
-    print(f"same as: dream calibrate --data {data} --use-labels --out {work / 'result.json'}")
+    print(f"overlays in {work / 'overlays'}; same as: dream calibrate --data {data} --model "
+          f"{model} --overlays {work / 'overlays'} --out {work / 'result.json'}")
     return 0
 
 
@@ -328,6 +410,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch", type=int, default=None,
                    help="--model: images per network call (default 8)")
 
+    p.add_argument("--model-extension", metavar="FILE",
+                   help="extended model (extended_model.yaml of dream diagnose): corrected "
+                        "camera, joint offsets, link lengths, keypoint bias, time offset; with "
+                        "a camera move only the frames after it are used")
+
+    p = add("diagnose", cmd_diagnose, "find what the robot-and-camera model gets wrong on "
+            "measured data, extend it and measure the gain")
+    data_args(p)
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--model", metavar="MODEL.onnx",
+                        help="detect the keypoints with this network (onnxruntime, no torch)")
+    source.add_argument("--use-labels", action="store_true",
+                        help="take 2D observations from the labels (projected_location)")
+    p.add_argument("--out", required=True, metavar="REPORT_DIR",
+                   help="folder for diagnosis.json, extended_model.yaml, report.md and plots")
+    p.add_argument("--effects", help="comma-separated effects to test (default: all of "
+                   "joint_offset, lens_distortion, intrinsics_error, time_offset, link_length, "
+                   "camera_moved, keypoint_bias)")
+    p.add_argument("--folds", type=int, default=5, help="cross-validation folds over frames")
+    p.add_argument("--threads", type=int, default=None, help=argparse.SUPPRESS)
+    p.add_argument("--batch", type=int, default=None, help=argparse.SUPPRESS)
+
     p = add("eval", cmd_eval, "score a RESULT.json against the data's ground truth")
     data_args(p)
     p.add_argument("--result", required=True, help="RESULT.json of dream calibrate")
@@ -342,9 +446,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--overwrite", action="store_true")
 
-    p = add("demo", cmd_demo, "calibrate the built-in synthetic sample and report the error")
+    p = add("demo", cmd_demo, "the main job on the embedded default scene: render a Panda "
+            "sequence, detect its keypoints with the bundled model, calibrate, compare with "
+            "the truth, draw overlays")
     p.add_argument("--out", help="working folder (default: a new temporary folder)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=None, help="scene seed (default: the fixed one)")
+    p.add_argument("--model", metavar="MODEL.onnx", help="another model than the bundled one")
+    p.add_argument("--keypoints-only", action="store_true",
+                   help="calibrate the keypoint-only sample from its labels instead (no "
+                        "rendering, no network)")
     _add_stage_commands(sub)
     return parser
 

@@ -219,3 +219,42 @@ def detect_keypoints(sequence: Sequence, robot: Robot, model: KeypointModel,
     log.info("detected %d of %d keypoints in %d frames", int(found.sum()), F * K, F)
     return Observations(P_base, uv, confidence, tuple(f.name for f in sequence.frames),
                         robot.keypoint_names)
+
+
+def predict_masks(sequence: Sequence, model: KeypointModel, indices: SequenceOf[int],
+                  batch_size: int = DEFAULT_BATCH_SIZE) -> np.ndarray:
+    """Robot masks of frames `indices` from the network's mask head, in image pixels.
+
+    The (N, 1, h, w) mask logits are sampled bilinearly at every image pixel's place in the
+    belief map (the inverse of the preprocessing, as for the keypoints); logit > 0 is robot.
+
+    Returns:
+        (n, H, W) bool.
+    Raises:
+        InputError: the model has no mask head.
+    """
+    import cv2
+
+    camera = sequence.camera
+    stride = int(model.stride)
+    u, v = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height,
+                                                                      dtype=float))
+    out = np.zeros((len(indices), camera.height, camera.width), bool)
+    for start in range(0, len(indices), batch_size):
+        chunk = list(indices[start:start + batch_size])
+        frames = [sequence.frames[i] for i in chunk]
+        batch, transforms = prepare_batch([load_image(f, camera) for f in frames],
+                                          model.preprocess)
+        outputs = model.run(batch)
+        if outputs.get(MASK_OUTPUT) is None:
+            raise InputError("the model has no robot-mask head", _model_path(model),
+                             "give data with masks, or a model trained with model.mask_head")
+        logits = np.asarray(outputs[MASK_OUTPUT], dtype=np.float32)
+        for n, transform in enumerate(transforms):
+            uv_input = transform.image_to_input(np.stack([u, v], -1))
+            map_uv = (uv_input + 0.5) / stride - 0.5
+            sampled = cv2.remap(logits[n, 0], map_uv[..., 0].astype(np.float32),
+                                map_uv[..., 1].astype(np.float32), cv2.INTER_LINEAR,
+                                borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
+            out[start + n] = sampled > 0
+    return out

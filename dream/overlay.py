@@ -72,6 +72,30 @@ def draw_observations(image: np.ndarray, uv_observed: np.ndarray, uv_projected: 
     return out
 
 
+CONFIDENCE_FONT_SCALE_PER_PX = 1 / 800   # text height follows the image size
+CONFIDENCE_OFFSET_PX = 4                 # text starts this far right of the detection
+
+
+def draw_confidences(image: np.ndarray, uv_observed: np.ndarray,
+                     confidence: np.ndarray) -> np.ndarray:
+    """Each observed keypoint's detection confidence written next to it (2 decimals)."""
+    out, uv_observed = _check(image, uv_observed)
+    confidence = np.asarray(confidence, dtype=float)
+    if confidence.shape != uv_observed.shape[:1]:
+        raise InputError(f"confidence has shape {confidence.shape}, expected "
+                         f"({len(uv_observed)},)")
+    scale = max(0.3, min(out.shape[:2]) * CONFIDENCE_FONT_SCALE_PER_PX * 1.5)
+    for uv, c in zip(uv_observed, confidence, strict=True):
+        if not _ok(uv) or not np.isfinite(c):
+            continue
+        org = (int(round(uv[0])) + CONFIDENCE_OFFSET_PX, int(round(uv[1])) - CONFIDENCE_OFFSET_PX)
+        cv2.putText(out, f"{c:.2f}", org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 2,
+                    cv2.LINE_AA)
+        cv2.putText(out, f"{c:.2f}", org, cv2.FONT_HERSHEY_SIMPLEX, scale, OBSERVED_RGB, 1,
+                    cv2.LINE_AA)
+    return out
+
+
 def blank_image(width: int, height: int, gray: int = 40) -> np.ndarray:
     """A dark canvas for frames without an image (keypoint-only observations)."""
     return np.full((height, width, 3), gray, np.uint8)
@@ -127,8 +151,9 @@ def write_skeleton_overlays(sequence, robot, T_cam_base: np.ndarray, out_dir,
 
 
 def write_result_overlays(sequence, robot, obs, result, out_dir) -> None:
-    """Per frame: observations, the skeleton re-projected with the solution and the residual
-    vectors; plus `summary.png`, every residual of every frame on one canvas, magnified."""
+    """Per frame: observations with their detection confidence, the skeleton re-projected with
+    the solution and the residual vectors; plus `summary.png`, every residual of every frame
+    on one canvas, magnified."""
     from pathlib import Path
 
     from dream.camera import project
@@ -144,6 +169,7 @@ def write_result_overlays(sequence, robot, obs, result, out_dir) -> None:
             project(cam, transform_points(T, obs.P_base[i]))
         image = draw_skeleton(_frame_canvas(sequence, frame), uv_proj, robot.skeleton_edges)
         image = draw_observations(image, obs.uv[i], uv_proj, result.inlier[i])
+        image = draw_confidences(image, obs.uv[i], obs.confidence[i])
         _write_png(out_dir / f"{frame.name}.result.png", image)
         magnified = obs.uv[i] + RESIDUAL_MAGNIFICATION * (uv_proj - obs.uv[i])
         summary = draw_observations(summary, obs.uv[i], magnified, result.inlier[i])

@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from collections.abc import Sequence as SequenceOf
 from dataclasses import dataclass, field
 from typing import Any
@@ -512,8 +513,9 @@ def _decide(iou0: float, iou1: float, rmse0: float, rmse1: float, guarded: bool,
 
 # ----- glue for `dream calibrate --polish` ---------------------------------------------------
 
-def check_polish_input(sequence: Sequence, mode: str) -> None:
-    """Refuse a polish that cannot run: a moving camera (`--frames each`) or no masks.
+def check_polish_input(sequence: Sequence, mode: str, network_masks: bool = False) -> None:
+    """Refuse a polish that cannot run: a moving camera (`--frames each`), or no masks in the
+    data and no network mask head (`network_masks`).
 
     Raises:
         InputError: one line naming the data and the fix.
@@ -521,26 +523,37 @@ def check_polish_input(sequence: Sequence, mode: str) -> None:
     if mode != "all":
         raise InputError("--polish refines one extrinsic of a fixed camera", sequence.source,
                          "use --frames all, or drop --polish")
-    if not any(f.mask_path is not None for f in sequence.frames):
+    if not network_masks and not any(f.mask_path is not None for f in sequence.frames):
         raise InputError(f"--polish needs robot masks, and none of the {len(sequence)} frames "
                          "has one", sequence.source,
                          "add NNNNNN.seg.png masks (DREAM layout) or mask/ (franka_offline), "
-                         "or drop --polish")
+                         "use --model with a mask head, or drop --polish")
 
 
 def polish_calibration(sequence: Sequence, robot: Robot, result: CalibrationResult,
-                       obs: Observations, params: PolishParams | None = None) -> PolishResult:
+                       obs: Observations, params: PolishParams | None = None,
+                       predict_masks: Callable[[list[int]], np.ndarray] | None = None
+                       ) -> PolishResult:
     """Polish an "all"-mode calibration of `sequence` with its masks (at most
-    `max_eval_frames`, evenly spaced), guarded by the calibration's inlier keypoints."""
+    `max_eval_frames`, evenly spaced), guarded by the calibration's inlier keypoints.
+
+    Without masks in the data, `predict_masks(frame_indices) -> (n, H, W) bool` supplies them
+    (the keypoint network's mask head, `dream.detect.predict_masks`)."""
     from dream.io import load_mask
     from dream.pipeline import joints_in_robot_order
 
     params = params or PolishParams()
-    check_polish_input(sequence, result.mode)
-    with_mask = np.flatnonzero([f.mask_path is not None for f in sequence.frames])
-    chosen = _evenly_spaced(with_mask, params.max_eval_frames)
+    has_masks = any(f.mask_path is not None for f in sequence.frames)
+    check_polish_input(sequence, result.mode, network_masks=predict_masks is not None)
+    if has_masks:
+        with_mask = np.flatnonzero([f.mask_path is not None for f in sequence.frames])
+        chosen = _evenly_spaced(with_mask, params.max_eval_frames)
+        masks = np.stack([load_mask(f, sequence.camera) for f in
+                          (sequence.frames[i] for i in chosen)])
+    else:
+        chosen = _evenly_spaced(np.arange(len(sequence)), params.max_eval_frames)
+        masks = predict_masks([int(i) for i in chosen]).astype(np.uint8)
     frames = [sequence.frames[i] for i in chosen]
-    masks = np.stack([load_mask(f, sequence.camera) for f in frames])
     joints = joints_in_robot_order(sequence, robot)[chosen]
     inlier = result.inlier & obs.found
     keypoints = KeypointSet(obs.P_base[inlier], obs.uv[inlier]) if inlier.any() else None

@@ -11,9 +11,14 @@ def cmd_synth(args: argparse.Namespace) -> int:
     from synth.generate import SynthJob, generate
 
     keypoints = tuple(k for k in args.keypoints.split(",") if k) if args.keypoints else None
+    extension = None
+    if args.model_extension:
+        from dream.extension import read_extension
+
+        extension = read_extension(args.model_extension)
     job = SynthJob(robot=args.robot, out_dir=Path(args.out), num_frames=args.num,
                    config=load_config(args.config, args.set), seed=args.seed, keypoints=keypoints,
-                   workers=args.workers)
+                   workers=args.workers, extension=extension)
     stats = generate(job, overwrite=args.overwrite)
     print(f"{args.out}: {stats['rendered']} frames rendered, {stats['skipped']} already there, "
           f"{stats['frames_per_s']:.1f} frames/s")
@@ -32,6 +37,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="override a recipe key (repeatable), e.g. camera.radius_m=[1.0,1.5]")
     p.add_argument("--workers", type=int, default=1, help="parallel rendering processes")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--model-extension", metavar="FILE",
+                   help="render the world this model extension describes (YAML of dream "
+                        "diagnose: joint_offset, link_length, lens_distortion, "
+                        "intrinsics_error, keypoint_bias; time_offset and camera_moved in "
+                        "sequence modes) and write the nominal joints and camera")
     p.add_argument("--overwrite", action="store_true",
                    help="replace a folder made with other settings")
     p.set_defaults(func=cmd_synth)

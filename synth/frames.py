@@ -6,14 +6,17 @@ for every frame, so the order in which a process renders frames does not matter.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 import numpy as np
 
 from dream.camera import CameraIntrinsics
+from dream.extension import ModelExtension, extended_robot, joint_offset_vector
 from dream.robot import Robot
-from dream.transforms import invert_T, transform_points
+from dream.transforms import invert_T
 from synth.config import SynthConfig
+from synth.extension import normalised, true_camera, true_keypoints_cam, true_pose
 from synth.generate import RenderedFrame
 from synth.gl import mujoco
 from synth.labels import keypoint_labels
@@ -23,6 +26,7 @@ from synth.randomize import (
     load_joint_log,
     sample_frame,
     sample_intrinsics,
+    trajectory_joints_at,
 )
 from synth.render import BACKGROUND_GEOM, SceneRenderer
 from synth.scene import RobotScene, build_scene
@@ -66,16 +70,26 @@ def _primitive_size(kind: str, size: np.ndarray) -> tuple[np.ndarray, float, np.
 
 
 class FrameMaker:
-    """Renders and labels frames of one robot under one recipe and seed."""
+    """Renders and labels frames of one robot under one recipe and seed.
 
-    def __init__(self, robot: Robot, config: SynthConfig, seed: int) -> None:
+    With a model extension (`synth.extension`) the scene, the camera and the labels are those
+    of the true world it describes, and the written joints and camera the nominal ones.
+    """
+
+    def __init__(self, robot: Robot, config: SynthConfig, seed: int,
+                 extension: ModelExtension | None = None) -> None:
         self.robot, self.config, self.seed = robot, config, seed
+        self.extension = normalised(extension)
+        self.true_robot = robot if self.extension is None else \
+            extended_robot(robot, self.extension)
+        self.joint_offsets = np.zeros(robot.num_joints) if self.extension is None else \
+            joint_offset_vector(robot, self.extension.joint_offset_rad)
         options = SceneOptions(num_lights=min(MAX_LIGHTS, config.lights.count[1]),
                                num_distractors=config.distractors.count[1],
                                num_textures=NUM_TEXTURES,
                                texture_size=config.background.texture_size, floor=True,
                                floor_texture_size=FLOOR_TEXTURE_PX)
-        self.scene: RobotScene = build_scene(robot, options)
+        self.scene: RobotScene = build_scene(self.true_robot, options)
         self.nominal_camera = nominal_camera(config)
         self.renderer = SceneRenderer(self.scene, self.nominal_camera)
         self.joint_log = load_joint_log(config.joints.log, robot) if config.joints.log else None
@@ -187,17 +201,31 @@ class FrameMaker:
             distractor.append(hit and g in self.distractor_set)
         return links, np.array(distractor), np.array(distance)
 
+    def _true_state(self, p: FrameParams) -> tuple[FrameParams, np.ndarray, np.ndarray]:
+        """(the parameters with the true extrinsic, the true joints (J,), the written joint
+        readings (J,)) of a frame; without an extension the parameters as drawn."""
+        if self.extension is None:
+            return p, p.joints, p.joints
+        T_true = true_pose(p.scene.T_cam_base, p.index, self.extension)
+        readings = p.joints
+        if self.extension.time_offset_s:  # the readings lag the images (trajectory mode)
+            readings = trajectory_joints_at(self.seed, p.timestamp - self.extension.time_offset_s,
+                                            self.robot, self.config, self.joint_log)
+        p = dataclasses.replace(p, scene=dataclasses.replace(p.scene, T_cam_base=T_true))
+        return p, p.joints + self.joint_offsets, readings
+
     def make(self, index: int) -> RenderedFrame:
-        p = self.params(index)
+        p, q_true, readings = self._true_state(self.params(index))
         self._apply_lights(p)
         self._apply_robot(p)
         self._apply_textures(p)
         self._apply_distractors(p)
         self._apply_floor(p)
-        camera = p.scene.camera
-        self.renderer.set_camera(camera)
+        camera = p.scene.camera                       # the written (nominal) intrinsics
+        render_camera = true_camera(camera, self.extension)
+        self.renderer.set_camera(render_camera)
         extra = {name: self.config.joints.extra for name in self.scene.extra_joint_names}
-        self.renderer.set_state(p.joints, p.scene.T_cam_base, extra)
+        self.renderer.set_state(q_true, p.scene.T_cam_base, extra)
         out = self.renderer.render(rgb=True, segmentation=True, depth=self.config.output.depth)
         rgb = out.rgb.copy()
         background = out.geom_ids == BACKGROUND_GEOM
@@ -205,10 +233,10 @@ class FrameMaker:
             bg = random_texture(np.random.default_rng(p.scene.background_seed), camera.height,
                                 camera.width, self.config.background.kinds, self.photos)
             rgb[background] = bg[background]
-        P_cam = transform_points(p.scene.T_cam_base, self.robot.forward_kinematics(p.joints))
+        P_cam = true_keypoints_cam(self.true_robot, q_true, p.scene.T_cam_base, self.extension)
         hits = self._ray_hits(P_cam, p.scene.T_cam_base)
-        labels = keypoint_labels(self.robot, P_cam, camera, *hits)
+        labels = keypoint_labels(self.robot, P_cam, render_camera, *hits)
         return RenderedFrame(index=index, rgb=rgb, link_ids=out.link_ids, depth=out.depth,
-                             camera=camera, T_cam_base=p.scene.T_cam_base, joints=p.joints,
+                             camera=camera, T_cam_base=p.scene.T_cam_base, joints=readings,
                              P_cam=labels.P_cam, uv=labels.uv, in_frame=labels.in_frame,
                              occlusion=labels.occlusion, timestamp=p.timestamp)

@@ -4,8 +4,8 @@ A frame is complete when its `NNNNNN.json` exists: images are written first, the
 each atomically (temporary name + rename). A run that is killed leaves only complete frames
 (and stray temporaries, removed on resume); running the same command again renders the missing
 frames. Every frame depends only on (seed, frame index), so the result equals an uninterrupted
-run. `_synth.json` records what was asked (robot, keypoints, seed, recipe); resuming with other
-settings is refused.
+run. `_synth.json` records what was asked (robot, keypoints, seed, recipe, and the model
+extension when one is given); resuming with other settings is refused.
 """
 
 from __future__ import annotations
@@ -28,11 +28,13 @@ import numpy as np
 from dream import __version__
 from dream.camera import CameraIntrinsics
 from dream.errors import DreamError, InputError
+from dream.extension import ModelExtension
 from dream.io import is_temporary, write_bytes_atomic, write_json_atomic
 from dream.io.dream_layout import camera_settings_json, frame_json
 from dream.robot import load_robot
 from dream.sequence import Frame, Sequence
 from synth.config import SynthConfig, config_from_dict
+from synth.extension import check_extension, normalised
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +48,9 @@ PNG_COMPRESSION = 1           # zlib level: fast, files about 20 % larger than t
 
 @dataclass(frozen=True)
 class SynthJob:
-    """What to generate. `robot` is a built-in name or a URDF path (then `keypoints` needed)."""
+    """What to generate. `robot` is a built-in name or a URDF path (then `keypoints` needed).
+    `extension`: the model extension whose world is rendered (`synth.extension`); None or an
+    empty one renders the nominal world."""
 
     robot: str
     out_dir: Path
@@ -55,6 +59,7 @@ class SynthJob:
     seed: int = 0
     keypoints: tuple[str, ...] | None = None
     workers: int = 1
+    extension: ModelExtension | None = None
 
     def __post_init__(self) -> None:
         if self.num_frames < 1:
@@ -62,11 +67,15 @@ class SynthJob:
         if self.workers < 1:
             raise InputError(f"--workers must be >= 1, got {self.workers}")
         object.__setattr__(self, "out_dir", Path(self.out_dir))
+        object.__setattr__(self, "extension", normalised(self.extension))
 
     def info(self) -> dict[str, Any]:
         """The provenance written to `_synth.json` (compared on resume; num_frames may grow)."""
-        return {"robot": self.robot, "keypoints": list(self.keypoints or []), "seed": self.seed,
+        info = {"robot": self.robot, "keypoints": list(self.keypoints or []), "seed": self.seed,
                 "config": self.config.to_dict(), "generator_version": __version__}
+        if self.extension is not None:
+            info["model_extension"] = self.extension.to_dict()
+        return info
 
 
 @dataclass(frozen=True)
@@ -177,7 +186,7 @@ def prepare_output(job: SynthJob, overwrite: bool) -> set[int]:
         if previous != json.loads(json.dumps(job.info())):
             if not overwrite:
                 raise InputError("the output folder holds a run with other settings (robot, "
-                                 "keypoints, seed or recipe)", out,
+                                 "keypoints, seed, recipe or model extension)", out,
                                  "use the same settings to resume, or --overwrite")
             for p in out.iterdir():
                 if p.is_file():
@@ -201,7 +210,7 @@ def _worker_init(job: SynthJob) -> None:
 
     robot = load_robot(job.robot, list(job.keypoints) if job.keypoints else None)
     _STATE["job"] = job
-    _STATE["maker"] = FrameMaker(robot, job.config, job.seed)
+    _STATE["maker"] = FrameMaker(robot, job.config, job.seed, job.extension)
     _STATE["robot"] = robot
 
 
@@ -264,6 +273,8 @@ def generate(job: SynthJob, overwrite: bool = False,
     """Render the missing frames of `job`; returns counts and the rate."""
     robot = load_robot(job.robot, list(job.keypoints) if job.keypoints else None)
     check_inputs(job.config, robot)
+    if job.extension is not None:
+        check_extension(job.extension, robot, job.config, job.num_frames)
     done = prepare_output(job, overwrite)
     todo = [i for i in range(job.num_frames) if i not in done]
     from synth.frames import nominal_camera

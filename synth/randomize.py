@@ -207,7 +207,14 @@ def trajectory_joints(seed: int, index: int, robot: Robot, config: SynthConfig,
                       joint_log: np.ndarray | None) -> np.ndarray:
     """Joints at frame `index` of a smooth trajectory through random waypoints (cosine blend,
     zero velocity at each waypoint, so the path stays inside the joint limits)."""
-    t = index / config.sequence.fps
+    return trajectory_joints_at(seed, index / config.sequence.fps, robot, config, joint_log)
+
+
+def trajectory_joints_at(seed: int, t: float, robot: Robot, config: SynthConfig,
+                         joint_log: np.ndarray | None) -> np.ndarray:
+    """Joints of the trajectory at time `t`, s (frame i is at i / fps). Before t = 0 the arm
+    rests at the first waypoint (the blend starts there with zero velocity)."""
+    t = max(float(t), 0.0)
     k = int(t // config.sequence.waypoint_period_s)
     s = (t - k * config.sequence.waypoint_period_s) / config.sequence.waypoint_period_s
     a = sample_joints(np.random.default_rng([seed, SEQUENCE_STREAM, k]), robot, config, joint_log)

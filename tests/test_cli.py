@@ -151,7 +151,7 @@ def test_console_script_runs_as_a_process(sample_dir, tmp_path):
 
 
 def test_demo(tmp_path, capsys):
-    code, out, err = run(["demo", "--out", tmp_path], capsys)
+    code, out, err = run(["demo", "--keypoints-only", "--seed", "0", "--out", tmp_path], capsys)
     assert code == 0, err
     assert "error vs ground truth" in out and "1-sigma" in out
 

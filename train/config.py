@@ -271,6 +271,9 @@ class TrainerConfig:
         gradient_clip_val: clip gradient norms to this (null: no clipping).
         checkpoint_every_n_steps: also refresh last.ckpt every N optimiser steps (0: only at
             epoch ends), so a long epoch killed midway loses little.
+        init_from: a checkpoint whose network weights start this run (fine-tuning, or a
+            longer run with a fresh schedule); its model and input settings must equal this
+            config's. Unlike resuming, the epoch count, optimiser and schedule start afresh.
     """
 
     max_epochs: int = 10
@@ -289,6 +292,7 @@ class TrainerConfig:
     monitor_mode: str = "min"
     gradient_clip_val: float | None = 1.0
     checkpoint_every_n_steps: int = 0
+    init_from: str | None = None
 
     def __post_init__(self) -> None:
         _require(self.max_epochs >= 1, "trainer.max_epochs", "must be >= 1")

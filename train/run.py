@@ -26,7 +26,7 @@ import torch
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint
 
 from dream.errors import InputError
-from train.checkpoint import checkpoint_config
+from train.checkpoint import checkpoint_config, read_checkpoint
 from train.config import TrainConfig, dump_config
 from train.data import make_datasets, make_loader, read_folders, resolve_from_data
 from train.module import BeliefModule
@@ -135,17 +135,26 @@ class LogLines(Callback):
         logger.info("epoch %d done (%.1f images/s): %s", trainer.current_epoch, rate, text)
 
 
-def _check_resumable(config: TrainConfig, checkpoint: Path) -> None:
+def _check_resumable(config: TrainConfig, checkpoint: Path, action: str = "resume") -> None:
     """The checkpoint's network must be the one this config builds."""
     saved = checkpoint_config(checkpoint)
     for section in ("model", "input"):
         if getattr(saved, section) != getattr(config, section):
-            raise InputError(f"cannot resume: the checkpoint's {section} settings differ from "
+            raise InputError(f"cannot {action}: the checkpoint's {section} settings differ from "
                              f"the config's", checkpoint, "use the same recipe, or a new --out "
                              "folder for a new run")
     if saved.data.keypoints != config.data.keypoints:
-        raise InputError("cannot resume: the checkpoint was trained on other keypoints",
+        raise InputError(f"cannot {action}: the checkpoint was trained on other keypoints",
                          checkpoint, "use a new --out folder for a new run")
+
+
+def _init_weights(module: BeliefModule, config: TrainConfig) -> None:
+    """Start `module` from the network weights of `config.trainer.init_from`."""
+    source = Path(config.trainer.init_from)
+    _check_resumable(config, source, action="start from")
+    state = read_checkpoint(source)["state_dict"]
+    module.load_state_dict(state)
+    logger.info("network weights from %s (fresh optimiser and schedule)", source)
 
 
 def _trainer(config: TrainConfig, run_dir: Path, has_val: bool,
@@ -205,6 +214,8 @@ def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | 
     train_loader = make_loader(train_set, config, shuffle=True)
     val_loader = make_loader(val_set, config, shuffle=False) if len(val_set) else None
     module = BeliefModule(config)
+    if config.trainer.init_from is not None and ckpt_path is None:
+        _init_weights(module, config)
     trainer, best = _trainer(config, run_dir, val_loader is not None, callbacks)
     if config.trainer.max_steps is not None:
         per_device = math.ceil(len(train_set) / trainer.world_size)

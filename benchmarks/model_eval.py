@@ -1,0 +1,186 @@
+"""Figures of a keypoint model end to end: synthetic held-out set, rendered fixed-camera scenes,
+and the two real Panda sets. Everything goes through `dream calibrate` / `dream eval` (the
+onnxruntime path a user runs); nothing here is tuned on the real images.
+
+    python benchmarks/model_eval.py --model dream/models/panda_cpu.onnx
+        [--heldout DATA/panda_heldout] [--scenes 5] [--realdata ../shared/realdata]
+        [--out WORK_DIR] [--skip-polish]
+
+Prints:
+1. synthetic held-out DR set (`--heldout`, random cameras): single-frame ADD AUC (0-0.1 m,
+   DREAM's definition), keypoint PCK AUC, median ADD;
+2. `--scenes` rendered fixed-camera scenes (`synth.demo` recipe, seeds 100..): all-frames
+   extrinsic error (camera position, rotation) per scene and their median;
+3. panda_teleop: single-frame ADD AUC against its reference extrinsic, and the all-frames
+   extrinsic error before and after `--polish` (no masks in the data: the network's mask head);
+4. franka_offline: silhouette IoU with the hand-made masks before and after `--polish`, and the
+   spread of the extrinsic over the 45 leave-two-frames-out subsets.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import itertools
+import json
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from dream.cli import main as dream
+from dream.io import read_sequence
+from dream.io.dream_layout import write_dream
+from dream.metrics import pose_errors
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def run(args: list[str]) -> str:
+    """`dream ARGS`; its stdout (raises on failure)."""
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        code = dream([str(a) for a in args])
+    if code != 0:
+        raise SystemExit(f"dream {' '.join(map(str, args))} failed ({code}):\n{buf.getvalue()}")
+    return buf.getvalue()
+
+
+def calibrate(data: Path, model: Path, out: Path, *extra: str) -> dict:
+    run(["calibrate", "--data", data, "--model", model, "--out", out, *extra])
+    return json.loads(out.read_text())
+
+
+def evaluate(data: Path, result: Path, out: Path) -> dict:
+    run(["eval", "--data", data, "--result", result, "--out", out])
+    return json.loads(out.read_text())
+
+
+def heldout(model: Path, data: Path, work: Path) -> None:
+    result = work / "heldout_each.json"
+    calibrate(data, model, result, "--frames", "each")
+    m = evaluate(data, result, work / "heldout_each.metrics.json")
+    print(f"1. synthetic held-out set {data} ({m['frames']} frames, random cameras), single "
+          f"frame: ADD AUC {100 * m['add_auc']:.1f} (target >= 92), median ADD "
+          f"{1000 * m['add_m']['median']:.1f} mm, PCK AUC {100 * m['pck_auc']:.1f}, keypoint "
+          f"L2 median {m['keypoint_l2_px']['median']:.2f} px, frames in the AUC "
+          f"{m['frames_in_add_auc']}", flush=True)
+
+
+def scenes(model: Path, count: int, work: Path) -> None:
+    from synth.demo import render_demo_scene
+
+    t_errs, r_errs = [], []
+    for k in range(count):
+        seed = 100 + k
+        data = render_demo_scene(work / f"scene_{seed}", seed=seed)
+        doc = calibrate(data, model, work / f"scene_{seed}.json")
+        seq = read_sequence(data)
+        t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), seq.frames[0].T_cam_base_true)
+        t_errs.append(float(t_err))
+        r_errs.append(float(r_err))
+        print(f"   scene seed {seed}: {doc['frames_used']} frames, {doc['keypoints_used']} "
+              f"keypoints, camera position error {1000 * t_err:.1f} mm, rotation "
+              f"{np.rad2deg(r_err):.2f} deg", flush=True)
+    print(f"2. {count} rendered fixed-camera scenes (30 frames each), all frames: median camera "
+          f"position error {1000 * np.median(t_errs):.1f} mm, rotation "
+          f"{np.rad2deg(np.median(r_errs)):.2f} deg", flush=True)
+
+
+def panda_teleop(model: Path, data: Path, work: Path, polish: bool) -> None:
+    each = work / "teleop_each.json"
+    calibrate(data, model, each, "--frames", "each")
+    m_each = evaluate(data, each, work / "teleop_each.metrics.json")
+    allf = work / "teleop_all.json"
+    doc = calibrate(data, model, allf, "--overlays", work / "teleop_overlays")
+    m_all = evaluate(data, allf, work / "teleop_all.metrics.json")
+    polished = work / "teleop_all_polish.json"
+    if polish:
+        pdoc = calibrate(data, model, polished, "--polish")
+        m_pol = evaluate(data, polished, work / "teleop_all_polish.metrics.json")
+        p = pdoc.get("polish", {})
+        polish_line = (f"; with --polish (masks from the network's mask head): IoU "
+                       f"{p.get('iou_before', float('nan')):.3f} -> "
+                       f"{p.get('iou_after', float('nan')):.3f}, "
+                       f"{'kept' if p.get('kept') else 'not kept'} ({p.get('reason')}), camera "
+                       f"position error {1000 * m_pol['translation_error_m']['median']:.1f} mm, "
+                       f"rotation {np.rad2deg(m_pol['rotation_error_rad']['median']):.2f} deg")
+    else:
+        polish_line = ""
+    print(f"3. panda_teleop ({m_each['frames']} frames): single-frame ADD AUC "
+          f"{100 * m_each['add_auc']:.1f} (target >= 80), median ADD "
+          f"{1000 * m_each['add_m']['median']:.1f} mm, keypoint L2 median "
+          f"{m_each['keypoint_l2_px']['median']:.2f} px; all frames: camera position error "
+          f"{1000 * m_all['translation_error_m']['median']:.1f} mm, rotation "
+          f"{np.rad2deg(m_all['rotation_error_rad']['median']):.2f} deg (target <= 10 mm, "
+          f"0.5 deg), {doc['keypoints_used']} keypoints in {doc['frames_used']} frames, RMSE "
+          f"{doc['rmse_px']:.2f} px; overlays in {work / 'teleop_overlays'}{polish_line}",
+          flush=True)
+
+
+def franka_offline(model: Path, data: Path, work: Path, polish: bool) -> None:
+    full = work / "franka_all.json"
+    doc = calibrate(data, model, full, *(["--polish"] if polish else []),
+                    "--overlays", work / "franka_overlays")
+    if polish and "polish" in doc:
+        p = doc["polish"]
+        print(f"4. franka_offline: silhouette IoU {p['iou_before']:.3f} -> {p['iou_after']:.3f}"
+              f" ({'kept' if p['kept'] else 'not kept'}: {p['reason']}); keypoint fit "
+              f"{doc['keypoints_used']} keypoints, RMSE {doc['rmse_px']:.2f} px", flush=True)
+    seq = read_sequence(data)
+    T_ref = np.asarray(doc["T_cam_base"])
+    positions, angles, failures = [], [], 0
+    for drop in itertools.combinations(range(len(seq)), 2):
+        sub = seq.__class__(seq.robot, seq.camera, seq.joint_names, seq.keypoint_names,
+                            tuple(f for i, f in enumerate(seq.frames) if i not in drop),
+                            seq.T_cam_base_reference, seq.source, seq.camera_name)
+        folder = work / "l2o" / f"{drop[0]}_{drop[1]}"
+        write_dream(sub, folder, overwrite=True)
+        try:
+            d = calibrate(folder, model, folder / "r.json")
+        except SystemExit:
+            failures += 1
+            continue
+        t, r = pose_errors(np.asarray(d["T_cam_base"]), T_ref)
+        positions.append(float(t))
+        angles.append(float(r))
+        shutil.rmtree(folder)
+    positions, angles = np.array(positions), np.array(angles)
+    print(f"   leave-two-frames-out ({len(positions)} of 45 subsets solved): camera position "
+          f"differs from the all-frames solution by median {1000 * np.median(positions):.1f} mm"
+          f" (max {1000 * positions.max():.1f}), rotation median "
+          f"{np.rad2deg(np.median(angles)):.2f} deg (max {np.rad2deg(angles.max()):.2f})",
+          flush=True)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model", type=Path, default=REPO / "dream" / "models" / "panda_cpu.onnx")
+    parser.add_argument("--heldout", type=Path)
+    parser.add_argument("--scenes", type=int, default=5)
+    parser.add_argument("--realdata", type=Path, default=REPO.parent / "shared" / "realdata")
+    parser.add_argument("--out", type=Path)
+    parser.add_argument("--skip-polish", action="store_true")
+    parser.add_argument("--only", choices=("heldout", "scenes", "teleop", "franka"))
+    args = parser.parse_args()
+    work = args.out or Path(tempfile.mkdtemp(prefix="dream-model-eval-"))
+    work.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    if args.heldout and args.only in (None, "heldout"):
+        heldout(args.model, args.heldout, work)
+    if args.scenes and args.only in (None, "scenes"):
+        scenes(args.model, args.scenes, work)
+    if (args.realdata / "panda_teleop").exists() and args.only in (None, "teleop"):
+        panda_teleop(args.model, args.realdata / "panda_teleop", work, not args.skip_polish)
+    if (args.realdata / "franka_offline").exists() and args.only in (None, "franka"):
+        franka_offline(args.model, args.realdata / "franka_offline", work, not args.skip_polish)
+    print(f"({time.perf_counter() - started:.0f} s; outputs in {work})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
