@@ -309,18 +309,24 @@ def fit_pose(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T_ini
 def solve_pnp(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, *,
               confidence: np.ndarray | None = None,
               settings: SolverSettings | None = None) -> PoseFit | NoSolution:
-    """Pose of one frame: SQPnP on all usable keypoints and on leave-one-out subsets (to survive
-    a wrong detection), the hypothesis with the lowest truncated cost refined robustly."""
+    """Pose of one frame: SQPnP on all usable keypoints; when that leaves a keypoint outside the
+    MSAC threshold, also on leave-one-out subsets (to survive a wrong detection); the hypothesis
+    with the lowest truncated cost refined robustly."""
     settings = settings or SolverSettings()
     P_base, uv, confidence, usable = check_correspondences(P_base, uv, confidence)
     reason = degeneracy(P_base[usable], settings)
     if reason is not None:
         return NoSolution(reason)
     idx = np.flatnonzero(usable)
-    subsets = [idx]
+    first = initial_pose(P_base[idx], uv[idx], camera)
+    if not isinstance(first, NoSolution):
+        _, inlier = msac_score(P_base[idx], uv[idx], camera, first, settings.ransac_threshold_px)
+        if inlier.all():  # every keypoint agrees: no subset can do better
+            return refine_best(P_base, uv, camera, [first], confidence, usable, settings)
+    subsets = []
     if len(idx) > settings.min_keypoints:
         subsets += [np.delete(idx, i) for i in range(len(idx))]
-    hypotheses = []
+    hypotheses = [] if isinstance(first, NoSolution) else [first]
     for subset in subsets:
         if degeneracy(P_base[subset], settings) is None:
             T = initial_pose(P_base[subset], uv[subset], camera)

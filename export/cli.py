@@ -20,7 +20,24 @@ def cmd_export(args: argparse.Namespace) -> int:
         raise InputError(f"dream export needs torch and onnx ({exc})",
                          fix="install the training extras: pip install -e '.[train]'") from None
 
-    report = export_model(args.checkpoint, args.out, opset=args.opset)
+    peak_params = None
+    if args.peaks:
+        import dataclasses
+
+        from dream.peaks import PeakParams
+
+        values = {}
+        for item in args.peaks:
+            key, sep, value = item.partition("=")
+            if not sep or key not in {f.name for f in dataclasses.fields(PeakParams)}:
+                raise InputError(f"--peaks {item}: expected NAME=VALUE with NAME one of "
+                                 f"{', '.join(f.name for f in dataclasses.fields(PeakParams))}")
+            try:
+                values[key] = type(getattr(PeakParams(), key))(value)
+            except ValueError:
+                raise InputError(f"--peaks {item}: {value!r} is not a number") from None
+        peak_params = PeakParams(**values)
+    report = export_model(args.checkpoint, args.out, opset=args.opset, peak_params=peak_params)
     meta = report.metadata
     pre = meta.preprocess
     diffs = ", ".join(f"{name} {diff:.2g}" for name, diff in report.max_abs_diff.items())
@@ -41,4 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="the .onnx file to write")
     p.add_argument("--opset", type=int, default=None,
                    help="ONNX opset (default: the exporter's)")
+    p.add_argument("--peaks", action="append", metavar="NAME=VALUE",
+                   help="peak-finder constant written into the model (repeatable), e.g. "
+                        "ambiguity_ratio=0.8 (default: the training config's eval.peaks)")
     p.set_defaults(func=cmd_export)

@@ -15,6 +15,7 @@ a random batch of another size than the traced one and every output must match t
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -35,6 +36,7 @@ from dream import __version__
 from dream.detect import BELIEF_OUTPUT, MASK_OUTPUT
 from dream.errors import InputError
 from dream.io.fields import one_line, os_reason
+from dream.peaks import PeakParams
 from export.runner import INPUT_NAME, ModelMetadata, OnnxKeypointModel
 from train.checkpoint import load_checkpoint
 from train.config import TrainConfig
@@ -155,7 +157,8 @@ def _temporary_sibling(path: Path) -> Path:
 
 
 def export_model(checkpoint: str | Path, out: str | Path, opset: int | None = None,
-                 atol: float = PARITY_ATOL) -> ExportReport:
+                 atol: float = PARITY_ATOL, peak_params: PeakParams | None = None
+                 ) -> ExportReport:
     """Export a `dream train` checkpoint to `out` (.onnx), checked against torch.
 
     Args:
@@ -163,6 +166,8 @@ def export_model(checkpoint: str | Path, out: str | Path, opset: int | None = No
         out: the .onnx file to write (atomically: complete or absent).
         opset: ONNX opset (None: the exporter's default).
         atol: largest absolute difference onnxruntime vs torch accepted, per output.
+        peak_params: the peak finder's constants written into the model (None: those of the
+            checkpoint's config, `eval.peaks`).
 
     Raises:
         InputError: unreadable checkpoint, bad output path, or onnxruntime disagreeing with
@@ -173,6 +178,8 @@ def export_model(checkpoint: str | Path, out: str | Path, opset: int | None = No
         raise InputError("the output must be a .onnx file", out, "name it e.g. model.onnx")
     net, config = load_checkpoint(checkpoint)
     metadata = metadata_for(config, checkpoint)
+    if peak_params is not None:
+        metadata = dataclasses.replace(metadata, peak_params=peak_params)
     wrapper = KeypointExportWrapper(net).eval()
     pre = config.input
     proto = to_onnx_proto(wrapper, pre.input_width, pre.input_height, opset)
