@@ -172,12 +172,22 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
         from dream.diagnose.run import apply_extension_to_observations
         from dream.extension import read_extension
 
+        if polish:
+            raise InputError("--polish renders the nominal robot and cannot use a model "
+                             "extension", args.model_extension,
+                             "drop --polish or --model-extension")
         extension = read_extension(args.model_extension)
         seq, obs = apply_extension_to_observations(seq, robot, obs, extension)
         print(f"model extension {args.model_extension}: "
               f"{', '.join(extension.effects) or 'no effect'}", file=out)
     result = calibrate(seq, obs, args.frames, _settings(args))
     doc = result_to_dict(result, obs, robot=args.robot or seq.robot)
+    if getattr(args, "model_extension", None):
+        doc["model_extension"] = {"file": str(args.model_extension),
+                                  "effects": extension.to_dict()["effects"],
+                                  "camera": {"fx": seq.camera.fx, "fy": seq.camera.fy,
+                                             "cx": seq.camera.cx, "cy": seq.camera.cy,
+                                             "distortion": seq.camera.distortion}}
     if polish:
         from dream.polish import polish_calibration, result_doc_with_polish
 

@@ -352,8 +352,8 @@ def effective_joints(joints: np.ndarray, times_s: np.ndarray | None,
                      time_offset_s: float | None) -> np.ndarray:
     """(F, J) joint values at the image times: the readings shifted by the time offset."""
     joints = np.asarray(joints, dtype=float)
-    if time_offset_s is None or time_offset_s == 0.0:
-        return joints
+    if time_offset_s is None:  # not modelled: the readings as logged
+        return joints  # (a modelled offset of 0 still interpolates: one model for every value)
     if times_s is None:
         raise InputError("a time offset needs frame timestamps",
                          fix="give data with timestamps or drop the time_offset effect")

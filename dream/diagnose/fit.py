@@ -163,6 +163,10 @@ def build_extension(params: tuple[Param, ...], values: np.ndarray, problem: Prob
         elif p.effect == "camera_moved":
             move["rx ry rz tx ty tz".split().index(p.name.split(".")[1])] = float(v)
     cam = problem.camera
+    if "lens_distortion" in has:  # the parameters are changes of the data's own coefficients
+        nominal = cam.distortion or (0.0,) * 5
+        for i, k in enumerate(("k1", "k2", "p1", "p2")):
+            distortion[k] += nominal[i]
     corrected = None
     if "intrinsics_error" in has:
         corrected = (cam.fx * (1 + intrinsics["fx"]), cam.fy * (1 + intrinsics["fy"]),
@@ -277,7 +281,9 @@ class FitResult:
 
     @property
     def sigma(self) -> np.ndarray:
-        return np.sqrt(np.clip(np.diag(self.covariance), 0, None))
+        """1-sigma of x; NaN where the covariance is singular or not positive."""
+        d = np.diag(self.covariance)
+        return np.where(np.isfinite(d) & (d > 0), np.sqrt(np.abs(d)), np.nan)
 
     @property
     def T_cam_base(self) -> np.ndarray:

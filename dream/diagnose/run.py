@@ -10,6 +10,7 @@ and its plots. Nothing is written when the diagnosis fails.
 
 from __future__ import annotations
 
+import json
 import logging
 from pathlib import Path
 from typing import Any
@@ -27,7 +28,7 @@ from dream.extension import (
     extension_yaml,
     joint_offset_vector,
 )
-from dream.io.atomic import write_bytes_atomic, write_json_atomic
+from dream.io.atomic import write_bytes_atomic
 from dream.metrics import add_per_frame, pose_errors
 from dream.pipeline import joints_in_robot_order, truth_poses
 from dream.robot import Robot
@@ -86,7 +87,7 @@ def _effect_entry(verdict: Verdict, final: FitResult, accepted: list[str]) -> di
     entry: dict[str, Any] = {"name": verdict.name, "significant": verdict.significant,
                              "evidence": verdict.evidence, "round": verdict.round}
     ev = verdict.evaluation
-    if ev is None:
+    if ev is None:  # not testable, or nothing identifiable / significant to fit
         entry.update(params={}, heldout_rmse_px=None)
         return entry
     fit = final if verdict.name in accepted else ev.fit
@@ -102,16 +103,27 @@ def _effect_entry(verdict: Verdict, final: FitResult, accepted: list[str]) -> di
 
 
 def _last_verdicts(tested: list[Verdict], accepted: list[str]) -> list[Verdict]:
-    """One verdict per effect: the accepting one, else the last round's."""
+    """One verdict per effect: for an accepted effect the accepting one, for the others the
+    latest (tested against the final model)."""
     out: dict[str, Verdict] = {}
     for v in tested:
-        if v.name in accepted and v.significant:
-            if v.name not in out or not out[v.name].significant or \
-                    accepted.index(v.name) + 1 == v.round:
+        if v.name in accepted:
+            if v.significant and accepted.index(v.name) + 1 == v.round:
                 out[v.name] = v
-        elif v.name not in out or not out[v.name].significant:
+        else:
             out[v.name] = v
     return list(out.values())
+
+
+def _alternative_fits(tested: list[Verdict], alternatives: dict[str, list[str]]
+                      ) -> dict[str, Verdict]:
+    """The significant verdicts of the effects reported as equivalent alternatives."""
+    names = {n for alts in alternatives.values() for n in alts}
+    out: dict[str, Verdict] = {}
+    for v in tested:
+        if v.name in names and v.significant and v.evaluation is not None:
+            out.setdefault(v.name, v)
+    return out
 
 
 def _truth(sequence: Sequence, diagnosis: Diagnosis) -> dict[str, Any] | None:
@@ -144,6 +156,14 @@ def diagnosis_document(sequence: Sequence, diagnosis: Diagnosis,
 
     verdicts = _last_verdicts(diagnosis.tested, diagnosis.accepted)
     effects = [_effect_entry(v, final.fit, diagnosis.accepted) for v in verdicts]
+    alternative = _alternative_fits(diagnosis.tested, diagnosis.alternatives)
+    for entry in effects:
+        v = alternative.get(entry["name"])
+        if v is not None:  # equally good as an accepted effect: its own fit, for the record
+            params, sigma = _params_with_sigma(v.evaluation.fit, v.name)
+            entry["alternative"] = {"params": params, "sigma": sigma,
+                                    "heldout_rmse_px": v.evaluation.heldout_rmse_px,
+                                    "evidence": v.evidence, "round": v.round}
     order = {n: i for i, n in enumerate(diagnosis.accepted)}
     effects.sort(key=lambda e: (order.get(e["name"], len(order)), e["name"]))
     doc: dict[str, Any] = {
@@ -248,10 +268,27 @@ def run_diagnosis(sequence: Sequence, robot: Robot, obs: Observations, report_di
         doc["silhouette_iou"] = [{"frame": p.frame, "before": p.iou_before, "after": p.iou_after}
                                  for p in panels]
     doc["residual_analysis"] = analysis
+    doc = json_safe(doc)
+    text = json.dumps(doc, indent=2, allow_nan=False)  # fails here, before any file is written
     write_report(report_dir, doc, baseline_res, final_res, analysis, panels)
     write_bytes_atomic(extension_path, extension_yaml(diagnosis.extension).encode())
-    write_json_atomic(report_dir / "diagnosis.json", doc)
+    write_bytes_atomic(report_dir / DIAGNOSIS_FILE, (text + "\n").encode())
     return doc
+
+
+def json_safe(value: Any) -> Any:
+    """`value` with non-finite floats (unknown sigmas, undefined statistics) as None."""
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    return value
 
 
 def apply_extension_to_observations(sequence: Sequence, robot: Robot, obs: Observations,

@@ -52,7 +52,7 @@ def _compare_scalars(true: dict[str, float], est: dict[str, Any], sigma: dict[st
     ok, parts = True, []
     for key in sorted(set(true) | set(est)):
         t, e = float(true.get(key, 0.0)), float(est.get(key, 0.0))
-        s = float(sigma.get(key, 0.0) or 0.0)
+        s = float(sigma.get(key) or 0.0)
         good = _close(e, t, s, size if key in true else 0.0, relative_tol, sigmas)
         ok &= good
         parts.append(f"{key}: {e:.5g} vs {t:.5g} (sigma {s:.2g}){'' if good else ' MISS'}")
@@ -69,7 +69,8 @@ def score_effect(name: str, truth: ModelExtension, camera: CameraIntrinsics,
     entry = _effect_of(doc, name)
     if not (named or equivalent) or entry is None:
         return EffectScore(name, False, False, "not in the verdict")
-    est, sigma = entry.get("params", {}), entry.get("sigma", {})
+    source = entry.get("alternative", entry) if equivalent else entry
+    est, sigma = source.get("params", {}), source.get("sigma", {}) or {}
     true = truth.effect_params(name)
     if name in ("joint_offset", "link_length", "time_offset"):
         ok, detail = _compare_scalars(true, est, sigma, relative_tol, sigmas)

@@ -279,7 +279,8 @@ def _try_effect(effect: str, current: Evaluation, problem: Problem, mask: np.nda
                                   settings)
         if isinstance(outcome, str):
             return outcome
-        cost, sq, n = cross_validate(outcome, mask, scale_px, settings, rescan_change=False)
+        cost, sq, n = cross_validate(outcome, mask, scale_px, settings,
+                                     rescan_change=outcome.model.change_index is not None)
         return Evaluation(effect, outcome, cost, sq, n, ident, ())
     params = list(ident.kept)
     pruned: list[str] = []
