@@ -173,3 +173,18 @@ def test_problem_rejects_bad_shapes():
     with pytest.raises(InputError):
         Problem(robot, InjectionSpec().camera, np.zeros((3, 7)), np.array([0.0, 0.0, 1.0]),
                 np.zeros((3, 7, 2)), ("a", "b", "c"))
+
+
+def test_effect_beyond_plausible_magnitude_is_not_accepted():
+    """An effect is only accepted at a physically plausible size: with the joint-offset limit
+    set below the hidden offset, the same data gives no verdict and says why."""
+    from dream.diagnose.select import PLAUSIBLE
+
+    seq, robot, truth = _case("joint_offset", 7000)
+    offset = abs(next(iter(truth.joint_offset_rad.values())))
+    limits = {**PLAUSIBLE, "joint_offset": offset / 2}
+    doc, _, _ = diagnose_sequence(seq, robot, observations_from_labels(seq, robot),
+                                  DiagnoseSettings(effects=("joint_offset",), plausible=limits))
+    assert doc["verdict"] == []
+    (entry,) = doc["effects"]
+    assert "implausible magnitude" in entry["evidence"]

@@ -33,11 +33,49 @@ from dream.diagnose.fit import (
     identifiable_params,
 )
 from dream.errors import InputError
-from dream.extension import EFFECT_NAMES, ModelExtension
+from dream.extension import EFFECT_NAMES, ModelExtension, distinct_readings
 
 log = logging.getLogger(__name__)
 
-FORWARD_EFFECTS = ("link_length",)  # groups chosen by forward selection (see _forward_groups)
+# Effects whose parameter groups are chosen by forward selection (see _forward_groups): their
+# groups are strongly correlated (k1 / k2), nearly unidentifiable in
+# combination (link lengths), or numerous enough to mimic other effects (keypoint biases).
+FORWARD_EFFECTS = ("link_length", "lens_distortion", "keypoint_bias")
+PLAUSIBLE = {                      # largest plausible magnitude of each kind of parameter
+    "joint_offset": np.deg2rad(10.0),  # rad: encoder zero errors are a few degrees at most
+    "link_length": 0.05,               # m
+    "keypoint_bias": 0.05,             # m (norm of a keypoint's offset)
+    "lens_distortion.k": 0.5,          # k1, k2 (changes)
+    "lens_distortion.p": 0.05,         # p1, p2 (changes)
+    "intrinsics_error.f": 0.2,         # relative focal length change
+    "intrinsics_error.c": 0.1,         # principal point change / focal length
+    "time_offset": 0.5,                # s
+    "camera_moved.r": np.deg2rad(10.0),  # rad (rotation vector norm)
+    "camera_moved.t": 0.2,             # m (translation norm)
+}
+
+
+def implausible(fit: FitResult, effect: str, limits: dict) -> str | None:
+    """Why the fitted parameters of `effect` are beyond physical plausibility (None: fine)."""
+    params = [(p, fit.x[6 + i]) for i, p in enumerate(fit.model.params) if p.effect == effect]
+    groups: dict[str, list[float]] = {}
+    for p, v in params:
+        if effect == "lens_distortion":
+            kind = "lens_distortion.k" if p.name in ("k1", "k2") else "lens_distortion.p"
+        elif effect == "intrinsics_error":
+            kind = "intrinsics_error.f" if p.name in ("fx", "fy") else "intrinsics_error.c"
+        elif effect == "camera_moved":
+            kind = "camera_moved.r" if p.name[-2] == "r" else "camera_moved.t"
+        else:
+            kind = effect
+        key = (kind, p.group) if effect in ("keypoint_bias", "camera_moved") else (kind, p.name)
+        groups.setdefault(key, []).append(float(v))
+    for (kind, name), values in groups.items():
+        size = float(np.linalg.norm(values))
+        if kind in limits and size > limits[kind]:
+            return (f"implausible magnitude: {name} = {size:.3g} > {limits[kind]:.3g} "
+                    f"({kind}); the misfit looks like wrong detections, not a model effect")
+    return None
 
 
 @dataclass(frozen=True)
@@ -64,10 +102,13 @@ class DiagnoseSettings:
         clear_null_p: groups with a p-value above this are pruned together before the
             one-at-a-time backward elimination of the rest.
         min_motion_rad_s: time_offset is tested only when the joints move at least this fast
-            (median over frames of the fastest joint).
+            (median over the distinct joint readings of the fastest joint).
         max_rounds: at most this many effects are accepted.
         equivalence_tol: significant effects whose held-out RMSE is within this fraction of
             the accepted one's are reported as equivalent alternatives.
+        plausible: largest physically plausible magnitude per parameter kind (rad, m, s, or a
+            fraction): an effect fitted beyond it is not accepted (its "gain" is the fit
+            absorbing wrong detections, not a property of the robot or camera).
     """
 
     effects: tuple[str, ...] = EFFECT_NAMES
@@ -86,6 +127,7 @@ class DiagnoseSettings:
     min_motion_rad_s: float = 0.05
     max_rounds: int = 4
     equivalence_tol: float = 0.01
+    plausible: dict = field(default_factory=lambda: dict(PLAUSIBLE))
 
     def __post_init__(self) -> None:
         unknown = [e for e in self.effects if e not in EFFECT_NAMES]
@@ -243,9 +285,14 @@ def best_change(problem: Problem, fit: FitResult, mask: np.ndarray, scale_px: fl
 
 
 def _motion_rad_s(problem: Problem) -> float:
+    """Median over the joint readings (repeated stale readings dropped) of the fastest joint's
+    speed, rad/s."""
     if problem.times_s is None or problem.num_frames < 3:
         return 0.0
-    speed = np.abs(np.diff(problem.joints, axis=0)) / np.diff(problem.times_s)[:, None]
+    t, q = distinct_readings(problem.times_s, problem.joints)
+    if len(t) < 2:
+        return 0.0
+    speed = np.abs(np.diff(q, axis=0)) / np.diff(t)[:, None]
     return float(np.median(speed.max(axis=1)))
 
 
@@ -416,6 +463,9 @@ def diagnose(problem: Problem, T_cam_base_init: np.ndarray,
                 continue
             significant, evidence, p, bic_delta = _compare(current, outcome, mask, scale,
                                                            settings)
+            why_not = implausible(outcome.fit, effect, settings.plausible)
+            if why_not is not None:
+                significant, evidence = False, f"{why_not}; {evidence}"
             verdict = Verdict(effect, outcome, significant, evidence, p, bic_delta, round_)
             tested.append(verdict)
             say(f"round {round_}: {effect}: {'SIGNIFICANT ' if significant else ''}{evidence}")
