@@ -17,7 +17,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 from dream.errors import InputError
 from dream.preprocess import InputTransform
@@ -27,7 +26,7 @@ BELOW_THRESHOLD = "below_threshold"  # no local maximum reaches the threshold
 AMBIGUOUS = "ambiguous"              # a distant second peak is nearly as high as the best
 OUT_OF_FRAME = "out_of_frame"        # the refined centre lies outside the map
 REASONS = (FOUND, BELOW_THRESHOLD, AMBIGUOUS, OUT_OF_FRAME)
-_LOCAL_MAX_SIZE = 3         # a local maximum is the largest value of its 3x3 neighbourhood
+_GAUSS_TRUNCATE_SIGMAS = 4.0  # the smoothing kernel's half size, in sigmas
 _MIN_FIT_PIXELS = 6         # unknowns of the 2D quadratic fit
 _VALID_STRIDES = (1, 2, 4)
 
@@ -182,11 +181,8 @@ def _refine(belief: np.ndarray, u: int, v: int, params: PeakParams) -> np.ndarra
     return np.array([u, v], dtype=float) + offset
 
 
-def _find_one(belief: np.ndarray, smoothed: np.ndarray,
+def _find_one(belief: np.ndarray, smoothed: np.ndarray, is_max: np.ndarray,
               params: PeakParams) -> tuple[np.ndarray, float, str]:
-    is_max = (smoothed == ndimage.maximum_filter(smoothed, size=_LOCAL_MAX_SIZE,
-                                                  mode="constant", cval=-np.inf))
-    is_max &= smoothed >= params.threshold
     vs, us = np.nonzero(is_max)
     nan2 = np.full(2, np.nan)
     if len(vs) == 0:
@@ -202,6 +198,28 @@ def _find_one(belief: np.ndarray, smoothed: np.ndarray,
     if not (-0.5 <= uv[0] <= w - 0.5 and -0.5 <= uv[1] <= h - 0.5):
         return nan2, best_value, OUT_OF_FRAME
     return uv, best_value, FOUND
+
+
+def _smooth(maps: np.ndarray, sigma: float) -> np.ndarray:
+    """(K, h, w) maps each smoothed by a Gaussian of `sigma` px, zero outside the map (OpenCV:
+    several times faster than scipy.ndimage here; kernel truncated at 4 sigma, as scipy's)."""
+    import cv2
+
+    size = 2 * int(np.ceil(_GAUSS_TRUNCATE_SIGMAS * sigma)) + 1
+    return np.stack([cv2.GaussianBlur(m, (size, size), sigma, borderType=cv2.BORDER_CONSTANT)
+                     for m in maps])
+
+
+def _local_maxima(maps: np.ndarray) -> np.ndarray:
+    """(K, h, w) bool: pixels not lower than any of their 8 neighbours in their own map."""
+    padded = np.pad(maps, ((0, 0), (1, 1), (1, 1)), constant_values=-np.inf)
+    h, w = maps.shape[1:]
+    out = np.ones(maps.shape, bool)
+    for dv in (0, 1, 2):
+        for du in (0, 1, 2):
+            if dv != 1 or du != 1:
+                out &= maps >= padded[:, dv:dv + h, du:du + w]
+    return out
 
 
 def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInMap:
@@ -225,10 +243,10 @@ def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInM
     uv = np.full((K, 2), np.nan)
     confidence = np.zeros(K)
     reasons: list[str] = []
+    smoothed = belief if params.smoothing_sigma == 0 else _smooth(belief, params.smoothing_sigma)
+    is_max = _local_maxima(smoothed) & (smoothed >= params.threshold)
     for k in range(K):
-        smoothed = belief[k] if params.smoothing_sigma == 0 else ndimage.gaussian_filter(
-            belief[k], params.smoothing_sigma, mode="constant", cval=0.0)
-        uv[k], confidence[k], reason = _find_one(belief[k], smoothed, params)
+        uv[k], confidence[k], reason = _find_one(belief[k], smoothed[k], is_max[k], params)
         reasons.append(reason)
     found = np.array([r == FOUND for r in reasons], dtype=bool)
     for a in (uv, confidence, found):
