@@ -1,6 +1,6 @@
 """Belief maps -> 2D keypoints: smoothing, threshold, local maxima, ambiguity, sub-pixel peak.
 
-Shared by training (validation metrics) and inference; numpy and scipy only.
+Shared by training (validation metrics) and inference; numpy and OpenCV only.
 
 Coordinate spaces (pixels, u right, v down, the centre of the top-left pixel at (0, 0)):
 - map: a belief map of `h` x `w` pixels, one map pixel = `stride` input pixels;
