@@ -177,7 +177,12 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
                              "extension", args.model_extension,
                              "drop --polish or --model-extension")
         extension = read_extension(args.model_extension)
-        seq, obs = apply_extension_to_observations(seq, robot, obs, extension)
+        try:
+            seq, obs = apply_extension_to_observations(seq, robot, obs, extension)
+        except InputError as exc:
+            if exc.path is not None:
+                raise
+            raise InputError(exc.problem, args.model_extension, exc.fix) from None
         print(f"model extension {args.model_extension}: "
               f"{', '.join(extension.effects) or 'no effect'}", file=out)
     result = calibrate(seq, obs, args.frames, _settings(args))
