@@ -39,6 +39,19 @@ def _close(est: float, true: float, sigma: float, size: float, relative_tol: flo
     return abs(est - true) <= max(relative_tol * abs(size), sigmas * sigma)
 
 
+def _sigmas(values) -> np.ndarray:
+    """Stated sigmas as floats; unknown ones (None, NaN) count as 0 (no allowance)."""
+    s = np.array([np.nan if v is None else float(v) for v in values])
+    return np.where(np.isfinite(s), s, 0.0)
+
+
+def _vector_close(est: np.ndarray, true: np.ndarray, sigma: np.ndarray, relative_tol: float,
+                  sigmas: float) -> bool:
+    """Every component within `relative_tol` of the true vector's size or `sigmas` sigmas."""
+    return bool(np.all(np.abs(est - true) <= np.maximum(relative_tol * np.linalg.norm(true),
+                                                        sigmas * sigma)))
+
+
 def _effect_of(doc: dict[str, Any], name: str) -> dict[str, Any] | None:
     for e in doc.get("effects", []):
         if e["name"] == name:
@@ -89,9 +102,8 @@ def score_effect(name: str, truth: ModelExtension, camera: CameraIntrinsics,
         for k in sorted(set(true) | set(est)):
             t = np.asarray(true.get(k, (0.0, 0.0, 0.0)), float)
             e = np.asarray(est.get(k, (0.0, 0.0, 0.0)), float)
-            s = np.asarray(sigma.get(k, (0.0, 0.0, 0.0)), float)
-            good = bool(np.all(np.abs(e - t) <= np.maximum(relative_tol * np.linalg.norm(t),
-                                                           sigmas * s)))
+            s = _sigmas(sigma.get(k, (0.0, 0.0, 0.0)))
+            good = _vector_close(e, t, s, relative_tol, sigmas)
             ok &= good
             parts.append(f"{k}: {np.round(e, 4).tolist()} vs {np.round(t, 4).tolist()}"
                          f"{'' if good else ' MISS'}")
@@ -105,9 +117,8 @@ def score_effect(name: str, truth: ModelExtension, camera: CameraIntrinsics,
                            ("translation_m", ("tx", "ty", "tz"))):
             t = np.asarray(true[key], float)
             e = np.asarray(est.get(key, (0.0, 0.0, 0.0)), float)
-            s = np.array([float(sigma.get(c, 0.0) or 0.0) for c in comps])
-            good = bool(np.all(np.abs(e - t) <= np.maximum(relative_tol * np.linalg.norm(t),
-                                                           sigmas * s)))
+            s = _sigmas([sigma.get(c) for c in comps])
+            good = _vector_close(e, t, s, relative_tol, sigmas)
             ok &= good
             parts.append(f"{key}: {np.round(e, 5).tolist()} vs {np.round(t, 5).tolist()}"
                          f"{'' if good else ' MISS'}")
