@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import io
 import itertools
 import json
@@ -135,9 +136,8 @@ def franka_offline(model: Path, data: Path, work: Path, polish: bool) -> None:
     T_ref = np.asarray(doc["T_cam_base"])
     positions, angles, failures = [], [], 0
     for drop in itertools.combinations(range(len(seq)), 2):
-        sub = seq.__class__(seq.robot, seq.camera, seq.joint_names, seq.keypoint_names,
-                            tuple(f for i, f in enumerate(seq.frames) if i not in drop),
-                            seq.T_cam_base_reference, seq.source, seq.camera_name)
+        sub = dataclasses.replace(seq, frames=tuple(f for i, f in enumerate(seq.frames)
+                                                    if i not in drop))
         folder = work / "l2o" / f"{drop[0]}_{drop[1]}"
         write_dream(sub, folder, overwrite=True)
         try:

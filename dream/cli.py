@@ -111,7 +111,7 @@ def _settings(args: argparse.Namespace) -> SolverSettings:
 
 
 def _detect(args: argparse.Namespace, seq, out):
-    """Robot and observations from the keypoint network of `--model` (onnxruntime, no torch),
+    """Robot, observations and the loaded network of `--model` (onnxruntime, no torch),
     with a progress line on stderr every `PROGRESS_EVERY_FRAMES` frames."""
     from dream.detect import (
         DEFAULT_BATCH_SIZE,
@@ -141,7 +141,7 @@ def _detect(args: argparse.Namespace, seq, out):
                            progress=progress if len(seq) > every else None)
     print(f"{args.model}: found {int(obs.found.sum())} of {obs.found.size} keypoints in "
           f"{len(seq)} frames", file=out)
-    return robot, obs
+    return robot, obs, model
 
 
 def run_calibrate(args: argparse.Namespace, out=None) -> dict:
@@ -162,8 +162,9 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
 
         check_polish_input(seq, args.frames,
                            network_masks=getattr(args, "model", None) is not None)
+    model = None
     if getattr(args, "model", None) is not None:
-        robot, obs = _detect(args, seq, out)
+        robot, obs, model = _detect(args, seq, out)
     else:
         keypoints = seq.keypoint_names if args.use_labels else None
         robot = robot_for(seq, args.robot, keypoints)
@@ -198,9 +199,8 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
 
         predict = None
         if not any(f.mask_path is not None for f in seq.frames):
-            from dream.detect import load_keypoint_model, predict_masks
+            from dream.detect import predict_masks
 
-            model = load_keypoint_model(args.model, threads=getattr(args, "threads", None))
             predict = lambda idx: predict_masks(seq, model, idx)  # noqa: E731
             print("no masks in the data: the polish uses the network's mask head", file=out)
         report = polish_calibration(seq, robot, result, obs, predict_masks=predict)
@@ -235,7 +235,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     seq = _read(args)
     if args.model is not None:
-        robot, obs = _detect(args, seq, sys.stdout)
+        robot, obs, _ = _detect(args, seq, sys.stdout)
     else:
         robot = robot_for(seq, args.robot, seq.keypoint_names)
         obs = observations_from_labels(seq, robot)

@@ -129,10 +129,7 @@ def candidate_params(effect: str, problem: Problem) -> list[Param]:
 
 def stretchable_joints(robot: Robot) -> tuple[str, ...]:
     """Joints on the chains from the base to the keypoints whose origin has a length."""
-    start = len(robot.tree.path(robot.base_link))
-    indices = sorted({i for k in robot.keypoint_names for i in robot.tree.path(k)[start:]})
-    return tuple(robot.tree.joints[i].name for i in indices
-                 if np.linalg.norm(robot.tree.joints[i].origin[:3, 3]) > 1e-9)
+    return tuple(j.name for j in robot.chain_joints if np.linalg.norm(j.origin[:3, 3]) > 1e-9)
 
 
 def build_extension(params: tuple[Param, ...], values: np.ndarray, problem: Problem,

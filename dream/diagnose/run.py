@@ -10,7 +10,6 @@ and its plots. Nothing is written when the diagnosis fails.
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 from typing import Any
@@ -28,7 +27,7 @@ from dream.extension import (
     extension_yaml,
     joint_offset_vector,
 )
-from dream.io.atomic import write_bytes_atomic
+from dream.io.atomic import dumps, write_bytes_atomic
 from dream.metrics import add_per_frame, pose_errors
 from dream.pipeline import joints_in_robot_order, truth_poses
 from dream.robot import Robot
@@ -269,25 +268,22 @@ def run_diagnosis(sequence: Sequence, robot: Robot, obs: Observations, report_di
                                  for p in panels]
     doc["residual_analysis"] = analysis
     doc = json_safe(doc)
-    text = json.dumps(doc, indent=2, allow_nan=False)  # fails here, before any file is written
+    text = dumps(doc)  # fails here, before any file is written
     write_report(report_dir, doc, baseline_res, final_res, analysis, panels)
     write_bytes_atomic(extension_path, extension_yaml(diagnosis.extension).encode())
-    write_bytes_atomic(report_dir / DIAGNOSIS_FILE, (text + "\n").encode())
+    write_bytes_atomic(report_dir / DIAGNOSIS_FILE, text.encode())
     return doc
 
 
 def json_safe(value: Any) -> Any:
-    """`value` with non-finite floats (unknown sigmas, undefined statistics) as None."""
+    """`value` with non-finite floats (unknown sigmas, undefined statistics) as None (numpy
+    values are left to `dream.io.atomic.dumps`)."""
     if isinstance(value, dict):
         return {k: json_safe(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [json_safe(v) for v in value]
     if isinstance(value, (float, np.floating)):
         return float(value) if np.isfinite(value) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.bool_):
-        return bool(value)
     return value
 
 
