@@ -2,7 +2,10 @@
 PnP, measured in one run on the same images, batch 1, the same thread count.
 
     python benchmarks/inference.py --checkpoint RUN_DIR/best.ckpt --data DATA_DIR
-        [--frames 50] [--threads 2]
+        [--frames 50] [--threads 2] [--peaks NAME=VALUE ...]
+
+`--peaks` overrides the peak finder's constants as `dream export --peaks` does (the bundled model
+was exported with `ambiguity_ratio=1.0`, which passes every peak to the solver).
 
 Targets: onnxruntime / torch eager latency <= 0.75; (peak finding + single-frame PnP) / network
 time <= 10 %.
@@ -20,7 +23,7 @@ import torch
 
 from dream.detect import prepare_batch
 from dream.io import load_image, read_sequence
-from dream.peaks import find_peaks_in_image
+from dream.peaks import find_peaks_in_image, peak_params_from_overrides
 from dream.pipeline import joints_in_robot_order, robot_for
 from dream.pnp import solve_pnp
 from export.onnx_export import export_onnx
@@ -47,6 +50,8 @@ def main() -> None:
     parser.add_argument("--data", required=True, help="DREAM-layout folder with images")
     parser.add_argument("--frames", type=int, default=50)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--peaks", action="append", default=[], metavar="NAME=VALUE",
+                        help="peak-finder constant (repeatable), e.g. ambiguity_ratio=1.0")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     net, config = load_checkpoint(args.checkpoint)
@@ -69,6 +74,7 @@ def main() -> None:
 
         t_torch = median_ms(torch_eager, batches)
         t_onnx = median_ms(onnx, batches)
+        peak_params = peak_params_from_overrides(args.peaks, "--peaks", runner.peak_params)
         robot = robot_for(seq, None, runner.keypoint_names)
         P_base = robot.forward_kinematics(joints_in_robot_order(seq, robot))
         beliefs = [onnx(b)[0] for b in batches]
@@ -76,10 +82,12 @@ def main() -> None:
 
         def peaks_and_pnp(item):
             belief, transform, P = item
-            peaks = find_peaks_in_image(belief, runner.stride, transform, runner.peak_params)
+            peaks = find_peaks_in_image(belief, runner.stride, transform, peak_params)
             return solve_pnp(P, peaks.uv_image, seq.camera, confidence=peaks.confidence)
 
         t_post = median_ms(peaks_and_pnp, post)
+        found = np.mean([find_peaks_in_image(b, runner.stride, t, peak_params).found.mean()
+                         for b, t, _ in post])
     i = config.input
     print(f"{len(frames)} frames of {args.data}, input {i.input_width}x{i.input_height}, "
           f"batch 1, {args.threads} threads")
@@ -88,6 +96,7 @@ def main() -> None:
           f"(target <= 0.75)")
     print(f"peaks + PnP:          {t_post:7.2f} ms/frame   {100 * t_post / t_onnx:.1f} % of the "
           f"onnxruntime network time (target <= 10 %)")
+    print(f"peak finder: {peak_params}; {100 * found:.0f} % of keypoints found")
 
 
 if __name__ == "__main__":

@@ -150,15 +150,17 @@ def project_with_jacobian(camera: CameraIntrinsics,
     X, Y, Z = P_cam[:, 0], P_cam[:, 1], P_cam[:, 2]
     inv_z = 1.0 / Z
     x, y = X * inv_z, Y * inv_z
-    # d(x, y) / d(X, Y, Z)
-    J_xy_P = np.zeros((len(P_cam), 2, 3))
-    J_xy_P[:, 0, 0] = inv_z
-    J_xy_P[:, 0, 2] = -x * inv_z
-    J_xy_P[:, 1, 1] = inv_z
-    J_xy_P[:, 1, 2] = -y * inv_z
+    # J_uv_P = diag(fx, fy) @ J_d @ d(x, y)/d(X, Y, Z), d(x, y)/d(X, Y, Z) = [[1, 0, -x],
+    # [0, 1, -y]] / Z, with J_d = d(distorted) / d(x, y) (the identity without distortion)
+    J_uv_P = np.empty((len(P_cam), 2, 3))
     if camera.distortion is None:
         xd, yd = x, y
-        J_d = np.broadcast_to(np.eye(2), (len(P_cam), 2, 2))
+        J_uv_P[:, 0, 0] = camera.fx * inv_z
+        J_uv_P[:, 0, 1] = 0.0
+        J_uv_P[:, 0, 2] = -camera.fx * x * inv_z
+        J_uv_P[:, 1, 0] = 0.0
+        J_uv_P[:, 1, 1] = camera.fy * inv_z
+        J_uv_P[:, 1, 2] = -camera.fy * y * inv_z
     else:
         k1, k2, p1, p2, k3 = camera.distortion
         r2 = x * x + y * y
@@ -166,11 +168,14 @@ def project_with_jacobian(camera: CameraIntrinsics,
         d_radial = k1 + 2 * k2 * r2 + 3 * k3 * r2 ** 2  # d radial / d r2
         xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
         yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        J_d = np.empty((len(P_cam), 2, 2))
-        J_d[:, 0, 0] = radial + 2 * x * x * d_radial + 2 * p1 * y + 6 * p2 * x
-        J_d[:, 0, 1] = 2 * x * y * d_radial + 2 * p1 * x + 2 * p2 * y
-        J_d[:, 1, 0] = 2 * x * y * d_radial + 2 * p1 * x + 2 * p2 * y
-        J_d[:, 1, 1] = radial + 2 * y * y * d_radial + 6 * p1 * y + 2 * p2 * x
-    uv = np.stack([camera.fx * xd + camera.cx, camera.fy * yd + camera.cy], -1)
-    J_uv_P = np.array([camera.fx, camera.fy])[None, :, None] * (J_d @ J_xy_P)
+        d_xx = radial + 2 * x * x * d_radial + 2 * p1 * y + 6 * p2 * x
+        d_xy = 2 * x * y * d_radial + 2 * p1 * x + 2 * p2 * y   # = d_yx
+        d_yy = radial + 2 * y * y * d_radial + 6 * p1 * y + 2 * p2 * x
+        for row, f, (a, b) in ((0, camera.fx, (d_xx, d_xy)), (1, camera.fy, (d_xy, d_yy))):
+            J_uv_P[:, row, 0] = f * a * inv_z
+            J_uv_P[:, row, 1] = f * b * inv_z
+            J_uv_P[:, row, 2] = -f * (a * x + b * y) * inv_z
+    uv = np.empty((len(P_cam), 2))
+    uv[:, 0] = camera.fx * xd + camera.cx
+    uv[:, 1] = camera.fy * yd + camera.cy
     return uv, J_uv_P

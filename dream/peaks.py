@@ -14,7 +14,7 @@ The records are named after their space: `PeaksInMap` (`uv_map`), `PeaksInInput`
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -72,6 +72,25 @@ class PeakParams:
                 or self.refine_radius < 1:
             raise InputError(f"refine_radius must be an integer >= 1, got {self.refine_radius!r}")
         object.__setattr__(self, "refine_radius", int(self.refine_radius))
+
+
+def peak_params_from_overrides(items: list[str] | tuple[str, ...], option: str = "peaks",
+                               base: PeakParams | None = None) -> PeakParams:
+    """`base` (default `PeakParams()`) with `NAME=VALUE` items applied, e.g.
+    `["ambiguity_ratio=1.0"]`; errors name `option` (the command-line flag)."""
+    base = PeakParams() if base is None else base
+    names = [f.name for f in fields(PeakParams)]
+    values = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or key not in names:
+            raise InputError(f"{option} {item}: expected NAME=VALUE with NAME one of "
+                             f"{', '.join(names)}")
+        try:
+            values[key] = type(getattr(base, key))(value)
+        except ValueError:
+            raise InputError(f"{option} {item}: {value!r} is not a number") from None
+    return replace(base, **values)
 
 
 @dataclass(frozen=True)
@@ -156,13 +175,18 @@ def _fit_quadratic_log(window: np.ndarray, du: np.ndarray, dv: np.ndarray,
         return None
     y, x, z = dv[keep], du[keep], window[keep]
     A = np.stack([np.ones_like(x), x, y, x * x, y * y, x * y], axis=1)
-    w = z  # rows scaled by z -> least squares weighted by z^2
-    coef, *_ = np.linalg.lstsq(A * w[:, None], np.log(z) * w, rcond=None)
-    _, b, c, d, e, f = coef
-    H = np.array([[2 * d, f], [f, 2 * e]])
-    if not (H[0, 0] < 0 and np.linalg.det(H) > 0):
+    Aw = A * z[:, None]  # rows scaled by z -> least squares weighted by z^2
+    try:  # normal equations: 6 unknowns on <= (2 r + 1)^2 well-spread pixels
+        coef = np.linalg.solve(Aw.T @ Aw, Aw.T @ (np.log(z) * z))
+    except np.linalg.LinAlgError:
         return None
-    return np.linalg.solve(H, -np.array([b, c]))
+    _, b, c, d, e, f = coef
+    # maximum where the gradient (b + 2 d x + f y, c + f x + 2 e y) vanishes; the Hessian
+    # [[2d, f], [f, 2e]] must be negative definite
+    det = 4 * d * e - f * f
+    if not (d < 0 and det > 0):
+        return None
+    return np.array([(f * c - 2 * e * b) / det, (f * b - 2 * d * c) / det])
 
 
 def _refine(belief: np.ndarray, u: int, v: int, params: PeakParams) -> np.ndarray:
@@ -171,7 +195,8 @@ def _refine(belief: np.ndarray, u: int, v: int, params: PeakParams) -> np.ndarra
     r = params.refine_radius
     v0, v1, u0, u1 = max(v - r, 0), min(v + r + 1, h), max(u - r, 0), min(u + r + 1, w)
     window = belief[v0:v1, u0:u1].astype(float)
-    dv, du = np.mgrid[v0 - v:v1 - v, u0 - u:u1 - u].astype(float)
+    dv = np.arange(v0 - v, v1 - v, dtype=float)[:, None] + np.zeros(u1 - u0)
+    du = np.arange(u0 - u, u1 - u, dtype=float)[None, :] + np.zeros((v1 - v0, 1))
     offset = _fit_quadratic_log(window, du, dv, params.refine_floor)
     if offset is None or np.any(np.abs(offset) > r):
         weights = np.clip(window, 0.0, None)
@@ -181,13 +206,12 @@ def _refine(belief: np.ndarray, u: int, v: int, params: PeakParams) -> np.ndarra
     return np.array([u, v], dtype=float) + offset
 
 
-def _find_one(belief: np.ndarray, smoothed: np.ndarray, is_max: np.ndarray,
+def _find_one(belief: np.ndarray, vs: np.ndarray, us: np.ndarray, values: np.ndarray,
               params: PeakParams) -> tuple[np.ndarray, float, str]:
-    vs, us = np.nonzero(is_max)
+    """The peak of one (h, w) map from its local maxima at (vs, us) with smoothed `values`."""
     nan2 = np.full(2, np.nan)
     if len(vs) == 0:
         return nan2, 0.0, BELOW_THRESHOLD
-    values = smoothed[vs, us]
     best = int(np.argmax(values))
     far = np.hypot(us - us[best], vs - vs[best]) > params.ambiguity_min_distance
     best_value = float(belief[vs[best], us[best]])
@@ -200,26 +224,40 @@ def _find_one(belief: np.ndarray, smoothed: np.ndarray, is_max: np.ndarray,
     return uv, best_value, FOUND
 
 
-def _smooth(maps: np.ndarray, sigma: float) -> np.ndarray:
-    """(K, h, w) maps each smoothed by a Gaussian of `sigma` px, zero outside the map (OpenCV:
-    several times faster than scipy.ndimage here; kernel truncated at 4 sigma, as scipy's)."""
+def _smooth_stacked(maps: np.ndarray, sigma: float) -> np.ndarray:
+    """(K, h + g, w) float32: each of the (K, h, w) maps smoothed by a Gaussian of `sigma` px
+    (zero outside the map, kernel truncated at 4 sigma as scipy's; `sigma` 0: no smoothing),
+    followed by g >= 1 rows of -inf. The maps are filtered as one tall single-channel image
+    whose g gap rows (the kernel's half size, zero while filtering) keep them apart; the -inf
+    rows then keep them apart in the local-maximum search."""
     import cv2
 
-    size = 2 * int(np.ceil(_GAUSS_TRUNCATE_SIGMAS * sigma)) + 1
-    return np.stack([cv2.GaussianBlur(m, (size, size), sigma, borderType=cv2.BORDER_CONSTANT)
-                     for m in maps])
+    K, h, w = maps.shape
+    r = int(np.ceil(_GAUSS_TRUNCATE_SIGMAS * sigma)) if sigma > 0 else 0
+    gap = max(r, 1)
+    tall = np.zeros((K, h + gap, w), np.float32)
+    tall[:, :h] = maps
+    if r > 0:
+        flat = tall.reshape(K * (h + gap), w)
+        cv2.GaussianBlur(flat, (2 * r + 1, 2 * r + 1), sigma, dst=flat,
+                         borderType=cv2.BORDER_CONSTANT)
+    tall[:, h:] = -np.inf
+    return tall
 
 
-def _local_maxima(maps: np.ndarray) -> np.ndarray:
-    """(K, h, w) bool: pixels not lower than any of their 8 neighbours in their own map."""
-    padded = np.pad(maps, ((0, 0), (1, 1), (1, 1)), constant_values=-np.inf)
-    h, w = maps.shape[1:]
-    out = np.ones(maps.shape, bool)
-    for dv in (0, 1, 2):
-        for du in (0, 1, 2):
-            if dv != 1 or du != 1:
-                out &= maps >= padded[:, dv:dv + h, du:du + w]
-    return out
+def _local_maxima(stacked: np.ndarray, h: int, threshold: float) -> tuple[np.ndarray, ...]:
+    """(ks, vs, us) of the pixels of `_smooth_stacked` maps (map rows 0..h-1) that reach
+    `threshold` and are not lower than any of their 8 neighbours in their own map (the outside
+    does not count), sorted by map: a 3x3 grey dilation of the tall image."""
+    import cv2
+
+    K, rows, w = stacked.shape
+    flat = stacked.reshape(K * rows, w)
+    dilated = cv2.dilate(flat, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                         borderValue=-np.inf)
+    row, us = np.nonzero((flat >= dilated) & (flat >= threshold))
+    ks, vs = np.divmod(row, rows)
+    return ks, vs, us
 
 
 def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInMap:
@@ -238,20 +276,45 @@ def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInM
         raise InputError(f"belief maps have shape {belief.shape}, expected (K, h, w)")
     if not np.all(np.isfinite(belief)):
         raise InputError("belief maps contain NaN or infinity")
-    belief = belief.astype(np.float64)
     K, h, w = belief.shape
+    # smoothing and the maximum search in float32 (the network's precision; several times
+    # faster than float64), the sub-pixel fit in float64 (`_refine`)
+    belief32 = belief.astype(np.float32, copy=False)
     uv = np.full((K, 2), np.nan)
     confidence = np.zeros(K)
     reasons: list[str] = []
-    smoothed = belief if params.smoothing_sigma == 0 else _smooth(belief, params.smoothing_sigma)
-    is_max = _local_maxima(smoothed) & (smoothed >= params.threshold)
+    stacked = _smooth_stacked(belief32, params.smoothing_sigma)
+    ks, vs, us = _local_maxima(stacked, h, params.threshold)
+    values = stacked[ks, vs, us]
+    bounds = np.searchsorted(ks, np.arange(K + 1))  # maxima of map k: bounds[k]:bounds[k + 1]
     for k in range(K):
-        uv[k], confidence[k], reason = _find_one(belief[k], smoothed[k], is_max[k], params)
+        i = slice(bounds[k], bounds[k + 1])
+        uv[k], confidence[k], reason = _find_one(belief32[k], vs[i], us[i], values[i], params)
         reasons.append(reason)
     found = np.array([r == FOUND for r in reasons], dtype=bool)
     for a in (uv, confidence, found):
         a.setflags(write=False)
     return PeaksInMap(uv, confidence, found, tuple(reasons), w, h)
+
+
+def peak_candidates(belief: np.ndarray, params: PeakParams | None = None,
+                    max_per_map: int = 3) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The highest local maxima of each of K belief maps, best first (integer map pixels of the
+    smoothed maps, no sub-pixel fit): K pairs of (n, 2) `uv_map` and (n,) smoothed values,
+    n <= `max_per_map`. For diagnostics and for solvers that weigh alternative peaks."""
+    params = PeakParams() if params is None else params
+    maps = np.asarray(belief, dtype=np.float32)
+    if maps.ndim != 3:
+        raise InputError(f"belief maps have shape {maps.shape}, expected (K, h, w)")
+    stacked = _smooth_stacked(maps, params.smoothing_sigma)
+    ks, vs, us = _local_maxima(stacked, maps.shape[1], params.threshold)
+    values = stacked[ks, vs, us]
+    out = []
+    for k in range(len(maps)):
+        mine = np.flatnonzero(ks == k)
+        best = mine[np.argsort(-values[mine], kind="stable")[:max_per_map]]
+        out.append((np.stack([us[best], vs[best]], 1).astype(float), values[best].astype(float)))
+    return out
 
 
 def find_peaks_in_image(belief: np.ndarray, stride: int, transform: InputTransform,

@@ -16,7 +16,7 @@ import numpy as np
 
 from dream.camera import CameraIntrinsics, pixels_to_normalized, project_with_jacobian
 from dream.errors import InputError
-from dream.transforms import R_from_rotvec, T_from_rotvec_t, make_T, skew
+from dream.transforms import R_from_rotvec, T_from_rotvec_t, make_T
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +71,10 @@ class SolverSettings:
     loss: RobustLoss = field(default_factory=RobustLoss)
     min_keypoints: int = MIN_KEYPOINTS
     max_iterations: int = 100
-    step_tolerance: float = 1e-12       # stop when |xi| falls below (rad, m)
+    step_tolerance: float = 1e-10       # stop when |xi| falls below (rad, m)
+    convergence_sigma: float = 0.1      # stop when the pose is predicted to lie within this
+                                        # many of its standard deviations of the optimum (0.1
+                                        # adds at most 1 % to the error variance)
     initial_damping: float = 1e-3       # Levenberg-Marquardt lambda, relative to diag(H)
     collinear_ratio: float = 1e-3       # degenerate below: 2nd / 1st singular value of points
     max_condition: float = 1e12         # degenerate above: condition number of J^T W J
@@ -91,6 +94,8 @@ class SolverSettings:
         for name in ("ransac_threshold_px", "inlier_sigma_factor", "min_inlier_threshold_px"):
             if not getattr(self, name) > 0:
                 raise InputError(f"{name} must be positive")
+        if not self.convergence_sigma >= 0:
+            raise InputError(f"convergence_sigma must be >= 0, got {self.convergence_sigma}")
 
 
 @dataclass(frozen=True)
@@ -187,8 +192,14 @@ def linearise(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
     if np.any(P_cam[:, 2] <= 0):
         return None
     uv_hat, J_uv_P = project_with_jacobian(camera, P_cam)
-    J_P_xi = np.concatenate([-skew(RP), np.broadcast_to(np.eye(3), RP.shape + (3,))], axis=2)
-    return uv_hat - uv, J_uv_P @ J_P_xi
+    # d P_cam / d xi = [-skew(RP), I]; a row a of J_uv_P times -skew(p) is (p x a)
+    J = np.empty(J_uv_P.shape[:2] + (6,))
+    p = RP[:, None, :]
+    J[:, :, 0] = p[..., 1] * J_uv_P[..., 2] - p[..., 2] * J_uv_P[..., 1]
+    J[:, :, 1] = p[..., 2] * J_uv_P[..., 0] - p[..., 0] * J_uv_P[..., 2]
+    J[:, :, 2] = p[..., 0] * J_uv_P[..., 1] - p[..., 1] * J_uv_P[..., 0]
+    J[:, :, 3:] = J_uv_P
+    return uv_hat - uv, J
 
 
 def _cost(e: np.ndarray, confidence: np.ndarray, loss: RobustLoss) -> float:
@@ -219,15 +230,24 @@ def levenberg_marquardt(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrin
     e, J = lin
     cost = _cost(e, confidence, loss)
     lam = settings.initial_damping
+    dof = max(2 * int(np.count_nonzero(confidence)) - 6, 1)
     iterations = 0
     while iterations < settings.max_iterations:
         iterations += 1
         w = confidence * loss.weight(np.linalg.norm(e, axis=1))
-        H = np.einsum("n,nki,nkj->ij", w, J, J)
-        g = np.einsum("n,nki,nk->i", w, J, e)
+        J2 = J.reshape(-1, 6)
+        WJ = J2 * np.repeat(w, 2)[:, None]
+        H = WJ.T @ J2
+        g = WJ.T @ e.reshape(-1)
         improved = False
         while lam < _MAX_DAMPING:
             xi = np.linalg.solve(H + lam * np.diag(np.diag(H) + _TINY), -g)
+            # the decrease the reweighted quadratic model predicts is, in squared standard
+            # deviations of the pose (covariance s^2 H^-1, s^2 = 2 cost / dof), the remaining
+            # distance to the optimum: d^2 = 2 predicted / s^2 = predicted dof / cost
+            predicted = -(g @ xi) - 0.5 * (xi @ H @ xi)
+            if predicted * dof <= settings.convergence_sigma ** 2 * cost:
+                return T, iterations
             T_new = apply_increment(T, xi)
             lin_new = linearise(P_base, uv, camera, T_new)
             new_cost = np.inf if lin_new is None else _cost(lin_new[0], confidence, loss)
@@ -319,31 +339,46 @@ def solve_pnp(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, *,
         return NoSolution(reason)
     idx = np.flatnonzero(usable)
     first = initial_pose(P_base[idx], uv[idx], camera)
+    # leave-one-out order: the keypoint worst explained by the first pose is left out first
+    order = np.arange(len(idx))
     if not isinstance(first, NoSolution):
         _, inlier = msac_score(P_base[idx], uv[idx], camera, first, settings.ransac_threshold_px)
         if inlier.all():  # every keypoint agrees: no subset can do better
             return refine_best(P_base, uv, camera, [first], confidence, usable, settings)
-    subsets = []
-    if len(idx) > settings.min_keypoints:
-        subsets += [np.delete(idx, i) for i in range(len(idx))]
+        order = np.argsort(-_reprojection_distance(P_base[idx], uv[idx], camera, first))
     hypotheses = [] if isinstance(first, NoSolution) else [first]
-    for subset in subsets:
-        if degeneracy(P_base[subset], settings) is None:
+    if len(idx) > settings.min_keypoints:
+        for i in order:
+            subset = np.delete(idx, i)
+            if degeneracy(P_base[subset], settings) is not None:
+                continue
             T = initial_pose(P_base[subset], uv[subset], camera)
-            if not isinstance(T, NoSolution):
-                hypotheses.append(T)
+            if isinstance(T, NoSolution):
+                continue
+            hypotheses.append(T)
+            _, inlier = msac_score(P_base[subset], uv[subset], camera, T,
+                                   settings.ransac_threshold_px)
+            if inlier.all():  # all but the left-out keypoint agree: no other subset does better
+                break
     return refine_best(P_base, uv, camera, hypotheses, confidence, usable, settings)
+
+
+def _reprojection_distance(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
+                           T: np.ndarray) -> np.ndarray:
+    """(N,) pixel distance between projected and observed keypoints (inf behind the camera)."""
+    P_cam = P_base @ T[:3, :3].T + T[:3, 3]
+    front = P_cam[:, 2] > 0
+    distance = np.full(len(P_base), np.inf)
+    if np.any(front):
+        distance[front] = np.linalg.norm(project_with_jacobian(camera, P_cam[front])[0]
+                                         - uv[front], axis=1)
+    return distance
 
 
 def msac_score(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T: np.ndarray,
                threshold_px: float) -> tuple[float, np.ndarray]:
     """Truncated squared error (lower is better) and the inlier mask of a hypothesis."""
-    P_cam = P_base @ T[:3, :3].T + T[:3, 3]
-    front = P_cam[:, 2] > 0
-    d2 = np.full(len(P_base), np.inf)
-    if np.any(front):
-        uv_hat, _ = project_with_jacobian(camera, P_cam[front])
-        d2[front] = np.sum((uv_hat - uv[front]) ** 2, 1)
+    d2 = _reprojection_distance(P_base, uv, camera, T) ** 2
     inlier = d2 <= threshold_px ** 2
     return float(np.sum(np.minimum(d2, threshold_px ** 2))), inlier
 

@@ -7,12 +7,16 @@ quaternions are `[x, y, z, w]` (`quaternion_xyzw`).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from dream.errors import InputError
 
 WORLD_UP = np.array([0.0, 0.0, 1.0])  # robot base z axis points up
+_RODRIGUES_SERIES_BELOW = 1e-4  # rad: below this angle Rodrigues uses its Taylor series (error
+                                # ~theta^4 / 120 < 1e-18)
 
 
 def _check_shape(name: str, a: np.ndarray, shape_tail: tuple[int, ...]) -> np.ndarray:
@@ -25,16 +29,36 @@ def _check_shape(name: str, a: np.ndarray, shape_tail: tuple[int, ...]) -> np.nd
 def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrices of vectors, shape (..., 3) -> (..., 3, 3)."""
     v = _check_shape("v", v, (3,))
-    z = np.zeros(v.shape[:-1])
-    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
-                     np.stack([v[..., 2], z, -v[..., 0]], -1),
-                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+    K = np.zeros(v.shape + (3,))
+    K[..., 0, 1], K[..., 0, 2] = -v[..., 2], v[..., 1]
+    K[..., 1, 0], K[..., 1, 2] = v[..., 2], -v[..., 0]
+    K[..., 2, 0], K[..., 2, 1] = -v[..., 1], v[..., 0]
+    return K
 
 
 def R_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
     """Rodrigues vectors (..., 3) -> rotation matrices (..., 3, 3)."""
     rotvec = _check_shape("rotvec", rotvec, (3,))
-    return Rotation.from_rotvec(rotvec.reshape(-1, 3)).as_matrix().reshape(rotvec.shape + (3,))
+    K = skew(rotvec)
+    if rotvec.ndim == 1:  # one rotation (the solvers' updates): scalar maths, no masks
+        theta2 = float(rotvec @ rotvec)
+        a, b = _rodrigues_coefficients(theta2)
+        return np.eye(3) + a * K + b * (K @ K)
+    theta2 = np.sum(rotvec * rotvec, axis=-1)[..., None, None]
+    small = theta2 < _RODRIGUES_SERIES_BELOW ** 2
+    safe2 = np.where(small, 1.0, theta2)
+    theta = np.sqrt(safe2)
+    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(theta) / theta)
+    b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(theta)) / safe2)
+    return np.eye(3) + a * K + b * (K @ K)
+
+
+def _rodrigues_coefficients(theta2: float) -> tuple[float, float]:
+    """sin(t) / t and (1 - cos(t)) / t^2 for t^2 = theta2 (Taylor series near 0)."""
+    if theta2 < _RODRIGUES_SERIES_BELOW ** 2:
+        return 1.0 - theta2 / 6.0, 0.5 - theta2 / 24.0
+    theta = math.sqrt(theta2)
+    return math.sin(theta) / theta, (1.0 - math.cos(theta)) / theta2
 
 
 def rotvec_from_R(R: np.ndarray) -> np.ndarray:

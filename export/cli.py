@@ -13,6 +13,7 @@ import argparse
 
 def cmd_export(args: argparse.Namespace) -> int:
     from dream.errors import InputError
+    from dream.peaks import peak_params_from_overrides
 
     try:
         from export.onnx_export import PARITY_ATOL, export_model  # torch from here on
@@ -20,23 +21,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         raise InputError(f"dream export needs torch and onnx ({exc})",
                          fix="install the training extras: pip install -e '.[train]'") from None
 
-    peak_params = None
-    if args.peaks:
-        import dataclasses
-
-        from dream.peaks import PeakParams
-
-        values = {}
-        for item in args.peaks:
-            key, sep, value = item.partition("=")
-            if not sep or key not in {f.name for f in dataclasses.fields(PeakParams)}:
-                raise InputError(f"--peaks {item}: expected NAME=VALUE with NAME one of "
-                                 f"{', '.join(f.name for f in dataclasses.fields(PeakParams))}")
-            try:
-                values[key] = type(getattr(PeakParams(), key))(value)
-            except ValueError:
-                raise InputError(f"--peaks {item}: {value!r} is not a number") from None
-        peak_params = PeakParams(**values)
+    peak_params = None if not args.peaks else peak_params_from_overrides(args.peaks, "--peaks")
     report = export_model(args.checkpoint, args.out, opset=args.opset, peak_params=peak_params)
     meta = report.metadata
     pre = meta.preprocess

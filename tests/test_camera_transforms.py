@@ -94,3 +94,18 @@ def test_quaternion_convention_is_xyzw():
     # 90 deg about z: [0, 0, sin 45, cos 45]
     R = np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])
     assert np.allclose(quaternion_xyzw_from_R(R), [0, 0, np.sqrt(0.5), np.sqrt(0.5)])
+
+
+@pytest.mark.parametrize("scale", [0.0, 1e-9, 1e-5, 1e-4, 1e-3, 0.5, 3.0])
+def test_rodrigues_matches_scipy_for_one_and_many_vectors(scale, rng):
+    from scipy.spatial.transform import Rotation
+
+    from dream.transforms import R_from_rotvec
+
+    rotvec = scale * rng.normal(size=(20, 3))
+    expected = Rotation.from_rotvec(rotvec).as_matrix()
+    assert np.allclose(R_from_rotvec(rotvec), expected, atol=1e-15)
+    assert np.allclose(R_from_rotvec(rotvec.reshape(4, 5, 3)), expected.reshape(4, 5, 3, 3),
+                       atol=1e-15)
+    for v, R in zip(rotvec, expected, strict=True):
+        assert np.allclose(R_from_rotvec(v), R, atol=1e-15)

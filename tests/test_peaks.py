@@ -124,3 +124,63 @@ def test_bad_inputs_are_input_errors():
         PeakParams(ambiguity_ratio=1.5)
     with pytest.raises(InputError):
         map_to_input(np.zeros(2), 3)
+
+
+def test_peak_overrides_apply_on_a_base_and_name_the_option():
+    from dataclasses import replace
+
+    from dream.errors import InputError
+    from dream.peaks import PeakParams, peak_params_from_overrides
+
+    base = replace(PeakParams(), threshold=0.2)
+    params = peak_params_from_overrides(["ambiguity_ratio=1.0", "refine_radius=3"], "--peaks", base)
+    assert (params.ambiguity_ratio, params.refine_radius, params.threshold) == (1.0, 3, 0.2)
+    with pytest.raises(InputError, match="--peaks colour=1: expected NAME=VALUE"):
+        peak_params_from_overrides(["colour=1"], "--peaks")
+    with pytest.raises(InputError, match="'high' is not a number"):
+        peak_params_from_overrides(["threshold=high"], "--peaks")
+    with pytest.raises(InputError, match="ambiguity_ratio must be in"):
+        peak_params_from_overrides(["ambiguity_ratio=2"], "--peaks")
+
+
+def test_local_maxima_match_a_brute_force_search_borders_included(rng):
+    from dream.peaks import _local_maxima, _smooth_stacked
+
+    maps = rng.random((3, 9, 11)).astype(np.float32)
+    maps[1, 4:6, 4:6] = 2.0  # a plateau: every pixel of it counts
+    expected = set()
+    for k, v, u in zip(*np.nonzero(maps >= 0.5), strict=True):
+        window = maps[k, max(v - 1, 0):v + 2, max(u - 1, 0):u + 2]
+        if maps[k, v, u] >= window.max():
+            expected.add((int(k), int(v), int(u)))
+    ks, vs, us = _local_maxima(_smooth_stacked(maps, 0.0), 9, 0.5)
+    assert set(zip(ks.tolist(), vs.tolist(), us.tolist(), strict=True)) == expected
+    assert list(ks) == sorted(ks)
+    assert {(1, 4, 4), (1, 5, 5)} <= expected
+
+
+def test_smoothing_keeps_maps_apart_and_matches_scipy(rng):
+    from scipy.ndimage import gaussian_filter
+
+    from dream.peaks import _smooth_stacked
+
+    maps = rng.random((4, 12, 10)).astype(np.float32)
+    for sigma in (0.7, 1.0, 2.0):
+        expected = np.stack([gaussian_filter(m.astype(float), sigma, mode="constant", truncate=4.0)
+                             for m in maps])
+        stacked = _smooth_stacked(maps, sigma)
+        assert np.allclose(stacked[:, :12], expected, atol=1e-5)
+        assert np.all(stacked[:, 12:] == -np.inf)
+
+
+def test_peak_candidates_list_the_highest_maxima_best_first():
+    from dream.peaks import peak_candidates
+
+    maps = np.zeros((2, 30, 40), np.float32)
+    for (u, v), height in (((5, 6), 0.5), ((20, 15), 1.0), ((33, 25), 0.8)):
+        maps[0] += height * np.exp(-((np.arange(40) - u) ** 2)[None, :] / 4
+                                   - ((np.arange(30) - v) ** 2)[:, None] / 4)
+    (uv0, value0), (uv1, value1) = peak_candidates(maps, max_per_map=2)
+    assert np.array_equal(uv0, [[20, 15], [33, 25]])
+    assert value0[0] > value0[1] > 0.5
+    assert uv1.shape == (0, 2) and value1.shape == (0,)

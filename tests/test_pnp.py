@@ -130,3 +130,22 @@ def test_confidence_weights_downweight_bad_keypoints(rng):
     e_biased = np.linalg.norm(xi_error(fit_biased.T_cam_base, T))
     e_weighted = np.linalg.norm(xi_error(fit_weighted.T_cam_base, T))
     assert e_weighted < 0.5 * e_biased
+
+
+@pytest.mark.parametrize("camera", [CAMERA, DISTORTED])
+def test_pose_jacobian_matches_finite_differences(camera, rng):
+    from scenes import random_extrinsic
+
+    from dream.pnp import apply_increment, linearise
+
+    T = random_extrinsic(rng)
+    P_base = rng.uniform([-0.4, -0.4, 0.0], [0.4, 0.4, 0.9], (9, 3))
+    uv = rng.uniform([0, 0], [camera.width, camera.height], (9, 2))
+    e, J = linearise(P_base, uv, camera, T)
+    eps = 1e-7
+    for k in range(6):
+        d = np.zeros(6)
+        d[k] = eps
+        e_plus, _ = linearise(P_base, uv, camera, apply_increment(T, d))
+        e_minus, _ = linearise(P_base, uv, camera, apply_increment(T, -d))
+        assert np.allclose(J[:, :, k], (e_plus - e_minus) / (2 * eps), rtol=1e-5, atol=1e-4)
