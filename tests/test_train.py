@@ -325,3 +325,33 @@ def test_dataset_rejects_data_without_the_keypoints(drawn):
     seq = read_sequence(drawn)
     with pytest.raises(InputError, match="none of the keypoints"):
         KeypointDataset([seq], ["tool0"], Preprocess(64, 48), 2, 1.5)
+
+
+def test_foreground_weight_anneals_geometrically():
+    from train.module import foreground_weight_at
+
+    assert foreground_weight_at(0, 101, 100.0, 1.0) == pytest.approx(100.0)
+    assert foreground_weight_at(50, 101, 100.0, 1.0) == pytest.approx(10.0)
+    assert foreground_weight_at(100, 101, 100.0, 1.0) == pytest.approx(1.0)
+    assert foreground_weight_at(500, 101, 100.0, 1.0) == pytest.approx(1.0)
+    assert foreground_weight_at(50, 101, 100.0, None) == 100.0
+    with pytest.raises(InputError, match="loss.foreground_weight_end"):
+        load_config(TINY, ["loss.foreground_weight=0", "loss.foreground_weight_end=1"])
+
+
+class RecordForegroundWeight(Callback):
+    def __init__(self):
+        self.weights: list[float] = []
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        self.weights.append(float(trainer.callback_metrics["train/foreground_weight"]))
+
+
+def test_training_moves_the_foreground_weight_from_start_to_end(drawn, tmp_path):
+    record = RecordForegroundWeight()
+    run_training(tiny(drawn, "trainer.max_epochs=2", "data.val_fraction=0",
+                      "loss.foreground_weight=100", "loss.foreground_weight_end=1"),
+                 tmp_path, callbacks=[record])
+    w = np.array(record.weights)
+    assert w[0] == pytest.approx(100.0) and w[-1] == pytest.approx(1.0)
+    assert np.all(np.diff(w) < 0)

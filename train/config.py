@@ -239,16 +239,26 @@ class LossConfig:
         mask_weight: weight of the per-pixel binary cross-entropy of the robot mask.
         foreground_weight: belief pixels are weighted by 1 + foreground_weight * target
             (0: plain MSE, as DREAM).
+        foreground_weight_end: when set, the training weight moves geometrically from
+            `foreground_weight` at the first step to this at the end of the step budget (a high
+            weight pulls the maps out of all-zero early; a low one later penalises the second
+            peaks a high one tolerates). Validation and test use this end weight throughout,
+            so val/loss stays comparable across the run.
     """
 
     belief_weight: float = 1.0
     mask_weight: float = 0.01
     foreground_weight: float = 0.0
+    foreground_weight_end: float | None = None
 
     def __post_init__(self) -> None:
         _require(self.belief_weight > 0, "loss.belief_weight", "must be > 0")
         _require(self.mask_weight >= 0, "loss.mask_weight", "must be >= 0")
         _require(self.foreground_weight >= 0, "loss.foreground_weight", "must be >= 0")
+        if self.foreground_weight_end is not None:
+            _require(self.foreground_weight > 0 and self.foreground_weight_end > 0,
+                     "loss.foreground_weight_end",
+                     "needs foreground_weight and foreground_weight_end both > 0 (geometric)")
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,15 @@ def lr_factor(step: int, total_steps: int, schedule: str, warmup_fraction: float
     return final_fraction + (1 - final_fraction) * 0.5 * (1 + math.cos(math.pi * progress))
 
 
+def foreground_weight_at(step: int, total_steps: int, start: float, end: float | None) -> float:
+    """The belief foreground weight at optimiser step `step` of `total_steps`: `start` when
+    `end` is None, else geometric from `start` (step 0) to `end` (the last step)."""
+    if end is None:
+        return start
+    progress = min(1.0, max(0.0, step / max(1, total_steps - 1)))
+    return start * (end / start) ** progress
+
+
 def belief_mse(pred: torch.Tensor, target: torch.Tensor, foreground_weight: float) -> torch.Tensor:
     """Mean squared error of belief maps, each pixel weighted by 1 + foreground_weight * target.
 
@@ -71,7 +80,7 @@ class BeliefModule(L.LightningModule):
         """The one step of every stage: loss, and keypoint errors outside training."""
         out = self.model(batch["image"])
         weights = self.config.loss
-        belief_loss = belief_mse(out.belief, batch["belief"], weights.foreground_weight)
+        belief_loss = belief_mse(out.belief, batch["belief"], self._foreground_weight(stage))
         loss = weights.belief_weight * belief_loss
         n = batch["image"].shape[0]
         has_mask = batch["has_mask"]
@@ -93,6 +102,18 @@ class BeliefModule(L.LightningModule):
                 self.config.model.output_stride, pre.input_width, pre.input_height,
                 self.config.eval.peaks))
         return loss
+
+    def _foreground_weight(self, stage: str) -> float:
+        loss = self.config.loss
+        if loss.foreground_weight_end is None:
+            return loss.foreground_weight
+        if stage != TRAIN:
+            return loss.foreground_weight_end
+        weight = foreground_weight_at(self.global_step,
+                                      int(self.trainer.estimated_stepping_batches),
+                                      loss.foreground_weight, loss.foreground_weight_end)
+        self.log("train/foreground_weight", weight, on_step=True, on_epoch=False)
+        return weight
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         return self._step(batch, TRAIN)
