@@ -308,7 +308,9 @@ def fit_pose(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T_ini
         sigma = np.median(dist[keep]) / RAYLEIGH_MEDIAN
         threshold = max(settings.min_inlier_threshold_px, settings.inlier_sigma_factor * sigma)
         new_keep = usable & (dist <= threshold)
-        if np.array_equal(new_keep, keep):
+        # a round that would leave too few or degenerate keypoints ends the rejection: the fit
+        # of the last usable set stands
+        if np.array_equal(new_keep, keep) or degeneracy(P_base[new_keep], settings) is not None:
             break
         keep = new_keep
     reason = degeneracy(P_base[keep], settings)
