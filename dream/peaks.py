@@ -260,6 +260,14 @@ def _local_maxima(stacked: np.ndarray, h: int, threshold: float) -> tuple[np.nda
     return ks, vs, us
 
 
+def _maxima(maps: np.ndarray, params: PeakParams) -> tuple[np.ndarray, ...]:
+    """(ks, vs, us, smoothed values) of the local maxima of (K, h, w) float32 maps that reach
+    the threshold after smoothing, sorted by map."""
+    stacked = _smooth_stacked(maps, params.smoothing_sigma)
+    ks, vs, us = _local_maxima(stacked, maps.shape[1], params.threshold)
+    return ks, vs, us, stacked[ks, vs, us]
+
+
 def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInMap:
     """The peak of each of K belief maps.
 
@@ -283,9 +291,7 @@ def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInM
     uv = np.full((K, 2), np.nan)
     confidence = np.zeros(K)
     reasons: list[str] = []
-    stacked = _smooth_stacked(belief32, params.smoothing_sigma)
-    ks, vs, us = _local_maxima(stacked, h, params.threshold)
-    values = stacked[ks, vs, us]
+    ks, vs, us, values = _maxima(belief32, params)
     bounds = np.searchsorted(ks, np.arange(K + 1))  # maxima of map k: bounds[k]:bounds[k + 1]
     for k in range(K):
         i = slice(bounds[k], bounds[k + 1])
@@ -306,9 +312,7 @@ def peak_candidates(belief: np.ndarray, params: PeakParams | None = None,
     maps = np.asarray(belief, dtype=np.float32)
     if maps.ndim != 3:
         raise InputError(f"belief maps have shape {maps.shape}, expected (K, h, w)")
-    stacked = _smooth_stacked(maps, params.smoothing_sigma)
-    ks, vs, us = _local_maxima(stacked, maps.shape[1], params.threshold)
-    values = stacked[ks, vs, us]
+    ks, vs, us, values = _maxima(maps, params)
     out = []
     for k in range(len(maps)):
         mine = np.flatnonzero(ks == k)
