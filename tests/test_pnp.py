@@ -7,7 +7,7 @@ from scenes import CAMERA, random_scene
 from dream.calibrate import Observations, calibrate_all, calibrate_each
 from dream.crb import extrinsic_crb
 from dream.errors import CalibrationError
-from dream.pnp import NoSolution, PoseFit, SolverSettings, solve_pnp
+from dream.pnp import NoSolution, PoseFit, SolverSettings, fit_pose, solve_pnp
 from dream.transforms import rotvec_from_R
 
 DISTORTED = CAMERA.with_distortion((0.12, -0.2, 0.001, -0.002, 0.05))
@@ -88,6 +88,23 @@ def test_too_few_and_degenerate_keypoints_give_no_solution(rng):
     line = np.outer(np.linspace(0, 1, 6), [0.1, 0.2, 0.3])
     result = solve_pnp(line, np.full((6, 2), 100.0), CAMERA)
     assert isinstance(result, NoSolution) and "collinear" in result.reason
+
+
+def test_rejection_that_would_leave_too_few_keypoints_keeps_the_last_fit(rng):
+    # One of five keypoints is wrong, but five are needed: rejecting it would leave a set that
+    # cannot fix a pose, so the rejection stops and the (robust) fit of all five stands.
+    obs, T, _ = random_scene(rng, 1, keypoints=5)
+    uv = obs.uv[0].copy()
+    uv[2] += [40.0, 30.0]
+    settings = SolverSettings(min_keypoints=5)
+    fit = fit_pose(obs.P_base[0], uv, CAMERA, T, settings=settings)
+    assert isinstance(fit, PoseFit) and fit.inlier.all()
+    assert np.linalg.norm(fit.residuals_px[2]) > 10 > np.linalg.norm(np.delete(fit.residuals_px, 2, 0),
+                                                                  axis=1).max()
+    # with four allowed, the wrong keypoint goes and the pose is exact again
+    fit = fit_pose(obs.P_base[0], uv, CAMERA, T)
+    assert isinstance(fit, PoseFit) and fit.inlier.sum() == 4 and not fit.inlier[2]
+    assert np.abs(xi_error(fit.T_cam_base, T)).max() < 1e-9
 
 
 def test_multi_frame_with_three_keypoints_per_frame_still_solves(rng):
