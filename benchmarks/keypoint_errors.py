@@ -3,8 +3,9 @@
 Runs a checkpoint on (a subset of) a DREAM-layout held-out set through the real peak finder and
 prints, per keypoint: the in-frame count, the found rate, the median error and PCK@`--pck-px`
 (network-input pixels, as `benchmarks/train_curve.py`), the median distance to the nearest other
-keypoint, and the misses split into: the peak sits on another keypoint, the true position is
-one of the map's next `--candidates` peaks, elsewhere.
+keypoint, the misses split into: the peak sits on another keypoint, the true position is
+one of the map's next `--candidates` peaks, elsewhere; and the bias: the mean signed error
+(found - true, x and y) of the hits, the part that does not average out over many frames.
 
     python benchmarks/keypoint_errors.py --checkpoint RUN/best.ckpt --heldout DATA_DIR
         [--frames 200] [--peaks NAME=VALUE ...] [--pck-px 5]
@@ -98,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{len(belief)} frames of {args.heldout}; peak finder {params}")
     print(f"{'keypoint':<16} {'in frame':>8} {'found':>6} {'median px':>9} "
           f"{'PCK@' + format(args.pck_px, 'g'):>7} {'nearest kp px':>13} {'on other kp':>11} "
-          f"{'in next ' + str(args.candidates):>9} {'elsewhere':>9}")
+          f"{'in next ' + str(args.candidates):>9} {'elsewhere':>9} {'bias x, y px':>13}")
     for k, name in enumerate(names):
         s = result.scored[:, k]
         n = int(s.sum())
@@ -107,10 +108,14 @@ def main(argv: list[str] | None = None) -> int:
         others = np.delete(uv_true, k, axis=1)
         nearest = np.min(np.linalg.norm(others - uv_true[:, k:k + 1], axis=2), axis=1)[s]
         counts = [int(np.sum(code[:, k] == c)) for c in (0, 1, 2, 3)]
+        # mean signed error of the hits: the part that does not average out over many frames
+        hits = code[:, k] == 0
+        bias = (np.mean(found_uv[hits, k] - uv_true[hits, k], axis=0) if hits.any()
+                else np.full(2, np.nan))
         print(f"{name:<16} {n:>8d} {np.mean(result.found[s, k]):>6.2f} "
               f"{np.median(errors) if len(errors) else float('nan'):>9.2f} "
               f"{counts[0] / max(n, 1):>7.3f} {np.median(nearest):>13.1f} {counts[1]:>11d} "
-              f"{counts[2]:>9d} {counts[3]:>9d}")
+              f"{counts[2]:>9d} {counts[3]:>9d} {bias[0]:>6.2f},{bias[1]:>6.2f}")
     scored = result.scored
     print(f"all: PCK@{args.pck_px:g} {np.sum(code == 0) / scored.sum():.3f}, found "
           f"{np.sum(result.found & scored) / scored.sum():.3f}; misses on another keypoint "

@@ -99,8 +99,8 @@ def test_rejection_that_would_leave_too_few_keypoints_keeps_the_last_fit(rng):
     settings = SolverSettings(min_keypoints=5)
     fit = fit_pose(obs.P_base[0], uv, CAMERA, T, settings=settings)
     assert isinstance(fit, PoseFit) and fit.inlier.all()
-    assert np.linalg.norm(fit.residuals_px[2]) > 10 > np.linalg.norm(np.delete(fit.residuals_px, 2, 0),
-                                                                  axis=1).max()
+    others = np.delete(fit.residuals_px, 2, axis=0)
+    assert np.linalg.norm(fit.residuals_px[2]) > 10 > np.linalg.norm(others, axis=1).max()
     # with four allowed, the wrong keypoint goes and the pose is exact again
     fit = fit_pose(obs.P_base[0], uv, CAMERA, T)
     assert isinstance(fit, PoseFit) and fit.inlier.sum() == 4 and not fit.inlier[2]

@@ -93,6 +93,9 @@ def test_recipes_load_and_overrides_are_typed(drawn):
     ("model.output_stride=3", ["model.output_stride", "must be one of"]),
     ("augment.blur_limit=[4,6]", ["augment.blur_limit", "odd"]),
     ("trainer.max_epochs", ["not KEY=VALUE"]),
+    ("loss.belief=focal", ["loss.belief", "model.belief_activation=sigmoid"]),
+    ("model.belief_activation=relu", ["model.belief_activation", "must be one of"]),
+    ("model.belief_prior=1", ["model.belief_prior", "(0, 1)"]),
 ])
 def test_bad_config_is_one_clear_input_error(override, words):
     with pytest.raises(InputError) as info:
@@ -201,12 +204,44 @@ def test_model_output_shapes(stride, skip, mask):
         build_model(config)(torch.zeros(1, 3, 40, 64))
 
 
+def test_sigmoid_belief_maps_start_near_the_prior():
+    config = ModelConfig(num_keypoints=4, base_width=8, num_stages=3, blocks_per_stage=1,
+                         decoder_width=16, belief_activation="sigmoid", belief_prior=0.01)
+    torch.manual_seed(0)
+    belief = build_model(config).eval()(torch.randn(2, 3, 48, 64)).belief.detach()
+    assert float(belief.min()) > 0 and float(belief.max()) < 1
+    assert 0.002 < float(belief.median()) < 0.05
+
+
+def test_focal_loss_by_hand_and_its_pull():
+    from train.module import belief_focal
+
+    pred, target = torch.tensor([[[[0.3]]]]), torch.tensor([[[[0.5]]]])
+    expected = -(0.5 * np.log(0.3) + 0.5 * np.log(0.7)) * 0.2 ** 2
+    assert float(belief_focal(pred, target, 2.0)) == pytest.approx(expected, rel=1e-6)
+    assert float(belief_focal(pred, target, 0.0)) == pytest.approx(expected / 0.04, rel=1e-6)
+    # summed over each map, averaged over the maps
+    maps = torch.rand(2, 3, 5, 7, generator=torch.Generator().manual_seed(1))
+    goal = torch.rand(2, 3, 5, 7, generator=torch.Generator().manual_seed(2))
+    per_map = [float(belief_focal(maps[i:i + 1, k:k + 1], goal[i:i + 1, k:k + 1], 2.0))
+               for i in range(2) for k in range(3)]
+    assert float(belief_focal(maps, goal, 2.0)) == pytest.approx(np.mean(per_map), rel=1e-5)
+    # zero at the target; the gradient lowers a false peak and raises a missed one
+    assert float(belief_focal(goal, goal, 2.0)) == 0.0
+    target = torch.zeros(1, 1, 3, 3)
+    target[0, 0, 0, 0] = 1.0
+    pred = torch.full((1, 1, 3, 3), 0.5, requires_grad=True)
+    belief_focal(pred, target, 2.0).backward()
+    assert float(pred.grad[0, 0, 0, 0]) < 0 and float(pred.grad[0, 0, 2, 2]) > 0
+
+
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")
-def test_model_exports_to_onnx(tmp_path):
+@pytest.mark.parametrize("activation", ["none", "sigmoid"])
+def test_model_exports_to_onnx(tmp_path, activation):
     """torch 2.13's default (torch.export-based) exporter; onnxruntime gives the same maps."""
     ort = pytest.importorskip("onnxruntime")
     config = ModelConfig(num_keypoints=3, base_width=8, num_stages=3, blocks_per_stage=1,
-                         decoder_width=16, output_stride=2)
+                         decoder_width=16, output_stride=2, belief_activation=activation)
     model = build_model(config).eval()
     x = torch.randn(1, 3, 48, 64)
     path = tmp_path / "m.onnx"
@@ -337,6 +372,16 @@ def test_foreground_weight_anneals_geometrically():
     assert foreground_weight_at(50, 101, 100.0, None) == 100.0
     with pytest.raises(InputError, match="loss.foreground_weight_end"):
         load_config(TINY, ["loss.foreground_weight=0", "loss.foreground_weight_end=1"])
+
+
+def test_tiny_recipe_learns_with_the_focal_loss(drawn, tmp_path):
+    run = run_training(tiny(drawn, "model.belief_activation=sigmoid", "loss.belief=focal",
+                            "trainer.max_epochs=20"), tmp_path)
+    rows = _rows(run.run_dir / "metrics.csv")
+    assert float(rows[-1]["train/loss"]) < 0.5 * float(rows[0]["train/loss"])
+    assert "val/belief_focal" in rows[-1] and float(rows[-1]["val/found_rate"]) > 0
+    model, _ = load_checkpoint(run.run_dir / "last.ckpt")
+    assert model.config.belief_activation == "sigmoid"
 
 
 class RecordForegroundWeight(Callback):

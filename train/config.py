@@ -34,6 +34,8 @@ from dream.recipe import load_recipe, plain, recipe_from_dict
 OUTPUT_STRIDES = (1, 2, 4)
 SKIP_MODES = ("concat", "add")
 UPSAMPLE_MODES = ("bilinear", "nearest")
+BELIEF_ACTIVATIONS = ("none", "sigmoid")
+BELIEF_LOSSES = ("mse", "focal")
 SCHEDULES = ("onecycle", "cosine", "constant")
 MONITOR_MODES = ("min", "max")
 DEFAULT_INPUT = Preprocess(input_width=256, input_height=192)
@@ -73,6 +75,10 @@ class ModelConfig:
         skip: how the decoder merges skip features: "concat" or "add".
         upsample: "bilinear" (align_corners=False) or "nearest".
         mask_head: also predict the robot mask (1-channel logits at the output stride).
+        belief_activation: "none" (the belief head's values are the maps, for the MSE loss) or
+            "sigmoid" (maps in (0, 1), for the focal loss; the head's bias starts at the
+            logit of `belief_prior` so that the first maps are near zero, not 0.5).
+        belief_prior: initial belief value everywhere with "sigmoid".
     """
 
     num_keypoints: int | None = None
@@ -85,6 +91,8 @@ class ModelConfig:
     skip: str = "concat"
     upsample: str = "bilinear"
     mask_head: bool = True
+    belief_activation: str = "none"
+    belief_prior: float = 0.01
 
     def __post_init__(self) -> None:
         if self.num_keypoints is not None:
@@ -97,6 +105,9 @@ class ModelConfig:
         _require(self.skip in SKIP_MODES, "model.skip", f"must be one of {SKIP_MODES}")
         _require(self.upsample in UPSAMPLE_MODES, "model.upsample",
                  f"must be one of {UPSAMPLE_MODES}")
+        _require(self.belief_activation in BELIEF_ACTIVATIONS, "model.belief_activation",
+                 f"must be one of {BELIEF_ACTIVATIONS}, got {self.belief_activation!r}")
+        _require(0 < self.belief_prior < 1, "model.belief_prior", "must be in (0, 1)")
 
     @property
     def network_stride(self) -> int:
@@ -231,14 +242,20 @@ class OptimConfig:
 
 @dataclass(frozen=True)
 class LossConfig:
-    """loss = belief_weight * MSE(belief maps) + mask_weight * BCE(mask logits), the mask term
+    """loss = belief_weight * belief loss + mask_weight * BCE(mask logits), the mask term
     only over frames with a mask and when the model has a mask head.
 
     Attributes:
-        belief_weight: weight of the per-pixel mean squared error of the belief maps.
+        belief: "mse": per-pixel mean squared error, weighted by `foreground_weight`; "focal":
+            per-pixel binary cross-entropy against the Gaussian targets scaled by
+            |target - belief|^focal_gamma (the quality focal loss of Generalized Focal Loss, Li
+            et al. 2020), summed over each map and averaged over the maps; it needs
+            model.belief_activation "sigmoid".
+        focal_gamma: exponent of the focal factor (0: plain soft-target cross-entropy).
+        belief_weight: weight of the belief loss.
         mask_weight: weight of the per-pixel binary cross-entropy of the robot mask.
-        foreground_weight: belief pixels are weighted by 1 + foreground_weight * target
-            (0: plain MSE, as DREAM).
+        foreground_weight: "mse" only: belief pixels are weighted by
+            1 + foreground_weight * target (0: plain MSE, as DREAM).
         foreground_weight_end: when set, the training weight moves geometrically from
             `foreground_weight` at the first step to this at the end of the step budget (a high
             weight pulls the maps out of all-zero early; a low one later penalises the second
@@ -246,12 +263,17 @@ class LossConfig:
             so val/loss stays comparable across the run.
     """
 
+    belief: str = "mse"
+    focal_gamma: float = 2.0
     belief_weight: float = 1.0
     mask_weight: float = 0.01
     foreground_weight: float = 0.0
     foreground_weight_end: float | None = None
 
     def __post_init__(self) -> None:
+        _require(self.belief in BELIEF_LOSSES, "loss.belief",
+                 f"must be one of {BELIEF_LOSSES}, got {self.belief!r}")
+        _require(self.focal_gamma >= 0, "loss.focal_gamma", "must be >= 0")
         _require(self.belief_weight > 0, "loss.belief_weight", "must be > 0")
         _require(self.mask_weight >= 0, "loss.mask_weight", "must be >= 0")
         _require(self.foreground_weight >= 0, "loss.foreground_weight", "must be >= 0")
@@ -363,6 +385,9 @@ class TrainConfig:
             _require(len(self.data.keypoints) == self.model.num_keypoints, "model.num_keypoints",
                      f"is {self.model.num_keypoints} but data.keypoints names "
                      f"{len(self.data.keypoints)}")
+        if self.loss.belief == "focal":
+            _require(self.model.belief_activation == "sigmoid", "loss.belief",
+                     "focal needs maps in (0, 1): set model.belief_activation=sigmoid")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain nested dict (lists, numbers, strings, None): YAML/JSON/checkpoint-safe."""

@@ -2,16 +2,19 @@
 
 Pure `nn.Module`s and one factory, `build_model(ModelConfig) -> BeliefNet`. Only ONNX-friendly
 ops: 3x3/1x1 convolutions, batch norm, ReLU, x2 upsampling (bilinear with align_corners=False, or
-nearest), concatenation or addition.
+nearest), concatenation or addition, sigmoid.
 
 Shapes: input (N, 3, H, W) normalised RGB (`dream.preprocess`), H and W multiples of
 `ModelConfig.network_stride`; output `BeliefOutput(belief (N, K, H/s, W/s), mask (N, 1, H/s, W/s)
-logits or None)`, s the output stride. Map pixel (i, j) covers input pixels s*i .. s*i+s-1
+logits or None)`, s the output stride; the belief maps pass through a sigmoid when
+`ModelConfig.belief_activation` says so (inside the network, so the ONNX file has it too).
+Map pixel (i, j) covers input pixels s*i .. s*i+s-1
 (`dream.peaks.map_to_input`).
 """
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import torch
@@ -143,6 +146,10 @@ class BeliefNet(nn.Module):
         self.decoder = nn.ModuleList(levels)
         self.skip_levels = list(range(len(widths) - 2, out_level - 1, -1))
         self.belief_head = nn.Conv2d(in_ch, config.num_keypoints, 1)
+        self.sigmoid = config.belief_activation == "sigmoid"
+        if self.sigmoid:
+            nn.init.constant_(self.belief_head.bias, math.log(config.belief_prior
+                                                              / (1 - config.belief_prior)))
         self.mask_head = nn.Conv2d(in_ch, 1, 1) if config.mask_head else None
 
     @property
@@ -166,7 +173,8 @@ class BeliefNet(nn.Module):
         for level, decoder in zip(self.skip_levels, self.decoder, strict=True):
             y = decoder(y, features[level])
         mask = self.mask_head(y) if self.mask_head is not None else None
-        return BeliefOutput(self.belief_head(y), mask)
+        belief = self.belief_head(y)
+        return BeliefOutput(torch.sigmoid(belief) if self.sigmoid else belief, mask)
 
 
 def build_model(config: ModelConfig) -> BeliefNet:

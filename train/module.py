@@ -1,6 +1,7 @@
 """The LightningModule: one shared step for train / val / test, AdamW, warm-up + cosine schedule.
 
-loss = belief_weight * MSE(belief, target) + mask_weight * BCE(mask logits, robot fraction),
+loss = belief_weight * belief loss (weighted MSE or quality focal, `LossConfig.belief`)
+       + mask_weight * BCE(mask logits, robot fraction),
 the mask term over the samples that have a mask. Validation and test also run the real peak
 finder (`dream.peaks`) on the predicted maps and report the keypoint L2 error (median and mean,
 input pixels), PCK at `eval.pck_threshold_px` and the detection rate. Under DDP these are averaged
@@ -25,6 +26,7 @@ from train.metrics import KeypointErrors, keypoint_errors, summarize
 from train.model import build_model
 
 TRAIN, VAL, TEST = "train", "val", "test"
+_FOCAL_EPS = 1e-4  # belief clamp before the logarithms of the focal loss
 
 
 def lr_factor(step: int, total_steps: int, schedule: str, warmup_fraction: float,
@@ -63,6 +65,20 @@ def belief_mse(pred: torch.Tensor, target: torch.Tensor, foreground_weight: floa
     return torch.mean((1.0 + foreground_weight * target) * (pred - target) ** 2)
 
 
+def belief_focal(pred: torch.Tensor, target: torch.Tensor, gamma: float) -> torch.Tensor:
+    """Quality focal loss of belief maps in (0, 1) against Gaussian targets in [0, 1]:
+    BCE(pred, target) * |target - pred|^gamma, summed over each (H, W) map, averaged over the
+    N x K maps.
+
+    Unlike the weighted MSE, a confident peak where the target is ~0 costs -log(1 - pred), so a
+    second peak on a neighbouring keypoint is penalised as hard as a missed one.
+    """
+    pred = pred.clamp(_FOCAL_EPS, 1 - _FOCAL_EPS)
+    bce = F.binary_cross_entropy(pred, target, reduction="none")
+    per_pixel = bce * (target - pred).abs().pow(gamma) if gamma > 0 else bce
+    return per_pixel.sum(dim=(-2, -1)).mean()
+
+
 class BeliefModule(L.LightningModule):
     """Training wrapper of `train.model.BeliefNet` for a resolved `TrainConfig` (keypoints and
     num_keypoints set)."""
@@ -80,7 +96,10 @@ class BeliefModule(L.LightningModule):
         """The one step of every stage: loss, and keypoint errors outside training."""
         out = self.model(batch["image"])
         weights = self.config.loss
-        belief_loss = belief_mse(out.belief, batch["belief"], self._foreground_weight(stage))
+        if weights.belief == "focal":
+            belief_loss = belief_focal(out.belief, batch["belief"], weights.focal_gamma)
+        else:
+            belief_loss = belief_mse(out.belief, batch["belief"], self._foreground_weight(stage))
         loss = weights.belief_weight * belief_loss
         n = batch["image"].shape[0]
         has_mask = batch["has_mask"]
@@ -91,8 +110,8 @@ class BeliefModule(L.LightningModule):
             self.log(f"{stage}/mask_bce", mask_loss, on_step=False, on_epoch=True, batch_size=n,
                      sync_dist=stage != TRAIN)
         on_step = stage == TRAIN
-        self.log(f"{stage}/belief_mse", belief_loss, on_step=False, on_epoch=True, batch_size=n,
-                 sync_dist=stage != TRAIN)
+        self.log(f"{stage}/belief_{weights.belief}", belief_loss, on_step=False, on_epoch=True,
+                 batch_size=n, sync_dist=stage != TRAIN)
         self.log(f"{stage}/loss", loss, on_step=on_step, on_epoch=True, prog_bar=True,
                  batch_size=n, sync_dist=stage != TRAIN)
         if stage != TRAIN:
