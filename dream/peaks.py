@@ -260,12 +260,15 @@ def _local_maxima(stacked: np.ndarray, h: int, threshold: float) -> tuple[np.nda
     return ks, vs, us
 
 
-def _maxima(maps: np.ndarray, params: PeakParams) -> tuple[np.ndarray, ...]:
-    """(ks, vs, us, smoothed values) of the local maxima of (K, h, w) float32 maps that reach
-    the threshold after smoothing, sorted by map."""
+def _maxima(maps: np.ndarray,
+            params: PeakParams) -> tuple[list[slice], np.ndarray, np.ndarray, np.ndarray]:
+    """(per_map, vs, us, smoothed values) of the local maxima of (K, h, w) float32 maps that
+    reach the threshold after smoothing; those of map k are `vs[per_map[k]]` etc."""
     stacked = _smooth_stacked(maps, params.smoothing_sigma)
     ks, vs, us = _local_maxima(stacked, maps.shape[1], params.threshold)
-    return ks, vs, us, stacked[ks, vs, us]
+    bounds = np.searchsorted(ks, np.arange(len(maps) + 1))  # ks is sorted by map
+    per_map = [slice(bounds[k], bounds[k + 1]) for k in range(len(maps))]
+    return per_map, vs, us, stacked[ks, vs, us]
 
 
 def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInMap:
@@ -291,10 +294,8 @@ def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInM
     uv = np.full((K, 2), np.nan)
     confidence = np.zeros(K)
     reasons: list[str] = []
-    ks, vs, us, values = _maxima(belief32, params)
-    bounds = np.searchsorted(ks, np.arange(K + 1))  # maxima of map k: bounds[k]:bounds[k + 1]
-    for k in range(K):
-        i = slice(bounds[k], bounds[k + 1])
+    per_map, vs, us, values = _maxima(belief32, params)
+    for k, i in enumerate(per_map):
         uv[k], confidence[k], reason = _find_one(belief32[k], vs[i], us[i], values[i], params)
         reasons.append(reason)
     found = np.array([r == FOUND for r in reasons], dtype=bool)
@@ -312,11 +313,11 @@ def peak_candidates(belief: np.ndarray, params: PeakParams | None = None,
     maps = np.asarray(belief, dtype=np.float32)
     if maps.ndim != 3:
         raise InputError(f"belief maps have shape {maps.shape}, expected (K, h, w)")
-    ks, vs, us, values = _maxima(maps, params)
+    per_map, vs, us, values = _maxima(maps, params)
     out = []
-    for k in range(len(maps)):
-        mine = np.flatnonzero(ks == k)
-        best = mine[np.argsort(-values[mine], kind="stable")[:max_per_map]]
+    for i in per_map:
+        mine = np.arange(i.start, i.stop)
+        best = mine[np.argsort(-values[i], kind="stable")[:max_per_map]]
         out.append((np.stack([us[best], vs[best]], 1).astype(float), values[best].astype(float)))
     return out
 
