@@ -96,6 +96,7 @@ def test_recipes_load_and_overrides_are_typed(drawn):
     ("loss.belief=focal", ["loss.belief", "model.belief_activation=sigmoid"]),
     ("model.belief_activation=relu", ["model.belief_activation", "must be one of"]),
     ("model.belief_prior=1", ["model.belief_prior", "(0, 1)"]),
+    ("trainer.precision=fp8", ["trainer.precision", "bf16-mixed"]),
 ])
 def test_bad_config_is_one_clear_input_error(override, words):
     with pytest.raises(InputError) as info:
@@ -382,6 +383,52 @@ def test_tiny_recipe_learns_with_the_focal_loss(drawn, tmp_path):
     assert "val/belief_focal" in rows[-1] and float(rows[-1]["val/found_rate"]) > 0
     model, _ = load_checkpoint(run.run_dir / "last.ckpt")
     assert model.config.belief_activation == "sigmoid"
+
+
+def test_foreground_weight_with_the_focal_loss_is_refused():
+    focal = ["model.belief_activation=sigmoid", "loss.belief=focal"]
+    for extra in ("loss.foreground_weight=10", "loss.foreground_weight_end=1"):
+        with pytest.raises(InputError, match="weights the mse loss only"):
+            load_config(TINY, [*focal, extra])
+    assert load_config(PANDA_CPU, ["model.num_keypoints=7"]).loss.belief == "focal"
+
+
+def test_mixed_precision_maps_stay_float32():
+    model = build_model(ModelConfig(num_keypoints=3, base_width=8, num_stages=3,
+                                    blocks_per_stage=1, decoder_width=16,
+                                    belief_activation="sigmoid", mask_head=True))
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        out = model(torch.randn(2, 3, 48, 64))
+    assert out.belief.dtype == torch.float32 and out.mask.dtype == torch.float32
+
+
+class RecordConvMemory(Callback):
+    """The dtype and memory order of the first convolution's output in training steps."""
+
+    def __init__(self):
+        self.seen: list[tuple[torch.dtype, bool]] = []
+
+    def on_fit_start(self, trainer, pl_module) -> None:
+        conv = next(m for m in pl_module.model.modules() if isinstance(m, torch.nn.Conv2d))
+        conv.register_forward_hook(lambda m, i, out: self.seen.append(
+            (out.dtype, out.is_contiguous(memory_format=torch.channels_last))))
+
+
+def test_tiny_recipe_learns_in_bfloat16_channels_last(drawn, tmp_path):
+    record = RecordConvMemory()
+    run = run_training(tiny(drawn, "model.belief_activation=sigmoid", "loss.belief=focal",
+                            "trainer.max_epochs=20", "trainer.precision=bf16-mixed",
+                            "trainer.channels_last=true"), tmp_path, callbacks=[record])
+    assert record.seen and all(seen == (torch.bfloat16, True) for seen in record.seen)
+    rows = _rows(run.run_dir / "metrics.csv")
+    assert float(rows[-1]["train/loss"]) < 0.5 * float(rows[0]["train/loss"])
+    assert float(rows[-1]["val/found_rate"]) > 0
+    model, config = load_checkpoint(run.run_dir / "last.ckpt")  # a plain float32 model
+    assert config.trainer.precision == "bf16-mixed"
+    assert all(p.dtype == torch.float32 for p in model.parameters())
+    with torch.no_grad():
+        x = torch.zeros(1, 3, config.input.input_height, config.input.input_width)
+        assert model(x).belief.dtype == torch.float32
 
 
 class RecordForegroundWeight(Callback):

@@ -174,6 +174,9 @@ class BeliefNet(nn.Module):
             y = decoder(y, features[level])
         mask = self.mask_head(y) if self.mask_head is not None else None
         belief = self.belief_head(y)
+        if belief.dtype != torch.float32:  # under mixed precision: maps and losses in float32
+            belief = belief.float()
+            mask = mask.float() if mask is not None else None
         return BeliefOutput(torch.sigmoid(belief) if self.sigmoid else belief, mask)
 
 

@@ -92,9 +92,16 @@ class BeliefModule(L.LightningModule):
     def forward(self, image: torch.Tensor):
         return self.model(image)
 
+    def setup(self, stage: str) -> None:
+        if self.config.trainer.channels_last:
+            self.model.to(memory_format=torch.channels_last)
+
     def _step(self, batch: dict[str, torch.Tensor], stage: str) -> torch.Tensor:
         """The one step of every stage: loss, and keypoint errors outside training."""
-        out = self.model(batch["image"])
+        image = batch["image"]
+        if self.config.trainer.channels_last:
+            image = image.contiguous(memory_format=torch.channels_last)
+        out = self.model(image)
         weights = self.config.loss
         if weights.belief == "focal":
             belief_loss = belief_focal(out.belief, batch["belief"], weights.focal_gamma)
