@@ -10,6 +10,7 @@ robust loss and outlier rejection. `calibrate_each` solves every frame alone (mo
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence as SequenceOf
 from dataclasses import dataclass
 
 import numpy as np
@@ -104,13 +105,18 @@ class CalibrationResult:
         return fit.T_cam_base if isinstance(fit, PoseFit) else None
 
 
-def solve_frames(obs: Observations, camera: CameraIntrinsics,
-                 settings: SolverSettings) -> tuple[FrameSolution, ...]:
-    """Every frame solved alone; a frame without a solution says why."""
+def solve_frames(obs: Observations, camera: CameraIntrinsics, settings: SolverSettings,
+                 frame_cameras: SequenceOf[CameraIntrinsics] | None = None
+                 ) -> tuple[FrameSolution, ...]:
+    """Every frame solved alone (with its own intrinsics where `frame_cameras` gives them);
+    a frame without a solution says why."""
+    if frame_cameras is not None and len(frame_cameras) != len(obs.frame_names):
+        raise InputError(f"{len(frame_cameras)} frame cameras for {len(obs.frame_names)} frames")
     out = []
     for i, name in enumerate(obs.frame_names):
         found = obs.found[i]
-        fit = solve_pnp(obs.P_base[i], np.where(found[:, None], obs.uv[i], np.nan), camera,
+        own = camera if frame_cameras is None else frame_cameras[i]
+        fit = solve_pnp(obs.P_base[i], np.where(found[:, None], obs.uv[i], np.nan), own,
                         confidence=np.where(found, obs.confidence[i], 0.0), settings=settings)
         if isinstance(fit, NoSolution):
             log.debug("frame %s: %s", name, fit.reason)
@@ -162,10 +168,13 @@ def calibrate_all(obs: Observations, camera: CameraIntrinsics,
 
 
 def calibrate_each(obs: Observations, camera: CameraIntrinsics,
-                   settings: SolverSettings | None = None) -> CalibrationResult:
-    """Every frame solved alone; the reported fit is the best-determined frame's."""
+                   settings: SolverSettings | None = None,
+                   frame_cameras: SequenceOf[CameraIntrinsics] | None = None
+                   ) -> CalibrationResult:
+    """Every frame solved alone (`frame_cameras`: each frame's own intrinsics, default
+    `camera`); the reported fit is the best-determined frame's."""
     settings = settings or SolverSettings()
-    frames = solve_frames(obs, camera, settings)
+    frames = solve_frames(obs, camera, settings, frame_cameras)
     solved = [(i, f.fit) for i, f in enumerate(frames) if isinstance(f.fit, PoseFit)]
     if not solved:
         reasons = sorted({f.fit.reason for f in frames})

@@ -64,6 +64,10 @@ def cmd_info(args: argparse.Namespace) -> int:
     dist = "none" if cam.distortion is None else ", ".join(f"{c:.4g}" for c in cam.distortion)
     print(f"camera:    {cam.width}x{cam.height} fx={cam.fx:.2f} fy={cam.fy:.2f} cx={cam.cx:.2f} "
           f"cy={cam.cy:.2f} distortion: {dist}")
+    if seq.has_frame_cameras:
+        fx = [seq.frame_camera(i).fx for i in range(len(seq))]
+        print(f"           frames carry their own intrinsics: fx {min(fx):.2f} to {max(fx):.2f} "
+              "(solve them with --frames each)")
     frames = seq.frames
     print(f"images:    {sum(f.image_path is not None for f in frames)}   masks: "
           f"{sum(f.mask_path is not None for f in frames)}   timestamps: "
@@ -234,6 +238,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from dream.pipeline import observations_from_labels, robot_for
 
     seq = _read(args)
+    if seq.has_frame_cameras:
+        raise InputError("the frames have their own intrinsics (camera_intrinsics): the "
+                         "diagnosis models one fixed camera", seq.source,
+                         "diagnose a sequence recorded by one camera")
     if args.model is not None:
         robot, obs, _ = _detect(args, seq, sys.stdout)
     else:

@@ -142,7 +142,7 @@ def write_skeleton_overlays(sequence, robot, T_cam_base: np.ndarray, out_dir,
     out_dir.mkdir(parents=True, exist_ok=True)
     P_base = robot.forward_kinematics(joints_in_robot_order(sequence, robot))
     for n, (i, frame) in enumerate(frames[:limit]):
-        uv = project(sequence.camera, transform_points(T_cam_base[i], P_base[i]))
+        uv = project(sequence.frame_camera(i), transform_points(T_cam_base[i], P_base[i]))
         image = draw_skeleton(_frame_canvas(sequence, frame), uv, robot.skeleton_edges)
         _write_png(out_dir / f"{frame.name}.overlay.png", image)
         if (n + 1) % 50 == 0:
@@ -166,7 +166,7 @@ def write_result_overlays(sequence, robot, obs, result, out_dir) -> None:
     for i, frame in enumerate(sequence.frames):
         T = result.T_cam_base_of_frame(i)
         uv_proj = np.full(obs.uv[i].shape, np.nan) if T is None else \
-            project(cam, transform_points(T, obs.P_base[i]))
+            project(sequence.frame_camera(i), transform_points(T, obs.P_base[i]))
         image = draw_skeleton(_frame_canvas(sequence, frame), uv_proj, robot.skeleton_edges)
         image = draw_observations(image, obs.uv[i], uv_proj, result.inlier[i])
         image = draw_confidences(image, obs.uv[i], obs.confidence[i])

@@ -61,9 +61,14 @@ def observations_from_labels(sequence: Sequence, robot: Robot) -> Observations:
 def calibrate(sequence: Sequence, obs: Observations, mode: str = "all",
               settings: SolverSettings | None = None) -> CalibrationResult:
     if mode == "all":
+        if sequence.has_frame_cameras:
+            raise InputError("the frames have their own intrinsics (camera_intrinsics), so they "
+                             "do not come from one fixed camera", sequence.source,
+                             "use --frames each")
         return calibrate_all(obs, sequence.camera, settings)
     if mode == "each":
-        return calibrate_each(obs, sequence.camera, settings)
+        cameras = tuple(sequence.frame_camera(i) for i in range(len(sequence)))
+        return calibrate_each(obs, sequence.camera, settings, frame_cameras=cameras)
     raise InputError(f"unknown frames mode '{mode}'", fix="use --frames all or --frames each")
 
 
@@ -95,7 +100,9 @@ def evaluate(sequence: Sequence, robot: Robot, result_doc: dict[str, Any]) -> di
             T_est[i] = np.asarray(by_name[name]["T_cam_base"], dtype=float)
     P_base = robot.forward_kinematics(joints_in_robot_order(sequence, robot))
     T_true_safe = np.where(has_truth[:, None, None], T_true, np.eye(4))
-    uv_true = project(sequence.camera, transform_points(T_true_safe[:, None], P_base))
+    P_cam_true = transform_points(T_true_safe[:, None], P_base)
+    uv_true = np.stack([project(sequence.frame_camera(i), P_cam_true[i])
+                        for i in range(len(sequence))])
     in_frame = sequence.camera.in_image(uv_true) & np.all(np.isfinite(uv_true), -1)
     in_frame &= has_truth[:, None]
     counted = in_frame.sum(1) >= MIN_INFRAME_KEYPOINTS

@@ -49,6 +49,8 @@ class Frame:
             `Sequence.keypoint_names`.
         P_cam_labels: (K, 3) keypoint positions in the camera frame, m, NaN where absent.
         T_cam_base_true: (4, 4) ground-truth extrinsic of this frame.
+        camera: this frame's own intrinsics where the source gives them (a synthetic set with a
+            random field of view per frame); None: the sequence's camera.
     """
 
     name: str
@@ -61,6 +63,7 @@ class Frame:
     P_cam_labels: np.ndarray | None = None
     T_cam_base_true: np.ndarray | None = None
     source: Path | None = field(default=None, compare=False)
+    camera: CameraIntrinsics | None = None
 
     def __post_init__(self) -> None:
         where = self.source
@@ -101,7 +104,7 @@ class Sequence:
 
     Attributes:
         robot: a built-in robot name (`dream robots`) or a URDF path.
-        camera: intrinsics shared by every frame.
+        camera: intrinsics shared by every frame (a frame's own `Frame.camera` replaces them).
         joint_names: names of `Frame.joints` entries, in order.
         keypoint_names: names of `Frame.uv_labels` / `P_cam_labels` rows, in order.
         frames: the frames, in capture order.
@@ -139,6 +142,12 @@ class Sequence:
                 if arr is not None and arr.shape[0] != K:
                     raise InputError(f"frame {f.name} {what} has {arr.shape[0]} rows, expected "
                                      f"{K}", f.source or self.source)
+            if f.camera is not None and (f.camera.width, f.camera.height) != (
+                    self.camera.width, self.camera.height):
+                raise InputError(f"frame {f.name} has its own intrinsics for a "
+                                 f"{f.camera.width}x{f.camera.height} image, the sequence's "
+                                 f"camera is {self.camera.width}x{self.camera.height}",
+                                 f.source or self.source, "give every frame one image size")
         if self.T_cam_base_reference is not None:
             T = _frozen_array(self.T_cam_base_reference, (4, 4), "reference extrinsic",
                               self.source, allow_nan=False)
@@ -153,6 +162,16 @@ class Sequence:
     def joints(self) -> np.ndarray:
         """(F, J) joint positions of every frame."""
         return np.stack([f.joints for f in self.frames])
+
+    def frame_camera(self, index: int) -> CameraIntrinsics:
+        """The intrinsics of frame `index`: its own, else the sequence's."""
+        own = self.frames[index].camera
+        return own if own is not None else self.camera
+
+    @property
+    def has_frame_cameras(self) -> bool:
+        """Whether some frame's own intrinsics differ from the sequence's camera."""
+        return any(f.camera is not None and f.camera != self.camera for f in self.frames)
 
     @property
     def has_labels(self) -> bool:

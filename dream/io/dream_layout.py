@@ -3,11 +3,14 @@
 A folder holds `_camera_settings.json` and one `NNNNNN.json` per frame, with optional
 `NNNNNN.rgb.png|jpg` images and `NNNNNN.seg.png` robot masks. Fields the project does not use
 (`camera_data`, `_object_settings.json`, `visibility`, ...) are ignored. Extensions: a frame
-`timestamp` (s), a camera `distortion` and a camera `reference_T_cam_base` (4x4).
+`timestamp` (s), a frame's own `camera_intrinsics` {fx, fy, cx, cy} (`dream synth` with a random
+field of view; same image size and distortion as the camera settings), a camera `distortion` and
+a camera `reference_T_cam_base` (4x4).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import re
@@ -43,6 +46,7 @@ from dream.transforms import (
 logger = logging.getLogger(__name__)
 
 CAMERA_SETTINGS = "_camera_settings.json"
+FRAME_INTRINSICS_KEY = "camera_intrinsics"  # optional per-frame fx, fy, cx, cy (dream synth)
 FRAME_FILE = re.compile(r"^(\d+)\.json$")
 RGB_SUFFIXES = (".rgb.png", ".rgb.jpg", ".rgb.jpeg")
 PNG_RGB_SUFFIX = ".rgb.png"
@@ -79,6 +83,7 @@ class _RawFrame:
     keypoints: dict[str, tuple[np.ndarray | None, np.ndarray | None]]  # name -> (P_cam, uv)
     T_cam_base: np.ndarray | None
     timestamp: float | None
+    intrinsics: dict[str, float] | None  # the frame's own fx, fy, cx, cy (`camera_intrinsics`)
 
 
 # ----------------------------------------------------------------------------- reading
@@ -242,7 +247,20 @@ def parse_frame(data: Any, path: Path, robot: str | None = None) -> _RawFrame:
         keypoints={} if obj is None else _parse_keypoints(obj, path),
         T_cam_base=None if obj is None else _parse_pose(obj, path),
         timestamp=timestamp,
+        intrinsics=_parse_frame_intrinsics(data.get(FRAME_INTRINSICS_KEY), path),
     )
+
+
+def _parse_frame_intrinsics(data: Any, path: Path) -> dict[str, float] | None:
+    """The optional per-frame `camera_intrinsics` {fx, fy, cx, cy} (pixels)."""
+    if data is None:
+        return None
+    fix = (f'write "{FRAME_INTRINSICS_KEY}": {{"fx": ..., "fy": ..., "cx": ..., "cy": ...}} '
+           "in pixels")
+    data = fields.as_dict(data, FRAME_INTRINSICS_KEY, path, fix)
+    return {k: fields.as_number(fields.require(data, k, f"{FRAME_INTRINSICS_KEY}.{k}", path, fix),
+                                f"{FRAME_INTRINSICS_KEY}.{k}", path, fix)
+            for k in ("fx", "fy", "cx", "cy")}
 
 
 def dataset_folder(path: Path) -> Path:
@@ -379,9 +397,15 @@ def read_dream(path: str | Path, *, joint_names: SequenceOf[str] | None = None,
     frames = []
     for stem, raw, q, image, mask in zip(stems, raws, joints, images, masks, strict=True):
         uv, P = _labels(raw, keypoint_names)
+        own = None
+        if raw.intrinsics is not None and intrinsics is None:  # --intrinsics overrides all
+            try:
+                own = dataclasses.replace(settings.camera, **raw.intrinsics)
+            except InputError as exc:
+                raise InputError(f"{FRAME_INTRINSICS_KEY}: {exc}", raw.path) from None
         frames.append(Frame(name=stem, joints=q, image_path=image, mask_path=mask,
                             timestamp=raw.timestamp, uv_labels=uv, P_cam_labels=P,
-                            T_cam_base_true=raw.T_cam_base, source=raw.path))
+                            T_cam_base_true=raw.T_cam_base, source=raw.path, camera=own))
     sequence = Sequence(robot=_robot_name(raws, robot, folder), camera=settings.camera,
                         joint_names=names, keypoint_names=keypoint_names, frames=tuple(frames),
                         T_cam_base_reference=settings.T_cam_base_reference, source=folder,
@@ -451,6 +475,9 @@ def frame_json(sequence: Sequence, frame: Frame) -> dict[str, Any]:
     data["sim_state"] = {"joints": [{"name": n, "position": float(q)}
                                     for n, q in zip(sequence.joint_names, frame.joints,
                                                     strict=True)]}
+    if frame.camera is not None and frame.camera != sequence.camera:
+        cam = frame.camera
+        data[FRAME_INTRINSICS_KEY] = {"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy}
     return data
 
 
