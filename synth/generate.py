@@ -113,19 +113,16 @@ def frame_document(job: SynthJob, robot_name: str, joint_names: tuple[str, ...],
     """The frame JSON of SPEC.md plus extensions: per-keypoint `in_frame` and `occlusion`, the
     frame's own intrinsics when they differ from `_camera_settings.json`, and its seed."""
     name = frame_name(frame.index)
-    one = Sequence(robot=robot_name, camera=frame.camera, joint_names=joint_names,
+    one = Sequence(robot=robot_name, camera=nominal, joint_names=joint_names,
                    keypoint_names=keypoint_names,
                    frames=(Frame(name, frame.joints, timestamp=frame.timestamp,
                                  uv_labels=frame.uv, P_cam_labels=frame.P_cam,
-                                 T_cam_base_true=frame.T_cam_base),))
+                                 T_cam_base_true=frame.T_cam_base, camera=frame.camera),))
     doc = frame_json(one, one.frames[0])
     for kp, in_frame, occlusion in zip(doc["objects"][0]["keypoints"], frame.in_frame,
                                        frame.occlusion, strict=True):
         kp["in_frame"] = bool(in_frame)
         kp["occlusion"] = occlusion
-    if frame.camera != nominal:
-        cam = frame.camera
-        doc["camera_intrinsics"] = {"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy}
     doc["synth"] = {"seed": job.seed, "index": frame.index}
     return doc
 
