@@ -52,6 +52,9 @@ PARITY_SEED = 0
 BATCH_AXIS = "batch"
 _EXPORTER_LOGGERS = ("torch.onnx._internal.exporter._registration",)
 _TOKEN_BYTES = 4
+# node annotations of the exporter (source file paths, FX node names, rewrite rules): debugging
+# aids that would put the building machine's paths into a shipped file
+EXPORTER_NODE_PROPS = ("pkg.torch.onnx.", "pkg.onnxscript.")
 
 
 class KeypointExportWrapper(nn.Module):
@@ -125,7 +128,8 @@ def _quiet_exporter() -> Iterator[None]:
 
 def to_onnx_proto(wrapper: KeypointExportWrapper, width: int, height: int,
                   opset: int | None = None) -> onnx.ModelProto:
-    """The wrapper as an ONNX model with a dynamic batch axis (torch's default exporter)."""
+    """The wrapper as an ONNX model with a dynamic batch axis (torch's default exporter),
+    without the exporter's per-node debugging annotations."""
     example = torch.zeros(TRACE_BATCH, 3, height, width)
     batch = torch.export.Dim(BATCH_AXIS, min=1)
     with _quiet_exporter():
@@ -133,7 +137,12 @@ def to_onnx_proto(wrapper: KeypointExportWrapper, width: int, height: int,
                                     output_names=list(wrapper.output_names), dynamo=True,
                                     dynamic_shapes={"image": {0: batch}}, opset_version=opset,
                                     verbose=False)
-    return program.model_proto
+    proto = program.model_proto
+    for node in [*proto.graph.node, *(n for f in proto.functions for n in f.node)]:
+        keep = [p for p in node.metadata_props if not p.key.startswith(EXPORTER_NODE_PROPS)]
+        del node.metadata_props[:]
+        node.metadata_props.extend(keep)
+    return proto
 
 
 def parity(wrapper: KeypointExportWrapper, model: OnnxKeypointModel,

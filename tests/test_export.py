@@ -111,6 +111,11 @@ def test_export_writes_metadata_and_matches_torch(checkpoint, exported, drawn):
         np.testing.assert_allclose(got["mask"], mask.numpy(), rtol=0, atol=PARITY_ATOL)
 
 
+def test_exported_file_carries_no_build_paths(exported):
+    raw = exported.path.read_bytes()
+    assert b"stack_trace" not in raw and str(Path(__file__).parents[1]).encode() not in raw
+
+
 def test_failed_parity_leaves_no_file(checkpoint, exported, tmp_path, monkeypatch):
     proto = onnx.load(str(exported.path))
     del proto.metadata_props[:]
