@@ -238,10 +238,6 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from dream.pipeline import observations_from_labels, robot_for
 
     seq = _read(args)
-    if seq.has_frame_cameras:
-        raise InputError("the frames have their own intrinsics (camera_intrinsics): the "
-                         "diagnosis models one fixed camera", seq.source,
-                         "diagnose a sequence recorded by one camera")
     if args.model is not None:
         robot, obs, _ = _detect(args, seq, sys.stdout)
     else:

@@ -61,11 +61,7 @@ def observations_from_labels(sequence: Sequence, robot: Robot) -> Observations:
 def calibrate(sequence: Sequence, obs: Observations, mode: str = "all",
               settings: SolverSettings | None = None) -> CalibrationResult:
     if mode == "all":
-        if sequence.has_frame_cameras:
-            raise InputError("the frames have their own intrinsics (camera_intrinsics), so they "
-                             "do not come from one fixed camera", sequence.source,
-                             "use --frames each")
-        return calibrate_all(obs, sequence.camera, settings)
+        return calibrate_all(obs, sequence.fixed_camera("use --frames each"), settings)
     if mode == "each":
         cameras = tuple(sequence.frame_camera(i) for i in range(len(sequence)))
         return calibrate_each(obs, sequence.camera, settings, frame_cameras=cameras)

@@ -173,6 +173,17 @@ class Sequence:
         """Whether some frame's own intrinsics differ from the sequence's camera."""
         return any(f.camera is not None and f.camera != self.camera for f in self.frames)
 
+    def fixed_camera(self, fix: str) -> CameraIntrinsics:
+        """The one camera of every frame, for the analyses that assume a fixed camera.
+
+        Raises:
+            InputError: frames carry their own intrinsics (`fix` says what to do instead).
+        """
+        if self.has_frame_cameras:
+            raise InputError("the frames have their own intrinsics (camera_intrinsics), so they "
+                             "do not come from one fixed camera", self.source, fix)
+        return self.camera
+
     @property
     def has_labels(self) -> bool:
         return any(f.uv_labels is not None for f in self.frames)

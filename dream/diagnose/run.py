@@ -240,8 +240,9 @@ def diagnose_sequence(sequence: Sequence, robot: Robot, obs: Observations,
                       extension_path: Path | None = None
                       ) -> tuple[dict[str, Any], Diagnosis, Problem]:
     """The diagnosis of a sequence, in memory: (diagnosis.json document, Diagnosis, Problem)."""
+    camera = sequence.fixed_camera("diagnose a sequence recorded by one camera")
     problem = problem_from(sequence, robot, obs)
-    start = calibrate_all(obs, sequence.camera)
+    start = calibrate_all(obs, camera)
     diagnosis = diagnose(problem, start.fit.T_cam_base, settings, progress)
     doc = diagnosis_document(sequence, diagnosis, extension_path or Path(EXTENSION_FILE))
     return doc, diagnosis, problem

@@ -402,7 +402,8 @@ def read_dream(path: str | Path, *, joint_names: SequenceOf[str] | None = None,
             try:
                 own = dataclasses.replace(settings.camera, **raw.intrinsics)
             except InputError as exc:
-                raise InputError(f"{FRAME_INTRINSICS_KEY}: {exc}", raw.path) from None
+                raise InputError(f"{FRAME_INTRINSICS_KEY}: {exc.problem}", raw.path,
+                                 exc.fix) from None
         frames.append(Frame(name=stem, joints=q, image_path=image, mask_path=mask,
                             timestamp=raw.timestamp, uv_labels=uv, P_cam_labels=P,
                             T_cam_base_true=raw.T_cam_base, source=raw.path, camera=own))
