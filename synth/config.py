@@ -163,13 +163,28 @@ class Distractors:
     distance_m: Range = (0.4, 1.5)        # from the robot's aim point
     occluder_prob: float = 0.3            # per distractor: placed between camera and robot
     textured_prob: float = 0.5
+    # A held object: per frame (per sequence in the sequence modes), one more object that moves
+    # with the last keypoint link (the hand or flange), as a tool, a part or a calibration board
+    # held by the arm. It occludes the wrist and puts textures next to the hand keypoints.
+    held_prob: float = 0.0
+    held_size_m: Range = (0.06, 0.3)      # full extent of its largest side
+    held_offset_m: Range = (0.03, 0.15)   # its centre from the link origin, any direction
+    held_board_prob: float = 0.5          # a thin plate (like a board) instead of a primitive
+    held_textured_prob: float = 0.8
 
     def __post_init__(self) -> None:
         lo, hi = self.count
         if not 0 <= lo <= hi:
             raise InputError("distractors.count must be [low, high] with 0 <= low <= high")
         object.__setattr__(self, "count", (int(lo), int(hi)))
-        _probability("distractors.occluder_prob", self.occluder_prob)
+        for name in ("occluder_prob", "textured_prob", "held_prob", "held_board_prob",
+                     "held_textured_prob"):
+            _probability(f"distractors.{name}", getattr(self, name))
+        for name in ("held_size_m", "held_offset_m"):
+            lo, hi = getattr(self, name)
+            if not 0 <= lo <= hi:
+                raise InputError(f"distractors.{name} must be [low, high] metres with "
+                                 f"0 <= low <= high")
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ import numpy as np
 from dream.camera import CameraIntrinsics
 from dream.extension import ModelExtension, extended_robot, joint_offset_vector
 from dream.robot import Robot
-from dream.transforms import invert_T
+from dream.transforms import R_from_quaternion_xyzw, invert_T, quaternion_xyzw_from_R
 from synth.config import SynthConfig
 from synth.extension import normalised, true_camera, true_keypoints_cam, true_pose
 from synth.generate import RenderedFrame
@@ -84,8 +84,9 @@ class FrameMaker:
             extended_robot(robot, self.extension)
         self.joint_offsets = np.zeros(robot.num_joints) if self.extension is None else \
             joint_offset_vector(robot, self.extension.joint_offset_rad)
+        self.held_slots = int(config.distractors.held_prob > 0)   # the last distractor slot
         options = SceneOptions(num_lights=min(MAX_LIGHTS, config.lights.count[1]),
-                               num_distractors=config.distractors.count[1],
+                               num_distractors=config.distractors.count[1] + self.held_slots,
                                num_textures=NUM_TEXTURES,
                                texture_size=config.background.texture_size, floor=True,
                                floor_texture_size=FLOOR_TEXTURE_PX)
@@ -109,7 +110,8 @@ class FrameMaker:
 
     def params(self, index: int) -> FrameParams:
         return sample_frame(self.seed, index, self.robot, self.config, self.default_rgba,
-                            len(self.scene.light_ids), len(self.scene.distractor_geom_ids),
+                            len(self.scene.light_ids),
+                            len(self.scene.distractor_geom_ids) - self.held_slots,
                             len(self.scene.texture_ids), self.joint_log)
 
     # ----- applying the randomisation --------------------------------------------------------
@@ -142,7 +144,8 @@ class FrameMaker:
         model, scene = self.scene.model, self.scene
         rng = np.random.default_rng(p.scene.texture_seed)
         kinds = {k: w for k, w in self.config.background.kinds.items() if k != "photo"}
-        used = {d.texture for d in p.scene.distractors if d.texture >= 0}
+        shapes = p.scene.distractors + ((p.scene.held.shape,) if p.scene.held else ())
+        used = {d.texture for d in shapes if d.texture >= 0}
         textures = [(t, int(scene.texture_ids[t])) for t in sorted(used)]
         if p.scene.floor and scene.floor_texture_id >= 0:
             textures.append((-1, int(scene.floor_texture_id)))
@@ -154,12 +157,28 @@ class FrameMaker:
             model.tex_data[adr:adr + h * w * n] = image[..., :n].reshape(-1)
             self.renderer.upload_texture(tex)
 
-    def _apply_distractors(self, p: FrameParams) -> None:
+    def _held_shape(self, p: FrameParams, q_true: np.ndarray) -> DistractorParams | None:
+        """The held object with its pose moved from its link's frame to the base frame."""
+        held = p.scene.held
+        if held is None:
+            return None
+        T_base_link = self.true_robot.link_poses(q_true, held.link)[0]
+        R_link_object = R_from_quaternion_xyzw(np.roll(held.shape.quaternion_wxyz, -1))
+        R_base_object = T_base_link[:3, :3] @ R_link_object
+        return dataclasses.replace(
+            held.shape,
+            position_m=T_base_link[:3, :3] @ held.shape.position_m + T_base_link[:3, 3],
+            quaternion_wxyz=np.roll(quaternion_xyzw_from_R(R_base_object), 1))
+
+    def _apply_distractors(self, p: FrameParams, q_true: np.ndarray) -> None:
         model, scene = self.scene.model, self.scene
-        for slot, (body, geom) in enumerate(zip(scene.distractor_body_ids,
-                                                scene.distractor_geom_ids, strict=True)):
-            d: DistractorParams | None = p.scene.distractors[slot] \
-                if slot < len(p.scene.distractors) else None
+        shapes: list[DistractorParams | None] = list(p.scene.distractors)
+        regular = len(scene.distractor_body_ids) - self.held_slots
+        shapes += [None] * (regular - len(shapes))
+        if self.held_slots:
+            shapes.append(self._held_shape(p, q_true))
+        for body, geom, d in zip(scene.distractor_body_ids, scene.distractor_geom_ids, shapes,
+                                 strict=True):
             if d is None:
                 model.body_pos[body] = [0.0, 0.0, PARKED_Z_M]
                 continue
@@ -219,7 +238,7 @@ class FrameMaker:
         self._apply_lights(p)
         self._apply_robot(p)
         self._apply_textures(p)
-        self._apply_distractors(p)
+        self._apply_distractors(p, q_true)
         self._apply_floor(p)
         camera = p.scene.camera                       # the written (nominal) intrinsics
         render_camera = true_camera(camera, self.extension)

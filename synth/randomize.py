@@ -9,6 +9,7 @@ change, as in measured calibration data.
 from __future__ import annotations
 
 import colorsys
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +23,10 @@ from synth.config import SynthConfig
 
 SEQUENCE_STREAM = 0x5E0     # spawn key of the per-sequence random stream
 FRAME_STREAM = 0xF4A        # spawn key of the per-frame random streams
+HELD_STREAM = 0x4E1D        # spawn key of the held object's stream (held_prob = 0 leaves the
+                            # other draws, and so older data sets, unchanged)
+HELD_BOARD_THICKNESS_M = (0.004, 0.02)  # full thickness of a held plate
+HELD_MIN_SIDE_FRACTION = 0.3           # a held object's other sides: 0.3-1 x its largest
 DISTRACTOR_TYPES = ("box", "sphere", "cylinder", "capsule", "ellipsoid")
 OCCLUDER_PATH_FRACTION = (0.4, 0.85)   # where on the camera -> robot segment an occluder sits
 OCCLUDER_AIM_JITTER_M = 0.3            # the segment ends this far (per axis) around the target
@@ -55,6 +60,15 @@ class DistractorParams:
 
 
 @dataclass(frozen=True)
+class HeldObjectParams:
+    """An object moving with `link`: `shape.position_m` and `shape.quaternion_wxyz` are its pose
+    in that link's frame."""
+
+    link: str
+    shape: DistractorParams
+
+
+@dataclass(frozen=True)
 class SceneParams:
     """What stays fixed along a sequence (and is redrawn per frame in `random` mode)."""
 
@@ -69,6 +83,7 @@ class SceneParams:
     distractors: tuple[DistractorParams, ...]
     texture_seed: int           # textures (floor, distractors) are drawn from this
     background_seed: int        # the 2D background is drawn from this
+    held: HeldObjectParams | None = None
 
 
 @dataclass(frozen=True)
@@ -158,6 +173,32 @@ def sample_scene(rng: np.random.Generator, config: SynthConfig, default_rgba: np
                        int(rng.integers(2 ** 31)), int(rng.integers(2 ** 31)))
 
 
+def sample_held_object(rng: np.random.Generator, config: SynthConfig, link: str,
+                       num_textures: int) -> HeldObjectParams | None:
+    """With probability `distractors.held_prob`, an object held at `link`: a thin plate or a
+    random primitive, its centre `held_offset_m` from the link origin in a random direction,
+    randomly turned and coloured."""
+    dc = config.distractors
+    if rng.random() >= dc.held_prob:
+        return None
+    largest = rng.uniform(*dc.held_size_m) / 2
+    sides = largest * rng.uniform(HELD_MIN_SIDE_FRACTION, 1.0, 3)
+    sides[0] = largest
+    if rng.random() < dc.held_board_prob:
+        kind = "box"
+        sides[2] = rng.uniform(*HELD_BOARD_THICKNESS_M) / 2
+    else:
+        kind = DISTRACTOR_TYPES[int(rng.integers(len(DISTRACTOR_TYPES)))]
+    direction = rng.normal(size=3)
+    position = direction / np.linalg.norm(direction) * rng.uniform(*dc.held_offset_m)
+    q = rng.normal(size=4)
+    rgba = np.array([*rng.random(3), 1.0])
+    texture = int(rng.integers(num_textures)) if num_textures and \
+        rng.random() < dc.held_textured_prob else -1
+    return HeldObjectParams(link, DistractorParams(kind, sides, position, q / np.linalg.norm(q),
+                                                   rgba, texture))
+
+
 def _occluder_placement(rng: np.random.Generator, camera_position: np.ndarray,
                         target: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A distractor part-way between the camera and a point of the robot, small enough and
@@ -230,10 +271,13 @@ def sample_frame(seed: int, index: int, robot: Robot, config: SynthConfig,
     mode = config.sequence.mode
     rng = frame_rng(seed, index)
     limits = (default_rgba, num_lights_max, num_distractors_max, num_textures)
+    held_key = [seed, HELD_STREAM] + ([index] if mode == "random" else [])
+    held = sample_held_object(np.random.default_rng(held_key), config, robot.keypoint_names[-1],
+                              num_textures)
     if mode == "random":
-        scene = sample_scene(rng, config, *limits)
+        scene = dataclasses.replace(sample_scene(rng, config, *limits), held=held)
         return FrameParams(index, scene, sample_joints(rng, robot, config, joint_log), None)
-    scene = sample_scene(sequence_rng(seed), config, *limits)
+    scene = dataclasses.replace(sample_scene(sequence_rng(seed), config, *limits), held=held)
     timestamp = index / config.sequence.fps
     if mode == "fixed_camera":
         return FrameParams(index, scene, sample_joints(rng, robot, config, joint_log), timestamp)

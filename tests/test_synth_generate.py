@@ -15,12 +15,15 @@ import numpy as np
 import pytest
 from test_synth_scene import _write_user_robot
 
+from dream.camera import project
 from dream.cli import main
 from dream.errors import InputError
 from dream.io import is_temporary, read_sequence
 from dream.metrics import pose_errors
 from dream.robot import load_robot
+from dream.transforms import transform_points
 from synth.config import config_from_dict
+from synth.frames import FrameMaker
 from synth.generate import SynthJob, generate
 from synth.render import RenderOptions, SceneRenderer
 from synth.scene import SceneOptions, build_scene
@@ -164,6 +167,38 @@ def test_occlusion_flags_agree_with_the_robot_mask(tmp_path):
     assert len(seen["distractor"]) >= 5 and len(seen["visible"]) >= 50
     assert not any(seen["distractor"])           # a distractor covers that pixel
     assert np.mean(seen["visible"]) > 0.9        # the robot is there (edges may miss)
+
+
+def test_held_object_moves_with_the_hand():
+    """The held object is drawn where its link is in each frame: at its offset in the link's
+    frame, on the image near the projection of that point, and it is labelled as an occluder."""
+    config = config_from_dict({"distractors": {"count": [0, 0], "held_prob": 1.0,
+                                               "held_size_m": [0.15, 0.2]},
+                               "camera": {"radius_m": [1.2, 1.4]}, "intrinsics": FIXED})
+    robot = load_robot("panda")
+    maker = FrameMaker(robot, config, seed=2)
+    try:
+        held_body = maker.scene.distractor_body_ids[-1]
+        held_geom = maker.scene.distractor_geom_ids[-1]
+        seen = 0
+        for i in range(6):
+            rendered = maker.make(i)
+            p = maker.params(i)
+            T_base_link = robot.link_poses(p.joints, p.scene.held.link)[0]
+            centre = transform_points(T_base_link, p.scene.held.shape.position_m)
+            assert np.allclose(maker.scene.model.body_pos[held_body], centre, atol=1e-9)
+            ids = maker.renderer.render(rgb=False, segmentation=True).geom_ids
+            v, u = np.nonzero(ids == held_geom)
+            if len(u) < MIN_MARKER_PIXELS:
+                continue
+            seen += 1
+            uv = project(rendered.camera, transform_points(rendered.T_cam_base, centre))
+            radius_px = rendered.camera.fx * 0.2 / np.linalg.norm(
+                transform_points(rendered.T_cam_base, centre))
+            assert np.hypot(u.mean() - uv[0], v.mean() - uv[1]) < radius_px
+        assert seen >= 4
+    finally:
+        maker.close()
 
 
 def test_photo_backgrounds(tmp_path):

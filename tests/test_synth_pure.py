@@ -27,6 +27,8 @@ def frame(seed, index, config):
     ({"background": {"kinds": {"plaid": 1}}}, "unknown kinds"),
     ({"nonsense": {}}, "unknown config key .nonsense."),
     ({"lights": {"intensity": "bright"}}, "lights.intensity"),
+    ({"distractors": {"held_prob": 1.5}}, "distractors.held_prob"),
+    ({"distractors": {"held_offset_m": [0.2, 0.1]}}, "distractors.held_offset_m"),
 ])
 def test_bad_recipes_are_refused_with_the_reason(values, words):
     with pytest.raises(InputError, match=words):
@@ -63,6 +65,34 @@ def test_sequence_modes_fix_the_camera_and_scene():
         assert f0.scene is not f9.scene and len(f0.scene.lights) == len(f9.scene.lights)
         assert f9.timestamp == pytest.approx(9 / 30)
         assert not np.array_equal(f0.joints, f9.joints)
+
+
+def test_held_object_is_drawn_apart_from_everything_else():
+    """held_prob = 0 draws exactly what older recipes drew; with it, an object at the last
+    keypoint link within the recipe's size and offset, fixed along a sequence."""
+    recipe = {"distractors": {"held_prob": 1.0, "held_board_prob": 1.0,
+                              "held_size_m": [0.1, 0.2], "held_offset_m": [0.05, 0.08]}}
+    for i in range(5):
+        plain, held = frame(3, i, config_from_dict({})), frame(3, i, config_from_dict(recipe))
+        assert plain.scene.held is None and held.scene.held is not None
+        assert np.array_equal(plain.joints, held.joints)
+        assert np.array_equal(plain.scene.T_cam_base, held.scene.T_cam_base)
+        assert [d.position_m.tolist() for d in plain.scene.distractors] == \
+            [d.position_m.tolist() for d in held.scene.distractors]
+        h = held.scene.held
+        assert h.link == PANDA.keypoint_names[-1] and h.shape.kind == "box"
+        assert 0.05 <= h.shape.size_m[0] <= 0.1            # half of the largest side
+        assert np.all(h.shape.size_m[1] <= h.shape.size_m[0])
+        assert h.shape.size_m[2] <= 0.01                   # a thin plate
+        assert 0.05 <= np.linalg.norm(h.shape.position_m) <= 0.08
+        assert np.linalg.norm(h.shape.quaternion_wxyz) == pytest.approx(1.0)
+    sequence = config_from_dict({**recipe, "sequence": {"mode": "trajectory"}})
+    first, later = frame(3, 0, sequence).scene.held, frame(3, 9, sequence).scene.held
+    assert np.array_equal(first.shape.position_m, later.shape.position_m)
+    assert np.array_equal(first.shape.size_m, later.shape.size_m)
+    some = config_from_dict({"distractors": {"held_prob": 0.5}})
+    count = sum(frame(8, i, some).scene.held is not None for i in range(200))
+    assert 70 < count < 130
 
 
 def test_trajectory_is_smooth_and_within_limits():
