@@ -78,16 +78,18 @@ def main() -> None:
         robot = robot_for(seq, None, runner.keypoint_names)
         P_base = robot.forward_kinematics(joints_in_robot_order(seq, robot))
         beliefs = [onnx(b)[0] for b in batches]
-        post = list(zip(beliefs, [t[0] for _, t in inputs], P_base[:len(frames)], strict=True))
+        cameras = [seq.frame_camera(i) for i in range(len(frames))]  # each frame's own
+        post = list(zip(beliefs, [t[0] for _, t in inputs], P_base[:len(frames)], cameras,
+                        strict=True))
 
         def peaks_and_pnp(item):
-            belief, transform, P = item
+            belief, transform, P, camera = item
             peaks = find_peaks_in_image(belief, runner.stride, transform, peak_params)
-            return solve_pnp(P, peaks.uv_image, seq.camera, confidence=peaks.confidence)
+            return solve_pnp(P, peaks.uv_image, camera, confidence=peaks.confidence)
 
         t_post = median_ms(peaks_and_pnp, post)
         found = np.mean([find_peaks_in_image(b, runner.stride, t, peak_params).found.mean()
-                         for b, t, _ in post])
+                         for b, t, _, _ in post])
     i = config.input
     print(f"{len(frames)} frames of {args.data}, input {i.input_width}x{i.input_height}, "
           f"batch 1, {args.threads} threads")

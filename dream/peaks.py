@@ -164,64 +164,85 @@ def input_to_map(uv_input: np.ndarray, stride: int) -> np.ndarray:
     return (uv + 0.5) / _check_stride(stride) - 0.5
 
 
-def _fit_quadratic_log(window: np.ndarray, du: np.ndarray, dv: np.ndarray,
-                       floor: float) -> np.ndarray | None:
-    """Offset (du, dv) of the maximum of a 2D quadratic fitted to log(values), weighted by the
-    squared values (Guo's weighting); exact for a sampled Gaussian. None when the fit has no
-    maximum."""
-    peak = window.max()
-    keep = window > floor * peak
-    if keep.sum() < _MIN_FIT_PIXELS:
-        return None
-    y, x, z = dv[keep], du[keep], window[keep]
-    A = np.stack([np.ones_like(x), x, y, x * x, y * y, x * y], axis=1)
-    Aw = A * z[:, None]  # rows scaled by z -> least squares weighted by z^2
-    try:  # normal equations: 6 unknowns on <= (2 r + 1)^2 well-spread pixels
-        coef = np.linalg.solve(Aw.T @ Aw, Aw.T @ (np.log(z) * z))
-    except np.linalg.LinAlgError:
-        return None
-    _, b, c, d, e, f = coef
+def _windows(maps: np.ndarray, ks: np.ndarray, us: np.ndarray, vs: np.ndarray,
+             r: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n, m) float64 values and (n, m) inside-the-map flags of the (2r+1)^2 = m pixels around
+    each (u, v) of map k (outside pixels read 0), row-major from offset (-r, -r)."""
+    _, h, w = maps.shape
+    offsets = np.arange(-r, r + 1)
+    rows, cols = vs[:, None] + offsets, us[:, None] + offsets          # (n, 2r+1)
+    inside = ((rows >= 0) & (rows < h))[:, :, None] & ((cols >= 0) & (cols < w))[:, None, :]
+    values = maps[ks[:, None, None], np.clip(rows, 0, h - 1)[:, :, None],
+                  np.clip(cols, 0, w - 1)[:, None, :]].astype(float)
+    n = len(ks)
+    return np.where(inside, values, 0.0).reshape(n, -1), inside.reshape(n, -1)
+
+
+def _fit_quadratic_log(z: np.ndarray, keep: np.ndarray, r: int) -> np.ndarray:
+    """(n, 2) offset (du, dv) of the maximum of a 2D quadratic fitted to log(values) of each
+    window (`_windows`) over its `keep` pixels, weighted by the squared values (Guo's
+    weighting); exact for a sampled Gaussian. NaN where a fit has no maximum."""
+    offsets = np.arange(-r, r + 1, dtype=float)
+    dv, du = np.repeat(offsets, 2 * r + 1), np.tile(offsets, 2 * r + 1)
+    A = np.stack([np.ones_like(du), du, dv, du * du, dv * dv, du * dv], axis=1)    # (m, 6)
+    zk = np.where(keep, z, 0.0)                  # rows scaled by z -> weighted by z^2
+    logz = np.log(np.where(keep, z, 1.0))
+    normal = np.einsum("nm,mi,mj->nij", zk * zk, A, A)
+    rhs = np.einsum("nm,mi->ni", zk * zk * logz, A)
+    out = np.full((len(z), 2), np.nan)
+    # normal equations: 6 unknowns on <= (2 r + 1)^2 well-spread pixels
+    i = _solvable(normal)
+    _, b, c, d, e, f = np.linalg.solve(normal[i], rhs[i][:, :, None])[:, :, 0].T
     # maximum where the gradient (b + 2 d x + f y, c + f x + 2 e y) vanishes; the Hessian
     # [[2d, f], [f, 2e]] must be negative definite
     det = 4 * d * e - f * f
-    if not (d < 0 and det > 0):
-        return None
-    return np.array([(f * c - 2 * e * b) / det, (f * b - 2 * d * c) / det])
+    ok = (d < 0) & (det > 0)
+    out[i[ok]] = np.stack([f * c - 2 * e * b, f * b - 2 * d * c], axis=1)[ok] / det[ok, None]
+    return out
 
 
-def _refine(belief: np.ndarray, u: int, v: int, params: PeakParams) -> np.ndarray:
-    """Sub-pixel peak (u, v) in map pixels near the integer maximum (u, v) of one (h, w) map."""
-    h, w = belief.shape
+def _solvable(normal: np.ndarray) -> np.ndarray:
+    """Indices of the (n, 6, 6) systems that are not singular."""
+    with np.errstate(all="ignore"):
+        cond = np.linalg.cond(normal)
+    return np.flatnonzero(np.isfinite(cond) & (cond < 1 / np.finfo(float).eps))
+
+
+def _refine(maps: np.ndarray, ks: np.ndarray, us: np.ndarray, vs: np.ndarray,
+            params: PeakParams) -> np.ndarray:
+    """(n, 2) sub-pixel peaks (u, v), map pixels, near the integer maxima (us, vs) of maps
+    `ks` of (K, h, w) `maps`: the quadratic fit, or the window's centroid where the fit fails
+    or lands farther than the window's radius."""
     r = params.refine_radius
-    v0, v1, u0, u1 = max(v - r, 0), min(v + r + 1, h), max(u - r, 0), min(u + r + 1, w)
-    window = belief[v0:v1, u0:u1].astype(float)
-    dv = np.arange(v0 - v, v1 - v, dtype=float)[:, None] + np.zeros(u1 - u0)
-    du = np.arange(u0 - u, u1 - u, dtype=float)[None, :] + np.zeros((v1 - v0, 1))
-    offset = _fit_quadratic_log(window, du, dv, params.refine_floor)
-    if offset is None or np.any(np.abs(offset) > r):
-        weights = np.clip(window, 0.0, None)
-        total = weights.sum()
-        offset = np.array([0.0, 0.0]) if total <= 0 else \
-            np.array([(weights * du).sum(), (weights * dv).sum()]) / total
-    return np.array([u, v], dtype=float) + offset
+    z, inside = _windows(maps, ks, us, vs, r)
+    keep = inside & (z > params.refine_floor * z.max(axis=1, keepdims=True))
+    offset = np.full((len(ks), 2), np.nan)
+    fit = keep.sum(axis=1) >= _MIN_FIT_PIXELS
+    if fit.any():
+        offset[fit] = _fit_quadratic_log(z[fit], keep[fit], r)
+    bad = ~np.all(np.abs(offset) <= r, axis=1)             # NaN (no fit) or too far
+    if bad.any():
+        offsets = np.arange(-r, r + 1, dtype=float)
+        du, dv = np.tile(offsets, 2 * r + 1), np.repeat(offsets, 2 * r + 1)
+        weights = np.clip(z[bad], 0.0, None)
+        total = weights.sum(axis=1)
+        safe = np.where(total > 0, total, 1.0)
+        centroid = np.stack([weights @ du, weights @ dv], axis=1) / safe[:, None]
+        offset[bad] = np.where((total > 0)[:, None], centroid, 0.0)
+    return np.stack([us, vs], axis=1).astype(float) + offset
 
 
-def _find_one(belief: np.ndarray, vs: np.ndarray, us: np.ndarray, values: np.ndarray,
-              params: PeakParams) -> tuple[np.ndarray, float, str]:
-    """The peak of one (h, w) map from its local maxima at (vs, us) with smoothed `values`."""
-    nan2 = np.full(2, np.nan)
+def _best_peak(vs: np.ndarray, us: np.ndarray, values: np.ndarray,
+               params: PeakParams) -> tuple[int, str]:
+    """Index of the best of one map's local maxima at (vs, us) with smoothed `values`, and
+    BELOW_THRESHOLD / AMBIGUOUS / FOUND (found before the out-of-frame test)."""
     if len(vs) == 0:
-        return nan2, 0.0, BELOW_THRESHOLD
+        return -1, BELOW_THRESHOLD
     best = int(np.argmax(values))
     far = np.hypot(us - us[best], vs - vs[best]) > params.ambiguity_min_distance
-    best_value = float(belief[vs[best], us[best]])
     if np.any(far) and values[far].max() > params.ambiguity_ratio * values[best]:
-        return nan2, best_value, AMBIGUOUS
-    uv = _refine(belief, int(us[best]), int(vs[best]), params)
-    h, w = belief.shape
-    if not (-0.5 <= uv[0] <= w - 0.5 and -0.5 <= uv[1] <= h - 0.5):
-        return nan2, best_value, OUT_OF_FRAME
-    return uv, best_value, FOUND
+        return best, AMBIGUOUS
+    return best, FOUND
 
 
 def _smooth_stacked(maps: np.ndarray, sigma: float) -> np.ndarray:
@@ -295,9 +316,20 @@ def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInM
     confidence = np.zeros(K)
     reasons: list[str] = []
     per_map, vs, us, values = _maxima(belief32, params)
+    best = np.zeros(K, int)
     for k, i in enumerate(per_map):
-        uv[k], confidence[k], reason = _find_one(belief32[k], vs[i], us[i], values[i], params)
+        b, reason = _best_peak(vs[i], us[i], values[i], params)
+        if b >= 0:
+            best[k] = i.start + b
+            confidence[k] = belief32[k, vs[best[k]], us[best[k]]]
         reasons.append(reason)
+    ks = np.flatnonzero([r == FOUND for r in reasons])
+    if len(ks):
+        refined = _refine(belief32, ks, us[best[ks]], vs[best[ks]], params)
+        inside = np.all((refined >= -0.5) & (refined <= np.array([w, h]) - 0.5), axis=1)
+        uv[ks[inside]] = refined[inside]
+        for k in ks[~inside]:
+            reasons[k] = OUT_OF_FRAME
     found = np.array([r == FOUND for r in reasons], dtype=bool)
     for a in (uv, confidence, found):
         a.setflags(write=False)

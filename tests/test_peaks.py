@@ -96,6 +96,25 @@ def test_keypoint_near_the_border_is_found(rng):
     assert find_peaks(faint, PeakParams(threshold=0.01)).found[0]
 
 
+def test_maps_refined_together_match_maps_refined_alone(rng):
+    """The sub-pixel fits of all maps are solved as one batch: a map whose fit fails (a flat
+    plateau: its centroid is used), a border peak and interior peaks give the same result as
+    each map alone."""
+    uv = np.array([[0.3, 17.2], [20.4, 11.7], [MAP_W - 1.2, MAP_H - 0.8], [33.6, 5.1]])
+    maps = gaussian_map(uv)
+    maps[1] = 0.0
+    maps[1, 10:13, 20:23] = 0.9                 # plateau 3 x 3 centred on (21, 11)
+    together = find_peaks(maps)
+    assert together.found.all()
+    assert np.allclose(together.uv_map[1], [21.0, 11.0])
+    for k in range(len(maps)):
+        alone = find_peaks(maps[k:k + 1])
+        assert alone.reason[0] == together.reason[k]
+        assert np.array_equal(alone.uv_map[0], together.uv_map[k])
+    assert np.linalg.norm(together.uv_map[[0, 2, 3]] - uv[[0, 2, 3]], axis=1).max() < \
+        TOLERANCE_PX
+
+
 def test_map_input_image_conversions_round_trip(rng):
     uv_map = rng.uniform(-1, 40, (20, 2))
     for stride in (1, 2, 4):
