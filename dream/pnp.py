@@ -268,7 +268,11 @@ def covariance_at(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, 
     lin = linearise(P_base, uv, camera, T)
     if lin is None:
         return np.full((6, 6), np.nan), np.inf
-    e, J = lin
+    return _covariance(*lin, weights)
+
+
+def _covariance(e: np.ndarray, J: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, float]:
+    """`covariance_at` from the residuals (N, 2) and Jacobians (N, 2, 6) at the pose."""
     H = np.einsum("n,nki,nkj->ij", weights, J, J)
     dof = 2 * int(np.count_nonzero(weights)) - 6
     s2 = float(np.sum(weights * np.sum(e * e, 1)) / dof) if dof > 0 else np.nan
@@ -318,12 +322,15 @@ def fit_pose(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T_ini
         return NoSolution(reason)
     weights = np.zeros(len(P_base))
     weights[keep] = confidence[keep] * settings.loss.weight(dist[keep])
-    covariance, cond = covariance_at(P_base[keep], uv[keep], camera, T, weights[keep])
+    # `lin` holds the residuals and Jacobians of the usable keypoints at the final T
+    residuals = np.full((len(P_base), 2), np.nan)
+    residuals[usable] = lin[0]
+    jacobians = np.zeros((len(P_base), 2, 6))
+    jacobians[usable] = lin[1]
+    covariance, cond = _covariance(residuals[keep], jacobians[keep], weights[keep])
     if cond > settings.max_condition:
         return NoSolution(f"the pose is not determined by these keypoints (condition number "
                           f"{cond:.1e})")
-    residuals = np.full((len(P_base), 2), np.nan)
-    residuals[usable] = linearise(P_base[usable], uv[usable], camera, T)[0]
     rmse = float(np.sqrt(np.mean(np.sum(residuals[keep] ** 2, 1))))
     return PoseFit(T, residuals, keep, weights, covariance, rmse, iterations)
 
