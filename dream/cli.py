@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import tempfile
 from collections.abc import Callable, Sequence
@@ -22,6 +23,7 @@ log = logging.getLogger("dream")
 ENTRY_POINT_GROUP = "dream.commands"
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
+EXIT_BROKEN_PIPE = 141          # 128 + SIGPIPE, what a shell reports for a writer cut off
 
 
 def _parse_intrinsics(text: str | None) -> CameraIntrinsics | tuple[float, ...] | None:
@@ -496,7 +498,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     try:
-        return args.func(args)
+        code = args.func(args)
+        sys.stdout.flush()  # a closed reader shows up here, not at interpreter exit
+        return code
+    except BrokenPipeError:
+        # the reader of the output went away (`dream info DATA | head`): stop quietly, as
+        # command-line tools do, without a second error when Python flushes stdout at exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
     except DreamError as exc:
         print(f"dream {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_ERROR

@@ -150,6 +150,22 @@ def test_console_script_runs_as_a_process(sample_dir, tmp_path):
     assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
 
 
+def test_output_cut_off_by_its_reader_ends_quietly(tmp_path):
+    """`dream info DATA | head -1`: the reader closes the pipe first; no traceback follows."""
+    rng = np.random.default_rng(0)
+    npz = tmp_path / "episode.npz"
+    np.savez(npz, rgb_images=rng.integers(0, 255, (3, 24, 32, 3), dtype=np.uint8),
+             captured_joint_values=rng.uniform(-1, 1, (3, 8)),
+             target_joint_values=rng.uniform(-1, 1, (3, 8)))
+    proc = subprocess.Popen([sys.executable, "-m", "dream.cli", "info", str(npz),
+                             "--intrinsics", "30,31,16,12"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    proc.stdout.close()               # before the command has written anything
+    err = proc.stderr.read()
+    assert proc.wait() == 141, err
+    assert err == ""
+
+
 def test_demo(tmp_path, capsys):
     code, out, err = run(["demo", "--keypoints-only", "--seed", "0", "--out", tmp_path], capsys)
     assert code == 0, err
