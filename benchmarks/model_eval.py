@@ -4,13 +4,14 @@ onnxruntime path a user runs); nothing here is tuned on the real images.
 
     python benchmarks/model_eval.py --model dream/models/panda_cpu.onnx
         [--heldout DATA/panda_heldout] [--scenes 5] [--realdata ../shared/realdata]
-        [--out WORK_DIR] [--skip-polish]
+        [--out WORK_DIR] [--skip-polish] [--held-object] [--only PART]
 
 Prints:
 1. synthetic held-out DR set (`--heldout`, random cameras): single-frame ADD AUC (0-0.1 m,
    DREAM's definition), keypoint PCK AUC, median ADD;
 2. `--scenes` rendered fixed-camera scenes (`synth.demo` recipe, seeds 100..): all-frames
-   extrinsic error (camera position, rotation) per scene and their median;
+   extrinsic error (camera position, rotation) per scene and their median; with
+   `--held-object` the arm holds an object in every scene (`distractors.held_prob` 1);
 3. panda_teleop: single-frame ADD AUC against its reference extrinsic, and the all-frames
    extrinsic error before and after `--polish` (no masks in the data: the network's mask head);
 4. franka_offline: silhouette IoU with the hand-made masks before and after `--polish`, and the
@@ -72,13 +73,13 @@ def heldout(model: Path, data: Path, work: Path) -> None:
           f"{m['frames_in_add_auc']}", flush=True)
 
 
-def scenes(model: Path, count: int, work: Path) -> None:
+def scenes(model: Path, count: int, work: Path, held_object: bool) -> None:
     from synth.demo import render_demo_scene
 
     t_errs, r_errs = [], []
     for k in range(count):
         seed = 100 + k
-        data = render_demo_scene(work / f"scene_{seed}", seed=seed)
+        data = render_demo_scene(work / f"scene_{seed}", seed=seed, held_object=held_object)
         doc = calibrate(data, model, work / f"scene_{seed}.json")
         seq = read_sequence(data)
         t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), seq.frames[0].T_cam_base_true)
@@ -87,8 +88,9 @@ def scenes(model: Path, count: int, work: Path) -> None:
         print(f"   scene seed {seed}: {doc['frames_used']} frames, {doc['keypoints_used']} "
               f"keypoints, camera position error {1000 * t_err:.1f} mm, rotation "
               f"{np.rad2deg(r_err):.2f} deg", flush=True)
-    print(f"2. {count} rendered fixed-camera scenes (30 frames each), all frames: median camera "
-          f"position error {1000 * np.median(t_errs):.1f} mm, rotation "
+    held = ", the arm holding an object" if held_object else ""
+    print(f"2. {count} rendered fixed-camera scenes (30 frames each{held}), all frames: median "
+          f"camera position error {1000 * np.median(t_errs):.1f} mm, rotation "
           f"{np.rad2deg(np.median(r_errs)):.2f} deg", flush=True)
 
 
@@ -165,6 +167,9 @@ def main() -> int:
     parser.add_argument("--realdata", type=Path, default=REPO.parent / "shared" / "realdata")
     parser.add_argument("--out", type=Path)
     parser.add_argument("--skip-polish", action="store_true")
+    parser.add_argument("--held-object", action="store_true",
+                        help="the rendered scenes show the arm holding an object (a plate or a "
+                             "primitive at the hand, as a board held during calibration)")
     parser.add_argument("--only", choices=("heldout", "scenes", "teleop", "franka"))
     args = parser.parse_args()
     work = args.out or Path(tempfile.mkdtemp(prefix="dream-model-eval-"))
@@ -173,7 +178,7 @@ def main() -> int:
     if args.heldout and args.only in (None, "heldout"):
         heldout(args.model, args.heldout, work)
     if args.scenes and args.only in (None, "scenes"):
-        scenes(args.model, args.scenes, work)
+        scenes(args.model, args.scenes, work, args.held_object)
     if (args.realdata / "panda_teleop").exists() and args.only in (None, "teleop"):
         panda_teleop(args.model, args.realdata / "panda_teleop", work, not args.skip_polish)
     if (args.realdata / "franka_offline").exists() and args.only in (None, "franka"):

@@ -27,9 +27,12 @@ DEMO_SCENE = {  # overrides of the default recipe (metres, radians, pixels)
 
 
 def render_demo_scene(out_dir: str | Path, seed: int = DEMO_SEED,
-                      num_frames: int = DEMO_FRAMES) -> Path:
-    """Render the demo scene into `out_dir` (overwritten); returns the folder."""
+                      num_frames: int = DEMO_FRAMES, held_object: bool = False) -> Path:
+    """Render the demo scene into `out_dir` (overwritten); returns the folder. `held_object`:
+    the arm holds an object (`distractors.held_prob` 1) throughout the sequence."""
+    scene = {**DEMO_SCENE, "distractors": {**DEMO_SCENE["distractors"],
+                                           "held_prob": 1.0 if held_object else 0.0}}
     job = SynthJob(robot=DEMO_ROBOT, out_dir=Path(out_dir), num_frames=num_frames,
-                   config=config_from_dict(DEMO_SCENE), seed=seed)
+                   config=config_from_dict(scene), seed=seed)
     generate(job, overwrite=True, on_progress=lambda done: None)
     return Path(out_dir)
