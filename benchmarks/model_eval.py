@@ -108,8 +108,7 @@ def panda_teleop(model: Path, data: Path, work: Path, polish: bool) -> None:
         p = pdoc.get("polish", {})
         polish_line = (f"; with --polish (masks from the network's mask head): IoU "
                        f"{p.get('iou_before', float('nan')):.3f} -> "
-                       f"{p.get('iou_after', float('nan')):.3f}, "
-                       f"{'kept' if p.get('kept') else 'not kept'} ({p.get('reason')}), camera "
+                       f"{p.get('iou_after', float('nan')):.3f} ({p.get('reason')}), camera "
                        f"position error {1000 * m_pol['translation_error_m']['median']:.1f} mm, "
                        f"rotation {np.rad2deg(m_pol['rotation_error_rad']['median']):.2f} deg")
     else:
@@ -132,7 +131,7 @@ def franka_offline(model: Path, data: Path, work: Path, polish: bool) -> None:
     if polish and "polish" in doc:
         p = doc["polish"]
         print(f"4. franka_offline: silhouette IoU {p['iou_before']:.3f} -> {p['iou_after']:.3f}"
-              f" ({'kept' if p['kept'] else 'not kept'}: {p['reason']}); keypoint fit "
+              f" ({p['reason']}); keypoint fit "
               f"{doc['keypoints_used']} keypoints, RMSE {doc['rmse_px']:.2f} px", flush=True)
     seq = read_sequence(data)
     T_ref = np.asarray(doc["T_cam_base"])
