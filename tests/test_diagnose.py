@@ -9,6 +9,7 @@ the test knows the answer. Parameters must be within 10 % or 3 stated sigmas
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -77,6 +78,23 @@ def test_null_sequence_gives_empty_verdict(seed):
     assert doc["verdict"] == []
     assert diagnosis.extension.is_empty
     assert doc["gain"]["heldout_rmse_px_after"] == doc["gain"]["heldout_rmse_px_before"]
+
+
+def test_many_far_off_detections_do_not_move_the_baseline():
+    """60 % of the detections of every keypoint but the base placed far off (as a detector that
+    puts the wrist on a held board): the diagnosis cuts them at the robust calibration it
+    starts from, so its baseline stays on the truth and nothing is blamed on the model. (A
+    Huber fit over every detection first ended 0.75 m away.)"""
+    seq, robot, _ = _case(None, 8101)
+    obs = observations_from_labels(seq, robot)
+    rng = np.random.default_rng(0)
+    far = rng.random(obs.uv.shape[:2]) < 0.6
+    far[:, 0] = False
+    uv = obs.uv.copy()
+    uv[far] += np.array([250.0, 125.0]) + rng.normal(0, 3, (int(far.sum()), 2))
+    doc, _, _ = diagnose_sequence(seq, robot, dataclasses.replace(obs, uv=uv))
+    assert doc["truth"]["before"]["translation_error_m"] < 5e-3
+    assert doc["verdict"] == []
 
 
 def test_joint_one_and_last_joint_are_reported_unidentifiable():

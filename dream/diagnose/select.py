@@ -411,10 +411,12 @@ def _compare(current: Evaluation, candidate: Evaluation, mask: np.ndarray, scale
     return significant, evidence, p, bic_delta
 
 
-def _gross_mask(problem: Problem, fit: FitResult, settings: DiagnoseSettings) -> np.ndarray:
+def _gross_mask(problem: Problem, residual: np.ndarray,
+                settings: DiagnoseSettings) -> np.ndarray:
+    """Observations whose (F, K, 2) residual lies within the gross-outlier limit."""
     limit = settings.gross_outlier_fraction * np.hypot(problem.camera.width,
                                                        problem.camera.height)
-    dist = np.linalg.norm(fit.residual, axis=-1)
+    dist = np.linalg.norm(residual, axis=-1)
     return problem.observed & np.isfinite(dist) & (dist <= limit)
 
 
@@ -431,10 +433,15 @@ def diagnose(problem: Problem, T_cam_base_init: np.ndarray,
     settings = settings or DiagnoseSettings()
     say = progress or (lambda message: log.info(message))
     started = time.perf_counter()
-    observed = problem.observed
-    first = fit_model(Model(problem, (), T_cam_base_init), observed,
-                      scale_px=max(settings.min_huber_scale_px, 3.0))
-    mask = _gross_mask(problem, first, settings)
+    # the gross outliers are first cut at the robust starting extrinsic: a Huber fit over every
+    # detection is pulled away by many wrong ones (a detector that puts the wrist on a held
+    # board), and a cut after such a fit keeps them
+    start = Model(problem, (), T_cam_base_init)
+    near = _gross_mask(problem, problem.uv - start.predict(np.zeros(start.size)), settings)
+    if near.sum() * 2 < 2 * start.size:   # a poor start: every detection
+        near = problem.observed
+    first = fit_model(start, near, scale_px=max(settings.min_huber_scale_px, 3.0))
+    mask = _gross_mask(problem, first.residual, settings)
     sigma = 1.4826 * float(np.median(np.abs(first.residual[mask])))
     scale = max(settings.min_huber_scale_px, settings.huber_scale_sigmas * sigma)
     baseline = evaluate("baseline", Model(problem, (), first.T_cam_base), mask, scale, settings)
@@ -484,7 +491,7 @@ def diagnose(problem: Problem, T_cam_base_init: np.ndarray,
         accepted.append(best.name)
         current = best.evaluation
         remaining.remove(best.name)
-        new_mask = _gross_mask(problem, current.fit, settings)
+        new_mask = _gross_mask(problem, current.fit.residual, settings)
         if not np.array_equal(new_mask, mask):
             mask = new_mask
             current = evaluate(current.name, current.fit.model, mask, scale, settings,
