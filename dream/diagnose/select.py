@@ -438,7 +438,7 @@ def diagnose(problem: Problem, T_cam_base_init: np.ndarray,
     # board), and a cut after such a fit keeps them
     start = Model(problem, (), T_cam_base_init)
     near = _gross_mask(problem, problem.uv - start.predict(np.zeros(start.size)), settings)
-    if near.sum() * 2 < 2 * start.size:   # a poor start: every detection
+    if near.sum() < start.size:   # a start too poor to cut at: begin with every detection
         near = problem.observed
     first = fit_model(start, near, scale_px=max(settings.min_huber_scale_px, 3.0))
     mask = _gross_mask(problem, first.residual, settings)
