@@ -178,12 +178,17 @@ def _windows(maps: np.ndarray, ks: np.ndarray, us: np.ndarray, vs: np.ndarray,
     return np.where(inside, values, 0.0).reshape(n, -1), inside.reshape(n, -1)
 
 
+def _window_offsets(r: int) -> tuple[np.ndarray, np.ndarray]:
+    """(m,) du and dv of the (2r+1)^2 = m window pixels, in `_windows`' row-major order."""
+    offsets = np.arange(-r, r + 1, dtype=float)
+    return np.tile(offsets, 2 * r + 1), np.repeat(offsets, 2 * r + 1)
+
+
 def _fit_quadratic_log(z: np.ndarray, keep: np.ndarray, r: int) -> np.ndarray:
     """(n, 2) offset (du, dv) of the maximum of a 2D quadratic fitted to log(values) of each
     window (`_windows`) over its `keep` pixels, weighted by the squared values (Guo's
     weighting); exact for a sampled Gaussian. NaN where a fit has no maximum."""
-    offsets = np.arange(-r, r + 1, dtype=float)
-    dv, du = np.repeat(offsets, 2 * r + 1), np.tile(offsets, 2 * r + 1)
+    du, dv = _window_offsets(r)
     A = np.stack([np.ones_like(du), du, dv, du * du, dv * dv, du * dv], axis=1)    # (m, 6)
     zk = np.where(keep, z, 0.0)                  # rows scaled by z -> weighted by z^2
     logz = np.log(np.where(keep, z, 1.0))
@@ -222,8 +227,7 @@ def _refine(maps: np.ndarray, ks: np.ndarray, us: np.ndarray, vs: np.ndarray,
         offset[fit] = _fit_quadratic_log(z[fit], keep[fit], r)
     bad = ~np.all(np.abs(offset) <= r, axis=1)             # NaN (no fit) or too far
     if bad.any():
-        offsets = np.arange(-r, r + 1, dtype=float)
-        du, dv = np.tile(offsets, 2 * r + 1), np.repeat(offsets, 2 * r + 1)
+        du, dv = _window_offsets(r)
         weights = np.clip(z[bad], 0.0, None)
         total = weights.sum(axis=1)
         safe = np.where(total > 0, total, 1.0)

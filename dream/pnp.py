@@ -325,9 +325,8 @@ def fit_pose(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T_ini
     # `lin` holds the residuals and Jacobians of the usable keypoints at the final T
     residuals = np.full((len(P_base), 2), np.nan)
     residuals[usable] = lin[0]
-    jacobians = np.zeros((len(P_base), 2, 6))
-    jacobians[usable] = lin[1]
-    covariance, cond = _covariance(residuals[keep], jacobians[keep], weights[keep])
+    kept = keep[usable]                     # keep is a subset of usable
+    covariance, cond = _covariance(lin[0][kept], lin[1][kept], weights[keep])
     if cond > settings.max_condition:
         return NoSolution(f"the pose is not determined by these keypoints (condition number "
                           f"{cond:.1e})")
