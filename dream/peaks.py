@@ -15,6 +15,7 @@ The records are named after their space: `PeaksInMap` (`uv_map`), `PeaksInInput`
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
+from functools import lru_cache
 
 import numpy as np
 
@@ -28,7 +29,10 @@ OUT_OF_FRAME = "out_of_frame"        # the refined centre lies outside the map
 REASONS = (FOUND, BELOW_THRESHOLD, AMBIGUOUS, OUT_OF_FRAME)
 _GAUSS_TRUNCATE_SIGMAS = 4.0  # the smoothing kernel's half size, in sigmas
 _MIN_FIT_PIXELS = 6         # unknowns of the 2D quadratic fit
+_MIN_FIT_FRACTION = 1e-6    # the fit leaves out pixels below this fraction of the peak (at
+                            # weight z^2 they would carry < 1e-12 of its weight)
 _VALID_STRIDES = (1, 2, 4)
+_NEIGHBOURS_VU = np.array([(dv, du) for dv in (-1, 0, 1) for du in (-1, 0, 1) if dv or du])
 
 
 @dataclass(frozen=True)
@@ -178,25 +182,35 @@ def _windows(maps: np.ndarray, ks: np.ndarray, us: np.ndarray, vs: np.ndarray,
     return np.where(inside, values, 0.0).reshape(n, -1), inside.reshape(n, -1)
 
 
-def _window_offsets(r: int) -> tuple[np.ndarray, np.ndarray]:
-    """(m,) du and dv of the (2r+1)^2 = m window pixels, in `_windows`' row-major order."""
+@lru_cache(maxsize=8)
+def _window_design(r: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """du (m,), dv (m,) of the (2r+1)^2 = m window pixels in `_windows`' row-major order, the
+    (m, 6) design matrix A of the 2D quadratic (1, du, dv, du^2, dv^2, du dv) and the (m, 36)
+    outer products of its rows (so that weights (n, m) @ them are the normal matrices);
+    read-only."""
     offsets = np.arange(-r, r + 1, dtype=float)
-    return np.tile(offsets, 2 * r + 1), np.repeat(offsets, 2 * r + 1)
+    du, dv = np.tile(offsets, 2 * r + 1), np.repeat(offsets, 2 * r + 1)
+    A = np.stack([np.ones_like(du), du, dv, du * du, dv * dv, du * dv], axis=1)
+    outer = (A[:, :, None] * A[:, None, :]).reshape(len(A), 36)
+    for a in (du, dv, A, outer):
+        a.setflags(write=False)
+    return du, dv, A, outer
 
 
 def _fit_quadratic_log(z: np.ndarray, keep: np.ndarray, r: int) -> np.ndarray:
     """(n, 2) offset (du, dv) of the maximum of a 2D quadratic fitted to log(values) of each
     window (`_windows`) over its `keep` pixels, weighted by the squared values (Guo's
     weighting); exact for a sampled Gaussian. NaN where a fit has no maximum."""
-    du, dv = _window_offsets(r)
-    A = np.stack([np.ones_like(du), du, dv, du * du, dv * dv, du * dv], axis=1)    # (m, 6)
+    _, _, A, outer = _window_design(r)
     zk = np.where(keep, z, 0.0)                  # rows scaled by z -> weighted by z^2
-    logz = np.log(np.where(keep, z, 1.0))
-    normal = np.einsum("nm,mi,mj->nij", zk * zk, A, A)
-    rhs = np.einsum("nm,mi->ni", zk * zk * logz, A)
+    weight = zk * zk
+    normal = (weight @ outer).reshape(-1, 6, 6)
+    rhs = (weight * np.log(np.where(keep, z, 1.0))) @ A
     out = np.full((len(z), 2), np.nan)
-    # normal equations: 6 unknowns on <= (2 r + 1)^2 well-spread pixels
-    i = _solvable(normal)
+    # normal equations: 6 unknowns on <= (2 r + 1)^2 pixels; with positive weights they are
+    # singular exactly when the kept pixels do not fix a quadratic, a property of the pattern
+    # (kept pixels weigh z^2 >= _MIN_FIT_FRACTION^2 of the peak's: far from rounding)
+    i = _solvable(keep, r)
     _, b, c, d, e, f = np.linalg.solve(normal[i], rhs[i][:, :, None])[:, :, 0].T
     # maximum where the gradient (b + 2 d x + f y, c + f x + 2 e y) vanishes; the Hessian
     # [[2d, f], [f, 2e]] must be negative definite
@@ -206,11 +220,16 @@ def _fit_quadratic_log(z: np.ndarray, keep: np.ndarray, r: int) -> np.ndarray:
     return out
 
 
-def _solvable(normal: np.ndarray) -> np.ndarray:
-    """Indices of the (n, 6, 6) systems that are not singular."""
-    with np.errstate(all="ignore"):
-        cond = np.linalg.cond(normal)
-    return np.flatnonzero(np.isfinite(cond) & (cond < 1 / np.finfo(float).eps))
+def _solvable(keep: np.ndarray, r: int) -> np.ndarray:
+    """Indices of the (n, m) window patterns `keep` whose pixels fix a 2D quadratic (the design
+    matrix of `_window_design(r)` has rank 6 on them); each pattern's rank is computed once."""
+    return np.flatnonzero([_pattern_fixes_quadratic(r, row.tobytes()) for row in keep])
+
+
+@lru_cache(maxsize=4096)
+def _pattern_fixes_quadratic(r: int, keep_bytes: bytes) -> bool:
+    keep = np.frombuffer(keep_bytes, dtype=bool)
+    return bool(np.linalg.matrix_rank(_window_design(r)[2][keep]) == 6)
 
 
 def _refine(maps: np.ndarray, ks: np.ndarray, us: np.ndarray, vs: np.ndarray,
@@ -220,14 +239,15 @@ def _refine(maps: np.ndarray, ks: np.ndarray, us: np.ndarray, vs: np.ndarray,
     or lands farther than the window's radius."""
     r = params.refine_radius
     z, inside = _windows(maps, ks, us, vs, r)
-    keep = inside & (z > params.refine_floor * z.max(axis=1, keepdims=True))
+    floor = max(params.refine_floor, _MIN_FIT_FRACTION)
+    keep = inside & (z > floor * z.max(axis=1, keepdims=True))
     offset = np.full((len(ks), 2), np.nan)
     fit = keep.sum(axis=1) >= _MIN_FIT_PIXELS
     if fit.any():
         offset[fit] = _fit_quadratic_log(z[fit], keep[fit], r)
     bad = ~np.all(np.abs(offset) <= r, axis=1)             # NaN (no fit) or too far
     if bad.any():
-        du, dv = _window_offsets(r)
+        du, dv, _, _ = _window_design(r)
         weights = np.clip(z[bad], 0.0, None)
         total = weights.sum(axis=1)
         safe = np.where(total > 0, total, 1.0)
@@ -236,64 +256,78 @@ def _refine(maps: np.ndarray, ks: np.ndarray, us: np.ndarray, vs: np.ndarray,
     return np.stack([us, vs], axis=1).astype(float) + offset
 
 
-def _best_peak(vs: np.ndarray, us: np.ndarray, values: np.ndarray,
-               params: PeakParams) -> tuple[int, str]:
-    """Index of the best of one map's local maxima at (vs, us) with smoothed `values`, and
-    BELOW_THRESHOLD / AMBIGUOUS / FOUND (found before the out-of-frame test)."""
-    if len(vs) == 0:
-        return -1, BELOW_THRESHOLD
-    best = int(np.argmax(values))
-    far = np.hypot(us - us[best], vs - vs[best]) > params.ambiguity_min_distance
-    if np.any(far) and values[far].max() > params.ambiguity_ratio * values[best]:
-        return best, AMBIGUOUS
-    return best, FOUND
+@dataclass(frozen=True)
+class _Smoothed:
+    """Smoothed maps in a padded layout: map k's pixel (v, u) is `values[k, v + row0[k],
+    u + col0[k]]`; pixels not computed (and the padding) read -inf."""
+
+    values: np.ndarray   # (K, H, W) float32
+    row0: np.ndarray     # (K,) int
+    col0: np.ndarray     # (K,) int
+
+    def at(self, ks: np.ndarray, vs: np.ndarray, us: np.ndarray) -> np.ndarray:
+        return self.values[ks, vs + self.row0[ks], us + self.col0[ks]]
+
+    def to_map(self, ks: np.ndarray, rows: np.ndarray,
+               cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(vs, us) in map pixels of layout positions (rows, cols) of maps ks."""
+        return rows - self.row0[ks], cols - self.col0[ks]
 
 
-def _smooth_stacked(maps: np.ndarray, sigma: float) -> np.ndarray:
-    """(K, h + g, w) float32: each of the (K, h, w) maps smoothed by a Gaussian of `sigma` px
-    (zero outside the map, kernel truncated at 4 sigma as scipy's; `sigma` 0: no smoothing),
-    followed by g >= 1 rows of -inf. The maps are filtered as one tall single-channel image
-    whose g gap rows (the kernel's half size, zero while filtering) keep them apart; the -inf
-    rows then keep them apart in the local-maximum search."""
+def _smooth_padded(maps: np.ndarray, sigma: float) -> np.ndarray:
+    """(K, h + 2 g, w + 2) float32: each of the (K, h, w) maps smoothed by a Gaussian of `sigma`
+    px (zero outside the map, kernel truncated at 4 sigma as scipy's; `sigma` 0: no smoothing)
+    at rows g..g+h-1 and columns 1..w, surrounded by -inf, which keeps the maps apart in the
+    local-maximum search (`_local_maxima`). The maps are filtered as one tall image whose zero
+    gap rows (2 g >= the kernel's half size) keep them apart."""
     import cv2
 
     K, h, w = maps.shape
-    r = int(np.ceil(_GAUSS_TRUNCATE_SIGMAS * sigma)) if sigma > 0 else 0
-    gap = max(r, 1)
-    tall = np.zeros((K, h + gap, w), np.float32)
-    tall[:, :h] = maps
+    r = _kernel_radius(sigma)
+    g = max((r + 1) // 2, 1)
+    padded = np.zeros((K, h + 2 * g, w + 2), np.float32)
+    padded[:, g:g + h, 1:w + 1] = maps
     if r > 0:
-        flat = tall.reshape(K * (h + gap), w)
+        flat = padded.reshape(-1, w + 2)
         cv2.GaussianBlur(flat, (2 * r + 1, 2 * r + 1), sigma, dst=flat,
                          borderType=cv2.BORDER_CONSTANT)
-    tall[:, h:] = -np.inf
-    return tall
+    padded[:, :g] = -np.inf
+    padded[:, g + h:] = -np.inf
+    padded[:, :, 0] = -np.inf
+    padded[:, :, -1] = -np.inf
+    return padded
 
 
-def _local_maxima(stacked: np.ndarray, h: int, threshold: float) -> tuple[np.ndarray, ...]:
-    """(ks, vs, us) of the pixels of `_smooth_stacked` maps (map rows 0..h-1) that reach
-    `threshold` and are not lower than any of their 8 neighbours in their own map (the outside
-    does not count), sorted by map: a 3x3 grey dilation of the tall image."""
-    import cv2
-
-    K, rows, w = stacked.shape
-    flat = stacked.reshape(K * rows, w)
-    dilated = cv2.dilate(flat, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT,
-                         borderValue=-np.inf)
-    row, us = np.nonzero((flat >= dilated) & (flat >= threshold))
-    ks, vs = np.divmod(row, rows)
-    return ks, vs, us
+def _map_origin(padded: np.ndarray, h: int) -> int:
+    """Row of map row 0 in `_smooth_padded`'s output for maps of `h` rows."""
+    return (padded.shape[1] - h) // 2
 
 
-def _maxima(maps: np.ndarray,
-            params: PeakParams) -> tuple[list[slice], np.ndarray, np.ndarray, np.ndarray]:
-    """(per_map, vs, us, smoothed values) of the local maxima of (K, h, w) float32 maps that
-    reach the threshold after smoothing; those of map k are `vs[per_map[k]]` etc."""
-    stacked = _smooth_stacked(maps, params.smoothing_sigma)
-    ks, vs, us = _local_maxima(stacked, maps.shape[1], params.threshold)
-    bounds = np.searchsorted(ks, np.arange(len(maps) + 1))  # ks is sorted by map
-    per_map = [slice(bounds[k], bounds[k + 1]) for k in range(len(maps))]
-    return per_map, vs, us, stacked[ks, vs, us]
+def _kernel_radius(sigma: float) -> int:
+    return int(np.ceil(_GAUSS_TRUNCATE_SIGMAS * sigma)) if sigma > 0 else 0
+
+
+def _smooth(maps: np.ndarray, sigma: float) -> _Smoothed:
+    """Every pixel of the (K, h, w) maps smoothed (`_smooth_padded`)."""
+    K, h, _ = maps.shape
+    padded = _smooth_padded(maps, sigma)
+    return _Smoothed(padded, np.full(K, _map_origin(padded, h)), np.ones(K, int))
+
+
+def _local_maxima(smoothed: _Smoothed, floor: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(ks, vs, us) of the map pixels that reach their map's `floor` (K,) (all > 0) and are
+    not lower than any of their 8 neighbours in their own map (the outside does not count),
+    sorted by map. Only pixels above the floor are compared, so a high floor makes the search
+    cheap."""
+    padded = smoothed.values
+    K, rows, wp = padded.shape
+    flat = padded.reshape(-1)
+    idx = np.flatnonzero(padded >= np.asarray(floor, np.float32).reshape(-1, 1, 1))
+    # the -inf surround is below every floor, so each candidate's 8 neighbours exist
+    neighbours = flat[idx[:, None] + _NEIGHBOURS_VU @ np.array([wp, 1])]      # (n, 8)
+    idx = idx[flat[idx] >= neighbours.max(axis=1, initial=-np.inf)]
+    ks, rest = np.divmod(idx, rows * wp)
+    return (ks,) + smoothed.to_map(ks, *np.divmod(rest, wp))
 
 
 def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInMap:
@@ -316,28 +350,38 @@ def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInM
     # smoothing and the maximum search in float32 (the network's precision; several times
     # faster than float64), the sub-pixel fit in float64 (`_refine`)
     belief32 = belief.astype(np.float32, copy=False)
+    smoothed = _smooth(belief32, params.smoothing_sigma)
+    # the best peak is the map's (first) maximum, a local maximum; only maxima above
+    # ambiguity_ratio times it can make the map ambiguous, so none below are searched for
+    flat = smoothed.values.reshape(K, -1)
+    best = flat.argmax(axis=1)
+    best_value = flat[np.arange(K), best]
+    best_v, best_u = smoothed.to_map(np.arange(K), *np.divmod(best, smoothed.values.shape[2]))
+    above = best_value >= params.threshold
+    ambiguous = np.zeros(K, bool)
+    if params.ambiguity_ratio < 1:                 # at 1 no peak is higher than the best
+        # maps below the threshold have no maxima above it, whatever their floor
+        floor = np.maximum(params.threshold,
+                           params.ambiguity_ratio * np.where(above, best_value, 0.0))
+        ks, vs, us = _local_maxima(smoothed, floor)
+        rival = (np.hypot(us - best_u[ks], vs - best_v[ks]) > params.ambiguity_min_distance) \
+            & (smoothed.at(ks, vs, us) > params.ambiguity_ratio * best_value[ks])
+        ambiguous[ks[rival]] = True
+    confidence = np.where(above, belief32[np.arange(K), best_v, best_u], 0.0).astype(float)
     uv = np.full((K, 2), np.nan)
-    confidence = np.zeros(K)
-    reasons: list[str] = []
-    per_map, vs, us, values = _maxima(belief32, params)
-    best = np.zeros(K, int)
-    for k, i in enumerate(per_map):
-        b, reason = _best_peak(vs[i], us[i], values[i], params)
-        if b >= 0:
-            best[k] = i.start + b
-            confidence[k] = belief32[k, vs[best[k]], us[best[k]]]
-        reasons.append(reason)
-    ks = np.flatnonzero([r == FOUND for r in reasons])
+    ks = np.flatnonzero(above & ~ambiguous)
+    inside = np.zeros(K, bool)
     if len(ks):
-        refined = _refine(belief32, ks, us[best[ks]], vs[best[ks]], params)
-        inside = np.all((refined >= -0.5) & (refined <= np.array([w, h]) - 0.5), axis=1)
-        uv[ks[inside]] = refined[inside]
-        for k in ks[~inside]:
-            reasons[k] = OUT_OF_FRAME
-    found = np.array([r == FOUND for r in reasons], dtype=bool)
+        refined = _refine(belief32, ks, best_u[ks], best_v[ks], params)
+        inside[ks] = np.all((refined >= -0.5) & (refined <= np.array([w, h]) - 0.5), axis=1)
+        uv[ks[inside[ks]]] = refined[inside[ks]]
+    found = above & ~ambiguous & inside
+    reasons = tuple(FOUND if f else BELOW_THRESHOLD if not a else AMBIGUOUS if m else OUT_OF_FRAME
+                    for f, a, m in zip(found.tolist(), above.tolist(), ambiguous.tolist(),
+                                       strict=True))
     for a in (uv, confidence, found):
         a.setflags(write=False)
-    return PeaksInMap(uv, confidence, found, tuple(reasons), w, h)
+    return PeaksInMap(uv, confidence, found, reasons, w, h)
 
 
 def peak_candidates(belief: np.ndarray, params: PeakParams | None = None,
@@ -349,11 +393,14 @@ def peak_candidates(belief: np.ndarray, params: PeakParams | None = None,
     maps = np.asarray(belief, dtype=np.float32)
     if maps.ndim != 3:
         raise InputError(f"belief maps have shape {maps.shape}, expected (K, h, w)")
-    per_map, vs, us, values = _maxima(maps, params)
+    smoothed = _smooth(maps, params.smoothing_sigma)
+    ks, vs, us = _local_maxima(smoothed, np.full(len(maps), params.threshold))
+    values = smoothed.at(ks, vs, us)
+    bounds = np.searchsorted(ks, np.arange(len(maps) + 1))  # ks is sorted by map
     out = []
-    for i in per_map:
-        mine = np.arange(i.start, i.stop)
-        best = mine[np.argsort(-values[i], kind="stable")[:max_per_map]]
+    for k in range(len(maps)):
+        mine = np.arange(bounds[k], bounds[k + 1])
+        best = mine[np.argsort(-values[mine], kind="stable")[:max_per_map]]
         out.append((np.stack([us[best], vs[best]], 1).astype(float), values[best].astype(float)))
     return out
 

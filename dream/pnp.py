@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from dream.camera import CameraIntrinsics, pixels_to_normalized, project_with_jacobian
+from dream.camera import CameraIntrinsics, pixels_to_normalized
 from dream.errors import InputError
-from dream.transforms import R_from_rotvec, T_from_rotvec_t, make_T
+from dream.transforms import R_from_rotvec, T_from_rotvec_t
 
 log = logging.getLogger(__name__)
 
@@ -26,6 +26,8 @@ _DAMPING_FACTOR = 10.0   # LM lambda is multiplied / divided by this on a reject
 _MIN_DAMPING = 1e-12
 _MAX_DAMPING = 1e12      # a step is given up when lambda exceeds this (converged)
 _TINY = 1e-300           # keeps the damping positive for a zero diagonal entry
+_ZERO_ROTVEC = np.zeros(3)
+_LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
 
 
 @dataclass(frozen=True)
@@ -96,6 +98,9 @@ class SolverSettings:
                 raise InputError(f"{name} must be positive")
         if not self.convergence_sigma >= 0:
             raise InputError(f"convergence_sigma must be >= 0, got {self.convergence_sigma}")
+
+
+_DEFAULT_SETTINGS = SolverSettings()
 
 
 @dataclass(frozen=True)
@@ -185,25 +190,37 @@ def initial_pose(P_base: np.ndarray, uv: np.ndarray,
 
 
 def linearise(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
-               T: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """Residuals (N, 2) and d residual / d xi (N, 2, 6); None if a point is behind the camera."""
+              T: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Residuals (N, 2) and d residual / d xi (N, 2, 6); None if a point is behind the camera.
+
+    One compiled call (the solvers' inner loop): OpenCV's `projectPoints` of the rotated points
+    R P_base with rotation vector 0 and translation t, whose derivatives by that rotation vector
+    and by t are exactly those by xi = (delta_rot, delta_t).
+    """
+    n = len(P_base)
     RP = P_base @ T[:3, :3].T
-    P_cam = RP + T[:3, 3]
-    if np.any(P_cam[:, 2] <= 0):
-        return None
-    uv_hat, J_uv_P = project_with_jacobian(camera, P_cam)
-    # d P_cam / d xi = [-skew(RP), I]; a row a of J_uv_P times -skew(p) is (p x a)
-    J = np.empty(J_uv_P.shape[:2] + (6,))
-    p = RP[:, None, :]
-    J[:, :, 0] = p[..., 1] * J_uv_P[..., 2] - p[..., 2] * J_uv_P[..., 1]
-    J[:, :, 1] = p[..., 2] * J_uv_P[..., 0] - p[..., 0] * J_uv_P[..., 2]
-    J[:, :, 2] = p[..., 0] * J_uv_P[..., 1] - p[..., 1] * J_uv_P[..., 0]
-    J[:, :, 3:] = J_uv_P
-    return uv_hat - uv, J
+    if n == 0 or (RP[:, 2] + T[2, 3]).min() <= 0:
+        return None if n else (np.zeros((0, 2)), np.zeros((0, 2, 6)))
+    uv_hat, jac = _project(RP, T[:3, 3], camera)
+    return uv_hat - uv, jac[:, :6].reshape(n, 2, 6)
 
 
-def _cost(e: np.ndarray, confidence: np.ndarray, loss: RobustLoss) -> float:
-    return float(np.sum(confidence * loss.rho(np.linalg.norm(e, axis=1))))
+def _project(P_rotated: np.ndarray, t: np.ndarray,
+             camera: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels (N, 2) of the points P_rotated + t (camera frame) and OpenCV's Jacobian (2N, 15):
+    columns 0-2 by a rotation vector applied to P_rotated (at 0), 3-5 by t."""
+    uv_hat, jac = cv2.projectPoints(P_rotated, _ZERO_ROTVEC, t, camera.K,
+                                    None if camera.distortion is None else camera.dist_coeffs)
+    return uv_hat.reshape(-1, 2), jac
+
+
+def _distances(e: np.ndarray) -> np.ndarray:
+    """(N,) pixel distances |e| of residuals (N, 2)."""
+    return np.hypot(e[:, 0], e[:, 1])
+
+
+def _cost(distance: np.ndarray, confidence: np.ndarray, loss: RobustLoss) -> float:
+    return float(confidence @ loss.rho(distance))
 
 
 class _BehindCamera(Exception):
@@ -212,15 +229,21 @@ class _BehindCamera(Exception):
 
 def apply_increment(T: np.ndarray, xi: np.ndarray) -> np.ndarray:
     """The update matching the Jacobians: P_cam = exp(xi_rot) R P_base + t + xi_t."""
-    return make_T(R_from_rotvec(xi[:3]) @ T[:3, :3], T[:3, 3] + xi[3:])
+    T_new = np.empty((4, 4))
+    T_new[:3, :3] = R_from_rotvec(xi[:3]) @ T[:3, :3]
+    T_new[:3, 3] = T[:3, 3] + xi[3:]
+    T_new[3] = _LAST_ROW
+    return T_new
 
 
 def levenberg_marquardt(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
                         T_init: np.ndarray, confidence: np.ndarray,
-                        settings: SolverSettings) -> tuple[np.ndarray, int]:
+                        settings: SolverSettings
+                        ) -> tuple[np.ndarray, int, tuple[np.ndarray, np.ndarray]]:
     """Minimise sum_i c_i rho(|project(T P_i) - uv_i|) over T (IRLS inside LM).
 
-    Returns the optimum and the number of iterations. Inputs must be finite.
+    Returns the optimum, the number of iterations and `linearise` at the optimum. Inputs must
+    be finite.
     """
     loss = settings.loss
     T = T_init.copy()
@@ -228,38 +251,41 @@ def levenberg_marquardt(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrin
     if lin is None:
         raise _BehindCamera()
     e, J = lin
-    cost = _cost(e, confidence, loss)
+    distance = _distances(e)
+    cost = _cost(distance, confidence, loss)
     lam = settings.initial_damping
     dof = max(2 * int(np.count_nonzero(confidence)) - 6, 1)
     iterations = 0
     while iterations < settings.max_iterations:
         iterations += 1
-        w = confidence * loss.weight(np.linalg.norm(e, axis=1))
-        J2 = J.reshape(-1, 6)
-        WJ = J2 * np.repeat(w, 2)[:, None]
-        H = WJ.T @ J2
+        w = confidence * loss.weight(distance)
+        WJ = (J * w[:, None, None]).reshape(-1, 6)
+        H = WJ.T @ J.reshape(-1, 6)
         g = WJ.T @ e.reshape(-1)
+        damping = H.diagonal() + _TINY
         improved = False
         while lam < _MAX_DAMPING:
-            xi = np.linalg.solve(H + lam * np.diag(np.diag(H) + _TINY), -g)
+            xi = np.linalg.solve(H + np.diag(lam * damping), -g)
             # the decrease the reweighted quadratic model predicts is, in squared standard
             # deviations of the pose (covariance s^2 H^-1, s^2 = 2 cost / dof), the remaining
             # distance to the optimum: d^2 = 2 predicted / s^2 = predicted dof / cost
             predicted = -(g @ xi) - 0.5 * (xi @ H @ xi)
             if predicted * dof <= settings.convergence_sigma ** 2 * cost:
-                return T, iterations
+                return T, iterations, (e, J)
             T_new = apply_increment(T, xi)
             lin_new = linearise(P_base, uv, camera, T_new)
-            new_cost = np.inf if lin_new is None else _cost(lin_new[0], confidence, loss)
-            if new_cost <= cost:
-                T, (e, J), cost = T_new, lin_new, new_cost
-                lam = max(lam / _DAMPING_FACTOR, _MIN_DAMPING)
-                improved = True
-                break
+            if lin_new is not None:
+                distance_new = _distances(lin_new[0])
+                new_cost = _cost(distance_new, confidence, loss)
+                if new_cost <= cost:
+                    T, (e, J), distance, cost = T_new, lin_new, distance_new, new_cost
+                    lam = max(lam / _DAMPING_FACTOR, _MIN_DAMPING)
+                    improved = True
+                    break
             lam *= _DAMPING_FACTOR
-        if not improved or np.linalg.norm(xi) < settings.step_tolerance:
+        if not improved or xi @ xi < settings.step_tolerance ** 2:
             break
-    return T, iterations
+    return T, iterations, (e, J)
 
 
 def covariance_at(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T: np.ndarray,
@@ -273,13 +299,15 @@ def covariance_at(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, 
 
 def _covariance(e: np.ndarray, J: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, float]:
     """`covariance_at` from the residuals (N, 2) and Jacobians (N, 2, 6) at the pose."""
-    H = np.einsum("n,nki,nkj->ij", weights, J, J)
+    J2 = J.reshape(-1, 6)
+    H = (J2 * np.repeat(weights, 2)[:, None]).T @ J2
     dof = 2 * int(np.count_nonzero(weights)) - 6
-    s2 = float(np.sum(weights * np.sum(e * e, 1)) / dof) if dof > 0 else np.nan
-    cond = np.linalg.cond(H)
-    if not np.isfinite(cond):
+    s2 = float(weights @ np.sum(e * e, 1) / dof) if dof > 0 else np.nan
+    # H is symmetric positive semi-definite: its singular values are its eigenvalues
+    eigenvalues, V = np.linalg.eigh(H)
+    if not eigenvalues[0] > 0:
         return np.full((6, 6), np.nan), np.inf
-    return s2 * np.linalg.inv(H), float(cond)
+    return s2 * (V / eigenvalues) @ V.T, float(eigenvalues[-1] / eigenvalues[0])
 
 
 def fit_pose(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T_init: np.ndarray,
@@ -290,36 +318,43 @@ def fit_pose(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T_ini
     `inlier` (N,) optionally restricts the first round to a subset (e.g. RANSAC inliers).
     Non-finite rows of P_base / uv and zero confidences are ignored.
     """
-    settings = settings or SolverSettings()
+    settings = settings or _DEFAULT_SETTINGS
     P_base, uv, confidence, usable = check_correspondences(P_base, uv, confidence)
     keep = usable if inlier is None else usable & np.asarray(inlier, bool)
-    T = np.asarray(T_init, dtype=float)
-    iterations = 0
-    for _ in range(settings.outlier_rounds + 1):
-        reason = degeneracy(P_base[keep], settings)
-        if reason is not None:
-            return NoSolution(reason)
-        try:
-            T, iterations = levenberg_marquardt(P_base[keep], uv[keep], camera, T,
-                                                confidence[keep], settings)
-        except _BehindCamera:
-            return NoSolution("the initial pose puts keypoints behind the camera")
-        lin = linearise(P_base[usable], uv[usable], camera, T)
-        if lin is None:
-            return NoSolution("the solution puts keypoints behind the camera")
-        dist = np.full(len(P_base), np.inf)
-        dist[usable] = np.linalg.norm(lin[0], axis=1)
-        sigma = np.median(dist[keep]) / RAYLEIGH_MEDIAN
-        threshold = max(settings.min_inlier_threshold_px, settings.inlier_sigma_factor * sigma)
-        new_keep = usable & (dist <= threshold)
-        # a round that would leave too few or degenerate keypoints ends the rejection: the fit
-        # of the last usable set stands
-        if np.array_equal(new_keep, keep) or degeneracy(P_base[new_keep], settings) is not None:
-            break
-        keep = new_keep
     reason = degeneracy(P_base[keep], settings)
     if reason is not None:
         return NoSolution(reason)
+    return _fit_checked(P_base, uv, camera, np.asarray(T_init, dtype=float), confidence, usable,
+                        keep, settings)
+
+
+def _fit_checked(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T: np.ndarray,
+                 confidence: np.ndarray, usable: np.ndarray, keep: np.ndarray,
+                 settings: SolverSettings) -> PoseFit | NoSolution:
+    """`fit_pose` on checked correspondences (`check_correspondences`), starting from the
+    keypoints `keep` (a subset of `usable`, not degenerate: `degeneracy`)."""
+    P_usable, uv_usable = P_base[usable], uv[usable]
+    iterations = 0
+    for _ in range(settings.outlier_rounds + 1):
+        try:
+            T, iterations, lin = levenberg_marquardt(P_base[keep], uv[keep], camera, T,
+                                                     confidence[keep], settings)
+        except _BehindCamera:
+            return NoSolution("the initial pose puts keypoints behind the camera")
+        if not np.array_equal(keep, usable):  # else `lin` is already that of every usable one
+            lin = linearise(P_usable, uv_usable, camera, T)
+            if lin is None:
+                return NoSolution("the solution puts keypoints behind the camera")
+        dist = np.full(len(P_base), np.inf)
+        dist[usable] = _distances(lin[0])
+        sigma = _median(dist[keep]) / RAYLEIGH_MEDIAN
+        threshold = max(settings.min_inlier_threshold_px, settings.inlier_sigma_factor * sigma)
+        new_keep = usable & (dist <= threshold)
+        # a round that would leave too few or degenerate keypoints ends the rejection: the fit
+        # of the last usable set stands (so `keep` is never degenerate)
+        if np.array_equal(new_keep, keep) or degeneracy(P_base[new_keep], settings) is not None:
+            break
+        keep = new_keep
     weights = np.zeros(len(P_base))
     weights[keep] = confidence[keep] * settings.loss.weight(dist[keep])
     # `lin` holds the residuals and Jacobians of the usable keypoints at the final T
@@ -330,8 +365,15 @@ def fit_pose(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T_ini
     if cond > settings.max_condition:
         return NoSolution(f"the pose is not determined by these keypoints (condition number "
                           f"{cond:.1e})")
-    rmse = float(np.sqrt(np.mean(np.sum(residuals[keep] ** 2, 1))))
+    rmse = float(np.sqrt(np.mean(np.square(dist[keep]))))
     return PoseFit(T, residuals, keep, weights, covariance, rmse, iterations)
+
+
+def _median(x: np.ndarray) -> float:
+    """np.median of a short 1D array without its overhead."""
+    x = np.sort(x)
+    n = len(x)
+    return float(0.5 * (x[(n - 1) // 2] + x[n // 2]))
 
 
 def solve_pnp(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, *,
@@ -340,7 +382,7 @@ def solve_pnp(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, *,
     """Pose of one frame: SQPnP on all usable keypoints; when that leaves a keypoint outside the
     MSAC threshold, also on leave-one-out subsets (to survive a wrong detection); the hypothesis
     with the lowest truncated cost refined robustly."""
-    settings = settings or SolverSettings()
+    settings = settings or _DEFAULT_SETTINGS
     P_base, uv, confidence, usable = check_correspondences(P_base, uv, confidence)
     reason = degeneracy(P_base[usable], settings)
     if reason is not None:
@@ -350,10 +392,11 @@ def solve_pnp(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, *,
     # leave-one-out order: the keypoint worst explained by the first pose is left out first
     order = np.arange(len(idx))
     if not isinstance(first, NoSolution):
-        _, inlier = msac_score(P_base[idx], uv[idx], camera, first, settings.ransac_threshold_px)
-        if inlier.all():  # every keypoint agrees: no subset can do better
-            return refine_best(P_base, uv, camera, [first], confidence, usable, settings)
-        order = np.argsort(-_reprojection_distance(P_base[idx], uv[idx], camera, first))
+        distance = _reprojection_distance(P_base[idx], uv[idx], camera, first)
+        if np.all(distance ** 2 <= settings.ransac_threshold_px ** 2):
+            # every keypoint agrees (all are MSAC inliers): no subset can do better
+            return _fit_checked(P_base, uv, camera, first, confidence, usable, usable, settings)
+        order = np.argsort(-distance)
     hypotheses = [] if isinstance(first, NoSolution) else [first]
     if len(idx) > settings.min_keypoints:
         for i in order:
@@ -374,12 +417,11 @@ def solve_pnp(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, *,
 def _reprojection_distance(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
                            T: np.ndarray) -> np.ndarray:
     """(N,) pixel distance between projected and observed keypoints (inf behind the camera)."""
-    P_cam = P_base @ T[:3, :3].T + T[:3, 3]
-    front = P_cam[:, 2] > 0
+    RP = P_base @ T[:3, :3].T
+    front = RP[:, 2] + T[2, 3] > 0
     distance = np.full(len(P_base), np.inf)
     if np.any(front):
-        distance[front] = np.linalg.norm(project_with_jacobian(camera, P_cam[front])[0]
-                                         - uv[front], axis=1)
+        distance[front] = _distances(_project(RP[front], T[:3, 3], camera)[0] - uv[front])
     return distance
 
 

@@ -39,11 +39,16 @@ def skew(v: np.ndarray) -> np.ndarray:
 def R_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
     """Rodrigues vectors (..., 3) -> rotation matrices (..., 3, 3)."""
     rotvec = _check_shape("rotvec", rotvec, (3,))
-    K = skew(rotvec)
     if rotvec.ndim == 1:  # one rotation (the solvers' updates): scalar maths, no masks
-        theta2 = float(rotvec @ rotvec)
+        # I + a K + b K^2 with K^2 = v v^T - theta^2 I
+        x, y, z = rotvec.tolist()
+        theta2 = x * x + y * y + z * z
         a, b = _rodrigues_coefficients(theta2)
-        return np.eye(3) + a * K + b * (K @ K)
+        c = 1.0 - b * theta2
+        return np.array([[c + b * x * x, b * x * y - a * z, b * x * z + a * y],
+                         [b * x * y + a * z, c + b * y * y, b * y * z - a * x],
+                         [b * x * z - a * y, b * y * z + a * x, c + b * z * z]])
+    K = skew(rotvec)
     theta2 = np.sum(rotvec * rotvec, axis=-1)[..., None, None]
     small = theta2 < _RODRIGUES_SERIES_BELOW ** 2
     safe2 = np.where(small, 1.0, theta2)
