@@ -206,3 +206,29 @@ def test_effect_beyond_plausible_magnitude_is_not_accepted():
     assert doc["verdict"] == []
     (entry,) = doc["effects"]
     assert "implausible magnitude" in entry["evidence"]
+
+
+def test_refit_after_acceptance_keeps_accepted_effects_plausible():
+    """After an effect is accepted the gross-outlier mask is recomputed and the models refitted
+    on it; a refit that carries an accepted effect beyond its plausible size is not taken (the
+    previous mask and fits stay, with a note), and a plausible one is."""
+    from dream.diagnose.select import PLAUSIBLE, refit_on_new_mask
+
+    seq, robot, truth = _case("joint_offset", 7000)
+    settings = DiagnoseSettings(effects=("joint_offset",))
+    _, diagnosis, problem = diagnose_sequence(seq, robot, observations_from_labels(seq, robot),
+                                              settings)
+    assert diagnosis.accepted == ["joint_offset"]
+    # a mask that left out a fifth of the keypoints: the accepted fit takes them back
+    mask = diagnosis.mask & (np.random.default_rng(0).random(diagnosis.mask.shape) > 0.2)
+    args = (problem, diagnosis.final, diagnosis.baseline, mask, ["joint_offset"],
+            diagnosis.scale_px)
+    current, baseline, new_mask, note = refit_on_new_mask(*args, settings)
+    assert note is None and new_mask.sum() > mask.sum()
+    assert current is not diagnosis.final and baseline is not diagnosis.baseline
+    offset = abs(next(iter(truth.joint_offset_rad.values())))
+    tight = dataclasses.replace(settings, plausible={**PLAUSIBLE, "joint_offset": offset / 2})
+    current, baseline, kept_mask, note = refit_on_new_mask(*args, tight)
+    assert current is diagnosis.final and baseline is diagnosis.baseline
+    assert kept_mask is mask
+    assert "was not taken: joint_offset: implausible magnitude" in note

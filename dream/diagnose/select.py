@@ -489,19 +489,40 @@ def diagnose(problem: Problem, T_cam_base_init: np.ndarray,
                          f"held-out frames as well (within {100 * settings.equivalence_tol:g} %):"
                          f" this data cannot tell them apart")
         accepted.append(best.name)
-        current = best.evaluation
         remaining.remove(best.name)
-        new_mask = _gross_mask(problem, current.fit.residual, settings)
-        if not np.array_equal(new_mask, mask):
-            mask = new_mask
-            current = evaluate(current.name, current.fit.model, mask, scale, settings,
-                               x0=current.fit.x, identifiability=current.identifiability,
-                               pruned=current.pruned)
-            baseline = evaluate("baseline", baseline.fit.model, mask, scale, settings,
-                                x0=baseline.fit.x)
+        current, baseline, mask, note = refit_on_new_mask(problem, best.evaluation, baseline,
+                                                          mask, accepted, scale, settings)
+        if note is not None:
+            notes.append(note)
+            say(note)
     extension = current.fit.model.extension(current.fit.x)
     return Diagnosis(baseline, current, accepted, tested, extension, mask, scale,
                      time.perf_counter() - started, notes, alternatives)
+
+
+def refit_on_new_mask(problem: Problem, current: Evaluation, baseline: Evaluation,
+                      mask: np.ndarray, accepted: list[str], scale_px: float,
+                      settings: DiagnoseSettings
+                      ) -> tuple[Evaluation, Evaluation, np.ndarray, str | None]:
+    """After an effect is accepted: the gross-outlier mask at its fit, and `current` and
+    `baseline` refitted on it when it changed. A refit that would carry an accepted effect
+    beyond its plausible size (`implausible`) is not taken: the previous mask and fits stay,
+    with a note saying why. Returns (current, baseline, mask, note or None)."""
+    new_mask = _gross_mask(problem, current.fit.residual, settings)
+    if np.array_equal(new_mask, mask):
+        return current, baseline, mask, None
+    refit = evaluate(current.name, current.fit.model, new_mask, scale_px, settings,
+                     x0=current.fit.x, identifiability=current.identifiability,
+                     pruned=current.pruned)
+    for effect in accepted:
+        why = implausible(refit.fit, effect, settings.plausible)
+        if why is not None:
+            return current, baseline, mask, (
+                f"the refit on the outlier mask of the accepted model ({int(new_mask.sum())} "
+                f"instead of {int(mask.sum())} keypoints) was not taken: {effect}: {why}")
+    baseline = evaluate("baseline", baseline.fit.model, new_mask, scale_px, settings,
+                        x0=baseline.fit.x)
+    return refit, baseline, new_mask, None
 
 
 def param_table(fit: FitResult) -> list[dict[str, Any]]:
