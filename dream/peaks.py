@@ -258,20 +258,19 @@ def _refine(maps: np.ndarray, ks: np.ndarray, us: np.ndarray, vs: np.ndarray,
 
 @dataclass(frozen=True)
 class _Smoothed:
-    """Smoothed maps in a padded layout: map k's pixel (v, u) is `values[k, v + row0[k],
-    u + col0[k]]`; pixels not computed (and the padding) read -inf."""
+    """Smoothed maps in a padded layout (`_smooth_padded`): map k's pixel (v, u) is
+    `values[k, v + row0, u + col0]`; the padding reads -inf."""
 
     values: np.ndarray   # (K, H, W) float32
-    row0: np.ndarray     # (K,) int
-    col0: np.ndarray     # (K,) int
+    row0: int
+    col0: int
 
     def at(self, ks: np.ndarray, vs: np.ndarray, us: np.ndarray) -> np.ndarray:
-        return self.values[ks, vs + self.row0[ks], us + self.col0[ks]]
+        return self.values[ks, vs + self.row0, us + self.col0]
 
-    def to_map(self, ks: np.ndarray, rows: np.ndarray,
-               cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(vs, us) in map pixels of layout positions (rows, cols) of maps ks."""
-        return rows - self.row0[ks], cols - self.col0[ks]
+    def to_map(self, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(vs, us) in map pixels of layout positions (rows, cols)."""
+        return rows - self.row0, cols - self.col0
 
 
 def _smooth_padded(maps: np.ndarray, sigma: float) -> np.ndarray:
@@ -283,7 +282,7 @@ def _smooth_padded(maps: np.ndarray, sigma: float) -> np.ndarray:
     import cv2
 
     K, h, w = maps.shape
-    r = _kernel_radius(sigma)
+    r = int(np.ceil(_GAUSS_TRUNCATE_SIGMAS * sigma)) if sigma > 0 else 0
     g = max((r + 1) // 2, 1)
     padded = np.zeros((K, h + 2 * g, w + 2), np.float32)
     padded[:, g:g + h, 1:w + 1] = maps
@@ -298,20 +297,10 @@ def _smooth_padded(maps: np.ndarray, sigma: float) -> np.ndarray:
     return padded
 
 
-def _map_origin(padded: np.ndarray, h: int) -> int:
-    """Row of map row 0 in `_smooth_padded`'s output for maps of `h` rows."""
-    return (padded.shape[1] - h) // 2
-
-
-def _kernel_radius(sigma: float) -> int:
-    return int(np.ceil(_GAUSS_TRUNCATE_SIGMAS * sigma)) if sigma > 0 else 0
-
-
 def _smooth(maps: np.ndarray, sigma: float) -> _Smoothed:
-    """Every pixel of the (K, h, w) maps smoothed (`_smooth_padded`)."""
-    K, h, _ = maps.shape
+    """The (K, h, w) maps smoothed (`_smooth_padded`), with their layout."""
     padded = _smooth_padded(maps, sigma)
-    return _Smoothed(padded, np.full(K, _map_origin(padded, h)), np.ones(K, int))
+    return _Smoothed(padded, (padded.shape[1] - maps.shape[1]) // 2, 1)
 
 
 def _local_maxima(smoothed: _Smoothed, floor: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -327,7 +316,7 @@ def _local_maxima(smoothed: _Smoothed, floor: np.ndarray) -> tuple[np.ndarray, .
     neighbours = flat[idx[:, None] + _NEIGHBOURS_VU @ np.array([wp, 1])]      # (n, 8)
     idx = idx[flat[idx] >= neighbours.max(axis=1, initial=-np.inf)]
     ks, rest = np.divmod(idx, rows * wp)
-    return (ks,) + smoothed.to_map(ks, *np.divmod(rest, wp))
+    return (ks,) + smoothed.to_map(*np.divmod(rest, wp))
 
 
 def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInMap:
@@ -356,7 +345,7 @@ def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInM
     flat = smoothed.values.reshape(K, -1)
     best = flat.argmax(axis=1)
     best_value = flat[np.arange(K), best]
-    best_v, best_u = smoothed.to_map(np.arange(K), *np.divmod(best, smoothed.values.shape[2]))
+    best_v, best_u = smoothed.to_map(*np.divmod(best, smoothed.values.shape[2]))
     above = best_value >= params.threshold
     ambiguous = np.zeros(K, bool)
     if params.ambiguity_ratio < 1:                 # at 1 no peak is higher than the best

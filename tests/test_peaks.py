@@ -182,15 +182,15 @@ def test_local_maxima_match_a_brute_force_search_borders_included(rng):
 def test_smoothing_keeps_maps_apart_and_matches_scipy(rng):
     from scipy.ndimage import gaussian_filter
 
-    from dream.peaks import _map_origin, _smooth_padded
+    from dream.peaks import _smooth
 
     maps = rng.random((4, 12, 10)).astype(np.float32)
     for sigma in (0.0, 0.7, 1.0, 2.0):
         expected = np.stack([gaussian_filter(m.astype(float), sigma, mode="constant", truncate=4.0)
                              for m in maps])
-        padded = _smooth_padded(maps, sigma)
-        top = _map_origin(padded, 12)
-        assert padded.shape == (4, 12 + 2 * top, 12) and top >= 1
+        smoothed = _smooth(maps, sigma)
+        padded, top = smoothed.values, smoothed.row0
+        assert padded.shape == (4, 12 + 2 * top, 12) and top >= 1 and smoothed.col0 == 1
         assert np.allclose(padded[:, top:top + 12, 1:-1], expected, atol=1e-5)
         outside = np.ones(padded.shape[1:], bool)
         outside[top:top + 12, 1:-1] = False
