@@ -1,15 +1,19 @@
 """Per-frame inference cost: onnxruntime against torch eager, and the share of peak finding +
-PnP, measured in one run on the same images, batch 1, the same thread count.
+PnP, measured in one run on the same images, the same batch size and thread count.
 
     python benchmarks/inference.py --checkpoint RUN_DIR/best.ckpt --data DATA_DIR
-        [--frames 50] [--rounds 5] [--threads 2] [--peaks NAME=VALUE ...]
+        [--frames 50] [--batch 1] [--rounds 5] [--threads 2] [--peaks NAME=VALUE ...]
+
+`--batch B`: the network runs on B frames per call and the peak finder on their B x K maps in
+one call (`find_peaks_batch`), as `dream calibrate` does (B = 8 there); the PnP is per frame.
+All figures are per frame (a batch's time / B).
 
 `--peaks` overrides the peak finder's constants as `dream export --peaks` does (the bundled model
 was exported with `ambiguity_ratio=1.0`, which passes every peak to the solver).
 
 Each round times torch eager, onnxruntime and peaks + PnP in turn, each in its own loop over the
-frames (as `dream calibrate` runs them: the network on every frame, then the geometry); the
-figures are medians over frames, then over rounds, and the share is the median of the rounds'
+batches (as `dream calibrate` runs them: the network on every batch, then the geometry); the
+figures are medians over batches, then over rounds, and the share is the median of the rounds'
 shares (this cancels the drift of a shared machine's speed between rounds).
 
 Targets: onnxruntime / torch eager latency <= 0.75; (peak finding + single-frame PnP) / network
@@ -28,7 +32,7 @@ import torch
 
 from dream.detect import prepare_batch
 from dream.io import load_image, read_sequence
-from dream.peaks import find_peaks_in_image, peak_params_from_overrides
+from dream.peaks import find_peaks_batch, peak_params_from_overrides
 from dream.pipeline import joints_in_robot_order, robot_for
 from dream.pnp import solve_pnp
 from export.onnx_export import export_onnx
@@ -54,14 +58,17 @@ def main() -> None:
     parser.add_argument("--checkpoint", required=True)
     parser.add_argument("--data", required=True, help="DREAM-layout folder with images")
     parser.add_argument("--frames", type=int, default=50)
+    parser.add_argument("--batch", type=int, default=1,
+                        help="frames per network call and per peak-finder call (dream "
+                             "calibrate: 8); figures are per frame")
     parser.add_argument("--rounds", type=int, default=5,
                         help="rounds of (torch, onnxruntime, peaks + PnP) timings")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--peaks", action="append", default=[], metavar="NAME=VALUE",
                         help="peak-finder constant (repeatable), e.g. ambiguity_ratio=1.0")
     args = parser.parse_args()
-    if args.frames < 1 or args.rounds < 1:
-        parser.error("--frames and --rounds must be >= 1")
+    if args.rounds < 1 or args.batch < 1 or args.frames < args.batch:
+        parser.error("--rounds and --batch must be >= 1, --frames >= --batch")
     torch.set_num_threads(args.threads)
     net, config = load_checkpoint(args.checkpoint)
     net.eval()
@@ -69,9 +76,11 @@ def main() -> None:
         onnx_path = export_onnx(args.checkpoint, Path(tmp) / "model.onnx")
         runner = OnnxKeypointModel(onnx_path, threads=args.threads)
         seq = read_sequence(args.data)
-        frames = seq.frames[:args.frames]
+        n = args.frames // args.batch * args.batch       # whole batches
+        frames = seq.frames[:n]
         images = [load_image(f, seq.camera) for f in frames]
-        inputs = [prepare_batch([im], runner.preprocess) for im in images]
+        inputs = [prepare_batch(images[i:i + args.batch], runner.preprocess)
+                  for i in range(0, n, args.batch)]
         batches = [b for b, _ in inputs]
 
         def torch_eager(x):
@@ -84,25 +93,28 @@ def main() -> None:
         peak_params = peak_params_from_overrides(args.peaks, "--peaks", runner.peak_params)
         robot = robot_for(seq, None, runner.keypoint_names)
         P_base = robot.forward_kinematics(joints_in_robot_order(seq, robot))
-        beliefs = [onnx(b)[0] for b in batches]
-        cameras = [seq.frame_camera(i) for i in range(len(frames))]  # each frame's own
-        post = list(zip(beliefs, [t[0] for _, t in inputs], P_base[:len(frames)], cameras,
-                        strict=True))
+        cameras = [seq.frame_camera(i) for i in range(n)]  # each frame's own
+        post = [(onnx(b), transforms, P_base[i:i + args.batch], cameras[i:i + args.batch])
+                for (b, transforms), i in zip(inputs, range(0, n, args.batch), strict=True)]
 
         def peaks_and_pnp(item):
-            belief, transform, P, camera = item
-            peaks = find_peaks_in_image(belief, runner.stride, transform, peak_params)
-            return solve_pnp(P, peaks.uv_image, camera, confidence=peaks.confidence)
+            belief, transforms, P, batch_cameras = item
+            return [solve_pnp(P[i], peaks.to_input(runner.stride).to_image(transform).uv_image,
+                              batch_cameras[i], confidence=peaks.confidence)
+                    for i, (peaks, transform) in enumerate(zip(
+                        find_peaks_batch(belief, peak_params), transforms, strict=True))]
 
         rounds = np.array([(median_ms(torch_eager, batches), median_ms(onnx, batches),
                             median_ms(peaks_and_pnp, post)) for _ in range(args.rounds)])
-        found = np.mean([find_peaks_in_image(b, runner.stride, t, peak_params).found.mean()
-                         for b, t, _, _ in post])
+        rounds /= args.batch                               # per frame
+        found = np.mean([peaks.found.mean() for belief, _, _, _ in post
+                         for peaks in find_peaks_batch(belief, peak_params)])
     t_torch, t_onnx, t_post = np.median(rounds, axis=0)
     ratio, share = rounds[:, 1] / rounds[:, 0], 100 * rounds[:, 2] / rounds[:, 1]
     i = config.input
-    print(f"{len(frames)} frames of {args.data}, input {i.input_width}x{i.input_height}, "
-          f"batch 1, {args.threads} threads, {args.rounds} rounds (medians; rounds' range)")
+    print(f"{n} frames of {args.data}, input {i.input_width}x{i.input_height}, "
+          f"batch {args.batch}, {args.threads} threads, {args.rounds} rounds (per frame: medians; "
+          f"rounds' range)")
     print(f"torch eager:          {t_torch:7.2f} ms/frame")
     print(f"onnxruntime:          {t_onnx:7.2f} ms/frame   ratio {np.median(ratio):.2f} "
           f"({ratio.min():.2f}-{ratio.max():.2f}) (target <= 0.75)")

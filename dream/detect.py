@@ -9,9 +9,10 @@ file through the `dream.model_loaders` entry points, so `dream` imports nothing 
     model = load_keypoint_model("model.onnx", threads=2)
     obs = detect_keypoints(sequence, robot, model)   # -> dream.calibrate.Observations
 
-Per frame: `dream.io.load_image` -> `Preprocess.apply` -> `model.run` -> `dream.peaks.find_peaks`
--> `to_input(stride)` -> `to_image(transform)`. A keypoint's confidence is its belief-map peak
-value; a keypoint not found (or found outside the image) has NaN pixels and confidence 0.
+Per batch of frames: `dream.io.load_image` -> `Preprocess.apply` -> `model.run` ->
+`dream.peaks.find_peaks_batch`, then per frame `to_input(stride)` -> `to_image(transform)`. A
+keypoint's confidence is its belief-map peak value; a keypoint not found (or found outside the
+image) has NaN pixels and confidence 0.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import numpy as np
 from dream.calibrate import Observations
 from dream.errors import InputError, RobotError
 from dream.io import load_image
-from dream.peaks import PeakParams, find_peaks
+from dream.peaks import PeakParams, find_peaks_batch
 from dream.pipeline import joints_in_robot_order, robot_for
 from dream.preprocess import InputTransform, Preprocess
 from dream.robot import Robot
@@ -208,8 +209,9 @@ def detect_keypoints(sequence: Sequence, robot: Robot, model: KeypointModel,
         batch, transforms = prepare_batch([load_image(f, camera) for f in frames],
                                           model.preprocess)
         belief = _belief_of(model.run(batch), len(frames), K, model)
-        for i, transform in enumerate(transforms):
-            peaks = find_peaks(belief[i], params).to_input(stride).to_image(transform)
+        for i, (in_map, transform) in enumerate(zip(find_peaks_batch(belief, params), transforms,
+                                                    strict=True)):
+            peaks = in_map.to_input(stride).to_image(transform)
             ok = peaks.found & (peaks.confidence > 0) & camera.in_image(peaks.uv_image)
             uv[start + i] = np.where(ok[:, None], peaks.uv_image, np.nan)
             confidence[start + i] = np.where(ok, peaks.confidence, NOT_FOUND_CONFIDENCE)

@@ -373,6 +373,20 @@ def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInM
     return PeaksInMap(uv, confidence, found, reasons, w, h)
 
 
+def find_peaks_batch(belief: np.ndarray, params: PeakParams | None = None) -> list[PeaksInMap]:
+    """`find_peaks` of each of B images' (B, K, h, w) belief maps, found as one set of B * K
+    maps (each map is searched alone, so the results are those of `find_peaks` per image; the
+    fixed cost of a call is paid once per batch)."""
+    belief = np.asarray(belief)
+    if belief.ndim != 4:
+        raise InputError(f"belief maps have shape {belief.shape}, expected (B, K, h, w)")
+    B, K, h, w = belief.shape
+    every = find_peaks(belief.reshape(B * K, h, w), params)
+    return [PeaksInMap(every.uv_map[b * K:(b + 1) * K], every.confidence[b * K:(b + 1) * K],
+                       every.found[b * K:(b + 1) * K], every.reason[b * K:(b + 1) * K], w, h)
+            for b in range(B)]
+
+
 def peak_candidates(belief: np.ndarray, params: PeakParams | None = None,
                     max_per_map: int = 3) -> list[tuple[np.ndarray, np.ndarray]]:
     """The highest local maxima of each of K belief maps, best first (integer map pixels of the

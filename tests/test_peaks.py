@@ -208,3 +208,27 @@ def test_peak_candidates_list_the_highest_maxima_best_first():
     assert np.array_equal(uv0, [[20, 15], [33, 25]])
     assert value0[0] > value0[1] > 0.5
     assert uv1.shape == (0, 2) and value1.shape == (0,)
+
+
+def test_batch_of_images_gives_the_peaks_of_each_image(rng):
+    """`find_peaks_batch` searches B images' maps as one set: the same peaks, confidences and
+    reasons as `find_peaks` per image (a missing and an ambiguous keypoint included)."""
+    from dream.peaks import find_peaks_batch
+
+    images = []
+    for _ in range(3):
+        maps = gaussian_map(rng.uniform(2, [MAP_W - 3, MAP_H - 3], (4, 2)))
+        maps[1] = 0.0                                     # not found
+        maps[2] += gaussian_map(np.array([[2.0, 2.0]]))[0]  # a second, distant peak
+        images.append(maps)
+    batch = find_peaks_batch(np.stack(images))
+    assert len(batch) == 3
+    for maps, peaks in zip(images, batch, strict=True):
+        alone = find_peaks(maps)
+        assert peaks.reason == alone.reason and peaks.reason[1] == BELOW_THRESHOLD
+        np.testing.assert_allclose(peaks.uv_map, alone.uv_map, rtol=0, atol=1e-9)
+        assert np.array_equal(peaks.confidence, alone.confidence)
+        assert (peaks.map_width, peaks.map_height) == (MAP_W, MAP_H)
+    assert AMBIGUOUS in {batch[k].reason[2] for k in range(3)}
+    with pytest.raises(InputError, match=r"expected \(B, K, h, w\)"):
+        find_peaks_batch(images[0])

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dream.errors import InputError
-from dream.peaks import PeakParams, find_peaks
+from dream.peaks import PeakParams, find_peaks_batch
 
 
 @dataclass(frozen=True)
@@ -41,8 +41,8 @@ def keypoint_errors(belief: np.ndarray, uv_true_input: np.ndarray, stride: int,
     N, K = belief.shape[:2]
     uv_pred = np.full((N, K, 2), np.nan)
     found = np.zeros((N, K), bool)
-    for n in range(N):
-        peaks = find_peaks(belief[n], params).to_input(stride)
+    for n, in_map in enumerate(find_peaks_batch(belief, params)):
+        peaks = in_map.to_input(stride)
         uv_pred[n], found[n] = peaks.uv_input, peaks.found
     with np.errstate(invalid="ignore"):
         scored = ((uv_true[..., 0] >= -0.5) & (uv_true[..., 0] <= input_width - 0.5)
