@@ -232,3 +232,21 @@ def test_refit_after_acceptance_keeps_accepted_effects_plausible():
     assert current is diagnosis.final and baseline is diagnosis.baseline
     assert kept_mask is mask
     assert "was not taken: joint_offset: implausible magnitude" in note
+
+
+def test_a_new_effect_must_keep_the_accepted_ones_plausible():
+    """An effect is tested with the accepted ones refitted beside it; when that fit carries an
+    accepted effect beyond its plausible size, the check names it (the new effect alone is
+    plausible)."""
+    from dream.diagnose.select import PLAUSIBLE, first_implausible
+
+    seq, robot, truth = _case("joint_offset", 7000)
+    _, diagnosis, _ = diagnose_sequence(seq, robot, observations_from_labels(seq, robot),
+                                        DiagnoseSettings(effects=("joint_offset",)))
+    fit = diagnosis.final.fit
+    offset = abs(next(iter(truth.joint_offset_rad.values())))
+    tight = {**PLAUSIBLE, "joint_offset": offset / 2}
+    assert first_implausible(fit, ("time_offset", "joint_offset"), PLAUSIBLE) is None
+    why = first_implausible(fit, ("time_offset", "joint_offset"), tight)
+    assert why.startswith("joint_offset: implausible magnitude")
+    assert first_implausible(fit, ("joint_offset",), tight).startswith("implausible magnitude")

@@ -55,6 +55,15 @@ PLAUSIBLE = {                      # largest plausible magnitude of each kind of
 }
 
 
+def first_implausible(fit: FitResult, effects: tuple[str, ...], limits: dict) -> str | None:
+    """`implausible` of the first of `effects` that is (its name prefixed after the first)."""
+    for i, effect in enumerate(effects):
+        why = implausible(fit, effect, limits)
+        if why is not None:
+            return why if i == 0 else f"{effect}: {why}"
+    return None
+
+
 def implausible(fit: FitResult, effect: str, limits: dict) -> str | None:
     """Why the fitted parameters of `effect` are beyond physical plausibility (None: fine)."""
     params = [(p, fit.x[6 + i]) for i, p in enumerate(fit.model.params) if p.effect == effect]
@@ -470,7 +479,9 @@ def diagnose(problem: Problem, T_cam_base_init: np.ndarray,
                 continue
             significant, evidence, p, bic_delta = _compare(current, outcome, mask, scale,
                                                            settings)
-            why_not = implausible(outcome.fit, effect, settings.plausible)
+            # the new effect's fit must keep every effect plausible, the accepted ones too (their
+            # parameters are refitted with it)
+            why_not = first_implausible(outcome.fit, (effect, *accepted), settings.plausible)
             if why_not is not None:
                 significant, evidence = False, f"{why_not}; {evidence}"
             verdict = Verdict(effect, outcome, significant, evidence, p, bic_delta, round_)
