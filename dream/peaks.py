@@ -258,7 +258,7 @@ def _refine(maps: np.ndarray, ks: np.ndarray, us: np.ndarray, vs: np.ndarray,
 
 @dataclass(frozen=True)
 class _Smoothed:
-    """Smoothed maps in a padded layout (`_smooth_padded`): map k's pixel (v, u) is
+    """Smoothed maps in a padded layout (`_smooth`): map k's pixel (v, u) is
     `values[k, v + row0, u + col0]`; the padding reads -inf."""
 
     values: np.ndarray   # (K, H, W) float32
@@ -273,12 +273,12 @@ class _Smoothed:
         return rows - self.row0, cols - self.col0
 
 
-def _smooth_padded(maps: np.ndarray, sigma: float) -> np.ndarray:
-    """(K, h + 2 g, w + 2) float32: each of the (K, h, w) maps smoothed by a Gaussian of `sigma`
-    px (zero outside the map, kernel truncated at 4 sigma as scipy's; `sigma` 0: no smoothing)
-    at rows g..g+h-1 and columns 1..w, surrounded by -inf, which keeps the maps apart in the
-    local-maximum search (`_local_maxima`). The maps are filtered as one tall image whose zero
-    gap rows (2 g >= the kernel's half size) keep them apart."""
+def _smooth(maps: np.ndarray, sigma: float) -> _Smoothed:
+    """Each of the (K, h, w) maps smoothed by a Gaussian of `sigma` px (zero outside the map,
+    kernel truncated at 4 sigma as scipy's; `sigma` 0: no smoothing), in a (K, h + 2 g, w + 2)
+    float32 layout: rows g..g+h-1 and columns 1..w, surrounded by -inf, which keeps the maps
+    apart in the local-maximum search (`_local_maxima`). The maps are filtered as one tall
+    image whose zero gap rows (2 g >= the kernel's half size) keep them apart."""
     import cv2
 
     K, h, w = maps.shape
@@ -294,13 +294,7 @@ def _smooth_padded(maps: np.ndarray, sigma: float) -> np.ndarray:
     padded[:, g + h:] = -np.inf
     padded[:, :, 0] = -np.inf
     padded[:, :, -1] = -np.inf
-    return padded
-
-
-def _smooth(maps: np.ndarray, sigma: float) -> _Smoothed:
-    """The (K, h, w) maps smoothed (`_smooth_padded`), with their layout."""
-    padded = _smooth_padded(maps, sigma)
-    return _Smoothed(padded, (padded.shape[1] - maps.shape[1]) // 2, 1)
+    return _Smoothed(padded, g, 1)
 
 
 def _local_maxima(smoothed: _Smoothed, floor: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -309,7 +303,7 @@ def _local_maxima(smoothed: _Smoothed, floor: np.ndarray) -> tuple[np.ndarray, .
     sorted by map. Only pixels above the floor are compared, so a high floor makes the search
     cheap."""
     padded = smoothed.values
-    K, rows, wp = padded.shape
+    _, rows, wp = padded.shape
     flat = padded.reshape(-1)
     idx = np.flatnonzero(padded >= np.asarray(floor, np.float32).reshape(-1, 1, 1))
     # the -inf surround is below every floor, so each candidate's 8 neighbours exist

@@ -259,7 +259,7 @@ def levenberg_marquardt(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrin
     while iterations < settings.max_iterations:
         iterations += 1
         w = confidence * loss.weight(distance)
-        WJ = (J * w[:, None, None]).reshape(-1, 6)
+        WJ = _weighted_rows(J, w)
         H = WJ.T @ J.reshape(-1, 6)
         g = WJ.T @ e.reshape(-1)
         damping = H.diagonal() + _TINY
@@ -288,19 +288,16 @@ def levenberg_marquardt(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrin
     return T, iterations, (e, J)
 
 
-def covariance_at(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T: np.ndarray,
-                  weights: np.ndarray) -> tuple[np.ndarray, float]:
-    """Residual-scaled covariance (6, 6) of xi at T, and the condition number of J^T W J."""
-    lin = linearise(P_base, uv, camera, T)
-    if lin is None:
-        return np.full((6, 6), np.nan), np.inf
-    return _covariance(*lin, weights)
+def _weighted_rows(J: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(2N, 6) rows of the Jacobians (N, 2, 6) scaled by their keypoint's weight (N,): with
+    them, J^T W J = `_weighted_rows(J, w).T @ J.reshape(-1, 6)`."""
+    return (J * weights[:, None, None]).reshape(-1, 6)
 
 
 def _covariance(e: np.ndarray, J: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, float]:
-    """`covariance_at` from the residuals (N, 2) and Jacobians (N, 2, 6) at the pose."""
-    J2 = J.reshape(-1, 6)
-    H = (J2 * np.repeat(weights, 2)[:, None]).T @ J2
+    """Residual-scaled covariance (6, 6) of xi and the condition number of J^T W J, from the
+    residuals (N, 2), Jacobians (N, 2, 6) and weights (N,) at the pose."""
+    H = _weighted_rows(J, weights).T @ J.reshape(-1, 6)
     dof = 2 * int(np.count_nonzero(weights)) - 6
     s2 = float(weights @ np.sum(e * e, 1) / dof) if dof > 0 else np.nan
     # H is symmetric positive semi-definite: its singular values are its eigenvalues
