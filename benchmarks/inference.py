@@ -4,9 +4,11 @@ PnP, measured in one run on the same images, the same batch size and thread coun
     python benchmarks/inference.py --checkpoint RUN_DIR/best.ckpt --data DATA_DIR
         [--frames 50] [--batch 1] [--rounds 5] [--threads 2] [--peaks NAME=VALUE ...]
 
-`--batch B`: the network runs on B frames per call and the peak finder on their B x K maps in
-one call (`find_peaks_batch`), as `dream calibrate` does (B = 8 there); the PnP is per frame.
-All figures are per frame (a batch's time / B).
+`--batch 1` (streaming, a frame at a time): per frame the network, `find_peaks` and
+`solve_pnp`. `--batch B` > 1 (as `dream calibrate` runs, B = 8 there): the network on B frames
+per call and the peak finder on their B x K maps in one call (`find_peaks_batch`), then every
+frame's single-frame PnP in one `solve_pnp_batch` call (calibrate's `solve_frames`; the same
+poses as frame by frame). All figures are per frame.
 
 `--peaks` overrides the peak finder's constants as `dream export --peaks` does (the bundled model
 was exported with `ambiguity_ratio=1.0`, which passes every peak to the solver).
@@ -34,7 +36,7 @@ from dream.detect import prepare_batch
 from dream.io import load_image, read_sequence
 from dream.peaks import find_peaks_batch, peak_params_from_overrides
 from dream.pipeline import joints_in_robot_order, robot_for
-from dream.pnp import solve_pnp
+from dream.pnp import solve_pnp, solve_pnp_batch
 from export.onnx_export import export_onnx
 from export.runner import OnnxKeypointModel
 from train.checkpoint import load_checkpoint
@@ -97,15 +99,27 @@ def main() -> None:
         post = [(onnx(b), transforms, P_base[i:i + args.batch], cameras[i:i + args.batch])
                 for (b, transforms), i in zip(inputs, range(0, n, args.batch), strict=True)]
 
-        def peaks_and_pnp(item):
-            belief, transforms, P, batch_cameras = item
-            return [solve_pnp(P[i], peaks.to_input(runner.stride).to_image(transform).uv_image,
-                              batch_cameras[i], confidence=peaks.confidence)
-                    for i, (peaks, transform) in enumerate(zip(
-                        find_peaks_batch(belief, peak_params), transforms, strict=True))]
+        def peaks_in_image(item):
+            belief, transforms, _, _ = item
+            return [peaks.to_input(runner.stride).to_image(transform) for peaks, transform
+                    in zip(find_peaks_batch(belief, peak_params), transforms, strict=True)]
+
+        def peaks_and_pnp(item):                       # one frame (--batch 1)
+            (peaks,), (_, _, P, (camera,)) = peaks_in_image(item), item
+            return solve_pnp(P[0], peaks.uv_image, camera, confidence=peaks.confidence)
+
+        def peaks_and_pnp_all(_):                      # every frame, as dream calibrate
+            peaks = [p for item in post for p in peaks_in_image(item)]
+            return solve_pnp_batch(P_base[:n], np.array([p.uv_image for p in peaks]), cameras,
+                                   confidence=np.array([p.confidence for p in peaks]))
+
+        def post_ms() -> float:                        # per batch
+            if args.batch == 1:
+                return median_ms(peaks_and_pnp, post)
+            return median_ms(peaks_and_pnp_all, [None] * 3) * args.batch / n
 
         rounds = np.array([(median_ms(torch_eager, batches), median_ms(onnx, batches),
-                            median_ms(peaks_and_pnp, post)) for _ in range(args.rounds)])
+                            post_ms()) for _ in range(args.rounds)])
         rounds /= args.batch                               # per frame
         found = np.mean([peaks.found.mean() for belief, _, _, _ in post
                          for peaks in find_peaks_batch(belief, peak_params)])

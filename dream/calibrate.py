@@ -25,7 +25,7 @@ from dream.pnp import (
     degeneracy,
     initial_pose,
     refine_best,
-    solve_pnp,
+    solve_pnp_batch,
 )
 
 log = logging.getLogger(__name__)
@@ -112,16 +112,14 @@ def solve_frames(obs: Observations, camera: CameraIntrinsics, settings: SolverSe
     a frame without a solution says why."""
     if frame_cameras is not None and len(frame_cameras) != len(obs.frame_names):
         raise InputError(f"{len(frame_cameras)} frame cameras for {len(obs.frame_names)} frames")
-    out = []
-    for i, name in enumerate(obs.frame_names):
-        found = obs.found[i]
-        own = camera if frame_cameras is None else frame_cameras[i]
-        fit = solve_pnp(obs.P_base[i], np.where(found[:, None], obs.uv[i], np.nan), own,
-                        confidence=np.where(found, obs.confidence[i], 0.0), settings=settings)
+    cameras = [camera] * len(obs.frame_names) if frame_cameras is None else frame_cameras
+    fits = solve_pnp_batch(obs.P_base, np.where(obs.found[..., None], obs.uv, np.nan), cameras,
+                           confidence=np.where(obs.found, obs.confidence, 0.0), settings=settings)
+    for name, fit in zip(obs.frame_names, fits, strict=True):
         if isinstance(fit, NoSolution):
             log.debug("frame %s: %s", name, fit.reason)
-        out.append(FrameSolution(name, fit, int(found.sum())))
-    return tuple(out)
+    return tuple(FrameSolution(name, fit, int(found.sum()))
+                 for name, fit, found in zip(obs.frame_names, fits, obs.found, strict=True))
 
 
 def _random_hypotheses(P: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,

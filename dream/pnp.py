@@ -9,6 +9,7 @@ axes, translation in m along them. Covariances and sigmas use this order and the
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import cv2
@@ -28,6 +29,9 @@ _MAX_DAMPING = 1e12      # a step is given up when lambda exceeds this (converge
 _TINY = 1e-300           # keeps the damping positive for a zero diagonal entry
 _ZERO_ROTVEC = np.zeros(3)
 _LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
+_EYE6 = np.eye(6)
+_IN_FRONT = np.array([0.0, 0.0, 1.0])  # stands in for a point behind the camera (whose rows
+                                      # `linearise_batch` flags as meaningless)
 
 
 @dataclass(frozen=True)
@@ -193,9 +197,9 @@ def linearise(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
               T: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """Residuals (N, 2) and d residual / d xi (N, 2, 6); None if a point is behind the camera.
 
-    One compiled call (the solvers' inner loop): OpenCV's `projectPoints` of the rotated points
-    R P_base with rotation vector 0 and translation t, whose derivatives by that rotation vector
-    and by t are exactly those by xi = (delta_rot, delta_t).
+    One compiled call: OpenCV's `projectPoints` of the rotated points R P_base with rotation
+    vector 0 and translation t, whose derivatives by that rotation vector and by t are exactly
+    those by xi = (delta_rot, delta_t).
     """
     n = len(P_base)
     RP = P_base @ T[:3, :3].T
@@ -214,9 +218,74 @@ def _project(P_rotated: np.ndarray, t: np.ndarray,
     return uv_hat.reshape(-1, 2), jac
 
 
+@dataclass(frozen=True)
+class _Cameras:
+    """The intrinsics of F frames (`CameraIntrinsics` each), with their focal lengths and
+    principal points as (F, 1, 2) arrays that broadcast against (F, N, 2) pixels."""
+
+    cameras: tuple[CameraIntrinsics, ...]
+    focal: np.ndarray
+    centre: np.ndarray
+    distorted: bool                      # some frame's camera has a distortion
+
+    @classmethod
+    def of(cls, cameras: Sequence[CameraIntrinsics]) -> _Cameras:
+        cameras = tuple(cameras)
+        values = np.array([(c.fx, c.fy, c.cx, c.cy) for c in cameras], float).reshape(-1, 1, 4)
+        return cls(cameras, values[..., :2], values[..., 2:],
+                   any(c.distortion is not None for c in cameras))
+
+    def take(self, frames: np.ndarray) -> _Cameras:
+        cameras = tuple(self.cameras[f] for f in frames)
+        return _Cameras(cameras, self.focal[frames], self.centre[frames],
+                        self.distorted and any(c.distortion is not None for c in cameras))
+
+
+def linearise_batch(P_base: np.ndarray, uv: np.ndarray, cameras: _Cameras,
+                    T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`linearise` of F frames at once: residuals (F, N, 2), d residual / d xi (F, N, 2, 6)
+    and (F, N) True where the keypoint lies in front of the camera (the rows of the others are
+    finite but meaningless). Inputs must be finite: P_base (F, N, 3), uv (F, N, 2), T (F, 4, 4).
+    """
+    F, n = P_base.shape[:2]
+    if F == 1 or cameras.distorted:     # `linearise`'s OpenCV call, frame by frame
+        e, J = np.empty((F, n, 2)), np.empty((F, n, 2, 6))
+        front = np.empty((F, n), bool)
+        for f, camera in enumerate(cameras.cameras):
+            RP = P_base[f] @ T[f, :3, :3].T
+            front[f] = RP[:, 2] + T[f, 2, 3] > 0
+            RP = np.where(front[f, :, None], RP, _IN_FRONT - T[f, :3, 3])
+            uv_hat, jac = _project(RP, T[f, :3, 3], camera)
+            e[f], J[f] = uv_hat - uv[f], jac[:, :6].reshape(n, 2, 6)
+        return e, J, front
+    # pinhole in closed form: with p = R P, (X, Y, Z) = p + t, x = X / Z, y = Y / Z,
+    # d(u, v) / dt = (fx, fy) / Z [[1, 0, -x], [0, 1, -y]] and d/d delta_rot = p x (that row)
+    RP = P_base @ T[:, :3, :3].transpose(0, 2, 1)
+    P_cam = RP + T[:, None, :3, 3]
+    front = P_cam[..., 2] > 0
+    inv_z = 1.0 / np.where(front, P_cam[..., 2], 1.0)
+    x, y = P_cam[..., 0] * inv_z, P_cam[..., 1] * inv_z
+    p0, p1, p2 = RP[..., 0], RP[..., 1], RP[..., 2]
+    zero, one = np.zeros_like(x), np.ones_like(x)
+    J = np.stack([np.stack([-x * p1, p2 + x * p0, -p1, one, zero, -x], -1),
+                  np.stack([-y * p1 - p2, y * p0, p0, zero, one, -y], -1)], -2)
+    J *= (cameras.focal * inv_z[..., None])[..., None]
+    return cameras.focal * np.stack([x, y], -1) + cameras.centre - uv, J, front
+
+
 def _distances(e: np.ndarray) -> np.ndarray:
-    """(N,) pixel distances |e| of residuals (N, 2)."""
-    return np.hypot(e[:, 0], e[:, 1])
+    """(...,) pixel distances |e| of residuals (..., 2)."""
+    return np.hypot(e[..., 0], e[..., 1])
+
+
+def apply_increment(T: np.ndarray, xi: np.ndarray) -> np.ndarray:
+    """The update matching the Jacobians: P_cam = exp(xi_rot) R P_base + t + xi_t, for one pose
+    (4, 4) and xi (6,) or F of them (F, 4, 4), (F, 6)."""
+    T_new = np.empty(T.shape)
+    T_new[..., :3, :3] = R_from_rotvec(xi[..., :3]) @ T[..., :3, :3]
+    T_new[..., :3, 3] = T[..., :3, 3] + xi[..., 3:]
+    T_new[..., 3, :] = _LAST_ROW
+    return T_new
 
 
 def _cost(distance: np.ndarray, confidence: np.ndarray, loss: RobustLoss) -> float:
@@ -225,15 +294,6 @@ def _cost(distance: np.ndarray, confidence: np.ndarray, loss: RobustLoss) -> flo
 
 class _BehindCamera(Exception):
     """Internal: the starting pose puts keypoints behind the camera."""
-
-
-def apply_increment(T: np.ndarray, xi: np.ndarray) -> np.ndarray:
-    """The update matching the Jacobians: P_cam = exp(xi_rot) R P_base + t + xi_t."""
-    T_new = np.empty((4, 4))
-    T_new[:3, :3] = R_from_rotvec(xi[:3]) @ T[:3, :3]
-    T_new[:3, 3] = T[:3, 3] + xi[3:]
-    T_new[3] = _LAST_ROW
-    return T_new
 
 
 def levenberg_marquardt(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
@@ -288,23 +348,120 @@ def levenberg_marquardt(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrin
     return T, iterations, (e, J)
 
 
+def levenberg_marquardt_batch(P_base: np.ndarray, uv: np.ndarray, cameras: _Cameras,
+                              T_init: np.ndarray, weights: np.ndarray,
+                              settings: SolverSettings) -> _LMState:
+    """For each of F frames, minimise sum_i w_i rho(|project(T P_i) - uv_i|) over T (IRLS inside
+    LM), all frames in lockstep (each takes the steps it would take alone).
+
+    `weights` (F, N): the confidence of the keypoints fitted, 0 for the others (which are
+    linearised too, so the result holds residuals and Jacobians of every keypoint at the
+    optimum). A frame whose start puts a fitted keypoint behind the camera is not iterated
+    (`started` False). Inputs must be finite.
+    """
+    loss = settings.loss
+    fitted = weights > 0
+    T = T_init.copy()
+    e, J, front = linearise_batch(P_base, uv, cameras, T)
+    started = np.all(front | ~fitted, axis=1)
+    distance = _distances(e)
+    cost = np.sum(weights * loss.rho(distance), axis=1)
+    dof = np.maximum(2 * fitted.sum(axis=1) - 6, 1)
+    F = len(T)
+    lam = np.full(F, settings.initial_damping)
+    iterations = np.zeros(F, int)
+    H, g, damping = np.zeros((F, 6, 6)), np.zeros((F, 6)), np.zeros((F, 6))
+    active, new_iteration = started.copy(), started.copy()
+    while active.any():
+        # an iteration starts: its limit, or a damping beyond which no step is tried, ends it
+        ended = new_iteration & ((iterations >= settings.max_iterations) | (lam >= _MAX_DAMPING))
+        active &= ~ended
+        start = new_iteration & active
+        if start.any():
+            iterations += start
+            WJ = _weighted_rows(J, weights * loss.weight(distance))
+            H[start] = (WJ.transpose(0, 2, 1) @ J.reshape(F, -1, 6))[start]
+            g[start] = (WJ.transpose(0, 2, 1) @ e.reshape(F, -1, 1))[start, :, 0]
+            damping[start] = np.diagonal(H[start], axis1=1, axis2=2) + _TINY
+        A = H + (lam[:, None] * damping)[:, :, None] * _EYE6
+        A[~active] = _EYE6
+        xi = np.linalg.solve(A, -g[..., None])[..., 0]
+        # the decrease the reweighted quadratic model predicts is, in squared standard
+        # deviations of the pose (covariance s^2 H^-1, s^2 = 2 cost / dof), the remaining
+        # distance to the optimum: d^2 = 2 predicted / s^2 = predicted dof / cost
+        predicted = -np.sum(g * xi, axis=1) - 0.5 * np.einsum("fi,fij,fj->f", xi, H, xi)
+        active &= predicted * dof > settings.convergence_sigma ** 2 * cost
+        if not active.any():
+            break
+        T_new = apply_increment(T, xi)
+        e_new, J_new, front_new = linearise_batch(P_base, uv, cameras, T_new)
+        distance_new = _distances(e_new)
+        cost_new = np.sum(weights * loss.rho(distance_new), axis=1)
+        accept = active & np.all(front_new | ~fitted, axis=1) & (cost_new <= cost)
+        T[accept], e[accept], J[accept] = T_new[accept], e_new[accept], J_new[accept]
+        front[accept], distance[accept], cost[accept] = \
+            front_new[accept], distance_new[accept], cost_new[accept]
+        lam = np.where(accept, np.maximum(lam / _DAMPING_FACTOR, _MIN_DAMPING),
+                       np.where(active, lam * _DAMPING_FACTOR, lam))
+        # a kept step below the tolerance ends; a refused one is retried with more damping
+        # unless that passes the limit (then no step improves: converged)
+        active &= ~(accept & (np.sum(xi * xi, axis=1) < settings.step_tolerance ** 2))
+        active &= accept | (lam < _MAX_DAMPING)
+        new_iteration = accept
+    return _LMState(T, iterations, e, J, front, started)
+
+
+@dataclass(frozen=True)
+class _LMState:
+    """`levenberg_marquardt_batch`'s result: the poses (F, 4, 4), iterations (F,), residuals
+    (F, N, 2), Jacobians (F, N, 2, 6) and in-front mask (F, N) of every keypoint there, and
+    (F,) whether the frame could start."""
+
+    T: np.ndarray
+    iterations: np.ndarray
+    e: np.ndarray
+    J: np.ndarray
+    front: np.ndarray
+    started: np.ndarray
+
+
 def _weighted_rows(J: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """(2N, 6) rows of the Jacobians (N, 2, 6) scaled by their keypoint's weight (N,): with
-    them, J^T W J = `_weighted_rows(J, w).T @ J.reshape(-1, 6)`."""
-    return (J * weights[:, None, None]).reshape(-1, 6)
+    """(..., 2N, 6) rows of the Jacobians (..., N, 2, 6) scaled by their keypoint's weight
+    (..., N): with them, J^T W J = `_weighted_rows(J, w).T @ J.reshape(-1, 6)`."""
+    return (J * weights[..., None, None]).reshape(*J.shape[:-3], -1, 6)
 
 
-def _covariance(e: np.ndarray, J: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, float]:
-    """Residual-scaled covariance (6, 6) of xi and the condition number of J^T W J, from the
-    residuals (N, 2), Jacobians (N, 2, 6) and weights (N,) at the pose."""
-    H = _weighted_rows(J, weights).T @ J.reshape(-1, 6)
-    dof = 2 * int(np.count_nonzero(weights)) - 6
-    s2 = float(weights @ np.sum(e * e, 1) / dof) if dof > 0 else np.nan
+def _covariance(e: np.ndarray, J: np.ndarray,
+                weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residual-scaled covariances (..., 6, 6) of xi and condition numbers (...) of J^T W J,
+    from the residuals (..., N, 2), Jacobians (..., N, 2, 6) and weights (..., N) at the poses
+    (NaN covariance without redundancy, infinite condition number when singular)."""
+    H = np.swapaxes(_weighted_rows(J, weights), -1, -2) @ J.reshape(*J.shape[:-3], -1, 6)
+    dof = 2 * np.count_nonzero(weights, axis=-1) - 6
+    s2 = np.sum(weights * np.sum(e * e, axis=-1), axis=-1) / np.where(dof > 0, dof, np.nan)
     # H is symmetric positive semi-definite: its singular values are its eigenvalues
     eigenvalues, V = np.linalg.eigh(H)
-    if not eigenvalues[0] > 0:
-        return np.full((6, 6), np.nan), np.inf
-    return s2 * (V / eigenvalues) @ V.T, float(eigenvalues[-1] / eigenvalues[0])
+    positive = np.where(eigenvalues[..., :1] > 0, eigenvalues, np.nan)
+    covariance = s2[..., None, None] * (V / positive[..., None, :]) @ np.swapaxes(V, -1, -2)
+    return covariance, np.nan_to_num(positive[..., -1] / positive[..., 0], nan=np.inf)
+
+
+def _degenerate(P_base: np.ndarray, mask: np.ndarray, settings: SolverSettings) -> np.ndarray:
+    """(F,) True where the points P_base (F, N, 3) selected by mask (F, N) cannot fix a pose
+    (`degeneracy` of each frame: zero rows leave the singular values unchanged)."""
+    count = mask.sum(axis=1)
+    mean = np.sum(np.where(mask[..., None], P_base, 0.0), axis=1) / np.maximum(count, 1)[:, None]
+    s = np.linalg.svd(np.where(mask[..., None], P_base - mean[:, None], 0.0), compute_uv=False)
+    return (count < settings.min_keypoints) | ~(s[:, 0] > 0) | \
+        (s[:, 1] < settings.collinear_ratio * s[:, 0])
+
+
+def _masked_median(x: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(F,) median of each row of x (F, N) over its mask (at least one True per row)."""
+    x = np.sort(np.where(mask, x, np.inf), axis=1)
+    n = mask.sum(axis=1)
+    rows = np.arange(len(x))
+    return 0.5 * (x[rows, (n - 1) // 2] + x[rows, n // 2])
 
 
 def fit_pose(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T_init: np.ndarray,
@@ -373,12 +530,76 @@ def _median(x: np.ndarray) -> float:
     return float(0.5 * (x[(n - 1) // 2] + x[n // 2]))
 
 
+def _finite(a: np.ndarray, usable: np.ndarray) -> np.ndarray:
+    """a (F, N, D) with the rows of unusable keypoints set to 0 (finite for the batch maths)."""
+    return np.where(usable[..., None], a, 0.0)
+
+
+def _fit_batch(P_base: np.ndarray, uv: np.ndarray, cameras: _Cameras, T: np.ndarray,
+               confidence: np.ndarray, usable: np.ndarray, keep: np.ndarray,
+               settings: SolverSettings) -> list[PoseFit | NoSolution]:
+    """`fit_pose` of F frames on checked correspondences (`check_correspondences`), each
+    starting from its keypoints `keep` (F, N) (a subset of `usable`, not degenerate), all
+    frames' rounds of outlier rejection in step."""
+    F, N = usable.shape
+    P_base, uv = _finite(P_base, usable), _finite(uv, usable)
+    T, keep = T.copy(), keep.copy()
+    iterations = np.zeros(F, int)
+    e, J = np.zeros((F, N, 2)), np.zeros((F, N, 2, 6))
+    dist = np.full((F, N), np.inf)
+    failed: dict[int, NoSolution] = {}
+    rounding = np.ones(F, bool)          # frames still in rounds of rejection
+    for _ in range(settings.outlier_rounds + 1):
+        frames = np.flatnonzero(rounding)
+        if not len(frames):
+            break
+        lm = levenberg_marquardt_batch(P_base[frames], uv[frames], cameras.take(frames),
+                                       T[frames], np.where(keep[frames], confidence[frames], 0.0),
+                                       settings)
+        T[frames], iterations[frames], e[frames], J[frames] = lm.T, lm.iterations, lm.e, lm.J
+        behind = np.any(usable[frames] & ~lm.front, axis=1)
+        for f, started, back in zip(frames.tolist(), lm.started.tolist(), behind.tolist(),
+                                    strict=True):
+            if not started:
+                failed[f] = NoSolution("the initial pose puts keypoints behind the camera")
+            elif back:
+                failed[f] = NoSolution("the solution puts keypoints behind the camera")
+        dist[frames] = np.where(usable[frames], _distances(lm.e), np.inf)
+        sigma = _masked_median(dist[frames], keep[frames]) / RAYLEIGH_MEDIAN
+        threshold = np.maximum(settings.min_inlier_threshold_px,
+                               settings.inlier_sigma_factor * sigma)
+        new_keep = usable[frames] & (dist[frames] <= threshold[:, None])
+        # a round that would leave too few or degenerate keypoints ends the rejection: the fit
+        # of the last usable set stands (so `keep` is never degenerate)
+        ends = np.all(new_keep == keep[frames], axis=1) | \
+            _degenerate(P_base[frames], new_keep, settings)
+        ends |= ~lm.started | behind
+        keep[frames[~ends]] = new_keep[~ends]
+        rounding[frames[ends]] = False
+    weights = np.where(keep, confidence * settings.loss.weight(np.where(keep, dist, 0.0)), 0.0)
+    covariance, condition = _covariance(e, J, weights)
+    rmse = np.sqrt(np.sum(np.where(keep, dist, 0.0) ** 2, axis=1) / keep.sum(axis=1))
+    residuals = np.where(usable[..., None], e, np.nan)
+    out: list[PoseFit | NoSolution] = []
+    for f in range(F):
+        if f in failed:
+            out.append(failed[f])
+        elif condition[f] > settings.max_condition:
+            out.append(NoSolution(f"the pose is not determined by these keypoints (condition "
+                                  f"number {condition[f]:.1e})"))
+        else:
+            out.append(PoseFit(T[f], residuals[f], keep[f], weights[f], covariance[f],
+                               float(rmse[f]), int(iterations[f])))
+    return out
+
+
 def solve_pnp(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, *,
               confidence: np.ndarray | None = None,
               settings: SolverSettings | None = None) -> PoseFit | NoSolution:
     """Pose of one frame: SQPnP on all usable keypoints; when that leaves a keypoint outside the
     MSAC threshold, also on leave-one-out subsets (to survive a wrong detection); the hypothesis
-    with the lowest truncated cost refined robustly."""
+    with the lowest truncated cost refined robustly. (`solve_pnp_batch`: many frames at once,
+    the same results.)"""
     settings = settings or _DEFAULT_SETTINGS
     P_base, uv, confidence, usable = check_correspondences(P_base, uv, confidence)
     reason = degeneracy(P_base[usable], settings)
@@ -386,15 +607,104 @@ def solve_pnp(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, *,
         return NoSolution(reason)
     idx = np.flatnonzero(usable)
     first = initial_pose(P_base[idx], uv[idx], camera)
-    # leave-one-out order: the keypoint worst explained by the first pose is left out first
+    if isinstance(first, NoSolution):
+        first = None
+    elif np.all(_reprojection_distance(P_base[idx], uv[idx], camera, first) ** 2
+                <= settings.ransac_threshold_px ** 2):
+        # every keypoint agrees (all are MSAC inliers): no subset can do better
+        return _fit_checked(P_base, uv, camera, first, confidence, usable, usable, settings)
+    start = _leave_one_out_start(P_base, uv, camera, usable, first, settings)
+    if isinstance(start, NoSolution):
+        return start
+    return _fit_checked(P_base, uv, camera, start[0], confidence, usable, start[1], settings)
+
+
+def solve_pnp_batch(P_base: np.ndarray, uv: np.ndarray, cameras: Sequence[CameraIntrinsics], *,
+                    confidence: np.ndarray | None = None,
+                    settings: SolverSettings | None = None) -> list[PoseFit | NoSolution]:
+    """`solve_pnp` of each of F frames (each solved alone, with its own camera), the frames'
+    refinements run together so that the fixed cost of a step is paid once per batch.
+
+    Args:
+        P_base: (F, N, 3) keypoints in the base frame.
+        uv: (F, N, 2) detections, NaN where not found.
+        cameras: F intrinsics, one per frame.
+        confidence: (F, N) or None (all 1).
+    """
+    settings = settings or _DEFAULT_SETTINGS
+    P_base, uv = np.asarray(P_base, dtype=float), np.asarray(uv, dtype=float)
+    if P_base.ndim != 3 or P_base.shape[2] != 3:
+        raise InputError(f"P_base has shape {P_base.shape}, expected (F, N, 3)")
+    F, N = P_base.shape[:2]
+    if len(cameras) != F:
+        raise InputError(f"{len(cameras)} cameras for {F} frames", fix="give one camera per frame")
+    if confidence is not None and np.shape(confidence) != (F, N):
+        raise InputError(f"confidence has shape {np.shape(confidence)}, expected ({F}, {N})")
+    if uv.shape != (F, N, 2):
+        raise InputError(f"uv has shape {uv.shape}, expected ({F}, {N}, 2)")
+    P_flat, uv_flat, conf_flat, usable_flat = check_correspondences(
+        P_base.reshape(-1, 3), uv.reshape(-1, 2),
+        None if confidence is None else np.asarray(confidence, dtype=float).reshape(-1))
+    usable, confidence = usable_flat.reshape(F, N), conf_flat.reshape(F, N)
+    if F == 0:
+        return []
+    out: list[PoseFit | NoSolution | None] = [None] * F
+    degenerate = _degenerate(_finite(P_base, usable), usable, settings)
+    firsts: dict[int, np.ndarray] = {}
+    for f in range(F):
+        idx = np.flatnonzero(usable[f])
+        if degenerate[f]:
+            out[f] = NoSolution(degeneracy(P_base[f, idx], settings) or "degenerate keypoints")
+            continue
+        first = initial_pose(P_base[f, idx], uv[f, idx], cameras[f])
+        if not isinstance(first, NoSolution):
+            firsts[f] = first
+    # every keypoint agrees with the first pose (all are MSAC inliers): no subset does better
+    agree = np.zeros(F, bool)
+    if firsts:
+        frames = np.array(list(firsts))
+        all_cameras = _Cameras.of(cameras)
+        e, _, front = linearise_batch(_finite(P_base[frames], usable[frames]),
+                                      _finite(uv[frames], usable[frames]),
+                                      all_cameras.take(frames), np.array(list(firsts.values())))
+        inlier = front & (np.sum(e * e, axis=2) <= settings.ransac_threshold_px ** 2)
+        agree[frames] = np.all(inlier | ~usable[frames], axis=1)
+    starts: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for f in range(F):
+        if out[f] is not None:
+            continue
+        if agree[f]:
+            starts[f] = (firsts[f], usable[f])
+            continue
+        start = _leave_one_out_start(P_base[f], uv[f], cameras[f], usable[f], firsts.get(f),
+                                     settings)
+        if isinstance(start, NoSolution):
+            out[f] = start
+        else:
+            starts[f] = start
+    if starts:
+        frames = np.array(list(starts))
+        fits = _fit_batch(P_base[frames], uv[frames], _Cameras.of([cameras[f] for f in frames]),
+                          np.array([starts[f][0] for f in frames]), confidence[frames],
+                          usable[frames], np.array([starts[f][1] for f in frames]), settings)
+        for f, fit in zip(frames.tolist(), fits, strict=True):
+            out[f] = fit
+    return out
+
+
+def _leave_one_out_start(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
+                         usable: np.ndarray, first: np.ndarray | None,
+                         settings: SolverSettings) -> tuple[np.ndarray, np.ndarray] | NoSolution:
+    """The start (pose, keypoints to fit) of a frame whose first pose (SQPnP on every usable
+    keypoint, None if it failed) leaves a keypoint outside the MSAC threshold: SQPnP on
+    leave-one-out subsets too, the keypoint worst explained by the first pose left out first,
+    then the hypothesis with the lowest MSAC cost (`best_hypothesis`)."""
+    idx = np.flatnonzero(usable)
     order = np.arange(len(idx))
-    if not isinstance(first, NoSolution):
-        distance = _reprojection_distance(P_base[idx], uv[idx], camera, first)
-        if np.all(distance ** 2 <= settings.ransac_threshold_px ** 2):
-            # every keypoint agrees (all are MSAC inliers): no subset can do better
-            return _fit_checked(P_base, uv, camera, first, confidence, usable, usable, settings)
-        order = np.argsort(-distance)
-    hypotheses = [] if isinstance(first, NoSolution) else [first]
+    hypotheses = []
+    if first is not None:
+        order = np.argsort(-_reprojection_distance(P_base[idx], uv[idx], camera, first))
+        hypotheses.append(first)
     if len(idx) > settings.min_keypoints:
         for i in order:
             subset = np.delete(idx, i)
@@ -408,7 +718,12 @@ def solve_pnp(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, *,
                                    settings.ransac_threshold_px)
             if inlier.all():  # all but the left-out keypoint agree: no other subset does better
                 break
-    return refine_best(P_base, uv, camera, hypotheses, confidence, usable, settings)
+    start = best_hypothesis(P_base, uv, camera, hypotheses, usable, settings)
+    if isinstance(start, NoSolution):
+        return start
+    T, keep = start
+    reason = degeneracy(P_base[keep], settings)
+    return NoSolution(reason) if reason is not None else (T, keep)
 
 
 def _reprojection_distance(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
@@ -430,10 +745,11 @@ def msac_score(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T: 
     return float(np.sum(np.minimum(d2, threshold_px ** 2))), inlier
 
 
-def refine_best(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
-                hypotheses: list[np.ndarray], confidence: np.ndarray, usable: np.ndarray,
-                settings: SolverSettings) -> PoseFit | NoSolution:
-    """Rank hypotheses by MSAC score over the usable keypoints and refine the best one."""
+def best_hypothesis(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
+                    hypotheses: list[np.ndarray], usable: np.ndarray,
+                    settings: SolverSettings) -> tuple[np.ndarray, np.ndarray] | NoSolution:
+    """The hypothesis with the lowest MSAC score over the usable keypoints and its inliers (N,)
+    (every usable keypoint when fewer than `min_keypoints` are inliers)."""
     if not hypotheses:
         return NoSolution("no initial pose could be found")
     scored = [(msac_score(P_base[usable], uv[usable], camera, T, settings.ransac_threshold_px), i)
@@ -443,5 +759,15 @@ def refine_best(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
     inlier[np.flatnonzero(usable)[inlier_usable]] = True
     if inlier.sum() < settings.min_keypoints:
         inlier = usable
-    return fit_pose(P_base, uv, camera, hypotheses[best], confidence=confidence, inlier=inlier,
+    return hypotheses[best], inlier
+
+
+def refine_best(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
+                hypotheses: list[np.ndarray], confidence: np.ndarray, usable: np.ndarray,
+                settings: SolverSettings) -> PoseFit | NoSolution:
+    """Rank hypotheses by MSAC score over the usable keypoints and refine the best one."""
+    start = best_hypothesis(P_base, uv, camera, hypotheses, usable, settings)
+    if isinstance(start, NoSolution):
+        return start
+    return fit_pose(P_base, uv, camera, start[0], confidence=confidence, inlier=start[1],
                     settings=settings)

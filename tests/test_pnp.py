@@ -6,8 +6,8 @@ from scenes import CAMERA, random_scene
 
 from dream.calibrate import Observations, calibrate_all, calibrate_each
 from dream.crb import extrinsic_crb
-from dream.errors import CalibrationError
-from dream.pnp import NoSolution, PoseFit, SolverSettings, fit_pose, solve_pnp
+from dream.errors import CalibrationError, InputError
+from dream.pnp import NoSolution, PoseFit, SolverSettings, fit_pose, solve_pnp, solve_pnp_batch
 from dream.transforms import rotvec_from_R
 
 DISTORTED = CAMERA.with_distortion((0.12, -0.2, 0.001, -0.002, 0.05))
@@ -166,3 +166,81 @@ def test_pose_jacobian_matches_finite_differences(camera, rng):
         e_plus, _ = linearise(P_base, uv, camera, apply_increment(T, d))
         e_minus, _ = linearise(P_base, uv, camera, apply_increment(T, -d))
         assert np.allclose(J[:, :, k], (e_plus - e_minus) / (2 * eps), rtol=1e-5, atol=1e-4)
+
+
+def _hard_frames(rng, frames: int, keypoints: int = 8):
+    """Frames that take every path of the single-frame solver: noise, wrong detections (leave-
+    one-out), missing keypoints, too few keypoints, collinear points, a start behind the camera,
+    each frame with its own camera (a third distorted)."""
+    P, uv, conf, cameras = [], [], [], []
+    for f in range(frames):
+        camera = CAMERA if f % 3 else DISTORTED
+        camera = camera.with_distortion(camera.distortion) if f % 2 else \
+            type(camera)(camera.fx * (1 + 0.1 * f / frames), camera.fy, camera.cx, camera.cy,
+                         camera.width, camera.height, camera.distortion)
+        obs, _, _ = random_scene(rng, 1, keypoints=keypoints, camera=camera,
+                                 noise_px=float(rng.choice([0.3, 1.0, 3.0])),
+                                 outlier_fraction=float(rng.choice([0.0, 0.15, 0.3])))
+        P_f, uv_f = obs.P_base[0].copy(), obs.uv[0].copy()
+        uv_f[rng.random(keypoints) < 0.1] = np.nan
+        if f % 11 == 5:
+            uv_f[3:] = np.nan                                  # too few keypoints
+        if f % 11 == 7:
+            P_f = np.outer(np.linspace(0, 1, keypoints), [0.1, 0.2, 0.3])   # collinear
+        P.append(P_f), uv.append(uv_f), cameras.append(camera)
+        conf.append(rng.uniform(0.1, 1.0, keypoints))
+    return np.array(P), np.array(uv), np.array(conf), cameras
+
+
+def _same_fit(a, b) -> None:
+    assert type(a) is type(b)
+    if isinstance(a, NoSolution):
+        assert a.reason == b.reason
+        return
+    assert np.array_equal(a.inlier, b.inlier) and a.iterations == b.iterations
+    np.testing.assert_allclose(b.T_cam_base, a.T_cam_base, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(b.residuals_px, a.residuals_px, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(b.weights, a.weights, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(b.covariance, a.covariance, rtol=1e-7,
+                               atol=1e-9 * np.abs(a.covariance).max())
+    assert b.rmse_px == pytest.approx(a.rmse_px, rel=1e-9, abs=1e-12)
+
+
+def test_batch_solve_equals_solving_each_frame_alone(rng):
+    P, uv, conf, cameras = _hard_frames(rng, 60)
+    batch = solve_pnp_batch(P, uv, cameras, confidence=conf)
+    alone = [solve_pnp(P[f], uv[f], cameras[f], confidence=conf[f]) for f in range(len(P))]
+    assert sum(isinstance(a, NoSolution) for a in alone) >= 8        # the failure paths ran
+    assert sum(isinstance(a, PoseFit) and not a.inlier[np.isfinite(uv[f, :, 0])].all()
+               for f, a in enumerate(alone)) >= 5                    # and outlier rejection
+    for a, b in zip(alone, batch, strict=True):
+        _same_fit(a, b)
+    # one camera for every frame, no confidences (dream calibrate's usual call)
+    batch = solve_pnp_batch(P[:20], uv[:20], [CAMERA] * 20)
+    for f, b in enumerate(batch):
+        _same_fit(solve_pnp(P[f], uv[f], CAMERA), b)
+
+
+def test_batch_start_behind_the_camera_matches_single(rng):
+    # frame 1: one keypoint moved behind the camera (its detection kept): no pose can explain
+    # it, and every hypothesis leaves it behind the camera
+    obs, T, _ = random_scene(rng, 2, keypoints=7)
+    P = obs.P_base.copy()
+    P_cam = P[1, 0] @ T[:3, :3].T + T[:3, 3]
+    P[1, 0] = (-P_cam - T[:3, 3]) @ T[:3, :3]
+    fits = solve_pnp_batch(P, obs.uv, [CAMERA, CAMERA])
+    assert isinstance(fits[0], PoseFit)
+    assert isinstance(fits[1], NoSolution) and "behind the camera" in fits[1].reason
+    for f in range(2):
+        _same_fit(solve_pnp(P[f], obs.uv[f], CAMERA), fits[f])
+
+
+def test_batch_solve_checks_its_shapes(rng):
+    obs, _, _ = random_scene(rng, 2, keypoints=6)
+    with pytest.raises(InputError, match="1 cameras for 2 frames"):
+        solve_pnp_batch(obs.P_base, obs.uv, [CAMERA])
+    with pytest.raises(InputError, match="expected \\(2, 6, 2\\)"):
+        solve_pnp_batch(obs.P_base, obs.uv[:, :5], [CAMERA] * 2)
+    with pytest.raises(InputError, match="confidence"):
+        solve_pnp_batch(obs.P_base, obs.uv, [CAMERA] * 2, confidence=np.ones(6))
+    assert solve_pnp_batch(np.zeros((0, 6, 3)), np.zeros((0, 6, 2)), []) == []
