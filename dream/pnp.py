@@ -31,7 +31,7 @@ _ZERO_ROTVEC = np.zeros(3)
 _LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
 _EYE6 = np.eye(6)
 _IN_FRONT = np.array([0.0, 0.0, 1.0])  # stands in for a point behind the camera (whose rows
-                                      # `linearise_batch` flags as meaningless)
+                                      # `_linearise_batch` flags as meaningless)
 
 
 @dataclass(frozen=True)
@@ -241,7 +241,7 @@ class _Cameras:
                         self.distorted and any(c.distortion is not None for c in cameras))
 
 
-def linearise_batch(P_base: np.ndarray, uv: np.ndarray, cameras: _Cameras,
+def _linearise_batch(P_base: np.ndarray, uv: np.ndarray, cameras: _Cameras,
                     T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`linearise` of F frames at once: residuals (F, N, 2), d residual / d xi (F, N, 2, 6)
     and (F, N) True where the keypoint lies in front of the camera (the rows of the others are
@@ -348,7 +348,7 @@ def levenberg_marquardt(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrin
     return T, iterations, (e, J)
 
 
-def levenberg_marquardt_batch(P_base: np.ndarray, uv: np.ndarray, cameras: _Cameras,
+def _levenberg_marquardt_batch(P_base: np.ndarray, uv: np.ndarray, cameras: _Cameras,
                               T_init: np.ndarray, weights: np.ndarray,
                               settings: SolverSettings) -> _LMState:
     """For each of F frames, minimise sum_i w_i rho(|project(T P_i) - uv_i|) over T (IRLS inside
@@ -362,7 +362,7 @@ def levenberg_marquardt_batch(P_base: np.ndarray, uv: np.ndarray, cameras: _Came
     loss = settings.loss
     fitted = weights > 0
     T = T_init.copy()
-    e, J, front = linearise_batch(P_base, uv, cameras, T)
+    e, J, front = _linearise_batch(P_base, uv, cameras, T)
     started = np.all(front | ~fitted, axis=1)
     distance = _distances(e)
     cost = np.sum(weights * loss.rho(distance), axis=1)
@@ -394,7 +394,7 @@ def levenberg_marquardt_batch(P_base: np.ndarray, uv: np.ndarray, cameras: _Came
         if not active.any():
             break
         T_new = apply_increment(T, xi)
-        e_new, J_new, front_new = linearise_batch(P_base, uv, cameras, T_new)
+        e_new, J_new, front_new = _linearise_batch(P_base, uv, cameras, T_new)
         distance_new = _distances(e_new)
         cost_new = np.sum(weights * loss.rho(distance_new), axis=1)
         accept = active & np.all(front_new | ~fitted, axis=1) & (cost_new <= cost)
@@ -413,7 +413,7 @@ def levenberg_marquardt_batch(P_base: np.ndarray, uv: np.ndarray, cameras: _Came
 
 @dataclass(frozen=True)
 class _LMState:
-    """`levenberg_marquardt_batch`'s result: the poses (F, 4, 4), iterations (F,), residuals
+    """`_levenberg_marquardt_batch`'s result: the poses (F, 4, 4), iterations (F,), residuals
     (F, N, 2), Jacobians (F, N, 2, 6) and in-front mask (F, N) of every keypoint there, and
     (F,) whether the frame could start."""
 
@@ -553,7 +553,7 @@ def _fit_batch(P_base: np.ndarray, uv: np.ndarray, cameras: _Cameras, T: np.ndar
         frames = np.flatnonzero(rounding)
         if not len(frames):
             break
-        lm = levenberg_marquardt_batch(P_base[frames], uv[frames], cameras.take(frames),
+        lm = _levenberg_marquardt_batch(P_base[frames], uv[frames], cameras.take(frames),
                                        T[frames], np.where(keep[frames], confidence[frames], 0.0),
                                        settings)
         T[frames], iterations[frames], e[frames], J[frames] = lm.T, lm.iterations, lm.e, lm.J
@@ -664,7 +664,7 @@ def solve_pnp_batch(P_base: np.ndarray, uv: np.ndarray, cameras: Sequence[Camera
     if firsts:
         frames = np.array(list(firsts))
         all_cameras = _Cameras.of(cameras)
-        e, _, front = linearise_batch(_finite(P_base[frames], usable[frames]),
+        e, _, front = _linearise_batch(_finite(P_base[frames], usable[frames]),
                                       _finite(uv[frames], usable[frames]),
                                       all_cameras.take(frames), np.array(list(firsts.values())))
         inlier = front & (np.sum(e * e, axis=2) <= settings.ransac_threshold_px ** 2)
