@@ -201,12 +201,22 @@ def linearise(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
     vector 0 and translation t, whose derivatives by that rotation vector and by t are exactly
     those by xi = (delta_rot, delta_t).
     """
-    n = len(P_base)
+    if len(P_base) == 0:
+        return np.zeros((0, 2)), np.zeros((0, 2, 6))
+    e, J, front = _linearise_rows(P_base, uv, camera, T)
+    return (e, J) if front.all() else None
+
+
+def _linearise_rows(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
+                    T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`linearise` with (N,) True where the keypoint lies in front of the camera (the rows of
+    the others are finite but meaningless)."""
     RP = P_base @ T[:3, :3].T
-    if n == 0 or (RP[:, 2] + T[2, 3]).min() <= 0:
-        return None if n else (np.zeros((0, 2)), np.zeros((0, 2, 6)))
+    front = RP[:, 2] + T[2, 3] > 0
+    if not front.all():
+        RP = np.where(front[:, None], RP, _IN_FRONT - T[:3, 3])
     uv_hat, jac = _project(RP, T[:3, 3], camera)
-    return uv_hat - uv, jac[:, :6].reshape(n, 2, 6)
+    return uv_hat - uv, jac[:, :6].reshape(len(P_base), 2, 6), front
 
 
 def _project(P_rotated: np.ndarray, t: np.ndarray,
@@ -249,15 +259,9 @@ def _linearise_batch(P_base: np.ndarray, uv: np.ndarray, cameras: _Cameras,
     """
     F, n = P_base.shape[:2]
     if F == 1 or cameras.distorted:     # `linearise`'s OpenCV call, frame by frame
-        e, J = np.empty((F, n, 2)), np.empty((F, n, 2, 6))
-        front = np.empty((F, n), bool)
-        for f, camera in enumerate(cameras.cameras):
-            RP = P_base[f] @ T[f, :3, :3].T
-            front[f] = RP[:, 2] + T[f, 2, 3] > 0
-            RP = np.where(front[f, :, None], RP, _IN_FRONT - T[f, :3, 3])
-            uv_hat, jac = _project(RP, T[f, :3, 3], camera)
-            e[f], J[f] = uv_hat - uv[f], jac[:, :6].reshape(n, 2, 6)
-        return e, J, front
+        rows = [_linearise_rows(P_base[f], uv[f], camera, T[f])
+                for f, camera in enumerate(cameras.cameras)]
+        return tuple(np.stack(a) for a in zip(*rows, strict=True))
     # pinhole in closed form: with p = R P, (X, Y, Z) = p + t, x = X / Z, y = Y / Z,
     # d(u, v) / dt = (fx, fy) / Z [[1, 0, -x], [0, 1, -y]] and d/d delta_rot = p x (that row)
     RP = P_base @ T[:, :3, :3].transpose(0, 2, 1)
@@ -538,11 +542,10 @@ def _finite(a: np.ndarray, usable: np.ndarray) -> np.ndarray:
 def _fit_batch(P_base: np.ndarray, uv: np.ndarray, cameras: _Cameras, T: np.ndarray,
                confidence: np.ndarray, usable: np.ndarray, keep: np.ndarray,
                settings: SolverSettings) -> list[PoseFit | NoSolution]:
-    """`fit_pose` of F frames on checked correspondences (`check_correspondences`), each
-    starting from its keypoints `keep` (F, N) (a subset of `usable`, not degenerate), all
-    frames' rounds of outlier rejection in step."""
+    """`fit_pose` of F frames on checked correspondences (`check_correspondences`, the rows of
+    unusable keypoints made finite by `_finite`), each starting from its keypoints `keep` (F, N)
+    (a subset of `usable`, not degenerate), all frames' rounds of outlier rejection in step."""
     F, N = usable.shape
-    P_base, uv = _finite(P_base, usable), _finite(uv, usable)
     T, keep = T.copy(), keep.copy()
     iterations = np.zeros(F, int)
     e, J = np.zeros((F, N, 2)), np.zeros((F, N, 2, 6))
@@ -606,14 +609,15 @@ def solve_pnp(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, *,
     if reason is not None:
         return NoSolution(reason)
     idx = np.flatnonzero(usable)
-    first = initial_pose(P_base[idx], uv[idx], camera)
+    first, distance = initial_pose(P_base[idx], uv[idx], camera), None
     if isinstance(first, NoSolution):
         first = None
-    elif np.all(_reprojection_distance(P_base[idx], uv[idx], camera, first) ** 2
-                <= settings.ransac_threshold_px ** 2):
-        # every keypoint agrees (all are MSAC inliers): no subset can do better
-        return _fit_checked(P_base, uv, camera, first, confidence, usable, usable, settings)
-    start = _leave_one_out_start(P_base, uv, camera, usable, first, settings)
+    else:
+        distance = _reprojection_distance(P_base[idx], uv[idx], camera, first)
+        if np.all(distance ** 2 <= settings.ransac_threshold_px ** 2):
+            # every keypoint agrees (all are MSAC inliers): no subset can do better
+            return _fit_checked(P_base, uv, camera, first, confidence, usable, usable, settings)
+    start = _leave_one_out_start(P_base, uv, camera, usable, first, distance, settings)
     if isinstance(start, NoSolution):
         return start
     return _fit_checked(P_base, uv, camera, start[0], confidence, usable, start[1], settings)
@@ -649,7 +653,9 @@ def solve_pnp_batch(P_base: np.ndarray, uv: np.ndarray, cameras: Sequence[Camera
     if F == 0:
         return []
     out: list[PoseFit | NoSolution | None] = [None] * F
-    degenerate = _degenerate(_finite(P_base, usable), usable, settings)
+    P_finite, uv_finite = _finite(P_base, usable), _finite(uv, usable)
+    all_cameras = _Cameras.of(cameras)
+    degenerate = _degenerate(P_finite, usable, settings)
     firsts: dict[int, np.ndarray] = {}
     for f in range(F):
         idx = np.flatnonzero(usable[f])
@@ -660,15 +666,13 @@ def solve_pnp_batch(P_base: np.ndarray, uv: np.ndarray, cameras: Sequence[Camera
         if not isinstance(first, NoSolution):
             firsts[f] = first
     # every keypoint agrees with the first pose (all are MSAC inliers): no subset does better
-    agree = np.zeros(F, bool)
+    first_distance = np.full((F, N), np.inf)          # inf behind the camera
     if firsts:
         frames = np.array(list(firsts))
-        all_cameras = _Cameras.of(cameras)
-        e, _, front = _linearise_batch(_finite(P_base[frames], usable[frames]),
-                                      _finite(uv[frames], usable[frames]),
-                                      all_cameras.take(frames), np.array(list(firsts.values())))
-        inlier = front & (np.sum(e * e, axis=2) <= settings.ransac_threshold_px ** 2)
-        agree[frames] = np.all(inlier | ~usable[frames], axis=1)
+        e, _, front = _linearise_batch(P_finite[frames], uv_finite[frames],
+                                       all_cameras.take(frames), np.array(list(firsts.values())))
+        first_distance[frames] = np.where(front, _distances(e), np.inf)
+    agree = np.all((first_distance ** 2 <= settings.ransac_threshold_px ** 2) | ~usable, axis=1)
     starts: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for f in range(F):
         if out[f] is not None:
@@ -676,7 +680,9 @@ def solve_pnp_batch(P_base: np.ndarray, uv: np.ndarray, cameras: Sequence[Camera
         if agree[f]:
             starts[f] = (firsts[f], usable[f])
             continue
-        start = _leave_one_out_start(P_base[f], uv[f], cameras[f], usable[f], firsts.get(f),
+        first = firsts.get(f)
+        start = _leave_one_out_start(P_base[f], uv[f], cameras[f], usable[f], first,
+                                     None if first is None else first_distance[f, usable[f]],
                                      settings)
         if isinstance(start, NoSolution):
             out[f] = start
@@ -684,7 +690,7 @@ def solve_pnp_batch(P_base: np.ndarray, uv: np.ndarray, cameras: Sequence[Camera
             starts[f] = start
     if starts:
         frames = np.array(list(starts))
-        fits = _fit_batch(P_base[frames], uv[frames], _Cameras.of([cameras[f] for f in frames]),
+        fits = _fit_batch(P_finite[frames], uv_finite[frames], all_cameras.take(frames),
                           np.array([starts[f][0] for f in frames]), confidence[frames],
                           usable[frames], np.array([starts[f][1] for f in frames]), settings)
         for f, fit in zip(frames.tolist(), fits, strict=True):
@@ -694,16 +700,18 @@ def solve_pnp_batch(P_base: np.ndarray, uv: np.ndarray, cameras: Sequence[Camera
 
 def _leave_one_out_start(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
                          usable: np.ndarray, first: np.ndarray | None,
+                         first_distance: np.ndarray | None,
                          settings: SolverSettings) -> tuple[np.ndarray, np.ndarray] | NoSolution:
     """The start (pose, keypoints to fit) of a frame whose first pose (SQPnP on every usable
-    keypoint, None if it failed) leaves a keypoint outside the MSAC threshold: SQPnP on
-    leave-one-out subsets too, the keypoint worst explained by the first pose left out first,
-    then the hypothesis with the lowest MSAC cost (`best_hypothesis`)."""
+    keypoint, None if it failed) leaves a keypoint outside the MSAC threshold (its pixel
+    distances over the usable keypoints: `first_distance`): SQPnP on leave-one-out subsets too,
+    the keypoint worst explained by the first pose left out first, then the hypothesis with the
+    lowest MSAC cost (`best_hypothesis`)."""
     idx = np.flatnonzero(usable)
     order = np.arange(len(idx))
     hypotheses = []
     if first is not None:
-        order = np.argsort(-_reprojection_distance(P_base[idx], uv[idx], camera, first))
+        order = np.argsort(-first_distance)
         hypotheses.append(first)
     if len(idx) > settings.min_keypoints:
         for i in order:
