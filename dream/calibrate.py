@@ -5,18 +5,24 @@ A fixed camera sees the robot in F joint configurations. Every keypoint of every
 them together (not an average of per-frame poses): hypotheses from single-frame solutions and
 from random minimal samples across frames are ranked by MSAC, and the best is refined with a
 robust loss and outlier rejection. `calibrate_each` solves every frame alone (moving camera).
+
+The fit's covariance assumes independent detection errors; a keypoint network's errors are not:
+the same keypoint is misplaced the same way in many frames (a wrist taken for the hand, a
+consistent offset from the link origin), which more frames do not average out.
+`keypoint_jackknife` measures that part: the spread of the solutions with one keypoint (in every
+frame) left out at a time, the delete-one-group jackknife with the keypoints as groups.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Sequence as SequenceOf
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from dream.camera import CameraIntrinsics
-from dream.errors import CalibrationError, InputError
+from dream.errors import CalibrationError, DreamError, InputError
 from dream.pnp import (
     NoSolution,
     PoseFit,
@@ -27,6 +33,7 @@ from dream.pnp import (
     refine_best,
     solve_pnp_batch,
 )
+from dream.transforms import rotvec_from_R
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +79,33 @@ class FrameSolution:
     keypoints_found: int
 
 
+MIN_JACKKNIFE_GROUPS = 3   # leave-out solutions below which no spread is estimated
+
+
+@dataclass(frozen=True)
+class KeypointJackknife:
+    """The delete-one-keypoint jackknife of an all-frames extrinsic.
+
+    Attributes:
+        covariance: (6, 6) jackknife covariance of xi (the fit's parametrisation: rotation about
+            and translation along the camera axes, at the all-keypoint solution):
+            (G - 1) / G * sum_k (xi_k - mean)(xi_k - mean)^T over the G solutions xi_k with
+            keypoint k left out.
+        left_out: the names of the G keypoints whose leave-out solution entered it.
+    """
+
+    covariance: np.ndarray
+    left_out: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        if np.shape(self.covariance) != (6, 6):
+            raise InputError(f"jackknife covariance has shape {np.shape(self.covariance)}, "
+                             "expected (6, 6)")
+        if len(self.left_out) < MIN_JACKKNIFE_GROUPS:
+            raise InputError(f"a keypoint jackknife needs at least {MIN_JACKKNIFE_GROUPS} "
+                             f"leave-out solutions, got {len(self.left_out)}")
+
+
 @dataclass(frozen=True)
 class CalibrationResult:
     """Outcome of a calibration.
@@ -83,6 +117,8 @@ class CalibrationResult:
         residuals_px: (F, K, 2) residuals of every observation under the pose reported for its
             frame (the joint pose in "all" mode), NaN where none.
         inlier: (F, K) observations kept by the fit that reports them.
+        jackknife: the keypoint jackknife of an "all" result (`with_keypoint_jackknife`), or
+            None.
     """
 
     mode: str
@@ -90,6 +126,17 @@ class CalibrationResult:
     frames: tuple[FrameSolution, ...]
     residuals_px: np.ndarray
     inlier: np.ndarray
+    jackknife: KeypointJackknife | None = None
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """(6, 6) covariance of the reported extrinsic: the fit's (independent detection errors)
+        plus, when present, the keypoint jackknife's (errors a keypoint's detections share
+        across frames). The sum counts the independent part twice: with independent errors it
+        errs on the safe side."""
+        if self.jackknife is None:
+            return self.fit.covariance
+        return self.fit.covariance + self.jackknife.covariance
 
     @property
     def frames_used(self) -> int:
@@ -163,6 +210,48 @@ def calibrate_all(obs: Observations, camera: CameraIntrinsics,
     shape = obs.uv.shape
     return CalibrationResult("all", fit, frames, fit.residuals_px.reshape(shape),
                              fit.inlier.reshape(shape[:2]))
+
+
+def _xi_from(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """xi (6,) with `dream.pnp.apply_increment(T_ref, xi) == T`: the rotation vector of
+    R R_ref^T and t - t_ref."""
+    return np.concatenate([rotvec_from_R(T[:3, :3] @ T_ref[:3, :3].T), T[:3, 3] - T_ref[:3, 3]])
+
+
+def keypoint_jackknife(result: CalibrationResult, obs: Observations, camera: CameraIntrinsics,
+                       settings: SolverSettings | None = None) -> KeypointJackknife | None:
+    """The delete-one-keypoint jackknife of an all-frames result: `calibrate_all` again with
+    each observed keypoint left out of every frame (the same per-frame solutions among the
+    hypotheses). None when fewer than `MIN_JACKKNIFE_GROUPS` of these are solvable."""
+    if result.mode != "all":
+        raise InputError("the keypoint jackknife is for all-frames results (--frames all)")
+    settings = settings or SolverSettings()
+    names = obs.keypoint_names
+    xis, left_out = [], []
+    for k in np.flatnonzero(np.any(obs.found, axis=0)):
+        confidence = obs.confidence.copy()
+        confidence[:, k] = 0.0
+        subset = Observations(obs.P_base, obs.uv, confidence, obs.frame_names, names)
+        try:
+            fit = calibrate_all(subset, camera, settings, frames=result.frames).fit
+        except DreamError as exc:
+            log.debug("keypoint jackknife without %s: %s", names[k], exc)
+            continue
+        xis.append(_xi_from(result.fit.T_cam_base, fit.T_cam_base))
+        left_out.append(names[k])
+    if len(xis) < MIN_JACKKNIFE_GROUPS:
+        return None
+    d = np.array(xis) - np.mean(xis, axis=0)
+    G = len(xis)
+    return KeypointJackknife((G - 1) / G * (d.T @ d), tuple(left_out))
+
+
+def with_keypoint_jackknife(result: CalibrationResult, obs: Observations,
+                            camera: CameraIntrinsics,
+                            settings: SolverSettings | None = None) -> CalibrationResult:
+    """`result` with its `keypoint_jackknife` (unchanged when there is none)."""
+    jackknife = keypoint_jackknife(result, obs, camera, settings)
+    return result if jackknife is None else replace(result, jackknife=jackknife)
 
 
 def calibrate_each(obs: Observations, camera: CameraIntrinsics,

@@ -282,6 +282,16 @@ def _print_summary(doc: dict, out) -> None:
           f"(1-sigma {sc[0] * 1e3:.2f}, {sc[1] * 1e3:.2f}, {sc[2] * 1e3:.2f} mm)", file=out)
     print(f"1-sigma translation (camera axes): {st[0] * 1e3:.2f}, {st[1] * 1e3:.2f}, "
           f"{st[2] * 1e3:.2f} mm; rotation: {sr[0]:.3f}, {sr[1]:.3f}, {sr[2]:.3f} deg", file=out)
+    uncertainty = doc.get("uncertainty") or {}
+    if uncertainty.get("covariance_xi_keypoint_jackknife") is not None:
+        from dream.result import camera_position_covariance
+
+        fit_c = camera_position_covariance(np.asarray(doc["T_cam_base"]),
+                                           np.asarray(uncertainty["covariance_xi_fit"]))
+        print(f"  (1-sigma = the fit's, {np.sqrt(np.trace(fit_c)) * 1e3:.2f} mm in position, "
+              f"for independent detection errors, plus the spread over "
+              f"{len(uncertainty['keypoint_jackknife_left_out'])} solutions with one keypoint "
+              f"left out, for errors a keypoint repeats across frames)", file=out)
     print(f"reprojection RMSE {doc['rmse_px']:.3f} px over {doc['keypoints_used']} keypoints "
           f"in {doc['frames_used']} frames ({doc['frames_mode']} mode)", file=out)
 

@@ -7,7 +7,13 @@ from typing import Any
 
 import numpy as np
 
-from dream.calibrate import CalibrationResult, Observations, calibrate_all, calibrate_each
+from dream.calibrate import (
+    CalibrationResult,
+    Observations,
+    calibrate_all,
+    calibrate_each,
+    with_keypoint_jackknife,
+)
 from dream.camera import project
 from dream.errors import InputError, RobotError
 from dream.metrics import (
@@ -61,7 +67,8 @@ def observations_from_labels(sequence: Sequence, robot: Robot) -> Observations:
 def calibrate(sequence: Sequence, obs: Observations, mode: str = "all",
               settings: SolverSettings | None = None) -> CalibrationResult:
     if mode == "all":
-        return calibrate_all(obs, sequence.fixed_camera("use --frames each"), settings)
+        camera = sequence.fixed_camera("use --frames each")
+        return with_keypoint_jackknife(calibrate_all(obs, camera, settings), obs, camera, settings)
     if mode == "each":
         cameras = tuple(sequence.frame_camera(i) for i in range(len(sequence)))
         return calibrate_each(obs, sequence.camera, settings, frame_cameras=cameras)

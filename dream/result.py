@@ -60,7 +60,9 @@ def result_to_dict(result: CalibrationResult, obs: Observations, *, robot: str) 
         if not isinstance(frame_fit, PoseFit):
             entry["no_solution_reason"] = frame_fit.reason
         per_frame.append(entry)
-    cov_c = camera_position_covariance(T, fit.covariance)
+    covariance = result.covariance
+    cov_c = camera_position_covariance(T, covariance)
+    jackknife = result.jackknife
     return {
         "format_version": RESULT_FORMAT_VERSION,
         "robot": robot,
@@ -71,14 +73,22 @@ def result_to_dict(result: CalibrationResult, obs: Observations, *, robot: str) 
         "rmse_px": float(fit.rmse_px),
         "frames_used": result.frames_used,
         "keypoints_used": int(fit.num_inliers),
-        "sigma_translation_m": fit.sigma_translation_m.tolist(),
-        "sigma_rotation_rad": fit.sigma_rotation_rad.tolist(),
+        # 1-sigma of `covariance_xi` (the fit's, plus the keypoint jackknife's when present)
+        "sigma_translation_m": np.sqrt(np.diag(covariance)[3:]).tolist(),
+        "sigma_rotation_rad": np.sqrt(np.diag(covariance)[:3]).tolist(),
         # Extensions: the camera pose in the base frame and the full covariance.
         "T_base_cam": _matrix(T_base_cam),
         "sigma_camera_position_base_m": np.sqrt(np.diag(cov_c)).tolist(),
-        "covariance_xi": _matrix(fit.covariance),
+        "covariance_xi": _matrix(covariance),
         "covariance_xi_order": "rotation about camera x,y,z (rad), translation along camera "
                                "x,y,z (m); update P_cam = exp(rot) R P_base + t + trans",
+        "uncertainty": {
+            "method": "fit" if jackknife is None else "fit + keypoint jackknife",
+            "covariance_xi_fit": _matrix(fit.covariance),
+            "covariance_xi_keypoint_jackknife": None if jackknife is None
+            else _matrix(jackknife.covariance),
+            "keypoint_jackknife_left_out": None if jackknife is None else list(jackknife.left_out),
+        },
         "per_frame": per_frame,
     }
 

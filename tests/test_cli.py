@@ -49,6 +49,15 @@ def test_sample_calibrate_eval_end_to_end(sample_dir, tmp_path, capsys):
     truth = read_sequence(sample_dir).T_cam_base_reference
     t_err, r_err = pose_errors(np.array(doc["T_cam_base"]), truth)
     assert t_err < 3 * np.linalg.norm(doc["sigma_camera_position_base_m"]) + 1e-4
+    # the reported sigma: the fit's covariance plus the keypoint jackknife's
+    unc = doc["uncertainty"]
+    assert unc["method"] == "fit + keypoint jackknife"
+    assert len(unc["keypoint_jackknife_left_out"]) >= 3
+    total = np.array(unc["covariance_xi_fit"]) + np.array(unc["covariance_xi_keypoint_jackknife"])
+    np.testing.assert_allclose(doc["covariance_xi"], total)
+    np.testing.assert_allclose(doc["sigma_translation_m"], np.sqrt(np.diag(total)[3:]))
+    np.testing.assert_allclose(doc["sigma_rotation_rad"], np.sqrt(np.diag(total)[:3]))
+    assert "keypoint left out" in out
     metrics_path = tmp_path / "metrics.json"
     code, out, err = run(["eval", "--data", sample_dir, "--result", result, "--out",
                           metrics_path], capsys)
@@ -63,6 +72,8 @@ def test_sample_calibrate_eval_end_to_end(sample_dir, tmp_path, capsys):
     assert code == 0, err
     each = json.loads((tmp_path / "each.json").read_text())
     assert each["frames_mode"] == "each"
+    assert each["uncertainty"]["method"] == "fit"
+    assert each["uncertainty"]["covariance_xi_keypoint_jackknife"] is None
     solved = [np.array(f["T_cam_base"]) for f in each["per_frame"] if f["T_cam_base"]]
     unsolved = [f for f in each["per_frame"] if not f["T_cam_base"]]
     assert len(solved) >= 8 and all("no_solution_reason" in f for f in unsolved)

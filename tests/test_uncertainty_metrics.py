@@ -3,13 +3,21 @@ import pytest
 from scenes import CAMERA, random_scene
 from test_pnp import xi_error
 
-from dream.calibrate import calibrate_all
+from dream.calibrate import (
+    Observations,
+    _xi_from,
+    calibrate_all,
+    calibrate_each,
+    keypoint_jackknife,
+    with_keypoint_jackknife,
+)
+from dream.camera import project
 from dream.crb import extrinsic_crb
 from dream.errors import CalibrationError, InputError
 from dream.metrics import add_per_frame, auc, keypoint_errors, pose_errors
-from dream.pnp import SolverSettings
+from dream.pnp import SolverSettings, apply_increment
 from dream.result import camera_position_covariance
-from dream.transforms import T_from_rotvec_t, invert_T
+from dream.transforms import T_from_rotvec_t, invert_T, transform_points
 
 Z95 = 1.959964
 
@@ -85,3 +93,76 @@ def test_keypoint_errors_count_missing_detections_as_failures():
     uv_det = np.array([[[3.0, 4.0], [np.nan, np.nan], [100.0, 0.0]]])
     d = keypoint_errors(uv_det, uv_true, np.array([[True, True, False]]))
     assert d.tolist() == [5.0, np.inf]
+
+
+def _position_coverage(T_est, T_true, covariance):
+    c_err = invert_T(T_est)[:3, 3] - invert_T(T_true)[:3, 3]
+    C = camera_position_covariance(T_est, covariance)
+    return float(c_err @ np.linalg.solve(C, c_err)) <= CHI2_3_95, np.sqrt(np.trace(C))
+
+
+CHI2_3_95 = 7.8147   # 95 % quantile of chi-square with 3 degrees of freedom
+
+
+def _biased_scene(rng, bias_m):
+    """A random scene whose keypoint j is seen displaced by the same base-frame offset b_j in
+    every frame (a detector's error that more frames do not average out), plus 1 px noise."""
+    obs, T, _ = random_scene(rng, 10)
+    b = rng.normal(0, bias_m, (1, obs.P_base.shape[1], 3))
+    uv = project(CAMERA, transform_points(T, obs.P_base + b)) + rng.normal(0, 1.0, obs.uv.shape)
+    return Observations(obs.P_base, uv, obs.confidence, obs.frame_names, obs.keypoint_names), T
+
+
+def test_keypoint_jackknife_covers_errors_a_keypoint_repeats_across_frames():
+    rng = np.random.default_rng(11)
+    settings = SolverSettings(ransac_hypotheses=10)
+    fit_covered, total_covered = [], []
+    for _ in range(30):
+        obs, T = _biased_scene(rng, 0.02)
+        result = with_keypoint_jackknife(calibrate_all(obs, CAMERA, settings), obs, CAMERA,
+                                         settings)
+        assert result.jackknife is not None and len(result.jackknife.left_out) == 7
+        np.testing.assert_allclose(result.covariance,
+                                   result.fit.covariance + result.jackknife.covariance)
+        fit_covered.append(_position_coverage(result.fit.T_cam_base, T, result.fit.covariance)[0])
+        total_covered.append(_position_coverage(result.fit.T_cam_base, T, result.covariance)[0])
+    # the fit's covariance assumes independent errors: far too small here
+    assert np.mean(fit_covered) < 0.5, np.mean(fit_covered)
+    assert np.mean(total_covered) >= 0.8, np.mean(total_covered)
+
+
+def test_keypoint_jackknife_with_independent_errors_about_doubles_the_variance():
+    # with independent errors the jackknife estimates the fit's own variance again, so the
+    # sum's sigma is about sqrt(2) times the fit's (the safe side)
+    rng = np.random.default_rng(12)
+    settings = SolverSettings(ransac_hypotheses=10)
+    ratios = []
+    for _ in range(30):
+        obs, T, _ = random_scene(rng, 10, noise_px=1.0)
+        result = with_keypoint_jackknife(calibrate_all(obs, CAMERA, settings), obs, CAMERA,
+                                         settings)
+        ratios.append(_position_coverage(result.fit.T_cam_base, T, result.covariance)[1]
+                      / _position_coverage(result.fit.T_cam_base, T, result.fit.covariance)[1])
+    assert 1.2 <= np.median(ratios) <= 1.7, np.median(ratios)
+
+
+def test_keypoint_jackknife_needs_three_keypoints_and_an_all_frames_result():
+    rng = np.random.default_rng(13)
+    obs, _, _ = random_scene(rng, 10, keypoints=7, noise_px=1.0)
+    two = Observations(obs.P_base, obs.uv, np.where(np.arange(7) < 2, 1.0, 0.0)[None].repeat(10, 0),
+                       obs.frame_names, obs.keypoint_names)
+    result = calibrate_all(two, CAMERA, SolverSettings(ransac_hypotheses=10))
+    assert keypoint_jackknife(result, two, CAMERA) is None
+    assert with_keypoint_jackknife(result, two, CAMERA) is result
+    assert result.covariance is result.fit.covariance
+    each = calibrate_each(obs, CAMERA)
+    with pytest.raises(InputError, match="all-frames"):
+        keypoint_jackknife(each, obs, CAMERA)
+
+
+def test_xi_from_inverts_the_solver_update():
+    rng = np.random.default_rng(14)
+    for _ in range(20):
+        T = T_from_rotvec_t(rng.normal(0, 1, 3), rng.normal(0, 1, 3))
+        xi = rng.normal(0, 0.3, 6)
+        np.testing.assert_allclose(_xi_from(T, apply_increment(T, xi)), xi, atol=1e-12)
