@@ -29,11 +29,11 @@ from dream.pnp import (
     SolverSettings,
     check_correspondences,
     degeneracy,
+    increment_between,
     initial_pose,
     refine_best,
     solve_pnp_batch,
 )
-from dream.transforms import rotvec_from_R
 
 log = logging.getLogger(__name__)
 
@@ -212,12 +212,6 @@ def calibrate_all(obs: Observations, camera: CameraIntrinsics,
                              fit.inlier.reshape(shape[:2]))
 
 
-def _xi_from(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """xi (6,) with `dream.pnp.apply_increment(T_ref, xi) == T`: the rotation vector of
-    R R_ref^T and t - t_ref."""
-    return np.concatenate([rotvec_from_R(T[:3, :3] @ T_ref[:3, :3].T), T[:3, 3] - T_ref[:3, 3]])
-
-
 def keypoint_jackknife(result: CalibrationResult, obs: Observations, camera: CameraIntrinsics,
                        settings: SolverSettings | None = None) -> KeypointJackknife | None:
     """The delete-one-keypoint jackknife of an all-frames result: `calibrate_all` again with
@@ -237,7 +231,7 @@ def keypoint_jackknife(result: CalibrationResult, obs: Observations, camera: Cam
         except DreamError as exc:
             log.debug("keypoint jackknife without %s: %s", names[k], exc)
             continue
-        xis.append(_xi_from(result.fit.T_cam_base, fit.T_cam_base))
+        xis.append(increment_between(result.fit.T_cam_base, fit.T_cam_base))
         left_out.append(names[k])
     if len(xis) < MIN_JACKKNIFE_GROUPS:
         return None

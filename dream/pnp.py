@@ -17,7 +17,7 @@ import numpy as np
 
 from dream.camera import CameraIntrinsics, pixels_to_normalized
 from dream.errors import InputError
-from dream.transforms import R_from_rotvec, T_from_rotvec_t
+from dream.transforms import R_from_rotvec, T_from_rotvec_t, rotvec_from_R
 
 log = logging.getLogger(__name__)
 
@@ -290,6 +290,12 @@ def apply_increment(T: np.ndarray, xi: np.ndarray) -> np.ndarray:
     T_new[..., :3, 3] = T[..., :3, 3] + xi[..., 3:]
     T_new[..., 3, :] = _LAST_ROW
     return T_new
+
+
+def increment_between(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """xi (6,) with `apply_increment(T_ref, xi) == T`: the rotation vector of R R_ref^T and
+    t - t_ref."""
+    return np.concatenate([rotvec_from_R(T[:3, :3] @ T_ref[:3, :3].T), T[:3, 3] - T_ref[:3, 3]])
 
 
 def _cost(distance: np.ndarray, confidence: np.ndarray, loss: RobustLoss) -> float:

@@ -7,16 +7,22 @@ from scenes import CAMERA, random_scene
 from dream.calibrate import Observations, calibrate_all, calibrate_each
 from dream.crb import extrinsic_crb
 from dream.errors import CalibrationError, InputError
-from dream.pnp import NoSolution, PoseFit, SolverSettings, fit_pose, solve_pnp, solve_pnp_batch
-from dream.transforms import rotvec_from_R
+from dream.pnp import (
+    NoSolution,
+    PoseFit,
+    SolverSettings,
+    fit_pose,
+    increment_between,
+    solve_pnp,
+    solve_pnp_batch,
+)
 
 DISTORTED = CAMERA.with_distortion((0.12, -0.2, 0.001, -0.002, 0.05))
 
 
 def xi_error(T_est: np.ndarray, T_true: np.ndarray) -> np.ndarray:
     """xi = (rot, trans) such that T_true = (exp(rot) R_est, t_est + trans)."""
-    return np.concatenate([rotvec_from_R(T_true[:3, :3] @ T_est[:3, :3].T),
-                           T_true[:3, 3] - T_est[:3, 3]])
+    return increment_between(T_est, T_true)
 
 
 @pytest.mark.parametrize("camera", [CAMERA, DISTORTED])

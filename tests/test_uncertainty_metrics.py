@@ -5,7 +5,6 @@ from test_pnp import xi_error
 
 from dream.calibrate import (
     Observations,
-    _xi_from,
     calibrate_all,
     calibrate_each,
     keypoint_jackknife,
@@ -15,7 +14,7 @@ from dream.camera import project
 from dream.crb import extrinsic_crb
 from dream.errors import CalibrationError, InputError
 from dream.metrics import add_per_frame, auc, keypoint_errors, pose_errors
-from dream.pnp import SolverSettings, apply_increment
+from dream.pnp import SolverSettings, apply_increment, increment_between
 from dream.result import camera_position_covariance
 from dream.transforms import T_from_rotvec_t, invert_T, transform_points
 
@@ -160,9 +159,9 @@ def test_keypoint_jackknife_needs_three_keypoints_and_an_all_frames_result():
         keypoint_jackknife(each, obs, CAMERA)
 
 
-def test_xi_from_inverts_the_solver_update():
+def test_increment_between_inverts_the_solver_update():
     rng = np.random.default_rng(14)
     for _ in range(20):
         T = T_from_rotvec_t(rng.normal(0, 1, 3), rng.normal(0, 1, 3))
         xi = rng.normal(0, 0.3, 6)
-        np.testing.assert_allclose(_xi_from(T, apply_increment(T, xi)), xi, atol=1e-12)
+        np.testing.assert_allclose(increment_between(T, apply_increment(T, xi)), xi, atol=1e-12)
