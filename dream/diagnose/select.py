@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Sequence as SequenceOf
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -55,13 +56,23 @@ PLAUSIBLE = {                      # largest plausible magnitude of each kind of
 }
 
 
-def first_implausible(fit: FitResult, effects: tuple[str, ...], limits: dict) -> str | None:
-    """`implausible` of the first of `effects` that is (its name prefixed after the first)."""
-    for i, effect in enumerate(effects):
+def implausible_effect(fit: FitResult, effects: SequenceOf[str],
+                       limits: dict) -> tuple[str, str] | None:
+    """The first of `effects` whose fitted parameters are implausible (`implausible`), and why."""
+    for effect in effects:
         why = implausible(fit, effect, limits)
         if why is not None:
-            return why if i == 0 else f"{effect}: {why}"
+            return effect, why
     return None
+
+
+def first_implausible(fit: FitResult, effects: tuple[str, ...], limits: dict) -> str | None:
+    """`implausible` of the first of `effects` that is (its name prefixed after the first)."""
+    found = implausible_effect(fit, effects, limits)
+    if found is None:
+        return None
+    effect, why = found
+    return why if effect == effects[0] else f"{effect}: {why}"
 
 
 def implausible(fit: FitResult, effect: str, limits: dict) -> str | None:
@@ -525,12 +536,11 @@ def refit_on_new_mask(problem: Problem, current: Evaluation, baseline: Evaluatio
     refit = evaluate(current.name, current.fit.model, new_mask, scale_px, settings,
                      x0=current.fit.x, identifiability=current.identifiability,
                      pruned=current.pruned)
-    for effect in accepted:
-        why = implausible(refit.fit, effect, settings.plausible)
-        if why is not None:
-            return current, baseline, mask, (
-                f"the refit on the outlier mask of the accepted model ({int(new_mask.sum())} "
-                f"instead of {int(mask.sum())} keypoints) was not taken: {effect}: {why}")
+    found = implausible_effect(refit.fit, accepted, settings.plausible)
+    if found is not None:
+        return current, baseline, mask, (
+            f"the refit on the outlier mask of the accepted model ({int(new_mask.sum())} "
+            f"instead of {int(mask.sum())} keypoints) was not taken: {found[0]}: {found[1]}")
     baseline = evaluate("baseline", baseline.fit.model, new_mask, scale_px, settings,
                         x0=baseline.fit.x)
     return refit, baseline, new_mask, None
