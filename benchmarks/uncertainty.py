@@ -43,12 +43,7 @@ FIRST_SCENE_SEED = 100
 def scene_row(data: Path, model) -> dict[str, float]:
     """Error and the two covariances' sigma and chi-square of one sequence's all-frames fit."""
     seq = read_sequence(data)
-    if seq.T_cam_base_reference is not None:
-        T_true = seq.T_cam_base_reference
-    elif seq.frames[0].T_cam_base_true is not None:
-        T_true = seq.frames[0].T_cam_base_true
-    else:
-        T_true = None                                   # sigmas only
+    T_true = seq.T_cam_base_truth(seq.frames[0])       # None: sigmas only
     robot = load_model_robot(seq, model)
     obs = detect_keypoints(seq, robot, model, peak_params=model.peak_params)
     result = calibrate(seq, obs, "all")
