@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -10,11 +11,20 @@ import numpy as np
 import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-# Compiled MuJoCo scenes of this test session go to a fresh folder (subprocesses inherit it).
-os.environ.setdefault("DREAM_CACHE_DIR", tempfile.mkdtemp(prefix="dream-test-cache-"))
+# Compiled MuJoCo scenes of this test session go to a fresh folder (subprocesses inherit it),
+# removed when the session ends (each run writes about 170 MB there).
+_OWN_CACHE_DIR: str | None = None
+if "DREAM_CACHE_DIR" not in os.environ:
+    _OWN_CACHE_DIR = tempfile.mkdtemp(prefix="dream-test-cache-")
+    os.environ["DREAM_CACHE_DIR"] = _OWN_CACHE_DIR
 
 REPO = Path(__file__).resolve().parents[1]
 REALDATA = Path(os.environ.get("DREAM_REALDATA", REPO.parent / "shared" / "realdata"))
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if _OWN_CACHE_DIR is not None:
+        shutil.rmtree(_OWN_CACHE_DIR, ignore_errors=True)
 
 
 @pytest.fixture(scope="session")
