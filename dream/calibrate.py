@@ -10,7 +10,9 @@ The fit's covariance assumes independent detection errors; a keypoint network's 
 the same keypoint is misplaced the same way in many frames (a wrist taken for the hand, a
 consistent offset from the link origin), which more frames do not average out.
 `keypoint_jackknife` measures that part: the spread of the solutions with one keypoint (in every
-frame) left out at a time, the delete-one-group jackknife with the keypoints as groups.
+frame) left out at a time, the delete-one-group jackknife with the keypoints as groups. A single
+frame's fit is as optimistic (a misplaced keypoint is one of a handful): `calibrate_each` gives
+every frame its own keypoint jackknife (`frame_keypoint_jackknives`).
 """
 
 from __future__ import annotations
@@ -70,21 +72,12 @@ class Observations:
             (self.confidence > 0)
 
 
-@dataclass(frozen=True)
-class FrameSolution:
-    """A frame's own single-frame solution (or why there is none)."""
-
-    name: str
-    fit: PoseFit | NoSolution
-    keypoints_found: int
-
-
 MIN_JACKKNIFE_GROUPS = 3   # leave-out solutions below which no spread is estimated
 
 
 @dataclass(frozen=True)
 class KeypointJackknife:
-    """The delete-one-keypoint jackknife of an all-frames extrinsic.
+    """The delete-one-keypoint jackknife of an extrinsic (all frames', or one frame's).
 
     Attributes:
         covariance: (6, 6) jackknife covariance of xi (the fit's parametrisation: rotation about
@@ -107,6 +100,27 @@ class KeypointJackknife:
 
 
 @dataclass(frozen=True)
+class FrameSolution:
+    """A frame's own single-frame solution (or why there is none) and, when computed
+    (`calibrate_each`), its keypoint jackknife (None: not computed or not estimable)."""
+
+    name: str
+    fit: PoseFit | NoSolution
+    keypoints_found: int
+    jackknife: KeypointJackknife | None = None
+
+    @property
+    def covariance(self) -> np.ndarray | None:
+        """(6, 6) covariance of the frame's extrinsic: the fit's plus its jackknife's (None
+        without a solution)."""
+        if not isinstance(self.fit, PoseFit):
+            return None
+        if self.jackknife is None:
+            return self.fit.covariance
+        return self.fit.covariance + self.jackknife.covariance
+
+
+@dataclass(frozen=True)
 class CalibrationResult:
     """Outcome of a calibration.
 
@@ -117,8 +131,8 @@ class CalibrationResult:
         residuals_px: (F, K, 2) residuals of every observation under the pose reported for its
             frame (the joint pose in "all" mode), NaN where none.
         inlier: (F, K) observations kept by the fit that reports them.
-        jackknife: the keypoint jackknife of an "all" result (`with_keypoint_jackknife`), or
-            None.
+        jackknife: the keypoint jackknife of the reported extrinsic (an "all" result's from
+            `with_keypoint_jackknife`, an "each" result's from its frame), or None.
     """
 
     mode: str
@@ -233,11 +247,47 @@ def keypoint_jackknife(result: CalibrationResult, obs: Observations, camera: Cam
             continue
         xis.append(increment_between(result.fit.T_cam_base, fit.T_cam_base))
         left_out.append(names[k])
+    return _jackknife(xis, left_out)
+
+
+def _jackknife(xis: list[np.ndarray], left_out: list[str]) -> KeypointJackknife | None:
+    """The jackknife of the G leave-out solutions xi_k (6,) (None when G is too small)."""
     if len(xis) < MIN_JACKKNIFE_GROUPS:
         return None
     d = np.array(xis) - np.mean(xis, axis=0)
     G = len(xis)
     return KeypointJackknife((G - 1) / G * (d.T @ d), tuple(left_out))
+
+
+def frame_keypoint_jackknives(obs: Observations, frames: tuple[FrameSolution, ...],
+                              cameras: SequenceOf[CameraIntrinsics],
+                              settings: SolverSettings | None = None
+                              ) -> tuple[KeypointJackknife | None, ...]:
+    """Each solved frame's delete-one-keypoint jackknife: the frame solved again (`solve_pnp`)
+    without each of its observed keypoints in turn, every such problem of every frame in one
+    `solve_pnp_batch` call. None for a frame without a solution or with fewer than
+    `MIN_JACKKNIFE_GROUPS` solvable leave-outs."""
+    if len(frames) != len(obs.frame_names) or len(cameras) != len(frames):
+        raise InputError(f"{len(frames)} frame solutions and {len(cameras)} cameras for "
+                         f"{len(obs.frame_names)} frames")
+    settings = settings or SolverSettings()
+    found = obs.found
+    solved = np.array([isinstance(f.fit, PoseFit) for f in frames], bool)
+    fi, ki = np.nonzero(found & solved[:, None])          # problem j: frame fi[j] without ki[j]
+    if len(fi) == 0:
+        return (None,) * len(frames)
+    confidence = np.where(found, obs.confidence, 0.0)[fi]
+    confidence[np.arange(len(fi)), ki] = 0.0
+    fits = solve_pnp_batch(obs.P_base[fi], np.where(found[..., None], obs.uv, np.nan)[fi],
+                           [cameras[f] for f in fi.tolist()], confidence=confidence,
+                           settings=settings)
+    out = []
+    for f, frame in enumerate(frames):
+        mine = [j for j in np.flatnonzero(fi == f).tolist() if isinstance(fits[j], PoseFit)]
+        out.append(None if not mine else _jackknife(
+            [increment_between(frame.fit.T_cam_base, fits[j].T_cam_base) for j in mine],
+            [obs.keypoint_names[ki[j]] for j in mine]))
+    return tuple(out)
 
 
 def with_keypoint_jackknife(result: CalibrationResult, obs: Observations,
@@ -253,18 +303,31 @@ def calibrate_each(obs: Observations, camera: CameraIntrinsics,
                    frame_cameras: SequenceOf[CameraIntrinsics] | None = None
                    ) -> CalibrationResult:
     """Every frame solved alone (`frame_cameras`: each frame's own intrinsics, default
-    `camera`); the reported fit is the best-determined frame's."""
+    `camera`), each with its keypoint jackknife (`frame_keypoint_jackknives`); the reported
+    extrinsic is the best-determined frame's: the smallest trace of its covariance (fit plus
+    jackknife) among the frames with a jackknife (a frame too sparse for one has only its
+    fit's, which understates it), among all solved frames when none has one."""
     settings = settings or SolverSettings()
-    frames = solve_frames(obs, camera, settings, frame_cameras)
-    solved = [(i, f.fit) for i, f in enumerate(frames) if isinstance(f.fit, PoseFit)]
+    cameras = [camera] * len(obs.frame_names) if frame_cameras is None else frame_cameras
+    frames = solve_frames(obs, camera, settings, cameras)
+    solved = [i for i, f in enumerate(frames) if isinstance(f.fit, PoseFit)]
     if not solved:
         reasons = sorted({f.fit.reason for f in frames})
         raise CalibrationError("no frame could be solved alone: " + "; ".join(reasons))
+    jackknives = frame_keypoint_jackknives(obs, frames, cameras, settings)
+    frames = tuple(replace(f, jackknife=j) for f, j in zip(frames, jackknives, strict=True))
     F, K = obs.uv.shape[:2]
     residuals = np.full((F, K, 2), np.nan)
     inlier = np.zeros((F, K), bool)
-    for i, fit in solved:
-        residuals[i] = fit.residuals_px
-        inlier[i] = fit.inlier
-    best = min(solved, key=lambda s: np.trace(s[1].covariance))[1]
-    return CalibrationResult("each", best, frames, residuals, inlier)
+    for i in solved:
+        residuals[i] = frames[i].fit.residuals_px
+        inlier[i] = frames[i].fit.inlier
+    candidates = [i for i in solved if frames[i].jackknife is not None] or solved
+    best = frames[min(candidates, key=lambda i: _spread(frames[i].covariance))]
+    return CalibrationResult("each", best.fit, frames, residuals, inlier, best.jackknife)
+
+
+def _spread(covariance: np.ndarray) -> float:
+    """The trace of a covariance; infinite when it is not finite (no redundancy)."""
+    trace = float(np.trace(covariance))
+    return trace if np.isfinite(trace) else np.inf

@@ -288,10 +288,13 @@ def _print_summary(doc: dict, out) -> None:
 
         fit_c = camera_position_covariance(np.asarray(doc["T_cam_base"]),
                                            np.asarray(uncertainty["covariance_xi_fit"]))
+        left_out = len(uncertainty["keypoint_jackknife_left_out"])
+        spread = (f"{left_out} solutions with one keypoint left out of every frame, for errors "
+                  "a keypoint repeats across frames" if doc["frames_mode"] == "all" else
+                  f"{left_out} solutions of the frame with one keypoint left out, for a "
+                  "misplaced keypoint")
         print(f"  (1-sigma = the fit's, {np.sqrt(np.trace(fit_c)) * 1e3:.2f} mm in position, "
-              f"for independent detection errors, plus the spread over "
-              f"{len(uncertainty['keypoint_jackknife_left_out'])} solutions with one keypoint "
-              f"left out, for errors a keypoint repeats across frames)", file=out)
+              f"for independent detection errors, plus the spread over {spread})", file=out)
     print(f"reprojection RMSE {doc['rmse_px']:.3f} px over {doc['keypoints_used']} keypoints "
           f"in {doc['frames_used']} frames ({doc['frames_mode']} mode)", file=out)
 

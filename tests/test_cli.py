@@ -67,13 +67,18 @@ def test_sample_calibrate_eval_end_to_end(sample_dir, tmp_path, capsys):
     assert metrics["translation_error_m"]["median"] == pytest.approx(t_err)
     assert 0.5 < metrics["keypoint_l2_px"]["median"] < 2.0  # 1 px noise per axis
     # each mode: every frame alone
-    code, _, err = run(["calibrate", "--data", sample_dir, "--use-labels", "--frames", "each",
-                        "--out", tmp_path / "each.json"], capsys)
+    code, out, err = run(["calibrate", "--data", sample_dir, "--use-labels", "--frames", "each",
+                          "--out", tmp_path / "each.json"], capsys)
     assert code == 0, err
     each = json.loads((tmp_path / "each.json").read_text())
     assert each["frames_mode"] == "each"
-    assert each["uncertainty"]["method"] == "fit"
-    assert each["uncertainty"]["covariance_xi_keypoint_jackknife"] is None
+    # the reported frame's fit plus its own keypoint jackknife
+    unc = each["uncertainty"]
+    assert unc["method"] == "fit + keypoint jackknife"
+    assert len(unc["keypoint_jackknife_left_out"]) >= 3
+    total = np.array(unc["covariance_xi_fit"]) + np.array(unc["covariance_xi_keypoint_jackknife"])
+    np.testing.assert_allclose(each["covariance_xi"], total)
+    assert "of the frame with one keypoint left out" in out
     solved = [np.array(f["T_cam_base"]) for f in each["per_frame"] if f["T_cam_base"]]
     unsolved = [f for f in each["per_frame"] if not f["T_cam_base"]]
     assert len(solved) >= 8 and all("no_solution_reason" in f for f in unsolved)
