@@ -71,6 +71,16 @@ class Observations:
         return np.all(np.isfinite(self.uv), -1) & np.isfinite(self.confidence) & \
             (self.confidence > 0)
 
+    @property
+    def uv_found(self) -> np.ndarray:
+        """(F, K, 2) `uv` with NaN where a keypoint was not observed (`found`)."""
+        return np.where(self.found[..., None], self.uv, np.nan)
+
+    @property
+    def confidence_found(self) -> np.ndarray:
+        """(F, K) `confidence` with 0 where a keypoint was not observed (`found`)."""
+        return np.where(self.found, self.confidence, 0.0)
+
 
 MIN_JACKKNIFE_GROUPS = 3   # leave-out solutions below which no spread is estimated
 
@@ -115,9 +125,14 @@ class FrameSolution:
         without a solution)."""
         if not isinstance(self.fit, PoseFit):
             return None
-        if self.jackknife is None:
-            return self.fit.covariance
-        return self.fit.covariance + self.jackknife.covariance
+        return _fit_plus_jackknife(self.fit, self.jackknife)
+
+
+def _fit_plus_jackknife(fit: PoseFit, jackknife: KeypointJackknife | None) -> np.ndarray:
+    """The fit's covariance plus, when there is one, the jackknife's."""
+    if jackknife is None:
+        return fit.covariance
+    return fit.covariance + jackknife.covariance
 
 
 @dataclass(frozen=True)
@@ -148,9 +163,7 @@ class CalibrationResult:
         plus, when present, the keypoint jackknife's (errors a keypoint's detections share
         across frames). The sum counts the independent part twice: with independent errors it
         errs on the safe side."""
-        if self.jackknife is None:
-            return self.fit.covariance
-        return self.fit.covariance + self.jackknife.covariance
+        return _fit_plus_jackknife(self.fit, self.jackknife)
 
     @property
     def frames_used(self) -> int:
@@ -171,16 +184,23 @@ def solve_frames(obs: Observations, camera: CameraIntrinsics, settings: SolverSe
                  ) -> tuple[FrameSolution, ...]:
     """Every frame solved alone (with its own intrinsics where `frame_cameras` gives them);
     a frame without a solution says why."""
-    if frame_cameras is not None and len(frame_cameras) != len(obs.frame_names):
-        raise InputError(f"{len(frame_cameras)} frame cameras for {len(obs.frame_names)} frames")
-    cameras = [camera] * len(obs.frame_names) if frame_cameras is None else frame_cameras
-    fits = solve_pnp_batch(obs.P_base, np.where(obs.found[..., None], obs.uv, np.nan), cameras,
-                           confidence=np.where(obs.found, obs.confidence, 0.0), settings=settings)
+    fits = solve_pnp_batch(obs.P_base, obs.uv_found, _cameras(obs, camera, frame_cameras),
+                           confidence=obs.confidence_found, settings=settings)
     for name, fit in zip(obs.frame_names, fits, strict=True):
         if isinstance(fit, NoSolution):
             log.debug("frame %s: %s", name, fit.reason)
     return tuple(FrameSolution(name, fit, int(found.sum()))
                  for name, fit, found in zip(obs.frame_names, fits, obs.found, strict=True))
+
+
+def _cameras(obs: Observations, camera: CameraIntrinsics,
+             frame_cameras: SequenceOf[CameraIntrinsics] | None) -> SequenceOf[CameraIntrinsics]:
+    """Each frame's intrinsics: `frame_cameras`, or `camera` for every frame."""
+    if frame_cameras is None:
+        return [camera] * len(obs.frame_names)
+    if len(frame_cameras) != len(obs.frame_names):
+        raise InputError(f"{len(frame_cameras)} frame cameras for {len(obs.frame_names)} frames")
+    return frame_cameras
 
 
 def _random_hypotheses(P: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
@@ -205,10 +225,9 @@ def calibrate_all(obs: Observations, camera: CameraIntrinsics,
     """One `T_cam_base` minimising the robust reprojection error over all frames at once."""
     settings = settings or SolverSettings()
     frames = frames if frames is not None else solve_frames(obs, camera, settings)
-    found = obs.found
     P = obs.P_base.reshape(-1, 3)
-    uv = np.where(found[..., None], obs.uv, np.nan).reshape(-1, 2)
-    conf = np.where(found, obs.confidence, 0.0).reshape(-1)
+    uv = obs.uv_found.reshape(-1, 2)
+    conf = obs.confidence_found.reshape(-1)
     P, uv, conf, usable = check_correspondences(P, uv, conf)
     reason = degeneracy(P[usable], settings)
     if reason is not None:
@@ -271,16 +290,14 @@ def frame_keypoint_jackknives(obs: Observations, frames: tuple[FrameSolution, ..
         raise InputError(f"{len(frames)} frame solutions and {len(cameras)} cameras for "
                          f"{len(obs.frame_names)} frames")
     settings = settings or SolverSettings()
-    found = obs.found
     solved = np.array([isinstance(f.fit, PoseFit) for f in frames], bool)
-    fi, ki = np.nonzero(found & solved[:, None])          # problem j: frame fi[j] without ki[j]
+    fi, ki = np.nonzero(obs.found & solved[:, None])          # problem j: frame fi[j] without ki[j]
     if len(fi) == 0:
         return (None,) * len(frames)
-    confidence = np.where(found, obs.confidence, 0.0)[fi]
+    confidence = obs.confidence_found[fi]
     confidence[np.arange(len(fi)), ki] = 0.0
-    fits = solve_pnp_batch(obs.P_base[fi], np.where(found[..., None], obs.uv, np.nan)[fi],
-                           [cameras[f] for f in fi.tolist()], confidence=confidence,
-                           settings=settings)
+    fits = solve_pnp_batch(obs.P_base[fi], obs.uv_found[fi], [cameras[f] for f in fi.tolist()],
+                           confidence=confidence, settings=settings)
     out = []
     for f, frame in enumerate(frames):
         mine = [j for j in np.flatnonzero(fi == f).tolist() if isinstance(fits[j], PoseFit)]
@@ -308,7 +325,7 @@ def calibrate_each(obs: Observations, camera: CameraIntrinsics,
     jackknife) among the frames with a jackknife (a frame too sparse for one has only its
     fit's, which understates it), among all solved frames when none has one."""
     settings = settings or SolverSettings()
-    cameras = [camera] * len(obs.frame_names) if frame_cameras is None else frame_cameras
+    cameras = _cameras(obs, camera, frame_cameras)
     frames = solve_frames(obs, camera, settings, cameras)
     solved = [i for i, f in enumerate(frames) if isinstance(f.fit, PoseFit)]
     if not solved:

@@ -54,9 +54,8 @@ def frame_times(sequence: Sequence) -> np.ndarray | None:
 
 def problem_from(sequence: Sequence, robot: Robot, obs: Observations) -> Problem:
     """The diagnosis problem of observed keypoints (labels or detections)."""
-    uv = np.where(obs.found[..., None], obs.uv, np.nan)
     return Problem(robot, sequence.camera, joints_in_robot_order(sequence, robot),
-                   frame_times(sequence), uv, tuple(f.name for f in sequence.frames))
+                   frame_times(sequence), obs.uv_found, tuple(f.name for f in sequence.frames))
 
 
 def _params_with_sigma(fit: FitResult, effect: str) -> tuple[dict, dict]:
