@@ -34,6 +34,7 @@ from dream.detect import detect_keypoints, load_keypoint_model, load_model_robot
 from dream.errors import DreamError
 from dream.io import read_sequence
 from dream.pipeline import calibrate
+from dream.pnp import PoseFit
 from dream.result import camera_position_covariance
 from dream.transforms import invert_T
 
@@ -44,11 +45,21 @@ CHI2_3_95 = 7.815
 FIRST_SCENE_SEED = 100
 
 
+def position_error(T: np.ndarray, T_true: np.ndarray | None) -> np.ndarray | None:
+    """(3,) error of the camera position in the base frame, m (None without a truth)."""
+    return None if T_true is None else invert_T(T)[:3, 3] - invert_T(T_true)[:3, 3]
+
+
+def error_mm(T: np.ndarray, T_true: np.ndarray | None) -> float:
+    error = position_error(T, T_true)
+    return np.nan if error is None else 1000 * float(np.linalg.norm(error))
+
+
 def pose_row(T: np.ndarray, T_true: np.ndarray | None, fit_covariance: np.ndarray,
              reported_covariance: np.ndarray) -> dict[str, float]:
     """Error and the two covariances' sigma and chi-square of one extrinsic."""
-    error = None if T_true is None else invert_T(T)[:3, 3] - invert_T(T_true)[:3, 3]
-    row = {"error_mm": np.nan if error is None else 1000 * float(np.linalg.norm(error))}
+    error = position_error(T, T_true)
+    row = {"error_mm": error_mm(T, T_true)}
     for name, covariance in (("fit", fit_covariance), ("reported", reported_covariance)):
         C = camera_position_covariance(T, covariance)
         row[f"{name}_sigma_mm"] = 1000 * float(np.sqrt(np.trace(C)))
@@ -58,7 +69,9 @@ def pose_row(T: np.ndarray, T_true: np.ndarray | None, fit_covariance: np.ndarra
 
 def sequence_rows(data: Path, model, frames: str) -> tuple[list[dict[str, float]], dict]:
     """The rows of one sequence (all: its extrinsic; each: every frame with a jackknife) and,
-    in each mode, the errors of the reported frame and of the fit-only choice."""
+    in each mode, the errors of the reported frame and of the fit-only choice (the frame with
+    the smallest trace of the fit's covariance among all solved frames: the rule before the
+    jackknife)."""
     seq = read_sequence(data)
     T_true = seq.T_cam_base_truth(seq.frames[0])       # None: sigmas only
     robot = load_model_robot(seq, model)
@@ -70,11 +83,10 @@ def sequence_rows(data: Path, model, frames: str) -> tuple[list[dict[str, float]
     with_jackknife = [f for f in result.frames if f.jackknife is not None]
     rows = [pose_row(f.fit.T_cam_base, T_true, f.fit.covariance, f.covariance)
             for f in with_jackknife]
-    fit_choice = min(with_jackknife, key=lambda f: np.trace(f.fit.covariance))
-    choice = {"reported": pose_row(result.fit.T_cam_base, T_true, result.fit.covariance,
-                                   result.covariance)["error_mm"],
-              "fit_only": pose_row(fit_choice.fit.T_cam_base, T_true, fit_choice.fit.covariance,
-                                   fit_choice.covariance)["error_mm"]}
+    fit_choice = min((f.fit for f in result.frames if isinstance(f.fit, PoseFit)),
+                     key=lambda fit: np.trace(fit.covariance))
+    choice = {"reported": error_mm(result.fit.T_cam_base, T_true),
+              "fit_only": error_mm(fit_choice.T_cam_base, T_true)}
     return rows, choice
 
 

@@ -184,7 +184,7 @@ def test_each_frames_jackknife_covers_a_misplaced_keypoint():
             total_covered.append(_position_coverage(frame.fit.T_cam_base, T,
                                                     frame.covariance)[0])
     # a frame's fit down-weights its misplaced keypoint and states too small a spread
-    # (measured: 0.77 of 200 frames covered); with the jackknife 0.95
+    # (this seed: 0.76 of the 200 frames covered); with the jackknife 0.965
     assert np.mean(fit_covered) < 0.85, np.mean(fit_covered)
     assert np.mean(total_covered) >= 0.9, np.mean(total_covered)
 
