@@ -171,6 +171,14 @@ class CalibrationResult:
             return int(np.any(self.inlier, axis=1).sum())
         return sum(isinstance(f.fit, PoseFit) for f in self.frames)
 
+    @property
+    def reported_frame(self) -> int | None:
+        """The index of the frame whose solution is reported ("each" mode); None in "all"
+        mode."""
+        if self.mode != "each":
+            return None
+        return next(i for i, f in enumerate(self.frames) if f.fit is self.fit)
+
     def T_cam_base_of_frame(self, i: int) -> np.ndarray | None:
         """The extrinsic reported for frame i (None when that frame has no solution)."""
         if self.mode == "all":

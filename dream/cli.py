@@ -201,18 +201,7 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
                                              "cx": seq.camera.cx, "cy": seq.camera.cy,
                                              "distortion": seq.camera.distortion}}
     if polish:
-        from dream.polish import polish_calibration, result_doc_with_polish
-
-        predict = None
-        if not any(f.mask_path is not None for f in seq.frames):
-            from dream.detect import predict_masks
-
-            predict = lambda idx: predict_masks(seq, model, idx)  # noqa: E731
-            print("no masks in the data: the polish uses the network's mask head", file=out)
-        report = polish_calibration(seq, robot, result, obs, predict_masks=predict)
-        doc = result_doc_with_polish(doc, report)
-        print(f"silhouette polish ({len(report.frames)} frames with masks, "
-              f"{report.seconds:.1f} s): {report.reason}", file=out)
+        doc = _polish(args, seq, robot, result, obs, model, doc, out)
     if args.overlays:
         from dream.overlay import write_result_overlays
 
@@ -230,6 +219,49 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
               f"{np.rad2deg(r_err):.3f} deg", file=out)
     print(f"wrote {args.out}, {ros_path} (ROS static_transform_publisher: x y z qx qy qz qw "
           f"{robot.base_link} camera_optical_frame) and {matrix_path} (T_base_cam)", file=out)
+    return doc
+
+
+def _polish(args: argparse.Namespace, seq, robot, result, obs, model, doc: dict, out) -> dict:
+    """`--polish`: the silhouette polish of the one extrinsic (all frames) or of every frame's
+    own pose (`--frames each`); returns RESULT.json's document with it."""
+    from dream.detect import PROGRESS_EVERY_FRAMES
+    from dream.polish import (
+        polish_calibration,
+        polish_frames,
+        result_doc_with_frame_polishes,
+        result_doc_with_polish,
+    )
+
+    predict = None
+    if not any(f.mask_path is not None for f in seq.frames):
+        from dream.detect import predict_masks
+
+        predict = lambda idx: predict_masks(seq, model, idx)  # noqa: E731
+        print("no masks in the data: the polish uses the network's mask head", file=out)
+    if args.frames == "all":
+        report = polish_calibration(seq, robot, result, obs, predict_masks=predict)
+        print(f"silhouette polish ({len(report.frames)} frames with masks, "
+              f"{report.seconds:.1f} s): {report.reason}", file=out)
+        return result_doc_with_polish(doc, report)
+
+    def progress(done: int, total: int) -> None:
+        print(f"polished {done}/{total} frames", file=sys.stderr)
+
+    reports = polish_frames(seq, robot, result, obs, settings=_settings(args),
+                            progress=progress if len(seq) > PROGRESS_EVERY_FRAMES else None)
+    doc = result_doc_with_frame_polishes(doc, reports)
+    p = doc["polish"]
+    if p["frames_polished"]:
+        print(f"silhouette polish of each frame ({p['frames_polished']} frames with masks, "
+              f"{p['seconds']:.1f} s): kept in {p['frames_kept']}; mean IoU "
+              f"{p['iou_before']:.4f} -> {p['iou_kept']:.4f} ({p['iou_after']:.4f} at every "
+              "polished pose)", file=out)
+    else:
+        print("silhouette polish of each frame: no solved frame has a non-empty mask", file=out)
+    reported = result.reported_frame
+    if reported is not None and reports[reported] is not None:
+        print(f"  reported frame {doc['reported_frame']}: {reports[reported].reason}", file=out)
     return doc
 
 
@@ -433,9 +465,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="all: one extrinsic from every frame (fixed camera); each: per frame")
     p.add_argument("--overlays", help="folder for per-frame overlays and a summary image")
     p.add_argument("--polish", action="store_true",
-                   help="refine the extrinsic by aligning the robot's rendered silhouette with "
-                        "the data's masks; kept only when the IoU improves without spoiling "
-                        "the keypoint fit (needs masks and --frames all)")
+                   help="refine the extrinsic (with --frames each: every frame's own pose) by "
+                        "aligning the robot's rendered silhouette with the data's masks, or "
+                        "the --model's mask head; kept only when the IoU improves without "
+                        "spoiling the keypoint fit")
     p.add_argument("--loss", choices=("huber", "cauchy", "l2"), default="huber")
     p.add_argument("--loss-scale-px", type=float, default=RobustLoss().scale_px)
     p.add_argument("--seed", type=int, default=0, help="seed of the RANSAC sampling")

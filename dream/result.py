@@ -72,6 +72,9 @@ def result_to_dict(result: CalibrationResult, obs: Observations, *, robot: str) 
         "quaternion_xyzw": quaternion_xyzw_from_R(T[:3, :3]).tolist(),
         "rmse_px": float(fit.rmse_px),
         "frames_used": result.frames_used,
+        # Extension: "each" mode's reported frame (the best-determined one), null in "all" mode.
+        "reported_frame": None if result.reported_frame is None
+        else obs.frame_names[result.reported_frame],
         "keypoints_used": int(fit.num_inliers),
         # 1-sigma of `covariance_xi` (the fit's, plus the keypoint jackknife's when present)
         "sigma_translation_m": np.sqrt(np.diag(covariance)[3:]).tolist(),

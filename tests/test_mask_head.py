@@ -62,7 +62,7 @@ def test_polish_without_masks_needs_a_mask_head(tmp_path):
     with pytest.raises(InputError, match="mask"):
         check_polish_input(seq, "all")
     check_polish_input(seq, "all", network_masks=True)
-    with pytest.raises(InputError):
+    with pytest.raises(InputError, match="too coarse"):
         check_polish_input(seq, "each", network_masks=True)
 
 

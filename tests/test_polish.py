@@ -18,7 +18,15 @@ from dream.cli import main
 from dream.errors import InputError
 from dream.io import read_sequence, write_dream
 from dream.metrics import pose_errors
-from dream.polish import KeypointSet, PolishParams, polish, signed_distance
+from dream.polish import (
+    KeypointGuard,
+    KeypointSet,
+    PolishParams,
+    _polish_frame,
+    polish,
+    result_doc_with_frame_polishes,
+    signed_distance,
+)
 from dream.robot import load_robot
 from dream.sample import random_joints
 from dream.sequence import Frame, Sequence
@@ -78,6 +86,16 @@ def scene(panda, meshes, seed: int):
 def keypoints_at(panda, joints, T: np.ndarray) -> KeypointSet:
     P = panda.forward_kinematics(joints).reshape(-1, 3)
     return KeypointSet(P, project(CAMERA, transform_points(T, P)))
+
+
+def least_squares_pose(P: np.ndarray, uv: np.ndarray, T_guess: np.ndarray) -> np.ndarray:
+    """The plain least-squares pose of the keypoints (OpenCV, from `T_guess`)."""
+    K = np.array([[CAMERA.fx, 0, CAMERA.cx], [0, CAMERA.fy, CAMERA.cy], [0, 0, 1]])
+    rvec, _ = cv2.Rodrigues(T_guess[:3, :3])
+    ok, rvec, tvec = cv2.solvePnP(P, uv, K, None, rvec, T_guess[:3, 3].copy(),
+                                  useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE)
+    assert ok
+    return T_from_rotvec_t(rvec.ravel(), tvec.ravel())
 
 
 # ----- rendering -----------------------------------------------------------------------------
@@ -172,15 +190,45 @@ def test_polish_keeps_a_correct_pose(panda, meshes):
     assert t < 2e-3 and r < np.deg2rad(0.1)
 
 
-def test_polish_refuses_to_break_the_keypoint_fit(panda, meshes):
+@pytest.mark.parametrize("guard", KeypointGuard.ALL)
+def test_polish_refuses_to_break_the_keypoint_fit(panda, meshes, guard):
+    """Masks and keypoints that agree with two different poses: the keypoints win, for many
+    frames (RMSE guard) and for one frame (median guard)."""
     rng, T_mask, joints, masks = scene(panda, meshes, seed=5)
     T_keypoints = perturbed(T_mask, rng, GUARD_OFFSET_M, 0.0)
-    res = polish(meshes, joints, masks, CAMERA, T_keypoints,
-                 keypoints_at(panda, joints, T_keypoints))
+    frames = slice(None) if guard == KeypointGuard.RMSE else slice(0, 1)
+    res = polish(meshes, joints[frames], masks[frames], CAMERA, T_keypoints,
+                 keypoints_at(panda, joints[frames], T_keypoints), guard=guard)
     assert res.iou_after_mean > res.iou_before_mean + 0.05  # the silhouettes wanted it
-    assert not res.kept and "keypoint RMSE" in res.reason
+    statistic = "keypoint RMSE" if guard == KeypointGuard.RMSE else "keypoint median distance"
+    assert not res.kept and statistic in res.reason and res.guard == guard
     assert np.array_equal(res.T_after, T_keypoints)
     assert res.rmse_after > res.rmse_before + 1.0
+    assert res.median_after > res.median_before + PolishParams().frame_median_margin_px
+
+
+def test_frame_polish_corrects_a_pose_that_followed_a_misplaced_keypoint(panda, meshes):
+    """One frame with 5 keypoints (as a detector often leaves), the hand 14 px off: the
+    least-squares pose follows it (0.3-0.5 m off, almost no residual left), the silhouette
+    brings it back. The keypoints' RMSE must grow for that (the misplaced one is no longer
+    absorbed), so only the median guard keeps it."""
+    _, T_true, joints, masks = scene(panda, meshes, seed=7)
+    q, mask = joints[:1], masks[:1]
+    P = panda.forward_kinematics(q)[0][[0, 1, 2, 3, 6]]    # link0, link2, link3, link4, hand
+    uv = project(CAMERA, transform_points(T_true, P))
+    uv[-1] += (12.0, -8.0)
+    T_keypoints = least_squares_pose(P, uv, T_true)
+    guard = KeypointSet(P, uv)
+    frame = polish(meshes, q, mask, CAMERA, T_keypoints, guard, guard=KeypointGuard.MEDIAN)
+    many = polish(meshes, q, mask, CAMERA, T_keypoints, guard, guard=KeypointGuard.RMSE)
+    t0, r0 = pose_errors(T_keypoints, T_true)
+    t1, r1 = pose_errors(frame.T_after, T_true)
+    assert frame.kept, frame.reason
+    assert t0 > 0.1 and t1 < 0.01 and r1 < r0 / 10, (t0, t1, r0, r1)
+    assert frame.median_after < frame.median_before + PolishParams().frame_median_margin_px
+    assert not many.kept and many.rmse_after > many.rmse_before * PolishParams().max_rmse_factor
+    with pytest.raises(InputError, match="unknown keypoint guard"):
+        polish(meshes, q, mask, CAMERA, T_keypoints, guard, guard="mean")
 
 
 def test_polish_checks_its_input(panda, meshes):
@@ -238,6 +286,73 @@ def test_calibrate_with_polish_end_to_end(panda, meshes, tmp_path, capsys):
     assert np.allclose(doc["T_cam_base"], final)
     t, _ = pose_errors(np.array(doc["T_cam_base"]), T_true)
     assert t < 0.01
+
+
+def test_calibrate_each_with_polish_end_to_end(panda, meshes, tmp_path, capsys):
+    """--frames each --polish: every frame polished alone; RESULT.json's frames carry their
+    polish and the pose kept; the reported pose is its frame's; `dream eval` scores it."""
+    T_true = masked_dataset(panda, meshes, tmp_path)
+    data = tmp_path / "data"
+    result = tmp_path / "result.json"
+    code = main(["calibrate", "--data", str(data), "--use-labels", "--frames", "each",
+                 "--polish", "--out", str(result)])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert "silhouette polish of each frame (6 frames with masks" in out
+    doc = json.loads(result.read_text())
+    p = doc["polish"]
+    assert p["mode"] == "each" and p["frames_polished"] == 6
+    assert 0 <= p["frames_kept"] <= 6 and p["iou_before"] > 0.8
+    for entry in doc["per_frame"]:
+        fp = entry["polish"]
+        assert fp["keypoint_guard"] == "median" and isinstance(fp["kept"], bool)
+        final = fp["T_cam_base_polished"] if fp["kept"] else fp["T_cam_base_keypoints"]
+        assert np.allclose(entry["T_cam_base"], final)
+        t, _ = pose_errors(np.array(entry["T_cam_base"]), T_true)
+        assert t < 0.03
+    reported = next(e for e in doc["per_frame"] if e["frame"] == doc["reported_frame"])
+    assert np.allclose(doc["T_cam_base"], reported["T_cam_base"])
+    metrics = tmp_path / "metrics.json"
+    assert main(["eval", "--data", str(data), "--result", str(result), "--out",
+                 str(metrics)]) == 0
+    assert json.loads(metrics.read_text())["frames_mode"] == "each"
+
+
+def test_frame_polish_restarts_are_judged_against_the_keypoint_pose(panda, meshes):
+    """A frame's polish searched again from other starts (its leave-one-keypoint-out poses in
+    `polish_frames`): a start near the truth wins over a keypoint pose that followed a
+    misplaced keypoint; a start whose optimum leaves the keypoints is refused even though its
+    silhouette fits better."""
+    _, T_true, joints, masks = scene(panda, meshes, seed=8)
+    q, mask = joints[:1], masks[0]
+    P = panda.forward_kinematics(q)[0][[0, 1, 2, 3, 6]]
+    uv = project(CAMERA, transform_points(T_true, P))
+    uv[-1] += (40.0, -30.0)                                  # the hand far off
+    T_keypoints = least_squares_pose(P, uv, T_true)
+    T_without_hand = least_squares_pose(P[:4], uv[:4], T_true)
+    keypoints = KeypointSet(P, uv)
+    always = PolishParams(frame_restart_below_iou=1.0)
+    res = _polish_frame(meshes, q, mask, CAMERA, T_keypoints, keypoints, always, "0",
+                        lambda: [("panda_hand", T_without_hand)])
+    assert res.kept and res.start == "panda_hand", res.reason
+    assert "without panda_hand" in res.reason
+    assert np.array_equal(res.T_before, T_keypoints)
+    t, _ = pose_errors(res.T_after, T_true)
+    assert t < 0.005
+    assert res.iou_after_mean > 0.95 and res.median_after < 1.0
+
+    rng, T_mask, joints, masks = scene(panda, meshes, seed=5)
+    T_off = perturbed(T_mask, rng, GUARD_OFFSET_M, 0.0)
+    refused = _polish_frame(meshes, joints[:1], masks[0], CAMERA, T_off,
+                            keypoints_at(panda, joints[:1], T_off), always, "0",
+                            lambda: [("panda_link0", T_mask)])
+    assert not refused.kept and refused.start == ""
+    assert np.array_equal(refused.T_after, T_off)
+
+
+def test_frame_polishes_need_an_each_mode_result():
+    with pytest.raises(InputError, match="each-mode result"):
+        result_doc_with_frame_polishes({"frames_mode": "all", "per_frame": [{}]}, [None])
 
 
 def test_calibrate_polish_without_masks_is_one_clear_error(tmp_path, capsys):
