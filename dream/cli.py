@@ -233,13 +233,13 @@ def _polish(args: argparse.Namespace, seq, robot, result, obs, model, doc: dict,
         result_doc_with_polish,
     )
 
-    predict = None
-    if not any(f.mask_path is not None for f in seq.frames):
-        from dream.detect import predict_masks
-
-        predict = lambda idx: predict_masks(seq, model, idx)  # noqa: E731
-        print("no masks in the data: the polish uses the network's mask head", file=out)
     if args.frames == "all":
+        predict = None
+        if not any(f.mask_path is not None for f in seq.frames):
+            from dream.detect import predict_masks
+
+            predict = lambda idx: predict_masks(seq, model, idx)  # noqa: E731
+            print("no masks in the data: the polish uses the network's mask head", file=out)
         report = polish_calibration(seq, robot, result, obs, predict_masks=predict)
         print(f"silhouette polish ({len(report.frames)} frames with masks, "
               f"{report.seconds:.1f} s): {report.reason}", file=out)
@@ -466,9 +466,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overlays", help="folder for per-frame overlays and a summary image")
     p.add_argument("--polish", action="store_true",
                    help="refine the extrinsic (with --frames each: every frame's own pose) by "
-                        "aligning the robot's rendered silhouette with the data's masks, or "
-                        "the --model's mask head; kept only when the IoU improves without "
-                        "spoiling the keypoint fit")
+                        "aligning the robot's rendered silhouette with the data's masks (or, "
+                        "all frames only, the --model's mask head); kept only when the IoU "
+                        "improves without spoiling the keypoint fit")
     p.add_argument("--loss", choices=("huber", "cauchy", "l2"), default="huber")
     p.add_argument("--loss-scale-px", type=float, default=RobustLoss().scale_px)
     p.add_argument("--seed", type=int, default=0, help="seed of the RANSAC sampling")
