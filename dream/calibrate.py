@@ -112,12 +112,14 @@ class KeypointJackknife:
 @dataclass(frozen=True)
 class FrameSolution:
     """A frame's own single-frame solution (or why there is none) and, when computed
-    (`calibrate_each`), its keypoint jackknife (None: not computed or not estimable)."""
+    (`calibrate_each`), its keypoint jackknife (None: not computed or not estimable) and the
+    leave-out solutions it came from: (keypoint left out, T_cam_base) of each that solved."""
 
     name: str
     fit: PoseFit | NoSolution
     keypoints_found: int
     jackknife: KeypointJackknife | None = None
+    leave_outs: tuple[tuple[str, np.ndarray], ...] = ()
 
     @property
     def covariance(self) -> np.ndarray | None:
@@ -286,14 +288,14 @@ def _jackknife(xis: list[np.ndarray], left_out: list[str]) -> KeypointJackknife 
     return KeypointJackknife((G - 1) / G * (d.T @ d), tuple(left_out))
 
 
-def frame_keypoint_jackknives(obs: Observations, frames: tuple[FrameSolution, ...],
-                              cameras: SequenceOf[CameraIntrinsics],
-                              settings: SolverSettings | None = None
-                              ) -> tuple[KeypointJackknife | None, ...]:
-    """Each solved frame's delete-one-keypoint jackknife: the frame solved again (`solve_pnp`)
-    without each of its observed keypoints in turn, every such problem of every frame in one
-    `solve_pnp_batch` call. None for a frame without a solution or with fewer than
-    `MIN_JACKKNIFE_GROUPS` solvable leave-outs."""
+def frame_leave_outs(obs: Observations, frames: tuple[FrameSolution, ...],
+                     cameras: SequenceOf[CameraIntrinsics],
+                     settings: SolverSettings | None = None
+                     ) -> tuple[tuple[tuple[str, np.ndarray], ...], ...]:
+    """Each solved frame solved again (`solve_pnp`) without each of its observed keypoints in
+    turn, every such problem of every frame in one `solve_pnp_batch` call: per frame, (keypoint
+    left out, T_cam_base) of the leave-outs that solved (none for a frame without a
+    solution)."""
     if len(frames) != len(obs.frame_names) or len(cameras) != len(frames):
         raise InputError(f"{len(frames)} frame solutions and {len(cameras)} cameras for "
                          f"{len(obs.frame_names)} frames")
@@ -301,18 +303,35 @@ def frame_keypoint_jackknives(obs: Observations, frames: tuple[FrameSolution, ..
     solved = np.array([isinstance(f.fit, PoseFit) for f in frames], bool)
     fi, ki = np.nonzero(obs.found & solved[:, None])          # problem j: frame fi[j] without ki[j]
     if len(fi) == 0:
-        return (None,) * len(frames)
+        return ((),) * len(frames)
     confidence = obs.confidence_found[fi]
     confidence[np.arange(len(fi)), ki] = 0.0
     fits = solve_pnp_batch(obs.P_base[fi], obs.uv_found[fi], [cameras[f] for f in fi.tolist()],
                            confidence=confidence, settings=settings)
-    out = []
-    for f, frame in enumerate(frames):
-        mine = [j for j in np.flatnonzero(fi == f).tolist() if isinstance(fits[j], PoseFit)]
-        out.append(None if not mine else _jackknife(
-            [increment_between(frame.fit.T_cam_base, fits[j].T_cam_base) for j in mine],
-            [obs.keypoint_names[ki[j]] for j in mine]))
-    return tuple(out)
+    return tuple(tuple((obs.keypoint_names[ki[j]], fits[j].T_cam_base)
+                       for j in np.flatnonzero(fi == f).tolist()
+                       if isinstance(fits[j], PoseFit))
+                 for f in range(len(frames)))
+
+
+def _frame_jackknife(frame: FrameSolution, leave_outs: tuple[tuple[str, np.ndarray], ...]
+                     ) -> KeypointJackknife | None:
+    """A frame's delete-one-keypoint jackknife from its leave-out solutions."""
+    if not leave_outs:
+        return None
+    return _jackknife([increment_between(frame.fit.T_cam_base, T) for _, T in leave_outs],
+                      [name for name, _ in leave_outs])
+
+
+def frame_keypoint_jackknives(obs: Observations, frames: tuple[FrameSolution, ...],
+                              cameras: SequenceOf[CameraIntrinsics],
+                              settings: SolverSettings | None = None
+                              ) -> tuple[KeypointJackknife | None, ...]:
+    """Each solved frame's delete-one-keypoint jackknife, from its `frame_leave_outs`. None for
+    a frame without a solution or with fewer than `MIN_JACKKNIFE_GROUPS` solvable
+    leave-outs."""
+    return tuple(_frame_jackknife(frame, leave_outs) for frame, leave_outs in
+                 zip(frames, frame_leave_outs(obs, frames, cameras, settings), strict=True))
 
 
 def with_keypoint_jackknife(result: CalibrationResult, obs: Observations,
@@ -328,7 +347,8 @@ def calibrate_each(obs: Observations, camera: CameraIntrinsics,
                    frame_cameras: SequenceOf[CameraIntrinsics] | None = None
                    ) -> CalibrationResult:
     """Every frame solved alone (`frame_cameras`: each frame's own intrinsics, default
-    `camera`), each with its keypoint jackknife (`frame_keypoint_jackknives`); the reported
+    `camera`), each with its leave-out solutions (`frame_leave_outs`) and the keypoint
+    jackknife they give; the reported
     extrinsic is the best-determined frame's: the smallest trace of its covariance (fit plus
     jackknife) among the frames with a jackknife (a frame too sparse for one has only its
     fit's, which understates it), among all solved frames when none has one."""
@@ -339,8 +359,9 @@ def calibrate_each(obs: Observations, camera: CameraIntrinsics,
     if not solved:
         reasons = sorted({f.fit.reason for f in frames})
         raise CalibrationError("no frame could be solved alone: " + "; ".join(reasons))
-    jackknives = frame_keypoint_jackknives(obs, frames, cameras, settings)
-    frames = tuple(replace(f, jackknife=j) for f, j in zip(frames, jackknives, strict=True))
+    leave_outs = frame_leave_outs(obs, frames, cameras, settings)
+    frames = tuple(replace(f, jackknife=_frame_jackknife(f, lo), leave_outs=lo)
+                   for f, lo in zip(frames, leave_outs, strict=True))
     F, K = obs.uv.shape[:2]
     residuals = np.full((F, K, 2), np.nan)
     inlier = np.zeros((F, K), bool)

@@ -248,7 +248,7 @@ def _polish(args: argparse.Namespace, seq, robot, result, obs, model, doc: dict,
     def progress(done: int, total: int) -> None:
         print(f"polished {done}/{total} frames", file=sys.stderr)
 
-    reports = polish_frames(seq, robot, result, obs, settings=_settings(args),
+    reports = polish_frames(seq, robot, result, obs,
                             progress=progress if len(seq) > PROGRESS_EVERY_FRAMES else None)
     doc = result_doc_with_frame_polishes(doc, reports)
     p = doc["polish"]

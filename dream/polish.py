@@ -59,7 +59,7 @@ Public API:
            guard) (pure)
     check_polish_input(sequence, mode, network_masks); polish_calibration(sequence, robot,
     result, obs, params, predict_masks); polish_frames(sequence, robot, result, obs, params,
-    settings, progress)
+    progress)
     polish_to_dict(result); result_doc_with_polish(doc, result);
     frame_polish_to_dict(result); frame_polish_summary(results);
     result_doc_with_frame_polishes(doc, results)
@@ -72,7 +72,6 @@ import time
 from collections.abc import Callable
 from collections.abc import Sequence as SequenceOf
 from dataclasses import dataclass, field, replace
-from functools import partial
 from typing import Any
 
 import cv2
@@ -81,7 +80,7 @@ import numpy as np
 from dream.calibrate import CalibrationResult, Observations
 from dream.camera import CameraIntrinsics, project
 from dream.errors import InputError
-from dream.pnp import PoseFit, SolverSettings, apply_increment, linearise, solve_pnp
+from dream.pnp import PoseFit, apply_increment, linearise
 from dream.robot import Robot
 from dream.sequence import Sequence
 from dream.silhouette import (
@@ -609,8 +608,8 @@ def _has_masks(sequence: Sequence) -> bool:
 
 
 def _inlier_keypoints(result: CalibrationResult, obs: Observations,
-                      frames: np.ndarray | int) -> KeypointSet | None:
-    """The guard: the inlier observations of `frames` (an index or indices), None if none."""
+                      frames: int | slice) -> KeypointSet | None:
+    """The guard: the inlier observations of `frames` (an index or a slice), None if none."""
     inlier = result.inlier[frames] & obs.found[frames]
     if not inlier.any():
         return None
@@ -650,12 +649,11 @@ def polish_calibration(sequence: Sequence, robot: Robot, result: CalibrationResu
                   [f.name for f in frames])
 
 
-MASK_CHUNK_FRAMES = 64   # `polish_frames` reports progress after this many frames
+PROGRESS_EVERY_POLISHED = 64   # `polish_frames` reports progress after this many frames
 
 
 def polish_frames(sequence: Sequence, robot: Robot, result: CalibrationResult,
                   obs: Observations, params: PolishParams | None = None,
-                  settings: SolverSettings | None = None,
                   progress: Callable[[int, int], None] | None = None
                   ) -> tuple[PolishResult | None, ...]:
     """Polish every frame's own pose of an "each"-mode calibration with that frame's mask from
@@ -664,13 +662,13 @@ def polish_frames(sequence: Sequence, robot: Robot, result: CalibrationResult,
 
     A search only finds the silhouette optimum near its start, and a frame's keypoint pose can
     lie far from it when it followed a misplaced keypoint. So a frame whose polish is refused
-    or ends below `frame_restart_below_iou` is polished again from the frame's pose solved
-    (`solve_pnp`, `settings`) without each of its keypoints in turn; each result is judged
-    against the keypoint pose with the same guard, and the one with the highest IoU that
-    passes is kept (`_restarts`).
+    or ends below `frame_restart_below_iou` is polished again from the frame's poses solved
+    without each of its keypoints in turn (`FrameSolution.leave_outs`, from `calibrate_each`);
+    each result is judged against the keypoint pose with the same guard, and the one with the
+    highest IoU that passes is kept (`_restarts`).
 
     Frames without a solution, without a mask file or with an empty mask get None.
-    `progress(done, total)` is called after each chunk of `MASK_CHUNK_FRAMES` frames.
+    `progress(done, total)` is called every `PROGRESS_EVERY_POLISHED` frames and at the end.
     """
     from dream.io import load_mask
     from dream.pipeline import joints_in_robot_order
@@ -686,30 +684,27 @@ def polish_frames(sequence: Sequence, robot: Robot, result: CalibrationResult,
     joints = joints_in_robot_order(sequence, robot)
     meshes = load_robot_meshes(robot, params.max_triangles)
     out: list[PolishResult | None] = [None] * len(sequence)
-    for start in range(0, len(todo), MASK_CHUNK_FRAMES):
-        chunk = todo[start:start + MASK_CHUNK_FRAMES]
-        for i in chunk:
-            frame = sequence.frames[i]
-            camera = sequence.frame_camera(i)
-            mask = load_mask(frame, camera)
-            if not mask.any():
-                log.info("frame %s: empty robot mask, not polished", frame.name)
-                continue
+    for done, i in enumerate(todo, start=1):
+        frame, solution = sequence.frames[i], result.frames[i]
+        camera = sequence.frame_camera(i)
+        mask = load_mask(frame, camera)
+        if mask.any():
             out[i] = _polish_frame(meshes, joints[i:i + 1], mask, camera,
-                                   result.frames[i].fit.T_cam_base,
-                                   _inlier_keypoints(result, obs, i), params, frame.name,
-                                   partial(_leave_one_out_poses, obs, i, camera, settings))
-        if progress is not None:
-            progress(start + len(chunk), len(todo))
+                                   solution.fit.T_cam_base, _inlier_keypoints(result, obs, i),
+                                   params, frame.name, solution.leave_outs)
+        else:
+            log.info("frame %s: empty robot mask, not polished", frame.name)
+        if progress is not None and (done % PROGRESS_EVERY_POLISHED == 0 or done == len(todo)):
+            progress(done, len(todo))
     return tuple(out)
 
 
 def _polish_frame(meshes: RobotMeshes, joints: np.ndarray, mask: np.ndarray,
                   camera: CameraIntrinsics, T_keypoints: np.ndarray,
                   keypoints: KeypointSet | None, params: PolishParams, name: str,
-                  other_starts: Callable[[], list[tuple[str, np.ndarray]]]) -> PolishResult:
+                  other_starts: SequenceOf[tuple[str, np.ndarray]]) -> PolishResult:
     """One frame polished from its keypoint pose and, when that is refused or ends below
-    `frame_restart_below_iou`, from `other_starts()` too (`_restarts`)."""
+    `frame_restart_below_iou`, from `other_starts` (keypoint left out, T) too (`_restarts`)."""
     def polish_from(T: np.ndarray) -> PolishResult:
         return polish(meshes, joints, mask[None], camera, T, keypoints, params, [name],
                       guard=KeypointGuard.MEDIAN)
@@ -717,24 +712,10 @@ def _polish_frame(meshes: RobotMeshes, joints: np.ndarray, mask: np.ndarray,
     first = polish_from(T_keypoints)
     if first.kept and first.iou_after_mean >= params.frame_restart_below_iou:
         return first
-    return _restarts(first, other_starts(), polish_from, keypoints is not None, params)
+    return _restarts(first, other_starts, polish_from, keypoints is not None, params)
 
 
-def _leave_one_out_poses(obs: Observations, i: int, camera: CameraIntrinsics,
-                         settings: SolverSettings | None) -> list[tuple[str, np.ndarray]]:
-    """(keypoint left out, T_cam_base) of frame i solved without each observed keypoint."""
-    poses = []
-    for k in np.flatnonzero(obs.found[i]):
-        confidence = obs.confidence_found[i].copy()
-        confidence[k] = 0.0
-        fit = solve_pnp(obs.P_base[i], obs.uv_found[i], camera, confidence=confidence,
-                        settings=settings)
-        if isinstance(fit, PoseFit):
-            poses.append((obs.keypoint_names[k], fit.T_cam_base))
-    return poses
-
-
-def _restarts(first: PolishResult, starts: list[tuple[str, np.ndarray]],
+def _restarts(first: PolishResult, starts: SequenceOf[tuple[str, np.ndarray]],
               polish_from: Callable[[np.ndarray], PolishResult], guarded: bool,
               params: PolishParams) -> PolishResult:
     """The best of `first` (a frame polished from its keypoint pose) and the polishes

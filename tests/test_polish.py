@@ -333,7 +333,7 @@ def test_frame_polish_restarts_are_judged_against_the_keypoint_pose(panda, meshe
     keypoints = KeypointSet(P, uv)
     always = PolishParams(frame_restart_below_iou=1.0)
     res = _polish_frame(meshes, q, mask, CAMERA, T_keypoints, keypoints, always, "0",
-                        lambda: [("panda_hand", T_without_hand)])
+                        [("panda_hand", T_without_hand)])
     assert res.kept and res.start == "panda_hand", res.reason
     assert "without panda_hand" in res.reason
     assert np.array_equal(res.T_before, T_keypoints)
@@ -345,7 +345,7 @@ def test_frame_polish_restarts_are_judged_against_the_keypoint_pose(panda, meshe
     T_off = perturbed(T_mask, rng, GUARD_OFFSET_M, 0.0)
     refused = _polish_frame(meshes, joints[:1], masks[0], CAMERA, T_off,
                             keypoints_at(panda, joints[:1], T_off), always, "0",
-                            lambda: [("panda_link0", T_mask)])
+                            [("panda_link0", T_mask)])
     assert not refused.kept and refused.start == ""
     assert np.array_equal(refused.T_after, T_off)
 
