@@ -173,8 +173,11 @@ def degeneracy(P_base: np.ndarray, settings: SolverSettings) -> str | None:
     if len(P_base) < settings.min_keypoints:
         return (f"only {len(P_base)} usable keypoints, at least {settings.min_keypoints} "
                 f"are needed")
-    s = np.linalg.svd(P_base - P_base.mean(0), compute_uv=False)
-    if s[0] <= 0 or s[1] / s[0] < settings.collinear_ratio:
+    # the squared singular values of the centred points are the eigenvalues of their scatter
+    # matrix (OpenCV's symmetric eigensolver: a fraction of numpy's per-call cost on 3 x 3)
+    centred = P_base - P_base.mean(0)
+    _, s2 = cv2.eigen(centred.T @ centred)[:2]
+    if not s2[0, 0] > 0 or s2[1, 0] < settings.collinear_ratio ** 2 * s2[0, 0]:
         return "the keypoints are (nearly) collinear or coincident"
     return None
 
@@ -298,6 +301,16 @@ def increment_between(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
     return np.concatenate([rotvec_from_R(T[:3, :3] @ T_ref[:3, :3].T), T[:3, 3] - T_ref[:3, 3]])
 
 
+def _solve_damped(H: np.ndarray, damping: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """xi (6,) solving (H + diag(damping)) xi = -g for one frame's (6, 6) H: OpenCV's Cholesky
+    (positive definite for positive damping; a fraction of numpy's per-call cost), numpy's LU
+    where that fails."""
+    A = H.copy()
+    A.flat[::7] += damping
+    ok, xi = cv2.solve(A, -g[:, None], flags=cv2.DECOMP_CHOLESKY)
+    return xi[:, 0] if ok else np.linalg.solve(A, -g)
+
+
 def _cost(distance: np.ndarray, confidence: np.ndarray, loss: RobustLoss) -> float:
     return float(confidence @ loss.rho(distance))
 
@@ -335,7 +348,7 @@ def levenberg_marquardt(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrin
         damping = H.diagonal() + _TINY
         improved = False
         while lam < _MAX_DAMPING:
-            xi = np.linalg.solve(H + np.diag(lam * damping), -g)
+            xi = _solve_damped(H, lam * damping, g)
             # the decrease the reweighted quadratic model predicts is, in squared standard
             # deviations of the pose (covariance s^2 H^-1, s^2 = 2 cost / dof), the remaining
             # distance to the optimum: d^2 = 2 predicted / s^2 = predicted dof / cost
@@ -450,10 +463,15 @@ def _covariance(e: np.ndarray, J: np.ndarray,
     dof = 2 * np.count_nonzero(weights, axis=-1) - 6
     s2 = np.sum(weights * np.sum(e * e, axis=-1), axis=-1) / np.where(dof > 0, dof, np.nan)
     # H is symmetric positive semi-definite: its singular values are its eigenvalues
-    eigenvalues, V = np.linalg.eigh(H)
+    if H.ndim == 2:     # one frame: OpenCV's eigensolver, a fraction of numpy's per-call cost
+        _, eigenvalues, V = cv2.eigen(H)           # descending, eigenvectors as rows
+        eigenvalues, V = eigenvalues[::-1, 0], V[::-1].T
+    else:
+        eigenvalues, V = np.linalg.eigh(H)
     positive = np.where(eigenvalues[..., :1] > 0, eigenvalues, np.nan)
     covariance = s2[..., None, None] * (V / positive[..., None, :]) @ np.swapaxes(V, -1, -2)
-    return covariance, np.nan_to_num(positive[..., -1] / positive[..., 0], nan=np.inf)
+    condition = positive[..., -1] / positive[..., 0]
+    return covariance, np.where(np.isnan(condition), np.inf, condition)
 
 
 def _degenerate(P_base: np.ndarray, mask: np.ndarray, settings: SolverSettings) -> np.ndarray:
@@ -745,6 +763,8 @@ def _reprojection_distance(P_base: np.ndarray, uv: np.ndarray, camera: CameraInt
     """(N,) pixel distance between projected and observed keypoints (inf behind the camera)."""
     RP = P_base @ T[:3, :3].T
     front = RP[:, 2] + T[2, 3] > 0
+    if front.all():
+        return _distances(_project(RP, T[:3, 3], camera)[0] - uv)
     distance = np.full(len(P_base), np.inf)
     if np.any(front):
         distance[front] = _distances(_project(RP[front], T[:3, 3], camera)[0] - uv[front])
