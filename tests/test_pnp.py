@@ -250,3 +250,34 @@ def test_batch_solve_checks_its_shapes(rng):
     with pytest.raises(InputError, match="confidence"):
         solve_pnp_batch(obs.P_base, obs.uv, [CAMERA] * 2, confidence=np.ones(6))
     assert solve_pnp_batch(np.zeros((0, 6, 3)), np.zeros((0, 6, 2)), []) == []
+
+
+def test_damped_step_matches_numpy_also_where_cholesky_fails(rng):
+    """The single-frame LM step (OpenCV's Cholesky, numpy's LU where that fails) solves
+    (H + diag(d)) xi = -g as numpy does, for a positive definite and an indefinite matrix."""
+    from dream.pnp import _solve_damped
+
+    J = rng.normal(size=(14, 6))
+    g = rng.normal(size=6)
+    for H in (J.T @ J, np.diag([1.0, -2.0, 3.0, 1.0, 1.0, 1.0])):
+        d = np.full(6, 1e-3)
+        np.testing.assert_allclose(_solve_damped(H, d, g), np.linalg.solve(H + np.diag(d), -g),
+                                   rtol=1e-10)
+
+
+def test_degeneracy_matches_the_singular_value_ratio(rng):
+    """The collinearity test (eigenvalues of the 3 x 3 scatter) agrees with the ratio of the
+    centred points' singular values on both sides of the threshold."""
+    from dream.pnp import SolverSettings, degeneracy
+
+    settings = SolverSettings()
+    direction = rng.normal(size=3)
+    outcomes = set()
+    for spread in (1e-5, 5e-4, 2e-3, 1e-1):
+        P = np.outer(np.linspace(-0.5, 0.5, 6), direction) + spread * rng.normal(size=(6, 3))
+        s = np.linalg.svd(P - P.mean(0), compute_uv=False)
+        expected = bool(s[1] / s[0] < settings.collinear_ratio)
+        assert (degeneracy(P, settings) is not None) == expected
+        outcomes.add(expected)
+    assert outcomes == {True, False}
+    assert degeneracy(np.zeros((6, 3)), settings) is not None              # coincident
