@@ -173,12 +173,13 @@ def test_output_cut_off_by_its_reader_ends_quietly(tmp_path):
     np.savez(npz, rgb_images=rng.integers(0, 255, (3, 24, 32, 3), dtype=np.uint8),
              captured_joint_values=rng.uniform(-1, 1, (3, 8)),
              target_joint_values=rng.uniform(-1, 1, (3, 8)))
-    proc = subprocess.Popen([sys.executable, "-m", "dream.cli", "info", str(npz),
-                             "--intrinsics", "30,31,16,12"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-    proc.stdout.close()               # before the command has written anything
-    err = proc.stderr.read()
-    assert proc.wait() == 141, err
+    with subprocess.Popen([sys.executable, "-m", "dream.cli", "info", str(npz),
+                           "--intrinsics", "30,31,16,12"], stdout=subprocess.PIPE,
+                          stderr=subprocess.PIPE, text=True) as proc:
+        proc.stdout.close()           # before the command has written anything
+        err = proc.stderr.read()
+        code = proc.wait()
+    assert code == 141, err
     assert err == ""
 
 
