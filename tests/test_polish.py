@@ -22,7 +22,9 @@ from dream.polish import (
     KeypointGuard,
     KeypointSet,
     PolishParams,
+    _decide,
     _polish_frame,
+    fit_shrinkage,
     polish,
     result_doc_with_frame_polishes,
     signed_distance,
@@ -229,6 +231,39 @@ def test_frame_polish_corrects_a_pose_that_followed_a_misplaced_keypoint(panda, 
     assert not many.kept and many.rmse_after > many.rmse_before * PolishParams().max_rmse_factor
     with pytest.raises(InputError, match="unknown keypoint guard"):
         polish(meshes, q, mask, CAMERA, T_keypoints, guard, guard="mean")
+
+
+@pytest.mark.parametrize("n", [4, 5, 7])
+def test_fit_shrinkage_is_what_a_pose_fit_leaves_of_the_noise(panda, n):
+    """A least-squares pose fitted to n keypoints with 1 px Gaussian noise leaves residuals
+    whose mean square is fit_shrinkage(n)^2 px^2 (here within 12 %, 400 random scenes)."""
+    rng = np.random.default_rng(n)
+    assert fit_shrinkage(3) == 1.0 and fit_shrinkage(4) == pytest.approx(0.5)
+    squares = []
+    for _ in range(400):
+        T = camera_pose(rng)
+        P = panda.forward_kinematics(random_joints(rng, panda, 1, 0.8))[0][:n]
+        uv = project(CAMERA, transform_points(T, P)) + rng.normal(0.0, 1.0, (n, 2))
+        fit = least_squares_pose(P, uv, T)
+        squares.append(np.mean((project(CAMERA, transform_points(fit, P)) - uv) ** 2))
+    assert np.mean(squares) == pytest.approx(fit_shrinkage(n) ** 2, rel=0.12)
+
+
+def test_median_guard_allows_for_what_the_keypoint_fit_absorbed():
+    """The median guard undoes the fit's shrinkage before adding its margin: a keypoint pose
+    fitted to 4 keypoints (median 1 px) admits a polished median of up to 1 / 0.5 + 3 = 5 px,
+    one fitted to 7 keypoints up to 1 / sqrt(8 / 14) + 3 = 4.32 px; the RMSE guard is as it
+    was."""
+    params = PolishParams()
+    median = KeypointGuard.MEDIAN
+    assert _decide(0.5, 0.9, 1.0, 4.9, 4, params, median)[0]
+    kept, reason = _decide(0.5, 0.9, 1.0, 5.1, 4, params, median)
+    assert not kept and "above the 5.000 px allowed" in reason
+    assert _decide(0.5, 0.9, 1.0, 4.3, 7, params, median)[0]
+    assert not _decide(0.5, 0.9, 1.0, 4.4, 7, params, median)[0]
+    assert not _decide(0.5, 0.9, 1.0, 2.1, 50, params, KeypointGuard.RMSE)[0]   # max(1.5, 1 + 1)
+    assert _decide(0.5, 0.9, 1.0, 100.0, 0, params, median)[0]                 # no guard
+    assert not _decide(0.5, 0.501, 1.0, 1.0, 4, params, median)[0]            # IoU gain too small
 
 
 def test_polish_checks_its_input(panda, meshes):
