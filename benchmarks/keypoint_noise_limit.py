@@ -19,7 +19,6 @@ import sys
 
 import numpy as np
 
-from dream.camera import project
 from dream.errors import DreamError
 from dream.io import read_sequence
 from dream.metrics import (
@@ -29,9 +28,8 @@ from dream.metrics import (
     add_per_frame,
     auc,
 )
-from dream.pipeline import joints_in_robot_order, robot_for, truth_poses
+from dream.pipeline import robot_for, true_keypoints
 from dream.pnp import RAYLEIGH_MEDIAN, PoseFit, solve_pnp_batch
-from dream.transforms import transform_points
 
 
 def main() -> int:
@@ -46,18 +44,13 @@ def main() -> int:
         parser.error("--sigmas must be >= 0 and --repeats >= 1")
     try:
         seq = read_sequence(args.data)
-        robot = robot_for(seq, None)
-        T_true = truth_poses(seq)
+        truth = true_keypoints(seq, robot_for(seq, None))
     except DreamError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    P_base = robot.forward_kinematics(joints_in_robot_order(seq, robot))
+    P_base, T_true, in_frame = truth.P_base, truth.T_cam_base, truth.in_frame
+    counted = np.flatnonzero(truth.counted)                       # as `dream eval`
     cameras = [seq.frame_camera(i) for i in range(len(seq))]
-    uv_true = np.stack([project(cameras[i], transform_points(T_true[i], P_base[i]))
-                        for i in range(len(seq))])
-    in_frame = np.stack([cameras[i].in_image(uv_true[i]) for i in range(len(seq))])
-    in_frame &= np.all(np.isfinite(uv_true), axis=-1)
-    counted = np.flatnonzero(in_frame.sum(axis=1) >= MIN_INFRAME_KEYPOINTS)   # as `dream eval`
     rng = np.random.default_rng(args.seed)
     print(f"{args.data}: {len(counted)} of {len(seq)} frames with >= {MIN_INFRAME_KEYPOINTS} "
           f"in-frame keypoints (mean {in_frame[counted].sum(axis=1).mean():.1f} of "
@@ -65,12 +58,12 @@ def main() -> int:
           f"fx {seq.camera.fx:.1f} px")
     frames = np.tile(counted, args.repeats)
     for sigma in args.sigmas:
-        uv = uv_true[frames] + rng.normal(0.0, sigma, uv_true[frames].shape)
+        uv = truth.uv[frames] + rng.normal(0.0, sigma, truth.uv[frames].shape)
         uv[~in_frame[frames]] = np.nan
         fits = solve_pnp_batch(P_base[frames], uv, [cameras[i] for i in frames.tolist()])
-        add = np.array([add_per_frame(P_base[i:i + 1], fit.T_cam_base[None], T_true[i:i + 1])[0]
-                        if isinstance(fit, PoseFit) else np.inf
-                        for i, fit in zip(frames.tolist(), fits, strict=True)])
+        T_est = np.array([fit.T_cam_base if isinstance(fit, PoseFit) else np.full((4, 4), np.nan)
+                          for fit in fits])                          # NaN: failed, ADD inf
+        add = add_per_frame(P_base[frames], T_est, T_true[frames])
         print(f"noise {sigma:5.2f} px per coordinate (median L2 {RAYLEIGH_MEDIAN * sigma:5.2f} "
               f"px): ADD AUC {100 * auc(add, ADD_AUC_THRESHOLD_M, ADD_AUC_STEP_M):5.1f}, median "
               f"ADD {1000 * np.median(add):6.1f} mm ({len(add)} solves)")

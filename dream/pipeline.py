@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -85,6 +86,47 @@ def truth_poses(sequence: Sequence) -> np.ndarray:
     return out
 
 
+def _has_truth(T_true: np.ndarray) -> np.ndarray:
+    """(F,) True for the frames whose true extrinsic (`truth_poses`) is known."""
+    return np.all(np.isfinite(T_true.reshape(len(T_true), -1)), axis=1)
+
+
+@dataclass(frozen=True)
+class TrueKeypoints:
+    """Each frame's keypoints at its true extrinsic (`true_keypoints`).
+
+    Attributes:
+        P_base: (F, N, 3) keypoints in the base frame, m.
+        T_cam_base: (F, 4, 4) the true extrinsics (`truth_poses`; NaN where unknown).
+        uv: (F, N, 2) their pixels in each frame's own camera (finite also where unknown).
+        in_frame: (F, N) True where a keypoint projects into the image of a frame with truth.
+        counted: (F,) True for frames with at least `MIN_INFRAME_KEYPOINTS` in-frame keypoints
+            (those in `dream eval`'s ADD AUC).
+    """
+
+    P_base: np.ndarray
+    T_cam_base: np.ndarray
+    uv: np.ndarray
+    in_frame: np.ndarray
+    counted: np.ndarray
+
+
+def true_keypoints(sequence: Sequence, robot: Robot) -> TrueKeypoints:
+    """The keypoints of every frame at its true extrinsic, and which of them `dream eval`
+    counts. The sequence must have ground truth or a reference extrinsic."""
+    T_true = truth_poses(sequence)
+    has_truth = _has_truth(T_true)
+    P_base = robot.forward_kinematics(joints_in_robot_order(sequence, robot))
+    T_true_safe = np.where(has_truth[:, None, None], T_true, np.eye(4))
+    P_cam_true = transform_points(T_true_safe[:, None], P_base)
+    uv_true = np.stack([project(sequence.frame_camera(i), P_cam_true[i])
+                        for i in range(len(sequence))])
+    in_frame = sequence.camera.in_image(uv_true) & np.all(np.isfinite(uv_true), -1)
+    in_frame &= has_truth[:, None]
+    return TrueKeypoints(P_base, T_true, uv_true, in_frame,
+                         in_frame.sum(1) >= MIN_INFRAME_KEYPOINTS)
+
+
 def evaluate(sequence: Sequence, robot: Robot, result_doc: dict[str, Any]) -> dict[str, Any]:
     """METRICS.json of `dream eval`: the result against the sequence's ground truth."""
     if not sequence.has_ground_truth:
@@ -93,22 +135,15 @@ def evaluate(sequence: Sequence, robot: Robot, result_doc: dict[str, Any]) -> di
     names = [f.name for f in sequence.frames]
     by_name = {f["frame"]: f for f in result_doc.get("per_frame", [])}
     mode = result_doc.get("frames_mode", "all")
-    T_true = truth_poses(sequence)
-    has_truth = np.all(np.isfinite(T_true.reshape(len(names), -1)), axis=1)
+    truth = true_keypoints(sequence, robot)
+    P_base, T_true, uv_true, in_frame = truth.P_base, truth.T_cam_base, truth.uv, truth.in_frame
+    has_truth, counted = _has_truth(T_true), truth.counted
     T_est = np.full((len(names), 4, 4), np.nan)
     for i, name in enumerate(names):
         if mode == "all":
             T_est[i] = result_doc["T_cam_base"]
         elif by_name.get(name, {}).get("T_cam_base") is not None:
             T_est[i] = np.asarray(by_name[name]["T_cam_base"], dtype=float)
-    P_base = robot.forward_kinematics(joints_in_robot_order(sequence, robot))
-    T_true_safe = np.where(has_truth[:, None, None], T_true, np.eye(4))
-    P_cam_true = transform_points(T_true_safe[:, None], P_base)
-    uv_true = np.stack([project(sequence.frame_camera(i), P_cam_true[i])
-                        for i in range(len(sequence))])
-    in_frame = sequence.camera.in_image(uv_true) & np.all(np.isfinite(uv_true), -1)
-    in_frame &= has_truth[:, None]
-    counted = in_frame.sum(1) >= MIN_INFRAME_KEYPOINTS
     add = add_per_frame(P_base[has_truth], T_est[has_truth], T_true[has_truth])
     add_counted = add[counted[has_truth]]
     uv_det = np.full(uv_true.shape, np.nan)
