@@ -12,7 +12,7 @@ consistent offset from the link origin), which more frames do not average out.
 `keypoint_jackknife` measures that part: the spread of the solutions with one keypoint (in every
 frame) left out at a time, the delete-one-group jackknife with the keypoints as groups. A single
 frame's fit is as optimistic (a misplaced keypoint is one of a handful): `calibrate_each` gives
-every frame its own keypoint jackknife (`frame_keypoint_jackknives`).
+every frame its own keypoint jackknife, from its leave-out solutions (`frame_leave_outs`).
 """
 
 from __future__ import annotations
@@ -321,17 +321,6 @@ def _frame_jackknife(frame: FrameSolution, leave_outs: tuple[tuple[str, np.ndarr
         return None
     return _jackknife([increment_between(frame.fit.T_cam_base, T) for _, T in leave_outs],
                       [name for name, _ in leave_outs])
-
-
-def frame_keypoint_jackknives(obs: Observations, frames: tuple[FrameSolution, ...],
-                              cameras: SequenceOf[CameraIntrinsics],
-                              settings: SolverSettings | None = None
-                              ) -> tuple[KeypointJackknife | None, ...]:
-    """Each solved frame's delete-one-keypoint jackknife, from its `frame_leave_outs`. None for
-    a frame without a solution or with fewer than `MIN_JACKKNIFE_GROUPS` solvable
-    leave-outs."""
-    return tuple(_frame_jackknife(frame, leave_outs) for frame, leave_outs in
-                 zip(frames, frame_leave_outs(obs, frames, cameras, settings), strict=True))
 
 
 def with_keypoint_jackknife(result: CalibrationResult, obs: Observations,

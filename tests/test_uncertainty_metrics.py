@@ -7,7 +7,7 @@ from dream.calibrate import (
     Observations,
     calibrate_all,
     calibrate_each,
-    frame_keypoint_jackknives,
+    frame_leave_outs,
     keypoint_jackknife,
     with_keypoint_jackknife,
 )
@@ -231,7 +231,7 @@ def test_each_mode_reports_the_best_frame_with_a_jackknife():
     assert all(f.jackknife is None for f in result.frames)
     assert result.fit is min((f.fit for f in result.frames), key=lambda f: np.trace(f.covariance))
     with pytest.raises(InputError, match="frame solutions"):
-        frame_keypoint_jackknives(obs, result.frames[:2], [CAMERA] * 6)
+        frame_leave_outs(obs, result.frames[:2], [CAMERA] * 6)
 
 
 def test_increment_between_inverts_the_solver_update():
