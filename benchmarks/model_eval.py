@@ -4,17 +4,22 @@ onnxruntime path a user runs); nothing here is tuned on the real images.
 
     python benchmarks/model_eval.py --model dream/models/panda_cpu.onnx
         [--heldout DATA/panda_heldout] [--scenes 5] [--realdata ../shared/realdata]
-        [--out WORK_DIR] [--skip-polish] [--held-object] [--only PART]
+        [--out WORK_DIR] [--skip-polish] [--held-object] [--scene-masks data|network]
+        [--first-seed 100] [--only PART]
 
 Prints:
 1. synthetic held-out DR set (`--heldout`, random cameras): single-frame ADD AUC (0-0.1 m,
    DREAM's definition), keypoint PCK AUC, median ADD; then the same after `--polish` (each
    frame's pose aligned with the set's own masks, `*.seg.png`), unless `--skip-polish`;
 2. `--scenes` rendered fixed-camera scenes (`synth.demo` recipe, seeds 100..): all-frames
-   extrinsic error (camera position, rotation) per scene and their median; with
-   `--held-object` the arm holds an object in every scene (`distractors.held_prob` 1);
+   extrinsic error (camera position, rotation) per scene and their median, then the same
+   after `--polish` with each scene's own masks (`*.seg.png`; with `--scene-masks network`
+   the masks are deleted and `--polish --mask-head` uses the network's), unless
+   `--skip-polish`; with `--held-object` the arm holds an object in every scene
+   (`distractors.held_prob` 1); `--first-seed` moves the seeds;
 3. panda_teleop: single-frame ADD AUC against its reference extrinsic, and the all-frames
-   extrinsic error before and after `--polish` (no masks in the data: the network's mask head);
+   extrinsic error before and after `--polish --mask-head` (no masks in the data: the
+   network's mask head, opt-in);
 4. franka_offline: silhouette IoU with the hand-made masks before and after `--polish`, and the
    spread of the extrinsic over the 45 leave-two-frames-out subsets.
 """
@@ -85,25 +90,51 @@ def heldout(model: Path, data: Path, work: Path, polish: bool) -> None:
           f"{seconds:.0f} s for calibrate --polish", flush=True)
 
 
-def scenes(model: Path, count: int, work: Path, held_object: bool) -> None:
+def scenes(model: Path, count: int, work: Path, held_object: bool, polish: bool,
+           mask_head: bool, first_seed: int) -> None:
     from synth.demo import render_demo_scene
 
-    t_errs, r_errs = [], []
+    errors = {"keypoints": [], "polish": []}
+    masks = "the network's mask head" if mask_head else "the scene's masks"
+    kept = 0
     for k in range(count):
-        seed = 100 + k
+        seed = first_seed + k
         data = render_demo_scene(work / f"scene_{seed}", seed=seed, held_object=held_object)
+        T_true = read_sequence(data).frames[0].T_cam_base_true
         doc = calibrate(data, model, work / f"scene_{seed}.json")
-        seq = read_sequence(data)
-        t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), seq.frames[0].T_cam_base_true)
-        t_errs.append(float(t_err))
-        r_errs.append(float(r_err))
-        print(f"   scene seed {seed}: {doc['frames_used']} frames, {doc['keypoints_used']} "
-              f"keypoints, camera position error {1000 * t_err:.1f} mm, rotation "
-              f"{np.rad2deg(r_err):.2f} deg", flush=True)
+        t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
+        errors["keypoints"].append((float(t_err), float(r_err)))
+        line = (f"   scene seed {seed}: {doc['frames_used']} frames, {doc['keypoints_used']} "
+                f"keypoints, camera position error {1000 * t_err:.1f} mm, rotation "
+                f"{np.rad2deg(r_err):.2f} deg")
+        if polish and mask_head:        # the scene without its masks: the network's instead
+            for mask in data.glob("*.seg.png"):
+                mask.unlink()
+        if polish:
+            pdoc = calibrate(data, model, work / f"scene_{seed}_polish.json", "--polish",
+                             *(["--mask-head"] if mask_head else []))
+            t_err, r_err = pose_errors(np.asarray(pdoc["T_cam_base"]), T_true)
+            errors["polish"].append((float(t_err), float(r_err)))
+            kept += bool(pdoc["polish"]["kept"])
+            line += (f"; --polish ({masks}): {1000 * t_err:.1f} mm, "
+                     f"{np.rad2deg(r_err):.3f} deg, IoU {pdoc['polish']['iou_before']:.3f} -> "
+                     f"{pdoc['polish']['iou_after']:.3f}, "
+                     f"{'kept' if pdoc['polish']['kept'] else 'not kept'}")
+        print(line, flush=True)
     held = ", the arm holding an object" if held_object else ""
-    print(f"2. {count} rendered fixed-camera scenes (30 frames each{held}), all frames: median "
-          f"camera position error {1000 * np.median(t_errs):.1f} mm, rotation "
-          f"{np.rad2deg(np.median(r_errs)):.2f} deg", flush=True)
+    t, r = np.array(errors["keypoints"]).T
+    summary = (f"2. {count} rendered fixed-camera scenes (seeds {first_seed}-"
+               f"{first_seed + count - 1}, 30 frames each{held}), all frames: "
+               f"median camera position error {1000 * np.median(t):.1f} mm, rotation "
+               f"{np.rad2deg(np.median(r)):.2f} deg")
+    if polish:
+        tp, rp = np.array(errors["polish"]).T
+        summary += (f"; with --polish ({masks}): median "
+                    f"{1000 * np.median(tp):.2f} mm (max {1000 * tp.max():.2f}), rotation "
+                    f"{np.rad2deg(np.median(rp)):.3f} deg; polish kept in {kept} of {count}; "
+                    f"better than the keypoint extrinsic in {int(np.sum(tp < t))}, worse in "
+                    f"{int(np.sum(tp > t))}")
+    print(summary, flush=True)
 
 
 def panda_teleop(model: Path, data: Path, work: Path, polish: bool) -> None:
@@ -115,7 +146,7 @@ def panda_teleop(model: Path, data: Path, work: Path, polish: bool) -> None:
     m_all = evaluate(data, allf, work / "teleop_all.metrics.json")
     polished = work / "teleop_all_polish.json"
     if polish:
-        pdoc = calibrate(data, model, polished, "--polish")
+        pdoc = calibrate(data, model, polished, "--polish", "--mask-head")
         m_pol = evaluate(data, polished, work / "teleop_all_polish.metrics.json")
         p = pdoc.get("polish", {})
         polish_line = (f"; with --polish (masks from the network's mask head): IoU "
@@ -181,6 +212,10 @@ def main() -> int:
     parser.add_argument("--held-object", action="store_true",
                         help="the rendered scenes show the arm holding an object (a plate or a "
                              "primitive at the hand, as a board held during calibration)")
+    parser.add_argument("--scene-masks", choices=("data", "network"), default="data",
+                        help="the masks of the scenes' polish: their own (*.seg.png) or the "
+                             "network's mask head (--mask-head)")
+    parser.add_argument("--first-seed", type=int, default=100, help="seed of the first scene")
     parser.add_argument("--only", choices=("heldout", "scenes", "teleop", "franka"))
     args = parser.parse_args()
     work = args.out or Path(tempfile.mkdtemp(prefix="dream-model-eval-"))
@@ -189,7 +224,8 @@ def main() -> int:
     if args.heldout and args.only in (None, "heldout"):
         heldout(args.model, args.heldout, work, not args.skip_polish)
     if args.scenes and args.only in (None, "scenes"):
-        scenes(args.model, args.scenes, work, args.held_object)
+        scenes(args.model, args.scenes, work, args.held_object, not args.skip_polish,
+               args.scene_masks == "network", args.first_seed)
     if (args.realdata / "panda_teleop").exists() and args.only in (None, "teleop"):
         panda_teleop(args.model, args.realdata / "panda_teleop", work, not args.skip_polish)
     if (args.realdata / "franka_offline").exists() and args.only in (None, "franka"):

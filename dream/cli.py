@@ -163,11 +163,18 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
     out = out or sys.stdout
     seq = _read(args)
     polish = getattr(args, "polish", False)
+    mask_head = getattr(args, "mask_head", False)
+    if mask_head and not polish:
+        raise InputError("--mask-head chooses the masks of the silhouette polish, and --polish "
+                         "was not given", fix="add --polish or drop --mask-head")
     if polish:
         from dream.polish import check_polish_input
 
-        check_polish_input(seq, args.frames,
-                           network_masks=getattr(args, "model", None) is not None)
+        if mask_head and getattr(args, "model", None) is None:
+            raise InputError("--mask-head takes the masks from the --model's mask head, and "
+                             "no --model was given", fix="add --model MODEL.onnx or drop "
+                             "--mask-head")
+        check_polish_input(seq, args.frames, network_masks=mask_head)
     model = None
     if getattr(args, "model", None) is not None:
         robot, obs, model = _detect(args, seq, out)
@@ -235,11 +242,14 @@ def _polish(args: argparse.Namespace, seq, robot, result, obs, model, doc: dict,
 
     if args.frames == "all":
         predict = None
-        if not any(f.mask_path is not None for f in seq.frames):
+        if not any(f.mask_path is not None for f in seq.frames):  # --mask-head (checked)
             from dream.detect import predict_masks
 
             predict = lambda idx: predict_masks(seq, model, idx)  # noqa: E731
-            print("no masks in the data: the polish uses the network's mask head", file=out)
+            print("no masks in the data: the polish uses the network's mask head (--mask-head)",
+                  file=out)
+        elif getattr(args, "mask_head", False):
+            print("the data has masks: the polish uses them, not the mask head", file=out)
         report = polish_calibration(seq, robot, result, obs, predict_masks=predict)
         print(f"silhouette polish ({len(report.frames)} frames with masks, "
               f"{report.seconds:.1f} s): {report.reason}", file=out)
@@ -467,8 +477,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--polish", action="store_true",
                    help="refine the extrinsic (with --frames each: every frame's own pose) by "
                         "aligning the robot's rendered silhouette with the data's masks (or, "
-                        "all frames only, the --model's mask head); kept only when the IoU "
-                        "improves without spoiling the keypoint fit")
+                        "all frames with --mask-head, the --model's mask head); kept only when "
+                        "the IoU improves without spoiling the keypoint fit")
+    p.add_argument("--mask-head", action="store_true",
+                   help="--polish, all frames, data without masks: align with the --model's "
+                        "mask head (opt-in: the bundled model's is too coarse and made "
+                        "rendered scenes worse, see README)")
     p.add_argument("--loss", choices=("huber", "cauchy", "l2"), default="huber")
     p.add_argument("--loss-scale-px", type=float, default=RobustLoss().scale_px)
     p.add_argument("--seed", type=int, default=0, help="seed of the RANSAC sampling")

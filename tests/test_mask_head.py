@@ -1,5 +1,6 @@
 """Masks from a network's mask head come back in image pixels through the inverse
-preprocessing (letterbox), as the keypoints do; without masks --polish uses them."""
+preprocessing (letterbox), as the keypoints do; without masks in the data, --polish uses
+them only when asked (--mask-head)."""
 
 from __future__ import annotations
 
@@ -57,9 +58,9 @@ def test_mask_head_is_mapped_back_to_image_pixels(tmp_path):
     assert iou > 0.95  # the belief-map grid is 2.5 image px: the edges blur by about a pixel
 
 
-def test_polish_without_masks_needs_a_mask_head(tmp_path):
+def test_polish_without_masks_takes_the_mask_head_only_when_asked(tmp_path):
     seq = _sequence(tmp_path)
-    with pytest.raises(InputError, match="mask"):
+    with pytest.raises(InputError, match="--mask-head"):
         check_polish_input(seq, "all")
     check_polish_input(seq, "all", network_masks=True)
     with pytest.raises(InputError, match="too coarse"):

@@ -400,3 +400,19 @@ def test_calibrate_polish_without_masks_is_one_clear_error(tmp_path, capsys):
     assert code == 2
     assert len(err.strip().splitlines()) == 1 and "--polish needs robot masks" in err
     assert not (tmp_path / "r.json").exists()
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--mask-head"], "--polish was not given"),
+    (["--polish", "--mask-head"], "no --model was given"),
+])
+def test_mask_head_misuse_is_one_clear_error(tmp_path, capsys, extra, message):
+    data = tmp_path / "sample"
+    assert main(["sample", "--out", str(data), "--num", "5"]) == 0
+    capsys.readouterr()
+    code = main(["calibrate", "--data", str(data), "--use-labels", *extra, "--out",
+                 str(tmp_path / "r.json")])
+    _, err = capsys.readouterr()
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1 and message in err
+    assert not (tmp_path / "r.json").exists()
