@@ -14,7 +14,7 @@ Prints:
 2. `--scenes` rendered fixed-camera scenes (`synth.demo` recipe, seeds 100..): all-frames
    extrinsic error (camera position, rotation) per scene and their median, then the same
    after `--polish` with each scene's own masks (`*.seg.png`; with `--scene-masks network`
-   the masks are deleted and `--polish --mask-head` uses the network's), unless
+   the scene folders' masks are deleted and `--polish --mask-head` uses the network's), unless
    `--skip-polish`; with `--held-object` the arm holds an object in every scene
    (`distractors.held_prob` 1); `--first-seed` moves the seeds;
 3. panda_teleop: single-frame ADD AUC against its reference extrinsic, and the all-frames
@@ -132,7 +132,8 @@ def scenes(model: Path, count: int, work: Path, held_object: bool, polish: bool,
         summary += (f"; with --polish ({masks}): median "
                     f"{1000 * np.median(tp):.2f} mm (max {1000 * tp.max():.2f}), rotation "
                     f"{np.rad2deg(np.median(rp)):.3f} deg; polish kept in {kept} of {count}; "
-                    f"better than the keypoint extrinsic in {int(np.sum(tp < t))}, worse in "
+                    f"camera position better than the keypoint extrinsic's in "
+                    f"{int(np.sum(tp < t))}, worse in "
                     f"{int(np.sum(tp > t))}")
     print(summary, flush=True)
 
@@ -218,6 +219,9 @@ def main() -> int:
     parser.add_argument("--first-seed", type=int, default=100, help="seed of the first scene")
     parser.add_argument("--only", choices=("heldout", "scenes", "teleop", "franka"))
     args = parser.parse_args()
+    if args.scene_masks == "network" and args.skip_polish:
+        parser.error("--scene-masks network chooses the masks of the scenes' polish; drop "
+                     "--skip-polish")
     work = args.out or Path(tempfile.mkdtemp(prefix="dream-model-eval-"))
     work.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()

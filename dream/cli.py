@@ -150,6 +150,23 @@ def _detect(args: argparse.Namespace, seq, out):
     return robot, obs, model
 
 
+def _check_mask_head(mask_head: bool, polish: bool, model: bool, frames: str) -> None:
+    """`--mask-head` goes with `--polish`, `--model` and all frames (checked before any
+    reading)."""
+    if not mask_head:
+        return
+    if not polish:
+        raise InputError("--mask-head chooses the masks of the silhouette polish, and --polish "
+                         "was not given", fix="add --polish or drop --mask-head")
+    if not model:
+        raise InputError("--mask-head takes the masks from the --model's mask head, and no "
+                         "--model was given", fix="add --model MODEL.onnx or drop --mask-head")
+    if frames != "all":
+        raise InputError("--mask-head polishes the one extrinsic of all frames; the mask head "
+                         "is too coarse to polish a frame alone",
+                         fix="use --frames all, or drop --mask-head")
+
+
 def run_calibrate(args: argparse.Namespace, out=None) -> dict:
     """`dream calibrate`: observations from the labels (`--use-labels`) or from a keypoint
     network (`--model MODEL.onnx`, run by the `dream.model_loaders` entry point: onnxruntime,
@@ -161,19 +178,13 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
     from dream.ros import write_robot_files
 
     out = out or sys.stdout
-    seq = _read(args)
     polish = getattr(args, "polish", False)
     mask_head = getattr(args, "mask_head", False)
-    if mask_head and not polish:
-        raise InputError("--mask-head chooses the masks of the silhouette polish, and --polish "
-                         "was not given", fix="add --polish or drop --mask-head")
+    _check_mask_head(mask_head, polish, getattr(args, "model", None) is not None, args.frames)
+    seq = _read(args)
     if polish:
         from dream.polish import check_polish_input
 
-        if mask_head and getattr(args, "model", None) is None:
-            raise InputError("--mask-head takes the masks from the --model's mask head, and "
-                             "no --model was given", fix="add --model MODEL.onnx or drop "
-                             "--mask-head")
         check_polish_input(seq, args.frames, network_masks=mask_head)
     model = None
     if getattr(args, "model", None) is not None:

@@ -402,17 +402,40 @@ def test_calibrate_polish_without_masks_is_one_clear_error(tmp_path, capsys):
     assert not (tmp_path / "r.json").exists()
 
 
+BUNDLED_MODEL = Path(__file__).resolve().parents[1] / "dream" / "models" / "panda_cpu.onnx"
+
+
 @pytest.mark.parametrize("extra, message", [
-    (["--mask-head"], "--polish was not given"),
-    (["--polish", "--mask-head"], "no --model was given"),
+    (["--use-labels", "--mask-head"], "--polish was not given"),
+    (["--use-labels", "--polish", "--mask-head"], "no --model was given"),
+    # a model with a mask head is no longer used without being asked for
+    (["--model", BUNDLED_MODEL, "--polish"], "--polish needs robot masks"),
+    (["--model", BUNDLED_MODEL, "--polish", "--mask-head", "--frames", "each"],
+     "too coarse to polish a frame alone"),
 ])
 def test_mask_head_misuse_is_one_clear_error(tmp_path, capsys, extra, message):
-    data = tmp_path / "sample"
+    data = tmp_path / "sample"          # keypoint-only frames: no masks (and no images)
     assert main(["sample", "--out", str(data), "--num", "5"]) == 0
     capsys.readouterr()
-    code = main(["calibrate", "--data", str(data), "--use-labels", *extra, "--out",
+    code = main(["calibrate", "--data", str(data), *map(str, extra), "--out",
                  str(tmp_path / "r.json")])
     _, err = capsys.readouterr()
     assert code == 2
     assert len(err.strip().splitlines()) == 1 and message in err
     assert not (tmp_path / "r.json").exists()
+
+
+def test_polish_with_the_mask_head_when_asked(tmp_path, capsys):
+    from synth.demo import render_demo_scene
+
+    data = render_demo_scene(tmp_path / "scene", seed=3, num_frames=4)
+    for mask in data.glob("*.seg.png"):
+        mask.unlink()
+    result = tmp_path / "r.json"
+    code = main(["calibrate", "--data", str(data), "--model", str(BUNDLED_MODEL), "--polish",
+                 "--mask-head", "--out", str(result)])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert "the network's mask head" in out
+    polish = json.loads(result.read_text())["polish"]
+    assert len(polish["frames"]) == 4 and 0 < polish["iou_before"] < 1
