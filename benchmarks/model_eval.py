@@ -101,25 +101,28 @@ def scenes(model: Path, count: int, work: Path, held_object: bool, polish: bool,
         seed = first_seed + k
         data = render_demo_scene(work / f"scene_{seed}", seed=seed, held_object=held_object)
         T_true = read_sequence(data).frames[0].T_cam_base_true
-        doc = calibrate(data, model, work / f"scene_{seed}.json")
-        t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
+        if polish and mask_head:        # the scene without its masks: the network's instead
+            for mask in data.glob("*.seg.png"):
+                mask.unlink()
+        # one `dream calibrate` per scene: with --polish, RESULT.json's `polish` object keeps
+        # the keypoint extrinsic (T_cam_base_keypoints) beside the polished one
+        doc = calibrate(data, model, work / f"scene_{seed}.json",
+                        *(["--polish"] if polish else []),
+                        *(["--mask-head"] if polish and mask_head else []))
+        T_keypoints = doc["polish"]["T_cam_base_keypoints"] if polish else doc["T_cam_base"]
+        t_err, r_err = pose_errors(np.asarray(T_keypoints), T_true)
         errors["keypoints"].append((float(t_err), float(r_err)))
         line = (f"   scene seed {seed}: {doc['frames_used']} frames, {doc['keypoints_used']} "
                 f"keypoints, camera position error {1000 * t_err:.1f} mm, rotation "
                 f"{np.rad2deg(r_err):.2f} deg")
-        if polish and mask_head:        # the scene without its masks: the network's instead
-            for mask in data.glob("*.seg.png"):
-                mask.unlink()
         if polish:
-            pdoc = calibrate(data, model, work / f"scene_{seed}_polish.json", "--polish",
-                             *(["--mask-head"] if mask_head else []))
-            t_err, r_err = pose_errors(np.asarray(pdoc["T_cam_base"]), T_true)
+            t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
             errors["polish"].append((float(t_err), float(r_err)))
-            kept += bool(pdoc["polish"]["kept"])
+            kept += bool(doc["polish"]["kept"])
             line += (f"; --polish ({masks}): {1000 * t_err:.1f} mm, "
-                     f"{np.rad2deg(r_err):.3f} deg, IoU {pdoc['polish']['iou_before']:.3f} -> "
-                     f"{pdoc['polish']['iou_after']:.3f}, "
-                     f"{'kept' if pdoc['polish']['kept'] else 'not kept'}")
+                     f"{np.rad2deg(r_err):.3f} deg, IoU {doc['polish']['iou_before']:.3f} -> "
+                     f"{doc['polish']['iou_after']:.3f}, "
+                     f"{'kept' if doc['polish']['kept'] else 'not kept'}")
         print(line, flush=True)
     held = ", the arm holding an object" if held_object else ""
     t, r = np.array(errors["keypoints"]).T

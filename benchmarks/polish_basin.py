@@ -2,7 +2,8 @@
 
 Renders fixed-camera scenes (`synth.demo` recipe: `--frames` random arm poses, seeds from
 `--first-seed`), and polishes each one's extrinsic against its own robot masks (`*.seg.png`),
-exactly as `dream calibrate --polish` does (`dream.polish.polish`), but from the true extrinsic
+with the frames, masks and meshes `dream calibrate --polish` uses (`dream.polish.
+silhouette_inputs`, `dream.polish.polish`), but from the true extrinsic
 moved by each `--offsets` distance: the camera centre by that many metres in a random direction
 and the camera turned by `--turn-per-m` rad per metre about a random axis. No keypoint guard:
 this measures the silhouette search alone. A polish has converged when the polished camera lies
@@ -22,11 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from dream.io import load_mask, read_sequence
+from dream.io import read_sequence
 from dream.metrics import pose_errors
-from dream.pipeline import joints_in_robot_order, robot_for
-from dream.polish import PolishParams, polish
-from dream.silhouette import load_robot_meshes
+from dream.pipeline import robot_for
+from dream.polish import PolishParams, polish, silhouette_inputs
 from dream.transforms import T_from_rotvec_t, invert_T
 
 IOU_CONVERGED = 0.95   # the IoU the report splits at (PolishParams.frame_restart_below_iou)
@@ -71,17 +71,13 @@ def main() -> int:
     for seed in range(args.first_seed, args.first_seed + args.scenes):
         data = render_demo_scene(work / f"scene_{seed}", seed=seed, num_frames=args.frames)
         seq = read_sequence(data)
-        robot = robot_for(seq)
         T_true = seq.frames[0].T_cam_base_true
-        chosen = np.linspace(0, len(seq) - 1, min(len(seq), params.max_eval_frames)).round()
-        chosen = np.unique(chosen.astype(int))
-        masks = np.stack([load_mask(seq.frames[i], seq.camera) for i in chosen])
-        joints = joints_in_robot_order(seq, robot)[chosen]
-        meshes = load_robot_meshes(robot, params.max_triangles)
+        inputs = silhouette_inputs(seq, robot_for(seq), params)    # as `dream calibrate`
         line = []
         for m in args.offsets:
             start = moved_start(T_true, m, args.turn_per_m * m, rng)
-            res = polish(meshes, joints, masks, seq.camera, start, None, params)
+            res = polish(inputs.meshes, inputs.joints, inputs.masks, seq.camera, start, None,
+                         params, inputs.frame_names)
             error_mm = 1000 * float(pose_errors(res.T_polished, T_true)[0])
             rows[m].append((error_mm, res.iou_after_mean))
             line.append(f"{1000 * m:.0f} mm -> {error_mm:.1f} mm (IoU {res.iou_after_mean:.3f})")

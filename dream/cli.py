@@ -245,6 +245,7 @@ def _polish(args: argparse.Namespace, seq, robot, result, obs, model, doc: dict,
     own pose (`--frames each`); returns RESULT.json's document with it."""
     from dream.detect import PROGRESS_EVERY_FRAMES
     from dream.polish import (
+        has_masks,
         polish_calibration,
         polish_frames,
         result_doc_with_frame_polishes,
@@ -253,7 +254,7 @@ def _polish(args: argparse.Namespace, seq, robot, result, obs, model, doc: dict,
 
     if args.frames == "all":
         predict = None
-        if not any(f.mask_path is not None for f in seq.frames):  # --mask-head (checked)
+        if not has_masks(seq):  # --mask-head (checked)
             from dream.detect import predict_masks
 
             predict = lambda idx: predict_masks(seq, model, idx)  # noqa: E731

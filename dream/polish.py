@@ -62,8 +62,9 @@ Public API:
     fit_shrinkage(n_keypoints)
     polish(meshes, joints, masks, camera, T_cam_base, keypoints, params, frame_names,
            guard) (pure)
-    check_polish_input(sequence, mode, network_masks); polish_calibration(sequence, robot,
-    result, obs, params, predict_masks); polish_frames(sequence, robot, result, obs, params,
+    check_polish_input(sequence, mode, network_masks); has_masks(sequence);
+    silhouette_inputs(sequence, robot, params, predict_masks); polish_calibration(sequence,
+    robot, result, obs, params, predict_masks); polish_frames(sequence, robot, result, obs, params,
     progress)
     polish_to_dict(result); result_doc_with_polish(doc, result);
     frame_polish_to_dict(result); frame_polish_summary(results);
@@ -610,7 +611,7 @@ def check_polish_input(sequence: Sequence, mode: str, network_masks: bool = Fals
     Raises:
         InputError: one line naming the data and the fix.
     """
-    if _has_masks(sequence):
+    if has_masks(sequence):
         return
     if not network_masks:
         raise InputError(f"--polish needs robot masks, and none of the {len(sequence)} frames "
@@ -625,7 +626,8 @@ def check_polish_input(sequence: Sequence, mode: str, network_masks: bool = Fals
                          "use --frames all, or drop --polish")
 
 
-def _has_masks(sequence: Sequence) -> bool:
+def has_masks(sequence: Sequence) -> bool:
+    """Whether any frame of `sequence` has a robot mask file."""
     return any(f.mask_path is not None for f in sequence.frames)
 
 
@@ -638,37 +640,65 @@ def _inlier_keypoints(result: CalibrationResult, obs: Observations,
     return KeypointSet(obs.P_base[frames][inlier], obs.uv[frames][inlier])
 
 
-def polish_calibration(sequence: Sequence, robot: Robot, result: CalibrationResult,
-                       obs: Observations, params: PolishParams | None = None,
-                       predict_masks: Callable[[list[int]], np.ndarray] | None = None
-                       ) -> PolishResult:
-    """Polish an "all"-mode calibration of `sequence` with its masks (at most
-    `max_eval_frames`, evenly spaced), guarded by the calibration's inlier keypoints.
+@dataclass(frozen=True)
+class SilhouetteInputs:
+    """What `polish` needs of a fixed-camera sequence besides the starting pose and the guard
+    (`silhouette_inputs`).
 
-    Without masks in the data, `predict_masks(frame_indices) -> (n, H, W) bool` supplies them
-    (the keypoint network's mask head, `dream.detect.predict_masks`)."""
+    Attributes:
+        meshes: the robot's meshes. joints: (E, J) the chosen frames' joints, in the robot's
+        order. masks: (E, H, W) their robot masks. frame_names: their E names.
+    """
+
+    meshes: RobotMeshes
+    joints: np.ndarray
+    masks: np.ndarray
+    frame_names: tuple[str, ...]
+
+
+def silhouette_inputs(sequence: Sequence, robot: Robot, params: PolishParams,
+                      predict_masks: Callable[[list[int]], np.ndarray] | None = None
+                      ) -> SilhouetteInputs:
+    """The frames an all-frames polish of `sequence` scores (at most `max_eval_frames`, evenly
+    spaced, among those with a mask), their joints and masks, and the robot's meshes. Without
+    masks in the data, `predict_masks(frame_indices) -> (n, H, W) bool` supplies them."""
     from dream.io import load_mask
     from dream.pipeline import joints_in_robot_order
 
-    params = params or PolishParams()
-    if result.mode != "all":
-        raise InputError("polish_calibration polishes the one extrinsic of a fixed camera; "
-                         "polish an --frames each result with polish_frames")
-    check_polish_input(sequence, "all", network_masks=predict_masks is not None)
-    if _has_masks(sequence):
+    if has_masks(sequence):
         with_mask = np.flatnonzero([f.mask_path is not None for f in sequence.frames])
         chosen = _evenly_spaced(with_mask, params.max_eval_frames)
         masks = np.stack([load_mask(f, sequence.camera) for f in
                           (sequence.frames[i] for i in chosen)])
     else:
+        if predict_masks is None:
+            raise InputError("the data has no robot masks and no mask source was given",
+                             sequence.source, "add masks or pass predict_masks")
         chosen = _evenly_spaced(np.arange(len(sequence)), params.max_eval_frames)
         masks = predict_masks([int(i) for i in chosen]).astype(np.uint8)
-    frames = [sequence.frames[i] for i in chosen]
-    joints = joints_in_robot_order(sequence, robot)[chosen]
-    meshes = load_robot_meshes(robot, params.max_triangles)
-    return polish(meshes, joints, masks, sequence.camera, result.fit.T_cam_base,
-                  _inlier_keypoints(result, obs, slice(None)), params,
-                  [f.name for f in frames])
+    return SilhouetteInputs(load_robot_meshes(robot, params.max_triangles),
+                            joints_in_robot_order(sequence, robot)[chosen], masks,
+                            tuple(sequence.frames[i].name for i in chosen))
+
+
+def polish_calibration(sequence: Sequence, robot: Robot, result: CalibrationResult,
+                       obs: Observations, params: PolishParams | None = None,
+                       predict_masks: Callable[[list[int]], np.ndarray] | None = None
+                       ) -> PolishResult:
+    """Polish an "all"-mode calibration of `sequence` with its masks (`silhouette_inputs`),
+    guarded by the calibration's inlier keypoints.
+
+    Without masks in the data, `predict_masks(frame_indices) -> (n, H, W) bool` supplies them
+    (the keypoint network's mask head, `dream.detect.predict_masks`)."""
+    params = params or PolishParams()
+    if result.mode != "all":
+        raise InputError("polish_calibration polishes the one extrinsic of a fixed camera; "
+                         "polish an --frames each result with polish_frames")
+    check_polish_input(sequence, "all", network_masks=predict_masks is not None)
+    inputs = silhouette_inputs(sequence, robot, params, predict_masks)
+    return polish(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
+                  result.fit.T_cam_base, _inlier_keypoints(result, obs, slice(None)), params,
+                  inputs.frame_names)
 
 
 PROGRESS_EVERY_POLISHED = 64   # `polish_frames` reports progress after this many frames
