@@ -236,6 +236,20 @@ def test_focal_loss_by_hand_and_its_pull():
     assert float(pred.grad[0, 0, 0, 0]) < 0 and float(pred.grad[0, 0, 2, 2]) > 0
 
 
+def test_focal_loss_is_float32_under_autocast():
+    """bfloat16 maps (mixed precision) give a float32 loss equal to the float32 one; the loss
+    avoids F.binary_cross_entropy, which CUDA autocast refuses."""
+    from train.module import belief_focal
+
+    maps = torch.rand(2, 3, 5, 7, generator=torch.Generator().manual_seed(3)).bfloat16()
+    goal = torch.rand(2, 3, 5, 7, generator=torch.Generator().manual_seed(4)).bfloat16()
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        loss = belief_focal(maps, goal, 2.0)
+    assert loss.dtype == torch.float32
+    assert float(loss) == pytest.approx(float(belief_focal(maps.float(), goal.float(), 2.0)),
+                                        rel=1e-6)
+
+
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")
 @pytest.mark.parametrize("activation", ["none", "sigmoid"])
 def test_model_exports_to_onnx(tmp_path, activation):

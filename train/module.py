@@ -73,8 +73,10 @@ def belief_focal(pred: torch.Tensor, target: torch.Tensor, gamma: float) -> torc
     Unlike the weighted MSE, a confident peak where the target is ~0 costs -log(1 - pred), so a
     second peak on a neighbouring keypoint is penalised as hard as a missed one.
     """
-    pred = pred.clamp(_FOCAL_EPS, 1 - _FOCAL_EPS)
-    bce = F.binary_cross_entropy(pred, target, reduction="none")
+    # float32, written out: CUDA autocast refuses F.binary_cross_entropy on sigmoid outputs
+    pred = pred.float().clamp(_FOCAL_EPS, 1 - _FOCAL_EPS)
+    target = target.float()
+    bce = -(target * torch.log(pred) + (1 - target) * torch.log1p(-pred))
     per_pixel = bce * (target - pred).abs().pow(gamma) if gamma > 0 else bce
     return per_pixel.sum(dim=(-2, -1)).mean()
 
