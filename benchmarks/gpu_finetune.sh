@@ -1,0 +1,70 @@
+#!/usr/bin/env bash
+# Continue training the panda_cpu recipe on one CUDA GPU, on frames rendered there and then.
+#
+#   benchmarks/gpu_finetune.sh INIT_CKPT OUT_DIR DATA_DIR SEED NUM RENDER_S TRAIN_S [KEY=VALUE ...]
+#
+# 1. renders up to NUM new `dream synth` Panda frames (seed SEED, half of them holding an object)
+#    into DATA_DIR/train_SEED with one process per core, stopping after RENDER_S seconds (a killed
+#    render leaves only complete frames), and 200 held-out frames (seed 2000) for the curve;
+# 2. measures the training speed in a 30-second probe run;
+# 3. trains from INIT_CKPT's weights (fresh optimiser, one-cycle schedule) on every DATA_DIR/train_*
+#    folder with a step budget that fills TRAIN_S seconds at the measured speed
+#    (benchmarks/train_curve.py, GPU, batch 64, lr 0.002), into OUT_DIR/run;
+# 4. writes OUT_DIR/best.ckpt and OUT_DIR/last.ckpt without optimiser state (13 MB each: what
+#    `dream export` and `--set trainer.init_from=` need).
+# Extra KEY=VALUE arguments override the recipe (train_curve.py --set).
+#
+# It was run on a lent H100 (16 cores) with MUJOCO_GL=egl; the model card
+# (dream/models/panda_cpu.md) gives the commands and figures. Nothing here needs a GPU to be
+# correct: on the project's CPU machine use benchmarks/train_curve.py directly.
+set -euo pipefail
+if [ $# -lt 7 ]; then
+  sed -n 2,4p "$0" >&2
+  exit 2
+fi
+init=$1 out=$2 data=$3 seed=$4 num=$5 render_s=$6 train_s=$7
+shift 7
+repo=$(cd "$(dirname "$0")/.." && pwd)
+batch=64
+workers=$(nproc)
+loaders=$((workers > 2 ? workers - 1 : 1))
+export MUJOCO_GL=${MUJOCO_GL:-egl} PYTHONUNBUFFERED=1
+mkdir -p "$out" "$data"
+
+echo "== render: up to $num frames, seed $seed, $workers processes, at most $render_s s"
+timeout "$render_s" dream synth --robot panda --num "$num" --workers "$workers" --seed "$seed" \
+  --set distractors.held_prob=0.5 --out "$data/train_$seed" | tr '\r' '\n' | tail -n 2 || true
+[ -d "$data/heldout" ] || dream synth --robot panda --num 200 --workers "$workers" --seed 2000 \
+  --out "$data/heldout" | tr '\r' '\n' | tail -n 1
+train_dirs=$(ls -d "$data"/train_* | paste -sd, -)
+frames=$(find "$data" -path "$data/train_*/[0-9]*.json" | wc -l)
+echo "== training frames: $frames in [$train_dirs]"
+
+common=(--set "data.train=[$train_dirs]" --set trainer.accelerator=gpu --set trainer.devices=1
+        --set data.batch_size=$batch --set data.num_workers=$loaders --set optim.lr=0.002
+        --set "trainer.init_from=$init" --set trainer.checkpoint_every_n_steps=0)
+for kv in "$@"; do common+=(--set "$kv"); done
+
+echo "== probe: 30 s"
+rate=$(python "$repo/benchmarks/train_curve.py" "$data/train_$seed" "$data/heldout" \
+  --out "$out/probe" --minutes 0.5 --eval-every-s 100000 --eval-frames 8 "${common[@]}" \
+  --set trainer.max_steps=100000 | tee "$out/probe.log" | sed -n 's/.*images, \([0-9.]*\) images\/s.*/\1/p')
+rm -rf "$out/probe"
+steps=$(python -c "print(int($rate * $train_s / $batch))")
+echo "== train: $rate images/s -> $steps steps of $batch for $train_s s"
+python "$repo/benchmarks/train_curve.py" "$data/train_$seed" "$data/heldout" --out "$out/run" \
+  --minutes "$(python -c "print(1.2 * $train_s / 60)")" --eval-every-s 60 "${common[@]}" \
+  --set trainer.max_steps="$steps"
+
+python - "$out" <<'EOF'
+import sys
+from pathlib import Path
+import torch
+out = Path(sys.argv[1])
+for name in ("best", "last"):
+    ckpt = torch.load(out / "run" / f"{name}.ckpt", map_location="cpu", weights_only=True)
+    for key in ("optimizer_states", "lr_schedulers", "callbacks", "loops"):
+        ckpt.pop(key, None)
+    torch.save(ckpt, out / f"{name}.ckpt")
+    print(f"{out / name}.ckpt: epoch {ckpt['epoch']}, step {ckpt['global_step']}")
+EOF
