@@ -15,8 +15,9 @@
 # Extra KEY=VALUE arguments override the recipe (train_curve.py --set).
 #
 # It was run on a lent H100 (16 cores) with MUJOCO_GL=egl; the model card
-# (dream/models/panda_cpu.md) gives the commands and figures. Nothing here needs a GPU to be
-# correct: on the project's CPU machine use benchmarks/train_curve.py directly.
+# (dream/models/panda_cpu.md) gives the commands and figures. Without a GPU, add
+# trainer.accelerator=cpu (checked at toy size); for real CPU training use
+# benchmarks/train_curve.py directly.
 set -euo pipefail
 if [ $# -lt 7 ]; then
   sed -n 2,4p "$0" >&2
