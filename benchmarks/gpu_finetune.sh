@@ -5,11 +5,13 @@
 #
 # 1. renders up to NUM new `dream synth` Panda frames (seed SEED, half of them holding an object)
 #    into DATA_DIR/train_SEED with one process per core, stopping after RENDER_S seconds (a killed
-#    render leaves only complete frames), and 200 held-out frames (seed 2000) for the curve;
+#    render leaves only complete frames; frames already there are kept), and completes 200
+#    held-out frames (seed 2000) for the curve; a render that fails stops the script;
 # 2. measures the training speed in a 30-second probe run;
 # 3. trains from INIT_CKPT's weights (fresh optimiser, one-cycle schedule) on every DATA_DIR/train_*
-#    folder with a step budget that fills TRAIN_S seconds at the measured speed
-#    (benchmarks/train_curve.py, GPU, batch 64, lr 0.002), into OUT_DIR/run;
+#    folder with a step budget of TRAIN_S seconds at the measured speed, rounded up to whole
+#    epochs (benchmarks/train_curve.py, GPU, batch 64, lr 0.002), into OUT_DIR/run (which must
+#    not exist: a run folder with a checkpoint would be resumed instead);
 # 4. writes OUT_DIR/best.ckpt and OUT_DIR/last.ckpt without optimiser state (13 MB each: what
 #    `dream export` and `--set trainer.init_from=` need).
 # Extra KEY=VALUE arguments override the recipe (train_curve.py --set).
@@ -30,14 +32,26 @@ batch=64
 workers=$(nproc)
 loaders=$((workers > 2 ? workers - 1 : 1))
 export MUJOCO_GL=${MUJOCO_GL:-egl} PYTHONUNBUFFERED=1
+if [ -e "$out/run" ]; then
+  echo "gpu_finetune.sh: $out/run exists; give a new OUT_DIR (a run folder would be resumed)" >&2
+  exit 2
+fi
 mkdir -p "$out" "$data"
 
 echo "== render: up to $num frames, seed $seed, $workers processes, at most $render_s s"
+set +e
 timeout "$render_s" dream synth --robot panda --num "$num" --workers "$workers" --seed "$seed" \
-  --set distractors.held_prob=0.5 --out "$data/train_$seed" | tr '\r' '\n' | tail -n 2 || true
-[ -d "$data/heldout" ] || dream synth --robot panda --num 200 --workers "$workers" --seed 2000 \
-  --out "$data/heldout" | tr '\r' '\n' | tail -n 1
+  --set distractors.held_prob=0.5 --out "$data/train_$seed" | tr '\r' '\n' | tail -n 2
+render_rc=${PIPESTATUS[0]}
+set -e
+if [ "$render_rc" -ne 0 ] && [ "$render_rc" -ne 124 ]; then  # 124: stopped by the time limit
+  echo "gpu_finetune.sh: dream synth failed (exit $render_rc); see its error above" >&2
+  exit 1
+fi
+dream synth --robot panda --num 200 --workers "$workers" --seed 2000 --out "$data/heldout" \
+  | tr '\r' '\n' | tail -n 1
 train_dirs=$(ls -d "$data"/train_* | paste -sd, -)
+first_train=${train_dirs%%,*}
 frames=$(find "$data" -path "$data/train_*/[0-9]*.json" | wc -l)
 echo "== training frames: $frames in [$train_dirs]"
 
@@ -47,13 +61,18 @@ common=(--set "data.train=[$train_dirs]" --set trainer.accelerator=gpu --set tra
 for kv in "$@"; do common+=(--set "$kv"); done
 
 echo "== probe: 30 s"
-rate=$(python "$repo/benchmarks/train_curve.py" "$data/train_$seed" "$data/heldout" \
+rm -rf "$out/probe"
+rate=$(python "$repo/benchmarks/train_curve.py" "$first_train" "$data/heldout" \
   --out "$out/probe" --minutes 0.5 --eval-every-s 100000 --eval-frames 8 "${common[@]}" \
   --set trainer.max_steps=100000 | tee "$out/probe.log" | sed -n 's/.*images, \([0-9.]*\) images\/s.*/\1/p')
 rm -rf "$out/probe"
+if [ -z "$rate" ]; then
+  echo "gpu_finetune.sh: the probe printed no speed; see $out/probe.log" >&2
+  exit 1
+fi
 steps=$(python -c "print(int($rate * $train_s / $batch))")
 echo "== train: $rate images/s -> $steps steps of $batch for $train_s s"
-python "$repo/benchmarks/train_curve.py" "$data/train_$seed" "$data/heldout" --out "$out/run" \
+python "$repo/benchmarks/train_curve.py" "$first_train" "$data/heldout" --out "$out/run" \
   --minutes "$(python -c "print(1.2 * $train_s / 60)")" --eval-every-s 60 "${common[@]}" \
   --set trainer.max_steps="$steps"
 
