@@ -80,9 +80,10 @@ python - "$out" <<'EOF'
 import sys
 from pathlib import Path
 import torch
+from train.checkpoint import read_checkpoint
 out = Path(sys.argv[1])
 for name in ("best", "last"):
-    ckpt = torch.load(out / "run" / f"{name}.ckpt", map_location="cpu", weights_only=True)
+    ckpt = read_checkpoint(out / "run" / f"{name}.ckpt")   # checked to be a dream train one
     for key in ("optimizer_states", "lr_schedulers", "callbacks", "loops"):
         ckpt.pop(key, None)
     torch.save(ckpt, out / f"{name}.ckpt")
