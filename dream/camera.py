@@ -7,6 +7,7 @@ Camera frame: x right, y down, z forward.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -63,14 +64,16 @@ class CameraIntrinsics:
         return cls(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
                    width, height, distortion)
 
-    @property
+    @cached_property
     def K(self) -> np.ndarray:
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+        """The 3 x 3 camera matrix (read-only; made once: the solvers project with it often)."""
+        return _read_only(np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy],
+                                    [0.0, 0.0, 1.0]]))
 
-    @property
+    @cached_property
     def dist_coeffs(self) -> np.ndarray:
-        """OpenCV distortion vector (5,), zeros when there is none."""
-        return np.zeros(5) if self.distortion is None else np.array(self.distortion)
+        """OpenCV distortion vector (5,), zeros when there is none (read-only)."""
+        return _read_only(np.zeros(5) if self.distortion is None else np.array(self.distortion))
 
     def with_distortion(self, coeffs: tuple[float, ...] | None) -> CameraIntrinsics:
         return CameraIntrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height,
@@ -81,6 +84,11 @@ class CameraIntrinsics:
         uv = np.asarray(uv, dtype=float)
         return ((uv[..., 0] >= -0.5 - margin_px) & (uv[..., 0] <= self.width - 0.5 + margin_px)
                 & (uv[..., 1] >= -0.5 - margin_px) & (uv[..., 1] <= self.height - 0.5 + margin_px))
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
 
 
 def distort_normalized(xy: np.ndarray, coeffs: np.ndarray | None) -> np.ndarray:

@@ -175,10 +175,14 @@ def _windows(maps: np.ndarray, ks: np.ndarray, us: np.ndarray, vs: np.ndarray,
     _, h, w = maps.shape
     offsets = np.arange(-r, r + 1)
     rows, cols = vs[:, None] + offsets, us[:, None] + offsets          # (n, 2r+1)
+    n = len(ks)
+    if n and r <= min(vs.min(), us.min()) and vs.max() < h - r and us.max() < w - r:
+        # every window lies inside its map (the usual case): no clipping, no masking
+        values = maps[ks[:, None, None], rows[:, :, None], cols[:, None, :]].astype(float)
+        return values.reshape(n, -1), np.ones((n, (2 * r + 1) ** 2), bool)
     inside = ((rows >= 0) & (rows < h))[:, :, None] & ((cols >= 0) & (cols < w))[:, None, :]
     values = maps[ks[:, None, None], np.clip(rows, 0, h - 1)[:, :, None],
                   np.clip(cols, 0, w - 1)[:, None, :]].astype(float)
-    n = len(ks)
     return np.where(inside, values, 0.0).reshape(n, -1), inside.reshape(n, -1)
 
 
@@ -202,27 +206,36 @@ def _fit_quadratic_log(z: np.ndarray, keep: np.ndarray, r: int) -> np.ndarray:
     window (`_windows`) over its `keep` pixels, weighted by the squared values (Guo's
     weighting); exact for a sampled Gaussian. NaN where a fit has no maximum."""
     _, _, A, outer = _window_design(r)
-    zk = np.where(keep, z, 0.0)                  # rows scaled by z -> weighted by z^2
+    full = keep.all()                            # every window whole (the usual case)
+    zk = z if full else np.where(keep, z, 0.0)   # rows scaled by z -> weighted by z^2
     weight = zk * zk
     normal = (weight @ outer).reshape(-1, 6, 6)
-    rhs = (weight * np.log(np.where(keep, z, 1.0))) @ A
-    out = np.full((len(z), 2), np.nan)
+    rhs = (weight * np.log(z if full else np.where(keep, z, 1.0))) @ A
     # normal equations: 6 unknowns on <= (2 r + 1)^2 pixels; with positive weights they are
     # singular exactly when the kept pixels do not fix a quadratic, a property of the pattern
     # (kept pixels weigh z^2 >= _MIN_FIT_FRACTION^2 of the peak's: far from rounding)
     i = _solvable(keep, r)
-    _, b, c, d, e, f = np.linalg.solve(normal[i], rhs[i][:, :, None])[:, :, 0].T
+    if not full:
+        normal, rhs = normal[i], rhs[i]
+    _, b, c, d, e, f = np.linalg.solve(normal, rhs[:, :, None])[:, :, 0].T
     # maximum where the gradient (b + 2 d x + f y, c + f x + 2 e y) vanishes; the Hessian
     # [[2d, f], [f, 2e]] must be negative definite
     det = 4 * d * e - f * f
     ok = (d < 0) & (det > 0)
-    out[i[ok]] = np.stack([f * c - 2 * e * b, f * b - 2 * d * c], axis=1)[ok] / det[ok, None]
+    numerator = np.empty((len(i), 2))
+    numerator[:, 0], numerator[:, 1] = f * c - 2 * e * b, f * b - 2 * d * c
+    if full and ok.all():
+        return numerator / det[:, None]
+    out = np.full((len(z), 2), np.nan)
+    out[i[ok]] = numerator[ok] / det[ok, None]
     return out
 
 
 def _solvable(keep: np.ndarray, r: int) -> np.ndarray:
     """Indices of the (n, m) window patterns `keep` whose pixels fix a 2D quadratic (the design
     matrix of `_window_design(r)` has rank 6 on them); each pattern's rank is computed once."""
+    if keep.all():      # full windows (the usual case): (2 r + 1)^2 >= 9 pixels fix a quadratic
+        return np.arange(len(keep))
     return np.flatnonzero([_pattern_fixes_quadratic(r, row.tobytes()) for row in keep])
 
 
@@ -241,11 +254,14 @@ def _refine(maps: np.ndarray, ks: np.ndarray, us: np.ndarray, vs: np.ndarray,
     z, inside = _windows(maps, ks, us, vs, r)
     floor = max(params.refine_floor, _MIN_FIT_FRACTION)
     keep = inside & (z > floor * z.max(axis=1, keepdims=True))
-    offset = np.full((len(ks), 2), np.nan)
     fit = keep.sum(axis=1) >= _MIN_FIT_PIXELS
-    if fit.any():
-        offset[fit] = _fit_quadratic_log(z[fit], keep[fit], r)
-    bad = ~np.all(np.abs(offset) <= r, axis=1)             # NaN (no fit) or too far
+    if fit.all():
+        offset = _fit_quadratic_log(z, keep, r)
+    else:
+        offset = np.full((len(ks), 2), np.nan)
+        if fit.any():
+            offset[fit] = _fit_quadratic_log(z[fit], keep[fit], r)
+    bad = ~(np.abs(offset) <= r).all(axis=1)               # NaN (no fit) or too far
     if bad.any():
         du, dv, _, _ = _window_design(r)
         weights = np.clip(z[bad], 0.0, None)
@@ -253,7 +269,9 @@ def _refine(maps: np.ndarray, ks: np.ndarray, us: np.ndarray, vs: np.ndarray,
         safe = np.where(total > 0, total, 1.0)
         centroid = np.stack([weights @ du, weights @ dv], axis=1) / safe[:, None]
         offset[bad] = np.where((total > 0)[:, None], centroid, 0.0)
-    return np.stack([us, vs], axis=1).astype(float) + offset
+    offset[:, 0] += us
+    offset[:, 1] += vs
+    return offset
 
 
 @dataclass(frozen=True)
@@ -327,7 +345,7 @@ def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInM
     belief = np.asarray(belief)
     if belief.ndim != 3 or belief.shape[1] < 1 or belief.shape[2] < 1:
         raise InputError(f"belief maps have shape {belief.shape}, expected (K, h, w)")
-    if not np.all(np.isfinite(belief)):
+    if not np.isfinite(belief).all():
         raise InputError("belief maps contain NaN or infinity")
     K, h, w = belief.shape
     # smoothing and the maximum search in float32 (the network's precision; several times
@@ -352,11 +370,11 @@ def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInM
         ambiguous[ks[rival]] = True
     confidence = np.where(above, belief32[np.arange(K), best_v, best_u], 0.0).astype(float)
     uv = np.full((K, 2), np.nan)
-    ks = np.flatnonzero(above & ~ambiguous)
+    ks = (above & ~ambiguous).nonzero()[0]
     inside = np.zeros(K, bool)
     if len(ks):
         refined = _refine(belief32, ks, best_u[ks], best_v[ks], params)
-        inside[ks] = np.all((refined >= -0.5) & (refined <= np.array([w, h]) - 0.5), axis=1)
+        inside[ks] = ((refined >= -0.5) & (refined <= np.array([w, h]) - 0.5)).all(axis=1)
         uv[ks[inside[ks]]] = refined[inside[ks]]
     found = above & ~ambiguous & inside
     reasons = tuple(FOUND if f else BELOW_THRESHOLD if not a else AMBIGUOUS if m else OUT_OF_FRAME
@@ -376,6 +394,8 @@ def find_peaks_batch(belief: np.ndarray, params: PeakParams | None = None) -> li
         raise InputError(f"belief maps have shape {belief.shape}, expected (B, K, h, w)")
     B, K, h, w = belief.shape
     every = find_peaks(belief.reshape(B * K, h, w), params)
+    if B == 1:
+        return [every]
     return [PeaksInMap(every.uv_map[b * K:(b + 1) * K], every.confidence[b * K:(b + 1) * K],
                        every.found[b * K:(b + 1) * K], every.reason[b * K:(b + 1) * K], w, h)
             for b in range(B)]

@@ -9,6 +9,7 @@ axes, translation in m along them. Covariances and sigmas use this order and the
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -17,7 +18,7 @@ import numpy as np
 
 from dream.camera import CameraIntrinsics, pixels_to_normalized
 from dream.errors import InputError
-from dream.transforms import R_from_rotvec, T_from_rotvec_t, rotvec_from_R
+from dream.transforms import R_from_rotvec, rotvec_from_R
 
 log = logging.getLogger(__name__)
 
@@ -29,6 +30,7 @@ _MAX_DAMPING = 1e12      # a step is given up when lambda exceeds this (converge
 _TINY = 1e-300           # keeps the damping positive for a zero diagonal entry
 _ZERO_ROTVEC = np.zeros(3)
 _LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
+_EYE3 = np.eye(3)
 _EYE6 = np.eye(6)
 _IN_FRONT = np.array([0.0, 0.0, 1.0])  # stands in for a point behind the camera (whose rows
                                       # `_linearise_batch` flags as meaningless)
@@ -163,7 +165,7 @@ def check_correspondences(P_base: np.ndarray, uv: np.ndarray,
     confidence = np.asarray(confidence, dtype=float)
     if confidence.shape != (len(P_base),):
         raise InputError(f"confidence has shape {confidence.shape}, expected ({len(P_base)},)")
-    usable = np.all(np.isfinite(P_base), 1) & np.all(np.isfinite(uv), 1) & \
+    usable = np.isfinite(P_base).all(1) & np.isfinite(uv).all(1) & \
         np.isfinite(confidence) & (confidence > 0)
     return P_base, uv, confidence, usable
 
@@ -175,7 +177,7 @@ def degeneracy(P_base: np.ndarray, settings: SolverSettings) -> str | None:
                 f"are needed")
     # the squared singular values of the centred points are the eigenvalues of their scatter
     # matrix (OpenCV's symmetric eigensolver: a fraction of numpy's per-call cost on 3 x 3)
-    centred = P_base - P_base.mean(0)
+    centred = P_base - P_base.sum(0) / len(P_base)   # the mean, without np.mean's overhead
     _, s2 = cv2.eigen(centred.T @ centred)[:2]
     if not s2[0, 0] > 0 or s2[1, 0] < settings.collinear_ratio ** 2 * s2[0, 0]:
         return "the keypoints are (nearly) collinear or coincident"
@@ -185,15 +187,23 @@ def degeneracy(P_base: np.ndarray, settings: SolverSettings) -> str | None:
 def initial_pose(P_base: np.ndarray, uv: np.ndarray,
                  camera: CameraIntrinsics) -> np.ndarray | NoSolution:
     """T_cam_base from SQPnP on undistorted normalised points (no refinement)."""
-    xy = pixels_to_normalized(camera, uv)
+    if camera.distortion is None:    # `pixels_to_normalized` without its per-call overhead
+        xy = (uv - np.array([camera.cx, camera.cy])) / np.array([camera.fx, camera.fy])
+    else:
+        xy = pixels_to_normalized(camera, uv)
     try:
-        ok, rvec, tvec = cv2.solvePnP(P_base.reshape(-1, 1, 3), xy.reshape(-1, 1, 2), np.eye(3),
+        ok, rvec, tvec = cv2.solvePnP(P_base.reshape(-1, 1, 3), xy.reshape(-1, 1, 2), _EYE3,
                                       None, flags=cv2.SOLVEPNP_SQPNP)
     except cv2.error as exc:
         return NoSolution(f"SQPnP failed ({str(exc).splitlines()[0]})")
-    if not ok or not np.all(np.isfinite(rvec)) or not np.all(np.isfinite(tvec)):
+    # a sum is finite only when every term is (NaN and infinities propagate)
+    if not ok or not math.isfinite(rvec.sum() + tvec.sum()):
         return NoSolution("SQPnP found no pose")
-    return T_from_rotvec_t(rvec.ravel(), tvec.ravel())
+    T = np.empty((4, 4))
+    T[:3, :3] = R_from_rotvec(rvec.ravel())
+    T[:3, 3] = tvec.ravel()
+    T[3] = _LAST_ROW
+    return T
 
 
 def linearise(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
@@ -206,8 +216,11 @@ def linearise(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
     """
     if len(P_base) == 0:
         return np.zeros((0, 2)), np.zeros((0, 2, 6))
-    e, J, front = _linearise_rows(P_base, uv, camera, T)
-    return (e, J) if front.all() else None
+    RP = P_base @ T[:3, :3].T           # `_linearise_rows` when every point lies in front
+    if not (RP[:, 2] + T[2, 3] > 0).all():
+        return None
+    uv_hat, jac = _project(RP, T[:3, 3], camera)
+    return uv_hat - uv, jac[:, :6].reshape(len(P_base), 2, 6)
 
 
 def _linearise_rows(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
@@ -321,16 +334,17 @@ class _BehindCamera(Exception):
 
 def levenberg_marquardt(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
                         T_init: np.ndarray, confidence: np.ndarray,
-                        settings: SolverSettings
+                        settings: SolverSettings,
+                        lin_init: tuple[np.ndarray, np.ndarray] | None = None
                         ) -> tuple[np.ndarray, int, tuple[np.ndarray, np.ndarray]]:
     """Minimise sum_i c_i rho(|project(T P_i) - uv_i|) over T (IRLS inside LM).
 
     Returns the optimum, the number of iterations and `linearise` at the optimum. Inputs must
-    be finite.
+    be finite. `lin_init`: `linearise` at T_init when the caller has it.
     """
     loss = settings.loss
     T = T_init.copy()
-    lin = linearise(P_base, uv, camera, T)
+    lin = linearise(P_base, uv, camera, T) if lin_init is None else lin_init
     if lin is None:
         raise _BehindCamera()
     e, J = lin
@@ -463,15 +477,25 @@ def _covariance(e: np.ndarray, J: np.ndarray,
     dof = 2 * np.count_nonzero(weights, axis=-1) - 6
     s2 = np.sum(weights * np.sum(e * e, axis=-1), axis=-1) / np.where(dof > 0, dof, np.nan)
     # H is symmetric positive semi-definite: its singular values are its eigenvalues
-    if H.ndim == 2:     # one frame: OpenCV's eigensolver, a fraction of numpy's per-call cost
-        _, eigenvalues, V = cv2.eigen(H)           # descending, eigenvectors as rows
-        eigenvalues, V = eigenvalues[::-1, 0], V[::-1].T
-    else:
-        eigenvalues, V = np.linalg.eigh(H)
+    eigenvalues, V = np.linalg.eigh(H)
     positive = np.where(eigenvalues[..., :1] > 0, eigenvalues, np.nan)
     covariance = s2[..., None, None] * (V / positive[..., None, :]) @ np.swapaxes(V, -1, -2)
     condition = positive[..., -1] / positive[..., 0]
     return covariance, np.where(np.isnan(condition), np.inf, condition)
+
+
+def _covariance_one(e: np.ndarray, J: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, float]:
+    """`_covariance` of one frame (e (N, 2), J (N, 2, 6), weights (N,)) with scalar bookkeeping
+    and OpenCV's eigensolver (a fraction of numpy's per-call cost on 6 x 6)."""
+    WJ = _weighted_rows(J, weights)
+    H = WJ.T @ J.reshape(-1, 6)
+    dof = 2 * np.count_nonzero(weights) - 6
+    s2 = float((weights * (e * e).sum(axis=-1)).sum()) / dof if dof > 0 else math.nan
+    _, eigenvalues, V = cv2.eigen(H)               # descending, eigenvectors as rows
+    eigenvalues, V = eigenvalues[::-1, 0], V[::-1].T
+    if not eigenvalues[0] > 0:
+        return np.full((6, 6), np.nan), math.inf
+    return (s2 * (V / eigenvalues)) @ V.T, float(eigenvalues[-1] / eigenvalues[0])
 
 
 def _degenerate(P_base: np.ndarray, mask: np.ndarray, settings: SolverSettings) -> np.ndarray:
@@ -512,18 +536,21 @@ def fit_pose(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T_ini
 
 def _fit_checked(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T: np.ndarray,
                  confidence: np.ndarray, usable: np.ndarray, keep: np.ndarray,
-                 settings: SolverSettings) -> PoseFit | NoSolution:
+                 settings: SolverSettings,
+                 lin_init: tuple[np.ndarray, np.ndarray] | None = None) -> PoseFit | NoSolution:
     """`fit_pose` on checked correspondences (`check_correspondences`), starting from the
-    keypoints `keep` (a subset of `usable`, not degenerate: `degeneracy`)."""
+    keypoints `keep` (a subset of `usable`, not degenerate: `degeneracy`). `lin_init`:
+    `linearise` of the keypoints `keep` at T when the caller has it."""
     P_usable, uv_usable = P_base[usable], uv[usable]
     iterations = 0
     for _ in range(settings.outlier_rounds + 1):
         try:
             T, iterations, lin = levenberg_marquardt(P_base[keep], uv[keep], camera, T,
-                                                     confidence[keep], settings)
+                                                     confidence[keep], settings, lin_init)
+            lin_init = None
         except _BehindCamera:
             return NoSolution("the initial pose puts keypoints behind the camera")
-        if not np.array_equal(keep, usable):  # else `lin` is already that of every usable one
+        if not (keep == usable).all():  # else `lin` is already that of every usable one
             lin = linearise(P_usable, uv_usable, camera, T)
             if lin is None:
                 return NoSolution("the solution puts keypoints behind the camera")
@@ -534,7 +561,7 @@ def _fit_checked(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T
         new_keep = usable & (dist <= threshold)
         # a round that would leave too few or degenerate keypoints ends the rejection: the fit
         # of the last usable set stands (so `keep` is never degenerate)
-        if np.array_equal(new_keep, keep) or degeneracy(P_base[new_keep], settings) is not None:
+        if (new_keep == keep).all() or degeneracy(P_base[new_keep], settings) is not None:
             break
         keep = new_keep
     weights = np.zeros(len(P_base))
@@ -543,11 +570,12 @@ def _fit_checked(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T
     residuals = np.full((len(P_base), 2), np.nan)
     residuals[usable] = lin[0]
     kept = keep[usable]                     # keep is a subset of usable
-    covariance, cond = _covariance(lin[0][kept], lin[1][kept], weights[keep])
+    covariance, cond = _covariance_one(lin[0][kept], lin[1][kept], weights[keep])
     if cond > settings.max_condition:
         return NoSolution(f"the pose is not determined by these keypoints (condition number "
                           f"{cond:.1e})")
-    rmse = float(np.sqrt(np.mean(np.square(dist[keep]))))
+    kept_dist = dist[keep]
+    rmse = math.sqrt(float((kept_dist * kept_dist).sum()) / len(kept_dist))
     return PoseFit(T, residuals, keep, weights, covariance, rmse, iterations)
 
 
@@ -632,15 +660,18 @@ def solve_pnp(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, *,
     reason = degeneracy(P_base[usable], settings)
     if reason is not None:
         return NoSolution(reason)
-    idx = np.flatnonzero(usable)
+    idx = usable.nonzero()[0]
     first, distance = initial_pose(P_base[idx], uv[idx], camera), None
     if isinstance(first, NoSolution):
         first = None
     else:
-        distance = _reprojection_distance(P_base[idx], uv[idx], camera, first)
-        if np.all(distance ** 2 <= settings.ransac_threshold_px ** 2):
+        # the residuals at the first pose: its MSAC test and the refinement's start
+        e, J, front = _linearise_rows(P_base[idx], uv[idx], camera, first)
+        distance = np.where(front, _distances(e), np.inf)
+        if front.all() and (distance ** 2 <= settings.ransac_threshold_px ** 2).all():
             # every keypoint agrees (all are MSAC inliers): no subset can do better
-            return _fit_checked(P_base, uv, camera, first, confidence, usable, usable, settings)
+            return _fit_checked(P_base, uv, camera, first, confidence, usable, usable, settings,
+                                (e, J))
     start = _leave_one_out_start(P_base, uv, camera, usable, first, distance, settings)
     if isinstance(start, NoSolution):
         return start
@@ -731,12 +762,16 @@ def _leave_one_out_start(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntri
     distances over the usable keypoints: `first_distance`): SQPnP on leave-one-out subsets too,
     the keypoint worst explained by the first pose left out first, then the hypothesis with the
     lowest MSAC cost (`best_hypothesis`)."""
-    idx = np.flatnonzero(usable)
+    idx = usable.nonzero()[0]
+    P_usable, uv_usable = P_base[idx], uv[idx]
     order = np.arange(len(idx))
-    hypotheses = []
+    hypotheses = [] if first is None else [first]
     if first is not None:
         order = np.argsort(-first_distance)
-        hypotheses.append(first)
+    # each hypothesis' squared distances over the usable keypoints, computed once: its MSAC
+    # score (`best_hypothesis`) and, without the left-out keypoint, its subset's agreement
+    d2s = [_reprojection_distance(P_usable, uv_usable, camera, T) ** 2 for T in hypotheses]
+    threshold2 = settings.ransac_threshold_px ** 2
     if len(idx) > settings.min_keypoints:
         for i in order:
             subset = np.delete(idx, i)
@@ -746,13 +781,12 @@ def _leave_one_out_start(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntri
             if isinstance(T, NoSolution):
                 continue
             hypotheses.append(T)
-            _, inlier = msac_score(P_base[subset], uv[subset], camera, T,
-                                   settings.ransac_threshold_px)
-            if inlier.all():  # all but the left-out keypoint agree: no other subset does better
-                break
-    start = best_hypothesis(P_base, uv, camera, hypotheses, usable, settings)
-    if isinstance(start, NoSolution):
-        return start
+            d2s.append(_reprojection_distance(P_usable, uv_usable, camera, T) ** 2)
+            if (np.delete(d2s[-1], i) <= threshold2).all():
+                break   # all but the left-out keypoint agree: no other subset does better
+    if not hypotheses:
+        return NoSolution("no initial pose could be found")
+    start = _best_scored(d2s, hypotheses, usable, settings)
     T, keep = start
     reason = degeneracy(P_base[keep], settings)
     return NoSolution(reason) if reason is not None else (T, keep)
@@ -771,14 +805,6 @@ def _reprojection_distance(P_base: np.ndarray, uv: np.ndarray, camera: CameraInt
     return distance
 
 
-def msac_score(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T: np.ndarray,
-               threshold_px: float) -> tuple[float, np.ndarray]:
-    """Truncated squared error (lower is better) and the inlier mask of a hypothesis."""
-    d2 = _reprojection_distance(P_base, uv, camera, T) ** 2
-    inlier = d2 <= threshold_px ** 2
-    return float(np.sum(np.minimum(d2, threshold_px ** 2))), inlier
-
-
 def best_hypothesis(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
                     hypotheses: list[np.ndarray], usable: np.ndarray,
                     settings: SolverSettings) -> tuple[np.ndarray, np.ndarray] | NoSolution:
@@ -786,11 +812,19 @@ def best_hypothesis(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics
     (every usable keypoint when fewer than `min_keypoints` are inliers)."""
     if not hypotheses:
         return NoSolution("no initial pose could be found")
-    scored = [(msac_score(P_base[usable], uv[usable], camera, T, settings.ransac_threshold_px), i)
-              for i, T in enumerate(hypotheses)]
-    (_, inlier_usable), best = min(scored, key=lambda s: s[0][0])
-    inlier = np.zeros(len(P_base), bool)
-    inlier[np.flatnonzero(usable)[inlier_usable]] = True
+    return _best_scored([_reprojection_distance(P_base[usable], uv[usable], camera, T) ** 2
+                         for T in hypotheses], hypotheses, usable, settings)
+
+
+def _best_scored(d2s: list[np.ndarray], hypotheses: list[np.ndarray], usable: np.ndarray,
+                 settings: SolverSettings) -> tuple[np.ndarray, np.ndarray]:
+    """`best_hypothesis` from each hypothesis' squared pixel distances over the usable keypoints
+    (the MSAC cost: their sum truncated at the threshold; inliers: those within it)."""
+    threshold2 = settings.ransac_threshold_px ** 2
+    costs = [float(np.minimum(d2, threshold2).sum()) for d2 in d2s]
+    best = min(range(len(costs)), key=costs.__getitem__)
+    inlier = np.zeros(len(usable), bool)
+    inlier[usable.nonzero()[0][d2s[best] <= threshold2]] = True
     if inlier.sum() < settings.min_keypoints:
         inlier = usable
     return hypotheses[best], inlier

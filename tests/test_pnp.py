@@ -281,3 +281,24 @@ def test_degeneracy_matches_the_singular_value_ratio(rng):
         outcomes.add(expected)
     assert outcomes == {True, False}
     assert degeneracy(np.zeros((6, 3)), settings) is not None              # coincident
+
+
+def test_single_frame_covariance_matches_the_batch_one(rng):
+    """The single-frame covariance (OpenCV's eigensolver, scalar bookkeeping) equals the batch
+    one (numpy's), also without redundancy (3 keypoints: NaN); a singular J^T W J is beyond
+    `max_condition` in both."""
+    from dream.pnp import _covariance, _covariance_one
+
+    J = rng.normal(size=(7, 2, 6))
+    for e, J_, w in ((rng.normal(size=(7, 2)), J, rng.uniform(0.2, 1, 7)),
+                     (rng.normal(size=(3, 2)), J[:3], np.ones(3))):
+        cov_one, cond_one = _covariance_one(e, J_, w)
+        cov, cond = _covariance(e[None], J_[None], w[None])
+        np.testing.assert_allclose(cov_one, cov[0], rtol=1e-9, equal_nan=True)
+        assert cond_one == pytest.approx(float(cond[0]), rel=1e-9)
+    assert np.isnan(cov_one).all()
+    J[..., 5] = J[..., 4]                                    # two equal columns: singular
+    e = rng.normal(size=(7, 2))
+    limit = SolverSettings().max_condition
+    assert _covariance_one(e, J, np.ones(7))[1] > limit
+    assert _covariance(e[None], J[None], np.ones((1, 7)))[1][0] > limit
