@@ -62,12 +62,14 @@ for kv in "$@"; do common+=(--set "$kv"); done
 
 echo "== probe: 30 s"
 rm -rf "$out/probe"
-rate=$(python "$repo/benchmarks/train_curve.py" "$first_train" "$data/heldout" \
+python "$repo/benchmarks/train_curve.py" "$first_train" "$data/heldout" \
   --out "$out/probe" --minutes 0.5 --eval-every-s 100000 --eval-frames 8 "${common[@]}" \
-  --set trainer.max_steps=100000 | tee "$out/probe.log" | sed -n 's/.*images, \([0-9.]*\) images\/s.*/\1/p')
+  --set trainer.max_steps=100000 > "$out/probe.log" 2>&1 || true   # judged by its curve.json
+rate=$(python -c 'import json, sys; print(json.load(open(sys.argv[1]))["final"]["images_per_s"])' \
+  "$out/probe/curve.json" 2>/dev/null || true)
 rm -rf "$out/probe"
 if [ -z "$rate" ]; then
-  echo "gpu_finetune.sh: the probe printed no speed; see $out/probe.log" >&2
+  echo "gpu_finetune.sh: the probe wrote no speed (its curve.json); see $out/probe.log" >&2
   exit 1
 fi
 steps=$(python -c "print(int($rate * $train_s / $batch))")

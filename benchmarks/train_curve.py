@@ -10,6 +10,9 @@ labels (e.g. written by `dream synth`).
 
     python benchmarks/train_curve.py TRAIN_DIR HELDOUT_DIR [--out RUN_DIR] [--minutes 45]
         [--eval-every-s 300] [--eval-frames 200] [--config YAML] [--set KEY=VALUE ...]
+
+Besides the table, RUN_DIR/curve.json holds the rows and the final figures (images_per_s
+included; `benchmarks/gpu_finetune.sh` reads its probe's speed there).
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ import torch
 from lightning.pytorch.callbacks import Callback
 
 from dream.errors import DreamError
+from dream.io import write_json_atomic
 from train.config import load_config
 from train.data import KeypointDataset, read_folders
 from train.metrics import keypoint_errors, summarize
@@ -33,6 +37,7 @@ from train.run import run_training
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CONFIG = REPO / "configs" / "train" / "panda_cpu.yaml"
+CURVE_FILE = "curve.json"    # in the run folder: the rows and the final figures, for scripts
 HEADER = (f"{'train_s':>8} {'epoch':>5} {'step':>6} {'images':>7} {'loss':>9} "
           f"{'median_px':>9} {'mean_px':>8} {'pck':>6} {'found':>6}")
 
@@ -115,6 +120,11 @@ class HeldOutCurve(Callback):
               f"{row['pck']:6.3f} {row['found_rate']:6.3f}", flush=True)
 
 
+def _json_row(row: dict) -> dict:
+    """A curve row for JSON: NaN (no loss logged yet) as null."""
+    return {k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in row.items()}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("train_dir", type=Path, help="training set (DREAM layout)")
@@ -140,9 +150,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"train_curve: error: {exc}", file=sys.stderr)
         return 2
     last = curve.rows[-1]
+    rate = last["images"] / max(last["train_s"], 1e-9)
+    write_json_atomic(out / CURVE_FILE, {
+        "final": {**_json_row(last), "images_per_s": rate},
+        "rows": [_json_row(row) for row in curve.rows],
+        "best_checkpoint": str(result.best_checkpoint)})
     print(f"final: median {last['l2_median_px']:.2f} px, PCK@{config.eval.pck_threshold_px:g}px "
           f"{last['pck']:.3f} after {last['train_s']:.0f} s ({last['images']} images, "
-          f"{last['images'] / max(last['train_s'], 1e-9):.1f} images/s); best checkpoint "
+          f"{rate:.1f} images/s); best checkpoint "
           f"{result.best_checkpoint}")
     return 0
 
