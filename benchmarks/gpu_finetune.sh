@@ -62,14 +62,16 @@ for kv in "$@"; do common+=(--set "$kv"); done
 
 echo "== probe: 30 s"
 rm -rf "$out/probe"
+probe_rc=0
 python "$repo/benchmarks/train_curve.py" "$first_train" "$data/heldout" \
   --out "$out/probe" --minutes 0.5 --eval-every-s 100000 --eval-frames 8 "${common[@]}" \
-  --set trainer.max_steps=100000 > "$out/probe.log" 2>&1 || true   # judged by its curve.json
+  --set trainer.max_steps=100000 > "$out/probe.log" 2>&1 || probe_rc=$?
 rate=$(python -c 'import json, sys; print(json.load(open(sys.argv[1]))["final"]["images_per_s"])' \
   "$out/probe/curve.json" 2>/dev/null || true)
 rm -rf "$out/probe"
 if [ -z "$rate" ]; then
-  echo "gpu_finetune.sh: the probe wrote no speed (its curve.json); see $out/probe.log" >&2
+  echo "gpu_finetune.sh: the probe (exit $probe_rc) wrote no speed (its curve.json); see" \
+    "$out/probe.log" >&2
   exit 1
 fi
 steps=$(python -c "print(int($rate * $train_s / $batch))")

@@ -121,7 +121,8 @@ class HeldOutCurve(Callback):
 
 
 def _json_row(row: dict) -> dict:
-    """A curve row for JSON: NaN (no loss logged yet) as null."""
+    """A curve row for JSON: non-finite values (a loss not logged yet, a metric without any
+    found keypoint) as null."""
     return {k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in row.items()}
 
 
@@ -146,15 +147,15 @@ def main(argv: list[str] | None = None) -> int:
                              config.data.batch_size)
         print(f"recipe {args.config} -> {out}; {config.trainer.threads} threads")
         result = run_training(config, out, callbacks=[curve])
+        last = curve.rows[-1]
+        rate = last["images"] / max(last["train_s"], 1e-9)
+        write_json_atomic(out / CURVE_FILE, {
+            "final": {**_json_row(last), "images_per_s": rate},
+            "rows": [_json_row(row) for row in curve.rows],
+            "best_checkpoint": str(result.best_checkpoint)})
     except DreamError as exc:
         print(f"train_curve: error: {exc}", file=sys.stderr)
         return 2
-    last = curve.rows[-1]
-    rate = last["images"] / max(last["train_s"], 1e-9)
-    write_json_atomic(out / CURVE_FILE, {
-        "final": {**_json_row(last), "images_per_s": rate},
-        "rows": [_json_row(row) for row in curve.rows],
-        "best_checkpoint": str(result.best_checkpoint)})
     print(f"final: median {last['l2_median_px']:.2f} px, PCK@{config.eval.pck_threshold_px:g}px "
           f"{last['pck']:.3f} after {last['train_s']:.0f} s ({last['images']} images, "
           f"{rate:.1f} images/s); best checkpoint "

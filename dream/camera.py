@@ -7,7 +7,7 @@ Camera frame: x right, y down, z forward.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import lru_cache
 
 import numpy as np
 
@@ -64,16 +64,16 @@ class CameraIntrinsics:
         return cls(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
                    width, height, distortion)
 
-    @cached_property
+    @property
     def K(self) -> np.ndarray:
-        """The 3 x 3 camera matrix (read-only; made once: the solvers project with it often)."""
-        return _read_only(np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy],
-                                    [0.0, 0.0, 1.0]]))
+        """The 3 x 3 camera matrix (read-only, shared by equal cameras: the solvers project
+        with it often; copy it to change it)."""
+        return _camera_matrix(self.fx, self.fy, self.cx, self.cy)
 
-    @cached_property
+    @property
     def dist_coeffs(self) -> np.ndarray:
-        """OpenCV distortion vector (5,), zeros when there is none (read-only)."""
-        return _read_only(np.zeros(5) if self.distortion is None else np.array(self.distortion))
+        """OpenCV distortion vector (5,), zeros when there is none (read-only, shared)."""
+        return _distortion_vector(self.distortion)
 
     def with_distortion(self, coeffs: tuple[float, ...] | None) -> CameraIntrinsics:
         return CameraIntrinsics(self.fx, self.fy, self.cx, self.cy, self.width, self.height,
@@ -86,9 +86,20 @@ class CameraIntrinsics:
                 & (uv[..., 1] >= -0.5 - margin_px) & (uv[..., 1] <= self.height - 0.5 + margin_px))
 
 
-def _read_only(a: np.ndarray) -> np.ndarray:
-    a.setflags(write=False)
-    return a
+@lru_cache(maxsize=64)
+def _camera_matrix(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    """`CameraIntrinsics.K`, made once per intrinsics (read-only)."""
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    K.setflags(write=False)
+    return K
+
+
+@lru_cache(maxsize=64)
+def _distortion_vector(distortion: tuple[float, ...] | None) -> np.ndarray:
+    """`CameraIntrinsics.dist_coeffs`, made once per distortion (read-only)."""
+    coeffs = np.zeros(5) if distortion is None else np.array(distortion)
+    coeffs.setflags(write=False)
+    return coeffs
 
 
 def distort_normalized(xy: np.ndarray, coeffs: np.ndarray | None) -> np.ndarray:
@@ -141,8 +152,7 @@ def project(camera: CameraIntrinsics, P_cam: np.ndarray) -> np.ndarray:
 def pixels_to_normalized(camera: CameraIntrinsics, uv: np.ndarray) -> np.ndarray:
     """Pixels (..., 2) -> undistorted normalised coordinates (x/z, y/z)."""
     uv = np.asarray(uv, dtype=float)
-    xy_d = np.stack([(uv[..., 0] - camera.cx) / camera.fx, (uv[..., 1] - camera.cy) / camera.fy],
-                    -1)
+    xy_d = (uv - np.array([camera.cx, camera.cy])) / np.array([camera.fx, camera.fy])
     return undistort_normalized(xy_d, None if camera.distortion is None else camera.dist_coeffs)
 
 

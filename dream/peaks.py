@@ -343,8 +343,9 @@ def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInM
     """
     params = PeakParams() if params is None else params
     belief = np.asarray(belief)
-    if belief.ndim != 3 or belief.shape[1] < 1 or belief.shape[2] < 1:
-        raise InputError(f"belief maps have shape {belief.shape}, expected (K, h, w)")
+    if belief.ndim != 3 or min(belief.shape) < 1:
+        raise InputError(f"belief maps have shape {belief.shape}, expected (K, h, w) with K, h, "
+                         f"w >= 1")
     if not np.isfinite(belief).all():
         raise InputError("belief maps contain NaN or infinity")
     K, h, w = belief.shape
@@ -393,6 +394,8 @@ def find_peaks_batch(belief: np.ndarray, params: PeakParams | None = None) -> li
     if belief.ndim != 4:
         raise InputError(f"belief maps have shape {belief.shape}, expected (B, K, h, w)")
     B, K, h, w = belief.shape
+    if B == 0:
+        return []
     every = find_peaks(belief.reshape(B * K, h, w), params)
     if B == 1:
         return [every]

@@ -187,17 +187,14 @@ def degeneracy(P_base: np.ndarray, settings: SolverSettings) -> str | None:
 def initial_pose(P_base: np.ndarray, uv: np.ndarray,
                  camera: CameraIntrinsics) -> np.ndarray | NoSolution:
     """T_cam_base from SQPnP on undistorted normalised points (no refinement)."""
-    if camera.distortion is None:    # `pixels_to_normalized` without its per-call overhead
-        xy = (uv - np.array([camera.cx, camera.cy])) / np.array([camera.fx, camera.fy])
-    else:
-        xy = pixels_to_normalized(camera, uv)
+    xy = pixels_to_normalized(camera, uv)
     try:
         ok, rvec, tvec = cv2.solvePnP(P_base.reshape(-1, 1, 3), xy.reshape(-1, 1, 2), _EYE3,
                                       None, flags=cv2.SOLVEPNP_SQPNP)
     except cv2.error as exc:
         return NoSolution(f"SQPnP failed ({str(exc).splitlines()[0]})")
-    # a sum is finite only when every term is (NaN and infinities propagate)
-    if not ok or not math.isfinite(rvec.sum() + tvec.sum()):
+    # a sum of a few finite terms is finite; NaN and infinities propagate
+    if not ok or not (math.isfinite(rvec.sum()) and math.isfinite(tvec.sum())):
         return NoSolution("SQPnP found no pose")
     T = np.empty((4, 4))
     T[:3, :3] = R_from_rotvec(rvec.ravel())

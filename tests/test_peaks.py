@@ -13,6 +13,7 @@ from dream.peaks import (
     OUT_OF_FRAME,
     PeakParams,
     find_peaks,
+    find_peaks_batch,
     find_peaks_in_image,
     input_to_map,
     map_to_input,
@@ -138,6 +139,9 @@ def test_bad_inputs_are_input_errors():
         find_peaks(np.zeros((4, 4)))
     with pytest.raises(InputError):
         find_peaks(np.full((1, 4, 4), np.nan))
+    with pytest.raises(InputError, match="K, h, w >= 1"):
+        find_peaks(np.zeros((0, 4, 4)))                  # no maps
+    assert find_peaks_batch(np.zeros((0, 7, 4, 4))) == []  # no images
     with pytest.raises(InputError):
         PeakParams(threshold=0)
     with pytest.raises(InputError):
@@ -213,8 +217,6 @@ def test_peak_candidates_list_the_highest_maxima_best_first():
 def test_batch_of_images_gives_the_peaks_of_each_image(rng):
     """`find_peaks_batch` searches B images' maps as one set: the same peaks, confidences and
     reasons as `find_peaks` per image (a missing and an ambiguous keypoint included)."""
-    from dream.peaks import find_peaks_batch
-
     images = []
     for _ in range(3):
         maps = gaussian_map(rng.uniform(2, [MAP_W - 3, MAP_H - 3], (4, 2)))
