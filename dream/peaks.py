@@ -214,7 +214,7 @@ def _fit_quadratic_log(z: np.ndarray, keep: np.ndarray, r: int) -> np.ndarray:
     # normal equations: 6 unknowns on <= (2 r + 1)^2 pixels; with positive weights they are
     # singular exactly when the kept pixels do not fix a quadratic, a property of the pattern
     # (kept pixels weigh z^2 >= _MIN_FIT_FRACTION^2 of the peak's: far from rounding)
-    i = _solvable(keep, r)
+    i = np.arange(len(keep)) if full else _solvable(keep, r)   # whole windows fix a quadratic
     if not full:
         normal, rhs = normal[i], rhs[i]
     _, b, c, d, e, f = np.linalg.solve(normal, rhs[:, :, None])[:, :, 0].T
@@ -234,8 +234,6 @@ def _fit_quadratic_log(z: np.ndarray, keep: np.ndarray, r: int) -> np.ndarray:
 def _solvable(keep: np.ndarray, r: int) -> np.ndarray:
     """Indices of the (n, m) window patterns `keep` whose pixels fix a 2D quadratic (the design
     matrix of `_window_design(r)` has rank 6 on them); each pattern's rank is computed once."""
-    if keep.all():      # full windows (the usual case): (2 r + 1)^2 >= 9 pixels fix a quadratic
-        return np.arange(len(keep))
     return np.flatnonzero([_pattern_fixes_quadratic(r, row.tobytes()) for row in keep])
 
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from dream.camera import CameraIntrinsics, pixels_to_normalized
 from dream.errors import InputError
-from dream.transforms import R_from_rotvec, rotvec_from_R
+from dream.transforms import R_from_rotvec, T_from_rotvec_t, rotvec_from_R
 
 log = logging.getLogger(__name__)
 
@@ -196,11 +196,7 @@ def initial_pose(P_base: np.ndarray, uv: np.ndarray,
     # a sum of a few finite terms is finite; NaN and infinities propagate
     if not ok or not (math.isfinite(rvec.sum()) and math.isfinite(tvec.sum())):
         return NoSolution("SQPnP found no pose")
-    T = np.empty((4, 4))
-    T[:3, :3] = R_from_rotvec(rvec.ravel())
-    T[:3, 3] = tvec.ravel()
-    T[3] = _LAST_ROW
-    return T
+    return T_from_rotvec_t(rvec.ravel(), tvec.ravel())
 
 
 def linearise(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
@@ -213,11 +209,10 @@ def linearise(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
     """
     if len(P_base) == 0:
         return np.zeros((0, 2)), np.zeros((0, 2, 6))
-    RP = P_base @ T[:3, :3].T           # `_linearise_rows` when every point lies in front
+    RP = P_base @ T[:3, :3].T
     if not (RP[:, 2] + T[2, 3] > 0).all():
         return None
-    uv_hat, jac = _project(RP, T[:3, 3], camera)
-    return uv_hat - uv, jac[:, :6].reshape(len(P_base), 2, 6)
+    return _residuals(RP, T, uv, camera)
 
 
 def _linearise_rows(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
@@ -228,8 +223,15 @@ def _linearise_rows(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics
     front = RP[:, 2] + T[2, 3] > 0
     if not front.all():
         RP = np.where(front[:, None], RP, _IN_FRONT - T[:3, 3])
-    uv_hat, jac = _project(RP, T[:3, 3], camera)
-    return uv_hat - uv, jac[:, :6].reshape(len(P_base), 2, 6), front
+    return *_residuals(RP, T, uv, camera), front
+
+
+def _residuals(P_rotated: np.ndarray, T: np.ndarray, uv: np.ndarray,
+               camera: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals (N, 2) and d residual / d xi (N, 2, 6) of the rotated points R P_base (in
+    front of the camera) with T's translation (`linearise`)."""
+    uv_hat, jac = _project(P_rotated, T[:3, 3], camera)
+    return uv_hat - uv, jac[:, :6].reshape(len(P_rotated), 2, 6)
 
 
 def _project(P_rotated: np.ndarray, t: np.ndarray,
@@ -761,10 +763,9 @@ def _leave_one_out_start(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntri
     lowest MSAC cost (`best_hypothesis`)."""
     idx = usable.nonzero()[0]
     P_usable, uv_usable = P_base[idx], uv[idx]
-    order = np.arange(len(idx))
-    hypotheses = [] if first is None else [first]
+    hypotheses, order = [], np.arange(len(idx))
     if first is not None:
-        order = np.argsort(-first_distance)
+        hypotheses, order = [first], np.argsort(-first_distance)
     # each hypothesis' squared distances over the usable keypoints, computed once: its MSAC
     # score (`best_hypothesis`) and, without the left-out keypoint, its subset's agreement
     d2s = [_reprojection_distance(P_usable, uv_usable, camera, T) ** 2 for T in hypotheses]

@@ -665,8 +665,8 @@ def silhouette_inputs(sequence: Sequence, robot: Robot, params: PolishParams,
     from dream.io import load_mask
     from dream.pipeline import joints_in_robot_order
 
-    if has_masks(sequence):
-        with_mask = np.flatnonzero([f.mask_path is not None for f in sequence.frames])
+    with_mask = np.flatnonzero([f.mask_path is not None for f in sequence.frames])
+    if len(with_mask):                                   # `has_masks`
         chosen = _evenly_spaced(with_mask, params.max_eval_frames)
         masks = np.stack([load_mask(f, sequence.camera) for f in
                           (sequence.frames[i] for i in chosen)])
