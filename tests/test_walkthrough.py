@@ -17,6 +17,11 @@ from dream.io import read_sequence  # noqa: E402
 from dream.metrics import pose_errors  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
+# The panda_cpu recipe's loss. With the weighted MSE (loss.foreground_weight=100) this test
+# passed on an AVX-512 machine and failed on an AVX2 one (150 mm): the tiny model's maps kept
+# second peaks above half the best, so the peak finder called 87 % of the keypoints ambiguous.
+# With the focal loss: 5-13 mm over three training and data seeds on the AVX2 machine.
+FOCAL = ("--set", "model.belief_activation=sigmoid", "--set", "loss.belief=focal")
 
 
 def test_new_robot_from_urdf_to_calibrated_camera(tmp_path, capsys):
@@ -25,7 +30,7 @@ def test_new_robot_from_urdf_to_calibrated_camera(tmp_path, capsys):
                  str(REPO / "configs/synth/walkthrough_easy.yaml"), "--seed", "3"]) == 0
     assert main(["train", "--config", str(REPO / "configs/train/tiny.yaml"),
                  "--set", f"data.train=[{data}]", "--set", "trainer.max_epochs=60",
-                 "--set", "loss.foreground_weight=100", "--out", str(run)]) == 0
+                 *FOCAL, "--out", str(run)]) == 0
     assert main(["export", "--checkpoint", str(run / "best.ckpt"), "--out", str(model)]) == 0
     result = tmp_path / "result.json"
     code = main(["calibrate", "--data", str(data), "--model", str(model), "--out", str(result)])
