@@ -57,7 +57,8 @@ echo "== training frames: $frames in [$train_dirs]"
 
 common=(--set "data.train=[$train_dirs]" --set trainer.accelerator=gpu --set trainer.devices=1
         --set data.batch_size=$batch --set data.num_workers=$loaders --set optim.lr=0.002
-        --set "trainer.init_from=$init" --set trainer.checkpoint_every_n_steps=0)
+        --set "trainer.init_from=$init" --set trainer.checkpoint_every_n_steps=0
+        --set trainer.time_budget_minutes=null)  # its own probe sets the steps
 for kv in "$@"; do common+=(--set "$kv"); done
 
 echo "== probe: 30 s"

@@ -38,7 +38,8 @@ BELIEF_ACTIVATIONS = ("none", "sigmoid")
 BELIEF_LOSSES = ("mse", "focal")
 SCHEDULES = ("onecycle", "cosine", "constant")
 MONITOR_MODES = ("min", "max")
-PRECISIONS = ("32-true", "bf16-mixed", "16-mixed")  # 16-mixed: GPUs only
+AUTO_PRECISION = "auto"  # bf16-mixed where the hardware has native bfloat16, else 32-true
+PRECISIONS = ("32-true", "bf16-mixed", "16-mixed", AUTO_PRECISION)  # 16-mixed: GPUs only
 DEFAULT_INPUT = Preprocess(input_width=256, input_height=192)
 
 
@@ -313,7 +314,16 @@ class TrainerConfig:
             config's. Unlike resuming, the epoch count, optimiser and schedule start afresh.
         precision: Lightning's precision: "32-true", or "bf16-mixed" (convolutions in
             bfloat16 under autocast, weights, losses and belief maps in float32; on CPUs with
-            AVX512-BF16 or AMX about twice the training speed).
+            AVX512-BF16 or AMX about 1.6x the training speed, on other CPUs about 10x slower),
+            or "auto": bf16-mixed where the hardware computes bfloat16 natively, else 32-true
+            (`train.budget`; the run's config.yaml and checkpoints hold the value chosen).
+        time_budget_minutes: fit the run to this much wall time on this machine: a probe of
+            `budget_probe_steps` training steps (and as many validation batches) measures the
+            speed, and max_steps becomes the whole epochs that fit (at least one; within
+            max_epochs and a max_steps given too). Null: max_steps and max_epochs alone.
+            The run's config.yaml and checkpoints hold the resulting max_steps; a resumed run
+            keeps it.
+        budget_probe_steps: timed steps of that probe.
         channels_last: keep the network and its input batches in NHWC memory order (faster
             oneDNN convolutions on CPU; checkpoints and ONNX files are unaffected).
     """
@@ -336,6 +346,8 @@ class TrainerConfig:
     checkpoint_every_n_steps: int = 0
     init_from: str | None = None
     channels_last: bool = False
+    time_budget_minutes: float | None = None
+    budget_probe_steps: int = 20
 
     def __post_init__(self) -> None:
         _require(self.precision in PRECISIONS, "trainer.precision",
@@ -354,6 +366,10 @@ class TrainerConfig:
                  "must be >= 0")
         if self.gradient_clip_val is not None:
             _require(self.gradient_clip_val > 0, "trainer.gradient_clip_val", "must be > 0")
+        if self.time_budget_minutes is not None:
+            _require(self.time_budget_minutes > 0, "trainer.time_budget_minutes",
+                     "must be > 0 or null")
+        _require(self.budget_probe_steps >= 1, "trainer.budget_probe_steps", "must be >= 1")
 
     @property
     def threads(self) -> int:

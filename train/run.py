@@ -17,17 +17,19 @@ import os
 import time
 import warnings
 from collections.abc import Sequence as SequenceOf
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint
+from torch.utils.data import DataLoader
 
 from dream.errors import InputError
+from train.budget import measure_speed, resolve_precision, resolve_time_budget
 from train.checkpoint import checkpoint_config, read_checkpoint
-from train.config import TrainConfig, dump_config
+from train.config import AUTO_PRECISION, TrainConfig, dump_config
 from train.data import make_datasets, make_loader, read_folders, resolve_from_data
 from train.module import BeliefModule
 
@@ -157,6 +159,30 @@ def _init_weights(module: BeliefModule, config: TrainConfig) -> None:
     logger.info("network weights from %s (fresh optimiser and schedule)", source)
 
 
+def _as_started(config: TrainConfig, saved: TrainConfig) -> TrainConfig:
+    """A resumed run keeps the machine-dependent values its start chose (`train.budget`):
+    the precision behind `auto` and the step budget of a time budget."""
+    tc = config.trainer
+    precision = saved.trainer.precision if tc.precision == AUTO_PRECISION else tc.precision
+    max_steps = saved.trainer.max_steps if tc.time_budget_minutes is not None else tc.max_steps
+    return config.replace(trainer=replace(tc, precision=precision, max_steps=max_steps))
+
+
+def _fit_time_budget(config: TrainConfig, trainer: L.Trainer, train_loader: DataLoader,
+                     val_loader: DataLoader | None) -> TrainConfig:
+    """`config` with the step budget that fits `trainer.time_budget_minutes` here."""
+    if trainer.world_size > 1:
+        raise InputError(f"trainer.time_budget_minutes times one device, but this run uses "
+                         f"{trainer.world_size}", None, "set trainer.max_steps instead "
+                         "(and trainer.time_budget_minutes=null)")
+    speed = measure_speed(config, train_loader, val_loader)
+    L.seed_everything(config.trainer.seed, workers=True, verbose=False)  # as without the probe
+    val_images = 0
+    if val_loader is not None:
+        val_images = len(val_loader.dataset) / config.trainer.val_every_n_epochs
+    return resolve_time_budget(config, speed, len(train_loader.dataset), val_images)
+
+
 def _trainer(config: TrainConfig, run_dir: Path, has_val: bool,
              callbacks: SequenceOf[Callback]) -> tuple[L.Trainer, ModelCheckpoint]:
     tc = config.trainer
@@ -209,14 +235,18 @@ def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | 
     if ckpt_path is not None:
         _check_resumable(config, ckpt_path)
         logger.info("resuming from %s", ckpt_path)
-    _write_text_atomic(run_dir / CONFIG_FILE, dump_config(config))
+        config = _as_started(config, checkpoint_config(ckpt_path))
+    config = resolve_precision(config)
     train_set, val_set = make_datasets(config, train_sequences, val_sequences)
     train_loader = make_loader(train_set, config, shuffle=True)
     val_loader = make_loader(val_set, config, shuffle=False) if len(val_set) else None
+    trainer, best = _trainer(config, run_dir, val_loader is not None, callbacks)
+    if config.trainer.time_budget_minutes is not None and ckpt_path is None:
+        config = _fit_time_budget(config, trainer, train_loader, val_loader)
+    _write_text_atomic(run_dir / CONFIG_FILE, dump_config(config))
     module = BeliefModule(config)
     if config.trainer.init_from is not None and ckpt_path is None:
         _init_weights(module, config)
-    trainer, best = _trainer(config, run_dir, val_loader is not None, callbacks)
     if config.trainer.max_steps is not None:
         per_device = math.ceil(len(train_set) / trainer.world_size)
         steps_per_epoch = math.ceil(per_device / config.data.batch_size)
