@@ -3,6 +3,10 @@ PnP, measured in one run on the same images, the same batch size and thread coun
 
     python benchmarks/inference.py --checkpoint RUN_DIR/best.ckpt --data DATA_DIR
         [--frames 50] [--batch 1] [--rounds 5] [--threads 2] [--peaks NAME=VALUE ...]
+    python benchmarks/inference.py --model MODEL.onnx --data DATA_DIR [...]
+
+`--model` (e.g. the bundled `dream/models/panda_cpu.onnx`, whose checkpoint is not in the
+repository) times onnxruntime and peaks + PnP only: no torch eager row and no ratio.
 
 `--batch 1` (streaming, a frame at a time): per frame the network, `find_peaks` and
 `solve_pnp`. `--batch B` > 1 (as `dream calibrate` runs, B = 8 there): the network on B frames
@@ -57,7 +61,9 @@ def median_ms(fn, inputs) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--checkpoint", required=True)
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--checkpoint", help="a dream train checkpoint (exported here)")
+    source.add_argument("--model", help="an exported ONNX model (no torch comparison)")
     parser.add_argument("--data", required=True, help="DREAM-layout folder with images")
     parser.add_argument("--frames", type=int, default=50)
     parser.add_argument("--batch", type=int, default=1,
@@ -72,10 +78,13 @@ def main() -> None:
     if args.rounds < 1 or args.batch < 1 or args.frames < args.batch:
         parser.error("--rounds and --batch must be >= 1, --frames >= --batch")
     torch.set_num_threads(args.threads)
-    net, config = load_checkpoint(args.checkpoint)
-    net.eval()
+    net = None
+    if args.checkpoint:
+        net, _ = load_checkpoint(args.checkpoint)
+        net.eval()
     with tempfile.TemporaryDirectory() as tmp:
-        onnx_path = export_onnx(args.checkpoint, Path(tmp) / "model.onnx")
+        onnx_path = (Path(args.model) if args.model
+                     else export_onnx(args.checkpoint, Path(tmp) / "model.onnx"))
         runner = OnnxKeypointModel(onnx_path, threads=args.threads)
         seq = read_sequence(args.data)
         n = args.frames // args.batch * args.batch       # whole batches
@@ -118,20 +127,24 @@ def main() -> None:
                 return median_ms(peaks_and_pnp, post)
             return median_ms(peaks_and_pnp_all, [None] * 3) * args.batch / n
 
-        rounds = np.array([(median_ms(torch_eager, batches), median_ms(onnx, batches),
-                            post_ms()) for _ in range(args.rounds)])
+        rounds = np.array([(median_ms(torch_eager, batches) if net is not None else np.nan,
+                            median_ms(onnx, batches), post_ms()) for _ in range(args.rounds)])
         rounds /= args.batch                               # per frame
         found = np.mean([peaks.found.mean() for belief, _, _, _ in post
                          for peaks in find_peaks_batch(belief, peak_params)])
     t_torch, t_onnx, t_post = np.median(rounds, axis=0)
     ratio, share = rounds[:, 1] / rounds[:, 0], 100 * rounds[:, 2] / rounds[:, 1]
-    i = config.input
-    print(f"{n} frames of {args.data}, input {i.input_width}x{i.input_height}, "
+    pre = runner.preprocess
+    print(f"{n} frames of {args.data}, input {pre.input_width}x{pre.input_height}, "
           f"batch {args.batch}, {args.threads} threads, {args.rounds} rounds (per frame: medians; "
           f"rounds' range)")
-    print(f"torch eager:          {t_torch:7.2f} ms/frame")
-    print(f"onnxruntime:          {t_onnx:7.2f} ms/frame   ratio {np.median(ratio):.2f} "
-          f"({ratio.min():.2f}-{ratio.max():.2f}) (target <= 0.75)")
+    if net is not None:
+        print(f"torch eager:          {t_torch:7.2f} ms/frame")
+        print(f"onnxruntime:          {t_onnx:7.2f} ms/frame   ratio {np.median(ratio):.2f} "
+              f"({ratio.min():.2f}-{ratio.max():.2f}) (target <= 0.75)")
+    else:
+        print(f"onnxruntime:          {t_onnx:7.2f} ms/frame   ({onnx_path}; no torch eager "
+              f"row without --checkpoint)")
     print(f"peaks + PnP:          {t_post:7.2f} ms/frame   {np.median(share):.1f} % "
           f"({share.min():.1f}-{share.max():.1f} %) of the onnxruntime network time "
           f"(target <= 10 %)")
