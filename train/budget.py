@@ -110,7 +110,7 @@ class _BatchClock(Callback):
         self.skip, self.stage = skip, stage
         self.images, self.start, self.end, self._batches = 0, None, None, 0
 
-    def _on_start(self, batch) -> None:
+    def _on_start(self) -> None:
         if self._batches == self.skip:
             self.start = time.perf_counter()
 
@@ -122,7 +122,7 @@ class _BatchClock(Callback):
 
     def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
         if self.stage == "train":
-            self._on_start(batch)
+            self._on_start()
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
         if self.stage == "train":
@@ -131,7 +131,7 @@ class _BatchClock(Callback):
     def on_validation_batch_start(self, trainer, pl_module, batch, batch_idx,
                                   dataloader_idx=0) -> None:
         if self.stage == "val":
-            self._on_start(batch)
+            self._on_start()
 
     def on_validation_batch_end(self, trainer, pl_module, outputs, batch, batch_idx,
                                 dataloader_idx=0) -> None:

@@ -137,8 +137,10 @@ class LogLines(Callback):
         logger.info("epoch %d done (%.1f images/s): %s", trainer.current_epoch, rate, text)
 
 
-def _check_resumable(config: TrainConfig, checkpoint: Path, action: str = "resume") -> None:
-    """The checkpoint's network must be the one this config builds."""
+def _check_resumable(config: TrainConfig, checkpoint: Path,
+                     action: str = "resume") -> TrainConfig:
+    """The checkpoint's network must be the one this config builds; returns the checkpoint's
+    config."""
     saved = checkpoint_config(checkpoint)
     for section in ("model", "input"):
         if getattr(saved, section) != getattr(config, section):
@@ -148,6 +150,7 @@ def _check_resumable(config: TrainConfig, checkpoint: Path, action: str = "resum
     if saved.data.keypoints != config.data.keypoints:
         raise InputError(f"cannot {action}: the checkpoint was trained on other keypoints",
                          checkpoint, "use a new --out folder for a new run")
+    return saved
 
 
 def _init_weights(module: BeliefModule, config: TrainConfig) -> None:
@@ -233,9 +236,9 @@ def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | 
     last_path = run_dir / f"{LAST}{CHECKPOINT_SUFFIX}"
     ckpt_path = Path(resume) if resume is not None else (last_path if last_path.exists() else None)
     if ckpt_path is not None:
-        _check_resumable(config, ckpt_path)
+        saved = _check_resumable(config, ckpt_path)
         logger.info("resuming from %s", ckpt_path)
-        config = _as_started(config, checkpoint_config(ckpt_path))
+        config = _as_started(config, saved)
     config = resolve_precision(config)
     train_set, val_set = make_datasets(config, train_sequences, val_sequences)
     train_loader = make_loader(train_set, config, shuffle=True)
