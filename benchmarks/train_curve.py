@@ -6,7 +6,8 @@ real peak finder, printing one table row: training wall time (evaluation exclude
 images seen, training loss, median / mean keypoint error (px at the network input resolution,
 found keypoints only), PCK@`eval.pck_threshold_px` and the detection rate over the held-out
 keypoints inside the input frame. Both folders are any DREAM-layout datasets with images and
-labels (e.g. written by `dream synth`).
+labels (e.g. written by `dream synth`). A recipe's time budget (`trainer.time_budget_minutes`)
+leaves these evaluations out, like the training time of the table.
 
     python benchmarks/train_curve.py TRAIN_DIR HELDOUT_DIR [--out RUN_DIR] [--minutes 45]
         [--eval-every-s 300] [--eval-frames 200] [--config YAML] [--set KEY=VALUE ...]
@@ -30,6 +31,7 @@ from lightning.pytorch.callbacks import Callback
 
 from dream.errors import DreamError
 from dream.io import write_json_atomic
+from train.budget import BudgetStop
 from train.config import load_config
 from train.data import KeypointDataset, read_folders
 from train.metrics import keypoint_errors, summarize
@@ -92,6 +94,13 @@ class HeldOutCurve(Callback):
             self._evaluate(trainer, pl_module)
 
     def _evaluate(self, trainer, pl_module) -> None:
+        start = time.perf_counter()
+        self._evaluate_now(trainer, pl_module)
+        for callback in trainer.callbacks:  # the recipe's time budget is for training
+            if isinstance(callback, BudgetStop):
+                callback.exclude(time.perf_counter() - start)
+
+    def _evaluate_now(self, trainer, pl_module) -> None:
         config = pl_module.config
         model = pl_module.model
         was_training = model.training

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import csv
 import math
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-pytest.importorskip("torch")
+torch = pytest.importorskip("torch")
 pytest.importorskip("lightning")
 pytest.importorskip("albumentations")
 
@@ -35,24 +37,51 @@ def test_auto_precision_takes_bfloat16_only_where_it_is_native(device, native, e
     assert budget.choose_precision(device, native) == expected
 
 
-def test_the_budget_buys_whole_epochs_within_the_caps():
-    assert budget.epochs_for_budget(2700, 300, 30, 1000) == 8        # floor(2700 / 330)
-    assert budget.epochs_for_budget(2700, 270, 0, 1000) == 10
-    assert budget.epochs_for_budget(60, 300, 30, 1000) == 1          # at least one
-    assert budget.epochs_for_budget(2700, 30, 0, 20) == 20           # max_epochs
+def test_steps_per_epoch_shares_the_frames_between_devices():
+    assert budget.steps_per_epoch(28, 8) == 4
+    assert budget.steps_per_epoch(1000, 16, world_size=2) == 32      # 500 frames a device
+    with pytest.raises(ValueError, match="batch_size >= 1"):
+        budget.steps_per_epoch(10, 0)
+
+
+def test_the_budget_buys_the_steps_that_fit_with_their_validations():
+    # 1 s a step, a 10 s validation every 20 steps and after the last: 60 steps take 90 s,
+    # 61 would take 101 (a 4th validation)
+    assert budget.steps_for_budget(100, 1.0, 10.0, 20, 10**6) == 60
+    assert budget.steps_for_budget(100, 1.0, 0.0, 20, 10**6) == 100
+    assert budget.steps_for_budget(5, 10.0, 10.0, 20, 10**6) == 1     # at least one
+    assert budget.steps_for_budget(100, 1.0, 10.0, 20, 42) == 42      # the cap
     with pytest.raises(ValueError, match="budget_s > 0"):
-        budget.epochs_for_budget(0, 300, 30, 10)
+        budget.steps_for_budget(0, 1.0, 10.0, 20, 100)
 
 
-def test_time_budget_becomes_a_step_budget():
+@pytest.mark.parametrize("seed", range(5))
+def test_the_step_budget_is_the_largest_that_fits(seed):
+    rng = np.random.default_rng(seed)
+    budget_s, s_step, s_val = rng.uniform(10, 500), rng.uniform(0.1, 2), rng.uniform(0, 20)
+    every, cap = int(rng.integers(1, 50)), int(rng.integers(1, 2000))
+
+    def seconds(n):
+        return n * s_step + math.ceil(n / every) * s_val
+
+    fits = [n for n in range(1, cap + 1) if seconds(n) <= budget_s]
+    assert budget.steps_for_budget(budget_s, s_step, s_val, every, cap) == max(fits, default=1)
+
+
+def test_time_budget_becomes_an_exact_step_budget():
     config = load_config(TINY, ["trainer.time_budget_minutes=1",
                                 "trainer.max_epochs=1000", "model.num_keypoints=4"])
-    speed = budget.Speed(train_images_per_s=100.0, val_images_per_s=200.0)
-    # 1000 images of batch 8: 125 steps and 10 s an epoch, 100 validation images 0.5 s.
+    speed = budget.Speed(train_images_per_s=100.0, val_images_per_s=200.0, probe_s=4.0)
+    # 1000 images of batch 8: 125 steps an epoch, 0.08 s a step; 100 validation images 0.5 s;
+    # 56 s left after the probe: 662 steps (52.96 s + 6 validations), 5.3 epochs
     resolved = budget.resolve_time_budget(config, speed, 1000, 100)
-    assert resolved.trainer.max_steps == 5 * 125              # floor(60 / 10.5)
+    assert resolved.trainer.max_steps == 662
     capped = config.replace(trainer=replace(config.trainer, max_steps=300))
-    assert budget.resolve_time_budget(capped, speed, 1000, 100).trainer.max_steps == 3 * 125
+    assert budget.resolve_time_budget(capped, speed, 1000, 100).trainer.max_steps == 300
+    epochs = config.replace(trainer=replace(config.trainer, max_epochs=2))
+    assert budget.resolve_time_budget(epochs, speed, 1000, 100).trainer.max_steps == 250
+    late = replace(speed, probe_s=61.0)                      # the probe spent the budget
+    assert budget.resolve_time_budget(config, late, 1000, 100).trainer.max_steps == 1
 
 
 @pytest.mark.parametrize("override", ["trainer.time_budget_minutes=0",
@@ -62,28 +91,81 @@ def test_bad_budget_settings_are_refused(override):
         load_config(TINY, [override])
 
 
+def test_the_budget_clock_leaves_out_excluded_work_and_survives_a_checkpoint():
+    now = [100.0]
+    stop = budget.BudgetStop(10, 60.0, spent_s=5.0, clock=lambda: now[0])
+    now[0] = 130.0
+    assert stop.spent_s() == 35.0                            # the probe's 5 s and 30 s since
+    stop.exclude(10.0)                                       # e.g. a benchmark's evaluation
+    assert stop.spent_s() == 25.0
+    resumed = budget.BudgetStop(10, 999.0, clock=lambda: now[0])
+    resumed.load_state_dict(stop.state_dict())
+    now[0] = 140.0
+    assert (resumed.spent_s(), resumed.deadline_s) == (35.0, 60.0)
+
+
+def _planned_speed(steps_that_fit: int, budget_s: float):
+    """A probe's answer under which `steps_that_fit` steps of batch 8 fill `budget_s`."""
+    def speed(*args, **kwargs):
+        return budget.Speed(8 * (steps_that_fit + 0.5) / budget_s, 1e9, probe_s=0.0)
+    return speed
+
+
 def test_a_budgeted_auto_run_resolves_records_and_resumes_without_probing(drawn, tmp_path,
                                                                           monkeypatch):
     overrides = [f"data.train=[{drawn}]", "trainer.precision=auto",
-                 "trainer.time_budget_minutes=0.05", "trainer.max_epochs=200",
-                 "trainer.budget_probe_steps=4"]
+                 "trainer.time_budget_minutes=1", "trainer.max_epochs=200"]
+    # 5 steps fit: 4 steps an epoch (28 training frames of 32), so the second epoch is partial
+    monkeypatch.setattr("train.run.measure_speed", _planned_speed(5, 60.0))
     run = run_training(load_config(TINY, overrides), tmp_path)
     trainer = run.config.trainer
     expected = budget.choose_precision("cpu", budget.native_bf16("cpu"))
-    assert trainer.precision == expected
-    steps_per_epoch = math.ceil(28 / 8)                       # 32 frames, 1/8 validation
-    assert trainer.max_steps % steps_per_epoch == 0
-    assert 1 <= trainer.max_steps // steps_per_epoch < 200   # the budget, not max_epochs
-    assert run.epochs == trainer.max_steps // steps_per_epoch
+    assert (trainer.precision, trainer.max_steps) == (expected, 5)
+    ckpt = torch.load(run.last_checkpoint, map_location="cpu", weights_only=False)
+    assert ckpt["global_step"] == 5
+    [state] = [v for k, v in ckpt["callbacks"].items() if "BudgetStop" in k]
+    assert 0 < state["spent_s"] < state["deadline_s"] <= 60
+    rows = _rows(tmp_path / "metrics.csv")
+    assert [(r["epoch"], r["step"]) for r in rows] == [("0", "4"), ("1", "5")]
+    assert rows[-1]["val/loss"] != ""                        # the partial epoch was validated
+    assert run.best_checkpoint.name == "best.ckpt" and run.best_checkpoint.is_file()
     for saved in (checkpoint_config(run.last_checkpoint),
                   load_config(tmp_path / "config.yaml")):
-        assert (saved.trainer.precision, saved.trainer.max_steps) == (expected,
-                                                                     trainer.max_steps)
+        assert (saved.trainer.precision, saved.trainer.max_steps) == (expected, 5)
 
     def no_probe(*args, **kwargs):
         raise AssertionError("a resumed run must keep its step budget")
 
     monkeypatch.setattr("train.run.measure_speed", no_probe)
     again = run_training(load_config(TINY, overrides), tmp_path)
-    assert again.config.trainer.max_steps == trainer.max_steps
+    assert again.config.trainer.max_steps == 5
     assert again.config.trainer.precision == expected
+
+
+def test_a_run_slower_than_its_probe_stops_validated_at_the_deadline(drawn, tmp_path,
+                                                                     monkeypatch, caplog):
+    overrides = [f"data.train=[{drawn}]", "trainer.time_budget_minutes=1",
+                 "trainer.max_epochs=200"]
+    monkeypatch.setattr("train.run.measure_speed", _planned_speed(400, 60.0))
+    ticks = iter(range(0, 10**6, 10))     # a clock that advances 10 s at every reading
+    stops: list[budget.BudgetStop] = []
+
+    def fake_clock_stop(config, speed, val_images):
+        stops.append(budget.BudgetStop(config.trainer.max_steps, 60.0, 0.0,
+                                       clock=lambda: float(next(ticks))))
+        return stops[-1]
+
+    monkeypatch.setattr("train.run._budget_stop", fake_clock_stop)
+    with caplog.at_level("WARNING", logger="train.budget"):
+        run = run_training(load_config(TINY, overrides), tmp_path)
+    stopped = stops[0].stopped_at_deadline
+    assert run.config.trainer.max_steps == 400 and stopped is not None and stopped < 400
+    assert torch.load(run.last_checkpoint, map_location="cpu",
+                      weights_only=False)["global_step"] == stopped
+    assert _rows(tmp_path / "metrics.csv")[-1]["val/loss"] != ""
+    assert "speed probe was optimistic" in caplog.text
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))

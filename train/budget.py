@@ -9,12 +9,16 @@
   emulates bfloat16.
 - **time budget**: a probe run (a throwaway copy of the network, the real data loaders and
   precision, one device) times a few training steps and validation batches on this machine; the
-  run then gets the whole epochs that fit in the budget, as a step budget (`trainer.max_steps`),
-  so that the learning-rate schedule spans the time available and the run ends validated and
-  checkpointed. The resolved values are written to the run's config.yaml and checkpoints; a
-  resumed run keeps its checkpoint's values instead of probing again.
+  run then gets the optimiser steps that fit in what the probe left of the budget, validations
+  included (`trainer.max_steps`, exact: the last epoch may be partial), so that the
+  learning-rate schedule spans the time available. `BudgetStop` ends the run validated and
+  checkpointed at the last planned step, or earlier at the deadline when the probe was
+  optimistic. The resolved values are written to the run's config.yaml and checkpoints; a
+  resumed run keeps its checkpoint's values (and the time it had spent) instead of probing
+  again.
 
-`choose_precision` and `epochs_for_budget` are pure; the rest asks torch and times Lightning.
+`choose_precision`, `steps_per_epoch` and `steps_for_budget` are pure; the rest asks torch and
+times Lightning.
 """
 
 from __future__ import annotations
@@ -24,7 +28,9 @@ import math
 import tempfile
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import Any
 
 import lightning as L
 import torch
@@ -39,6 +45,7 @@ logger = logging.getLogger(__name__)
 
 BF16 = "bf16-mixed"
 FP32 = "32-true"
+_LIGHTNING_INFO_LOGGER = "lightning.pytorch.utilities.rank_zero"  # the trainer banners
 PROBE_WARMUP_STEPS = 3  # untimed first steps: worker start-up, allocator and oneDNN warm-up
 
 
@@ -50,17 +57,35 @@ def choose_precision(device: str, native_bf16: bool) -> str:
     return BF16 if device in ("cpu", "cuda") and native_bf16 else FP32
 
 
-def epochs_for_budget(budget_s: float, train_s_per_epoch: float, val_s_per_epoch: float,
-                      max_epochs: int) -> int:
-    """The whole epochs (training plus validation) that fit in `budget_s` seconds: at least
-    one, at most `max_epochs`."""
-    if not (budget_s > 0 and train_s_per_epoch > 0 and val_s_per_epoch >= 0
-            and max_epochs >= 1):
-        raise ValueError(f"need budget_s > 0, train_s_per_epoch > 0, val_s_per_epoch >= 0 and "
-                         f"max_epochs >= 1, got {budget_s}, {train_s_per_epoch}, "
-                         f"{val_s_per_epoch}, {max_epochs}")
-    return int(min(max_epochs, max(1, math.floor(budget_s / (train_s_per_epoch
-                                                              + val_s_per_epoch)))))
+def steps_per_epoch(images: int, batch_size: int, world_size: int = 1) -> int:
+    """Optimiser steps of one epoch over `images` frames shared by `world_size` devices."""
+    if images < 0 or batch_size < 1 or world_size < 1:
+        raise ValueError(f"need images >= 0, batch_size >= 1 and world_size >= 1, got "
+                         f"{images}, {batch_size}, {world_size}")
+    return math.ceil(math.ceil(images / world_size) / batch_size)
+
+
+def steps_for_budget(budget_s: float, s_per_step: float, s_per_validation: float,
+                     steps_per_validation: int, max_steps: int) -> int:
+    """The most optimiser steps, at least one and at most `max_steps`, whose training time plus
+    validations (one every `steps_per_validation` steps and one after the last step) fit in
+    `budget_s` seconds."""
+    if not (budget_s > 0 and s_per_step > 0 and s_per_validation >= 0
+            and steps_per_validation >= 1 and max_steps >= 1):
+        raise ValueError(f"need budget_s > 0, s_per_step > 0, s_per_validation >= 0, "
+                         f"steps_per_validation >= 1 and max_steps >= 1, got {budget_s}, "
+                         f"{s_per_step}, {s_per_validation}, {steps_per_validation}, {max_steps}")
+
+    def seconds(steps: int) -> float:
+        return steps * s_per_step + math.ceil(steps / steps_per_validation) * s_per_validation
+
+    low, high = 1, max_steps      # the time grows with the steps: bisect for the last that fits
+    if seconds(high) <= budget_s:
+        return high
+    while high - low > 1:
+        mid = (low + high) // 2
+        low, high = (mid, high) if seconds(mid) <= budget_s else (low, mid)
+    return low
 
 
 def device_kind(accelerator: str) -> str:
@@ -97,10 +122,12 @@ def resolve_precision(config: TrainConfig) -> TrainConfig:
 
 @dataclass(frozen=True)
 class Speed:
-    """Measured on this machine: training and validation images per second."""
+    """Measured on this machine: training and validation images per second, and the seconds
+    the measurement took."""
 
     train_images_per_s: float
     val_images_per_s: float | None  # None: no validation data
+    probe_s: float = 0.0
 
 
 class _BatchClock(Callback):
@@ -161,6 +188,20 @@ def measure_speed(config: TrainConfig, train_loader: DataLoader,
     batch timed when there is one)."""
     steps = config.trainer.budget_probe_steps
     start = time.perf_counter()
+    banners = logging.getLogger(_LIGHTNING_INFO_LOGGER)
+    level = banners.level
+    banners.setLevel(logging.WARNING)   # the probe's trainers: no "GPU available" lines
+    try:
+        train_rate, val_rate = _probe(config, train_loader, val_loader, steps)
+    finally:
+        banners.setLevel(level)
+    probe_s = time.perf_counter() - start
+    logger.info("speed probe: %.0f s", probe_s)
+    return Speed(train_rate, val_rate, probe_s)
+
+
+def _probe(config: TrainConfig, train_loader: DataLoader, val_loader: DataLoader | None,
+           steps: int) -> tuple[float, float | None]:
     with tempfile.TemporaryDirectory(prefix="dream-probe-") as root:
         module = BeliefModule(config)
         clock = _BatchClock(PROBE_WARMUP_STEPS, "train")
@@ -176,33 +217,87 @@ def measure_speed(config: TrainConfig, train_loader: DataLoader,
                                                                       steps + 1)
                            ).validate(module, val_loader, verbose=False)
             val_rate = clock.images_per_s()
-    logger.info("speed probe: %.0f s", time.perf_counter() - start)
-    return Speed(train_rate, val_rate)
+    return train_rate, val_rate
 
 
 def resolve_time_budget(config: TrainConfig, speed: Speed, train_images_per_epoch: int,
-                        val_images_per_epoch: float) -> TrainConfig:
-    """`config` with `trainer.max_steps` set to the whole epochs of `speed` that fit in
-    `trainer.time_budget_minutes` (and within the config's own max_steps and max_epochs).
+                        val_images_per_validation: int) -> TrainConfig:
+    """`config` with `trainer.max_steps` set to the optimiser steps of `speed` that fit, with
+    their validations, in `trainer.time_budget_minutes` less the probe's time (at least one step,
+    at most the config's own max_steps and max_epochs).
 
     Args:
         train_images_per_epoch: training images per epoch (one device).
-        val_images_per_epoch: validation images per training epoch (one device; a run that
-            validates every n epochs spends 1/n of its validation set per epoch).
+        val_images_per_validation: the validation images (0: none).
     """
     tc = config.trainer
     batch = config.data.batch_size
-    steps_per_epoch = math.ceil(train_images_per_epoch / batch)
-    train_s = train_images_per_epoch / speed.train_images_per_s
-    val_s = (val_images_per_epoch / speed.val_images_per_s
-             if speed.val_images_per_s and val_images_per_epoch else 0.0)
-    cap = tc.max_epochs
+    epoch_steps = steps_per_epoch(train_images_per_epoch, batch)
+    cap = tc.max_epochs * epoch_steps
     if tc.max_steps is not None:
-        cap = min(cap, math.ceil(tc.max_steps / steps_per_epoch))
-    epochs = epochs_for_budget(60 * tc.time_budget_minutes, train_s, val_s, cap)
-    logger.info("time budget %.1f min: %.1f training images/s, %s validation images/s -> %d "
-                "epochs of %d steps (about %.1f min)", tc.time_budget_minutes,
-                speed.train_images_per_s,
+        cap = min(cap, tc.max_steps)
+    s_per_validation = (val_images_per_validation / speed.val_images_per_s
+                        if speed.val_images_per_s and val_images_per_validation else 0.0)
+    left_s = 60 * tc.time_budget_minutes - speed.probe_s
+    steps = 1 if left_s <= 0 else steps_for_budget(
+        left_s, batch / speed.train_images_per_s, s_per_validation,
+        epoch_steps * tc.val_every_n_epochs, max(cap, 1))
+    logger.info("time budget %.1f min (%.1f left after the probe): %.1f training images/s, %s "
+                "validation images/s -> %d steps, %.2f epochs of %d steps", tc.time_budget_minutes,
+                left_s / 60, speed.train_images_per_s,
                 "no" if speed.val_images_per_s is None else f"{speed.val_images_per_s:.1f}",
-                epochs, steps_per_epoch, epochs * (train_s + val_s) / 60)
-    return config.replace(trainer=replace(tc, max_steps=epochs * steps_per_epoch))
+                steps, steps / epoch_steps, epoch_steps)
+    return config.replace(trainer=replace(tc, max_steps=steps))
+
+
+class BudgetStop(Callback):
+    """Ends a time-budgeted run validated and checkpointed: at its last planned step (Lightning
+    ends a partial epoch at `max_steps` without validating) or, when the probe was optimistic,
+    at the deadline. Its clock (the seconds spent, the probe's included) is saved in the
+    checkpoints, so a resumed run keeps the deadline.
+
+    Args:
+        max_steps: the planned optimiser steps.
+        deadline_s: seconds after which the run stops at the next step.
+        spent_s: seconds already spent (the probe).
+        clock: seconds, monotonic (tests pass their own).
+    """
+
+    def __init__(self, max_steps: int, deadline_s: float, spent_s: float = 0.0,
+                 clock: Callable[[], float] = time.monotonic):
+        self.max_steps, self.deadline_s, self.clock = max_steps, deadline_s, clock
+        self._spent_before, self._start, self._excluded_s = spent_s, clock(), 0.0
+        self.stopped_at_deadline: int | None = None  # the step, when the deadline ended the run
+
+    def spent_s(self) -> float:
+        return self._spent_before + self.clock() - self._start - self._excluded_s
+
+    def exclude(self, seconds: float) -> None:
+        """Leave `seconds` of work that is not the run's (a benchmark's own evaluations) out of
+        the budget."""
+        self._excluded_s += seconds
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._start, self._excluded_s = self.clock(), 0.0
+
+    def on_train_batch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, outputs: Any,
+                           batch: Any, batch_idx: int) -> None:
+        step = trainer.global_step
+        late = trainer.strategy.reduce_boolean_decision(self.spent_s() >= self.deadline_s,
+                                                         all=False)
+        if step >= self.max_steps or late:
+            trainer.should_stop = True   # Lightning validates and checkpoints, then stops
+        if late and step < self.max_steps and self.stopped_at_deadline is None:
+            self.stopped_at_deadline = step
+            logger.warning("time budget spent (%.1f min) at step %d of the %d planned: the "
+                           "speed probe was optimistic; stopping with the learning rate at "
+                           "%.2e", self.spent_s() / 60, step, self.max_steps,
+                           trainer.optimizers[0].param_groups[0]["lr"])
+
+    def state_dict(self) -> dict[str, float]:
+        return {"spent_s": self.spent_s(), "deadline_s": self.deadline_s}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self._spent_before = float(state_dict["spent_s"])
+        self.deadline_s = float(state_dict["deadline_s"])
+        self._start, self._excluded_s = self.clock(), 0.0

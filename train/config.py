@@ -300,7 +300,7 @@ class TrainerConfig:
             ends validated and checkpointed): the run stops after whichever of max_epochs and
             ceil(max_steps / steps per epoch) epochs comes first (null: epochs only). A step
             budget fixes the training time whatever the dataset size; the learning-rate
-            schedule spans the run.
+            schedule spans the run. Under a time budget max_steps is exact instead (below).
         num_threads: torch CPU threads; null: every core of the machine.
         seed: seeds torch, numpy and the augmentation.
         progress_bar: Lightning's progress bar; false: one logging line every
@@ -319,10 +319,13 @@ class TrainerConfig:
             (`train.budget`; the run's config.yaml and checkpoints hold the value chosen).
         time_budget_minutes: fit the run to this much wall time on this machine: a probe of
             `budget_probe_steps` training steps (and as many validation batches) measures the
-            speed, and max_steps becomes the whole epochs that fit (at least one; within
-            max_epochs and a max_steps given too). Null: max_steps and max_epochs alone.
-            The run's config.yaml and checkpoints hold the resulting max_steps; a resumed run
-            keeps it.
+            speed, and max_steps becomes the optimiser steps that fit, with their validations,
+            in what the probe left of the budget (at least one; within max_epochs and a
+            max_steps given too). The last epoch may be partial: the run ends validated and
+            checkpointed at that step, or at the deadline should the machine run slower than
+            the probe (`train.budget.BudgetStop`). Null: max_steps and max_epochs alone. The
+            run's config.yaml and checkpoints hold the resulting max_steps; a resumed run keeps
+            it, and the time already spent.
         budget_probe_steps: timed steps of that probe.
         channels_last: keep the network and its input batches in NHWC memory order (faster
             oneDNN convolutions on CPU; checkpoints and ONNX files are unaffected).

@@ -27,7 +27,14 @@ from lightning.pytorch.callbacks import Callback, ModelCheckpoint
 from torch.utils.data import DataLoader
 
 from dream.errors import InputError
-from train.budget import measure_speed, resolve_precision, resolve_time_budget
+from train.budget import (
+    BudgetStop,
+    Speed,
+    measure_speed,
+    resolve_precision,
+    resolve_time_budget,
+    steps_per_epoch,
+)
 from train.checkpoint import checkpoint_config, read_checkpoint
 from train.config import AUTO_PRECISION, TrainConfig, dump_config
 from train.data import make_datasets, make_loader, read_folders, resolve_from_data
@@ -172,18 +179,27 @@ def _as_started(config: TrainConfig, saved: TrainConfig) -> TrainConfig:
 
 
 def _fit_time_budget(config: TrainConfig, trainer: L.Trainer, train_loader: DataLoader,
-                     val_loader: DataLoader | None) -> TrainConfig:
-    """`config` with the step budget that fits `trainer.time_budget_minutes` here."""
+                     val_loader: DataLoader | None) -> tuple[TrainConfig, Speed]:
+    """`config` with the step budget that fits `trainer.time_budget_minutes` here, and the
+    speed measured."""
     if trainer.world_size > 1:
         raise InputError(f"trainer.time_budget_minutes times one device, but this run uses "
                          f"{trainer.world_size}", None, "set trainer.max_steps instead "
                          "(and trainer.time_budget_minutes=null)")
     speed = measure_speed(config, train_loader, val_loader)
     L.seed_everything(config.trainer.seed, workers=True, verbose=False)  # as without the probe
-    val_images = 0
-    if val_loader is not None:
-        val_images = len(val_loader.dataset) / config.trainer.val_every_n_epochs
-    return resolve_time_budget(config, speed, len(train_loader.dataset), val_images)
+    val_images = len(val_loader.dataset) if val_loader is not None else 0
+    return resolve_time_budget(config, speed, len(train_loader.dataset), val_images), speed
+
+
+def _budget_stop(config: TrainConfig, speed: Speed | None, val_images: int) -> BudgetStop:
+    """The stop of a time-budgeted run: its deadline leaves time for one last validation
+    (a resumed run, `speed` None, takes its clock and deadline from the checkpoint)."""
+    budget_s = 60 * config.trainer.time_budget_minutes
+    if speed is None:
+        return BudgetStop(config.trainer.max_steps, budget_s)
+    last_validation_s = val_images / speed.val_images_per_s if speed.val_images_per_s else 0.0
+    return BudgetStop(config.trainer.max_steps, budget_s - last_validation_s, speed.probe_s)
 
 
 def _trainer(config: TrainConfig, run_dir: Path, has_val: bool,
@@ -244,20 +260,23 @@ def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | 
     train_loader = make_loader(train_set, config, shuffle=True)
     val_loader = make_loader(val_set, config, shuffle=False) if len(val_set) else None
     trainer, best = _trainer(config, run_dir, val_loader is not None, callbacks)
-    if config.trainer.time_budget_minutes is not None and ckpt_path is None:
-        config = _fit_time_budget(config, trainer, train_loader, val_loader)
+    budgeted = config.trainer.time_budget_minutes is not None
+    speed = None
+    if budgeted and ckpt_path is None:
+        config, speed = _fit_time_budget(config, trainer, train_loader, val_loader)
     _write_text_atomic(run_dir / CONFIG_FILE, dump_config(config))
     module = BeliefModule(config)
     if config.trainer.init_from is not None and ckpt_path is None:
         _init_weights(module, config)
     if config.trainer.max_steps is not None:
-        per_device = math.ceil(len(train_set) / trainer.world_size)
-        steps_per_epoch = math.ceil(per_device / config.data.batch_size)
-        epochs = min(config.trainer.max_epochs, math.ceil(config.trainer.max_steps
-                                                          / steps_per_epoch))
+        epoch_steps = steps_per_epoch(len(train_set), config.data.batch_size, trainer.world_size)
+        epochs = min(config.trainer.max_epochs, math.ceil(config.trainer.max_steps / epoch_steps))
         trainer.fit_loop.max_epochs = epochs
-        logger.info("step budget %d: %d epochs of %d steps", config.trainer.max_steps, epochs,
-                    steps_per_epoch)
+        if budgeted:  # exactly the planned steps (a partial last epoch), ended by BudgetStop
+            trainer.fit_loop.epoch_loop.max_steps = config.trainer.max_steps
+            trainer.callbacks.insert(0, _budget_stop(config, speed, len(val_set)))
+        logger.info("step budget %d: %d epochs of %d steps%s", config.trainer.max_steps, epochs,
+                    epoch_steps, "" if budgeted else " (whole epochs)")
     with warnings.catch_warnings():  # the run folder holds config.yaml (and, resuming, more)
         warnings.filterwarnings("ignore", message=r".*exists and is not empty")
         trainer.fit(module, train_loader, val_loader, ckpt_path=ckpt_path)
