@@ -164,6 +164,11 @@ def test_a_run_slower_than_its_probe_stops_validated_at_the_deadline(drawn, tmp_
                       weights_only=False)["global_step"] == stopped
     assert _rows(tmp_path / "metrics.csv")[-1]["val/loss"] != ""
     assert "speed probe was optimistic" in caplog.text
+    # run again into the folder: the checkpoint's clock says the budget is spent, no more steps
+    again = run_training(load_config(TINY, overrides), tmp_path)
+    assert stops[-1].spent_s() >= 60.0 and again.config.trainer.max_steps == 400
+    assert torch.load(again.last_checkpoint, map_location="cpu",
+                      weights_only=False)["global_step"] == stopped
 
 
 def _rows(path: Path) -> list[dict[str, str]]:

@@ -279,6 +279,8 @@ class BudgetStop(Callback):
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._start, self._excluded_s = self.clock(), 0.0
+        if self.spent_s() >= self.deadline_s:  # a resumed run that had spent its budget
+            trainer.should_stop = True
 
     def on_train_batch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, outputs: Any,
                            batch: Any, batch_idx: int) -> None:
