@@ -63,9 +63,9 @@ def forward_macs(net: torch.nn.Module, height: int, width: int) -> int:
     return total
 
 
-def step_rate(config: TrainConfig, steps: int, warmup: int) -> float:
-    """Median images per second of `steps` timed training steps after `warmup` untimed ones."""
-    net = build_model(_model_config(config))
+def step_rate(net: torch.nn.Module, config: TrainConfig, steps: int, warmup: int) -> float:
+    """Median images per second of `steps` timed training steps of `net` (`config`'s network)
+    after `warmup` untimed ones."""
     batch, pre = config.data.batch_size, config.input
     x = torch.randn(batch, 3, pre.input_height, pre.input_width)
     if config.trainer.channels_last:
@@ -115,9 +115,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'variant':<40} {'precision':>10} {'GMAC/img':>9} {'images/s':>9}")
     for name, config in configs:
         torch.set_num_threads(config.trainer.threads)
-        macs = forward_macs(build_model(_model_config(config)), config.input.input_height,
-                            config.input.input_width)
-        rate = step_rate(config, args.steps, args.warmup)
+        net = build_model(_model_config(config))
+        macs = forward_macs(net, config.input.input_height, config.input.input_width)
+        rate = step_rate(net, config, args.steps, args.warmup)
         print(f"{name:<40} {config.trainer.precision:>10} {macs / 1e9:9.3f} {rate:9.1f}",
               flush=True)
     return 0
