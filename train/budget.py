@@ -129,6 +129,10 @@ class Speed:
     val_images_per_s: float | None  # None: no validation data
     probe_s: float = 0.0
 
+    def validation_s(self, images: int) -> float:
+        """Seconds of one validation over `images` frames (0 without validation data)."""
+        return images / self.val_images_per_s if self.val_images_per_s and images else 0.0
+
 
 class _BatchClock(Callback):
     """Times the training (or validation) batches after the first `skip`."""
@@ -236,8 +240,7 @@ def resolve_time_budget(config: TrainConfig, speed: Speed, train_images_per_epoc
     cap = tc.max_epochs * epoch_steps
     if tc.max_steps is not None:
         cap = min(cap, tc.max_steps)
-    s_per_validation = (val_images_per_validation / speed.val_images_per_s
-                        if speed.val_images_per_s and val_images_per_validation else 0.0)
+    s_per_validation = speed.validation_s(val_images_per_validation)
     left_s = 60 * tc.time_budget_minutes - speed.probe_s
     steps = 1 if left_s <= 0 else steps_for_budget(
         left_s, batch / speed.train_images_per_s, s_per_validation,

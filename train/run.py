@@ -198,8 +198,8 @@ def _budget_stop(config: TrainConfig, speed: Speed | None, val_images: int) -> B
     budget_s = 60 * config.trainer.time_budget_minutes
     if speed is None:
         return BudgetStop(config.trainer.max_steps, budget_s)
-    last_validation_s = val_images / speed.val_images_per_s if speed.val_images_per_s else 0.0
-    return BudgetStop(config.trainer.max_steps, budget_s - last_validation_s, speed.probe_s)
+    return BudgetStop(config.trainer.max_steps, budget_s - speed.validation_s(val_images),
+                      speed.probe_s)
 
 
 def _trainer(config: TrainConfig, run_dir: Path, has_val: bool,
