@@ -19,10 +19,10 @@ Objective (a one-sided, signed chamfer distance with continuous model points):
     from agreement (parts the mask misses, mask noise) get no weight, the rest a Huber weight
     (scale `huber_scale_px`). Occluders only remove robot pixels from the observed mask, so at
     the true pose a contour point may lie outside it (r > 0, the robot hidden there) but never
-    inside: residuals r > 0 get no weight beyond the tighter `max_outside_residual_px`, or a
-    distractor in front of the arm pulls the outline onto the visible part (eighteenth
-    session, README). Observed outline that no model contour explains (cables, a gripper the
-    URDF lacks) pulls nothing: the distance is one-sided on purpose.
+    inside: residuals r > 0 get no weight beyond the tighter `max_outside_residual_px`
+    (otherwise a distractor in front of the arm pulls the outline onto the visible part;
+    eighteenth session, README). Observed outline that no model contour explains (cables, a
+    gripper the URDF lacks) pulls nothing: the distance is one-sided on purpose.
 Optimiser:
     Levenberg-Marquardt over the 6-vector xi of `dream.pnp` (P_cam = exp(xi_rot) R P + t + xi_t)
     with the analytic Jacobian (distance-field gradient x projection Jacobian), a few steps on
@@ -128,8 +128,10 @@ class PolishParams:
         max_residual_px: residuals beyond this get no weight (search resolution).
         max_outside_residual_px: positive residuals (the model's outline outside the observed
             mask, where an occluder may hide the robot) beyond this get no weight (search
-            resolution). 5 px was fixed before its only evaluation (eighteenth session: the
-            design set's single-frame ADD AUC 91.3 -> 93.8 against 15 px, i.e. no asymmetry).
+            resolution). 5 px was fixed before it was evaluated (eighteenth session, README:
+            single-frame ADD AUC with `--frames each --polish` 91.3 -> 93.8 on the design set
+            and 91.3 -> 94.8 on the held-out set, against 15 px, i.e. the same cut both
+            sides).
         outer_iterations: render -> select contour points -> LM rounds.
         inner_iterations: LM steps on one set of contour points.
         initial_damping: LM lambda, relative to diag(J^T W J).
