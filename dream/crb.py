@@ -7,6 +7,11 @@ import numpy as np
 from dream.camera import CameraIntrinsics
 from dream.errors import CalibrationError, InputError
 from dream.pnp import linearise
+from dream.transforms import check_pose
+
+# above this condition number of the Fisher information the bound is refused (numerically
+# singular: inverting it would lose every significant digit of the smallest direction)
+MAX_FISHER_CONDITION = 1e14
 
 
 def extrinsic_crb(P_base: np.ndarray, camera: CameraIntrinsics, T_cam_base: np.ndarray,
@@ -29,11 +34,12 @@ def extrinsic_crb(P_base: np.ndarray, camera: CameraIntrinsics, T_cam_base: np.n
         raise InputError(f"P_base must be finite with shape (N, 3), got {P_base.shape}")
     if not (np.isfinite(pixel_sigma_px) and pixel_sigma_px > 0):
         raise InputError(f"pixel_sigma_px must be positive, got {pixel_sigma_px}")
-    lin = linearise(P_base, np.zeros((len(P_base), 2)), camera, np.asarray(T_cam_base, float))
+    T_cam_base = check_pose(T_cam_base, "T_cam_base")
+    lin = linearise(P_base, np.zeros((len(P_base), 2)), camera, T_cam_base)
     if lin is None:
         raise CalibrationError("a keypoint lies behind the camera: no bound")
     J = lin[1].reshape(-1, 6)
     fisher = J.T @ J / pixel_sigma_px ** 2
-    if np.linalg.cond(fisher) > 1e14:
+    if np.linalg.cond(fisher) > MAX_FISHER_CONDITION:
         raise CalibrationError("the extrinsic is not identifiable from these keypoints")
     return np.linalg.inv(fisher)

@@ -18,7 +18,7 @@ import numpy as np
 
 from dream.camera import CameraIntrinsics, pixels_to_normalized
 from dream.errors import InputError
-from dream.transforms import R_from_rotvec, T_from_rotvec_t, rotvec_from_R
+from dream.transforms import R_from_rotvec, T_from_rotvec_t, check_pose, rotvec_from_R
 
 log = logging.getLogger(__name__)
 
@@ -68,7 +68,7 @@ class RobustLoss:
         if self.kind == "l2":
             return np.ones_like(r)
         if self.kind == "huber":
-            return np.where(r <= k, 1.0, k / np.maximum(r, 1e-300))
+            return np.where(r <= k, 1.0, k / np.maximum(r, _TINY))
         return 1.0 / (1.0 + (r / k) ** 2)
 
 
@@ -104,6 +104,15 @@ class SolverSettings:
                 raise InputError(f"{name} must be positive")
         if not self.convergence_sigma >= 0:
             raise InputError(f"convergence_sigma must be >= 0, got {self.convergence_sigma}")
+        for name in ("initial_damping", "step_tolerance", "collinear_ratio", "max_condition"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise InputError(f"{name} must be positive and finite, got {value}",
+                                 fix=f"use the default {self.__dataclass_fields__[name].default}")
+        for name, least in (("max_iterations", 1), ("ransac_hypotheses", 1),
+                            ("outlier_rounds", 0)):
+            if getattr(self, name) < least:
+                raise InputError(f"{name} must be >= {least}, got {getattr(self, name)}")
 
 
 _DEFAULT_SETTINGS = SolverSettings()
@@ -524,13 +533,13 @@ def fit_pose(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T_ini
     Non-finite rows of P_base / uv and zero confidences are ignored.
     """
     settings = settings or _DEFAULT_SETTINGS
+    T_init = check_pose(T_init, "T_init")
     P_base, uv, confidence, usable = check_correspondences(P_base, uv, confidence)
     keep = usable if inlier is None else usable & np.asarray(inlier, bool)
     reason = degeneracy(P_base[keep], settings)
     if reason is not None:
         return NoSolution(reason)
-    return _fit_checked(P_base, uv, camera, np.asarray(T_init, dtype=float), confidence, usable,
-                        keep, settings)
+    return _fit_checked(P_base, uv, camera, T_init, confidence, usable, keep, settings)
 
 
 def _fit_checked(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T: np.ndarray,
@@ -542,7 +551,7 @@ def _fit_checked(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T
     `linearise` of the keypoints `keep` at T when the caller has it."""
     P_usable, uv_usable = P_base[usable], uv[usable]
     iterations = 0
-    for _ in range(settings.outlier_rounds + 1):
+    for round_ in range(settings.outlier_rounds + 1):
         try:
             T, iterations, lin = levenberg_marquardt(P_base[keep], uv[keep], camera, T,
                                                      confidence[keep], settings, lin_init)
@@ -556,6 +565,8 @@ def _fit_checked(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T
         dist = np.full(len(P_base), np.inf)
         dist[usable] = _distances(lin[0])
         sigma = _median(dist[keep]) / RAYLEIGH_MEDIAN
+        if round_ == settings.outlier_rounds:
+            break                           # no refit follows: `keep` stays the fitted set
         threshold = max(settings.min_inlier_threshold_px, settings.inlier_sigma_factor * sigma)
         new_keep = usable & (dist <= threshold)
         # a round that would leave too few or degenerate keypoints ends the rejection: the fit
@@ -603,7 +614,7 @@ def _fit_batch(P_base: np.ndarray, uv: np.ndarray, cameras: _Cameras, T: np.ndar
     dist = np.full((F, N), np.inf)
     failed: dict[int, NoSolution] = {}
     rounding = np.ones(F, bool)          # frames still in rounds of rejection
-    for _ in range(settings.outlier_rounds + 1):
+    for round_ in range(settings.outlier_rounds + 1):
         frames = np.flatnonzero(rounding)
         if not len(frames):
             break
@@ -628,6 +639,8 @@ def _fit_batch(P_base: np.ndarray, uv: np.ndarray, cameras: _Cameras, T: np.ndar
         ends = np.all(new_keep == keep[frames], axis=1) | \
             _degenerate(P_base[frames], new_keep, settings)
         ends |= ~lm.started | behind
+        if round_ == settings.outlier_rounds:
+            ends[:] = True                  # no refit follows: `keep` stays the fitted set
         keep[frames[~ends]] = new_keep[~ends]
         rounding[frames[ends]] = False
     weights = np.where(keep, confidence * settings.loss.weight(np.where(keep, dist, 0.0)), 0.0)

@@ -13,6 +13,7 @@ from dream.pnp import (
     SolverSettings,
     fit_pose,
     increment_between,
+    levenberg_marquardt,
     solve_pnp,
     solve_pnp_batch,
 )
@@ -111,6 +112,46 @@ def test_rejection_that_would_leave_too_few_keypoints_keeps_the_last_fit(rng):
     fit = fit_pose(obs.P_base[0], uv, CAMERA, T)
     assert isinstance(fit, PoseFit) and fit.inlier.sum() == 4 and not fit.inlier[2]
     assert np.abs(xi_error(fit.T_cam_base, T)).max() < 1e-9
+
+
+@pytest.mark.parametrize("rounds", [0, 1, 3])
+def test_the_pose_is_the_fit_of_the_keypoints_it_reports_as_inliers(rounds):
+    """The last round of rejection has no refit after it, so it must not reject: the pose, the
+    inliers, weights and RMSE all describe one fit (single-frame and batch solvers)."""
+    settings = SolverSettings(outlier_rounds=rounds)
+    P, uv, checked = [], [], 0
+    for seed in range(30):
+        obs, T, _ = random_scene(np.random.default_rng(seed), 1, keypoints=20, noise_px=1.0,
+                                 outlier_fraction=0.3)
+        P.append(obs.P_base[0])
+        uv.append(obs.uv[0])
+        from_truth = fit_pose(obs.P_base[0], obs.uv[0], CAMERA, T, settings=settings)
+        assert isinstance(from_truth, PoseFit)
+        solved = solve_pnp(obs.P_base[0], obs.uv[0], CAMERA, settings=settings)
+        for fit in (from_truth, solved) if isinstance(solved, PoseFit) else (from_truth,):
+            checked += 1
+            k = fit.inlier
+            refit, _, _ = levenberg_marquardt(obs.P_base[0][k], obs.uv[0][k], CAMERA,
+                                              fit.T_cam_base, np.ones(k.sum()), settings)
+            assert np.abs(increment_between(fit.T_cam_base, refit)).max() < 1e-9
+    assert checked >= 50
+    for fit, P_f, uv_f in zip(solve_pnp_batch(np.array(P), np.array(uv), [CAMERA] * len(P),
+                                              settings=settings), P, uv, strict=True):
+        _same_fit(solve_pnp(P_f, uv_f, CAMERA, settings=settings), fit)
+
+
+def test_solver_settings_and_the_start_pose_are_checked(rng):
+    for bad in ({"initial_damping": 0.0}, {"step_tolerance": float("nan")},
+                {"max_condition": -1.0}, {"collinear_ratio": float("inf")},
+                {"max_iterations": 0}, {"ransac_hypotheses": 0}, {"outlier_rounds": -1}):
+        with pytest.raises(InputError, match=next(iter(bad))):
+            SolverSettings(**bad)
+    obs, T, _ = random_scene(rng, 1)
+    for T_init in (np.full((4, 4), np.nan), T[:3, :3]):
+        with pytest.raises(InputError, match="T_init must be a finite 4x4 transform"):
+            fit_pose(obs.P_base[0], obs.uv[0], CAMERA, T_init)
+        with pytest.raises(InputError, match="T_cam_base must be a finite 4x4 transform"):
+            extrinsic_crb(obs.P_base[0], CAMERA, T_init, 1.0)
 
 
 def test_multi_frame_with_three_keypoints_per_frame_still_solves(rng):
