@@ -17,6 +17,8 @@ from dream.errors import InputError
 WORLD_UP = np.array([0.0, 0.0, 1.0])  # robot base z axis points up
 _RODRIGUES_SERIES_BELOW = 1e-4  # rad: below this angle Rodrigues uses its Taylor series (error
                                 # ~theta^4 / 120 < 1e-18)
+_LOOK_AT_MIN_DISTANCE_M = 1e-9  # look_at: a closer target gives no viewing direction
+_LOOK_AT_MIN_SINE = 1e-9        # look_at: sine of the angle between the optical axis and up
 
 
 def _check_shape(name: str, a: np.ndarray, shape_tail: tuple[int, ...]) -> np.ndarray:
@@ -24,6 +26,13 @@ def _check_shape(name: str, a: np.ndarray, shape_tail: tuple[int, ...]) -> np.nd
     if a.ndim < len(shape_tail) or a.shape[a.ndim - len(shape_tail):] != shape_tail:
         raise InputError(f"{name} has shape {a.shape}, expected (..., {shape_tail})")
     return a
+
+
+def _check_point(name: str, p: np.ndarray) -> np.ndarray:
+    p = np.asarray(p, dtype=float)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise InputError(f"{name} must be a finite 3-vector, got {np.array2string(p)}")
+    return p
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -147,6 +156,15 @@ def is_rigid(T: np.ndarray, atol: float = 1e-6) -> bool:
             and np.allclose(T[3], [0, 0, 0, 1], atol=atol))
 
 
+def check_pose(T: np.ndarray, name: str) -> np.ndarray:
+    """T as a float (4, 4) array with finite entries; InputError naming `name` otherwise."""
+    T = np.asarray(T, dtype=float)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise InputError(f"{name} must be a finite 4x4 transform, got shape {T.shape}"
+                         + ("" if T.shape != (4, 4) else " with non-finite entries"))
+    return T
+
+
 def rotation_angle_between(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
     """Geodesic angle (rad) between rotations (..., 3, 3)."""
     R_rel = np.swapaxes(R_a, -1, -2) @ R_b
@@ -158,15 +176,20 @@ def look_at(position_base: np.ndarray, target_base: np.ndarray, roll_rad: float 
             up_base: np.ndarray = WORLD_UP) -> np.ndarray:
     """T_cam_base of a camera at `position_base` whose optical axis passes through
     `target_base`, image 'up' towards `up_base`, then rolled about the optical axis."""
-    z = np.asarray(target_base, float) - np.asarray(position_base, float)
-    z /= np.linalg.norm(z)
+    position_base = _check_point("position_base", position_base)
+    z = _check_point("target_base", target_base) - position_base
+    distance = np.linalg.norm(z)
+    if not distance >= _LOOK_AT_MIN_DISTANCE_M:  # also NaN
+        raise InputError(f"the camera position and its target are {distance} m apart",
+                         fix="give a finite target away from the camera position")
+    z /= distance
     x = np.cross(z, up_base)
-    if np.linalg.norm(x) < 1e-9:
+    if not np.linalg.norm(x) >= _LOOK_AT_MIN_SINE:
         raise InputError("the camera looks straight along the up direction",
                          fix="move the camera or change up_base")
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     c, s = np.cos(roll_rad), np.sin(roll_rad)
     x, y = c * x + s * y, -s * x + c * y
-    T_base_cam = make_T(np.stack([x, y, z], axis=1), np.asarray(position_base, float))
+    T_base_cam = make_T(np.stack([x, y, z], axis=1), position_base)
     return invert_T(T_base_cam)

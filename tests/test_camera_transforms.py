@@ -14,6 +14,8 @@ from dream.transforms import (
     T_from_rotvec_t,
     compose,
     invert_T,
+    is_rigid,
+    look_at,
     quaternion_xyzw_from_R,
     rotvec_t_from_T,
     transform_points,
@@ -109,3 +111,15 @@ def test_rodrigues_matches_scipy_for_one_and_many_vectors(scale, rng):
                        atol=1e-15)
     for v, R in zip(rotvec, expected, strict=True):
         assert np.allclose(R_from_rotvec(v), R, atol=1e-15)
+
+
+def test_look_at_refuses_a_target_at_the_camera_and_non_finite_points():
+    T = look_at(np.array([1.0, 0.0, 1.0]), np.zeros(3))
+    assert is_rigid(T)
+    assert np.allclose(transform_points(T, np.zeros(3))[:2], 0.0)   # the target is on the axis
+    for position, target, message in ((np.zeros(3), np.zeros(3), "0.0 m apart"),
+                                      (np.zeros(3), np.array([np.nan, 0, 0]), "target_base"),
+                                      (np.zeros(2), np.ones(3), "position_base"),
+                                      (np.zeros(3), np.array([0, 0, 1.0]), "straight along")):
+        with pytest.raises(InputError, match=message):
+            look_at(position, target)
