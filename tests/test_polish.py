@@ -18,11 +18,13 @@ from dream.cli import main
 from dream.errors import InputError
 from dream.io import read_sequence, write_dream
 from dream.metrics import pose_errors
+from dream.pnp import apply_increment
 from dream.polish import (
     KeypointGuard,
     KeypointSet,
     PolishParams,
     _decide,
+    _Contour,
     _Objective,
     _polish_frame,
     fit_shrinkage,
@@ -245,6 +247,34 @@ def occluded(masks: np.ndarray) -> np.ndarray:
         row = int(np.median(np.nonzero(m)[0]))
         m[max(row - OCCLUDER_HALF_HEIGHT_PX, 0): row + OCCLUDER_HALF_HEIGHT_PX, :] = False
     return out
+
+
+def test_contour_jacobian_matches_finite_differences(rng):
+    """The residual is the bilinear SDF; its Jacobian interpolates the SDF's central
+    differences: within a few per cent of finite differences inside the image, and zero where
+    the points leave it (the clamped residual is flat there)."""
+    camera = CameraIntrinsics(300.0, 300.0, 159.5, 119.5, 320, 240)
+    yy, xx = np.mgrid[0:240, 0:320]
+    disc = (xx - 170) ** 2 + (yy - 110) ** 2 < 50 ** 2
+    objective = _Objective(signed_distance(disc)[None], camera, PolishParams())
+    T = look_at(np.array([1.0, 0.5, 0.6]), np.zeros(3), 0.1)
+    P = rng.normal(size=(200, 3)) * 0.15
+    P[:2] = transform_points(np.linalg.inv(T), np.array([[-0.3, 0.0, 0.5],    # left of the
+                                                        [-0.3, -0.3, 0.5]]))  # image, above
+    contour = _Contour(P, np.zeros(len(P), np.int64), np.zeros(len(P)))
+    _, J = objective.residuals(contour, T, jacobian=True)
+    h = 1e-6
+    J_fd = np.stack([(objective.residuals(contour, apply_increment(T, h * e), False)[0]
+                      - objective.residuals(contour, apply_increment(T, -h * e), False)[0])
+                     / (2 * h) for e in np.eye(6)], axis=1)
+    uv = project(camera, transform_points(T, P))
+    inside = camera.in_image(uv) & np.all((uv > 1) & (uv < [318, 238]), axis=1)
+    assert not inside[:2].any() and inside.sum() > 150
+    error = np.linalg.norm(J - J_fd, axis=1) / np.linalg.norm(J_fd, axis=1).clip(1e-9)
+    assert np.median(error[inside]) < 0.05 and np.percentile(error[inside], 90) < 0.15
+    assert np.all(J[1] == 0) and np.all(J_fd[1] == 0)       # clamped along both axes: flat
+    cosine = J[0] @ J_fd[0] / np.linalg.norm(J[0]) / np.linalg.norm(J_fd[0])
+    assert cosine > 0.99                                    # clamped along x: y still counts
 
 
 def test_contour_outside_the_mask_is_cut_tighter():
