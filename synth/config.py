@@ -15,6 +15,7 @@ import numpy as np
 
 from dream.errors import InputError
 from dream.recipe import load_recipe, plain, recipe_from_dict
+from synth.scene_options import MAX_LIGHTS
 
 Range = tuple[float, float]
 
@@ -29,6 +30,12 @@ def _range(name: str, value: Any, lo_limit: float = -np.inf, hi_limit: float = n
     if lo < lo_limit or hi > hi_limit:
         raise InputError(f"{name} must lie within [{lo_limit}, {hi_limit}], got [{lo}, {hi}]")
     return lo, hi
+
+
+def _non_negative(name: str, value: float) -> float:
+    if not (np.isfinite(float(value)) and float(value) >= 0.0):
+        raise InputError(f"{name} must be a finite number >= 0, got {value}")
+    return float(value)
 
 
 def _probability(name: str, value: float) -> float:
@@ -55,6 +62,7 @@ class CameraShell:
                            _range("camera.elevation_rad", self.elevation_rad, -1.5, 1.5))
         object.__setattr__(self, "roll_rad", _range("camera.roll_rad", self.roll_rad))
         object.__setattr__(self, "target_m", tuple(float(v) for v in self.target_m))
+        _non_negative("camera.target_jitter_m", self.target_jitter_m)
 
 
 @dataclass(frozen=True)
@@ -99,6 +107,7 @@ class Joints:
     def __post_init__(self) -> None:
         if not 0.0 < self.range_fraction <= 1.0:
             raise InputError("joints.range_fraction must be in (0, 1]")
+        _non_negative("joints.log_noise_rad", self.log_noise_rad)
 
 
 @dataclass(frozen=True)
@@ -113,25 +122,39 @@ class Lights:
 
     def __post_init__(self) -> None:
         lo, hi = self.count
-        if not 1 <= lo <= hi:
-            raise InputError("lights.count must be [low, high] with 1 <= low <= high")
+        if not 1 <= lo <= hi <= MAX_LIGHTS:
+            raise InputError(f"lights.count must be [low, high] with 1 <= low <= high <= "
+                             f"{MAX_LIGHTS}, got {list(self.count)}")
         object.__setattr__(self, "count", (int(lo), int(hi)))
+        for name, lo_limit, hi_limit in (("radius_m", 1e-3, np.inf),
+                                         ("elevation_rad", -np.pi / 2, np.pi / 2),
+                                         ("intensity", 0.0, np.inf), ("ambient", 0.0, 1.0),
+                                         ("specular", 0.0, 1.0)):
+            object.__setattr__(self, name, _range(f"lights.{name}", getattr(self, name),
+                                                  lo_limit, hi_limit))
+        _non_negative("lights.color_jitter", self.color_jitter)
 
 
 @dataclass(frozen=True)
 class Appearance:
-    """Robot colours: the real ones with `keep_real_colors_prob`, else jittered per link."""
+    """Robot colours: the real ones with `keep_real_colors_prob`, else jittered per part (each
+    visual geom): the hue moved by up to `hue_jitter` of the circle (0.5 or more: any hue),
+    saturation drawn, value scaled."""
 
     keep_real_colors_prob: float = 0.5
-    hue_jitter: float = 0.5              # fraction of the hue circle
+    hue_jitter: float = 0.5              # fraction of the hue circle, each way
     saturation: Range = (0.0, 0.8)
     value_scale: Range = (0.5, 1.2)
     specular: Range = (0.0, 0.8)
     shininess: Range = (0.0, 1.0)
-    reflectance: Range = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         _probability("appearance.keep_real_colors_prob", self.keep_real_colors_prob)
+        _non_negative("appearance.hue_jitter", self.hue_jitter)
+        for name, hi_limit in (("saturation", 1.0), ("value_scale", np.inf), ("specular", 1.0),
+                               ("shininess", 1.0)):
+            object.__setattr__(self, name, _range(f"appearance.{name}", getattr(self, name),
+                                                  0.0, hi_limit))
 
 
 @dataclass(frozen=True)
@@ -153,6 +176,13 @@ class Background:
                              f"{sorted(known)}")
         if any(w < 0 for w in self.kinds.values()) or sum(self.kinds.values()) <= 0:
             raise InputError("background.kinds weights must be >= 0 with a positive sum")
+        photo = self.kinds.get("photo", 0.0)
+        if self.photos and not photo > 0:
+            raise InputError("background.photos is set but background.kinds.photo is 0, so no "
+                             "photo would be drawn", fix="set background.kinds.photo (e.g. 1.0)")
+        if photo > 0 and not self.photos:
+            raise InputError("background.kinds.photo > 0 needs background.photos (a folder of "
+                             "photos)", fix="set background.photos: DIR or kinds.photo: 0")
         _probability("background.floor_prob", self.floor_prob)
 
 
@@ -177,6 +207,9 @@ class Distractors:
         if not 0 <= lo <= hi:
             raise InputError("distractors.count must be [low, high] with 0 <= low <= high")
         object.__setattr__(self, "count", (int(lo), int(hi)))
+        object.__setattr__(self, "size_m", _range("distractors.size_m", self.size_m, 1e-3))
+        object.__setattr__(self, "distance_m", _range("distractors.distance_m", self.distance_m,
+                                                      0.0))
         for name in ("occluder_prob", "textured_prob", "held_prob", "held_board_prob",
                      "held_textured_prob"):
             _probability(f"distractors.{name}", getattr(self, name))
@@ -213,6 +246,8 @@ class Output:
     def __post_init__(self) -> None:
         if self.image_format not in ("png", "jpg"):
             raise InputError("output.image_format must be png or jpg")
+        if not 1 <= self.jpeg_quality <= 100:
+            raise InputError(f"output.jpeg_quality must be 1-100, got {self.jpeg_quality}")
 
 
 @dataclass(frozen=True)

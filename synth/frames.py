@@ -30,12 +30,11 @@ from synth.randomize import (
 )
 from synth.render import BACKGROUND_GEOM, SceneRenderer
 from synth.scene import RobotScene, build_scene
-from synth.scene_options import SceneOptions
+from synth.scene_options import MAX_LIGHTS, SceneOptions
 from synth.textures import list_photos, random_texture
 
 log = logging.getLogger(__name__)
 
-MAX_LIGHTS = 7                  # OpenGL's fixed pipeline has 8 lights; the headlight takes one
 NUM_TEXTURES = 4                # randomisable distractor textures in the scene
 FLOOR_TEXTURE_PX = 64           # redrawn and uploaded every frame, so kept small (tiled)
 FLOOR_MIN_CAMERA_HEIGHT_M = 0.02  # below this the floor is hidden (it would hide the robot)

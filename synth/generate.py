@@ -66,6 +66,8 @@ class SynthJob:
             raise InputError(f"--num must be >= 1, got {self.num_frames}")
         if self.workers < 1:
             raise InputError(f"--workers must be >= 1, got {self.workers}")
+        if self.seed < 0:
+            raise InputError(f"--seed must be >= 0, got {self.seed}")
         object.__setattr__(self, "out_dir", Path(self.out_dir))
         object.__setattr__(self, "extension", normalised(self.extension))
 
@@ -180,11 +182,19 @@ def prepare_output(job: SynthJob, overwrite: bool) -> set[int]:
             previous = json.loads(info_path.read_text())
         except (OSError, json.JSONDecodeError) as exc:
             raise InputError(f"unreadable {SYNTH_INFO} ({exc})", info_path) from None
-        if previous != json.loads(json.dumps(job.info())):
-            if not overwrite:
+        same = previous == json.loads(json.dumps(job.info()))
+        last = max(done_indices(out), default=-1)
+        if not overwrite:
+            if not same:
                 raise InputError("the output folder holds a run with other settings (robot, "
                                  "keypoints, seed, recipe or model extension)", out,
                                  "use the same settings to resume, or --overwrite")
+            if last >= job.num_frames:
+                raise InputError(f"the output folder already holds frames up to {last:06d}, "
+                                 f"beyond --num {job.num_frames}", out,
+                                 f"resume with --num {last + 1} or more, use a new --out, or "
+                                 "--overwrite")
+        elif not same or last >= job.num_frames:
             for p in out.iterdir():
                 if p.is_file():
                     p.unlink()

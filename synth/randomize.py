@@ -32,6 +32,9 @@ OCCLUDER_PATH_FRACTION = (0.4, 0.85)   # where on the camera -> robot segment an
 OCCLUDER_AIM_JITTER_M = 0.3            # the segment ends this far (per axis) around the target
 OCCLUDER_MAX_HALF_ANGLE_RAD = 0.08     # an occluder's half-size, as seen from the camera
 OCCLUDER_MAX_OFFSET = 2.0              # sideways shift from the segment, in occluder sizes
+ANY_HUE_JITTER = 0.5                   # appearance.hue_jitter from which any hue is drawn
+MIN_JITTERED_VALUE = 0.2               # a jittered colour's HSV value before scaling: at least
+                                       # this, so that black parts do not stay black
 
 
 def frame_rng(seed: int, index: int) -> np.random.Generator:
@@ -119,9 +122,12 @@ def sample_camera_pose(rng: np.random.Generator, config: SynthConfig) -> np.ndar
 def _jitter_color(rng: np.random.Generator, rgba: np.ndarray, config: SynthConfig) -> np.ndarray:
     a = config.appearance
     h, _, v = colorsys.rgb_to_hsv(*np.clip(rgba[:3], 0, 1))
-    h = (h + rng.uniform(-a.hue_jitter, a.hue_jitter) + rng.random()) % 1.0
+    jitter, spin = rng.uniform(-a.hue_jitter, a.hue_jitter), rng.random()
+    # half the circle or more: any hue (the spin makes it uniform; always drawn, so that a
+    # seed renders what it rendered before `hue_jitter` below 0.5 was honoured)
+    h = (h + jitter + (spin if a.hue_jitter >= ANY_HUE_JITTER else 0.0)) % 1.0
     s = rng.uniform(*a.saturation)
-    v = np.clip(max(v, 0.2) * rng.uniform(*a.value_scale), 0, 1)
+    v = np.clip(max(v, MIN_JITTERED_VALUE) * rng.uniform(*a.value_scale), 0, 1)
     return np.array([*colorsys.hsv_to_rgb(h, s, v), rgba[3]])
 
 

@@ -201,6 +201,24 @@ def test_held_object_moves_with_the_hand():
         maker.close()
 
 
+def test_resume_with_fewer_frames_or_a_negative_seed_is_refused(tmp_path, capsys):
+    out = tmp_path / "set"
+    quiet(SynthJob("panda", out, 3, config_from_dict({}), seed=1))
+    before = sorted(p.name for p in out.iterdir())
+    with pytest.raises(InputError, match="frames up to 000002, beyond --num 2"):
+        quiet(SynthJob("panda", out, 2, config_from_dict({}), seed=1))
+    assert sorted(p.name for p in out.iterdir()) == before
+    # --overwrite renders the smaller set afresh
+    generate(SynthJob("panda", out, 2, config_from_dict({}), seed=1), overwrite=True,
+             on_progress=lambda n: None)
+    assert len(read_sequence(out).frames) == 2
+    code = main(["synth", "--robot", "panda", "--num", "1", "--out", str(tmp_path / "neg"),
+                 "--seed", "-1"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "--seed must be >= 0" in err
+    assert not (tmp_path / "neg").exists()
+
+
 def test_photo_backgrounds(tmp_path):
     photos = tmp_path / "photos"
     photos.mkdir()
@@ -218,7 +236,8 @@ def test_photo_backgrounds(tmp_path):
         # pure red or pure green photo pixels (BGR), not a procedural pattern
         assert np.all((background == [0, 0, 255]).all(1) | (background == [0, 255, 0]).all(1))
     with pytest.raises(InputError, match="photo folder not found"):
-        config = config_from_dict({"background": {"photos": str(tmp_path / "none")}})
+        config = config_from_dict({"background": {"photos": str(tmp_path / "none"),
+                                                  "kinds": {"photo": 1.0}}})
         quiet(SynthJob("panda", tmp_path / "x", 1, config))
     assert not (tmp_path / "x").exists()
 

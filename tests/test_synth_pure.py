@@ -1,5 +1,7 @@
 """Synth recipe, per-frame randomness and labels: the parts that need no rendering."""
 
+import colorsys
+
 import numpy as np
 import pytest
 
@@ -8,7 +10,7 @@ from dream.robot import load_robot
 from dream.transforms import transform_points
 from synth.config import config_from_dict, load_config
 from synth.labels import OCCLUDED_DISTRACTOR, OCCLUDED_SELF, OUT_OF_FRAME, VISIBLE, keypoint_labels
-from synth.randomize import sample_frame, trajectory_joints
+from synth.randomize import _jitter_color, sample_frame, trajectory_joints
 
 PANDA = load_robot("panda")
 RGBA = np.tile([0.9, 0.9, 0.9, 1.0], (5, 1))
@@ -29,6 +31,17 @@ def frame(seed, index, config):
     ({"lights": {"intensity": "bright"}}, "lights.intensity"),
     ({"distractors": {"held_prob": 1.5}}, "distractors.held_prob"),
     ({"distractors": {"held_offset_m": [0.2, 0.1]}}, "distractors.held_offset_m"),
+    ({"lights": {"elevation_rad": [20, 80]}}, "lights.elevation_rad"),   # degrees by mistake
+    ({"lights": {"count": [1, 40]}}, "lights.count"),
+    ({"lights": {"intensity": [1.0, 0.2]}}, "lights.intensity"),
+    ({"distractors": {"size_m": [-0.2, -0.1]}}, "distractors.size_m"),
+    ({"appearance": {"saturation": [0, 5]}}, "appearance.saturation"),
+    ({"appearance": {"hue_jitter": -0.1}}, "appearance.hue_jitter"),
+    ({"appearance": {"reflectance": [0, 1]}}, "unknown config key .appearance.reflectance."),
+    ({"output": {"jpeg_quality": 500}}, "output.jpeg_quality"),
+    ({"camera": {"target_jitter_m": -0.1}}, "camera.target_jitter_m"),
+    ({"background": {"photos": "photos/"}}, "kinds.photo is 0"),
+    ({"background": {"kinds": {"photo": 1.0}}}, "needs background.photos"),
 ])
 def test_bad_recipes_are_refused_with_the_reason(values, words):
     with pytest.raises(InputError, match=words):
@@ -42,6 +55,25 @@ def test_shipped_recipes_load():
         load_config("configs/synth/missing.yaml")
     recipe = load_config("configs/synth/default.yaml", ["camera.radius_m=[1.5, 1.6]"])
     assert recipe.camera.radius_m == (1.5, 1.6) and recipe.lights.count == (1, 4)
+
+
+def test_default_recipe_file_is_the_built_in_recipe():
+    """`dream synth` without --config renders `configs/synth/default.yaml` (its help says so)."""
+    assert load_config("configs/synth/default.yaml") == load_config(None)
+
+
+@pytest.mark.parametrize("jitter", [0.05, 0.2])
+def test_hue_jitter_moves_the_hue_by_at_most_its_fraction(jitter):
+    config = config_from_dict({"appearance": {"hue_jitter": jitter, "saturation": [0.9, 0.9]}})
+    rng = np.random.default_rng(0)
+    red = np.array([1.0, 0.0, 0.0, 1.0])
+    hues = np.array([colorsys.rgb_to_hsv(*_jitter_color(rng, red, config)[:3])[0]
+                     for _ in range(2000)])
+    moved = np.minimum(hues, 1.0 - hues)               # circular distance from red (hue 0)
+    assert moved.max() <= jitter + 1e-9 and moved.max() > 0.9 * jitter
+    full = config_from_dict({})                         # the default 0.5: any hue
+    hues = [colorsys.rgb_to_hsv(*_jitter_color(rng, red, full)[:3])[0] for _ in range(2000)]
+    assert np.histogram(hues, bins=10, range=(0, 1))[0].min() > 150
 
 
 def test_each_frame_depends_only_on_seed_and_index():
