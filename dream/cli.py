@@ -55,6 +55,7 @@ def cmd_robots(args: argparse.Namespace) -> int:
     for entry in builtin_robots():
         print(f"{entry.name}: {entry.description}")
         print(f"  keypoints: {', '.join(entry.keypoints)}")
+        print(f"  why: {entry.rationale}")
     return 0
 
 

@@ -126,6 +126,7 @@ def test_info_and_robots(realdata, capsys):
     assert code == 0 and "275 frames" in out and "reference extrinsic: yes" in out
     code, out, _ = run(["robots"], capsys)
     assert code == 0 and all(name in out for name in ("panda", "ur5", "xarm7"))
+    assert out.count("  why: ") == 3 and "link5 = link6" in out       # the rationale of each
 
 
 def _one_error_line(code: int, err: str) -> str:
