@@ -109,7 +109,7 @@ class SolverSettings:
             if not (math.isfinite(value) and value > 0):
                 raise InputError(f"{name} must be positive and finite, got {value}",
                                  fix=f"use the default {self.__dataclass_fields__[name].default}")
-        for name, least in (("max_iterations", 1), ("ransac_hypotheses", 1),
+        for name, least in (("max_iterations", 1), ("ransac_hypotheses", 0),
                             ("outlier_rounds", 0), ("seed", 0)):
             if getattr(self, name) < least:
                 raise InputError(f"{name} must be >= {least}, got {getattr(self, name)}")

@@ -143,7 +143,7 @@ def test_the_pose_is_the_fit_of_the_keypoints_it_reports_as_inliers(rounds):
 def test_solver_settings_and_the_start_pose_are_checked(rng):
     for bad in ({"initial_damping": 0.0}, {"step_tolerance": float("nan")},
                 {"max_condition": -1.0}, {"collinear_ratio": float("inf")},
-                {"max_iterations": 0}, {"ransac_hypotheses": 0}, {"outlier_rounds": -1},
+                {"max_iterations": 0}, {"ransac_hypotheses": -1}, {"outlier_rounds": -1},
                 {"seed": -5}):
         with pytest.raises(InputError, match=next(iter(bad))):
             SolverSettings(**bad)
