@@ -39,6 +39,12 @@ from dream.pnp import (
 
 log = logging.getLogger(__name__)
 
+FIX_NO_FRAME_ALONE = ("use --frames all (one extrinsic from all frames together needs fewer "
+                      "keypoints per frame), or give frames with at least 4 keypoints found, "
+                      "not all on one line")
+FIX_NO_EXTRINSIC = ("give data whose frames show more of the robot's keypoints (labels or "
+                    "detections), at least 4 in all and not all on one line")
+
 
 @dataclass(frozen=True)
 class Observations:
@@ -241,7 +247,8 @@ def calibrate_all(obs: Observations, camera: CameraIntrinsics,
     P, uv, conf, usable = check_correspondences(P, uv, conf)
     reason = degeneracy(P[usable], settings)
     if reason is not None:
-        raise CalibrationError(f"no extrinsic can be solved: {reason} over all frames",)
+        raise CalibrationError(f"no extrinsic can be solved: {reason} over all frames",
+                               fix=FIX_NO_EXTRINSIC)
     hypotheses = [f.fit.T_cam_base for f in frames if isinstance(f.fit, PoseFit)]
     all_points = initial_pose(P[usable], uv[usable], camera)
     if not isinstance(all_points, NoSolution):
@@ -249,7 +256,8 @@ def calibrate_all(obs: Observations, camera: CameraIntrinsics,
     hypotheses += _random_hypotheses(P[usable], uv[usable], camera, settings)
     fit = refine_best(P, uv, camera, hypotheses, conf, usable, settings)
     if isinstance(fit, NoSolution):
-        raise CalibrationError(f"no extrinsic can be solved: {fit.reason}")
+        raise CalibrationError(f"no extrinsic can be solved: {fit.reason}",
+                               fix=FIX_NO_EXTRINSIC)
     shape = obs.uv.shape
     return CalibrationResult("all", fit, frames, fit.residuals_px.reshape(shape),
                              fit.inlier.reshape(shape[:2]))
@@ -347,7 +355,8 @@ def calibrate_each(obs: Observations, camera: CameraIntrinsics,
     solved = [i for i, f in enumerate(frames) if isinstance(f.fit, PoseFit)]
     if not solved:
         reasons = sorted({f.fit.reason for f in frames})
-        raise CalibrationError("no frame could be solved alone: " + "; ".join(reasons))
+        raise CalibrationError("no frame could be solved alone: " + "; ".join(reasons),
+                               fix=FIX_NO_FRAME_ALONE)
     leave_outs = frame_leave_outs(obs, frames, cameras, settings)
     frames = tuple(replace(f, jackknife=_frame_jackknife(f, lo), leave_outs=lo)
                    for f, lo in zip(frames, leave_outs, strict=True))

@@ -26,20 +26,41 @@ EXIT_INTERRUPTED = 130
 EXIT_BROKEN_PIPE = 141          # 128 + SIGPIPE, what a shell reports for a writer cut off
 
 
+FIX_INTRINSICS = "give --intrinsics fx,fy,cx,cy or fx,fy,cx,cy,width,height (pixels)"
+
+
 def _parse_intrinsics(text: str | None) -> CameraIntrinsics | tuple[float, ...] | None:
-    """'fx,fy,cx,cy' (size from the images) or 'fx,fy,cx,cy,width,height'."""
+    """'fx,fy,cx,cy' (size from the images) or 'fx,fy,cx,cy,width,height'; a bad value is an
+    `InputError` naming the option (not the data's camera file)."""
     if text is None:
         return None
     from dream.io import parse_intrinsics_text
 
     parts = text.split(",")
-    if len(parts) == 6:
-        try:
-            w, h = int(parts[4]), int(parts[5])
-        except ValueError:
-            raise InputError(f"--intrinsics '{text}': width and height must be integers") from None
-        return CameraIntrinsics(*parse_intrinsics_text(",".join(parts[:4])), w, h)
-    return parse_intrinsics_text(text)
+    if len(parts) != 6:
+        return parse_intrinsics_text(text, "--intrinsics")
+    try:
+        w, h = int(parts[4]), int(parts[5])
+    except ValueError:
+        raise InputError(f"--intrinsics '{text}': width and height must be integers",
+                         fix=FIX_INTRINSICS) from None
+    fx_fy_cx_cy = parse_intrinsics_text(",".join(parts[:4]), "--intrinsics")
+    try:
+        return CameraIntrinsics(*fx_fy_cx_cy, w, h)
+    except InputError as exc:
+        raise InputError(f"--intrinsics '{text}': {exc.problem}", fix=FIX_INTRINSICS) from None
+
+
+def _check_positive(value: int | None, option: str, fix: str) -> None:
+    """A whole-number option that must be >= 1 when given (None: its default)."""
+    if value is not None and value < 1:
+        raise InputError(f"{option} must be 1 or more, got {value}", fix=fix)
+
+
+def _check_seed(seed: int | None) -> None:
+    if seed is not None and seed < 0:
+        raise InputError(f"--seed must be a whole number >= 0, got {seed}",
+                         fix="give --seed 0 or a positive integer")
 
 
 def _read(args: argparse.Namespace):
@@ -92,10 +113,13 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def cmd_overlay(args: argparse.Namespace) -> int:
-    from dream.overlay import write_skeleton_overlays
+    from dream.io import check_output_folder
+    from dream.overlay import check_limit, write_skeleton_overlays
     from dream.pipeline import robot_for
     from dream.result import read_result
 
+    check_limit(args.limit)
+    check_output_folder(args.out)  # before any reading or drawing
     seq = _read(args)
     robot = robot_for(seq, args.robot)
     if args.extrinsic is not None:
@@ -114,6 +138,7 @@ def cmd_overlay(args: argparse.Namespace) -> int:
 
 
 def _settings(args: argparse.Namespace) -> SolverSettings:
+    _check_seed(args.seed)
     return SolverSettings(loss=RobustLoss(args.loss, args.loss_scale_px), seed=args.seed)
 
 
@@ -129,14 +154,19 @@ def _detect(args: argparse.Namespace, seq, out):
         load_model_robot,
     )
 
+    batch = getattr(args, "batch", None)
+    _check_positive(batch, "--batch", "give --batch 1 or more images per network call "
+                    f"(default {DEFAULT_BATCH_SIZE})")
+    batch = DEFAULT_BATCH_SIZE if batch is None else batch
     check_images(seq)
-    model = load_keypoint_model(args.model, threads=getattr(args, "threads", None))
+    model = getattr(args, "loaded_model", None)  # `dream demo` loads it before rendering
+    if model is None:
+        model = load_keypoint_model(args.model, threads=getattr(args, "threads", None))
     robot = load_model_robot(seq, model, args.robot)
     trained_on = getattr(model, "robot", None)
     if trained_on is not None and trained_on != robot.name:
         log.warning("the model was trained on robot '%s', the data is of '%s'", trained_on,
                     robot.name)
-    batch = getattr(args, "batch", None) or DEFAULT_BATCH_SIZE
     every = PROGRESS_EVERY_FRAMES
 
     def progress(done: int, total: int) -> None:  # a line each time `every` is crossed
@@ -172,16 +202,26 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
     """`dream calibrate`: observations from the labels (`--use-labels`) or from a keypoint
     network (`--model MODEL.onnx`, run by the `dream.model_loaders` entry point: onnxruntime,
     no torch) -> RESULT.json, plus RESULT.ros.txt and RESULT.T_base_cam.txt for robot
-    software (`dream.ros`)."""
-    from dream.io import write_json_atomic
+    software (`dream.ros`). Every output location is checked before the work, and the files
+    and the --overlays folder appear together or not at all."""
     from dream.pipeline import calibrate, observations_from_labels, robot_for, truth_poses
     from dream.result import result_to_dict
-    from dream.ros import write_robot_files
 
     out = out or sys.stdout
     polish = getattr(args, "polish", False)
     mask_head = getattr(args, "mask_head", False)
     _check_mask_head(mask_head, polish, getattr(args, "model", None) is not None, args.frames)
+    settings = _settings(args)
+    ros_path, matrix_path = _check_calibrate_outputs(args)
+    extension = None
+    if getattr(args, "model_extension", None):
+        from dream.extension import read_extension
+
+        if polish:
+            raise InputError("--polish renders the nominal robot and cannot use a model "
+                             "extension", args.model_extension,
+                             "drop --polish or --model-extension")
+        extension = read_extension(args.model_extension)
     seq = _read(args)
     if polish:
         from dream.polish import check_polish_input
@@ -192,17 +232,11 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
         robot, obs, model = _detect(args, seq, out)
     else:
         keypoints = seq.keypoint_names if args.use_labels else None
-        robot = robot_for(seq, args.robot, keypoints)
+        robot = robot_for(seq, args.robot, keypoints, keypoints_from=seq.source)
         obs = observations_from_labels(seq, robot)
-    if getattr(args, "model_extension", None):
+    if extension is not None:
         from dream.diagnose.run import apply_extension_to_observations
-        from dream.extension import read_extension
 
-        if polish:
-            raise InputError("--polish renders the nominal robot and cannot use a model "
-                             "extension", args.model_extension,
-                             "drop --polish or --model-extension")
-        extension = read_extension(args.model_extension)
         try:
             seq, obs = apply_extension_to_observations(seq, robot, obs, extension)
         except InputError as exc:
@@ -211,9 +245,9 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
             raise InputError(exc.problem, args.model_extension, exc.fix) from None
         print(f"model extension {args.model_extension}: "
               f"{', '.join(extension.effects) or 'no effect'}", file=out)
-    result = calibrate(seq, obs, args.frames, _settings(args))
+    result = calibrate(seq, obs, args.frames, settings)
     doc = result_to_dict(result, obs, robot=args.robot or seq.robot)
-    if getattr(args, "model_extension", None):
+    if extension is not None:
         doc["model_extension"] = {"file": str(args.model_extension),
                                   "effects": extension.to_dict()["effects"],
                                   "camera": {"fx": seq.camera.fx, "fy": seq.camera.fy,
@@ -221,13 +255,7 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
                                              "distortion": seq.camera.distortion}}
     if polish:
         doc = _polish(args, seq, robot, result, obs, model, doc, out)
-    if args.overlays:
-        from dream.overlay import write_result_overlays
-
-        write_result_overlays(seq, robot, obs, result, Path(args.overlays))
-    write_json_atomic(args.out, doc)
-    ros_path, matrix_path = write_robot_files(args.out, np.asarray(doc["T_cam_base"]),
-                                              robot.base_link)
+    _write_calibration(args, seq, robot, obs, result, doc, ros_path, matrix_path)
     _print_summary(doc, out)
     T_true = truth_poses(seq)
     if args.frames == "all" and np.all(np.isfinite(T_true[0])):
@@ -239,6 +267,49 @@ def run_calibrate(args: argparse.Namespace, out=None) -> dict:
     print(f"wrote {args.out}, {ros_path} (ROS static_transform_publisher: x y z qx qy qz qw "
           f"{robot.base_link} camera_optical_frame) and {matrix_path} (T_base_cam)", file=out)
     return doc
+
+
+def _check_calibrate_outputs(args: argparse.Namespace) -> tuple[Path, Path]:
+    """Before any work: RESULT.json, RESULT.ros.txt and RESULT.T_base_cam.txt can be written
+    and the --overlays folder can be made; returns the paths of the two text files."""
+    from dream.io import check_output_file, check_output_folder
+    from dream.ros import output_paths
+
+    check_output_file(args.out)
+    ros_path, matrix_path = output_paths(args.out)
+    for path in (ros_path, matrix_path):
+        try:
+            check_output_file(path)
+        except InputError as exc:
+            raise InputError(f"{exc.problem} (dream calibrate --out {args.out} writes it)",
+                             exc.path, "remove it, or choose another --out") from None
+    if getattr(args, "overlays", None):
+        check_output_folder(args.overlays)
+    return ros_path, matrix_path
+
+
+def _write_calibration(args: argparse.Namespace, seq, robot, obs, result, doc: dict,
+                       ros_path: Path, matrix_path: Path) -> None:
+    """RESULT.json, its two text files and the --overlays folder, all or none: the files are
+    written, then the overlays drawn into a temporary folder and moved into place; on a failure
+    of either (an unreadable image...) the files are put back as they were before the
+    command."""
+    from contextlib import nullcontext
+
+    from dream.io import replacing_files, staged_directory
+    from dream.io.atomic import dumps
+    from dream.ros import matrix_text, ros_text
+
+    T = np.asarray(doc["T_cam_base"])
+    files = {Path(args.out): dumps(doc).encode("utf-8"),
+             ros_path: ros_text(T, robot.base_link, file_name=ros_path.name).encode("utf-8"),
+             matrix_path: matrix_text(T, robot.base_link).encode("utf-8")}
+    overlays = staged_directory(args.overlays) if args.overlays else nullcontext()
+    with replacing_files(files), overlays as stage:  # a failure puts the files back
+        if stage is not None:
+            from dream.overlay import write_result_overlays
+
+            write_result_overlays(seq, robot, obs, result, stage)
 
 
 def _polish(args: argparse.Namespace, seq, robot, result, obs, model, doc: dict, out) -> dict:
@@ -292,13 +363,15 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     """`dream diagnose`: residual analysis, effect catalog, cross-validated model selection."""
     from dream.diagnose.run import run_diagnosis
     from dream.diagnose.select import DiagnoseSettings
+    from dream.io import check_output_folder
     from dream.pipeline import observations_from_labels, robot_for
 
+    check_output_folder(args.out)  # before the analysis, which takes a while
     seq = _read(args)
     if args.model is not None:
         robot, obs, _ = _detect(args, seq, sys.stdout)
     else:
-        robot = robot_for(seq, args.robot, seq.keypoint_names)
+        robot = robot_for(seq, args.robot, seq.keypoint_names, keypoints_from=seq.source)
         obs = observations_from_labels(seq, robot)
     effects = tuple(e.strip() for e in args.effects.split(",")) if args.effects else None
     settings = DiagnoseSettings(**({"effects": effects} if effects else {}),
@@ -360,14 +433,17 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    from dream.io import write_json_atomic
+    from dream.io import check_output_file, write_json_atomic
     from dream.pipeline import evaluate, robot_for
     from dream.result import read_result
 
-    seq = _read(args)
+    check_output_file(args.out)
     doc = read_result(args.result)
-    names = [k["name"] for f in doc.get("per_frame", [])[:1] for k in f.get("keypoints", [])]
-    robot = robot_for(seq, args.robot or doc.get("robot"), tuple(names) or None)
+    seq = _read(args)
+    names = [k["name"] for f in doc["per_frame"][:1] for k in f.get("keypoints") or []]
+    robot = robot_for(seq, args.robot or doc.get("robot"), tuple(names) or None,
+                      robot_from=args.result if not args.robot and doc.get("robot") else None,
+                      keypoints_from=args.result)
     metrics = evaluate(seq, robot, doc)
     write_json_atomic(args.out, metrics)
     add, t, r = metrics["add_m"], metrics["translation_error_m"], metrics["rotation_error_rad"]
@@ -388,6 +464,14 @@ def cmd_sample(args: argparse.Namespace) -> int:
     from dream.io import write_dream
     from dream.sample import SampleSpec, make_sample
 
+    _check_seed(args.seed)
+    _check_positive(args.num, "--num", "give --num 1 or more frames")
+    if not np.isfinite(args.noise_px) or args.noise_px < 0:
+        raise InputError(f"--noise-px must be a finite number of pixels >= 0, got "
+                         f"{args.noise_px}", fix="give e.g. --noise-px 1.0 (0: exact labels)")
+    if not np.isfinite(args.outliers) or not 0 <= args.outliers <= 1:
+        raise InputError(f"--outliers must be a fraction between 0 and 1, got {args.outliers}",
+                         fix="give e.g. --outliers 0.1 (0: no outlier labels)")
     spec = SampleSpec(robot=args.robot, num_frames=args.num, pixel_noise_px=args.noise_px,
                       outlier_fraction=args.outliers, seed=args.seed)
     write_dream(make_sample(spec), Path(args.out), overwrite=args.overwrite)
@@ -404,6 +488,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
     `--keypoints-only`: the keypoint-only sample calibrated from its labels (no rendering)."""
     import importlib
 
+    from dream.io import check_output_folder
+
+    _check_seed(args.seed)
+    if args.out:
+        check_output_folder(args.out)
     work = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="dream-demo-"))
     if args.keypoints_only:
         from dream.io import write_dream
@@ -427,7 +516,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
         raise InputError("the keypoint model is missing", model,
                          "reinstall the project (the bundled model ships in dream/models/), "
                          "give --model MODEL.onnx, or run dream demo --keypoints-only")
+    from dream.detect import load_keypoint_model, robot_for_model
+    from dream.robot import load_robot
+
+    loaded = load_keypoint_model(model)  # a bad model fails here, before the rendering
     demo = importlib.import_module("synth.demo")  # the renderer (MuJoCo), loaded only here
+    robot_for_model(load_robot(demo.DEMO_ROBOT), loaded)
     seed = demo.DEMO_SEED if args.seed is None else args.seed
     data = work / "scene"
     print(f"rendering the demo scene: {demo.DEMO_FRAMES} frames of {demo.DEMO_ROBOT}, one fixed "
@@ -437,7 +531,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
                             frames="all", out=str(work / "result.json"),
                             overlays=str(work / "overlays"), polish=False, loss="huber",
                             loss_scale_px=RobustLoss().scale_px, seed=0, intrinsics=None,
-                            threads=None, batch=None, model_extension=None)
+                            threads=None, batch=None, model_extension=None,
+                            loaded_model=loaded)
     run_calibrate(ns)
     print(f"overlays in {work / 'overlays'}; same as: dream calibrate --data {data} --model "
           f"{model} --overlays {work / 'overlays'} --out {work / 'result.json'}")

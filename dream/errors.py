@@ -12,6 +12,12 @@ class DreamError(Exception):
     """
 
 
+def _message(problem: str, path: Path | None, fix: str | None) -> str:
+    where = f"{path}: " if path is not None else ""
+    how = f" Fix: {fix}" if fix else ""
+    return f"{where}{problem.rstrip('.')}.{how}"
+
+
 class InputError(DreamError):
     """A file or value given by the user is missing, unreadable or malformed.
 
@@ -25,9 +31,7 @@ class InputError(DreamError):
         self.problem = problem
         self.path = None if path is None else Path(path)
         self.fix = fix
-        where = f"{self.path}: " if self.path is not None else ""
-        how = f" Fix: {fix}" if fix else ""
-        super().__init__(f"{where}{problem.rstrip('.')}.{how}")
+        super().__init__(_message(problem, self.path, fix))
 
 
 class RobotError(DreamError):
@@ -35,4 +39,17 @@ class RobotError(DreamError):
 
 
 class CalibrationError(DreamError):
-    """The calibration cannot be solved from the given observations (too few keypoints...)."""
+    """The calibration cannot be solved from the given observations (too few keypoints...).
+
+    Args:
+        problem: why, e.g. "only 3 usable keypoints, at least 4 are needed".
+        path: the data concerned, when known.
+        fix: what the user should do, when there is something to do.
+    """
+
+    def __init__(self, problem: str, path: str | Path | None = None, fix: str | None = None):
+        self.problem = problem
+        self.path = None if path is None else Path(path)
+        self.fix = fix
+        super().__init__(problem if path is None and fix is None
+                         else _message(problem, self.path, fix))

@@ -217,9 +217,33 @@ class ModelExtension:
         return doc
 
 
+# The parameter keys of the effects whose keys are fixed (the others are keyed by joint,
+# link or keypoint name, checked against the robot when applied). camera_moved's last two are
+# derived values that `to_dict` writes for the reader; they are read and ignored.
+EFFECT_KEYS: dict[str, tuple[str, ...]] = {
+    "lens_distortion": DISTORTION_NAMES,
+    "intrinsics_error": INTRINSIC_NAMES,
+    "time_offset": ("seconds",),
+    "camera_moved": ("frame", "rotation_rad", "translation_m", "rotation_angle_rad",
+                     "camera_displacement_m"),
+}
+FILE_KEYS = ("format", "version", "robot", "effects")
+
+
+def _check_keys(name: str, params: Mapping[str, Any]) -> None:
+    allowed = EFFECT_KEYS.get(name)
+    if allowed is None:
+        return
+    unknown = [str(k) for k in params if k not in allowed]
+    if unknown:
+        raise InputError(f"effect '{name}' has unknown parameter '{unknown[0]}'",
+                         fix=f"use the parameters of {name}: {', '.join(allowed)}")
+
+
 def extension_from_effects(effects: Mapping[str, Mapping[str, Any]],
                            robot: str | None = None) -> ModelExtension:
-    """A `ModelExtension` from {effect name: params} (the SPEC vocabulary)."""
+    """A `ModelExtension` from {effect name: params} (the SPEC vocabulary); an unknown effect
+    or parameter is an `InputError` naming it."""
     kwargs: dict[str, Any] = {"robot": robot}
     for name, params in effects.items():
         if name not in EFFECT_NAMES:
@@ -227,6 +251,7 @@ def extension_from_effects(effects: Mapping[str, Mapping[str, Any]],
                              fix=f"use one of {', '.join(EFFECT_NAMES)}")
         if not isinstance(params, Mapping):
             raise InputError(f"effect '{name}' needs a mapping of parameters, got {params!r}")
+        _check_keys(name, params)
         if name == "joint_offset":
             kwargs["joint_offset_rad"] = dict(params)
         elif name == "link_length":
@@ -265,13 +290,26 @@ def read_extension(path: str | Path) -> ModelExtension:
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot parse the model extension ({type(exc).__name__})", path,
                          "give a YAML file written by dream diagnose") from None
-    if not isinstance(doc, dict) or not isinstance(doc.get("effects", {}), dict):
-        raise InputError("not a model extension (expected a mapping with 'effects')", path,
-                         "give a YAML file written by dream diagnose")
+    fix = "give a YAML file written by dream diagnose"
+    if not isinstance(doc, dict) or not isinstance(doc.get("effects", {}), (dict, type(None))):
+        raise InputError("not a model extension (expected a mapping with 'effects')", path, fix)
+    unknown = [str(k) for k in doc if k not in FILE_KEYS]
+    if unknown:
+        raise InputError(f"unknown key '{unknown[0]}' in the model extension", path,
+                         f"use only {', '.join(FILE_KEYS)}")
+    if "format" in doc and doc["format"] != FORMAT:
+        raise InputError(f"format is {doc['format']!r}, not '{FORMAT}'", path, fix)
+    version = doc.get("version", FORMAT_VERSION)
+    if isinstance(version, bool) or version != FORMAT_VERSION:
+        raise InputError(f"version {version!r} of the model extension format is not supported "
+                         f"(this dream reads version {FORMAT_VERSION})", path, fix)
+    robot = doc.get("robot")
+    if robot is not None and (not isinstance(robot, str) or not robot):
+        raise InputError(f"robot must be a robot name, got {robot!r}", path, fix)
     try:
-        return extension_from_effects(doc.get("effects") or {}, doc.get("robot"))
+        return extension_from_effects(doc.get("effects") or {}, robot)
     except InputError as exc:
-        raise InputError(exc.problem, path, exc.fix) from None
+        raise InputError(exc.problem, path, exc.fix or f"correct the file, or {fix}") from None
 
 
 def extension_yaml(extension: ModelExtension) -> str:

@@ -109,13 +109,17 @@ RESIDUAL_MAGNIFICATION = 10.0  # residual vectors are drawn this many times long
 def _write_png(path, rgb: np.ndarray) -> None:
     from pathlib import Path
 
+    from dream.io.fields import os_reason
+
     path = Path(path)
     ok, buf = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     if not ok:
         raise InputError("could not encode the overlay image", path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(buf.tobytes())
-    tmp.replace(path)
+    try:
+        path.write_bytes(buf.tobytes())
+    except OSError as exc:
+        raise InputError(f"cannot write the overlay image ({os_reason(exc)})", path,
+                         "check that the folder is writable and the disk has space") from None
 
 
 def _frame_canvas(sequence, frame) -> np.ndarray:
@@ -126,55 +130,64 @@ def _frame_canvas(sequence, frame) -> np.ndarray:
     return load_image(frame, sequence.camera)
 
 
+def check_limit(limit: int | None) -> None:
+    """`limit` of `write_skeleton_overlays`: None (every frame) or at least 1."""
+    if limit is not None and (isinstance(limit, bool) or not isinstance(limit, int)
+                              or limit < 1):
+        raise InputError(f"--limit must be a whole number of frames >= 1, got {limit}",
+                         fix="give --limit 1 or more, or leave it out to draw every frame")
+
+
 def write_skeleton_overlays(sequence, robot, T_cam_base: np.ndarray, out_dir,
                             limit: int | None = None) -> int:
-    """Keypoints and skeleton of every imaged frame projected with `T_cam_base` (F, 4, 4)."""
-    from pathlib import Path
-
+    """Keypoints and skeleton of every imaged frame (the first `limit` of them) projected with
+    `T_cam_base` (F, 4, 4); returns how many images were written. The folder is written
+    atomically (`dream.io.staged_directory`): on a failure nothing is left in it."""
     from dream.camera import project
+    from dream.io.atomic import staged_directory
     from dream.pipeline import joints_in_robot_order
     from dream.transforms import transform_points
 
+    check_limit(limit)
     frames = [(i, f) for i, f in enumerate(sequence.frames) if f.image_path is not None]
     if not frames:
         raise InputError("the data has no images to draw on", sequence.source)
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    chosen = frames[:limit]
     P_base = robot.forward_kinematics(joints_in_robot_order(sequence, robot))
-    for n, (i, frame) in enumerate(frames[:limit]):
-        uv = project(sequence.frame_camera(i), transform_points(T_cam_base[i], P_base[i]))
-        image = draw_skeleton(_frame_canvas(sequence, frame), uv, robot.skeleton_edges)
-        _write_png(out_dir / f"{frame.name}.overlay.png", image)
-        if (n + 1) % 50 == 0:
-            log.info("overlays: %d / %d", n + 1, len(frames))
-    return min(len(frames), limit or len(frames))
+    with staged_directory(out_dir) as stage:
+        for n, (i, frame) in enumerate(chosen):
+            uv = project(sequence.frame_camera(i), transform_points(T_cam_base[i], P_base[i]))
+            image = draw_skeleton(_frame_canvas(sequence, frame), uv, robot.skeleton_edges)
+            _write_png(stage / f"{frame.name}.overlay.png", image)
+            if (n + 1) % 50 == 0:
+                log.info("overlays: %d / %d", n + 1, len(chosen))
+    return len(chosen)
 
 
 def write_result_overlays(sequence, robot, obs, result, out_dir) -> None:
     """Per frame: observations with their detection confidence, the skeleton re-projected with
     the solution and the residual vectors; plus `summary.png`, every residual of every frame
-    on one canvas, magnified."""
-    from pathlib import Path
-
+    on one canvas, magnified. The folder is written atomically (`dream.io.staged_directory`):
+    on a failure (an unreadable image...) nothing is left in it."""
     from dream.camera import project
+    from dream.io.atomic import staged_directory
     from dream.transforms import transform_points
 
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     cam = sequence.camera
     summary = blank_image(cam.width, cam.height)
-    for i, frame in enumerate(sequence.frames):
-        T = result.T_cam_base_of_frame(i)
-        uv_proj = np.full(obs.uv[i].shape, np.nan) if T is None else \
-            project(sequence.frame_camera(i), transform_points(T, obs.P_base[i]))
-        image = draw_skeleton(_frame_canvas(sequence, frame), uv_proj, robot.skeleton_edges)
-        image = draw_observations(image, obs.uv[i], uv_proj, result.inlier[i])
-        image = draw_confidences(image, obs.uv[i], obs.confidence[i])
-        _write_png(out_dir / f"{frame.name}.result.png", image)
-        magnified = obs.uv[i] + RESIDUAL_MAGNIFICATION * (uv_proj - obs.uv[i])
-        summary = draw_observations(summary, obs.uv[i], magnified, result.inlier[i])
-    text = (f"{result.mode}: RMSE {result.fit.rmse_px:.2f} px, {result.fit.num_inliers} "
-            f"keypoints; residuals x{RESIDUAL_MAGNIFICATION:g}")
-    cv2.putText(summary, text, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1,
-                cv2.LINE_AA)
-    _write_png(out_dir / "summary.png", summary)
+    with staged_directory(out_dir) as stage:
+        for i, frame in enumerate(sequence.frames):
+            T = result.T_cam_base_of_frame(i)
+            uv_proj = np.full(obs.uv[i].shape, np.nan) if T is None else \
+                project(sequence.frame_camera(i), transform_points(T, obs.P_base[i]))
+            image = draw_skeleton(_frame_canvas(sequence, frame), uv_proj, robot.skeleton_edges)
+            image = draw_observations(image, obs.uv[i], uv_proj, result.inlier[i])
+            image = draw_confidences(image, obs.uv[i], obs.confidence[i])
+            _write_png(stage / f"{frame.name}.result.png", image)
+            magnified = obs.uv[i] + RESIDUAL_MAGNIFICATION * (uv_proj - obs.uv[i])
+            summary = draw_observations(summary, obs.uv[i], magnified, result.inlier[i])
+        text = (f"{result.mode}: RMSE {result.fit.rmse_px:.2f} px, {result.fit.num_inliers} "
+                f"keypoints; residuals x{RESIDUAL_MAGNIFICATION:g}")
+        cv2.putText(summary, text, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1,
+                    cv2.LINE_AA)
+        _write_png(stage / "summary.png", summary)

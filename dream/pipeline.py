@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -16,7 +17,7 @@ from dream.calibrate import (
     with_keypoint_jackknife,
 )
 from dream.camera import project
-from dream.errors import InputError, RobotError
+from dream.errors import CalibrationError, InputError, RobotError
 from dream.metrics import (
     ADD_AUC_STEP_M,
     ADD_AUC_THRESHOLD_M,
@@ -30,17 +31,61 @@ from dream.metrics import (
     summarise,
 )
 from dream.pnp import SolverSettings
-from dream.robot import Robot, load_robot
+from dream.robot import Robot, builtin_robots, load_robot
 from dream.sequence import Sequence
 from dream.transforms import transform_points
 
 log = logging.getLogger(__name__)
 
 
+FIX_ROBOT_OPTION = ("give --robot a built-in robot (dream robots lists them) or the path of "
+                    "a .urdf file")
+
+
+def _is_robot_name_known(name: str) -> bool:
+    """True when `load_robot` takes `name` for a built-in robot or a URDF path (an unknown
+    name is then a problem of the name, not of the keypoints)."""
+    text = str(name)
+    if text.strip().lower() in {entry.name for entry in builtin_robots()}:
+        return True
+    path = Path(text)
+    return path.suffix.lower() in (".urdf", ".xml") or "/" in text or "\\" in text or \
+        path.is_file()
+
+
 def robot_for(sequence: Sequence, robot: str | None = None,
-              keypoints: tuple[str, ...] | None = None) -> Robot:
-    """The robot of a sequence (or the one named), with the given keypoints or its defaults."""
-    return load_robot(robot or sequence.robot, list(keypoints) if keypoints else None)
+              keypoints: tuple[str, ...] | None = None, *,
+              robot_from: str | Path | None = None,
+              keypoints_from: str | Path | None = None) -> Robot:
+    """The robot of a sequence (or the one named), with the given keypoints or its defaults.
+
+    An unknown robot is an `InputError` naming where its name came from: `robot_from` (a file,
+    e.g. RESULT.json), else the --robot option when `robot` is given, else the data
+    (`sequence.source`). Keypoints that are not links of the robot are an `InputError` naming
+    `keypoints_from` (e.g. the data, whose labels name them) when given; without it they stay a
+    `RobotError` for the caller to attribute (`dream.detect` names the model)."""
+    name = robot or sequence.robot
+    try:
+        return load_robot(name, list(keypoints) if keypoints else None)
+    except RobotError as exc:
+        if not _is_robot_name_known(name):
+            if robot_from is not None:
+                raise InputError(f"names robot {name!r}, which is not known ({exc})",
+                                 robot_from, "correct its robot name, or pass --robot with a "
+                                 "built-in robot (dream robots lists them) or a .urdf file"
+                                 ) from None
+            if robot:
+                raise InputError(f"--robot {name!r}: {exc}", fix=FIX_ROBOT_OPTION) from None
+            raise InputError(f"the data names robot {name!r}, which is not known ({exc})",
+                             sequence.source, "pass --robot with a built-in robot (dream "
+                             "robots lists them) or the path of a .urdf file") from None
+        if keypoints and keypoints_from is not None:
+            raise InputError(f"the keypoints named there are not all links of robot {name!r} "
+                             f"({exc})", keypoints_from,
+                             "name the keypoints after links of the robot (dream robots lists "
+                             "the built-in ones), or pass --robot with the robot they belong "
+                             "to") from None
+        raise
 
 
 def joints_in_robot_order(sequence: Sequence, robot: Robot) -> np.ndarray:
@@ -67,13 +112,22 @@ def observations_from_labels(sequence: Sequence, robot: Robot) -> Observations:
 
 def calibrate(sequence: Sequence, obs: Observations, mode: str = "all",
               settings: SolverSettings | None = None) -> CalibrationResult:
-    if mode == "all":
-        camera = sequence.fixed_camera("use --frames each")
-        return with_keypoint_jackknife(calibrate_all(obs, camera, settings), obs, camera, settings)
-    if mode == "each":
+    """`calibrate_all` (with its keypoint jackknife) or `calibrate_each` of the sequence; a
+    `CalibrationError` names the data (`sequence.source`)."""
+    if mode not in ("all", "each"):
+        raise InputError(f"unknown frames mode '{mode}'",
+                         fix="use --frames all or --frames each")
+    try:
+        if mode == "all":
+            camera = sequence.fixed_camera("use --frames each")
+            return with_keypoint_jackknife(calibrate_all(obs, camera, settings), obs, camera,
+                                           settings)
         cameras = tuple(sequence.frame_camera(i) for i in range(len(sequence)))
         return calibrate_each(obs, sequence.camera, settings, frame_cameras=cameras)
-    raise InputError(f"unknown frames mode '{mode}'", fix="use --frames all or --frames each")
+    except CalibrationError as exc:
+        if exc.path is not None or sequence.source is None:
+            raise
+        raise CalibrationError(exc.problem, sequence.source, exc.fix) from None
 
 
 def truth_poses(sequence: Sequence) -> np.ndarray:

@@ -146,13 +146,17 @@ def load_recipe(cls: type[T], path: str | Path | None, overrides: typing.Sequenc
         except OSError as exc:
             raise InputError(f"cannot read the config ({exc.strerror or exc})", path,
                              f"give the path of {example}") from None
+        except UnicodeDecodeError:
+            raise InputError("the config is not UTF-8 text", path,
+                             f"give the path of {example}") from None
+        fix = f"correct the YAML syntax, or give the path of {example}"
         try:
             doc = yaml.safe_load(text) or {}
         except yaml.YAMLError as exc:
             raise InputError(f"the config is not valid YAML ({str(exc).splitlines()[0]})",
-                             path) from None
+                             path, fix) from None
         if not isinstance(doc, dict):
-            raise InputError("the config must be a mapping of sections", path)
+            raise InputError("the config must be a mapping of sections", path, fix)
     try:
         for text in overrides:
             doc = merge(doc, parse_override(text))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -10,6 +9,7 @@ import numpy as np
 
 from dream.calibrate import CalibrationResult, Observations
 from dream.errors import InputError
+from dream.io import fields
 from dream.pnp import PoseFit
 from dream.transforms import invert_T, is_rigid, quaternion_xyzw_from_R, skew
 
@@ -96,27 +96,61 @@ def result_to_dict(result: CalibrationResult, obs: Observations, *, robot: str) 
     }
 
 
+FIX_RESULT = ("give a RESULT.json written by dream calibrate (run it again if the file was "
+              "edited or cut short)")
+FRAMES_MODES = ("all", "each")
+
+
+def _rigid(value: Any, what: str, path: Path) -> np.ndarray:
+    """`value` as a finite 4x4 rigid transform, or an `InputError` naming `what` in `path`."""
+    T = fields.as_matrix(value, what, path, 4, 4, FIX_RESULT)
+    if not is_rigid(T, atol=1e-6):
+        raise InputError(f"{what} is not a 4x4 rigid transform (orthonormal rotation, last row "
+                         "0 0 0 1)", path, FIX_RESULT)
+    return T
+
+
+def _check_per_frame(per_frame: Any, path: Path) -> list[dict[str, Any]]:
+    """The `per_frame` list, each entry checked as `dream.pipeline.evaluate` reads it."""
+    for i, entry in enumerate(fields.as_list(per_frame, "per_frame", path, FIX_RESULT)):
+        what = f"per_frame[{i}]"
+        fields.as_dict(entry, what, path, FIX_RESULT)
+        fields.as_str(fields.require(entry, "frame", f"{what}.frame", path, FIX_RESULT),
+                      f"{what}.frame", path, FIX_RESULT)
+        if entry.get("T_cam_base") is not None:
+            _rigid(entry["T_cam_base"], f"{what}.T_cam_base", path)
+        keypoints = entry.get("keypoints")
+        if keypoints is None:
+            continue
+        for k, kp in enumerate(fields.as_list(keypoints, f"{what}.keypoints", path,
+                                              FIX_RESULT)):
+            where = f"{what}.keypoints[{k}]"
+            fields.as_dict(kp, where, path, FIX_RESULT)
+            fields.as_str(fields.require(kp, "name", f"{where}.name", path, FIX_RESULT),
+                          f"{where}.name", path, FIX_RESULT)
+            if kp.get("uv") is not None:
+                fields.as_vector(kp["uv"], f"{where}.uv", path, 2, FIX_RESULT)
+    return per_frame
+
+
 def read_result(path: str | Path) -> dict[str, Any]:
-    """Load and check a RESULT.json; returns the document with `T_cam_base` as an array."""
+    """Load and check a RESULT.json; returns the document with `T_cam_base` as an array.
+
+    Checked: `T_cam_base` (a finite 4x4 rigid transform), `robot` and `frames_mode` when
+    present, and `per_frame` (frame names, per-frame transforms, keypoint names and pixels).
+    Every problem is an `InputError` naming the file and the fix."""
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError("result file not found", path, "run `dream calibrate` first") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"not a readable JSON file ({exc})", path) from None
-    if not isinstance(doc, dict) or "T_cam_base" not in doc:
-        raise InputError("no T_cam_base in the result", path, "give a RESULT.json of `dream "
-                         "calibrate`")
-    try:
-        T = np.array(doc["T_cam_base"], dtype=float)
-    except (TypeError, ValueError):
-        T = None
-    if T is None or not is_rigid(T, atol=1e-6):
-        raise InputError("T_cam_base is not a 4x4 rigid transform", path)
-    doc["T_cam_base"] = T
-    per_frame = doc.get("per_frame", [])
-    if not isinstance(per_frame, list) or not all(isinstance(f, dict) and "frame" in f
-                                                  for f in per_frame):
-        raise InputError("per_frame must be a list of objects with a 'frame' name", path)
+    doc = fields.load_json(path, FIX_RESULT if path.exists() else
+                           "run dream calibrate first, or give the RESULT.json it wrote")
+    fields.as_dict(doc, "the result", path, FIX_RESULT)
+    if doc.get("T_cam_base") is None:
+        raise InputError("no T_cam_base in the result", path, FIX_RESULT)
+    doc["T_cam_base"] = _rigid(doc["T_cam_base"], "T_cam_base", path)
+    if doc.get("robot") is not None:
+        fields.as_str(doc["robot"], "robot", path, FIX_RESULT)
+    mode = doc.get("frames_mode")
+    if mode is not None and mode not in FRAMES_MODES:
+        raise InputError(f"frames_mode must be \"all\" or \"each\", got {fields.describe(mode)}",
+                         path, FIX_RESULT)
+    doc["per_frame"] = _check_per_frame(doc.get("per_frame") or [], path)
     return doc

@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 
 from dream.errors import InputError
-from dream.io import write_bytes_atomic
 from dream.transforms import invert_T, is_rigid, quaternion_xyzw_from_R
 
 CAMERA_OPTICAL_FRAME = "camera_optical_frame"
@@ -93,13 +92,3 @@ def output_paths(result_path: str | Path) -> tuple[Path, Path]:
     """(RESULT.ros.txt, RESULT.T_base_cam.txt) next to RESULT.json (its suffix replaced)."""
     path = Path(result_path)
     return path.with_suffix(ROS_SUFFIX), path.with_suffix(MATRIX_SUFFIX)
-
-
-def write_robot_files(result_path: str | Path, T_cam_base: np.ndarray,
-                      base_frame: str) -> tuple[Path, Path]:
-    """Write both files next to `result_path` atomically; returns their paths."""
-    ros_path, matrix_path = output_paths(result_path)
-    ros = ros_text(T_cam_base, base_frame, file_name=ros_path.name)
-    write_bytes_atomic(ros_path, ros.encode("utf-8"))
-    write_bytes_atomic(matrix_path, matrix_text(T_cam_base, base_frame).encode("utf-8"))
-    return ros_path, matrix_path

@@ -7,6 +7,7 @@ some labels are replaced by uniformly random pixels (outliers). Ground truth is 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,12 +41,17 @@ class SampleSpec:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.num_frames < 1:
-            raise InputError(f"num_frames must be >= 1, got {self.num_frames}")
-        if not 0.0 <= self.outlier_fraction <= 1.0:
+        if isinstance(self.num_frames, bool) or not isinstance(self.num_frames, (int, np.integer)) \
+                or self.num_frames < 1:
+            raise InputError(f"num_frames must be a whole number >= 1, got {self.num_frames!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) \
+                or self.seed < 0:
+            raise InputError(f"seed must be a whole number >= 0, got {self.seed!r}")
+        if not math.isfinite(self.outlier_fraction) or not 0.0 <= self.outlier_fraction <= 1.0:
             raise InputError(f"outlier_fraction must be in [0, 1], got {self.outlier_fraction}")
-        if self.pixel_noise_px < 0:
-            raise InputError(f"pixel_noise_px must be >= 0, got {self.pixel_noise_px}")
+        if not math.isfinite(self.pixel_noise_px) or self.pixel_noise_px < 0:
+            raise InputError(f"pixel_noise_px must be a finite number >= 0, got "
+                             f"{self.pixel_noise_px}")
         lo, hi = self.distance_m
         if not 0 < lo <= hi:
             raise InputError(f"distance_m must be an increasing pair of positive metres, got "

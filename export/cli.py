@@ -13,7 +13,6 @@ import argparse
 
 def cmd_export(args: argparse.Namespace) -> int:
     from dream.errors import InputError
-    from dream.peaks import peak_params_from_overrides
 
     try:
         from export.onnx_export import PARITY_ATOL, export_model  # torch from here on
@@ -21,8 +20,8 @@ def cmd_export(args: argparse.Namespace) -> int:
         raise InputError(f"dream export needs torch and onnx ({exc})",
                          fix="install the training extras: pip install -e '.[train]'") from None
 
-    peak_params = None if not args.peaks else peak_params_from_overrides(args.peaks, "--peaks")
-    report = export_model(args.checkpoint, args.out, opset=args.opset, peak_params=peak_params)
+    report = export_model(args.checkpoint, args.out, opset=args.opset,
+                          peak_overrides=args.peaks or ())
     meta = report.metadata
     pre = meta.preprocess
     diffs = ", ".join(f"{name} {diff:.2g}" for name, diff in report.max_abs_diff.items())
@@ -42,8 +41,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--checkpoint", required=True, help="a .ckpt written by dream train")
     p.add_argument("--out", required=True, help="the .onnx file to write")
     p.add_argument("--opset", type=int, default=None,
-                   help="ONNX opset (default: the exporter's)")
+                   help="ONNX opset that torch's exporter writes, 18 to its version "
+                        "converter's newest (25 with onnxscript 0.7); others are refused "
+                        "(default: the exporter's own, 20 with torch 2.13)")
     p.add_argument("--peaks", action="append", metavar="NAME=VALUE",
                    help="peak-finder constant written into the model (repeatable), e.g. "
-                        "ambiguity_ratio=0.8 (default: the training config's eval.peaks)")
+                        "ambiguity_ratio=0.8; the parameters not named keep the training "
+                        "config's eval.peaks (default: all of eval.peaks)")
     p.set_defaults(func=cmd_export)

@@ -11,6 +11,13 @@ logits. The export uses torch's default exporter (`torch.onnx.export(..., dynamo
 metadata_props (`export.runner.ModelMetadata`). Before the file appears, onnxruntime runs it on
 a random batch of another size than the traced one and every output must match torch within
 `PARITY_ATOL` (absolute); otherwise nothing is written and an `InputError` says so.
+
+Opsets: the exporter builds the graph in torchlib's opset (18) and converts it with onnxscript's
+version converter to the opset asked for (default 20 with torch 2.13); that converter supports
+18-25 with onnxscript 0.7 (`supported_opsets`). For any other opset it falls back to onnx's C
+converter, which on failure logs a traceback and leaves the model at 18 without raising. So
+another `opset` is refused before the export, and the written model's opset is checked
+against the one asked for.
 """
 
 from __future__ import annotations
@@ -22,7 +29,7 @@ import logging
 import os
 import secrets
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,8 +42,9 @@ from torch import nn
 from dream import __version__
 from dream.detect import BELIEF_OUTPUT, MASK_OUTPUT
 from dream.errors import InputError
+from dream.io import check_output_file
 from dream.io.fields import one_line, os_reason
-from dream.peaks import PeakParams
+from dream.peaks import PeakParams, peak_params_from_overrides
 from export.runner import INPUT_NAME, ModelMetadata, OnnxKeypointModel
 from train.checkpoint import load_checkpoint
 from train.config import TrainConfig
@@ -55,6 +63,10 @@ _TOKEN_BYTES = 4
 # node annotations of the exporter (source file paths, FX node names, rewrite rules): debugging
 # aids that would put the building machine's paths into a shipped file
 EXPORTER_NODE_PROPS = ("pkg.torch.onnx.", "pkg.onnxscript.")
+# (lowest, highest) opset of onnxscript's version converter, used when its private constants
+# cannot be read (the values of onnxscript 0.7 with torch 2.13)
+OPSET_RANGE_FALLBACK = (18, 25)
+ONNX_DOMAINS = ("", "ai.onnx")   # the default operator set's names in opset_import
 
 
 class KeypointExportWrapper(nn.Module):
@@ -92,7 +104,9 @@ class ExportReport:
 
 
 def config_sha256(config: TrainConfig) -> str:
-    """sha256 of the config's canonical JSON (sorted keys, no spaces)."""
+    """sha256 (hex digest) of the config's canonical JSON: `config.to_dict()` written by
+    `json.dumps` with sorted keys, separators `","` and `":"` (no spaces) and ASCII escapes,
+    encoded as UTF-8."""
     text = json.dumps(config.to_dict(), sort_keys=True, separators=(",", ":"), ensure_ascii=True)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
@@ -124,6 +138,40 @@ def _quiet_exporter() -> Iterator[None]:
     finally:
         for lg, level in zip(loggers, levels, strict=True):
             lg.setLevel(level)
+
+
+def supported_opsets() -> tuple[int, int]:
+    """(lowest, highest) ONNX opset torch's exporter writes: the range of onnxscript's version
+    converter (torch converts its torchlib graph with it), capped at the newest opset the
+    installed onnx package knows."""
+    low, high = OPSET_RANGE_FALLBACK
+    try:
+        from onnxscript.version_converter import _version_converter as converter
+    except ImportError:
+        pass
+    else:
+        low = int(getattr(converter, "SUPPORTED_MIN_ONNX_OPSET", low))
+        high = int(getattr(converter, "SUPPORTED_MAX_ONNX_OPSET", high))
+    return low, min(high, onnx.defs.onnx_opset_version())
+
+
+def check_opset(opset: int | None) -> int | None:
+    """`opset` when torch's exporter can write it (None: its default), else an `InputError`."""
+    if opset is None:
+        return None
+    low, high = supported_opsets()
+    if isinstance(opset, bool) or not isinstance(opset, int | np.integer) or \
+            not low <= opset <= high:
+        raise InputError(f"ONNX opset {opset!r} is not supported: torch's exporter writes "
+                         f"opsets {low} to {high}",
+                         fix=f"give --opset between {low} and {high}, or leave it out")
+    return int(opset)
+
+
+def model_opset(proto: onnx.ModelProto) -> int | None:
+    """The version of the default ONNX operator set a model imports (None: none)."""
+    versions = [o.version for o in proto.opset_import if o.domain in ONNX_DOMAINS]
+    return versions[0] if versions else None
 
 
 def to_onnx_proto(wrapper: KeypointExportWrapper, width: int, height: int,
@@ -166,32 +214,46 @@ def _temporary_sibling(path: Path) -> Path:
 
 
 def export_model(checkpoint: str | Path, out: str | Path, opset: int | None = None,
-                 atol: float = PARITY_ATOL, peak_params: PeakParams | None = None
-                 ) -> ExportReport:
+                 atol: float = PARITY_ATOL, peak_params: PeakParams | None = None,
+                 peak_overrides: Sequence[str] = ()) -> ExportReport:
     """Export a `dream train` checkpoint to `out` (.onnx), checked against torch.
 
     Args:
         checkpoint: a .ckpt written by `dream train` (it carries its config).
         out: the .onnx file to write (atomically: complete or absent).
-        opset: ONNX opset (None: the exporter's default).
+        opset: ONNX opset (None: the exporter's default); one outside `supported_opsets()`
+            is refused.
         atol: largest absolute difference onnxruntime vs torch accepted, per output.
         peak_params: the peak finder's constants written into the model (None: those of the
             checkpoint's config, `eval.peaks`).
+        peak_overrides: `NAME=VALUE` items (`dream export --peaks`) applied on top of
+            `peak_params` (or of the config's `eval.peaks`).
 
     Raises:
-        InputError: unreadable checkpoint, bad output path, or onnxruntime disagreeing with
-            torch (then no file is left behind).
+        InputError: unsupported opset, bad peak override, unreadable checkpoint, bad output
+            path, or onnxruntime disagreeing with torch (then no file is left behind).
     """
     out = Path(out)
     if out.suffix.lower() != ONNX_SUFFIX:
         raise InputError("the output must be a .onnx file", out, "name it e.g. model.onnx")
+    check_output_file(out, parents_made=True)  # before the export and parity run (slow)
+    opset = check_opset(opset)
+    if peak_overrides:
+        peak_params_from_overrides(list(peak_overrides), "--peaks")  # syntax, before loading
     net, config = load_checkpoint(checkpoint)
     metadata = metadata_for(config, checkpoint)
-    if peak_params is not None:
-        metadata = dataclasses.replace(metadata, peak_params=peak_params)
+    peaks = peak_params if peak_params is not None else metadata.peak_params
+    if peak_overrides:
+        peaks = peak_params_from_overrides(list(peak_overrides), "--peaks", peaks)
+    metadata = dataclasses.replace(metadata, peak_params=peaks)
     wrapper = KeypointExportWrapper(net).eval()
     pre = config.input
     proto = to_onnx_proto(wrapper, pre.input_width, pre.input_height, opset)
+    written = model_opset(proto)
+    if opset is not None and written != opset:
+        raise InputError(f"torch's exporter wrote ONNX opset {written} instead of {opset}; "
+                         "no model was written", out,
+                         "leave --opset out, or give the exporter's default")
     onnx.helper.set_model_props(proto, metadata.to_props())
     onnx.checker.check_model(proto)
     try:
@@ -212,7 +274,12 @@ def export_model(checkpoint: str | Path, out: str | Path, opset: int | None = No
             raise InputError(f"onnxruntime's '{worst}' output differs from torch by "
                              f"{diffs[worst]:.3g} (> {atol:g}); no model was written", out,
                              "report it, or retry with another --opset")
-        os.replace(tmp, out)
+        try:
+            os.replace(tmp, out)
+        except OSError as exc:
+            raise InputError(f"cannot write the model ({os_reason(exc)})", out,
+                             "check that the folder is writable and the disk has space"
+                             ) from None
     finally:
         if tmp.exists():
             tmp.unlink()

@@ -215,7 +215,10 @@ class OnnxKeypointModel:
 
     Raises:
         InputError: the file is missing, not an ONNX model, or lacks valid dream metadata, or
-            its graph does not match the metadata (one line naming the file and the fix).
+            its graph does not match the metadata: input (N, 3, H, W), outputs belief (N, K,
+            H/s, W/s) and mask (N, 1, H/s, W/s) for the metadata's K keypoint names, input size
+            and output stride s (one line naming the file and the fix). Output dimensions the
+            graph leaves symbolic are checked on each `run`, with the same error.
     """
 
     def __init__(self, path: str | Path, threads: int | None = None):
@@ -248,11 +251,44 @@ class OnnxKeypointModel:
             got = [(i.name, i.shape) for i in inputs]
             raise InputError(f"the model's input {got} is not '{INPUT_NAME}' (N, {expected[0]}, "
                              f"{expected[1]}, {expected[2]}) as its metadata says", self.path, FIX)
-        names = [o.name for o in self._session.get_outputs()]
-        if BELIEF_OUTPUT not in names or any(n not in OUTPUT_NAMES for n in names):
+        outputs = self._session.get_outputs()
+        names = [o.name for o in outputs]
+        if BELIEF_OUTPUT not in names or any(n not in OUTPUT_NAMES for n in names) or \
+                len(set(names)) != len(names):
             raise InputError(f"the model's outputs {names} are not {list(OUTPUT_NAMES)}",
                              self.path, FIX)
         self.output_names = tuple(names)
+        stride = self.stride
+        if pre.input_height % stride or pre.input_width % stride:
+            raise InputError(f"the metadata's input size {pre.input_width}x{pre.input_height} is "
+                             f"not a multiple of its output stride {stride}", self.path, FIX)
+        for output in outputs:
+            shape = output.shape
+            expected = self._expected_shape(output.name)
+            if len(shape) != len(expected) or any(
+                    isinstance(got, int) and isinstance(want, int) and got != want
+                    for got, want in zip(shape[1:], expected[1:], strict=True)):
+                raise self._shape_error(output.name, shape)
+        # dimensions left symbolic in the graph are checked on every run (`_check_outputs`)
+
+    def _expected_shape(self, name: str, batch: int | str = "N") -> tuple[int | str, ...]:
+        """(batch, K, H/s, W/s) for the belief maps, (batch, 1, H/s, W/s) for the mask."""
+        pre, stride = self.preprocess, self.stride
+        channels = len(self.keypoint_names) if name == BELIEF_OUTPUT else 1
+        return (batch, channels, pre.input_height // stride, pre.input_width // stride)
+
+    def _shape_error(self, name: str, shape, batch: int | str = "N") -> InputError:
+        what = f"{len(self.keypoint_names)} keypoints" if name == BELIEF_OUTPUT else "one map"
+        expected = ", ".join(map(str, self._expected_shape(name, batch)))
+        return InputError(f"the model's '{name}' output has shape ({', '.join(map(str, shape))}),"
+                          f" not ({expected}) as its metadata says ({what}, input "
+                          f"{self.preprocess.input_width}x{self.preprocess.input_height}, output "
+                          f"stride {self.stride})", self.path, FIX)
+
+    def _check_outputs(self, outputs: Mapping[str, np.ndarray], batch: int) -> None:
+        for name, value in outputs.items():
+            if np.shape(value) != self._expected_shape(name, batch):
+                raise self._shape_error(name, np.shape(value), batch)
 
     # ----- dream.detect.KeypointModel ----------------------------------------------------------
 
@@ -294,7 +330,9 @@ class OnnxKeypointModel:
             outputs = self._session.run(list(self.output_names), {INPUT_NAME: x})
         except ORT_ERRORS as exc:
             raise InputError(f"onnxruntime failed ({one_line(exc)})", self.path, FIX) from None
-        return dict(zip(self.output_names, outputs, strict=True))
+        result = dict(zip(self.output_names, outputs, strict=True))
+        self._check_outputs(result, len(x))
+        return result
 
     def __repr__(self) -> str:
         return (f"OnnxKeypointModel({str(self.path)!r}, robot={self.robot!r}, "

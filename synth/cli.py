@@ -3,7 +3,47 @@
 from __future__ import annotations
 
 import argparse
+import sys
+import time
 from pathlib import Path
+from typing import TextIO
+
+PROGRESS_PERIOD_S = 1.0
+
+
+class Progress:
+    """The command's one-line progress report on stderr (frames, rate, time left), fed by
+    `synth.generate.generate`'s `on_start` and `on_progress` callbacks."""
+
+    def __init__(self, stream: TextIO | None = None) -> None:
+        self.stream = stream or sys.stderr
+        self.total = self.done = self.already = 0
+        self.start = time.perf_counter()
+        self.last = 0.0
+        self.open_line = False
+
+    def begin(self, total: int, already: int) -> None:
+        self.total, self.done, self.already = total, already, already
+        self.start = time.perf_counter()
+
+    def update(self, n: int) -> None:
+        self.done += n
+        now = time.perf_counter()
+        if now - self.last >= PROGRESS_PERIOD_S or self.done == self.total:
+            self.last = now
+            rate = (self.done - self.already) / max(now - self.start, 1e-9)
+            left = (self.total - self.done) / rate if rate > 0 else float("inf")
+            print(f"\rsynth: {self.done}/{self.total} frames, {rate:.1f} frames/s, "
+                  f"{left:.0f} s left ", end="", file=self.stream, flush=True)
+            self.open_line = True
+            if self.done == self.total:
+                self.close()
+
+    def close(self) -> None:
+        """End the progress line (so that an error message starts a line of its own)."""
+        if self.open_line:
+            print(file=self.stream, flush=True)
+            self.open_line = False
 
 
 def cmd_synth(args: argparse.Namespace) -> int:
@@ -19,7 +59,12 @@ def cmd_synth(args: argparse.Namespace) -> int:
     job = SynthJob(robot=args.robot, out_dir=Path(args.out), num_frames=args.num,
                    config=load_config(args.config, args.set), seed=args.seed, keypoints=keypoints,
                    workers=args.workers, extension=extension)
-    stats = generate(job, overwrite=args.overwrite)
+    progress = Progress()
+    try:
+        stats = generate(job, overwrite=args.overwrite, on_progress=progress.update,
+                         on_start=progress.begin)
+    finally:
+        progress.close()
     print(f"{args.out}: {stats['rendered']} frames rendered, {stats['skipped']} already there, "
           f"{stats['frames_per_s']:.1f} frames/s")
     return 0

@@ -15,9 +15,10 @@ import numpy as np
 
 from dream.errors import InputError
 from dream.recipe import load_recipe, plain, recipe_from_dict
-from synth.scene_options import MAX_LIGHTS
+from synth.scene_options import MAX_IMAGE_SIZE_PX, MAX_LIGHTS
 
 Range = tuple[float, float]
+DISTORTION_COEFFS = ("k1", "k2", "p1", "p2", "k3")  # plumb_bob order
 
 
 def _range(name: str, value: Any, lo_limit: float = -np.inf, hi_limit: float = np.inf) -> Range:
@@ -36,6 +37,29 @@ def _non_negative(name: str, value: float) -> float:
     if not (np.isfinite(float(value)) and float(value) >= 0.0):
         raise InputError(f"{name} must be a finite number >= 0, got {value}")
     return float(value)
+
+
+def _finite(name: str, value: Any, fix: str) -> float:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = np.nan
+    if isinstance(value, bool) or not np.isfinite(number):
+        raise InputError(f"{name} must be a finite number, got {value!r}", fix=fix)
+    return number
+
+
+def _image_side(name: str, value: Any) -> int:
+    try:
+        whole = not isinstance(value, bool) and int(value) == value
+    except (TypeError, ValueError, OverflowError):
+        whole = False
+    if not whole or not 1 <= value <= MAX_IMAGE_SIZE_PX:
+        raise InputError(f"{name} must be a whole number of pixels from 1 to "
+                         f"{MAX_IMAGE_SIZE_PX}, got {value!r}",
+                         fix=f"set {name} between 1 and {MAX_IMAGE_SIZE_PX} (MuJoCo's offscreen "
+                             "OpenGL buffer cannot render larger images with every camera model)")
+    return int(value)
 
 
 def _probability(name: str, value: float) -> float:
@@ -80,14 +104,38 @@ class Intrinsics:
     hfov_rad: Range = (0.9, 1.3)
 
     def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            object.__setattr__(self, name, _image_side(f"intrinsics.{name}", getattr(self, name)))
         fixed = [self.fx, self.fy, self.cx, self.cy]
         if any(v is not None for v in fixed) and any(v is None for v in fixed):
             raise InputError("intrinsics: give all of fx, fy, cx, cy (fixed camera) or none "
                              "(random field of view)")
+        if self.fixed:
+            for name in ("fx", "fy"):
+                key = f"intrinsics.{name}"
+                value = _finite(key, getattr(self, name), f"set {key} to the focal length in "
+                                                          "pixels")
+                if value <= 0:
+                    raise InputError(f"{key} must be a focal length > 0 (pixels), got {value}",
+                                     fix=f"set {key} to the camera's focal length in pixels")
+                object.__setattr__(self, name, value)
+            for name in ("cx", "cy"):
+                key = f"intrinsics.{name}"
+                object.__setattr__(self, name, _finite(key, getattr(self, name),
+                                                       f"set {key} to the principal point in "
+                                                       "pixels"))
         object.__setattr__(self, "hfov_rad", _range("intrinsics.hfov_rad", self.hfov_rad, 0.05,
                                                     3.0))
         if self.distortion is not None:
-            object.__setattr__(self, "distortion", tuple(float(c) for c in self.distortion))
+            try:
+                coeffs = tuple(float(c) for c in self.distortion)
+            except (TypeError, ValueError):
+                coeffs = ()
+            if len(coeffs) != len(DISTORTION_COEFFS) or not np.all(np.isfinite(coeffs)):
+                raise InputError(f"intrinsics.distortion must be {len(DISTORTION_COEFFS)} finite "
+                                 f"plumb_bob coefficients, got {self.distortion!r}",
+                                 fix=f"give [{', '.join(DISTORTION_COEFFS)}] or null")
+            object.__setattr__(self, "distortion", coeffs)
 
     @property
     def fixed(self) -> bool:

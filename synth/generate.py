@@ -14,7 +14,7 @@ import json
 import logging
 import multiprocessing as mp
 import os
-import sys
+import re
 import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -31,6 +31,7 @@ from dream.errors import DreamError, InputError
 from dream.extension import ModelExtension
 from dream.io import is_temporary, write_bytes_atomic, write_json_atomic
 from dream.io.dream_layout import camera_settings_json, frame_json
+from dream.io.fields import os_reason
 from dream.robot import load_robot
 from dream.sequence import Frame, Sequence
 from synth.config import SynthConfig, config_from_dict
@@ -42,8 +43,8 @@ SYNTH_INFO = "_synth.json"
 CAMERA_SETTINGS = "_camera_settings.json"
 DEPTH_UNIT_M = 1e-3           # depth PNGs store millimetres in uint16
 CHUNK_FRAMES = 8              # frames handed to a worker at a time
-PROGRESS_PERIOD_S = 1.0
 PNG_COMPRESSION = 1           # zlib level: fast, files about 20 % larger than the default
+FRAME_FILE = re.compile(r"[0-9]{6}\.")   # NNNNNN.json, NNNNNN.rgb.png, NNNNNN.seg.png, ...
 
 
 @dataclass(frozen=True)
@@ -159,22 +160,89 @@ def done_indices(out_dir: Path) -> set[int]:
 
 
 def check_inputs(config: SynthConfig, robot) -> None:
-    """Fail before anything is written when the recipe names a missing photo folder or an
-    unreadable joint log."""
+    """Fail before anything is written when the recipe names a missing photo folder, a photo
+    that cannot be read or an unreadable joint log."""
     from synth.randomize import load_joint_log
-    from synth.textures import list_photos
+    from synth.textures import list_photos, read_photo
 
     if config.background.photos:
-        list_photos(config.background.photos)
+        for path in list_photos(config.background.photos):
+            read_photo(path)
     if config.joints.log:
         load_joint_log(config.joints.log, robot)
+
+
+def check_camera(camera: CameraIntrinsics) -> None:
+    """Fail before anything is written when the renderer cannot make `camera`'s image (e.g. a
+    distortion that cannot be inverted over the image)."""
+    from synth.lens import plan_lens
+    from synth.render import RenderOptions
+
+    options = RenderOptions()
+    for oversampling in sorted({1, options.id_oversampling}):
+        plan_lens(camera, options.distortion_margin_px, options.max_render_scale, oversampling)
+
+
+def check_output_path(out: Path) -> None:
+    """Refuse an output path that is a file or lies under one (before anything is written)."""
+    try:
+        if out.exists() and not out.is_dir():
+            raise InputError("the output path is a file, not a folder", out,
+                             "give --out a new folder, an empty one or one dream synth made")
+        for parent in out.parents:
+            if parent.exists():
+                if not parent.is_dir():
+                    raise InputError(f"the output folder cannot be made: {parent} is a file",
+                                     out, "give --out a folder that does not lie under a file")
+                break
+    except OSError as exc:
+        raise InputError(f"cannot reach the output folder ({os_reason(exc)})", out,
+                         "give --out a folder you can read and write") from None
+
+
+def _first_missing(out: Path) -> Path | None:
+    """The outermost folder of `out` (itself or a parent) that does not exist yet: the one a
+    run creates. None when `out` exists."""
+    missing = None
+    for path in (out, *out.parents):
+        if path.exists():
+            break
+        missing = path
+    return missing
+
+
+def discard_unfinished(out: Path, created: Path | None) -> None:
+    """After a failed run: when `out` holds no complete frame, remove what this run wrote
+    there (settings, partial frames, temporaries) and the folders it created (`created` and
+    those below it), so that no folder is left with metadata only. Complete frames are kept
+    (a resumed folder, or frames of this run: running again resumes)."""
+    if not out.is_dir() or done_indices(out):
+        return
+    try:
+        for path in out.iterdir():
+            if path.is_file() and (path.name in (SYNTH_INFO, CAMERA_SETTINGS)
+                                   or is_temporary(path) or FRAME_FILE.match(path.name)):
+                path.unlink()
+        if created is not None:
+            for folder in (out, *out.parents):
+                folder.rmdir()
+                if folder == created:
+                    break
+    except OSError as exc:
+        log.warning("could not clean up %s after the failed run: %s", out, os_reason(exc))
 
 
 def prepare_output(job: SynthJob, overwrite: bool) -> set[int]:
     """Create or check the output folder; returns the frames already complete."""
     out = job.out_dir
     info_path = out / SYNTH_INFO
-    if out.exists() and any(out.iterdir()):
+    check_output_path(out)
+    try:
+        existing = out.exists() and any(out.iterdir())
+    except OSError as exc:
+        raise InputError(f"cannot read the output folder ({os_reason(exc)})", out,
+                         "give --out a folder you can read and write") from None
+    if existing:
         if not info_path.is_file():
             raise InputError("the output folder exists and is not a dream synth folder", out,
                              "choose an empty or new --out")
@@ -201,7 +269,11 @@ def prepare_output(job: SynthJob, overwrite: bool) -> set[int]:
         for p in out.iterdir():
             if is_temporary(p):
                 p.unlink()
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the output folder ({os_reason(exc)})", out,
+                         "give --out a folder in a writable location") from None
     write_json_atomic(info_path, job.info())
     return done_indices(out)
 
@@ -253,50 +325,52 @@ def _chunks(indices: list[int], size: int) -> Iterator[list[int]]:
         yield indices[start:start + size]
 
 
-class Progress:
-    """A one-line progress report on stderr (frames, rate, time left)."""
-
-    def __init__(self, total: int, already: int, stream=None) -> None:
-        self.total, self.done, self.start = total, already, time.perf_counter()
-        self.already = already
-        self.stream = stream or sys.stderr
-        self.last = 0.0
-
-    def update(self, n: int) -> None:
-        self.done += n
-        now = time.perf_counter()
-        if now - self.last >= PROGRESS_PERIOD_S or self.done == self.total:
-            self.last = now
-            rate = (self.done - self.already) / max(now - self.start, 1e-9)
-            left = (self.total - self.done) / rate if rate > 0 else float("inf")
-            print(f"\rsynth: {self.done}/{self.total} frames, {rate:.1f} frames/s, "
-                  f"{left:.0f} s left ", end="", file=self.stream, flush=True)
-            if self.done == self.total:
-                print(file=self.stream, flush=True)
-
-
 def generate(job: SynthJob, overwrite: bool = False,
-             on_progress: Callable[[int], None] | None = None) -> dict[str, Any]:
-    """Render the missing frames of `job`; returns counts and the rate."""
+             on_progress: Callable[[int], None] | None = None,
+             on_start: Callable[[int, int], None] | None = None) -> dict[str, Any]:
+    """Render the missing frames of `job`; returns counts and the rate.
+
+    Everything that can be checked (robot, recipe inputs, camera, model extension, output
+    folder) is checked before the folder is touched. When the run then fails and the folder
+    holds no complete frame, what the run wrote is removed again (`discard_unfinished`).
+
+    Args:
+        on_progress: called with the number of frames just written, after each chunk.
+        on_start: called once as `on_start(total, already)` (frames asked for, frames already
+            complete) before rendering starts. The library prints nothing: `dream synth`'s
+            progress line is `synth.cli.Progress`.
+    """
     robot = load_robot(job.robot, list(job.keypoints) if job.keypoints else None)
     check_inputs(job.config, robot)
     if job.extension is not None:
         check_extension(job.extension, robot, job.config, job.num_frames)
-    done = prepare_output(job, overwrite)
-    todo = [i for i in range(job.num_frames) if i not in done]
     from synth.frames import nominal_camera
 
     nominal = nominal_camera(job.config)
+    check_camera(nominal)
     settings = Sequence(robot=robot.name, camera=nominal, joint_names=robot.joint_names,
                         keypoint_names=robot.keypoint_names,
                         frames=(Frame("0", np.zeros(len(robot.joint_names))),))
-    write_json_atomic(job.out_dir / CAMERA_SETTINGS, camera_settings_json(settings))
-    progress = Progress(job.num_frames, len(done))
-    report = on_progress or progress.update
-    start = time.perf_counter()
-    if todo:
-        _run(job, todo, report)
-    seconds = time.perf_counter() - start
+    settings_doc = camera_settings_json(settings)
+    check_output_path(job.out_dir)
+    created = _first_missing(job.out_dir)
+    prepared = finished = False
+    try:
+        done = prepare_output(job, overwrite)
+        prepared = True
+        write_json_atomic(job.out_dir / CAMERA_SETTINGS, settings_doc)
+        todo = [i for i in range(job.num_frames) if i not in done]
+        if on_start is not None:
+            on_start(job.num_frames, len(done))
+        start = time.perf_counter()
+        if todo:
+            _run(job, todo, on_progress or (lambda n: None))
+        seconds = time.perf_counter() - start
+        finished = True
+    finally:
+        if not finished and (prepared or created is not None):
+            discard_unfinished(job.out_dir, created)
+    log.info("%s: %d frames rendered, %d already there", job.out_dir, len(todo), len(done))
     return {"frames": job.num_frames, "rendered": len(todo), "skipped": len(done),
             "seconds": seconds, "frames_per_s": len(todo) / seconds if todo else 0.0}
 

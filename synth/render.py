@@ -25,6 +25,7 @@ from dream.transforms import invert_T, is_rigid
 from synth.gl import mujoco
 from synth.lens import RenderLens, plan_lens
 from synth.scene import RobotScene
+from synth.scene_options import MAX_IMAGE_SIZE_PX
 from synth.scene_spec import DISTRACTOR_GROUP, FLOOR_GROUP, MARKER_GROUP, ROBOT_GROUP
 
 logger = logging.getLogger(__name__)
@@ -160,14 +161,21 @@ class SceneRenderer:
         self._option = mujoco.MjvOption()
         self._option.geomgroup[:] = self.options.geom_groups()
         self._T_base_cam = np.eye(4)
-        try:
-            self._renderer = mujoco.Renderer(model, self.lens.height, self.lens.width,
-                                             max_geom=self.options.max_geoms)
-        except mujoco.FatalError as e:
-            raise InputError(f"MuJoCo cannot open an OpenGL context ({e})",
-                             fix="set MUJOCO_GL=egl (or osmesa) before anything imports mujoco, "
-                                 "e.g. import synth before mujoco") from e
+        self._renderer = self._new_renderer()
         scene.set_joints(self.data, scene.robot.rest_joints)
+
+    def _new_renderer(self) -> mujoco.Renderer:
+        """An OpenGL renderer of the lens size, on the model's offscreen buffer."""
+        try:
+            return mujoco.Renderer(self.scene.model, self.lens.height, self.lens.width,
+                                   max_geom=self.options.max_geoms)
+        except mujoco.FatalError as e:
+            width, height = self.model_buffer()
+            raise InputError(f"MuJoCo cannot open an OpenGL context with a {width}x{height} "
+                             f"offscreen buffer ({e})",
+                             fix="set MUJOCO_GL=egl (or osmesa) before anything imports mujoco "
+                                 "(e.g. import synth before mujoco), or render smaller images "
+                                 f"(at most {MAX_IMAGE_SIZE_PX} px a side)") from e
 
     def _plan(self, camera: CameraIntrinsics) -> None:
         """Lenses of `camera`; grows the model's offscreen buffer to fit them."""
@@ -194,8 +202,7 @@ class SceneRenderer:
         self._plan(camera)
         if (self.lens.width, self.lens.height, self.model_buffer()) != old:
             self.close()
-            self._renderer = mujoco.Renderer(self.scene.model, self.lens.height, self.lens.width,
-                                             max_geom=self.options.max_geoms)
+            self._renderer = self._new_renderer()
 
     def model_buffer(self) -> tuple[int, int]:
         g = self.scene.model.vis.global_

@@ -11,6 +11,15 @@ from dream.errors import InputError
 
 MAX_LIGHTS = 7  # OpenGL's fixed pipeline has 8 lights; MuJoCo's headlight takes one
 MAX_TEXTURE_SIZE_PX = 4096
+# Largest image side (`intrinsics.width` / `height`) a recipe may ask for. MuJoCo renders into
+# an OpenGL framebuffer no larger than GL_MAX_RENDERBUFFER_SIZE per side: 16384 on Mesa's
+# llvmpipe (the headless EGL default; NVIDIA's drivers allow 32768), and beyond it the buffer
+# "is not complete". A camera that is resampled (fx != fy or distortion) renders its ids into
+# a buffer up to 4 times its image per side (`RenderOptions.max_render_scale` 2 x
+# `id_oversampling` 2), hence 16384 / 4.
+GL_MIN_RENDERBUFFER_PX = 16384
+MAX_RENDER_BUFFER_FACTOR = 4
+MAX_IMAGE_SIZE_PX = GL_MIN_RENDERBUFFER_PX // MAX_RENDER_BUFFER_FACTOR
 
 
 def _positive(name: str, value: float) -> float:

@@ -123,12 +123,20 @@ def list_photos(folder: str | Path) -> tuple[Path, ...]:
     return photos
 
 
+def read_photo(path: Path) -> np.ndarray:
+    """A background photo as (H, W, 3) uint8 BGR; an `InputError` naming it when OpenCV
+    cannot decode it."""
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise InputError("unreadable background photo", path,
+                         "remove it from background.photos or re-save it as .png/.jpg")
+    return bgr
+
+
 def photo(rng: np.random.Generator, h: int, w: int, photos: tuple[Path, ...]) -> np.ndarray:
     """A random crop of a random photo, resized to (h, w)."""
     path = photos[int(rng.integers(len(photos)))]
-    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if bgr is None:
-        raise InputError("unreadable background photo", path, "remove or re-save it")
+    bgr = read_photo(path)
     H, W = bgr.shape[:2]
     scale = rng.uniform(0.5, 1.0)
     ch, cw = max(2, int(H * scale)), max(2, int(W * scale))

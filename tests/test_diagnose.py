@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,6 +21,7 @@ from dream.diagnose.fit import Model, Problem, candidate_params, identifiable_pa
 from dream.diagnose.run import diagnose_sequence, problem_from
 from dream.diagnose.score import score_diagnosis
 from dream.diagnose.select import DiagnoseSettings
+from dream.errors import InputError
 from dream.extension import (
     EFFECT_NAMES,
     ModelExtension,
@@ -125,7 +127,7 @@ def test_time_offset_not_testable_without_timestamps():
     assert entry["significant"] is False and "no timestamps" in entry["evidence"]
 
 
-def test_cli_diagnose_then_calibrate_with_the_extension(tmp_path, capsys):
+def test_cli_diagnose_then_calibrate_with_the_extension(tmp_path, capsys, monkeypatch):
     """dream diagnose writes the report and the extended model; dream calibrate
     --model-extension reads it and lands closer to the truth."""
     rng = np.random.default_rng(3)
@@ -160,6 +162,19 @@ def test_cli_diagnose_then_calibrate_with_the_extension(tmp_path, capsys):
     assert errors["extended"] < errors["plain"]
     assert errors["extended"] < 0.005
 
+    # a second run into the same folder that fails while writing its report leaves the first
+    # run's report as it was (the files are staged and join the folder only when all are made)
+    before = {p.name: p.read_bytes() for p in report.iterdir()}
+
+    def fails_after_a_plot(report_dir, *args, **kwargs):
+        (Path(report_dir) / "residual_field.png").write_bytes(b"half")
+        raise InputError("the disk is full", Path(report_dir) / "report.md")
+
+    monkeypatch.setattr("dream.diagnose.report.write_report", fails_after_a_plot)
+    assert main(["diagnose", "--data", str(data), "--use-labels", "--out", str(report),
+                 "--effects", "joint_offset"]) == 2
+    assert {p.name: p.read_bytes() for p in report.iterdir()} == before
+
 
 def test_model_extension_file_round_trip_and_bad_files(tmp_path):
     ext = extension_from_effects({
@@ -183,8 +198,6 @@ def test_model_extension_file_round_trip_and_bad_files(tmp_path):
 
 def test_problem_rejects_bad_shapes():
     robot = load_robot("panda")
-    from dream.errors import InputError
-
     with pytest.raises(InputError):
         Problem(robot, InjectionSpec().camera, np.zeros((3, 6)), None, np.zeros((3, 7, 2)),
                 ("a", "b", "c"))

@@ -260,3 +260,83 @@ def test_random_field_of_view_frames_solve_back_with_their_own_camera(tmp_path):
     doc = json.loads(metrics.read_text())
     assert doc["translation_error_m"]["median"] < 1e-4
     assert doc["keypoint_l2_px"]["median"] < 1e-3
+
+
+def _one_line(code: int, err: str) -> str:
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def test_recipe_errors_are_found_before_anything_is_written(tmp_path, capsys):
+    """A bad fixed camera, an image too large for the renderer and an undecodable background
+    photo are one line naming the key or file and the fix; no output folder appears."""
+    out = tmp_path / "set"
+    camera = ["--set", "intrinsics.fy=300", "--set", "intrinsics.cx=160", "--set",
+              "intrinsics.cy=120"]
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    cv2.imwrite(str(photos / "good.png"), np.zeros((8, 8, 3), np.uint8))
+    (photos / "corrupt.png").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(200)))
+    cases = [(["--set", "intrinsics.fx=-5", *camera], "intrinsics.fx must be a focal length > 0",
+              "Fix: set intrinsics.fx"),
+             (["--set", "intrinsics.width=20000"], "intrinsics.width must be a whole number",
+              "Fix: set intrinsics.width between 1 and 4096"),
+             (["--set", f"background.photos={photos}", "--set", "background.kinds={photo: 1.0}"],
+              f"{photos / 'corrupt.png'}: unreadable background photo", "Fix: remove it")]
+    for args, problem, fix in cases:
+        line = _one_line(main(["synth", "--robot", "panda", "--num", "2", "--out", str(out),
+                               *args]), capsys.readouterr().err)
+        assert problem in line and fix in line
+        assert not out.exists()
+
+
+def test_output_path_that_is_a_file_or_under_one_is_refused(tmp_path, capsys):
+    from synth.demo import render_demo_scene
+
+    afile = tmp_path / "afile"
+    afile.write_text("not a folder")
+    for out, words in [(afile, "the output path is a file"),
+                       (afile / "s", f"the output folder cannot be made: {afile} is a file")]:
+        with pytest.raises(InputError, match=words):
+            quiet(SynthJob("panda", out, 2, config_from_dict({})))
+        line = _one_line(main(["synth", "--robot", "panda", "--num", "2", "--out", str(out)]),
+                         capsys.readouterr().err)
+        assert line.startswith(f"dream synth: error: {out}: ") and words in line
+    with pytest.raises(InputError, match=f"{afile / 'scene'}: the output folder cannot be made"):
+        render_demo_scene(afile / "scene", num_frames=1)
+    assert afile.read_text() == "not a folder" and list(tmp_path.iterdir()) == [afile]
+
+
+def test_failed_render_leaves_no_metadata_only_folder(tmp_path, monkeypatch):
+    """A run whose first frame fails removes what it wrote and the folders it made; an empty
+    folder given to it stays; a resumed folder keeps its frames."""
+    config = config_from_dict({})
+
+    def fail(self, index):
+        raise InputError(f"frame {index} cannot be rendered")
+
+    resumed = tmp_path / "resumed"
+    quiet(SynthJob("panda", resumed, 2, config, seed=1))
+    before = sorted(p.name for p in resumed.iterdir())
+    monkeypatch.setattr(FrameMaker, "make", fail)
+    fresh = tmp_path / "new" / "set"
+    with pytest.raises(InputError, match="frame 0 cannot be rendered"):
+        quiet(SynthJob("panda", fresh, 2, config, seed=1))
+    assert not (tmp_path / "new").exists()
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(InputError, match="frame 0 cannot be rendered"):
+        quiet(SynthJob("panda", empty, 2, config, seed=1))
+    assert list(empty.iterdir()) == []
+    with pytest.raises(InputError, match="frame 2 cannot be rendered"):
+        quiet(SynthJob("panda", resumed, 3, config, seed=1))
+    assert sorted(p.name for p in resumed.iterdir()) == before
+
+
+def test_progress_is_shown_by_the_command_not_the_library(tmp_path, capsys):
+    generate(SynthJob("panda", tmp_path / "lib", 1, config_from_dict({})))
+    assert capsys.readouterr().err == ""
+    assert main(["synth", "--robot", "panda", "--num", "1", "--out", str(tmp_path / "cli")]) == 0
+    assert "synth: 1/1 frames" in capsys.readouterr().err

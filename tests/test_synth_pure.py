@@ -42,6 +42,17 @@ def frame(seed, index, config):
     ({"camera": {"target_jitter_m": -0.1}}, "camera.target_jitter_m"),
     ({"background": {"photos": "photos/"}}, "kinds.photo is 0"),
     ({"background": {"kinds": {"photo": 1.0}}}, "needs background.photos"),
+    ({"intrinsics": {"fx": -5, "fy": 300, "cx": 160, "cy": 120}},
+     r"intrinsics.fx must be a focal length > 0 .*Fix: set intrinsics.fx"),
+    ({"intrinsics": {"fx": 300, "fy": float("inf"), "cx": 160, "cy": 120}},
+     "intrinsics.fy must be a finite number"),
+    ({"intrinsics": {"fx": 300, "fy": 300, "cx": float("nan"), "cy": 120}},
+     "intrinsics.cx must be a finite number"),
+    ({"intrinsics": {"width": 20000}},
+     r"intrinsics.width must be a whole number of pixels from 1 to 4096, got 20000"),
+    ({"intrinsics": {"height": 0}}, "intrinsics.height must be a whole number of pixels"),
+    ({"intrinsics": {"distortion": [float("nan"), 0, 0, 0, 0]}},
+     "intrinsics.distortion must be 5 finite plumb_bob coefficients"),
 ])
 def test_bad_recipes_are_refused_with_the_reason(values, words):
     with pytest.raises(InputError, match=words):

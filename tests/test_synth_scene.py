@@ -17,6 +17,7 @@ from synth.gl import mujoco
 from synth.render import RenderOptions, SceneRenderer
 from synth.scene import SceneOptions, build_scene
 from synth.scene_cache import MODEL_FILE
+from synth.scene_options import GL_MIN_RENDERBUFFER_PX, MAX_IMAGE_SIZE_PX
 
 FRAME_TOLERANCE = 1e-9  # m and rotation-matrix entries
 CENTROID_TOLERANCE_PX = 0.5
@@ -221,6 +222,26 @@ def test_invalid_inputs(panda_markers):
             renderer.set_state(np.zeros(2), np.eye(4))
     with pytest.raises(InputError, match="closed"):
         renderer.render()
+
+
+def test_largest_recipe_image_renders_even_when_resampled(cache_dir):
+    """A recipe's image is at most MAX_IMAGE_SIZE_PX a side: a camera that wide with pixels far
+    from square renders its ids into a buffer near 4 times its width, still within OpenGL's
+    renderbuffer limit (16384 on Mesa's llvmpipe). A buffer past every OpenGL's limit is an
+    InputError that says its size and the fix."""
+    options = RenderOptions()
+    assert MAX_IMAGE_SIZE_PX * options.max_render_scale * options.id_oversampling <= \
+        GL_MIN_RENDERBUFFER_PX
+    scene = build_scene(load_robot("panda"), SceneOptions(), cache_dir=cache_dir)
+    camera = CameraIntrinsics(1000.0, 1990.0, MAX_IMAGE_SIZE_PX / 2, 16.0, MAX_IMAGE_SIZE_PX, 32)
+    with SceneRenderer(scene, camera) as renderer:
+        assert renderer.id_lens.width > 0.99 * GL_MIN_RENDERBUFFER_PX
+        renderer.set_state(scene.robot.rest_joints, _camera_pose(np.random.default_rng(0)))
+        out = renderer.render(rgb=True, segmentation=True)
+    assert out.rgb.shape == (32, MAX_IMAGE_SIZE_PX, 3) and out.link_ids.max() > 0
+    huge = CameraIntrinsics(300.0, 300.0, 20000.0, 16.0, 40000, 32)
+    with pytest.raises(InputError, match=r"40000x\d+ offscreen buffer.*render smaller images"):
+        SceneRenderer(scene, huge)
 
 
 def _write_user_robot(folder: Path) -> Path:

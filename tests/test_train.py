@@ -146,23 +146,56 @@ def _centroid(channel):
     return np.array([(channel * u).sum(), (channel * v).sum()]) / channel.sum()
 
 
+def _inside_image(uv, width, height):
+    return -0.5 <= uv[0] <= width - 0.5 and -0.5 <= uv[1] <= height - 0.5
+
+
 def test_affine_augmentation_moves_pixels_and_keypoints_identically(rng):
+    """Three blobs (one a channel) are the in-frame keypoints 0..2: their centroids after the
+    augmentation give the affine map the image went through. Every other keypoint must follow
+    that same map: out of frame (3, 4), it keeps its transformed coordinates, or is absent when
+    the map brings it onto the fill; inside and pushed out of the frame (5, 6), it keeps its
+    transformed coordinates (train/augment.py)."""
     off = {name: 0.0 for name in AugmentConfig.__dataclass_fields__ if name.endswith("_p")}
     config = AugmentConfig(**{**off, "affine_p": 1.0}, scale=(0.8, 1.3), translate=0.1,
                            rotate_rad=0.52)
     augment = Augment(config, seed=3)
     W, H = 160, 120
-    for _ in range(8):
-        uv = np.array([rng.uniform(50, 110), rng.uniform(40, 80)])
-        image = (np.repeat(_blob(W, H, uv)[..., None], 3, axis=2) * 255).round().astype(np.uint8)
-        keypoints = np.array([uv, [np.nan, np.nan], [-30.0, 60.0], [W + 0.5, 10.0]])
+    anchors = np.array([[50.0, 40.0], [110.0, 45.0], [80.0, 85.0]])
+    checked = pushed_out = brought_in = stayed_out = 0
+    for _ in range(40):
+        jitter = anchors + rng.uniform(-5, 5, anchors.shape)
+        image = np.stack([_blob(W, H, a) for a in jitter], axis=2)
+        image = (image * 255).round().astype(np.uint8)
+        keypoints = np.vstack([jitter, [[-30.0, rng.uniform(0, H)],
+                                        [rng.uniform(0, W), -rng.uniform(5, 40)],
+                                        [rng.uniform(2, W - 3), rng.uniform(0, 2)],
+                                        [rng.uniform(0, 2), rng.uniform(2, H - 3)]],
+                               [[np.nan, np.nan]]])
         out, uv_out, _ = augment(image, keypoints)
         assert out.shape == image.shape
-        np.testing.assert_allclose(_centroid(out[..., 0].astype(float)), uv_out[0], atol=0.1)
-        assert np.isnan(uv_out[1]).all()  # absent stays absent
-        for k in (2, 3):  # out of frame stays out of frame, or becomes absent (on the fill)
-            u, v = uv_out[k]
-            assert np.isnan(u) or not (-0.5 <= u <= W - 0.5 and -0.5 <= v <= H - 0.5)
+        assert np.isnan(uv_out[7]).all()  # absent stays absent
+        if min(out[..., c].max() for c in range(3)) < 200:
+            continue  # a blob left the image: no centroid to compare with
+        centroids = np.array([_centroid(out[..., c].astype(float)) for c in range(3)])
+        np.testing.assert_allclose(centroids, uv_out[:3], atol=0.1)
+        # the affine map of the keypoints 0..2 (checked against the pixels above)
+        M = np.linalg.solve(np.hstack([jitter, np.ones((3, 1))]), uv_out[:3])
+        expected = np.hstack([keypoints[3:7], np.ones((4, 1))]) @ M
+        for k, uv in zip(range(3, 7), expected, strict=True):
+            if np.isnan(uv_out[k]).any():
+                # absent only when an out-of-frame keypoint lands on the fill
+                assert k in (3, 4) and _inside_image(uv, W, H), (k, uv)
+                brought_in += 1
+                continue
+            np.testing.assert_allclose(uv_out[k], uv, atol=1e-3, err_msg=f"keypoint {k}")
+            if k in (3, 4):
+                stayed_out += 1
+            elif not _inside_image(uv, W, H):
+                pushed_out += 1
+        checked += 1
+    assert checked >= 20 and pushed_out >= 5 and stayed_out >= 10, \
+        (checked, pushed_out, stayed_out, brought_in)
 
 
 def test_full_augmentation_keeps_shapes_and_absent_keypoints(drawn, rng):

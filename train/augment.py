@@ -60,7 +60,7 @@ def build_transforms(config: AugmentConfig) -> list[A.BasicTransform]:
     ]
 
 
-def _inside(uv: np.ndarray, width: int, height: int) -> np.ndarray:
+def inside_image(uv: np.ndarray, width: int, height: int) -> np.ndarray:
     """(K,) bool: (K, 2) pixels inside a width x height image (pixel centres 0 .. size - 1)."""
     with np.errstate(invalid="ignore"):
         return ((uv[:, 0] >= -0.5) & (uv[:, 0] <= width - 0.5) & (uv[:, 1] >= -0.5)
@@ -104,13 +104,14 @@ class Augment:
         if self.compose is None:
             return image, uv.copy(), None if mask is None else np.asarray(mask, dtype=bool)
         absent = ~np.all(np.isfinite(uv), axis=1)
-        outside = ~absent & ~_inside(uv, image.shape[1], image.shape[0])
+        outside = ~absent & ~inside_image(uv, image.shape[1], image.shape[0])
         data = {"image": image, "keypoints": np.where(absent[:, None], 0.0, uv)}
         if mask is not None:
             data["mask"] = np.asarray(mask, dtype=np.uint8)
         out = self.compose(**data)
         uv_out = np.asarray(out["keypoints"], dtype=float).reshape(-1, 2)
         uv_out[absent] = np.nan
-        uv_out[outside & _inside(uv_out, out["image"].shape[1], out["image"].shape[0])] = np.nan
+        height, width = out["image"].shape[:2]
+        uv_out[outside & inside_image(uv_out, width, height)] = np.nan
         mask_out = None if mask is None else out["mask"].astype(bool)
         return out["image"], uv_out, mask_out

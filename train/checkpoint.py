@@ -8,6 +8,10 @@ the preprocessing.
 
 from __future__ import annotations
 
+import pickle
+import struct
+import warnings
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +24,11 @@ from train.model import BeliefNet, build_model
 CHECKPOINT_KEY = "dream"
 FORMAT_VERSION = 1
 _MODEL_PREFIX = "model."
+_FIX_CHECKPOINT = "give a complete .ckpt written by dream train"
+# What torch.load raises on a file that is not a (complete) checkpoint: a truncated or foreign
+# zip, bytes that are no pickle, or a pickle the weights-only loader refuses or chokes on.
+_LOAD_ERRORS = (zipfile.BadZipFile, struct.error, RuntimeError, OSError,
+                ValueError, EOFError, KeyError, IndexError, AttributeError, TypeError)
 
 
 def checkpoint_payload(config: TrainConfig) -> dict[str, Any]:
@@ -30,17 +39,25 @@ def checkpoint_payload(config: TrainConfig) -> dict[str, Any]:
 
 
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    """The raw checkpoint dict (on the CPU), checked to be one of ours."""
+    """The raw checkpoint dict (on the CPU), checked to be one of ours: a missing, truncated,
+    corrupt or foreign file is an `InputError` naming it."""
     path = Path(path)
     if not path.is_file():
         raise InputError("checkpoint not found", path, "give the .ckpt written by dream train")
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except (RuntimeError, OSError, ValueError, EOFError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise InputError(f"cannot read the checkpoint ({first})", path,
-                         "give a complete .ckpt written by dream train") from None
-    if not isinstance(ckpt, dict) or CHECKPOINT_KEY not in ckpt or "state_dict" not in ckpt:
+        with warnings.catch_warnings():  # a corrupt pickle: "Detected pickle protocol ..."
+            warnings.simplefilter("ignore")
+            ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:
+        raise InputError("cannot read the checkpoint (not a PyTorch checkpoint, or a corrupt "
+                         "one)", path, _FIX_CHECKPOINT) from None
+    except _LOAD_ERRORS as exc:
+        text = str(exc).strip()
+        first = text.splitlines()[0] if text and not isinstance(exc, KeyError) else ""
+        why = first or type(exc).__name__
+        raise InputError(f"cannot read the checkpoint ({why})", path, _FIX_CHECKPOINT) from None
+    if (not isinstance(ckpt, dict) or not isinstance(ckpt.get(CHECKPOINT_KEY), dict)
+            or not isinstance(ckpt.get("state_dict"), dict)):
         raise InputError("not a dream train checkpoint (no config inside)", path,
                          "give a .ckpt written by dream train")
     version = ckpt[CHECKPOINT_KEY].get("format_version")
@@ -50,9 +67,23 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     return ckpt
 
 
+def _stored_config(ckpt: dict[str, Any], path: Path) -> TrainConfig:
+    """The config inside a checkpoint read by `read_checkpoint`; a damaged one names the file."""
+    doc = ckpt[CHECKPOINT_KEY].get("config")
+    if not isinstance(doc, dict):
+        raise InputError("the checkpoint holds no config", path, _FIX_CHECKPOINT)
+    try:
+        return config_from_dict(doc)
+    except InputError as exc:
+        if exc.path is not None:
+            raise
+        raise InputError(f"the checkpoint's config is invalid ({exc.problem.rstrip('.')})", path,
+                         _FIX_CHECKPOINT) from None
+
+
 def checkpoint_config(path: str | Path) -> TrainConfig:
     """The resolved config stored in a checkpoint."""
-    return config_from_dict(read_checkpoint(path)[CHECKPOINT_KEY]["config"])
+    return _stored_config(read_checkpoint(path), Path(path))
 
 
 def load_checkpoint(path: str | Path) -> tuple[BeliefNet, TrainConfig]:
@@ -61,7 +92,7 @@ def load_checkpoint(path: str | Path) -> tuple[BeliefNet, TrainConfig]:
     The config's `data.keypoints` are the belief maps' keypoint names, `data.robot` the robot and
     `input` the preprocessing (`config.input.transform_for`, `dream.peaks`)."""
     ckpt = read_checkpoint(path)
-    config = config_from_dict(ckpt[CHECKPOINT_KEY]["config"])
+    config = _stored_config(ckpt, Path(path))
     model = build_model(config.model)
     state = {k[len(_MODEL_PREFIX):]: v for k, v in ckpt["state_dict"].items()
              if k.startswith(_MODEL_PREFIX)}
@@ -69,6 +100,6 @@ def load_checkpoint(path: str | Path) -> tuple[BeliefNet, TrainConfig]:
         model.load_state_dict(state)
     except RuntimeError as exc:
         raise InputError(f"the weights do not fit the stored config ({str(exc).splitlines()[0]})",
-                         path) from None
+                         path, _FIX_CHECKPOINT) from None
     model.eval()
     return model, config

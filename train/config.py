@@ -41,6 +41,7 @@ MONITOR_MODES = ("min", "max")
 AUTO_PRECISION = "auto"  # bf16-mixed where the hardware has native bfloat16, else 32-true
 PRECISIONS = ("32-true", "bf16-mixed", "16-mixed", AUTO_PRECISION)  # 16-mixed: GPUs only
 DEFAULT_INPUT = Preprocess(input_width=256, input_height=192)
+MAX_SEED = 2 ** 32 - 1  # numpy's seeds are 32-bit unsigned
 
 
 def _require(ok: bool, key: str, problem: str) -> None:
@@ -123,7 +124,9 @@ class DataConfig:
 
     Attributes:
         train: training folders. val: validation folders; when empty, `val_fraction` of the
-            training frames (every 1/val_fraction-th frame) is held out instead.
+            training frames is held out instead, spread evenly (frame i when
+            floor((i + 1) * val_fraction) > floor(i * val_fraction): every n-th frame for
+            1/n), in [0, 1); 0: no validation.
         keypoints: keypoint names, in belief-map order; null: the first training set's.
         robot: robot name; null: the first training set's (recorded in checkpoints).
         belief_sigma: Gaussian sigma of the belief targets, map pixels.
@@ -302,7 +305,7 @@ class TrainerConfig:
             budget fixes the training time whatever the dataset size; the learning-rate
             schedule spans the run. Under a time budget max_steps is exact instead (below).
         num_threads: torch CPU threads; null: every core of the machine.
-        seed: seeds torch, numpy and the augmentation.
+        seed: seeds torch, numpy, the augmentation and the shuffling (0 .. 2^32 - 1).
         progress_bar: Lightning's progress bar; false: one logging line every
             `log_every_n_steps` steps and per epoch.
         monitor, monitor_mode: the validation metric that picks `best.ckpt`.
@@ -356,6 +359,8 @@ class TrainerConfig:
         _require(self.precision in PRECISIONS, "trainer.precision",
                  f"must be one of {PRECISIONS}")
         _require(self.max_epochs >= 1, "trainer.max_epochs", "must be >= 1")
+        _require(0 <= self.seed <= MAX_SEED, "trainer.seed",
+                 f"must be an integer in [0, {MAX_SEED}], got {self.seed}")
         if self.max_steps is not None:
             _require(self.max_steps >= 1, "trainer.max_steps", "must be >= 1 or null")
         _require(self.num_nodes >= 1, "trainer.num_nodes", "must be >= 1")

@@ -4,30 +4,52 @@ One sample: image -> augmentation (keypoints and mask carried along) -> preproce
 letterbox to the network input) -> targets built from the keypoints after both. Keypoints are
 taken from each frame's `uv_labels` (image pixels, NaN where absent), reordered to the config's
 keypoint names (a name a dataset lacks is absent in all its frames). Frames without an image or
-without labels are skipped.
+without labels are skipped. A keypoint outside the image that the letterbox brings into the
+input frame (onto the padding) is absent (NaN): no target and not scored, as for the fill of the
+affine augmentation (`train.augment`).
+
+Shuffling (`EpochShuffle`) draws epoch e's order from seed + e, so that a resumed run sees the
+batches an uninterrupted run would.
 """
 
 from __future__ import annotations
 
 import logging
+import os
+from collections.abc import Iterator
 from collections.abc import Sequence as SequenceOf
 from dataclasses import dataclass, replace
+from fractions import Fraction
+from pathlib import Path
 
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Dataset, get_worker_info
+from torch.utils.data import DataLoader, Dataset, Sampler, get_worker_info
 
+from dream.camera import CameraIntrinsics
 from dream.errors import InputError
-from dream.io import load_image, load_mask, read_sequence
+from dream.io import image_size, load_image, load_mask, read_sequence
+from dream.io.images import (
+    JPEG_EOI,
+    JPEG_SOI,
+    NPZ_SUFFIX,
+    PNG_IEND_CHUNK,
+    PNG_SIGNATURE,
+    PNG_TAIL_BYTES,
+    check_size,
+)
 from dream.preprocess import Preprocess
 from dream.sequence import Frame, Sequence
-from train.augment import Augment
+from train.augment import Augment, inside_image
 from train.config import TrainConfig
 from train.targets import belief_maps, map_size, mask_map
 
 logger = logging.getLogger(__name__)
 
 _SEED_MODULUS = 2 ** 32
+_SEED_MODULUS_64 = 2 ** 64
+_MAX_DENOMINATOR = 10 ** 9  # val_fraction as an exact fraction (0.05 -> 1/20)
+_FIX_IMAGE = "replace it with a complete, readable PNG or JPEG image"
 
 
 def read_folders(folders: SequenceOf[str]) -> list[Sequence]:
@@ -143,6 +165,9 @@ class KeypointDataset(Dataset):
         x, transform = self.preprocess.apply(image)
         uv_input = transform.image_to_input(uv)
         pre = self.preprocess
+        on_padding = (~inside_image(uv, image.shape[1], image.shape[0])
+                      & inside_image(uv_input, pre.input_width, pre.input_height))
+        uv_input[on_padding] = np.nan  # outside the image, on the letterbox padding
         belief = belief_maps(uv_input, pre.input_width, pre.input_height, self.stride, self.sigma)
         if mask is not None:
             mask_target = mask_map(pre.apply_mask(mask), self.stride)
@@ -161,11 +186,24 @@ def _reseed_worker(worker_id: int) -> None:
         info.dataset.augment.reseed(info.seed % _SEED_MODULUS)
 
 
+def held_out(n: int, fraction: float) -> np.ndarray:
+    """(n,) bool: the frames `make_datasets` holds out for validation, `fraction` of them spread
+    evenly: frame i when floor((i + 1) f) > floor(i f), in exact arithmetic on the decimal value
+    of f (so f = 1/k holds out every k-th frame, frames k-1, 2k-1, ...). floor(n f) frames, so
+    with f < 1 at least one frame is left for training."""
+    if not 0 <= fraction < 1:
+        raise InputError(f"config data.val_fraction: must be in [0, 1), got {fraction}",
+                         fix="correct the recipe YAML or the --set override")
+    f = Fraction(str(fraction)).limit_denominator(_MAX_DENOMINATOR)
+    floors = (np.arange(n + 1, dtype=np.int64) * f.numerator) // f.denominator
+    return floors[1:] > floors[:-1]
+
+
 def make_datasets(config: TrainConfig, train_sequences: SequenceOf[Sequence],
                   val_sequences: SequenceOf[Sequence] = ()
                   ) -> tuple[KeypointDataset, KeypointDataset]:
     """Training and validation datasets of a resolved config. Without validation sequences,
-    every round(1 / val_fraction)-th training frame is held out."""
+    `data.val_fraction` of the training frames is held out (`held_out`)."""
     data = config.data
     common = dict(keypoint_names=data.keypoints, preprocess=config.input,
                   stride=config.model.output_stride, sigma=data.belief_sigma,
@@ -176,20 +214,94 @@ def make_datasets(config: TrainConfig, train_sequences: SequenceOf[Sequence],
         train = KeypointDataset(train_sequences, augment=augment, **common)
         val = KeypointDataset(val_sequences, **common)
     else:
-        n = len(KeypointDataset(train_sequences, **common))
-        every = round(1 / data.val_fraction) if data.val_fraction > 0 else 0
-        held = np.zeros(n, bool) if every == 0 or n < 2 else (np.arange(n) % every == every - 1)
+        held = held_out(len(KeypointDataset(train_sequences, **common)), data.val_fraction)
         train = KeypointDataset(train_sequences, augment=augment, frame_filter=~held, **common)
         val = KeypointDataset(train_sequences, frame_filter=held, **common)
     if len(train) == 0:
-        raise InputError("no training frames with an image and keypoint labels",
+        sources = ", ".join(str(s.source) for s in train_sequences)
+        raise InputError(f"no training frames with an image and keypoint labels in {sources}",
                          fix="point data.train at DREAM folders with images and labels")
     logger.info("%d training and %d validation frames", len(train), len(val))
     return train, val
 
 
+def _check_image_file(path: Path, camera: CameraIntrinsics | None) -> None:
+    """Header (readable, its size the camera's) and end (not truncated) of one image file."""
+    check_size(*image_size(path), camera, path)
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(len(PNG_SIGNATURE))
+            fh.seek(0, os.SEEK_END)
+            fh.seek(max(fh.tell() - PNG_TAIL_BYTES, 0))
+            tail = fh.read()
+    except OSError as exc:
+        raise InputError(f"cannot read the image ({exc.strerror or type(exc).__name__})", path,
+                         _FIX_IMAGE) from None
+    if head.startswith(PNG_SIGNATURE) and PNG_IEND_CHUNK not in tail:
+        raise InputError("PNG image is truncated (no IEND chunk at its end)", path, _FIX_IMAGE)
+    if head.startswith(JPEG_SOI) and not tail.rstrip(b"\x00").endswith(JPEG_EOI):
+        raise InputError("JPEG image is truncated (no end-of-image marker)", path, _FIX_IMAGE)
+
+
+def check_image_files(*datasets: KeypointDataset) -> None:
+    """Check, before a run starts, every image and mask file its datasets will load: each
+    opens, its header gives the camera's size and it is not truncated (a PNG ends with its IEND
+    chunk, a JPEG with its end marker). Two small reads a file (the header and the last KiB),
+    no decoding: corruption inside the compressed data shows only when the frame is loaded. An
+    .npz image stack: its first and last images used are loaded."""
+    checked: set[Path] = set()
+    stacks: dict[Path, list[tuple[Frame, Sequence]]] = {}
+    for dataset in datasets:
+        for index in range(len(dataset)):
+            seq, frame = dataset.frame(index)
+            paths = [frame.image_path]
+            if dataset.use_masks and frame.mask_path is not None:
+                paths.append(frame.mask_path)
+            for path in paths:
+                if path in checked:
+                    continue
+                if path.suffix.lower() == NPZ_SUFFIX:
+                    stacks.setdefault(path, []).append((frame, seq))
+                    continue
+                checked.add(path)
+                _check_image_file(path, seq.camera)
+    for frames in stacks.values():
+        by_index = sorted(frames, key=lambda fs: fs[0].image_index or 0)
+        for frame, seq in {id(f): (f, s) for f, s in (by_index[0], by_index[-1])}.values():
+            load_image(frame, seq.camera)
+
+
+class EpochShuffle(Sampler[int]):
+    """A random order of `n` samples drawn afresh each epoch from `seed + epoch` (Lightning
+    calls `set_epoch` before each epoch, as for a `DistributedSampler`): epoch e has the same
+    order whether or not the run was interrupted and resumed before it."""
+
+    def __init__(self, n: int, seed: int):
+        self.n = n
+        self.seed = seed
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(epoch_order(self.n, self.seed, self.epoch).tolist())
+
+
+def epoch_order(n: int, seed: int, epoch: int) -> np.ndarray:
+    """The order of `n` samples in epoch `epoch` of a run seeded with `seed`."""
+    generator = torch.Generator().manual_seed((seed + epoch) % _SEED_MODULUS_64)
+    return torch.randperm(n, generator=generator).numpy()
+
+
 def make_loader(dataset: KeypointDataset, config: TrainConfig, shuffle: bool) -> DataLoader:
+    """The loader of a dataset; `shuffle`: a fresh order each epoch (`EpochShuffle`, seeded by
+    `trainer.seed`)."""
     workers = config.data.num_workers
-    return DataLoader(dataset, batch_size=config.data.batch_size, shuffle=shuffle,
+    sampler = EpochShuffle(len(dataset), config.trainer.seed) if shuffle else None
+    return DataLoader(dataset, batch_size=config.data.batch_size, sampler=sampler,
                       num_workers=workers, persistent_workers=workers > 0,
                       worker_init_fn=_reseed_worker, drop_last=False)

@@ -14,6 +14,8 @@ import io
 import logging
 import math
 import os
+import re
+import shutil
 import time
 import warnings
 from collections.abc import Sequence as SequenceOf
@@ -24,6 +26,7 @@ from typing import Any
 import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint
+from lightning.pytorch.trainer.states import TrainerStatus
 from torch.utils.data import DataLoader
 
 from dream.errors import InputError
@@ -37,7 +40,13 @@ from train.budget import (
 )
 from train.checkpoint import checkpoint_config, read_checkpoint
 from train.config import AUTO_PRECISION, TrainConfig, dump_config
-from train.data import make_datasets, make_loader, read_folders, resolve_from_data
+from train.data import (
+    check_image_files,
+    make_datasets,
+    make_loader,
+    read_folders,
+    resolve_from_data,
+)
 from train.module import BeliefModule
 
 logger = logging.getLogger(__name__)
@@ -232,9 +241,68 @@ def _trainer(config: TrainConfig, run_dir: Path, has_val: bool,
     return trainer, best
 
 
+def _check_run_dir(run_dir: Path) -> None:
+    """`run_dir` is, or can become, a folder this run writes into."""
+    existing = next(p for p in (run_dir, *run_dir.parents) if p.exists() or p == p.parent)
+    if existing == run_dir and not run_dir.is_dir():
+        problem = "is a file, not a folder"
+    elif not existing.is_dir():
+        problem = f"cannot be created: {existing} is a file"
+    elif not os.access(existing, os.W_OK | os.X_OK):
+        problem = f"cannot be written: {existing} is not writable"
+    else:
+        return
+    raise InputError(f"the run folder {problem}", run_dir, "give --out a new or existing folder")
+
+
+def _make_run_dir(run_dir: Path) -> Path | None:
+    """Create the run folder; returns the outermost folder this created (None: it existed)."""
+    created = next((p for p in reversed((run_dir, *run_dir.parents)) if not p.exists()), None)
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the run folder ({exc.strerror or exc})", run_dir,
+                         "give --out a folder that can be created") from None
+    return created
+
+
+class _Checkpointed(Callback):
+    """Whether the run wrote a checkpoint in the course of training (not the one Lightning
+    writes when an exception stops it)."""
+
+    def __init__(self) -> None:
+        self.saved = False
+
+    def on_save_checkpoint(self, trainer: L.Trainer, pl_module: L.LightningModule,
+                           checkpoint: dict[str, Any]) -> None:
+        if trainer.state.status != TrainerStatus.INTERRUPTED:
+            self.saved = True
+
+
+_WORKER_ERROR = re.compile(r"^(?:dream\.errors\.)?InputError: (.+)$", re.MULTILINE)
+
+
+def _unwrap_worker_error(exc: InputError) -> InputError:
+    """An `InputError` raised in a data-loading worker comes back with the worker's traceback
+    as its message; the original one-line error instead (its message is the last line)."""
+    if exc.path is not None or "DataLoader worker" not in exc.problem:
+        return exc
+    found = _WORKER_ERROR.findall(exc.problem)
+    if not found:
+        return exc
+    error = InputError(found[-1])
+    error.args = (found[-1],)  # the original text exactly (no second full stop)
+    return error
+
+
 def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | None = None,
                  callbacks: SequenceOf[Callback] = ()) -> TrainResult:
     """Train `config` into `run_dir` (created if needed).
+
+    Every input is checked before the run folder is created: the data folders, their frames
+    and image files (`check_image_files`), the checkpoint resumed from or started from and the
+    folder itself. An input error found once training runs (an image corrupt inside its data)
+    removes the folder again when this run created it and had not yet written a checkpoint.
 
     Args:
         config: the recipe (data folders in `data.train` / `data.val`).
@@ -243,43 +311,67 @@ def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | 
         callbacks: extra Lightning callbacks (e.g. a held-out evaluation).
     """
     run_dir = Path(run_dir)
+    _check_run_dir(run_dir)
     torch.set_num_threads(config.trainer.threads)
     L.seed_everything(config.trainer.seed, workers=True, verbose=False)
     train_sequences = read_folders(config.data.train)
     val_sequences = read_folders(config.data.val) if config.data.val else []
     config = resolve_from_data(config, train_sequences)
-    run_dir.mkdir(parents=True, exist_ok=True)
     last_path = run_dir / f"{LAST}{CHECKPOINT_SUFFIX}"
     ckpt_path = Path(resume) if resume is not None else (last_path if last_path.exists() else None)
     if ckpt_path is not None:
         saved = _check_resumable(config, ckpt_path)
         logger.info("resuming from %s", ckpt_path)
         config = _as_started(config, saved)
+    elif config.trainer.init_from is not None:
+        _check_resumable(config, Path(config.trainer.init_from), action="start from")
     config = resolve_precision(config)
     train_set, val_set = make_datasets(config, train_sequences, val_sequences)
+    check_image_files(train_set, val_set)
     train_loader = make_loader(train_set, config, shuffle=True)
     val_loader = make_loader(val_set, config, shuffle=False) if len(val_set) else None
-    trainer, best = _trainer(config, run_dir, val_loader is not None, callbacks)
+    if val_loader is None:
+        logger.info("no validation data (set data.val, or data.val_fraction for more frames): "
+                    "no validation metrics, best.ckpt follows %s", _FALLBACK_MONITOR)
+    checkpointed = _Checkpointed()
+    trainer, best = _trainer(config, run_dir, val_loader is not None,
+                             [checkpointed, *callbacks])
     budgeted = config.trainer.time_budget_minutes is not None
     speed = None
     if budgeted and ckpt_path is None:
         config, speed = _fit_time_budget(config, trainer, train_loader, val_loader)
-    _write_text_atomic(run_dir / CONFIG_FILE, dump_config(config))
     module = BeliefModule(config)
     if config.trainer.init_from is not None and ckpt_path is None:
         _init_weights(module, config)
-    if config.trainer.max_steps is not None:
-        epoch_steps = steps_per_epoch(len(train_set), config.data.batch_size, trainer.world_size)
-        epochs = min(config.trainer.max_epochs, math.ceil(config.trainer.max_steps / epoch_steps))
-        trainer.fit_loop.max_epochs = epochs
-        if budgeted:  # exactly the planned steps (a partial last epoch), ended by BudgetStop
-            trainer.fit_loop.epoch_loop.max_steps = config.trainer.max_steps
-            trainer.callbacks.insert(0, _budget_stop(config, speed, len(val_set)))
-        logger.info("step budget %d: %d epochs of %d steps%s", config.trainer.max_steps, epochs,
-                    epoch_steps, "" if budgeted else " (whole epochs)")
-    with warnings.catch_warnings():  # the run folder holds config.yaml (and, resuming, more)
-        warnings.filterwarnings("ignore", message=r".*exists and is not empty")
-        trainer.fit(module, train_loader, val_loader, ckpt_path=ckpt_path)
+    created = _make_run_dir(run_dir)
+    try:
+        _write_text_atomic(run_dir / CONFIG_FILE, dump_config(config))
+        if config.trainer.max_steps is not None:
+            epoch_steps = steps_per_epoch(len(train_set), config.data.batch_size,
+                                          trainer.world_size)
+            epochs = min(config.trainer.max_epochs,
+                         math.ceil(config.trainer.max_steps / epoch_steps))
+            trainer.fit_loop.max_epochs = epochs
+            if budgeted:  # exactly the planned steps (a partial last epoch), ended by BudgetStop
+                trainer.fit_loop.epoch_loop.max_steps = config.trainer.max_steps
+                trainer.callbacks.insert(0, _budget_stop(config, speed, len(val_set)))
+            logger.info("step budget %d: %d epochs of %d steps%s", config.trainer.max_steps,
+                        epochs, epoch_steps, "" if budgeted else " (whole epochs)")
+        with warnings.catch_warnings():
+            # the run folder holds config.yaml (and, resuming, more)
+            warnings.filterwarnings("ignore", message=r".*exists and is not empty")
+            # no validation data: said above
+            warnings.filterwarnings("ignore", message=r".*no `val_dataloader`")
+            # Lightning 2.6 on torch 2.13, not ours to fix
+            warnings.filterwarnings("ignore", message=r".*LeafSpec.*is deprecated")
+            trainer.fit(module, train_loader, val_loader, ckpt_path=ckpt_path)
+    except InputError as exc:
+        if created is not None and not checkpointed.saved and trainer.is_global_zero:
+            shutil.rmtree(created, ignore_errors=True)  # nothing of this run worth keeping
+        error = _unwrap_worker_error(exc)
+        if error is exc:
+            raise
+        raise error from None
     metrics = {k.removesuffix("_epoch"): _scalar(v) for k, v in trainer.callback_metrics.items()
                if not k.endswith("_step")}
     best_path = Path(best.best_model_path) if best.best_model_path else last_path

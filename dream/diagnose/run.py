@@ -27,7 +27,7 @@ from dream.extension import (
     extension_yaml,
     joint_offset_vector,
 )
-from dream.io.atomic import dumps, write_bytes_atomic
+from dream.io.atomic import check_output_folder, dumps, staged_directory, write_bytes_atomic
 from dream.metrics import add_per_frame, pose_errors
 from dream.pipeline import joints_in_robot_order, truth_poses
 from dream.robot import Robot
@@ -250,10 +250,10 @@ def diagnose_sequence(sequence: Sequence, robot: Robot, obs: Observations,
 def run_diagnosis(sequence: Sequence, robot: Robot, obs: Observations, report_dir: str | Path,
                   settings: DiagnoseSettings | None = None, progress=None) -> dict[str, Any]:
     """Diagnose `sequence` and write REPORT_DIR (diagnosis.json, extended_model.yaml, report)."""
-    from dream.diagnose.report import write_report
+    from dream.diagnose.report import PLOT_FILES, write_report
     from dream.diagnose.residuals import analyse
 
-    report_dir = Path(report_dir)
+    report_dir = check_output_folder(report_dir)  # before the analysis, not after it
     extension_path = report_dir / EXTENSION_FILE
     doc, diagnosis, problem = diagnose_sequence(sequence, robot, obs, settings, progress,
                                                 extension_path)
@@ -262,16 +262,20 @@ def run_diagnosis(sequence: Sequence, robot: Robot, obs: Observations, report_di
                                                                   diagnosis.mask)
     analysis = analyse(baseline_res)
     panels = _silhouette_panels(sequence, problem, diagnosis)
-    report_dir.mkdir(parents=True, exist_ok=True)
     if panels:
         doc["silhouette_iou"] = [{"frame": p.frame, "before": p.iou_before, "after": p.iou_after}
                                  for p in panels]
     doc["residual_analysis"] = analysis
     doc = json_safe(doc)
     text = dumps(doc)  # fails here, before any file is written
-    write_report(report_dir, doc, baseline_res, final_res, analysis, panels)
-    write_bytes_atomic(extension_path, extension_yaml(diagnosis.extension).encode())
-    write_bytes_atomic(report_dir / DIAGNOSIS_FILE, text.encode())
+    with staged_directory(report_dir) as stage:  # all the report's files, or none of them
+        write_report(stage, doc, baseline_res, final_res, analysis, panels)
+        write_bytes_atomic(stage / EXTENSION_FILE, extension_yaml(diagnosis.extension).encode())
+        write_bytes_atomic(stage / DIAGNOSIS_FILE, text.encode())
+        made = {path.name for path in stage.iterdir()}
+    for name in PLOT_FILES:  # a plot of an earlier run into this folder that this one lacks
+        if name not in made:
+            (report_dir / name).unlink(missing_ok=True)
     return doc
 
 

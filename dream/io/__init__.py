@@ -5,7 +5,18 @@
 `load_image` / `load_mask` fetch a frame's pixels. Every input problem is an `InputError`.
 """
 
-from dream.io.atomic import atomic_directory, is_temporary, write_bytes_atomic, write_json_atomic
+from dream.io.atomic import (
+    atomic_directory,
+    check_output_file,
+    check_output_folder,
+    is_temporary,
+    make_output_dir,
+    replacing_files,
+    staged_directory,
+    write_bytes_atomic,
+    write_files_atomic,
+    write_json_atomic,
+)
 from dream.io.detect import FORMATS, detect_format
 from dream.io.dream_layout import read_dream, write_dream
 from dream.io.franka_offline import read_franka_offline
@@ -18,19 +29,25 @@ from dream.io.read import read_sequence
 __all__ = [
     "FORMATS",
     "atomic_directory",
+    "check_output_file",
+    "check_output_folder",
     "detect_format",
     "image_size",
     "is_temporary",
     "load_image",
     "load_mask",
     "load_mask_ids",
+    "make_output_dir",
     "parse_intrinsics_text",
     "read_dream",
     "read_franka_offline",
     "read_maniunicon",
     "read_panda_teleop",
     "read_sequence",
+    "replacing_files",
+    "staged_directory",
     "write_bytes_atomic",
     "write_dream",
+    "write_files_atomic",
     "write_json_atomic",
 ]

@@ -28,18 +28,27 @@ FIX_ARGUMENT = "pass --intrinsics fx,fy,cx,cy (pixels)"
 FIX_K_TXT = "write K.txt as the 3x3 camera matrix, three numbers a line"
 
 
-def parse_intrinsics_text(text: str) -> tuple[float, float, float, float]:
-    """"fx,fy,cx,cy" (pixels) -> a tuple to pass as the readers' `intrinsics` argument."""
+def parse_intrinsics_text(text: str, what: str = "intrinsics"
+                          ) -> tuple[float, float, float, float]:
+    """"fx,fy,cx,cy" (pixels) -> a tuple to pass as the readers' `intrinsics` argument;
+    `what` names the text's origin in messages (e.g. the command-line option)."""
     parts = [p.strip() for p in text.split(",")]
     if len(parts) != len(PINHOLE_PARAMS):
-        raise InputError(f"intrinsics {fields.quote(text)} must be four comma-separated "
+        raise InputError(f"{what} {fields.quote(text)} must be four comma-separated "
                          f"numbers", fix=FIX_ARGUMENT)
     try:
         values = tuple(float(p) for p in parts)
     except ValueError:
-        raise InputError(f"intrinsics {fields.quote(text)} must be four comma-separated "
+        raise InputError(f"{what} {fields.quote(text)} must be four comma-separated "
                          f"numbers", fix=FIX_ARGUMENT) from None
+    for name, value in zip(PINHOLE_PARAMS, values, strict=True):
+        if not np.isfinite(value):
+            raise InputError(f"{what} {fields.quote(text)}: {name} = {value} is not a "
+                             "finite number", fix=FIX_ARGUMENT)
     fx, fy, cx, cy = values
+    if fx <= 0 or fy <= 0:
+        raise InputError(f"{what} {fields.quote(text)}: focal lengths must be positive, "
+                         f"got fx={fx:g}, fy={fy:g}", fix=FIX_ARGUMENT)
     return fx, fy, cx, cy
 
 
