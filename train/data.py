@@ -30,12 +30,10 @@ from dream.camera import CameraIntrinsics
 from dream.errors import InputError
 from dream.io import image_size, load_image, load_mask, read_sequence
 from dream.io.images import (
-    JPEG_EOI,
-    JPEG_SOI,
     NPZ_SUFFIX,
-    PNG_IEND_CHUNK,
     PNG_SIGNATURE,
     PNG_TAIL_BYTES,
+    check_file_end,
     check_size,
 )
 from dream.preprocess import Preprocess
@@ -237,10 +235,7 @@ def _check_image_file(path: Path, camera: CameraIntrinsics | None) -> None:
     except OSError as exc:
         raise InputError(f"cannot read the image ({exc.strerror or type(exc).__name__})", path,
                          _FIX_IMAGE) from None
-    if head.startswith(PNG_SIGNATURE) and PNG_IEND_CHUNK not in tail:
-        raise InputError("PNG image is truncated (no IEND chunk at its end)", path, _FIX_IMAGE)
-    if head.startswith(JPEG_SOI) and not tail.rstrip(b"\x00").endswith(JPEG_EOI):
-        raise InputError("JPEG image is truncated (no end-of-image marker)", path, _FIX_IMAGE)
+    check_file_end(head, tail, path)
 
 
 def check_image_files(*datasets: KeypointDataset) -> None:

@@ -113,16 +113,21 @@ def _chunk_name(kind: bytes) -> str:
     return kind.decode("ascii", "replace") if kind.isalpha() else repr(kind)
 
 
-def _check_complete(data: bytes, path: Path) -> None:
-    """Refuse PNGs without their end chunk or with damaged chunks, and JPEGs without their end
-    marker (truncated)."""
-    if data.startswith(PNG_SIGNATURE):
-        if PNG_IEND_CHUNK not in data[-PNG_TAIL_BYTES:]:
-            raise InputError("PNG image is truncated (no IEND chunk at its end)", path,
-                             _FIX_IMAGE)
-        _check_png_chunks(data, path)
-    if data.startswith(JPEG_SOI) and not data.rstrip(b"\x00").endswith(JPEG_EOI):
+def check_file_end(head: bytes, tail: bytes, path: Path) -> None:
+    """Refuse a PNG without its end chunk or a JPEG without its end marker (truncated), from
+    the file's first bytes (`head`, at least the PNG signature's 8) and its last
+    `PNG_TAIL_BYTES` (`tail`; the whole file when it is shorter)."""
+    if head.startswith(PNG_SIGNATURE) and PNG_IEND_CHUNK not in tail[-PNG_TAIL_BYTES:]:
+        raise InputError("PNG image is truncated (no IEND chunk at its end)", path, _FIX_IMAGE)
+    if head.startswith(JPEG_SOI) and not tail.rstrip(b"\x00").endswith(JPEG_EOI):
         raise InputError("JPEG image is truncated (no end-of-image marker)", path, _FIX_IMAGE)
+
+
+def _check_complete(data: bytes, path: Path) -> None:
+    """Refuse truncated PNGs and JPEGs (`check_file_end`) and PNGs with damaged chunks."""
+    check_file_end(data, data, path)
+    if data.startswith(PNG_SIGNATURE):
+        _check_png_chunks(data, path)
 
 
 def _decode(path: Path, flags: int) -> np.ndarray:
