@@ -31,7 +31,7 @@ from dream.metrics import (
     summarise,
 )
 from dream.pnp import SolverSettings
-from dream.robot import Robot, builtin_robots, load_robot
+from dream.robot import Robot, is_robot_reference, load_robot
 from dream.sequence import Sequence
 from dream.transforms import transform_points
 
@@ -40,17 +40,6 @@ log = logging.getLogger(__name__)
 
 FIX_ROBOT_OPTION = ("give --robot a built-in robot (dream robots lists them) or the path of "
                     "a .urdf file")
-
-
-def _is_robot_name_known(name: str) -> bool:
-    """True when `load_robot` takes `name` for a built-in robot or a URDF path (an unknown
-    name is then a problem of the name, not of the keypoints)."""
-    text = str(name)
-    if text.strip().lower() in {entry.name for entry in builtin_robots()}:
-        return True
-    path = Path(text)
-    return path.suffix.lower() in (".urdf", ".xml") or "/" in text or "\\" in text or \
-        path.is_file()
 
 
 def robot_for(sequence: Sequence, robot: str | None = None,
@@ -68,7 +57,7 @@ def robot_for(sequence: Sequence, robot: str | None = None,
     try:
         return load_robot(name, list(keypoints) if keypoints else None)
     except RobotError as exc:
-        if not _is_robot_name_known(name):
+        if not is_robot_reference(name):
             if robot_from is not None:
                 raise InputError(f"names robot {name!r}, which is not known ({exc})",
                                  robot_from, "correct its robot name, or pass --robot with a "

@@ -174,7 +174,10 @@ def check_inputs(config: SynthConfig, robot) -> None:
 
 def check_camera(camera: CameraIntrinsics) -> None:
     """Fail before anything is written when the renderer cannot make `camera`'s image (e.g. a
-    distortion that cannot be inverted over the image)."""
+    distortion that cannot be inverted over the image). `generate` checks the recipe's nominal
+    camera with the default `RenderOptions` (`synth.extension.check_extension` a model
+    extension's true camera); a frame's randomised intrinsics are checked only when that frame
+    is rendered."""
     from synth.lens import plan_lens
     from synth.render import RenderOptions
 

@@ -7,7 +7,13 @@ Public API:
     resolve_resource(uri, urdf_path): `package://` and relative mesh paths -> files.
 """
 
-from dream.robot.registry import RobotEntry, builtin_robot, builtin_robots, load_robot
+from dream.robot.registry import (
+    RobotEntry,
+    builtin_robot,
+    builtin_robots,
+    is_robot_reference,
+    load_robot,
+)
 from dream.robot.resources import filename_handler, resolve_resource, robot_data_dir, share_dir
 from dream.robot.robot import Robot
 from dream.robot.tree import JointModel, KinematicTree, Mimic
@@ -22,6 +28,7 @@ __all__ = [
     "builtin_robot",
     "builtin_robots",
     "filename_handler",
+    "is_robot_reference",
     "load_robot",
     "parse_urdf",
     "resolve_resource",

@@ -133,6 +133,16 @@ def _looks_like_path(text: str) -> bool:
     return Path(text).suffix.lower() in URDF_SUFFIXES or "/" in text or "\\" in text
 
 
+def is_robot_reference(name_or_urdf: str | Path) -> bool:
+    """True when `load_robot` takes `name_or_urdf` for a built-in robot or a URDF path (whether
+    or not that file exists and loads): a `RobotError` it raises is then about the keypoints
+    or links asked for, not about the name."""
+    text = str(name_or_urdf)
+    if isinstance(name_or_urdf, Path) or text.strip().lower() in _REGISTRY:
+        return True
+    return _looks_like_path(text) or Path(text).is_file()
+
+
 def load_robot(name_or_urdf: str | Path, keypoints: Sequence[str] | None = None,
                base_link: str | None = None) -> Robot:
     """A built-in robot by name, or a robot read from a user's URDF file.
