@@ -22,7 +22,7 @@ from dream.errors import InputError  # noqa: E402
 from dream.io import read_sequence  # noqa: E402
 from dream.peaks import find_peaks, input_to_map  # noqa: E402
 from dream.preprocess import Preprocess  # noqa: E402
-from tests.trainkit import make_drawn_dataset  # noqa: E402
+from tests.trainkit import StopAtEpoch, make_drawn_dataset  # noqa: E402
 from train.augment import Augment  # noqa: E402
 from train.checkpoint import load_checkpoint  # noqa: E402
 from train.config import AugmentConfig, ModelConfig, load_config  # noqa: E402
@@ -337,17 +337,6 @@ def test_checkpoint_rebuilds_the_same_model(trained):
         belief = model(capture.x).belief
     torch.testing.assert_close(belief, capture.belief)
     assert load_config(result.run_dir / "config.yaml") == config
-
-
-class StopAtEpoch(Callback):
-    """Kills a run (an exception) when epoch `epoch` starts."""
-
-    def __init__(self, epoch: int):
-        self.epoch = epoch
-
-    def on_train_epoch_start(self, trainer, pl_module) -> None:
-        if trainer.current_epoch == self.epoch:
-            raise KeyError("killed")
 
 
 def test_killed_run_resumes_from_its_last_epoch(drawn, tmp_path):

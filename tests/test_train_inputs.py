@@ -24,7 +24,7 @@ from dream.cli import main  # noqa: E402
 from dream.errors import InputError  # noqa: E402
 from dream.io import read_sequence  # noqa: E402
 from dream.preprocess import Preprocess  # noqa: E402
-from tests.trainkit import make_drawn_dataset  # noqa: E402
+from tests.trainkit import StopAtEpoch, make_drawn_dataset  # noqa: E402
 from train.checkpoint import checkpoint_payload, load_checkpoint, read_checkpoint  # noqa: E402
 from train.config import TrainConfig, load_config  # noqa: E402
 from train.data import (  # noqa: E402
@@ -269,15 +269,6 @@ class RecordOrder(Callback):
 
     def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:
         self.by_epoch.setdefault(trainer.current_epoch, []).extend(batch["index"].tolist())
-
-
-class StopAtEpoch(Callback):
-    def __init__(self, epoch: int):
-        self.epoch = epoch
-
-    def on_train_epoch_start(self, trainer, pl_module) -> None:
-        if trainer.current_epoch == self.epoch:
-            raise KeyError("killed")
 
 
 def test_epoch_order_is_a_permutation_fixed_by_seed_and_epoch():

@@ -3,6 +3,7 @@
 `dream.sample.make_sample` gives Panda keypoints seen by random cameras; each frame is drawn as
 coloured discs at the projected keypoints and grey skeleton lines on a random-noise background,
 with a robot mask (the drawn pixels), then written in the DREAM layout with `dream.io.write_dream`.
+`StopAtEpoch` kills a training run, for the resume tests (its users skip without lightning).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from lightning.pytorch.callbacks import Callback
 
 from dream.io import write_dream
 from dream.sample import SampleSpec, make_sample
@@ -70,3 +72,14 @@ def make_drawn_dataset(out_dir: Path, num_frames: int = 32, width: int = 128, he
             frames.append(replace(frame, image_path=image_path, mask_path=mask_path))
         write_dream(replace(seq, frames=tuple(frames)), out_dir, overwrite=True)
     return out_dir
+
+
+class StopAtEpoch(Callback):
+    """Kills a run (an exception) when epoch `epoch` starts."""
+
+    def __init__(self, epoch: int):
+        self.epoch = epoch
+
+    def on_train_epoch_start(self, trainer, pl_module) -> None:
+        if trainer.current_epoch == self.epoch:
+            raise KeyError("killed")
