@@ -8,6 +8,7 @@ quaternions are `[x, y, z, w]` (`quaternion_xyzw`).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -28,8 +29,16 @@ def _check_shape(name: str, a: np.ndarray, shape_tail: tuple[int, ...]) -> np.nd
     return a
 
 
+def _as_float_array(a: Any, name: str, expected: str) -> np.ndarray:
+    """`a` as a float array; an `InputError` naming `name` when it holds no numbers."""
+    try:
+        return np.asarray(a, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be {expected}, got {a!r:.80}") from None
+
+
 def _check_point(name: str, p: np.ndarray) -> np.ndarray:
-    p = np.asarray(p, dtype=float)
+    p = _as_float_array(p, name, "a finite 3-vector")
     if p.shape != (3,) or not np.all(np.isfinite(p)):
         raise InputError(f"{name} must be a finite 3-vector, got {np.array2string(p)}")
     return p
@@ -158,7 +167,7 @@ def is_rigid(T: np.ndarray, atol: float = 1e-6) -> bool:
 
 def check_pose(T: np.ndarray, name: str) -> np.ndarray:
     """T as a float (4, 4) array with finite entries; InputError naming `name` otherwise."""
-    T = np.asarray(T, dtype=float)
+    T = _as_float_array(T, name, "a finite 4x4 transform")
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
         raise InputError(f"{name} must be a finite 4x4 transform, got shape {T.shape}"
                          + ("" if T.shape != (4, 4) else " with non-finite entries"))
@@ -177,6 +186,11 @@ def look_at(position_base: np.ndarray, target_base: np.ndarray, roll_rad: float 
     """T_cam_base of a camera at `position_base` whose optical axis passes through
     `target_base`, image 'up' towards `up_base`, then rolled about the optical axis."""
     position_base = _check_point("position_base", position_base)
+    up_base = _check_point("up_base", up_base)
+    roll = _as_float_array(roll_rad, "roll_rad", "a finite angle (radians)")
+    if roll.shape != () or not np.isfinite(roll):
+        raise InputError(f"roll_rad must be a finite angle, got {roll_rad!r:.80}",
+                         fix="give the roll about the optical axis in radians")
     z = _check_point("target_base", target_base) - position_base
     distance = np.linalg.norm(z)
     if not distance >= _LOOK_AT_MIN_DISTANCE_M:  # also NaN
@@ -189,7 +203,7 @@ def look_at(position_base: np.ndarray, target_base: np.ndarray, roll_rad: float 
                          fix="move the camera or change up_base")
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
-    c, s = np.cos(roll_rad), np.sin(roll_rad)
+    c, s = np.cos(roll), np.sin(roll)
     x, y = c * x + s * y, -s * x + c * y
     T_base_cam = make_T(np.stack([x, y, z], axis=1), position_base)
     return invert_T(T_base_cam)

@@ -85,7 +85,13 @@ class CameraShell:
         object.__setattr__(self, "elevation_rad",
                            _range("camera.elevation_rad", self.elevation_rad, -1.5, 1.5))
         object.__setattr__(self, "roll_rad", _range("camera.roll_rad", self.roll_rad))
-        object.__setattr__(self, "target_m", tuple(float(v) for v in self.target_m))
+        fix = "give camera.target_m as [x, y, z] in metres in the robot base frame"
+        if isinstance(self.target_m, str) or not hasattr(self.target_m, "__len__") or \
+                len(self.target_m) != 3:
+            raise InputError(f"camera.target_m must be 3 numbers, got {self.target_m!r}",
+                             fix=fix)
+        object.__setattr__(self, "target_m", tuple(_finite(f"camera.target_m[{i}]", v, fix)
+                                                   for i, v in enumerate(self.target_m)))
         _non_negative("camera.target_jitter_m", self.target_jitter_m)
 
 

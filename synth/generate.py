@@ -34,7 +34,7 @@ from dream.io.dream_layout import camera_settings_json, frame_json
 from dream.io.fields import os_reason
 from dream.robot import load_robot
 from dream.sequence import Frame, Sequence
-from synth.config import SynthConfig, config_from_dict
+from synth.config import SynthConfig
 from synth.extension import check_extension, normalised
 
 log = logging.getLogger(__name__)
@@ -235,6 +235,20 @@ def discard_unfinished(out: Path, created: Path | None) -> None:
         log.warning("could not clean up %s after the failed run: %s", out, os_reason(exc))
 
 
+# recipe keys of earlier versions that never changed a render (`appearance.reflectance` was
+# never read): dropped from a folder's settings before comparing them, so it still resumes
+RETIRED_CONFIG_KEYS = (("appearance", "reflectance"),)
+
+
+def without_retired_keys(info: Any) -> Any:
+    """A folder's `_synth.json` content without `RETIRED_CONFIG_KEYS` (changed in place)."""
+    config = info.get("config") if isinstance(info, dict) else None
+    for section, key in RETIRED_CONFIG_KEYS:
+        if isinstance(config, dict) and isinstance(config.get(section), dict):
+            config[section].pop(key, None)
+    return info
+
+
 def prepare_output(job: SynthJob, overwrite: bool) -> set[int]:
     """Create or check the output folder; returns the frames already complete."""
     out = job.out_dir
@@ -250,7 +264,7 @@ def prepare_output(job: SynthJob, overwrite: bool) -> set[int]:
             raise InputError("the output folder exists and is not a dream synth folder", out,
                              "choose an empty or new --out")
         try:
-            previous = json.loads(info_path.read_text())
+            previous = without_retired_keys(json.loads(info_path.read_text()))
         except (OSError, json.JSONDecodeError) as exc:
             raise InputError(f"unreadable {SYNTH_INFO} ({exc})", info_path) from None
         same = previous == json.loads(json.dumps(job.info()))
@@ -396,9 +410,3 @@ def _run(job: SynthJob, todo: list[int], report: Callable[[int], None]) -> None:
         except DreamError:
             pool.terminate()
             raise
-
-
-def config_of(out_dir: Path) -> SynthConfig:
-    """The recipe a synth folder was made with."""
-    info = json.loads((Path(out_dir) / SYNTH_INFO).read_text())
-    return config_from_dict(info["config"])

@@ -12,6 +12,7 @@ from dream.errors import InputError
 from dream.transforms import (
     R_from_quaternion_xyzw,
     T_from_rotvec_t,
+    check_pose,
     compose,
     invert_T,
     is_rigid,
@@ -120,6 +121,14 @@ def test_look_at_refuses_a_target_at_the_camera_and_non_finite_points():
     for position, target, message in ((np.zeros(3), np.zeros(3), "0.0 m apart"),
                                       (np.zeros(3), np.array([np.nan, 0, 0]), "target_base"),
                                       (np.zeros(2), np.ones(3), "position_base"),
-                                      (np.zeros(3), np.array([0, 0, 1.0]), "straight along")):
+                                      (np.zeros(3), np.array([0, 0, 1.0]), "straight along"),
+                                      (np.zeros(3), "abc", "target_base"),
+                                      ([0, [1, 2], 3], np.ones(3), "position_base")):
         with pytest.raises(InputError, match=message):
             look_at(position, target)
+    for kwargs, message in (({"roll_rad": np.nan}, "roll_rad"), ({"roll_rad": "x"}, "roll_rad"),
+                            ({"up_base": np.array([0, np.nan, 1.0])}, "up_base")):
+        with pytest.raises(InputError, match=message):
+            look_at(np.array([1.0, 0.0, 1.0]), np.zeros(3), **kwargs)
+    with pytest.raises(InputError, match="T_init must be a finite 4x4 transform"):
+        check_pose([[1, 2], [3]], "T_init")

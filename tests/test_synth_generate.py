@@ -201,6 +201,20 @@ def test_held_object_moves_with_the_hand():
         maker.close()
 
 
+def test_folder_of_an_earlier_version_with_a_retired_key_resumes(tmp_path):
+    """`appearance.reflectance` (never read by the renderer) was removed from the recipe; a
+    folder whose _synth.json still names it resumes instead of being refused."""
+    out = tmp_path / "old"
+    quiet(SynthJob("panda", out, 1, config_from_dict({}), seed=1))
+    info = json.loads((out / "_synth.json").read_text())
+    info["config"]["appearance"]["reflectance"] = [0.0, 0.0]
+    (out / "_synth.json").write_text(json.dumps(info))
+    first = (out / "000000.rgb.png").read_bytes()
+    quiet(SynthJob("panda", out, 2, config_from_dict({}), seed=1))
+    assert len(read_sequence(out).frames) == 2
+    assert (out / "000000.rgb.png").read_bytes() == first
+
+
 def test_resume_with_fewer_frames_or_a_negative_seed_is_refused(tmp_path, capsys):
     out = tmp_path / "set"
     quiet(SynthJob("panda", out, 3, config_from_dict({}), seed=1))

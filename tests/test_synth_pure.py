@@ -40,6 +40,8 @@ def frame(seed, index, config):
     ({"appearance": {"reflectance": [0, 1]}}, "unknown config key .appearance.reflectance."),
     ({"output": {"jpeg_quality": 500}}, "output.jpeg_quality"),
     ({"camera": {"target_jitter_m": -0.1}}, "camera.target_jitter_m"),
+    ({"camera": {"target_m": [0.0, float("nan"), 0.4]}},
+     r"camera.target_m\[1\] must be a finite number.*Fix: give camera.target_m"),
     ({"background": {"photos": "photos/"}}, "kinds.photo is 0"),
     ({"background": {"kinds": {"photo": 1.0}}}, "needs background.photos"),
     ({"intrinsics": {"fx": -5, "fy": 300, "cx": 160, "cy": 120}},
