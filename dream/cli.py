@@ -291,12 +291,10 @@ def _check_calibrate_outputs(args: argparse.Namespace) -> tuple[Path, Path]:
 def _write_calibration(args: argparse.Namespace, seq, robot, obs, result, doc: dict,
                        ros_path: Path, matrix_path: Path) -> None:
     """RESULT.json, its two text files and the --overlays folder, all or none: the files are
-    written, then the overlays drawn into a temporary folder and moved into place; on a failure
-    of either (an unreadable image...) the files are put back as they were before the
-    command."""
-    from contextlib import nullcontext
-
-    from dream.io import replacing_files, staged_directory
+    written, then the overlays drawn (`write_result_overlays` stages them in a temporary folder
+    and moves them into place); on a failure of either (an unreadable image...) the files are
+    put back as they were before the command."""
+    from dream.io import replacing_files
     from dream.io.atomic import dumps
     from dream.ros import matrix_text, ros_text
 
@@ -304,12 +302,11 @@ def _write_calibration(args: argparse.Namespace, seq, robot, obs, result, doc: d
     files = {Path(args.out): dumps(doc).encode("utf-8"),
              ros_path: ros_text(T, robot.base_link, file_name=ros_path.name).encode("utf-8"),
              matrix_path: matrix_text(T, robot.base_link).encode("utf-8")}
-    overlays = staged_directory(args.overlays) if args.overlays else nullcontext()
-    with replacing_files(files), overlays as stage:  # a failure puts the files back
-        if stage is not None:
+    with replacing_files(files):  # a failure puts the files back
+        if args.overlays:
             from dream.overlay import write_result_overlays
 
-            write_result_overlays(seq, robot, obs, result, stage)
+            write_result_overlays(seq, robot, obs, result, Path(args.overlays))
 
 
 def _polish(args: argparse.Namespace, seq, robot, result, obs, model, doc: dict, out) -> dict:

@@ -29,7 +29,7 @@ from dream import __version__
 from dream.camera import CameraIntrinsics
 from dream.errors import DreamError, InputError
 from dream.extension import ModelExtension
-from dream.io import is_temporary, write_bytes_atomic, write_json_atomic
+from dream.io import is_temporary, outermost_missing, write_bytes_atomic, write_json_atomic
 from dream.io.dream_layout import camera_settings_json, frame_json
 from dream.io.fields import os_reason
 from dream.robot import load_robot
@@ -203,17 +203,6 @@ def check_output_path(out: Path) -> None:
                          "give --out a folder you can read and write") from None
 
 
-def _first_missing(out: Path) -> Path | None:
-    """The outermost folder of `out` (itself or a parent) that does not exist yet: the one a
-    run creates. None when `out` exists."""
-    missing = None
-    for path in (out, *out.parents):
-        if path.exists():
-            break
-        missing = path
-    return missing
-
-
 def discard_unfinished(out: Path, created: Path | None) -> None:
     """After a failed run: when `out` holds no complete frame, remove what this run wrote
     there (settings, partial frames, temporaries) and the folders it created (`created` and
@@ -369,8 +358,7 @@ def generate(job: SynthJob, overwrite: bool = False,
                         keypoint_names=robot.keypoint_names,
                         frames=(Frame("0", np.zeros(len(robot.joint_names))),))
     settings_doc = camera_settings_json(settings)
-    check_output_path(job.out_dir)
-    created = _first_missing(job.out_dir)
+    created = outermost_missing(job.out_dir)  # prepare_output checks the path first
     prepared = finished = False
     try:
         done = prepare_output(job, overwrite)

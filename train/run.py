@@ -30,6 +30,7 @@ from lightning.pytorch.trainer.states import TrainerStatus
 from torch.utils.data import DataLoader
 
 from dream.errors import InputError
+from dream.io import outermost_missing
 from train.budget import (
     BudgetStop,
     Speed,
@@ -257,7 +258,7 @@ def _check_run_dir(run_dir: Path) -> None:
 
 def _make_run_dir(run_dir: Path) -> Path | None:
     """Create the run folder; returns the outermost folder this created (None: it existed)."""
-    created = next((p for p in reversed((run_dir, *run_dir.parents)) if not p.exists()), None)
+    created = outermost_missing(run_dir)
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -202,6 +202,13 @@ def _missing_folders(path: Path) -> list[Path]:
     return missing
 
 
+def outermost_missing(path: str | Path) -> Path | None:
+    """The outermost of `path` and its parents that does not exist yet (the folder that
+    creating `path` creates first, and that a failed run removes); None when `path` exists."""
+    missing = _missing_folders(Path(path))
+    return missing[-1] if missing else None
+
+
 def _keep_aside(target: Path) -> Path:
     """A temporary sibling holding `target`'s present content (a hard link, else a copy)."""
     backup = _temporary_sibling(target, "old")
