@@ -12,12 +12,15 @@ import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
 
 from dream.camera import CameraIntrinsics, pixels_to_normalized
+from dream import optim
 from dream.errors import InputError
+from dream.optim import LMSettings, RobustLoss
 from dream.transforms import R_from_rotvec, T_from_rotvec_t, check_pose, rotvec_from_R
 
 log = logging.getLogger(__name__)
@@ -34,42 +37,6 @@ _EYE3 = np.eye(3)
 _EYE6 = np.eye(6)
 _IN_FRONT = np.array([0.0, 0.0, 1.0])  # stands in for a point behind the camera (whose rows
                                       # `_linearise_batch` flags as meaningless)
-
-
-@dataclass(frozen=True)
-class RobustLoss:
-    """Robust loss on the pixel distance |e| of each keypoint.
-
-    kind: "huber" (quadratic up to `scale_px`, then linear), "cauchy" or "l2".
-    """
-
-    kind: str = "huber"
-    scale_px: float = 3.0
-
-    def __post_init__(self) -> None:
-        if self.kind not in ("huber", "cauchy", "l2"):
-            raise InputError(f"unknown robust loss '{self.kind}'", fix="use huber, cauchy or l2")
-        if not (np.isfinite(self.scale_px) and self.scale_px > 0):
-            raise InputError(f"robust loss scale must be a positive number of pixels, got "
-                             f"{self.scale_px}")
-
-    def rho(self, r: np.ndarray) -> np.ndarray:
-        """Cost of distances r >= 0 (equals r^2 / 2 near zero)."""
-        k = self.scale_px
-        if self.kind == "l2":
-            return 0.5 * r * r
-        if self.kind == "huber":
-            return np.where(r <= k, 0.5 * r * r, k * (r - 0.5 * k))
-        return 0.5 * k * k * np.log1p((r / k) ** 2)
-
-    def weight(self, r: np.ndarray) -> np.ndarray:
-        """IRLS weight rho'(r) / r."""
-        k = self.scale_px
-        if self.kind == "l2":
-            return np.ones_like(r)
-        if self.kind == "huber":
-            return np.where(r <= k, 1.0, k / np.maximum(r, _TINY))
-        return 1.0 / (1.0 + (r / k) ** 2)
 
 
 @dataclass(frozen=True)
@@ -322,22 +289,52 @@ def increment_between(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
     return np.concatenate([rotvec_from_R(T[:3, :3] @ T_ref[:3, :3].T), T[:3, 3] - T_ref[:3, 3]])
 
 
-def _solve_damped(H: np.ndarray, damping: np.ndarray, g: np.ndarray) -> np.ndarray:
-    """xi (6,) solving (H + diag(damping)) xi = -g for one frame's (6, 6) H: OpenCV's Cholesky
-    (positive definite for positive damping; a fraction of numpy's per-call cost), numpy's LU
-    where that fails."""
-    A = H.copy()
-    A.flat[::7] += damping
-    ok, xi = cv2.solve(A, -g[:, None], flags=cv2.DECOMP_CHOLESKY)
-    return xi[:, 0] if ok else np.linalg.solve(A, -g)
-
-
 def _cost(distance: np.ndarray, confidence: np.ndarray, loss: RobustLoss) -> float:
     return float(confidence @ loss.rho(distance))
 
 
 class _BehindCamera(Exception):
     """Internal: the starting pose puts keypoints behind the camera."""
+
+
+class _PoseProblem:
+    """`dream.optim.lm`'s view of one frame's robust reprojection error over T_cam_base."""
+
+    def __init__(self, P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
+                 confidence: np.ndarray, loss: RobustLoss):
+        self.P_base, self.uv, self.camera = P_base, uv, camera
+        self.confidence, self.loss = confidence, loss
+
+    def state_of(self, lin: tuple[np.ndarray, np.ndarray]) -> tuple[float, Any]:
+        distance = _distances(lin[0])
+        return _cost(distance, self.confidence, self.loss), (lin, distance)
+
+    def evaluate(self, T: np.ndarray) -> tuple[float, Any]:
+        lin = linearise(self.P_base, self.uv, self.camera, T)
+        return (math.inf, None) if lin is None else self.state_of(lin)
+
+    def normal_equations(self, T: np.ndarray, state: Any) -> tuple[np.ndarray, np.ndarray]:
+        (e, J), distance = state
+        WJ = _weighted_rows(J, self.confidence * self.loss.weight(distance))
+        return WJ.T @ J.reshape(-1, 6), WJ.T @ e.reshape(-1)
+
+    def retract(self, T: np.ndarray, xi: np.ndarray) -> np.ndarray:
+        return apply_increment(T, xi)
+
+
+def lm_settings(settings: SolverSettings, dof: int) -> LMSettings:
+    """The LM constants of the pose solver; `dof` = residual degrees of freedom.
+
+    The iteration stops before a step whose predicted decrease puts the pose within
+    `convergence_sigma` standard deviations of the optimum: in squared standard deviations
+    (covariance s^2 H^-1, s^2 = 2 cost / dof) the remaining distance is 2 predicted / s^2 =
+    predicted dof / cost.
+    """
+    return LMSettings(initial_damping=settings.initial_damping, damping_up=_DAMPING_FACTOR,
+                      damping_down=_DAMPING_FACTOR, min_damping=_MIN_DAMPING,
+                      max_damping=_MAX_DAMPING, max_iterations=settings.max_iterations,
+                      step_tolerance=settings.step_tolerance,
+                      predicted_tolerance=settings.convergence_sigma ** 2 / dof)
 
 
 def levenberg_marquardt(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
@@ -350,47 +347,14 @@ def levenberg_marquardt(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrin
     Returns the optimum, the number of iterations and `linearise` at the optimum. Inputs must
     be finite. `lin_init`: `linearise` at T_init when the caller has it.
     """
-    loss = settings.loss
-    T = T_init.copy()
-    lin = linearise(P_base, uv, camera, T) if lin_init is None else lin_init
+    problem = _PoseProblem(P_base, uv, camera, confidence, settings.loss)
+    lin = linearise(P_base, uv, camera, T_init) if lin_init is None else lin_init
     if lin is None:
         raise _BehindCamera()
-    e, J = lin
-    distance = _distances(e)
-    cost = _cost(distance, confidence, loss)
-    lam = settings.initial_damping
     dof = max(2 * int(np.count_nonzero(confidence)) - 6, 1)
-    iterations = 0
-    while iterations < settings.max_iterations:
-        iterations += 1
-        w = confidence * loss.weight(distance)
-        WJ = _weighted_rows(J, w)
-        H = WJ.T @ J.reshape(-1, 6)
-        g = WJ.T @ e.reshape(-1)
-        damping = H.diagonal() + _TINY
-        improved = False
-        while lam < _MAX_DAMPING:
-            xi = _solve_damped(H, lam * damping, g)
-            # the decrease the reweighted quadratic model predicts is, in squared standard
-            # deviations of the pose (covariance s^2 H^-1, s^2 = 2 cost / dof), the remaining
-            # distance to the optimum: d^2 = 2 predicted / s^2 = predicted dof / cost
-            predicted = -(g @ xi) - 0.5 * (xi @ H @ xi)
-            if predicted * dof <= settings.convergence_sigma ** 2 * cost:
-                return T, iterations, (e, J)
-            T_new = apply_increment(T, xi)
-            lin_new = linearise(P_base, uv, camera, T_new)
-            if lin_new is not None:
-                distance_new = _distances(lin_new[0])
-                new_cost = _cost(distance_new, confidence, loss)
-                if new_cost <= cost:
-                    T, (e, J), distance, cost = T_new, lin_new, distance_new, new_cost
-                    lam = max(lam / _DAMPING_FACTOR, _MIN_DAMPING)
-                    improved = True
-                    break
-            lam *= _DAMPING_FACTOR
-        if not improved or xi @ xi < settings.step_tolerance ** 2:
-            break
-    return T, iterations, (e, J)
+    out = optim.levenberg_marquardt(problem, T_init.copy(), lm_settings(settings, dof),
+                                    start=problem.state_of(lin))
+    return out.x, out.iterations, out.state[0]
 
 
 def _levenberg_marquardt_batch(P_base: np.ndarray, uv: np.ndarray, cameras: _Cameras,

@@ -297,13 +297,13 @@ def test_batch_solve_checks_its_shapes(rng):
 def test_damped_step_matches_numpy_also_where_cholesky_fails(rng):
     """The single-frame LM step (OpenCV's Cholesky, numpy's LU where that fails) solves
     (H + diag(d)) xi = -g as numpy does, for a positive definite and an indefinite matrix."""
-    from dream.pnp import _solve_damped
+    from dream.optim import solve_damped
 
     J = rng.normal(size=(14, 6))
     g = rng.normal(size=6)
     for H in (J.T @ J, np.diag([1.0, -2.0, 3.0, 1.0, 1.0, 1.0])):
         d = np.full(6, 1e-3)
-        np.testing.assert_allclose(_solve_damped(H, d, g), np.linalg.solve(H + np.diag(d), -g),
+        np.testing.assert_allclose(solve_damped(H, d, g), np.linalg.solve(H + np.diag(d), -g),
                                    rtol=1e-10)
 
 
