@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from dream.camera import project
-from dream.cli import main
+from dream.cli import CalibrateRequest, SampleRequest, build_parser, main, run_calibrate
+from dream.errors import InputError
 from dream.io import read_sequence, write_dream
 from dream.metrics import pose_errors
 from dream.robot import load_robot
@@ -205,3 +206,22 @@ def test_maniunicon_npz_with_intrinsics_on_the_command_line(tmp_path, capsys):
     assert code == 0, err
     line = _one_error_line(*run(["info", npz, "--intrinsics", "30,31,16,12,64,48"], capsys)[::2])
     assert "32x24" in line
+
+
+def test_requests_check_their_options_and_run_without_a_command_line(sample_dir, tmp_path,
+                                                                      capsys):
+    out = str(tmp_path / "r.json")
+    with pytest.raises(InputError, match="--seed must be a whole number >= 0"):
+        CalibrateRequest(data=str(sample_dir), out=out, use_labels=True, seed=-1)
+    with pytest.raises(InputError, match="--polish was not given"):
+        CalibrateRequest(data=str(sample_dir), out=out, use_labels=True, mask_head=True)
+    with pytest.raises(InputError, match="--outliers must be a fraction"):
+        SampleRequest(out=str(tmp_path / "s"), outliers=2.0)
+    args = build_parser().parse_args(["calibrate", "--data", str(sample_dir), "--use-labels",
+                                      "--out", out])
+    defaults = CalibrateRequest(data=str(sample_dir), out=out, use_labels=True)
+    assert {k: getattr(defaults, k) for k in vars(args) if hasattr(defaults, k)} == \
+        {k: v for k, v in vars(args).items() if hasattr(defaults, k)}
+    doc = run_calibrate(defaults)
+    assert "reprojection RMSE" in capsys.readouterr().out
+    assert np.allclose(json.loads(Path(out).read_text())["T_cam_base"], doc["T_cam_base"])

@@ -1,0 +1,71 @@
+"""The `dream` program: its parser (the core's commands, then those of the other stages found
+through the `dream.commands` entry points) and `main`, which turns every failure into one line
+on stderr and an exit code."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+from collections.abc import Sequence
+from importlib.metadata import entry_points
+
+from dream import __version__
+from dream.cli import calibrate, demo, diagnose, eval, info, overlay, robots, sample
+from dream.errors import DreamError
+
+log = logging.getLogger("dream")
+
+DESCRIPTION = ("`dream` command line: thin wrappers around the library. Every failure is one "
+               "line on stderr.")
+ENTRY_POINT_GROUP = "dream.commands"
+CORE_COMMANDS = (robots, info, overlay, calibrate, diagnose, eval, sample, demo)  # help order
+EXIT_ERROR = 2
+EXIT_INTERRUPTED = 130
+EXIT_BROKEN_PIPE = 141          # 128 + SIGPIPE, what a shell reports for a writer cut off
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="dream", description=DESCRIPTION)
+    parser.add_argument("--version", action="version", version=f"dream {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for command in CORE_COMMANDS:
+        command.register(sub)
+    _add_stage_commands(sub)
+    return parser
+
+
+def _add_stage_commands(sub: argparse._SubParsersAction) -> None:
+    """Commands of the other stages (synth, train, export), found through the `dream.commands`
+    entry points so that the core imports none of them. Each entry point is a function
+    `register(subparsers)` that adds its parser and sets `func`; it must import nothing heavy."""
+    for entry in sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name):
+        try:
+            register = entry.load()
+        except ImportError as exc:
+            log.warning("command '%s' is unavailable (%s)", entry.name, exc)
+            continue
+        register(sub)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        code = args.func(args)
+        sys.stdout.flush()  # a closed reader shows up here, not at interpreter exit
+        return code
+    except BrokenPipeError:
+        # the reader of the output went away (`dream info DATA | head`): stop quietly, as
+        # command-line tools do, without a second error when Python flushes stdout at exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
+    except DreamError as exc:
+        print(f"dream {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        print(f"dream {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED

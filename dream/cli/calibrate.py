@@ -1,0 +1,230 @@
+"""`dream calibrate`: observations from the labels or a keypoint network -> RESULT.json, plus
+RESULT.ros.txt and RESULT.T_base_cam.txt for robot software (`dream.ros`)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from dream.cli.calibrate_report import polish, print_summary
+from dream.cli.observe import observe
+from dream.cli.options import (
+    add_command,
+    add_data_args,
+    add_model_source,
+    check_seed,
+    read_data,
+    request_from,
+)
+from dream.errors import InputError
+from dream.pnp import RobustLoss, SolverSettings
+
+
+@dataclass(frozen=True)
+class CalibrateRequest:
+    """What `dream calibrate` does: the options of its command line (`loaded_model`: the
+    network of `model` already loaded, as `dream demo` does before rendering)."""
+
+    data: str
+    out: str
+    model: str | None = None
+    use_labels: bool = False
+    robot: str | None = None
+    intrinsics: str | None = None
+    frames: str = "all"
+    overlays: str | None = None
+    polish: bool = False
+    mask_head: bool = False
+    loss: str = "huber"
+    loss_scale_px: float = RobustLoss().scale_px
+    seed: int = 0
+    threads: int | None = None
+    batch: int | None = None
+    model_extension: str | None = None
+    loaded_model: Any = None
+
+    def __post_init__(self) -> None:
+        _check_mask_head(self.mask_head, self.polish, self.model is not None, self.frames)
+        self.solver_settings()  # checks --seed, --loss and --loss-scale-px
+
+    def solver_settings(self) -> SolverSettings:
+        """The solver's settings of `--loss`, `--loss-scale-px` and `--seed`."""
+        check_seed(self.seed)
+        return SolverSettings(loss=RobustLoss(self.loss, self.loss_scale_px), seed=self.seed)
+
+
+def _check_mask_head(mask_head: bool, polish: bool, model: bool, frames: str) -> None:
+    """`--mask-head` goes with `--polish`, `--model` and all frames (checked before any
+    reading)."""
+    if not mask_head:
+        return
+    if not polish:
+        raise InputError("--mask-head chooses the masks of the silhouette polish, and --polish "
+                         "was not given", fix="add --polish or drop --mask-head")
+    if not model:
+        raise InputError("--mask-head takes the masks from the --model's mask head, and no "
+                         "--model was given", fix="add --model MODEL.onnx or drop --mask-head")
+    if frames != "all":
+        raise InputError("--mask-head polishes the one extrinsic of all frames; the mask head "
+                         "is too coarse to polish a frame alone",
+                         fix="use --frames all, or drop --mask-head")
+
+
+def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
+    """`dream calibrate`: observations from the labels (`--use-labels`) or from a keypoint
+    network (`--model MODEL.onnx`, run by the `dream.model_loaders` entry point: onnxruntime,
+    no torch) -> RESULT.json, plus RESULT.ros.txt and RESULT.T_base_cam.txt for robot
+    software (`dream.ros`). Every output location is checked before the work, and the files
+    and the --overlays folder appear together or not at all."""
+    from dream.pipeline import calibrate, truth_poses
+    from dream.result import result_to_dict
+
+    out = out or sys.stdout
+    settings = request.solver_settings()
+    ros_path, matrix_path = _check_outputs(request)
+    extension = _read_extension(request)
+    seq = read_data(request.data, request.intrinsics, request.robot)
+    if request.polish:
+        from dream.polish import check_polish_input
+
+        check_polish_input(seq, request.frames, network_masks=request.mask_head)
+    robot, obs, model = observe(seq, request.robot, request.model, request.use_labels, out,
+                                threads=request.threads, batch=request.batch,
+                                loaded_model=request.loaded_model)
+    if extension is not None:
+        seq, obs = _apply_extension(request, extension, seq, robot, obs, out)
+    result = calibrate(seq, obs, request.frames, settings)
+    doc = result_to_dict(result, obs, robot=request.robot or seq.robot)
+    if extension is not None:
+        doc["model_extension"] = {"file": str(request.model_extension),
+                                  "effects": extension.to_dict()["effects"],
+                                  "camera": {"fx": seq.camera.fx, "fy": seq.camera.fy,
+                                             "cx": seq.camera.cx, "cy": seq.camera.cy,
+                                             "distortion": seq.camera.distortion}}
+    if request.polish:
+        doc = polish(seq, robot, result, obs, model, doc, out, frames=request.frames,
+                     mask_head=request.mask_head)
+    _write_calibration(request, seq, robot, obs, result, doc, ros_path, matrix_path)
+    print_summary(doc, out)
+    T_true = truth_poses(seq)
+    if request.frames == "all" and np.all(np.isfinite(T_true[0])):
+        from dream.metrics import pose_errors
+
+        t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true[0])
+        print(f"error vs ground truth: camera position {t_err * 1000:.2f} mm, rotation "
+              f"{np.rad2deg(r_err):.3f} deg", file=out)
+    print(f"wrote {request.out}, {ros_path} (ROS static_transform_publisher: x y z qx qy qz qw "
+          f"{robot.base_link} camera_optical_frame) and {matrix_path} (T_base_cam)", file=out)
+    return doc
+
+
+def _read_extension(request: CalibrateRequest):
+    """The `--model-extension` (None without one); it cannot go with `--polish`."""
+    if not request.model_extension:
+        return None
+    from dream.extension import read_extension
+
+    if request.polish:
+        raise InputError("--polish renders the nominal robot and cannot use a model "
+                         "extension", request.model_extension,
+                         "drop --polish or --model-extension")
+    return read_extension(request.model_extension)
+
+
+def _apply_extension(request: CalibrateRequest, extension, seq, robot, obs, out: TextIO):
+    """The data and observations corrected by the model extension (a problem without a file
+    of its own names the extension's)."""
+    from dream.diagnose.run import apply_extension_to_observations
+
+    try:
+        seq, obs = apply_extension_to_observations(seq, robot, obs, extension)
+    except InputError as exc:
+        if exc.path is not None:
+            raise
+        raise InputError(exc.problem, request.model_extension, exc.fix) from None
+    print(f"model extension {request.model_extension}: "
+          f"{', '.join(extension.effects) or 'no effect'}", file=out)
+    return seq, obs
+
+
+def _check_outputs(request: CalibrateRequest) -> tuple[Path, Path]:
+    """Before any work: RESULT.json, RESULT.ros.txt and RESULT.T_base_cam.txt can be written
+    and the --overlays folder can be made; returns the paths of the two text files."""
+    from dream.io import check_output_file, check_output_folder
+    from dream.ros import output_paths
+
+    check_output_file(request.out)
+    ros_path, matrix_path = output_paths(request.out)
+    for path in (ros_path, matrix_path):
+        try:
+            check_output_file(path)
+        except InputError as exc:
+            raise InputError(f"{exc.problem} (dream calibrate --out {request.out} writes it)",
+                             exc.path, "remove it, or choose another --out") from None
+    if request.overlays:
+        check_output_folder(request.overlays)
+    return ros_path, matrix_path
+
+
+def _write_calibration(request: CalibrateRequest, seq, robot, obs, result, doc: dict,
+                       ros_path: Path, matrix_path: Path) -> None:
+    """RESULT.json, its two text files and the --overlays folder, all or none: the files are
+    written, then the overlays drawn (`write_result_overlays` stages them in a temporary folder
+    and moves them into place); on a failure of either (an unreadable image...) the files are
+    put back as they were before the command."""
+    from dream.io import replacing_files
+    from dream.io.atomic import dumps
+    from dream.ros import matrix_text, ros_text
+
+    T = np.asarray(doc["T_cam_base"])
+    files = {Path(request.out): dumps(doc).encode("utf-8"),
+             ros_path: ros_text(T, robot.base_link, file_name=ros_path.name).encode("utf-8"),
+             matrix_path: matrix_text(T, robot.base_link).encode("utf-8")}
+    with replacing_files(files):  # a failure puts the files back
+        if request.overlays:
+            from dream.overlay import write_result_overlays
+
+            write_result_overlays(seq, robot, obs, result, Path(request.overlays))
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    run_calibrate(request_from(CalibrateRequest, args))
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """The `dream calibrate` parser."""
+    p = add_command(sub, "calibrate", cmd_calibrate,
+                    "solve T_cam_base from keypoints of many frames")
+    add_data_args(p)
+    add_model_source(p, "detect the keypoints with this network (dream export; runs with "
+                        "onnxruntime, no torch)")
+    p.add_argument("--out", required=True, help="RESULT.json to write")
+    p.add_argument("--frames", choices=("all", "each"), default="all",
+                   help="all: one extrinsic from every frame (fixed camera); each: per frame")
+    p.add_argument("--overlays", help="folder for per-frame overlays and a summary image")
+    p.add_argument("--polish", action="store_true",
+                   help="refine the extrinsic (with --frames each: every frame's own pose) by "
+                        "aligning the robot's rendered silhouette with the data's masks (or, "
+                        "all frames with --mask-head, the --model's mask head); kept only when "
+                        "the IoU improves without spoiling the keypoint fit")
+    p.add_argument("--mask-head", action="store_true",
+                   help="--polish, all frames, data without masks: align with the --model's "
+                        "mask head (opt-in: the bundled model's is too coarse and made "
+                        "rendered scenes worse, see README)")
+    p.add_argument("--loss", choices=("huber", "cauchy", "l2"), default="huber")
+    p.add_argument("--loss-scale-px", type=float, default=RobustLoss().scale_px)
+    p.add_argument("--seed", type=int, default=0, help="seed of the RANSAC sampling")
+    p.add_argument("--threads", type=int, default=None,
+                   help="--model: onnxruntime threads (default: every core)")
+    p.add_argument("--batch", type=int, default=None,
+                   help="--model: images per network call (default 8)")
+    p.add_argument("--model-extension", metavar="FILE",
+                   help="extended model (extended_model.yaml of dream diagnose): corrected "
+                        "camera, joint offsets, link lengths, keypoint bias, time offset; with "
+                        "a camera move only the frames after it are used")

@@ -1,0 +1,88 @@
+"""What `dream calibrate` adds to its result and prints: the silhouette polish of `--polish`
+and the summary of the extrinsic and its uncertainty."""
+
+from __future__ import annotations
+
+import sys
+from typing import TextIO
+
+import numpy as np
+
+
+def polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames: str,
+           mask_head: bool) -> dict:
+    """`--polish`: the silhouette polish of the one extrinsic (`frames` "all") or of every
+    frame's own pose ("each"); returns RESULT.json's document with it."""
+    from dream.polish import has_masks, polish_calibration, result_doc_with_polish
+
+    if frames != "all":
+        return _polish_frames(seq, robot, result, obs, doc, out)
+    predict = None
+    if not has_masks(seq):  # --mask-head (checked)
+        from dream.detect import predict_masks
+
+        predict = lambda idx: predict_masks(seq, model, idx)  # noqa: E731
+        print("no masks in the data: the polish uses the network's mask head (--mask-head)",
+              file=out)
+    elif mask_head:
+        print("the data has masks: the polish uses them, not the mask head", file=out)
+    report = polish_calibration(seq, robot, result, obs, predict_masks=predict)
+    print(f"silhouette polish ({len(report.frames)} frames with masks, "
+          f"{report.seconds:.1f} s): {report.reason}", file=out)
+    return result_doc_with_polish(doc, report)
+
+
+def _polish_frames(seq, robot, result, obs, doc: dict, out: TextIO) -> dict:
+    """`--polish --frames each`: every solved frame's own pose polished."""
+    from dream.detect import PROGRESS_EVERY_FRAMES
+    from dream.polish import polish_frames, result_doc_with_frame_polishes
+
+    def progress(done: int, total: int) -> None:
+        print(f"polished {done}/{total} frames", file=sys.stderr)
+
+    reports = polish_frames(seq, robot, result, obs,
+                            progress=progress if len(seq) > PROGRESS_EVERY_FRAMES else None)
+    doc = result_doc_with_frame_polishes(doc, reports)
+    p = doc["polish"]
+    if p["frames_polished"]:
+        print(f"silhouette polish of each frame ({p['frames_polished']} frames with masks, "
+              f"{p['seconds']:.1f} s): kept in {p['frames_kept']}; mean IoU "
+              f"{p['iou_before']:.4f} -> {p['iou_kept']:.4f} ({p['iou_after']:.4f} at every "
+              "polished pose)", file=out)
+    else:
+        print("silhouette polish of each frame: no solved frame has a non-empty mask", file=out)
+    reported = result.reported_frame
+    if reported is not None and reports[reported] is not None:
+        print(f"  reported frame {doc['reported_frame']}: {reports[reported].reason}", file=out)
+    return doc
+
+
+def print_summary(doc: dict, out: TextIO) -> None:
+    """The extrinsic, the camera position, their 1-sigma and the reprojection error."""
+    T = np.asarray(doc["T_cam_base"])
+    with np.printoptions(precision=5, suppress=True):
+        print("T_cam_base (maps base-frame points into the camera frame):", file=out)
+        print(T, file=out)
+    c = np.asarray(doc["T_base_cam"])[:3, 3]
+    sc = np.asarray(doc["sigma_camera_position_base_m"])
+    st = np.asarray(doc["sigma_translation_m"])
+    sr = np.rad2deg(np.asarray(doc["sigma_rotation_rad"]))
+    print(f"camera position in base frame: [{c[0]:+.4f}, {c[1]:+.4f}, {c[2]:+.4f}] m  "
+          f"(1-sigma {sc[0] * 1e3:.2f}, {sc[1] * 1e3:.2f}, {sc[2] * 1e3:.2f} mm)", file=out)
+    print(f"1-sigma translation (camera axes): {st[0] * 1e3:.2f}, {st[1] * 1e3:.2f}, "
+          f"{st[2] * 1e3:.2f} mm; rotation: {sr[0]:.3f}, {sr[1]:.3f}, {sr[2]:.3f} deg", file=out)
+    uncertainty = doc.get("uncertainty") or {}
+    if uncertainty.get("covariance_xi_keypoint_jackknife") is not None:
+        from dream.result import camera_position_covariance
+
+        fit_c = camera_position_covariance(np.asarray(doc["T_cam_base"]),
+                                           np.asarray(uncertainty["covariance_xi_fit"]))
+        left_out = len(uncertainty["keypoint_jackknife_left_out"])
+        spread = (f"{left_out} solutions with one keypoint left out of every frame, for errors "
+                  "a keypoint repeats across frames" if doc["frames_mode"] == "all" else
+                  f"{left_out} solutions of the frame with one keypoint left out, for a "
+                  "misplaced keypoint")
+        print(f"  (1-sigma = the fit's, {np.sqrt(np.trace(fit_c)) * 1e3:.2f} mm in position, "
+              f"for independent detection errors, plus the spread over {spread})", file=out)
+    print(f"reprojection RMSE {doc['rmse_px']:.3f} px over {doc['keypoints_used']} keypoints "
+          f"in {doc['frames_used']} frames ({doc['frames_mode']} mode)", file=out)

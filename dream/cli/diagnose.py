@@ -1,0 +1,93 @@
+"""`dream diagnose`: residual analysis, effect catalog, cross-validated model selection."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dream.cli.observe import observe
+from dream.cli.options import add_command, add_data_args, add_model_source, read_data, request_from
+
+
+@dataclass(frozen=True)
+class DiagnoseRequest:
+    """What `dream diagnose` does: the options of its command line."""
+
+    data: str
+    out: str
+    model: str | None = None
+    use_labels: bool = False
+    robot: str | None = None
+    intrinsics: str | None = None
+    effects: str | None = None
+    folds: int = 5
+    threads: int | None = None
+    batch: int | None = None
+
+    def effect_names(self) -> tuple[str, ...] | None:
+        """The effects of the comma-separated `--effects` (None: the catalog's default)."""
+        return tuple(e.strip() for e in self.effects.split(",")) if self.effects else None
+
+
+def run_diagnose(request: DiagnoseRequest) -> dict:
+    """The diagnosis of `request.data`: REPORT_DIR written, the verdict printed; returns
+    diagnosis.json's document."""
+    from dream.diagnose.run import run_diagnosis
+    from dream.diagnose.select import DiagnoseSettings
+    from dream.io import check_output_folder
+
+    check_output_folder(request.out)  # before the analysis, which takes a while
+    seq = read_data(request.data, request.intrinsics, request.robot)
+    robot, obs, _ = observe(seq, request.robot, request.model, request.use_labels, sys.stdout,
+                            threads=request.threads, batch=request.batch)
+    effects = request.effect_names()
+    settings = DiagnoseSettings(**({"effects": effects} if effects else {}),
+                                folds=request.folds)
+    doc = run_diagnosis(seq, robot, obs, request.out, settings,
+                        progress=lambda message: print(message, file=sys.stderr))
+    _print_diagnosis(doc, request.out)
+    return doc
+
+
+def _print_diagnosis(doc: dict, out_dir: str) -> None:
+    gain = doc["gain"]
+    print(f"baseline: held-out RMSE {gain['heldout_rmse_px_before']:.3f} px")
+    print(f"verdict: {', '.join(doc['verdict']) or 'no significant effect'}")
+    for effect in doc["effects"]:
+        if effect["name"] in doc["verdict"]:
+            print(f"  {effect['name']}: {effect['params']}")
+    print(f"extended model: held-out RMSE {gain['heldout_rmse_px_after']:.3f} px")
+    truth = doc.get("truth")
+    if truth:
+        for label in ("before", "after"):
+            t = truth[label]
+            print(f"vs ground truth {label}: camera position {1000 * t['translation_error_m']:.2f}"
+                  f" mm, rotation {np.rad2deg(t['rotation_error_rad']):.3f} deg, ADD "
+                  f"{1000 * t['add_mean_m']:.2f} mm")
+    print(f"wrote {Path(out_dir) / 'diagnosis.json'}, {doc['extended_model']} and "
+          f"{Path(out_dir) / 'report.md'} ({doc['seconds']:.1f} s)")
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    run_diagnose(request_from(DiagnoseRequest, args))
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """The `dream diagnose` parser."""
+    p = add_command(sub, "diagnose", cmd_diagnose, "find what the robot-and-camera model gets "
+                    "wrong on measured data, extend it and measure the gain")
+    add_data_args(p)
+    add_model_source(p, "detect the keypoints with this network (onnxruntime, no torch)")
+    p.add_argument("--out", required=True, metavar="REPORT_DIR",
+                   help="folder for diagnosis.json, extended_model.yaml, report.md and plots")
+    p.add_argument("--effects", help="comma-separated effects to test (default: all of "
+                   "joint_offset, lens_distortion, intrinsics_error, time_offset, link_length, "
+                   "camera_moved, keypoint_bias)")
+    p.add_argument("--folds", type=int, default=5, help="cross-validation folds over frames")
+    p.add_argument("--threads", type=int, default=None, help=argparse.SUPPRESS)
+    p.add_argument("--batch", type=int, default=None, help=argparse.SUPPRESS)

@@ -1,0 +1,68 @@
+"""`dream eval`: a RESULT.json scored against the data's ground truth -> METRICS.json."""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+
+import numpy as np
+
+from dream.cli.options import add_command, add_data_args, read_data, request_from
+
+
+@dataclass(frozen=True)
+class EvalRequest:
+    """What `dream eval` does: the options of its command line."""
+
+    data: str
+    result: str
+    out: str
+    robot: str | None = None
+    intrinsics: str | None = None
+
+
+def run_eval(request: EvalRequest) -> dict:
+    """The metrics of `request.result` on `request.data`, written to `request.out` and
+    summarised on stdout; returns METRICS.json's document."""
+    from dream.io import check_output_file, write_json_atomic
+    from dream.pipeline import evaluate, robot_for
+    from dream.result import read_result
+
+    check_output_file(request.out)
+    doc = read_result(request.result)
+    seq = read_data(request.data, request.intrinsics, request.robot)
+    names = [k["name"] for f in doc["per_frame"][:1] for k in f.get("keypoints") or []]
+    robot_from = request.result if not request.robot and doc.get("robot") else None
+    robot = robot_for(seq, request.robot or doc.get("robot"), tuple(names) or None,
+                      robot_from=robot_from, keypoints_from=request.result)
+    metrics = evaluate(seq, robot, doc)
+    write_json_atomic(request.out, metrics)
+    _print_metrics(metrics)
+    print(f"wrote {request.out}")
+    return metrics
+
+
+def _print_metrics(metrics: dict) -> None:
+    add, t, r = metrics["add_m"], metrics["translation_error_m"], metrics["rotation_error_rad"]
+    fmt = lambda v, s=1.0: "n/a" if v is None else f"{v * s:.3f}"  # noqa: E731
+    print(f"ADD mean {fmt(add['mean'], 1e3)} mm, median {fmt(add['median'], 1e3)} mm, "
+          f"ADD AUC {metrics['add_auc']:.4f} (0-{metrics['add_auc_threshold_m']} m, "
+          f"{metrics['frames_in_add_auc']} frames)")
+    kp = metrics["keypoint_l2_px"]
+    print(f"keypoint L2 mean {fmt(kp['mean'])} px, median {fmt(kp['median'])} px, PCK AUC "
+          f"{metrics['pck_auc']:.4f} (0-{metrics['pck_auc_threshold_px']:g} px)")
+    print(f"camera position error median {fmt(t['median'], 1e3)} mm, rotation error median "
+          f"{fmt(r['median'], np.rad2deg(1))} deg")
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    run_eval(request_from(EvalRequest, args))
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """The `dream eval` parser."""
+    p = add_command(sub, "eval", cmd_eval, "score a RESULT.json against the data's ground truth")
+    add_data_args(p)
+    p.add_argument("--result", required=True, help="RESULT.json of dream calibrate")
+    p.add_argument("--out", required=True, help="METRICS.json to write")

@@ -1,0 +1,65 @@
+"""`dream info`: a summary of a dataset (frames, robot, camera, labels, truth, joints)."""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+
+import numpy as np
+
+from dream.cli.options import DATA_FILE_HELP, INTRINSICS_HELP, add_command, read_data, request_from
+
+
+@dataclass(frozen=True)
+class InfoRequest:
+    """What `dream info` does: the options of its command line."""
+
+    data: str
+    intrinsics: str | None = None
+    robot: str | None = None
+
+
+def run_info(request: InfoRequest) -> None:
+    """The summary of `request.data`, printed."""
+    seq = read_data(request.data, request.intrinsics, request.robot)
+    cam = seq.camera
+    print(f"data:      {request.data} ({len(seq)} frames)")
+    print(f"robot:     {seq.robot}")
+    dist = "none" if cam.distortion is None else ", ".join(f"{c:.4g}" for c in cam.distortion)
+    print(f"camera:    {cam.width}x{cam.height} fx={cam.fx:.2f} fy={cam.fy:.2f} cx={cam.cx:.2f} "
+          f"cy={cam.cy:.2f} distortion: {dist}")
+    if seq.has_frame_cameras:
+        fx = [seq.frame_camera(i).fx for i in range(len(seq))]
+        print(f"           frames carry their own intrinsics: fx {min(fx):.2f} to {max(fx):.2f} "
+              "(solve them with --frames each)")
+    frames = seq.frames
+    print(f"images:    {sum(f.image_path is not None for f in frames)}   masks: "
+          f"{sum(f.mask_path is not None for f in frames)}   timestamps: "
+          f"{sum(f.timestamp is not None for f in frames)}")
+    labelled = sum(f.uv_labels is not None for f in frames)
+    print(f"labels:    {labelled} frames with 2D keypoint labels "
+          f"({', '.join(seq.keypoint_names) or 'none'})")
+    truth = sum(f.T_cam_base_true is not None for f in frames)
+    print(f"truth:     {truth} frames with ground-truth pose; reference extrinsic: "
+          f"{'yes' if seq.T_cam_base_reference is not None else 'no'}")
+    if frames[0].timestamp is not None and len(frames) > 1:
+        t = np.array([f.timestamp for f in frames if f.timestamp is not None])
+        print(f"time:      {t[-1] - t[0]:.3f} s, median period {np.median(np.diff(t)):.4f} s")
+    q = seq.joints
+    print("joints (min .. max):")
+    for name, lo, hi in zip(seq.joint_names, q.min(0), q.max(0), strict=True):
+        print(f"  {name:24s} {lo:+.4f} .. {hi:+.4f}")
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    run_info(request_from(InfoRequest, args))
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """The `dream info` parser."""
+    p = add_command(sub, "info", cmd_info,
+                    "summarise a dataset: frames, robot, camera, labels, truth")
+    p.add_argument("data", help=DATA_FILE_HELP)
+    p.add_argument("--intrinsics", help=INTRINSICS_HELP)
+    p.add_argument("--robot", help=argparse.SUPPRESS)

@@ -1,0 +1,93 @@
+"""Option helpers shared by the `dream` commands: parsing and checking option values, reading
+the `--data` of a command, adding a command's parser and turning its Namespace into a request."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from dataclasses import fields
+from typing import TypeVar
+
+from dream.camera import CameraIntrinsics
+from dream.errors import InputError
+
+FIX_INTRINSICS = "give --intrinsics fx,fy,cx,cy or fx,fy,cx,cy,width,height (pixels)"
+INTRINSICS_HELP = "fx,fy,cx,cy[,width,height] for data without them"
+ROBOT_HELP = "built-in robot name or URDF path (default: the data's)"
+DATA_FILE_HELP = "dataset folder or .npz"
+
+Request = TypeVar("Request")
+
+
+def parse_intrinsics(text: str | None) -> CameraIntrinsics | tuple[float, ...] | None:
+    """'fx,fy,cx,cy' (size from the images) or 'fx,fy,cx,cy,width,height'; a bad value is an
+    `InputError` naming the option (not the data's camera file)."""
+    if text is None:
+        return None
+    from dream.io import parse_intrinsics_text
+
+    parts = text.split(",")
+    if len(parts) != 6:
+        return parse_intrinsics_text(text, "--intrinsics")
+    try:
+        w, h = int(parts[4]), int(parts[5])
+    except ValueError:
+        raise InputError(f"--intrinsics '{text}': width and height must be integers",
+                         fix=FIX_INTRINSICS) from None
+    fx_fy_cx_cy = parse_intrinsics_text(",".join(parts[:4]), "--intrinsics")
+    try:
+        return CameraIntrinsics(*fx_fy_cx_cy, w, h)
+    except InputError as exc:
+        raise InputError(f"--intrinsics '{text}': {exc.problem}", fix=FIX_INTRINSICS) from None
+
+
+def check_positive(value: int | None, option: str, fix: str) -> None:
+    """A whole-number option that must be >= 1 when given (None: its default)."""
+    if value is not None and value < 1:
+        raise InputError(f"{option} must be 1 or more, got {value}", fix=fix)
+
+
+def check_seed(seed: int | None) -> None:
+    """`--seed`: a whole number >= 0 when given (None: the command's default)."""
+    if seed is not None and seed < 0:
+        raise InputError(f"--seed must be a whole number >= 0, got {seed}",
+                         fix="give --seed 0 or a positive integer")
+
+
+def read_data(data: str, intrinsics: str | None = None, robot: str | None = None):
+    """The `Sequence` of `--data`, with the camera of `--intrinsics` where given."""
+    from dream.io import read_sequence
+
+    return read_sequence(data, intrinsics=parse_intrinsics(intrinsics), robot=robot)
+
+
+def request_from(cls: type[Request], args: argparse.Namespace) -> Request:
+    """The request dataclass `cls` made of the options of `args` that are its fields (the
+    others keep the field's default)."""
+    names = {f.name for f in fields(cls)}
+    return cls(**{k: v for k, v in vars(args).items() if k in names})
+
+
+def add_command(sub: argparse._SubParsersAction, name: str,
+                fn: Callable[[argparse.Namespace], int], help_: str) -> argparse.ArgumentParser:
+    """A command's parser, whose handler `fn` `dream.cli.app.main` calls."""
+    p = sub.add_parser(name, help=help_, description=help_)
+    p.set_defaults(func=fn)
+    return p
+
+
+def add_data_args(p: argparse.ArgumentParser, required: bool = True) -> None:
+    """`--data`, `--robot` and `--intrinsics`, of the commands that read a dataset."""
+    p.add_argument("--data", required=required, help="dataset folder (DREAM layout, "
+                   "panda_teleop, franka_offline) or ManiUniCon .npz")
+    p.add_argument("--robot", help=ROBOT_HELP)
+    p.add_argument("--intrinsics", help=INTRINSICS_HELP)
+
+
+def add_model_source(p: argparse.ArgumentParser, model_help: str) -> None:
+    """`--model MODEL.onnx` or `--use-labels`, one of them required."""
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--model", metavar="MODEL.onnx", help=model_help)
+    source.add_argument("--use-labels", action="store_true",
+                        help="take 2D observations from the labels (projected_location)")
+

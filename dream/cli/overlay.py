@@ -1,0 +1,79 @@
+"""`dream overlay`: projected keypoints and skeleton drawn on the images of a dataset."""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dream.cli.options import (
+    DATA_FILE_HELP,
+    INTRINSICS_HELP,
+    ROBOT_HELP,
+    add_command,
+    read_data,
+    request_from,
+)
+from dream.errors import InputError
+
+
+@dataclass(frozen=True)
+class OverlayRequest:
+    """What `dream overlay` does: the options of its command line."""
+
+    data: str
+    out: str
+    extrinsic: str | None = None
+    robot: str | None = None
+    intrinsics: str | None = None
+    limit: int | None = None
+
+    def __post_init__(self) -> None:
+        from dream.overlay import check_limit
+
+        check_limit(self.limit)
+
+
+def run_overlay(request: OverlayRequest) -> int:
+    """The overlays of `request.data` drawn with `request.extrinsic` (default: the data's
+    reference) into `request.out`; returns how many were written."""
+    from dream.io import check_output_folder
+    from dream.overlay import write_skeleton_overlays
+    from dream.pipeline import robot_for
+    from dream.result import read_result
+
+    check_output_folder(request.out)  # before any reading or drawing
+    seq = read_data(request.data, request.intrinsics, request.robot)
+    robot = robot_for(seq, request.robot)
+    if request.extrinsic is not None:
+        T = read_result(request.extrinsic)["T_cam_base"]
+        poses = np.broadcast_to(T, (len(seq), 4, 4))
+    else:
+        from dream.pipeline import truth_poses
+
+        if not seq.has_ground_truth:
+            raise InputError("the data has no reference extrinsic", request.data,
+                             "pass --extrinsic RESULT.json")
+        poses = truth_poses(seq)
+    n = write_skeleton_overlays(seq, robot, poses, Path(request.out), limit=request.limit)
+    print(f"wrote {n} overlay images to {request.out}")
+    return n
+
+
+def cmd_overlay(args: argparse.Namespace) -> int:
+    run_overlay(request_from(OverlayRequest, args))
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """The `dream overlay` parser."""
+    p = add_command(sub, "overlay", cmd_overlay,
+                    "draw projected keypoints and skeleton on the images")
+    p.add_argument("data", help=DATA_FILE_HELP)
+    p.add_argument("--out", required=True, help="folder for the overlay PNGs")
+    p.add_argument("--extrinsic", help="RESULT.json to draw with (default: the data's reference)")
+    p.add_argument("--robot", help=ROBOT_HELP)
+    p.add_argument("--intrinsics", help=INTRINSICS_HELP)
+    p.add_argument("--limit", type=int, default=None, help="draw at most this many frames")
