@@ -2,10 +2,10 @@
 
 Each trial draws a keypoint-only measured-like sequence (`dream.inject`: a fixed camera, a
 smooth random arm trajectory, 1-2 px label noise) with one hidden effect of the catalog (random
-magnitude in the issue's realistic ranges), two effects together, or none, runs the diagnosis
-(labels as observations) and scores it (`dream.diagnose.score`): identified = the verdict names
-the hidden effects and recovers their parameters within 10 % or 3 stated sigmas; exact = that,
-and nothing else in the verdict. Null trials must give an empty verdict.
+magnitude in a realistic range, `random_effects`), two effects together, or none, runs the
+diagnosis (labels as observations) and scores it (`dream.diagnose.score`): identified = the
+verdict names the hidden effects and recovers their parameters within 10 % or 3 stated sigmas;
+exact = that, and nothing else in the verdict. Null trials must give an empty verdict.
 
     python benchmarks/diagnose_identification.py [--trials-per-effect 12] [--null-trials 16]
         [--pair-trials 8] [--seed 0] [--frames 100] [--workers 2] [--json OUT.json]

@@ -16,8 +16,8 @@
 #    `dream export` and `--set trainer.init_from=` need).
 # Extra KEY=VALUE arguments override the recipe (train_curve.py --set).
 #
-# It was run on a lent H100 (16 cores) with MUJOCO_GL=egl; the model card
-# (dream/models/panda_cpu.md) gives the commands and figures. Without a GPU, add
+# The bundled model's GPU stages ran it on an NVIDIA H100 with 16 CPU cores and MUJOCO_GL=egl;
+# the model card (dream/models/panda_cpu.md) gives the commands and figures. Without a GPU, add
 # trainer.accelerator=cpu (checked at toy size); for real CPU training use
 # benchmarks/train_curve.py directly.
 set -euo pipefail
