@@ -329,7 +329,8 @@ def test_single_frame_covariance_matches_the_batch_one(rng):
     """The single-frame covariance (OpenCV's eigensolver, scalar bookkeeping) equals the batch
     one (numpy's), also without redundancy (3 keypoints: NaN); a singular J^T W J is beyond
     `max_condition` in both."""
-    from dream.pnp import _covariance, _covariance_one
+    from dream.pnp.batch import _covariance
+    from dream.pnp.single import _covariance_one
 
     J = rng.normal(size=(7, 2, 6))
     for e, J_, w in ((rng.normal(size=(7, 2)), J, rng.uniform(0.2, 1, 7)),

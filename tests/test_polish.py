@@ -18,20 +18,20 @@ from dream.cli import main
 from dream.errors import InputError
 from dream.io import read_sequence, write_dream
 from dream.metrics import pose_errors
+from dream.models import BUNDLED_MODEL
 from dream.pnp import apply_increment
 from dream.polish import (
     KeypointGuard,
     KeypointSet,
     PolishParams,
-    _Contour,
-    _decide,
-    _Objective,
-    _polish_frame,
     fit_shrinkage,
     polish,
     result_doc_with_frame_polishes,
     signed_distance,
 )
+from dream.polish.calibration import _polish_frame
+from dream.polish.guard import decide
+from dream.polish.objective import Contour, Objective
 from dream.robot import load_robot
 from dream.sample import random_joints
 from dream.sequence import Frame, Sequence
@@ -256,12 +256,12 @@ def test_contour_jacobian_matches_finite_differences(rng):
     camera = CameraIntrinsics(300.0, 300.0, 159.5, 119.5, 320, 240)
     yy, xx = np.mgrid[0:240, 0:320]
     disc = (xx - 170) ** 2 + (yy - 110) ** 2 < 50 ** 2
-    objective = _Objective(signed_distance(disc)[None], camera, PolishParams())
+    objective = Objective(signed_distance(disc)[None], camera, PolishParams())
     T = look_at(np.array([1.0, 0.5, 0.6]), np.zeros(3), 0.1)
     P = rng.normal(size=(200, 3)) * 0.15
     P[:2] = transform_points(np.linalg.inv(T), np.array([[-0.3, 0.0, 0.5],    # left of the
                                                         [-0.3, -0.3, 0.5]]))  # image, above
-    contour = _Contour(P, np.zeros(len(P), np.int64), np.zeros(len(P)))
+    contour = Contour(P, np.zeros(len(P), np.int64), np.zeros(len(P)))
     _, J = objective.residuals(contour, T, jacobian=True)
     h = 1e-6
     J_fd = np.stack([(objective.residuals(contour, apply_increment(T, h * e), False)[0]
@@ -281,7 +281,7 @@ def test_contour_outside_the_mask_is_cut_tighter():
     """A contour point outside the observed mask (r > 0) may be hidden by an occluder: no
     weight beyond `max_outside_residual_px`; inside (r < 0) up to `max_residual_px`."""
     params = PolishParams()
-    objective = _Objective(np.zeros((1, 4, 4)), CAMERA, params)
+    objective = Objective(np.zeros((1, 4, 4)), CAMERA, params)
     r = np.array([-10.0, -4.0, 4.0, 10.0])
     k = params.huber_scale_px
     assert params.huber_scale_px < 4 < params.max_outside_residual_px < 10
@@ -298,8 +298,8 @@ def test_contour_outside_the_mask_is_cut_tighter():
 def test_occluded_frame_is_polished_closer_with_the_outside_cut(panda, meshes):
     """One frame, a bar hiding 12-43 % of the arm's silhouette, the pose 1 cm and 1 deg off:
     the rendered outline where the arm is hidden must not pull the pose onto the visible part.
-    With the outside cut as wide as the inside one (the polish before the eighteenth session)
-    the camera ends farther off in every seed."""
+    With the outside cut as wide as the inside one (15 px both sides) the camera ends farther
+    off in every seed."""
     errors = []
     for seed in range(3, 9):
         rng, T_true, joints, masks = scene(panda, meshes, seed=seed)
@@ -337,14 +337,14 @@ def test_median_guard_allows_for_what_the_keypoint_fit_absorbed():
     was."""
     params = PolishParams()
     median = KeypointGuard.MEDIAN
-    assert _decide(0.5, 0.9, 1.0, 4.9, 4, params, median)[0]
-    kept, reason = _decide(0.5, 0.9, 1.0, 5.1, 4, params, median)
+    assert decide(0.5, 0.9, 1.0, 4.9, 4, params, median)[0]
+    kept, reason = decide(0.5, 0.9, 1.0, 5.1, 4, params, median)
     assert not kept and "above the 5.000 px allowed" in reason
-    assert _decide(0.5, 0.9, 1.0, 4.3, 7, params, median)[0]
-    assert not _decide(0.5, 0.9, 1.0, 4.4, 7, params, median)[0]
-    assert not _decide(0.5, 0.9, 1.0, 2.1, 50, params, KeypointGuard.RMSE)[0]   # max(1.5, 1 + 1)
-    assert _decide(0.5, 0.9, 1.0, 100.0, 0, params, median)[0]                 # no guard
-    assert not _decide(0.5, 0.501, 1.0, 1.0, 4, params, median)[0]            # IoU gain too small
+    assert decide(0.5, 0.9, 1.0, 4.3, 7, params, median)[0]
+    assert not decide(0.5, 0.9, 1.0, 4.4, 7, params, median)[0]
+    assert not decide(0.5, 0.9, 1.0, 2.1, 50, params, KeypointGuard.RMSE)[0]   # max(1.5, 1 + 1)
+    assert decide(0.5, 0.9, 1.0, 100.0, 0, params, median)[0]                 # no guard
+    assert not decide(0.5, 0.501, 1.0, 1.0, 4, params, median)[0]            # IoU gain too small
 
 
 def test_polish_checks_its_input(panda, meshes):
@@ -482,8 +482,6 @@ def test_calibrate_polish_without_masks_is_one_clear_error(tmp_path, capsys):
     assert len(err.strip().splitlines()) == 1 and "--polish needs robot masks" in err
     assert not (tmp_path / "r.json").exists()
 
-
-BUNDLED_MODEL = Path(__file__).resolve().parents[1] / "dream" / "models" / "panda_cpu.onnx"
 
 
 @pytest.mark.parametrize("extra, message", [

@@ -11,8 +11,8 @@ from pathlib import Path
 from dream.cli.calibrate import CalibrateRequest, run_calibrate
 from dream.cli.options import add_command, check_seed, request_from
 from dream.errors import InputError
+from dream.models import BUNDLED_MODEL
 
-BUNDLED_MODEL = Path(__file__).resolve().parents[1] / "models" / "panda_cpu.onnx"
 SAMPLE_OUTLIER_FRACTION = 0.1
 
 

@@ -1,0 +1,171 @@
+"""The silhouette objective: signed distances to the observed outline at the model's contour.
+
+A one-sided, signed chamfer distance with continuous model points. For the current pose, render
+each search frame's silhouette and keep the mesh vertices that project within `contour_band_px`
+of its outline: they are the model's contour points (`select_contour`), 3D points that move
+continuously with the pose (a rendered outline moves in whole pixels). Each contour point i of
+frame f gives the residual
+    r_i = D_f(project(T P_i)) - s_i,
+where D_f is the signed distance to the observed mask's outline (pixels; negative inside;
+bilinear in the distance transform of the mask, so smooth in the pose: `signed_distance`) and
+s_i the same signed distance measured in the rendered silhouette where the point was selected.
+s_i makes the residuals exactly zero when the rendered and observed silhouettes agree, so
+points a little inside the outline do not pull it outwards. Points farther than
+`max_residual_px` from agreement (parts the mask misses, mask noise) get no weight, the rest a
+Huber weight (scale `huber_scale_px`). Occluders only remove robot pixels from the observed
+mask, so at the true pose a contour point may lie outside it (r > 0, the robot hidden there)
+but never inside: residuals r > 0 get no weight beyond the tighter `max_outside_residual_px`
+(otherwise a distractor in front of the arm pulls the outline onto the visible part; README).
+Observed outline that no model contour explains (cables, a gripper the URDF lacks) pulls
+nothing: the distance is one-sided on purpose.
+
+The search runs at a reduced resolution: masks shrunk to at most `search_width_px` pixels wide
+(`shrink_mask`) and the camera scaled to match (`scaled_camera`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from dream.camera import CameraIntrinsics, project
+from dream.errors import InputError
+from dream.optim.robust import huber_rho, huber_weight
+from dream.pnp import linearise
+from dream.polish.params import PolishParams
+from dream.silhouette import render_points
+
+EDGE_OFFSET_PX = 0.5        # a boundary pixel's centre lies half a pixel from the outline
+COVERED_FRACTION = 0.5      # a shrunk mask's pixel is robot when this much of it was robot
+
+
+def scaled_camera(camera: CameraIntrinsics, width: int, height: int) -> CameraIntrinsics:
+    """The same camera seen at another image size (pixel centres kept at integers)."""
+    sx, sy = width / camera.width, height / camera.height
+    return CameraIntrinsics(camera.fx * sx, camera.fy * sy, (camera.cx + EDGE_OFFSET_PX) * sx
+                            - EDGE_OFFSET_PX, (camera.cy + EDGE_OFFSET_PX) * sy - EDGE_OFFSET_PX,
+                            width, height, camera.distortion)
+
+
+def shrink_mask(mask: np.ndarray, width: int, height: int) -> np.ndarray:
+    """A bool mask resized by area averaging; robot where at least half a pixel is robot."""
+    if mask.shape == (height, width):
+        return mask
+    area = cv2.resize(mask.astype(np.float32), (width, height), interpolation=cv2.INTER_AREA)
+    return area >= COVERED_FRACTION
+
+
+def signed_distance(mask: np.ndarray) -> np.ndarray:
+    """(H, W) signed distance (pixels) of each pixel centre to the mask's outline, negative
+    inside; +-0.5 on the boundary pixels, so zero half-way between them."""
+    m = np.asarray(mask, dtype=bool).astype(np.uint8)
+    if m.ndim != 2 or m.size == 0:
+        raise InputError(f"mask has shape {m.shape}, expected (H, W)")
+    d_out = cv2.distanceTransform(1 - m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    d_in = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return np.where(m > 0, EDGE_OFFSET_PX - d_in, d_out - EDGE_OFFSET_PX).astype(float)
+
+
+def _bilinear(images: np.ndarray, frame: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Values of images (F, H, W) at pixels uv (N, 2) of frames `frame` (N,), clamped."""
+    _, H, W = images.shape
+    x = np.clip(uv[:, 0], 0.0, W - 1.0)
+    y = np.clip(uv[:, 1], 0.0, H - 1.0)
+    x0 = np.minimum(np.floor(x).astype(np.int64), max(W - 2, 0))
+    y0 = np.minimum(np.floor(y).astype(np.int64), max(H - 2, 0))
+    x1 = np.minimum(x0 + 1, W - 1)
+    y1 = np.minimum(y0 + 1, H - 1)
+    ax, ay = x - x0, y - y0
+    return ((images[frame, y0, x0] * (1 - ax) + images[frame, y0, x1] * ax) * (1 - ay)
+            + (images[frame, y1, x0] * (1 - ax) + images[frame, y1, x1] * ax) * ay)
+
+
+def evenly_spaced(candidates: np.ndarray, n: int) -> np.ndarray:
+    """At most n of `candidates`, evenly spaced along it (all of them when there are fewer)."""
+    if len(candidates) <= n:
+        return candidates
+    return candidates[np.unique(np.round(np.linspace(0, len(candidates) - 1, n)).astype(int))]
+
+
+@dataclass(frozen=True)
+class Contour:
+    """Contour points of one round: base-frame points, frame index, selection distance."""
+
+    P_base: np.ndarray   # (N, 3)
+    frame: np.ndarray    # (N,)
+    s: np.ndarray        # (N,)
+
+
+def select_contour(P_frames: np.ndarray, faces: np.ndarray, T: np.ndarray,
+                   camera: CameraIntrinsics, params: PolishParams) -> Contour:
+    """The contour points at T: of each frame's mesh vertices P_frames (F, V, 3), those that
+    project within `contour_band_px` of the silhouette rendered at T (at most
+    `max_points_per_frame`, evenly spaced), with their signed distance there."""
+    points, frames, dists = [], [], []
+    for f, P in enumerate(P_frames):
+        rendered = render_points(P, faces, T, camera)
+        if not rendered.any():
+            continue
+        uv = project(camera, P @ T[:3, :3].T + T[:3, 3])
+        ok = np.all(np.isfinite(uv), axis=1) & camera.in_image(uv)
+        s = np.full(len(P), np.inf)
+        s[ok] = _bilinear(signed_distance(rendered)[None], np.zeros(int(ok.sum()), np.int64),
+                          uv[ok])
+        pick = np.flatnonzero(np.abs(s) <= params.contour_band_px)
+        pick = evenly_spaced(pick, params.max_points_per_frame)
+        points.append(P[pick])
+        frames.append(np.full(len(pick), f))
+        dists.append(s[pick])
+    if not points:
+        return Contour(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0))
+    return Contour(np.concatenate(points), np.concatenate(frames), np.concatenate(dists))
+
+
+class Objective:
+    """Huber cost of the contour residuals, truncated at `max_residual_px` below zero and at
+    `max_outside_residual_px` above (module doc). `sdf`: (F, H, W) signed distances to the
+    observed outlines (`signed_distance`)."""
+
+    def __init__(self, sdf: np.ndarray, camera: CameraIntrinsics, params: PolishParams):
+        self.sdf = sdf
+        self.grad_y, self.grad_x = np.gradient(sdf, axis=(1, 2))
+        self.camera = camera
+        self.k = params.huber_scale_px
+        self.cut_inside = params.max_residual_px
+        self.cut_outside = params.max_outside_residual_px
+
+    def residuals(self, contour: Contour, T: np.ndarray, jacobian: bool
+                  ) -> tuple[np.ndarray, np.ndarray | None] | None:
+        lin = linearise(contour.P_base, np.zeros((len(contour.P_base), 2)), self.camera, T)
+        if lin is None:
+            return None
+        uv, J_uv = lin
+        r = _bilinear(self.sdf, contour.frame, uv) - contour.s
+        if not jacobian:
+            return r, None
+        # the SDF's central differences, interpolated as the SDF is: smoother than the exact
+        # derivative of the bilinear interpolant (piecewise constant), a few per cent from it
+        # (tests); zero along an axis where `_bilinear` clamps, as the residual is flat there
+        _, H, W = self.sdf.shape
+        inside = (uv >= 0.0) & (uv <= [W - 1.0, H - 1.0])
+        g = np.stack([_bilinear(self.grad_x, contour.frame, uv),
+                      _bilinear(self.grad_y, contour.frame, uv)], axis=1) * inside
+        return r, np.einsum("nk,nkj->nj", g, J_uv)
+
+    def cut(self, r: np.ndarray) -> np.ndarray:
+        """The truncation of each residual: the outside one where r > 0."""
+        return np.where(r > 0, self.cut_outside, self.cut_inside)
+
+    def rho(self, r: np.ndarray) -> np.ndarray:
+        """Huber cost of each residual, constant beyond its cut."""
+        return huber_rho(np.minimum(np.abs(r), self.cut(r)), self.k)
+
+    def weight(self, r: np.ndarray) -> np.ndarray:
+        """Huber IRLS weight of each residual, 0 beyond its cut."""
+        return np.where(np.abs(r) > self.cut(r), 0.0, huber_weight(r, self.k))
+
+    def cost(self, contour: Contour, T: np.ndarray) -> float:
+        out = self.residuals(contour, T, jacobian=False)
+        return float("inf") if out is None else float(np.sum(self.rho(out[0])))

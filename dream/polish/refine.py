@@ -1,0 +1,273 @@
+"""The polish of one pose: Levenberg-Marquardt on the silhouette objective, then the verdict.
+
+Levenberg-Marquardt (`dream.optim.levenberg_marquardt`) over the 6-vector xi of `dream.pnp`
+(P_cam = exp(xi_rot) R P + t + xi_t) with the analytic Jacobian (distance-field gradient x
+projection Jacobian), a few steps on a fixed set of contour points
+(`dream.polish.objective`), then the silhouettes are rendered again and the points re-selected
+(as in ICP), until the pose stops moving. Derivative-free searches (Nelder-Mead, Powell) on
+1 - IoU do not suit it: IoU is piecewise constant in the pose, and each of their hundreds of
+evaluations renders every frame. The search runs on at most `max_search_frames` frames
+(evenly spaced, non-empty masks) with masks shrunk to at most `search_width_px` pixels wide.
+`polish` then scores both poses and keeps or refuses the polished one (`dream.polish.guard`).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence as SequenceOf
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from dream.camera import CameraIntrinsics, project
+from dream.errors import InputError
+from dream.optim import LMSettings, levenberg_marquardt
+from dream.optim.robust import TINY
+from dream.pnp import apply_increment
+from dream.polish.guard import KeypointGuard, KeypointSet, decide
+from dream.polish.objective import (
+    Contour,
+    Objective,
+    evenly_spaced,
+    scaled_camera,
+    select_contour,
+    shrink_mask,
+    signed_distance,
+)
+from dream.polish.params import PolishParams
+from dream.silhouette import RobotMeshes, render_points, silhouette_iou, vertices_in_base
+from dream.transforms import invert_T, rotation_angle_between
+
+log = logging.getLogger(__name__)
+
+DAMPING_FACTOR = 10.0       # LM lambda is multiplied / divided by this on a rejected / kept step
+MAX_DAMPING = 1e8           # the inner loop stops when lambda exceeds this
+
+
+@dataclass(frozen=True)
+class PolishResult:
+    """Outcome of a polish.
+
+    Attributes:
+        T_before: (4, 4) the keypoint extrinsic.
+        T_polished: (4, 4) the silhouette optimum, whether kept or not.
+        T_after: (4, 4) the extrinsic kept: `T_polished` when `kept`, else `T_before`.
+        frames: names of the frames scored.
+        iou_before, iou_after: (E,) silhouette IoU per frame at `T_before` / `T_polished`.
+        kept: whether the polished pose was kept.
+        reason: why (one sentence).
+        rmse_before, rmse_after: inlier keypoint RMSE (px) at `T_before` / `T_polished`; NaN
+            without keypoints.
+        median_before, median_after: their median distance (px), likewise.
+        guard: the `KeypointGuard` statistic that decided.
+        guard_keypoints: the number of keypoints it was measured on (0: no guard).
+        start: where the search started: "" for `T_before`, else the keypoint left out of the
+            frame's solution it started from (`polish_frames`' restarts).
+        search_frames: names of the frames the search used.
+        rounds: render / select / LM rounds run; contour_points: in the last round.
+        seconds: wall time of the polish.
+    """
+
+    T_before: np.ndarray
+    T_polished: np.ndarray
+    T_after: np.ndarray
+    frames: tuple[str, ...]
+    iou_before: np.ndarray
+    iou_after: np.ndarray
+    kept: bool
+    reason: str
+    rmse_before: float
+    rmse_after: float
+    median_before: float = float("nan")
+    median_after: float = float("nan")
+    guard: str = KeypointGuard.RMSE
+    guard_keypoints: int = 0
+    start: str = ""
+    search_frames: tuple[str, ...] = field(default=())
+    rounds: int = 0
+    contour_points: int = 0
+    seconds: float = 0.0
+
+    @property
+    def iou_before_mean(self) -> float:
+        return float(np.mean(self.iou_before))
+
+    @property
+    def iou_after_mean(self) -> float:
+        return float(np.mean(self.iou_after))
+
+    @property
+    def correction(self) -> tuple[float, float]:
+        """(camera position change m, rotation change rad) from T_before to T_polished."""
+        c0 = invert_T(self.T_before)[:3, 3]
+        c1 = invert_T(self.T_polished)[:3, 3]
+        angle = rotation_angle_between(self.T_before[:3, :3], self.T_polished[:3, :3])
+        return float(np.linalg.norm(c1 - c0)), float(angle)
+
+
+class _ContourProblem:
+    """`dream.optim.lm`'s view of the silhouette objective on one set of contour points, over
+    T_cam_base. A state is the residuals and Jacobian at a pose when known, else None."""
+
+    def __init__(self, objective: Objective, contour: Contour):
+        self.objective, self.contour = objective, contour
+
+    def evaluate(self, T: np.ndarray) -> tuple[float, Any]:
+        return self.objective.cost(self.contour, T), None
+
+    def normal_equations(self, T: np.ndarray, state: Any) -> tuple[np.ndarray, np.ndarray]:
+        r, J = self.objective.residuals(self.contour, T, jacobian=True) if state is None \
+            else state
+        w = self.objective.weight(r)
+        return J.T @ (w[:, None] * J), J.T @ (w * r)
+
+    def retract(self, T: np.ndarray, xi: np.ndarray) -> np.ndarray:
+        return apply_increment(T, xi)
+
+
+def _lm_steps(objective: Objective, contour: Contour, T: np.ndarray,
+              params: PolishParams) -> np.ndarray:
+    """A few Levenberg-Marquardt steps on one set of contour points (a step is kept only when
+    it lowers the cost)."""
+    out = objective.residuals(contour, T, jacobian=True)
+    if out is None:
+        return T
+    settings = LMSettings(initial_damping=params.initial_damping, damping_up=DAMPING_FACTOR,
+                          damping_down=DAMPING_FACTOR, min_damping=TINY,
+                          max_damping=MAX_DAMPING, max_iterations=params.inner_iterations,
+                          strict_decrease=True)
+    start = (float(np.sum(objective.rho(out[0]))), out)
+    return levenberg_marquardt(_ContourProblem(objective, contour), T, settings, start).x
+
+
+def _rms_motion_px(P_base: np.ndarray, T0: np.ndarray, T1: np.ndarray,
+                   camera: CameraIntrinsics) -> float:
+    """RMS pixel motion of the points P_base (N, 3) from pose T0 to T1 (inf where one does not
+    project)."""
+    uv0 = project(camera, P_base @ T0[:3, :3].T + T0[:3, 3])
+    uv1 = project(camera, P_base @ T1[:3, :3].T + T1[:3, 3])
+    d2 = np.sum((uv1 - uv0) ** 2, axis=1)
+    return float(np.sqrt(np.mean(d2))) if np.all(np.isfinite(d2)) else float("inf")
+
+
+def _refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
+                 camera: CameraIntrinsics, T_cam_base: np.ndarray,
+                 params: PolishParams) -> tuple[np.ndarray, int, int]:
+    """The silhouette optimum near `T_cam_base` (search resolution already applied).
+
+    Args:
+        P_frames: (F, V, 3) mesh vertices of each frame in the base frame, m.
+        faces: (T, 3) triangles. masks: (F, H, W) observed masks at `camera`'s size.
+    Returns:
+        (T (4, 4), rounds run, contour points of the last round).
+    """
+    objective = Objective(np.stack([signed_distance(m) for m in masks]), camera, params)
+    T = np.array(T_cam_base, dtype=float)
+    rounds, points = 0, 0
+    for rounds in range(1, params.outer_iterations + 1):
+        contour = select_contour(P_frames, faces, T, camera, params)
+        points = len(contour.s)
+        if points < params.min_contour_points:
+            log.info("silhouette polish: only %d contour points, stopping", points)
+            break
+        T_new = _lm_steps(objective, contour, T, params)
+        moved = _rms_motion_px(contour.P_base, T, T_new, camera)
+        T = T_new
+        log.debug("silhouette polish round %d: %d points, moved %.3g px", rounds, points, moved)
+        if moved < params.step_tolerance_px:
+            break
+    return T, rounds, points
+
+
+def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
+           camera: CameraIntrinsics, T_cam_base: np.ndarray, keypoints: KeypointSet | None,
+           params: PolishParams | None = None,
+           frame_names: SequenceOf[str] | None = None,
+           guard: str = KeypointGuard.RMSE) -> PolishResult:
+    """Refine `T_cam_base` by aligning rendered and observed robot silhouettes (the module docs
+    of `dream.polish.objective`, `dream.polish.refine` and `dream.polish.guard`).
+
+    Args:
+        meshes: the robot's meshes (`dream.silhouette.load_robot_meshes`).
+        joints: (F, J) joint vectors of the frames, in `meshes.robot.joint_names` order.
+        masks: (F, H, W) bool observed robot masks at the camera's resolution.
+        camera: the camera's intrinsics.
+        T_cam_base: (4, 4) the starting (keypoint) extrinsic.
+        keypoints: the calibration's inlier observations (the guard), or None for no guard.
+        params: the constants; default `PolishParams()`.
+        frame_names: F names (default "0", "1", ...).
+        guard: `KeypointGuard.RMSE` (many frames) or `KeypointGuard.MEDIAN` (one frame alone).
+    Returns:
+        A `PolishResult`; `T_after` is the pose to use.
+    Raises:
+        InputError: shapes that disagree, no frame with a non-empty mask, an unknown guard.
+    """
+    start = time.perf_counter()
+    params = params or PolishParams()
+    q, masks, T0, names, non_empty = _checked(meshes, joints, masks, camera, T_cam_base,
+                                              frame_names, guard)
+    F = len(q)
+    P_all = vertices_in_base(meshes, q)                                    # (F, V, 3)
+    search = evenly_spaced(non_empty, params.max_search_frames)
+    width = min(camera.width, params.search_width_px)
+    height = max(1, int(round(camera.height * width / camera.width)))
+    small = scaled_camera(camera, width, height)
+    small_masks = np.stack([shrink_mask(masks[i], width, height) for i in search])
+    T1, rounds, points = _refine_pose(P_all[search], meshes.faces, small_masks, small, T0, params)
+
+    def ious(T: np.ndarray) -> np.ndarray:
+        return np.array([silhouette_iou(render_points(P_all[i], meshes.faces, T, camera),
+                                        masks[i]) for i in range(F)])
+
+    iou0, iou1 = ious(T0), ious(T1)
+    if keypoints is not None:
+        rmse0, rmse1 = keypoints.rmse_px(camera, T0), keypoints.rmse_px(camera, T1)
+        median0, median1 = keypoints.median_px(camera, T0), keypoints.median_px(camera, T1)
+    else:
+        rmse0 = rmse1 = median0 = median1 = float("nan")
+    before, after = (rmse0, rmse1) if guard == KeypointGuard.RMSE else (median0, median1)
+    n_guard = 0 if keypoints is None else len(keypoints.P_base)
+    kept, reason = decide(float(iou0.mean()), float(iou1.mean()), before, after, n_guard,
+                          params, guard)
+    log.info("silhouette polish: %s", reason)
+    return PolishResult(T_before=T0, T_polished=T1, T_after=T1 if kept else T0, frames=names,
+                        iou_before=iou0, iou_after=iou1, kept=kept, reason=reason,
+                        rmse_before=rmse0, rmse_after=rmse1, median_before=median0,
+                        median_after=median1, guard=guard, guard_keypoints=n_guard,
+                        search_frames=tuple(names[i] for i in search), rounds=rounds,
+                        contour_points=points, seconds=time.perf_counter() - start)
+
+
+def _checked(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
+             camera: CameraIntrinsics, T_cam_base: np.ndarray,
+             frame_names: SequenceOf[str] | None, guard: str
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[str, ...], np.ndarray]:
+    """`polish`'s inputs checked: joints (F, J), bool masks (F, H, W), T_cam_base, the F frame
+    names and the indices of the frames whose mask is not empty."""
+    if guard not in KeypointGuard.ALL:
+        raise InputError(f"unknown keypoint guard '{guard}'; use one of "
+                         f"{', '.join(KeypointGuard.ALL)}")
+    robot = meshes.robot
+    q = np.asarray(joints, dtype=float)
+    masks = np.asarray(masks)
+    T0 = np.asarray(T_cam_base, dtype=float)
+    if q.ndim != 2 or q.shape[1] != robot.num_joints:
+        raise InputError(f"joints have shape {q.shape}, expected (F, {robot.num_joints})")
+    F = len(q)
+    if masks.shape != (F, camera.height, camera.width):
+        raise InputError(f"masks have shape {masks.shape}, expected ({F}, {camera.height}, "
+                         f"{camera.width}) (one per frame, at the camera's resolution)")
+    if T0.shape != (4, 4) or not np.all(np.isfinite(T0)):
+        raise InputError("T_cam_base must be a finite 4x4 matrix")
+    names = tuple(str(n) for n in frame_names) if frame_names is not None else tuple(
+        str(i) for i in range(F))
+    if len(names) != F:
+        raise InputError(f"{len(names)} frame names for {F} frames")
+    masks = masks.astype(bool)
+    non_empty = np.flatnonzero(masks.reshape(F, -1).any(axis=1))
+    if not len(non_empty):
+        raise InputError("every robot mask is empty; the silhouette polish needs masks that "
+                         "show the robot")
+    return q, masks, T0, names, non_empty
