@@ -32,11 +32,12 @@ from dream.extension import (
     joint_offset_vector,
     keypoint_points,
 )
+from dream.io.common import FRAME_DIGITS, frame_name
 from dream.robot import Robot
 from dream.transforms import transform_points
 from synth.config import SynthConfig
+from synth.nominal import nominal_camera
 
-FRAME_NAME_DIGITS = 6  # synth frames are named by their index, e.g. "000120"
 KEYPOINT_ONLY_HINT = "use dream.inject (keypoint-only sequences) for this effect"
 
 
@@ -56,10 +57,10 @@ def move_index(extension: ModelExtension) -> int | None:
     if move is None:
         return None
     name = move.frame
-    if len(name) != FRAME_NAME_DIGITS or not name.isdigit():
+    if len(name) != FRAME_DIGITS or not name.isdigit():
         raise InputError(f"camera_moved.frame '{name}' is not a synth frame name",
                          fix=f"name the first frame after the move by its index, "
-                             f"{FRAME_NAME_DIGITS} digits (e.g. \"000120\")")
+                             f"{FRAME_DIGITS} digits (e.g. \"000120\")")
     return int(name)
 
 
@@ -86,8 +87,6 @@ def check_extension(extension: ModelExtension, robot: Robot, config: SynthConfig
                          "random field of view per frame",
                          fix="give intrinsics.fx, fy, cx, cy in the recipe (the nominal camera)")
     if extension.distortion is not None or extension.intrinsics is not None:
-        from synth.frames import nominal_camera
-
         plan_lens(true_camera(nominal_camera(config), extension))
     if extension.time_offset_s and mode != "trajectory":
         raise InputError(f"time_offset needs sequence.mode trajectory, not '{mode}'",
@@ -101,7 +100,8 @@ def check_extension(extension: ModelExtension, robot: Robot, config: SynthConfig
         if not 0 < index < num_frames:
             raise InputError(f"camera_moved.frame {extension.camera_moved.frame} is not a frame "
                              f"after the first of the {num_frames} frames",
-                             fix=f"name a frame between 000001 and {num_frames - 1:06d}")
+                             fix=f"name a frame between {frame_name(1)} and "
+                                 f"{frame_name(num_frames - 1)}")
 
 
 def true_camera(camera: CameraIntrinsics, extension: ModelExtension | None) -> CameraIntrinsics:

@@ -11,24 +11,23 @@ import logging
 
 import numpy as np
 
-from dream.camera import CameraIntrinsics
 from dream.extension import ModelExtension, extended_robot, joint_offset_vector
 from dream.robot import Robot
 from dream.transforms import R_from_quaternion_xyzw, invert_T, quaternion_xyzw_from_R
 from synth.config import SynthConfig
 from synth.extension import normalised, true_camera, true_keypoints_cam, true_pose
-from synth.generate import RenderedFrame
 from synth.gl import mujoco
 from synth.labels import keypoint_labels
+from synth.nominal import nominal_camera
 from synth.randomize import (
     DistractorParams,
     FrameParams,
     load_joint_log,
     sample_frame,
-    sample_intrinsics,
     trajectory_joints_at,
 )
 from synth.render import BACKGROUND_GEOM, SceneRenderer
+from synth.rendered import RenderedFrame
 from synth.scene import RobotScene, build_scene
 from synth.scene_options import MAX_LIGHTS, SceneOptions
 from synth.textures import list_photos, random_texture
@@ -44,16 +43,6 @@ GEOM_TYPES = {"box": mujoco.mjtGeom.mjGEOM_BOX, "sphere": mujoco.mjtGeom.mjGEOM_
               "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
               "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE,
               "ellipsoid": mujoco.mjtGeom.mjGEOM_ELLIPSOID}
-
-
-def nominal_camera(config: SynthConfig) -> CameraIntrinsics:
-    """The camera of `_camera_settings.json`: the fixed one, or the middle field of view."""
-    c = config.intrinsics
-    if c.fixed:
-        return sample_intrinsics(np.random.default_rng(0), config)
-    f = (c.width / 2) / np.tan(np.mean(c.hfov_rad) / 2)
-    return CameraIntrinsics(f, f, (c.width - 1) / 2, (c.height - 1) / 2, c.width, c.height,
-                            c.distortion)
 
 
 def _primitive_size(kind: str, size: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:

@@ -14,7 +14,6 @@ import json
 import logging
 import multiprocessing as mp
 import os
-import re
 import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -30,21 +29,35 @@ from dream.camera import CameraIntrinsics
 from dream.errors import DreamError, InputError
 from dream.extension import ModelExtension
 from dream.io import is_temporary, outermost_missing, write_bytes_atomic, write_json_atomic
-from dream.io.dream_layout import camera_settings_json, frame_json
+from dream.io.common import FRAME_DIGITS, frame_name
+from dream.io.dream_layout.camera_settings import camera_settings_json
+from dream.io.dream_layout.frame_record import frame_json
+from dream.io.dream_layout.names import (
+    CAMERA_SETTINGS,
+    DEPTH_SUFFIX,
+    FRAME_PART,
+    JPEG_RGB_SUFFIX,
+    JSON_SUFFIX,
+    KEYPOINTS_KEY,
+    MASK_SUFFIX,
+    OBJECTS_KEY,
+    PNG_RGB_SUFFIX,
+)
 from dream.io.fields import os_reason
 from dream.robot import load_robot
 from dream.sequence import Frame, Sequence
 from synth.config import SynthConfig
 from synth.extension import check_extension, normalised
+from synth.nominal import nominal_camera
+from synth.rendered import RenderedFrame
 
 log = logging.getLogger(__name__)
 
 SYNTH_INFO = "_synth.json"
-CAMERA_SETTINGS = "_camera_settings.json"
 DEPTH_UNIT_M = 1e-3           # depth PNGs store millimetres in uint16
 CHUNK_FRAMES = 8              # frames handed to a worker at a time
 PNG_COMPRESSION = 1           # zlib level: fast, files about 20 % larger than the default
-FRAME_FILE = re.compile(r"[0-9]{6}\.")   # NNNNNN.json, NNNNNN.rgb.png, NNNNNN.seg.png, ...
+RGB_SUFFIX = {"png": PNG_RGB_SUFFIX, "jpg": JPEG_RGB_SUFFIX}  # by output.image_format
 
 
 @dataclass(frozen=True)
@@ -81,28 +94,6 @@ class SynthJob:
         return info
 
 
-@dataclass(frozen=True)
-class RenderedFrame:
-    """One frame's pixels and labels, ready to write."""
-
-    index: int
-    rgb: np.ndarray                   # (H, W, 3) uint8
-    link_ids: np.ndarray              # (H, W) uint16, 0 background, link index + 1
-    depth: np.ndarray | None          # (H, W) float32 m, inf background
-    camera: CameraIntrinsics
-    T_cam_base: np.ndarray
-    joints: np.ndarray
-    P_cam: np.ndarray
-    uv: np.ndarray
-    in_frame: np.ndarray
-    occlusion: tuple[str, ...]
-    timestamp: float | None
-
-
-def frame_name(index: int) -> str:
-    return f"{index:06d}"
-
-
 def _encode(ext: str, image: np.ndarray, params: list[int] | None = None) -> bytes:
     ok, buf = cv2.imencode(ext, image, params or [])
     if not ok:
@@ -113,8 +104,9 @@ def _encode(ext: str, image: np.ndarray, params: list[int] | None = None) -> byt
 def frame_document(job: SynthJob, robot_name: str, joint_names: tuple[str, ...],
                    keypoint_names: tuple[str, ...], frame: RenderedFrame,
                    nominal: CameraIntrinsics) -> dict[str, Any]:
-    """The frame JSON of SPEC.md plus extensions: per-keypoint `in_frame` and `occlusion`, the
-    frame's own intrinsics when they differ from `_camera_settings.json`, and its seed."""
+    """The frame JSON of docs/data_format.md#dream-layout plus extensions: per-keypoint
+    `in_frame` and `occlusion`, the frame's own intrinsics when they differ from
+    `_camera_settings.json`, and its seed."""
     name = frame_name(frame.index)
     one = Sequence(robot=robot_name, camera=nominal, joint_names=joint_names,
                    keypoint_names=keypoint_names,
@@ -122,7 +114,7 @@ def frame_document(job: SynthJob, robot_name: str, joint_names: tuple[str, ...],
                                  uv_labels=frame.uv, P_cam_labels=frame.P_cam,
                                  T_cam_base_true=frame.T_cam_base, camera=frame.camera),))
     doc = frame_json(one, one.frames[0])
-    for kp, in_frame, occlusion in zip(doc["objects"][0]["keypoints"], frame.in_frame,
+    for kp, in_frame, occlusion in zip(doc[OBJECTS_KEY][0][KEYPOINTS_KEY], frame.in_frame,
                                        frame.occlusion, strict=True):
         kp["in_frame"] = bool(in_frame)
         kp["occlusion"] = occlusion
@@ -141,22 +133,24 @@ def write_frame(out_dir: Path, doc: dict[str, Any], frame: RenderedFrame,
         rgb_bytes = _encode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, config.output.jpeg_quality])
     else:
         rgb_bytes = _encode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION])
-    write_bytes_atomic(stem.with_name(stem.name + f".rgb.{config.output.image_format}"),
+    write_bytes_atomic(stem.with_name(stem.name + RGB_SUFFIX[config.output.image_format]),
                        rgb_bytes, durable=False)
     ids = frame.link_ids.astype(np.uint8 if frame.link_ids.max(initial=0) < 256 else np.uint16)
-    write_bytes_atomic(stem.with_name(stem.name + ".seg.png"),
+    write_bytes_atomic(stem.with_name(stem.name + MASK_SUFFIX),
                        _encode(".png", ids, [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION]),
                        durable=False)
     if frame.depth is not None and config.output.depth:
         mm = np.where(np.isfinite(frame.depth), np.rint(frame.depth / DEPTH_UNIT_M), 0)
-        write_bytes_atomic(stem.with_name(stem.name + ".depth.png"),
+        write_bytes_atomic(stem.with_name(stem.name + DEPTH_SUFFIX),
                            _encode(".png", np.clip(mm, 0, 65535).astype(np.uint16)),
                            durable=False)
-    write_json_atomic(stem.with_name(stem.name + ".json"), doc, durable=False)
+    write_json_atomic(stem.with_name(stem.name + JSON_SUFFIX), doc, durable=False)
 
 
 def done_indices(out_dir: Path) -> set[int]:
-    return {int(p.name[:6]) for p in out_dir.glob("[0-9][0-9][0-9][0-9][0-9][0-9].json")}
+    """The indices of the complete frames in `out_dir` (those with their `NNNNNN.json`)."""
+    return {int(p.name[:FRAME_DIGITS])
+            for p in out_dir.glob("[0-9]" * FRAME_DIGITS + JSON_SUFFIX)}
 
 
 def check_inputs(config: SynthConfig, robot) -> None:
@@ -213,7 +207,7 @@ def discard_unfinished(out: Path, created: Path | None) -> None:
     try:
         for path in out.iterdir():
             if path.is_file() and (path.name in (SYNTH_INFO, CAMERA_SETTINGS)
-                                   or is_temporary(path) or FRAME_FILE.match(path.name)):
+                                   or is_temporary(path) or FRAME_PART.match(path.name)):
                 path.unlink()
         if created is not None:
             for folder in (out, *out.parents):
@@ -264,8 +258,8 @@ def prepare_output(job: SynthJob, overwrite: bool) -> set[int]:
                                  "keypoints, seed, recipe or model extension)", out,
                                  "use the same settings to resume, or --overwrite")
             if last >= job.num_frames:
-                raise InputError(f"the output folder already holds frames up to {last:06d}, "
-                                 f"beyond --num {job.num_frames}", out,
+                raise InputError(f"the output folder already holds frames up to "
+                                 f"{frame_name(last)}, beyond --num {job.num_frames}", out,
                                  f"resume with --num {last + 1} or more, use a new --out, or "
                                  "--overwrite")
         elif not same or last >= job.num_frames:
@@ -350,8 +344,6 @@ def generate(job: SynthJob, overwrite: bool = False,
     check_inputs(job.config, robot)
     if job.extension is not None:
         check_extension(job.extension, robot, job.config, job.num_frames)
-    from synth.frames import nominal_camera
-
     nominal = nominal_camera(job.config)
     check_camera(nominal)
     settings = Sequence(robot=robot.name, camera=nominal, joint_names=robot.joint_names,

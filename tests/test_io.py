@@ -576,3 +576,23 @@ def test_bad_arguments(dream_dir: Path) -> None:
         read_sequence(dream_dir, intrinsics=(1, 2, 3))
     with pytest.raises(InputError):
         parse_intrinsics_text("1,2,x,4")
+
+
+def test_layout_errors_point_at_a_section_of_the_data_format_doc() -> None:
+    from dream.io.dream_layout.names import LAYOUT_DOC
+
+    doc, anchor = LAYOUT_DOC.split("#")
+    text = (Path(__file__).parents[1] / doc).read_text(encoding="utf-8")
+    slugs = {"-".join(line.lstrip("#").strip().lower().split())
+             for line in text.splitlines() if line.startswith("#")}
+    assert anchor in slugs
+
+
+def test_synth_writes_the_layout_names_of_dream_io() -> None:
+    from dream.io.common import frame_name
+    from dream.io.dream_layout import names
+    from synth import generate
+
+    assert generate.CAMERA_SETTINGS is names.CAMERA_SETTINGS
+    assert generate.frame_name is frame_name
+    assert names.FRAME_PART.match(frame_name(7) + names.MASK_SUFFIX)

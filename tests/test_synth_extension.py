@@ -25,8 +25,8 @@ from dream.io import read_sequence
 from dream.robot import load_robot
 from dream.transforms import transform_points
 from synth.config import config_from_dict
-from synth.frames import nominal_camera
 from synth.generate import SYNTH_INFO, SynthJob, generate
+from synth.nominal import nominal_camera
 from synth.render import RenderOptions, SceneRenderer
 from synth.scene import SceneOptions, build_scene
 

@@ -30,7 +30,7 @@ from lightning.pytorch.trainer.states import TrainerStatus
 from torch.utils.data import DataLoader
 
 from dream.errors import InputError
-from dream.io import outermost_missing
+from dream.io import outermost_missing, write_bytes_atomic
 from train.budget import (
     BudgetStop,
     Speed,
@@ -70,12 +70,6 @@ class TrainResult:
     config: TrainConfig
     metrics: dict[str, float]
     epochs: int
-
-
-def _write_text_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
 
 
 def _scalar(value: Any) -> float:
@@ -119,7 +113,7 @@ class EpochCsv(Callback):
         writer = csv.DictWriter(out, fieldnames=columns, restval="")
         writer.writeheader()
         writer.writerows(self.rows)
-        _write_text_atomic(self.path, out.getvalue())
+        write_bytes_atomic(self.path, out.getvalue().encode("utf-8"), durable=False)
 
 
 class LogLines(Callback):
@@ -346,7 +340,8 @@ def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | 
         _init_weights(module, config)
     created = _make_run_dir(run_dir)
     try:
-        _write_text_atomic(run_dir / CONFIG_FILE, dump_config(config))
+        write_bytes_atomic(run_dir / CONFIG_FILE, dump_config(config).encode("utf-8"),
+                           durable=False)
         if config.trainer.max_steps is not None:
             epoch_steps = steps_per_epoch(len(train_set), config.data.batch_size,
                                           trainer.world_size)

@@ -1,7 +1,7 @@
 """Reading and writing sequences: the DREAM/NDDS layout and the real-data layouts.
 
 `read_sequence` reads any supported layout (`FORMATS`, see `detect_format`) into a
-`dream.sequence.Sequence`; `write_dream` writes the DREAM layout of SPEC.md atomically;
+`dream.sequence.Sequence`; `write_dream` writes the DREAM layout (docs/data_format.md) atomically;
 `load_image` / `load_mask` fetch a frame's pixels. Every input problem is an `InputError`.
 """
 
@@ -19,7 +19,8 @@ from dream.io.atomic import (
     write_json_atomic,
 )
 from dream.io.detect import FORMATS, detect_format
-from dream.io.dream_layout import read_dream, write_dream
+from dream.io.dream_layout.read import read_dream
+from dream.io.dream_layout.write import write_dream
 from dream.io.franka_offline import read_franka_offline
 from dream.io.images import image_size, load_image, load_mask, load_mask_ids
 from dream.io.intrinsics import parse_intrinsics_text

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from dream.errors import InputError
 from dream.io import fields
-from dream.io.dream_layout import CAMERA_SETTINGS, FRAME_FILE
+from dream.io.dream_layout.names import CAMERA_SETTINGS, FRAME_FILE
 from dream.io.franka_offline import COLOR_DIR, QPOS_DIR
 from dream.io.images import NPZ_SUFFIX
 from dream.io.panda_teleop import INFO_FILE

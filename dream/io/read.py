@@ -16,7 +16,7 @@ from dream.io.detect import (
     PANDA_TELEOP,
     detect_format,
 )
-from dream.io.dream_layout import read_dream
+from dream.io.dream_layout.read import read_dream
 from dream.io.franka_offline import read_franka_offline
 from dream.io.intrinsics import IntrinsicsArg
 from dream.io.maniunicon import read_maniunicon
