@@ -4,7 +4,7 @@ With a fixed camera the arm is what moves in the image, so the mean absolute dif
 consecutive frames follows the arm's speed. This script cross-correlates that image-motion
 signal with the joint speed (from the distinct joint readings, interpolated at the image times
 shifted by a candidate lag) and prints the correlation against the lag: the lag of the peak is
-how much the joint readings trail the images (the `time_offset` convention of SPEC.md).
+how much the joint readings trail the images (the `time_offset` convention of docs/data_format.md).
 
     python benchmarks/image_motion_lag.py ../shared/realdata/panda_teleop [--max-lag-s 1.0]
 """

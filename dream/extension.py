@@ -2,7 +2,7 @@
 
 The nominal model is the URDF robot driven by the logged joint readings, seen by a pinhole
 camera with the data's intrinsics. An extension corrects it where the real system differs
-(vocabulary of `../shared/SPEC.md`, `dream diagnose`):
+(the vocabulary of extended_model.yaml, docs/data_format.md, and `dream diagnose`):
 
 - `joint_offset`: true joint = reading + offset (rad or m), per joint.
 - `lens_distortion`: plumb_bob (k1, k2, p1, p2) of the real lens.
@@ -150,7 +150,7 @@ class ModelExtension:
 
     @property
     def effects(self) -> tuple[str, ...]:
-        """Names (SPEC vocabulary) of the effects this extension sets."""
+        """Names (extended_model.yaml vocabulary) of the effects this extension sets."""
         present = {
             "joint_offset": bool(self.joint_offset_rad),
             "lens_distortion": self.distortion is not None,
@@ -181,7 +181,7 @@ class ModelExtension:
             else self.camera_moved,
             robot=self.robot or other.robot)
 
-    # ----- effect parameters in the SPEC's vocabulary --------------------------------------
+    # ----- effect parameters in the extended_model.yaml vocabulary -------------------------
 
     def effect_params(self, name: str) -> dict[str, Any]:
         """The `params` of one effect as `diagnosis.json` writes them."""
@@ -242,8 +242,8 @@ def _check_keys(name: str, params: Mapping[str, Any]) -> None:
 
 def extension_from_effects(effects: Mapping[str, Mapping[str, Any]],
                            robot: str | None = None) -> ModelExtension:
-    """A `ModelExtension` from {effect name: params} (the SPEC vocabulary); an unknown effect
-    or parameter is an `InputError` naming it."""
+    """A `ModelExtension` from {effect name: params} (the extended_model.yaml vocabulary); an
+    unknown effect or parameter is an `InputError` naming it."""
     kwargs: dict[str, Any] = {"robot": robot}
     for name, params in effects.items():
         if name not in EFFECT_NAMES:

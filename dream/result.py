@@ -1,4 +1,4 @@
-"""RESULT.json (contract in SPEC.md): writing a calibration result and reading it back."""
+"""RESULT.json (docs/data_format.md#resultjson): writing a calibration result, reading it back."""
 
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ def _num(x: float | None) -> float | None:
 
 
 def result_to_dict(result: CalibrationResult, obs: Observations, *, robot: str) -> dict[str, Any]:
-    """The RESULT.json document of SPEC.md, with a few documented extensions."""
+    """The RESULT.json document (docs/data_format.md#resultjson)."""
     fit = result.fit
     T = fit.T_cam_base
     T_base_cam = invert_T(T)

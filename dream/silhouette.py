@@ -8,8 +8,9 @@ silhouette is what matters: clustering on a grid of cell c moves the outline by 
 
 Rendering: the vertices are posed by `Robot.link_poses`, mapped into the camera by
 `T_cam_base`, projected with `dream.camera.project` (distortion included) and every triangle is
-filled by an exact pixel-centre rule: a pixel is robot when its centre (u, v integer, SPEC.md)
-lies inside or on the edge of a projected triangle, as a GPU rasteriser samples it. (OpenCV's
+filled by an exact pixel-centre rule: a pixel is robot when its centre (u, v integer,
+docs/data_format.md) lies inside or on the edge of a projected triangle, as a GPU rasteriser
+samples it. (OpenCV's
 `fillPoly` rounds the vertices and draws the edges, which grows every outline by about half a
 pixel; a silhouette fit would turn that into a depth bias, so the fill is done here in numpy,
 vectorised over triangles grouped by the size of their bounding box.) Triangles with a vertex
@@ -267,8 +268,8 @@ def rasterize_triangles(uv_triangles: np.ndarray, height: int, width: int) -> np
     """Pixels whose centre lies inside (or on the edge of) at least one triangle.
 
     Args:
-        uv_triangles: (T, 3, 2) triangle corners in pixels (SPEC.md convention); rows with a
-            non-finite corner are skipped.
+        uv_triangles: (T, 3, 2) triangle corners in pixels (docs/data_format.md#conventions);
+            rows with a non-finite corner are skipped.
         height, width: image size in pixels.
     Returns:
         (height, width) bool.
