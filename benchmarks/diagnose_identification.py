@@ -3,7 +3,7 @@
 Each trial draws a keypoint-only measured-like sequence (`dream.inject`: a fixed camera, a
 smooth random arm trajectory, 1-2 px label noise) with one hidden effect of the catalog (random
 magnitude in a realistic range, `random_effects`), two effects together, or none, runs the
-diagnosis (labels as observations) and scores it (`dream.diagnose.score`): identified = the
+diagnosis (labels as observations) and scores it (`dream.diagnosis.score`): identified = the
 verdict names the hidden effects and recovers their parameters within 10 % or 3 stated sigmas;
 exact = that, and nothing else in the verdict. Null trials must give an empty verdict.
 
@@ -23,11 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
-from dream.calibrate import Observations  # noqa: F401  (imported for workers' warm-up)
-from dream.diagnose.run import diagnose_sequence
-from dream.diagnose.score import score_diagnosis
+from dream.calibration import Observations  # noqa: F401  (imported for workers' warm-up)
+from dream.diagnosis.run import diagnose_sequence
+from dream.diagnosis.score import score_diagnosis
 from dream.extension import EFFECT_NAMES, ModelExtension
-from dream.inject import InjectionSpec, make_injected_sequence, random_effects
+from dream.inject import InjectionSettings, make_injected_sequence, random_effects
 from dream.pipeline import observations_from_labels, robot_for
 from dream.robot import load_robot
 
@@ -37,7 +37,7 @@ NOISE_RANGE_PX = (1.0, 2.0)
 def run_trial(effects: tuple[str, ...], seed: int, frames: int) -> dict:
     """One seeded trial: hidden `effects` (may be empty) -> scored diagnosis."""
     rng = np.random.default_rng(seed)
-    spec = InjectionSpec(num_frames=frames, pixel_noise_px=float(rng.uniform(*NOISE_RANGE_PX)),
+    spec = InjectionSettings(num_frames=frames, pixel_noise_px=float(rng.uniform(*NOISE_RANGE_PX)),
                          seed=seed)
     robot = load_robot(spec.robot)
     truth = random_effects(list(effects), rng, robot, spec) if effects else ModelExtension()

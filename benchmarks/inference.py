@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from dream.detect import prepare_batch
+from dream.detection import prepare_batch
 from dream.io import load_image, read_sequence
 from dream.peaks import find_peaks_batch, peak_params_from_overrides
 from dream.pipeline import joints_in_robot_order, robot_for

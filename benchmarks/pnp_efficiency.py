@@ -15,18 +15,18 @@ import time
 
 import numpy as np
 
-from dream.calibrate import Observations, calibrate_all
+from dream.calibration import Observations, calibrate_all
 from dream.camera import project
 from dream.crb import extrinsic_crb
 from dream.errors import CalibrationError
 from dream.robot import load_robot
-from dream.sample import SampleSpec, random_camera_pose, random_joints
+from dream.sample import SampleSettings, random_camera_pose, random_joints
 from dream.transforms import rotvec_from_R, transform_points
 
 NOISE_PX = 1.0
 
 
-def trial(rng: np.random.Generator, robot, spec: SampleSpec, frames: int):
+def trial(rng: np.random.Generator, robot, spec: SampleSettings, frames: int):
     """One random scene solved; returns (xi error, CRB) or None when it cannot be solved."""
     camera = spec.camera
     T = random_camera_pose(rng, spec)
@@ -55,7 +55,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     robot = load_robot("panda")
-    spec = SampleSpec()
+    spec = SampleSettings()
     print(f"Panda, {NOISE_PX:g} px noise, camera {spec.distance_m[0]:g}-{spec.distance_m[1]:g} m, "
           f"{args.trials} trials per row")
     print(f"{'frames':>6} {'solved':>7} {'rms_t_mm':>9} {'crb_t_mm':>9} {'ratio_t':>8} "

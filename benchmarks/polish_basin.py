@@ -26,10 +26,10 @@ import numpy as np
 from dream.io import read_sequence
 from dream.metrics import pose_errors
 from dream.pipeline import robot_for
-from dream.polish import PolishParams, polish, silhouette_inputs
+from dream.polish import PolishSettings, polish, silhouette_inputs
 from dream.transforms import T_from_rotvec_t, invert_T
 
-IOU_CONVERGED = 0.95   # the IoU the report splits at (PolishParams.frame_restart_below_iou)
+IOU_CONVERGED = 0.95   # the IoU the report splits at (PolishSettings.frame_restart_below_iou)
 
 
 def random_unit(rng: np.random.Generator) -> np.ndarray:
@@ -66,7 +66,7 @@ def main() -> int:
 
     work = args.out or Path(tempfile.mkdtemp(prefix="dream-polish-basin-"))
     rng = np.random.default_rng(args.seed)
-    params = PolishParams()
+    params = PolishSettings()
     rows = {m: [] for m in args.offsets}       # (error after mm, IoU after) per offset
     for seed in range(args.first_seed, args.first_seed + args.scenes):
         data = render_demo_scene(work / f"scene_{seed}", seed=seed, num_frames=args.frames)

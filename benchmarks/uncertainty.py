@@ -6,7 +6,7 @@ one, e.g. franka_offline, only the sigmas are printed), detects the
 keypoints with `--model` (onnxruntime, as `dream calibrate`), solves the extrinsic as
 `dream calibrate --frames MODE` and compares its camera-position error with two covariances:
 the fit's (independent detection errors) and the reported one (the fit's plus the keypoint
-jackknife's, `dream.calibrate`). Per sequence: the error, each covariance's 1-sigma (root of
+jackknife's, `dream.calibration`). Per sequence: the error, each covariance's 1-sigma (root of
 the trace of the camera-position covariance, mm) and the squared Mahalanobis distance of the
 error (chi-square with 3 degrees of freedom when the covariance is right: median 2.37, 95 %
 below 7.81); then the share inside the 95 % ellipsoid (target: about 95 %).
@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dream.detect import detect_keypoints, load_keypoint_model, load_model_robot
+from dream.detection import detect_keypoints, load_keypoint_model, load_model_robot
 from dream.errors import DreamError
 from dream.io import read_sequence
 from dream.pipeline import calibrate

@@ -36,7 +36,7 @@ _NEIGHBOURS_VU = np.array([(dv, du) for dv in (-1, 0, 1) for du in (-1, 0, 1) if
 
 
 @dataclass(frozen=True)
-class PeakParams:
+class PeakSettings:
     """Every constant of the peak finder. Distances in map pixels; values on the belief scale
     (a perfect peak is 1).
 
@@ -79,11 +79,11 @@ class PeakParams:
 
 
 def peak_params_from_overrides(items: list[str] | tuple[str, ...], option: str = "peaks",
-                               base: PeakParams | None = None) -> PeakParams:
-    """`base` (default `PeakParams()`) with `NAME=VALUE` items applied, e.g.
+                               base: PeakSettings | None = None) -> PeakSettings:
+    """`base` (default `PeakSettings()`) with `NAME=VALUE` items applied, e.g.
     `["ambiguity_ratio=1.0"]`; errors name `option` (the command-line flag)."""
-    base = PeakParams() if base is None else base
-    names = [f.name for f in fields(PeakParams)]
+    base = PeakSettings() if base is None else base
+    names = [f.name for f in fields(PeakSettings)]
     values = {}
     for item in items:
         key, sep, value = item.partition("=")
@@ -244,7 +244,7 @@ def _pattern_fixes_quadratic(r: int, keep_bytes: bytes) -> bool:
 
 
 def _refine(maps: np.ndarray, ks: np.ndarray, us: np.ndarray, vs: np.ndarray,
-            params: PeakParams) -> np.ndarray:
+            params: PeakSettings) -> np.ndarray:
     """(n, 2) sub-pixel peaks (u, v), map pixels, near the integer maxima (us, vs) of maps
     `ks` of (K, h, w) `maps`: the quadratic fit, or the window's centroid where the fit fails
     or lands farther than the window's radius."""
@@ -329,17 +329,17 @@ def _local_maxima(smoothed: _Smoothed, floor: np.ndarray) -> tuple[np.ndarray, .
     return (ks,) + smoothed.to_map(*np.divmod(rest, wp))
 
 
-def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInMap:
+def find_peaks(belief: np.ndarray, params: PeakSettings | None = None) -> PeaksInMap:
     """The peak of each of K belief maps.
 
     Args:
         belief: (K, h, w) belief maps (float; a perfect peak is 1 on a 0 background).
-        params: the peak finder's constants (default `PeakParams()`).
+        params: the peak finder's constants (default `PeakSettings()`).
 
     Returns:
         `PeaksInMap` with (K, 2) `uv_map` in map pixels, NaN where not found.
     """
-    params = PeakParams() if params is None else params
+    params = PeakSettings() if params is None else params
     belief = np.asarray(belief)
     if belief.ndim != 3 or min(belief.shape) < 1:
         raise InputError(f"belief maps have shape {belief.shape}, expected (K, h, w) with K, h, "
@@ -384,7 +384,7 @@ def find_peaks(belief: np.ndarray, params: PeakParams | None = None) -> PeaksInM
     return PeaksInMap(uv, confidence, found, reasons, w, h)
 
 
-def find_peaks_batch(belief: np.ndarray, params: PeakParams | None = None) -> list[PeaksInMap]:
+def find_peaks_batch(belief: np.ndarray, params: PeakSettings | None = None) -> list[PeaksInMap]:
     """`find_peaks` of each of B images' (B, K, h, w) belief maps, found as one set of B * K
     maps (each map is searched alone, so the results are those of `find_peaks` per image; the
     fixed cost of a call is paid once per batch)."""
@@ -402,12 +402,12 @@ def find_peaks_batch(belief: np.ndarray, params: PeakParams | None = None) -> li
             for b in range(B)]
 
 
-def peak_candidates(belief: np.ndarray, params: PeakParams | None = None,
+def peak_candidates(belief: np.ndarray, params: PeakSettings | None = None,
                     max_per_map: int = 3) -> list[tuple[np.ndarray, np.ndarray]]:
     """The highest local maxima of each of K belief maps, best first (integer map pixels of the
     smoothed maps, no sub-pixel fit): K pairs of (n, 2) `uv_map` and (n,) smoothed values,
     n <= `max_per_map`. For diagnostics and for solvers that weigh alternative peaks."""
-    params = PeakParams() if params is None else params
+    params = PeakSettings() if params is None else params
     maps = np.asarray(belief, dtype=np.float32)
     if maps.ndim != 3:
         raise InputError(f"belief maps have shape {maps.shape}, expected (K, h, w)")
@@ -424,6 +424,6 @@ def peak_candidates(belief: np.ndarray, params: PeakParams | None = None,
 
 
 def find_peaks_in_image(belief: np.ndarray, stride: int, transform: InputTransform,
-                        params: PeakParams | None = None) -> PeaksInImage:
+                        params: PeakSettings | None = None) -> PeaksInImage:
     """`find_peaks` on (K, h, w) maps of one image, converted to camera-image pixels."""
     return find_peaks(belief, params).to_input(stride).to_image(transform)

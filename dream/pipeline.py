@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from dream.calibrate import (
+from dream.calibration import (
     CalibrationResult,
     Observations,
     calibrate_all,
@@ -52,7 +52,7 @@ def robot_for(sequence: Sequence, robot: str | None = None,
     e.g. RESULT.json), else the --robot option when `robot` is given, else the data
     (`sequence.source`). Keypoints that are not links of the robot are an `InputError` naming
     `keypoints_from` (e.g. the data, whose labels name them) when given; without it they stay a
-    `RobotError` for the caller to attribute (`dream.detect` names the model)."""
+    `RobotError` for the caller to attribute (`dream.detection` names the model)."""
     name = robot or sequence.robot
     try:
         return load_robot(name, list(keypoints) if keypoints else None)

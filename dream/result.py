@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from dream.calibrate import CalibrationResult, Observations
+from dream.calibration import CalibrationResult, Observations
 from dream.errors import InputError
 from dream.io import fields
 from dream.pnp import PoseFit

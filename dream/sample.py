@@ -20,7 +20,7 @@ from dream.transforms import look_at, transform_points
 
 
 @dataclass(frozen=True)
-class SampleSpec:
+class SampleSettings:
     """How to draw a sample sequence. Metres, radians, pixels, seconds."""
 
     robot: str = "panda"
@@ -65,7 +65,7 @@ class SampleSpec:
                                 self.width, self.height)
 
 
-def random_camera_pose(rng: np.random.Generator, spec: SampleSpec) -> np.ndarray:
+def random_camera_pose(rng: np.random.Generator, spec: SampleSettings) -> np.ndarray:
     """T_cam_base on the spec's shell, aimed near the robot."""
     radius = rng.uniform(*spec.distance_m)
     azimuth = rng.uniform(0.0, 2 * np.pi)
@@ -85,7 +85,7 @@ def random_joints(rng: np.random.Generator, robot: Robot, n: int,
     return rng.uniform(mid - half, mid + half, size=(n, len(robot.joint_names)))
 
 
-def make_sample(spec: SampleSpec) -> Sequence:
+def make_sample(spec: SampleSettings) -> Sequence:
     """A keypoint-only sequence with noisy labels and exact ground truth."""
     rng = np.random.default_rng(spec.seed)
     robot = load_robot(spec.robot)

@@ -40,11 +40,11 @@ import torch
 from torch import nn
 
 from dream import __version__
-from dream.detect import BELIEF_OUTPUT, MASK_OUTPUT
+from dream.detection import BELIEF_OUTPUT, MASK_OUTPUT
 from dream.errors import InputError
 from dream.io import check_output_file
 from dream.io.fields import one_line, os_reason
-from dream.peaks import PeakParams, peak_params_from_overrides
+from dream.peaks import PeakSettings, peak_params_from_overrides
 from export.runner import INPUT_NAME, ModelMetadata, OnnxKeypointModel
 from train.checkpoint import load_checkpoint
 from train.config import TrainConfig
@@ -214,7 +214,7 @@ def _temporary_sibling(path: Path) -> Path:
 
 
 def export_model(checkpoint: str | Path, out: str | Path, opset: int | None = None,
-                 atol: float = PARITY_ATOL, peak_params: PeakParams | None = None,
+                 atol: float = PARITY_ATOL, peak_params: PeakSettings | None = None,
                  peak_overrides: Sequence[str] = ()) -> ExportReport:
     """Export a `dream train` checkpoint to `out` (.onnx), checked against torch.
 

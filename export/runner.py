@@ -1,6 +1,6 @@
 """Torch-free inference of an exported keypoint network with onnxruntime.
 
-`OnnxKeypointModel` satisfies `dream.detect.KeypointModel` and is registered as the `.onnx`
+`OnnxKeypointModel` satisfies `dream.detection.KeypointModel` and is registered as the `.onnx`
 loader of the `dream.model_loaders` entry points, which `dream calibrate --model` uses. It
 imports numpy, onnxruntime and `dream` only (neither torch nor the `onnx` package: the base
 install runs it).
@@ -24,10 +24,10 @@ import numpy as np
 import onnxruntime as ort
 from onnxruntime.capi import onnxruntime_pybind11_state as ort_state
 
-from dream.detect import BELIEF_OUTPUT, MASK_OUTPUT
+from dream.detection import BELIEF_OUTPUT, MASK_OUTPUT
 from dream.errors import InputError
 from dream.io.fields import one_line
-from dream.peaks import PeakParams
+from dream.peaks import PeakSettings
 from dream.preprocess import RGB_CHANNELS, Preprocess
 
 log = logging.getLogger(__name__)
@@ -87,7 +87,7 @@ class ModelMetadata:
     dream_version: str
     config_sha256: str
     belief_sigma: float
-    peak_params: PeakParams | None = None
+    peak_params: PeakSettings | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.robot, str) or not self.robot:
@@ -109,8 +109,8 @@ class ModelMetadata:
         if not np.isfinite(sigma) or sigma <= 0:
             raise InputError(f"belief sigma must be > 0 (map pixels), got {self.belief_sigma!r}")
         object.__setattr__(self, "belief_sigma", sigma)
-        if self.peak_params is not None and not isinstance(self.peak_params, PeakParams):
-            raise InputError("peak_params must be a dream.peaks.PeakParams or None")
+        if self.peak_params is not None and not isinstance(self.peak_params, PeakSettings):
+            raise InputError("peak_params must be a dream.peaks.PeakSettings or None")
 
     def to_props(self) -> dict[str, str]:
         """metadata_props: string keys -> string values (numbers as text, lists as JSON)."""
@@ -179,11 +179,11 @@ def _preprocess(text: str) -> Preprocess:
     return Preprocess.from_dict(doc)
 
 
-def _peak_params(text: str) -> PeakParams:
+def _peak_params(text: str) -> PeakSettings:
     doc = json.loads(text)
     if not isinstance(doc, dict):
         raise InputError(f"expected a JSON object, got {text[:40]!r}")
-    return PeakParams(**doc)
+    return PeakSettings(**doc)
 
 
 def _field(props: Mapping[str, str], key: str, parse: Callable[[str], Any],
@@ -207,7 +207,7 @@ def _check_threads(threads: int | None) -> int | None:
 
 
 class OnnxKeypointModel:
-    """An exported keypoint network run by onnxruntime on the CPU (`dream.detect.KeypointModel`).
+    """An exported keypoint network run by onnxruntime on the CPU (`dream.detection.KeypointModel`).
 
     Args:
         path: a .onnx file written by `dream export`.
@@ -290,7 +290,7 @@ class OnnxKeypointModel:
             if np.shape(value) != self._expected_shape(name, batch):
                 raise self._shape_error(name, np.shape(value), batch)
 
-    # ----- dream.detect.KeypointModel ----------------------------------------------------------
+    # ----- dream.detection.KeypointModel ----------------------------------------------------------
 
     @property
     def keypoint_names(self) -> tuple[str, ...]:
@@ -309,7 +309,7 @@ class OnnxKeypointModel:
         return self.metadata.robot
 
     @property
-    def peak_params(self) -> PeakParams | None:
+    def peak_params(self) -> PeakSettings | None:
         return self.metadata.peak_params
 
     def run(self, batch: np.ndarray) -> dict[str, np.ndarray]:

@@ -15,7 +15,7 @@ import numpy as np
 
 from dream.errors import InputError
 from dream.recipe import load_recipe, plain, recipe_from_dict
-from synth.scene_options import MAX_IMAGE_SIZE_PX, MAX_LIGHTS
+from synth.scene_settings import MAX_IMAGE_SIZE_PX, MAX_LIGHTS
 
 Range = tuple[float, float]
 DISTORTION_COEFFS = ("k1", "k2", "p1", "p2", "k3")  # plumb_bob order
@@ -275,7 +275,7 @@ class Distractors:
 
 
 @dataclass(frozen=True)
-class SequenceOptions:
+class SequenceConfig:
     """`random`: independent frames. `fixed_camera`: one camera, N joint configurations.
     `trajectory`: one camera and a smooth timed joint trajectory through random waypoints."""
 
@@ -313,7 +313,7 @@ class SynthConfig:
     appearance: Appearance = field(default_factory=Appearance)
     background: Background = field(default_factory=Background)
     distractors: Distractors = field(default_factory=Distractors)
-    sequence: SequenceOptions = field(default_factory=SequenceOptions)
+    sequence: SequenceConfig = field(default_factory=SequenceConfig)
     output: Output = field(default_factory=Output)
 
     def to_dict(self) -> dict[str, Any]:

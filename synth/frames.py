@@ -20,8 +20,8 @@ from synth.gl import mujoco
 from synth.labels import keypoint_labels
 from synth.nominal import nominal_camera
 from synth.randomize import (
-    DistractorParams,
-    FrameParams,
+    DistractorDraw,
+    FrameDraw,
     load_joint_log,
     sample_frame,
     trajectory_joints_at,
@@ -29,7 +29,7 @@ from synth.randomize import (
 from synth.render import BACKGROUND_GEOM, SceneRenderer
 from synth.rendered import RenderedFrame
 from synth.scene import RobotScene, build_scene
-from synth.scene_options import MAX_LIGHTS, SceneOptions
+from synth.scene_settings import MAX_LIGHTS, SceneSettings
 from synth.textures import list_photos, random_texture
 
 log = logging.getLogger(__name__)
@@ -73,7 +73,7 @@ class FrameMaker:
         self.joint_offsets = np.zeros(robot.num_joints) if self.extension is None else \
             joint_offset_vector(robot, self.extension.joint_offset_rad)
         self.held_slots = int(config.distractors.held_prob > 0)   # the last distractor slot
-        options = SceneOptions(num_lights=min(MAX_LIGHTS, config.lights.count[1]),
+        options = SceneSettings(num_lights=min(MAX_LIGHTS, config.lights.count[1]),
                                num_distractors=config.distractors.count[1] + self.held_slots,
                                num_textures=NUM_TEXTURES,
                                texture_size=config.background.texture_size, floor=True,
@@ -96,7 +96,7 @@ class FrameMaker:
     def close(self) -> None:
         self.renderer.close()
 
-    def params(self, index: int) -> FrameParams:
+    def params(self, index: int) -> FrameDraw:
         return sample_frame(self.seed, index, self.robot, self.config, self.default_rgba,
                             len(self.scene.light_ids),
                             len(self.scene.distractor_geom_ids) - self.held_slots,
@@ -104,7 +104,7 @@ class FrameMaker:
 
     # ----- applying the randomisation --------------------------------------------------------
 
-    def _apply_lights(self, p: FrameParams) -> None:
+    def _apply_lights(self, p: FrameDraw) -> None:
         model = self.scene.model
         for slot, light_id in enumerate(self.scene.light_ids):
             on = slot < len(p.scene.lights)
@@ -121,14 +121,14 @@ class FrameMaker:
         model.vis.headlight.diffuse[:] = HEADLIGHT_DIFFUSE
         model.vis.headlight.specular[:] = 0.0
 
-    def _apply_robot(self, p: FrameParams) -> None:
+    def _apply_robot(self, p: FrameDraw) -> None:
         model, scene = self.scene.model, self.scene
         rgba = self.default_rgba if p.scene.robot_rgba is None else p.scene.robot_rgba
         model.geom_rgba[scene.robot_geom_ids] = rgba
         model.mat_specular[scene.robot_material_id] = p.scene.robot_specular
         model.mat_shininess[scene.robot_material_id] = p.scene.robot_shininess
 
-    def _apply_textures(self, p: FrameParams) -> None:
+    def _apply_textures(self, p: FrameDraw) -> None:
         model, scene = self.scene.model, self.scene
         rng = np.random.default_rng(p.scene.texture_seed)
         kinds = {k: w for k, w in self.config.background.kinds.items() if k != "photo"}
@@ -145,7 +145,7 @@ class FrameMaker:
             model.tex_data[adr:adr + h * w * n] = image[..., :n].reshape(-1)
             self.renderer.upload_texture(tex)
 
-    def _held_shape(self, p: FrameParams, q_true: np.ndarray) -> DistractorParams | None:
+    def _held_shape(self, p: FrameDraw, q_true: np.ndarray) -> DistractorDraw | None:
         """The held object with its pose moved from its link's frame to the base frame."""
         held = p.scene.held
         if held is None:
@@ -158,9 +158,9 @@ class FrameMaker:
             position_m=T_base_link[:3, :3] @ held.shape.position_m + T_base_link[:3, 3],
             quaternion_wxyz=np.roll(quaternion_xyzw_from_R(R_base_object), 1))
 
-    def _apply_distractors(self, p: FrameParams, q_true: np.ndarray) -> None:
+    def _apply_distractors(self, p: FrameDraw, q_true: np.ndarray) -> None:
         model, scene = self.scene.model, self.scene
-        shapes: list[DistractorParams | None] = list(p.scene.distractors)
+        shapes: list[DistractorDraw | None] = list(p.scene.distractors)
         regular = len(scene.distractor_body_ids) - self.held_slots
         shapes += [None] * (regular - len(shapes))
         if self.held_slots:
@@ -180,7 +180,7 @@ class FrameMaker:
             model.geom_rgba[geom] = d.rgba
             model.geom_matid[geom] = scene.material_ids[d.texture] if d.texture >= 0 else -1
 
-    def _apply_floor(self, p: FrameParams) -> None:
+    def _apply_floor(self, p: FrameDraw) -> None:
         if self.scene.floor_geom_id < 0:
             return
         camera_z = invert_T(p.scene.T_cam_base)[2, 3]
@@ -208,7 +208,7 @@ class FrameMaker:
             distractor.append(hit and g in self.distractor_set)
         return links, np.array(distractor), np.array(distance)
 
-    def _true_state(self, p: FrameParams) -> tuple[FrameParams, np.ndarray, np.ndarray]:
+    def _true_state(self, p: FrameDraw) -> tuple[FrameDraw, np.ndarray, np.ndarray]:
         """(the parameters with the true extrinsic, the true joints (J,), the written joint
         readings (J,)) of a frame; without an extension the parameters as drawn."""
         if self.extension is None:

@@ -169,13 +169,13 @@ def check_inputs(config: SynthConfig, robot) -> None:
 def check_camera(camera: CameraIntrinsics) -> None:
     """Fail before anything is written when the renderer cannot make `camera`'s image (e.g. a
     distortion that cannot be inverted over the image). `generate` checks the recipe's nominal
-    camera with the default `RenderOptions` (`synth.extension.check_extension` a model
+    camera with the default `RenderSettings` (`synth.extension.check_extension` a model
     extension's true camera); a frame's randomised intrinsics are checked only when that frame
     is rendered."""
     from synth.lens import plan_lens
-    from synth.render import RenderOptions
+    from synth.render import RenderSettings
 
-    options = RenderOptions()
+    options = RenderSettings()
     for oversampling in sorted({1, options.id_oversampling}):
         plan_lens(camera, options.distortion_margin_px, options.max_render_scale, oversampling)
 

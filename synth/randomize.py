@@ -46,14 +46,14 @@ def sequence_rng(seed: int) -> np.random.Generator:
 
 
 @dataclass(frozen=True)
-class LightParams:
+class LightDraw:
     position_m: np.ndarray      # (3,) base frame
     diffuse: np.ndarray         # (3,) RGB in [0, 1]
     specular: np.ndarray        # (3,)
 
 
 @dataclass(frozen=True)
-class DistractorParams:
+class DistractorDraw:
     kind: str                   # one of DISTRACTOR_TYPES
     size_m: np.ndarray          # (3,) MuJoCo geom size (half-extents / radius, half-length)
     position_m: np.ndarray      # (3,) base frame
@@ -63,36 +63,36 @@ class DistractorParams:
 
 
 @dataclass(frozen=True)
-class HeldObjectParams:
+class HeldObjectDraw:
     """An object moving with `link`: `shape.position_m` and `shape.quaternion_wxyz` are its pose
     in that link's frame."""
 
     link: str
-    shape: DistractorParams
+    shape: DistractorDraw
 
 
 @dataclass(frozen=True)
-class SceneParams:
+class SceneDraw:
     """What stays fixed along a sequence (and is redrawn per frame in `random` mode)."""
 
     camera: CameraIntrinsics
     T_cam_base: np.ndarray
-    lights: tuple[LightParams, ...]
+    lights: tuple[LightDraw, ...]
     ambient: np.ndarray         # (3,)
     robot_rgba: np.ndarray | None   # (n_robot_geoms, 4), None = real colours
     robot_specular: float
     robot_shininess: float
     floor: bool
-    distractors: tuple[DistractorParams, ...]
+    distractors: tuple[DistractorDraw, ...]
     texture_seed: int           # textures (floor, distractors) are drawn from this
     background_seed: int        # the 2D background is drawn from this
-    held: HeldObjectParams | None = None
+    held: HeldObjectDraw | None = None
 
 
 @dataclass(frozen=True)
-class FrameParams:
+class FrameDraw:
     index: int
-    scene: SceneParams
+    scene: SceneDraw
     joints: np.ndarray          # (J,) in robot.joint_names order
     timestamp: float | None
 
@@ -133,7 +133,7 @@ def _jitter_color(rng: np.random.Generator, rgba: np.ndarray, config: SynthConfi
 
 def sample_scene(rng: np.random.Generator, config: SynthConfig, default_rgba: np.ndarray,
                  num_lights_max: int, num_distractors_max: int,
-                 num_textures: int) -> SceneParams:
+                 num_textures: int) -> SceneDraw:
     """Camera, lights, appearance, floor and distractors. `default_rgba` (n_robot_geoms, 4)."""
     camera = sample_intrinsics(rng, config)
     T_cam_base = sample_camera_pose(rng, config)
@@ -146,7 +146,7 @@ def sample_scene(rng: np.random.Generator, config: SynthConfig, default_rgba: np
         pos = np.asarray(config.camera.target_m) + r * np.array(
             [np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
         tint = 1.0 + rng.uniform(-lc.color_jitter, lc.color_jitter, 3)
-        lights.append(LightParams(pos, np.clip(rng.uniform(*lc.intensity) * tint, 0, 1),
+        lights.append(LightDraw(pos, np.clip(rng.uniform(*lc.intensity) * tint, 0, 1),
                                   np.full(3, rng.uniform(*lc.specular))))
     ambient = np.full(3, rng.uniform(*lc.ambient))
     ap = config.appearance
@@ -172,15 +172,15 @@ def sample_scene(rng: np.random.Generator, config: SynthConfig, default_rgba: np
         rgba = np.array([*rng.random(3), 1.0])
         texture = int(rng.integers(num_textures)) if num_textures and \
             rng.random() < dc.textured_prob else -1
-        distractors.append(DistractorParams(kind, size, position, q / np.linalg.norm(q), rgba,
+        distractors.append(DistractorDraw(kind, size, position, q / np.linalg.norm(q), rgba,
                                             texture))
-    return SceneParams(camera, T_cam_base, tuple(lights), ambient, robot_rgba, float(specular),
+    return SceneDraw(camera, T_cam_base, tuple(lights), ambient, robot_rgba, float(specular),
                        float(shininess), floor, tuple(distractors),
                        int(rng.integers(2 ** 31)), int(rng.integers(2 ** 31)))
 
 
 def sample_held_object(rng: np.random.Generator, config: SynthConfig, link: str,
-                       num_textures: int) -> HeldObjectParams | None:
+                       num_textures: int) -> HeldObjectDraw | None:
     """With probability `distractors.held_prob`, an object held at `link`: a thin plate or a
     random primitive, its centre `held_offset_m` from the link origin in a random direction,
     randomly turned and coloured."""
@@ -201,7 +201,7 @@ def sample_held_object(rng: np.random.Generator, config: SynthConfig, link: str,
     rgba = np.array([*rng.random(3), 1.0])
     texture = int(rng.integers(num_textures)) if num_textures and \
         rng.random() < dc.held_textured_prob else -1
-    return HeldObjectParams(link, DistractorParams(kind, sides, position, q / np.linalg.norm(q),
+    return HeldObjectDraw(link, DistractorDraw(kind, sides, position, q / np.linalg.norm(q),
                                                    rgba, texture))
 
 
@@ -272,7 +272,7 @@ def trajectory_joints_at(seed: int, t: float, robot: Robot, config: SynthConfig,
 
 def sample_frame(seed: int, index: int, robot: Robot, config: SynthConfig,
                  default_rgba: np.ndarray, num_lights_max: int, num_distractors_max: int,
-                 num_textures: int, joint_log: np.ndarray | None = None) -> FrameParams:
+                 num_textures: int, joint_log: np.ndarray | None = None) -> FrameDraw:
     """All randomness of frame `index`."""
     mode = config.sequence.mode
     rng = frame_rng(seed, index)
@@ -282,10 +282,10 @@ def sample_frame(seed: int, index: int, robot: Robot, config: SynthConfig,
                               num_textures)
     if mode == "random":
         scene = dataclasses.replace(sample_scene(rng, config, *limits), held=held)
-        return FrameParams(index, scene, sample_joints(rng, robot, config, joint_log), None)
+        return FrameDraw(index, scene, sample_joints(rng, robot, config, joint_log), None)
     scene = dataclasses.replace(sample_scene(sequence_rng(seed), config, *limits), held=held)
     timestamp = index / config.sequence.fps
     if mode == "fixed_camera":
-        return FrameParams(index, scene, sample_joints(rng, robot, config, joint_log), timestamp)
-    return FrameParams(index, scene, trajectory_joints(seed, index, robot, config, joint_log),
+        return FrameDraw(index, scene, sample_joints(rng, robot, config, joint_log), timestamp)
+    return FrameDraw(index, scene, trajectory_joints(seed, index, robot, config, joint_log),
                        timestamp)

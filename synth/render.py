@@ -25,7 +25,7 @@ from dream.transforms import invert_T, is_rigid
 from synth.gl import mujoco
 from synth.lens import RenderLens, plan_lens
 from synth.scene import RobotScene
-from synth.scene_options import MAX_IMAGE_SIZE_PX
+from synth.scene_settings import MAX_IMAGE_SIZE_PX
 from synth.scene_spec import DISTRACTOR_GROUP, FLOOR_GROUP, MARKER_GROUP, ROBOT_GROUP
 
 logger = logging.getLogger(__name__)
@@ -39,7 +39,7 @@ RIGID_TOLERANCE = 1e-6
 
 
 @dataclass(frozen=True)
-class RenderOptions:
+class RenderSettings:
     """Renderer settings; the defaults favour speed for synthetic data. Metres, pixels.
 
     Attributes:
@@ -74,16 +74,16 @@ class RenderOptions:
         for name in ("offsamples", "distortion_margin_px", "max_geoms", "id_oversampling"):
             value = getattr(self, name)
             if isinstance(value, bool) or int(value) != value or value < 0:
-                raise InputError(f"RenderOptions.{name} = {value} must be a whole number >= 0")
+                raise InputError(f"RenderSettings.{name} = {value} must be a whole number >= 0")
             object.__setattr__(self, name, int(value))
         if not (0 < self.near_m < self.far_m) or not np.isfinite(self.far_m):
             raise InputError(f"clipping planes near_m={self.near_m}, far_m={self.far_m} must "
                              "satisfy 0 < near_m < far_m < inf")
         if not (self.max_render_scale >= 1.0):
-            raise InputError(f"RenderOptions.max_render_scale = {self.max_render_scale} must "
+            raise InputError(f"RenderSettings.max_render_scale = {self.max_render_scale} must "
                              "be at least 1")
         if self.max_geoms < 1 or self.id_oversampling < 1:
-            raise InputError("RenderOptions.max_geoms and id_oversampling must be at least 1")
+            raise InputError("RenderSettings.max_geoms and id_oversampling must be at least 1")
 
     def geom_groups(self) -> np.ndarray:
         """(6,) uint8 visibility of MuJoCo's geom groups."""
@@ -142,7 +142,7 @@ class SceneRenderer:
     """
 
     def __init__(self, scene: RobotScene, camera: CameraIntrinsics,
-                 options: RenderOptions | None = None) -> None:
+                 options: RenderSettings | None = None) -> None:
         if not isinstance(scene, RobotScene):
             raise InputError("SceneRenderer needs a RobotScene (from synth.scene.build_scene)")
         if not isinstance(camera, CameraIntrinsics):
@@ -150,7 +150,7 @@ class SceneRenderer:
         self._renderer: mujoco.Renderer | None = None
         self.scene = scene
         self.camera = camera
-        self.options = RenderOptions() if options is None else options
+        self.options = RenderSettings() if options is None else options
         self._plan(camera)
         model = scene.model
         model.vis.quality.offsamples = self.options.offsamples

@@ -24,7 +24,7 @@ from dream.robot import Robot
 from dream.robot.visuals import MESH, read_link_visuals
 from synth import scene_cache
 from synth.gl import mujoco
-from synth.scene_options import SceneOptions
+from synth.scene_settings import SceneSettings
 from synth.scene_spec import (
     CAMERA_NAME,
     DISTRACTOR_PREFIX,
@@ -40,7 +40,7 @@ from synth.scene_spec import (
     build_spec,
 )
 
-__all__ = ["RobotScene", "SceneOptions", "build_scene"]
+__all__ = ["RobotScene", "SceneSettings", "build_scene"]
 
 logger = logging.getLogger(__name__)
 
@@ -95,7 +95,7 @@ class RobotScene:
 
     model: mujoco.MjModel
     robot: Robot
-    options: SceneOptions
+    options: SceneSettings
     link_names: tuple[str, ...] = field(init=False)
     link_body_ids: np.ndarray = field(init=False, repr=False)
     robot_geom_ids: np.ndarray = field(init=False, repr=False)
@@ -124,8 +124,8 @@ class RobotScene:
     def __post_init__(self) -> None:
         if not isinstance(self.model, mujoco.MjModel):
             raise RobotError("RobotScene.model must be a mujoco.MjModel (use build_scene)")
-        if not isinstance(self.robot, Robot) or not isinstance(self.options, SceneOptions):
-            raise RobotError("RobotScene needs a dream Robot and SceneOptions (use build_scene)")
+        if not isinstance(self.robot, Robot) or not isinstance(self.options, SceneSettings):
+            raise RobotError("RobotScene needs a dream Robot and SceneSettings (use build_scene)")
         self._index_elements()
         self._index_joints()
 
@@ -268,14 +268,14 @@ def _mesh_files(visuals) -> list[Path]:
     return [v.mesh_path for vs in visuals.values() for v in vs if v.kind == MESH]
 
 
-def build_scene(robot: Robot, options: SceneOptions | None = None,
+def build_scene(robot: Robot, options: SceneSettings | None = None,
                 cache_dir: str | Path | None = None, use_cache: bool = True) -> RobotScene:
     """The MuJoCo scene of `robot` (links below its base, visual meshes) plus the extras of
     `options`, from the on-disk cache when possible.
 
     Args:
         robot: from `dream.robot.load_robot`.
-        options: lights, distractors, textures, floor, markers; default `SceneOptions()`.
+        options: lights, distractors, textures, floor, markers; default `SceneSettings()`.
         cache_dir: folder of cache entries; default `$DREAM_CACHE_DIR/scenes` or
             `~/.cache/dream/scenes`.
         use_cache: read and write the cache.
@@ -283,9 +283,9 @@ def build_scene(robot: Robot, options: SceneOptions | None = None,
         InputError: unreadable URDF or mesh file.
         RobotError: a robot MuJoCo cannot compile (the message says why).
     """
-    options = SceneOptions() if options is None else options
-    if not isinstance(options, SceneOptions):
-        raise RobotError(f"options must be SceneOptions, got {type(options).__name__}")
+    options = SceneSettings() if options is None else options
+    if not isinstance(options, SceneSettings):
+        raise RobotError(f"options must be SceneSettings, got {type(options).__name__}")
     start = time.perf_counter()
     visuals = read_link_visuals(robot.urdf_path)
     key, description = scene_cache.scene_key(robot, _mesh_files(visuals), options.as_dict())

@@ -26,7 +26,7 @@ from dream.robot import Robot
 from dream.robot.tree import CONTINUOUS, FIXED, PRISMATIC, ROTATING_TYPES
 from dream.robot.visuals import MESH, LinkVisual, load_mesh_parts
 from synth.gl import mujoco
-from synth.scene_options import SceneOptions
+from synth.scene_settings import SceneSettings
 
 logger = logging.getLogger(__name__)
 
@@ -72,7 +72,7 @@ def _short_hash(*items: bytes) -> str:
     return h.hexdigest()[:16]
 
 
-def _add_link_body(spec_parent, name: str, T_parent_link: np.ndarray, options: SceneOptions):
+def _add_link_body(spec_parent, name: str, T_parent_link: np.ndarray, options: SceneSettings):
     body = spec_parent.add_body(name=LINK_PREFIX + name)
     body.pos = T_parent_link[:3, 3]
     body.quat = _quat_wxyz(T_parent_link[:3, :3])
@@ -132,7 +132,7 @@ def _geom_common(geom, rgba, group: int) -> None:
 
 
 def _add_visuals(body, link: str, visuals: tuple[LinkVisual, ...], meshes: _MeshAssets,
-                 options: SceneOptions) -> None:
+                 options: SceneSettings) -> None:
     primitive = {"box": mujoco.mjtGeom.mjGEOM_BOX, "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
                  "sphere": mujoco.mjtGeom.mjGEOM_SPHERE}
     for v_index, visual in enumerate(visuals):
@@ -156,7 +156,7 @@ def _add_visuals(body, link: str, visuals: tuple[LinkVisual, ...], meshes: _Mesh
 
 
 def _add_robot(spec: mujoco.MjSpec, robot: Robot,
-               visuals: Mapping[str, tuple[LinkVisual, ...]], options: SceneOptions) -> None:
+               visuals: Mapping[str, tuple[LinkVisual, ...]], options: SceneSettings) -> None:
     tree = robot.tree
     spec.add_material(name=ROBOT_MATERIAL, rgba=list(ROBOT_MATERIAL_RGBA))
     meshes = _MeshAssets(spec)
@@ -181,7 +181,7 @@ def _add_robot(spec: mujoco.MjSpec, robot: Robot,
         stack.extend(j.child for j in reversed(children.get(link, ())))
 
 
-def _add_extras(spec: mujoco.MjSpec, options: SceneOptions) -> None:
+def _add_extras(spec: mujoco.MjSpec, options: SceneSettings) -> None:
     for i in range(options.num_lights):
         angle = 2.0 * math.pi * i / max(options.num_lights, 1)
         pos = np.array([options.light_radius_m * math.cos(angle),
@@ -219,7 +219,7 @@ def _add_textured_material(spec: mujoco.MjSpec, texture: str, material: str, siz
 
 
 def build_spec(robot: Robot, visuals: Mapping[str, tuple[LinkVisual, ...]],
-               options: SceneOptions) -> mujoco.MjSpec:
+               options: SceneSettings) -> mujoco.MjSpec:
     """The MjSpec of `robot` below its base link with `visuals` and the extras of `options`.
 
     Gravity and contacts are off (kinematics and rendering only); every geom has

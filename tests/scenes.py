@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dream.calibrate import Observations
+from dream.calibration import Observations
 from dream.camera import CameraIntrinsics, project
 from dream.transforms import look_at, transform_points
 

@@ -27,7 +27,7 @@ from dream.io import (
 )
 from dream.recipe import load_recipe
 from dream.result import read_result
-from dream.sample import SampleSpec, make_sample
+from dream.sample import SampleSettings, make_sample
 
 FRAMES = 4
 WIDTH, HEIGHT, FOCAL = 160, 120, 150.0  # the sample's field of view on small images
@@ -70,7 +70,7 @@ def labels(tmp_path_factory) -> Path:
 def imaged(tmp_path_factory) -> Path:
     """A small sample with (random) images, for the commands that draw on or detect in them."""
     root = tmp_path_factory.mktemp("imaged")
-    seq = make_sample(SampleSpec(num_frames=FRAMES, seed=2, width=WIDTH, height=HEIGHT,
+    seq = make_sample(SampleSettings(num_frames=FRAMES, seed=2, width=WIDTH, height=HEIGHT,
                                  fx=FOCAL, fy=FOCAL, pixel_noise_px=0.0))
     rng = np.random.default_rng(0)
     frames = []
@@ -108,7 +108,7 @@ def test_output_folder_that_is_or_lies_under_a_file(imaged, afile, tmp_path, cap
     assert "afile" in line and "is a file" in line
     assert not (tmp_path / "r.json").exists()
 
-    import dream.diagnose.run as diagnose_run
+    import dream.diagnosis.run as diagnose_run
 
     def must_not_run(*args, **kwargs):
         raise AssertionError("the diagnosis ran before its output folder was checked")
@@ -166,7 +166,7 @@ def test_negative_seed_is_refused_naming_the_option(labels, tmp_path, capsys):
     assert "--seed" in line
     assert leftovers(tmp_path) == []
     with pytest.raises(InputError, match="seed"):
-        SampleSpec(seed=-1)
+        SampleSettings(seed=-1)
 
 
 # ---------------------------------------------------------------- 3. malformed RESULT.json
@@ -346,7 +346,7 @@ def test_sample_refuses_bad_numbers(tmp_path, capsys, option, value):
     assert option in line and "Fix:" in line
     assert not (tmp_path / "s").exists()
     with pytest.raises(InputError):
-        SampleSpec(pixel_noise_px=float("nan"))
+        SampleSettings(pixel_noise_px=float("nan"))
 
 
 def test_overlay_limit(imaged, tmp_path, capsys):

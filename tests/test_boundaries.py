@@ -6,7 +6,7 @@ import sys
 
 def test_core_imports_no_torch_and_no_other_stage():
     code = (
-        "import sys, dream.cli, dream.calibrate, dream.pipeline, dream.io, dream.robot, "
+        "import sys, dream.cli, dream.calibration, dream.pipeline, dream.io, dream.robot, "
         "dream.overlay, dream.sample, dream.crb\n"
         "bad = [m for m in sys.modules if m.split('.')[0] in "
         "('torch', 'lightning', 'train', 'synth', 'export')]\n"

@@ -4,7 +4,7 @@ Each case draws a keypoint-only measured-like sequence (`dream.inject`) with one
 catalog at a seeded random magnitude in the issue's realistic ranges and 1-2 px label noise.
 The diagnosis sees only the logged data (labels, joint readings, nominal camera, timestamps);
 the test knows the answer. Parameters must be within 10 % or 3 stated sigmas
-(`dream.diagnose.score`). Null sequences must give an empty verdict.
+(`dream.diagnosis.score`). Null sequences must give an empty verdict.
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 from dream.cli import main
-from dream.diagnose.fit import Model, Problem, candidate_params, identifiable_params
-from dream.diagnose.run import diagnose_sequence, problem_from
-from dream.diagnose.score import score_diagnosis
-from dream.diagnose.select import DiagnoseSettings
+from dream.diagnosis.fit import Model, Problem, candidate_params, identifiable_params
+from dream.diagnosis.run import diagnose_sequence, problem_from
+from dream.diagnosis.score import score_diagnosis
+from dream.diagnosis.select import DiagnoseSettings
 from dream.errors import InputError
 from dream.extension import (
     EFFECT_NAMES,
@@ -29,7 +29,7 @@ from dream.extension import (
     extension_yaml,
     read_extension,
 )
-from dream.inject import InjectionSpec, make_injected_sequence, random_effect
+from dream.inject import InjectionSettings, make_injected_sequence, random_effect
 from dream.io import write_dream
 from dream.pipeline import observations_from_labels, robot_for
 from dream.robot import load_robot
@@ -41,7 +41,7 @@ FRAMES = 150          # like a few seconds of a measured sequence (panda_teleop:
 
 def _case(effect: str | None, seed: int, frames: int = FRAMES):
     rng = np.random.default_rng(seed)
-    spec = InjectionSpec(num_frames=frames, pixel_noise_px=float(rng.uniform(*NOISE_RANGE_PX)),
+    spec = InjectionSettings(num_frames=frames, pixel_noise_px=float(rng.uniform(*NOISE_RANGE_PX)),
                          seed=seed)
     truth = random_effect(effect, rng, load_robot(spec.robot), spec) if effect \
         else ModelExtension()
@@ -103,8 +103,8 @@ def test_joint_one_and_last_joint_are_reported_unidentifiable():
     seq, robot, _ = _case(None, 8200, frames=40)
     obs = observations_from_labels(seq, robot)
     problem = problem_from(seq, robot, obs)
-    from dream.calibrate import calibrate_all
-    from dream.diagnose.fit import fit_model
+    from dream.calibration import calibrate_all
+    from dream.diagnosis.fit import fit_model
 
     T0 = calibrate_all(obs, seq.camera).fit.T_cam_base
     base = fit_model(Model(problem, (), T0), problem.observed, 2.0)
@@ -131,7 +131,7 @@ def test_cli_diagnose_then_calibrate_with_the_extension(tmp_path, capsys, monkey
     """dream diagnose writes the report and the extended model; dream calibrate
     --model-extension reads it and lands closer to the truth."""
     rng = np.random.default_rng(3)
-    spec = InjectionSpec(num_frames=80, pixel_noise_px=1.0, seed=3)
+    spec = InjectionSettings(num_frames=80, pixel_noise_px=1.0, seed=3)
     truth = extension_from_effects({"joint_offset": {"panda_joint4": np.deg2rad(2.0)}},
                                    "panda")
     seq = make_injected_sequence(spec, truth)
@@ -170,7 +170,7 @@ def test_cli_diagnose_then_calibrate_with_the_extension(tmp_path, capsys, monkey
         (Path(report_dir) / "residual_field.png").write_bytes(b"half")
         raise InputError("the disk is full", Path(report_dir) / "report.md")
 
-    monkeypatch.setattr("dream.diagnose.report.write_report", fails_after_a_plot)
+    monkeypatch.setattr("dream.diagnosis.report.write_report", fails_after_a_plot)
     assert main(["diagnose", "--data", str(data), "--use-labels", "--out", str(report),
                  "--effects", "joint_offset"]) == 2
     assert {p.name: p.read_bytes() for p in report.iterdir()} == before
@@ -199,17 +199,17 @@ def test_model_extension_file_round_trip_and_bad_files(tmp_path):
 def test_problem_rejects_bad_shapes():
     robot = load_robot("panda")
     with pytest.raises(InputError):
-        Problem(robot, InjectionSpec().camera, np.zeros((3, 6)), None, np.zeros((3, 7, 2)),
+        Problem(robot, InjectionSettings().camera, np.zeros((3, 6)), None, np.zeros((3, 7, 2)),
                 ("a", "b", "c"))
     with pytest.raises(InputError):
-        Problem(robot, InjectionSpec().camera, np.zeros((3, 7)), np.array([0.0, 0.0, 1.0]),
+        Problem(robot, InjectionSettings().camera, np.zeros((3, 7)), np.array([0.0, 0.0, 1.0]),
                 np.zeros((3, 7, 2)), ("a", "b", "c"))
 
 
 def test_effect_beyond_plausible_magnitude_is_not_accepted():
     """An effect is only accepted at a physically plausible size: with the joint-offset limit
     set below the hidden offset, the same data gives no verdict and says why."""
-    from dream.diagnose.select import PLAUSIBLE
+    from dream.diagnosis.select import PLAUSIBLE
 
     seq, robot, truth = _case("joint_offset", 7000)
     offset = abs(next(iter(truth.joint_offset_rad.values())))
@@ -225,7 +225,7 @@ def test_refit_after_acceptance_keeps_accepted_effects_plausible():
     """After an effect is accepted the gross-outlier mask is recomputed and the models refitted
     on it; a refit that carries an accepted effect beyond its plausible size is not taken (the
     previous mask and fits stay, with a note), and a plausible one is."""
-    from dream.diagnose.select import PLAUSIBLE, refit_on_new_mask
+    from dream.diagnosis.select import PLAUSIBLE, refit_on_new_mask
 
     seq, robot, truth = _case("joint_offset", 7000)
     settings = DiagnoseSettings(effects=("joint_offset",))
@@ -251,7 +251,7 @@ def test_a_new_effect_must_keep_the_accepted_ones_plausible():
     """An effect is tested with the accepted ones refitted beside it; when that fit carries an
     accepted effect beyond its plausible size, the check names it (the new effect alone is
     plausible)."""
-    from dream.diagnose.select import PLAUSIBLE, first_implausible
+    from dream.diagnosis.select import PLAUSIBLE, first_implausible
 
     seq, robot, truth = _case("joint_offset", 7000)
     _, diagnosis, _ = diagnose_sequence(seq, robot, observations_from_labels(seq, robot),

@@ -1,4 +1,4 @@
-"""The human diagnosis report (`dream.diagnose.report`) from small synthetic inputs."""
+"""The human diagnosis report (`dream.diagnosis.report`) from small synthetic inputs."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from dream.camera import CameraIntrinsics
-from dream.diagnose.report import (
+from dream.diagnosis.report import (
     FIELD_PNG,
     GAINS_PNG,
     SILHOUETTES_PNG,
@@ -20,7 +20,7 @@ from dream.diagnose.report import (
     silhouette_overlay,
     write_report,
 )
-from dream.diagnose.residuals import ResidualSet, analyse
+from dream.diagnosis.residuals import ResidualSet, analyse
 from dream.errors import InputError
 
 CAMERA = CameraIntrinsics(fx=300.0, fy=300.0, cx=160.0, cy=120.0, width=320, height=240)

@@ -1,4 +1,5 @@
-"""Residual analysis (`dream.diagnose.residuals`) on synthetic residual sets with known patterns."""
+"""Residual analysis (`dream.diagnosis.residuals`) on synthetic residual sets with known
+patterns."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 
 from dream.camera import CameraIntrinsics
-from dream.diagnose.residuals import (
+from dream.diagnosis.residuals import (
     ALPHA,
     ResidualSet,
     analyse,

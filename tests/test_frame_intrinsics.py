@@ -14,7 +14,7 @@ from dream.camera import project
 from dream.cli import main
 from dream.errors import InputError
 from dream.io import read_sequence, write_dream
-from dream.sample import SampleSpec, make_sample
+from dream.sample import SampleSettings, make_sample
 
 FOCALS = (300.0, 450.0, 600.0, 800.0, 1000.0, 520.0)
 
@@ -22,7 +22,7 @@ FOCALS = (300.0, 450.0, 600.0, 800.0, 1000.0, 520.0)
 def frames_with_own_focal(out: Path) -> Path:
     """A keypoint-only set (exact labels) whose frames were seen with different focal lengths:
     each frame's labels are its keypoints projected with its own camera."""
-    seq = make_sample(SampleSpec(num_frames=len(FOCALS), pixel_noise_px=0.0, seed=3))
+    seq = make_sample(SampleSettings(num_frames=len(FOCALS), pixel_noise_px=0.0, seed=3))
     frames = []
     for frame, f in zip(seq.frames, FOCALS, strict=True):
         cam = replace(seq.camera, fx=f, fy=f)
@@ -90,7 +90,7 @@ def test_bad_frame_intrinsics_name_the_file(own_focal, tmp_path, value, words):
 
 
 def test_frames_with_their_own_camera_keep_the_image_size():
-    seq = make_sample(SampleSpec(num_frames=2, pixel_noise_px=0.0))
+    seq = make_sample(SampleSettings(num_frames=2, pixel_noise_px=0.0))
     small = replace(seq.camera, width=320, height=240)
     with pytest.raises(InputError, match="one image size"):
         replace(seq, frames=(replace(seq.frames[0], camera=small), seq.frames[1]))

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from dream.calibrate import calibrate_all
+from dream.calibration import calibrate_all
 from dream.camera import project, project_with_jacobian
 from dream.errors import InputError
 from dream.extension import CameraMove, ModelExtension, effective_joints
@@ -23,7 +23,7 @@ from dream.inject import (
     KEYPOINT_BIAS_RANGE_M,
     LINK_LENGTH_RANGE_M,
     TIME_OFFSET_RANGE_S,
-    InjectionSpec,
+    InjectionSettings,
     identifiable_joints,
     inject,
     make_injected_sequence,
@@ -45,7 +45,7 @@ EXACT_TOLERANCE_PX = 1e-6
 INTERPOLATION_TOLERANCE_RAD = 2e-3  # PCHIP between 10 Hz readings of the smooth trajectory
 END_FRAMES = 2                    # frames at each end where interpolation clamps
 MIN_IN_IMAGE_FRACTION = 0.85
-SMALL = InjectionSpec(num_frames=40, pixel_noise_px=0.0, seed=3)
+SMALL = InjectionSettings(num_frames=40, pixel_noise_px=0.0, seed=3)
 
 
 @pytest.fixture(scope="module")
@@ -82,7 +82,7 @@ def _check_first_order(world, dP_base: np.ndarray | None = None,
 
 
 def test_nominal_sequence_calibrates_back(panda):
-    spec = InjectionSpec(seed=1)
+    spec = InjectionSettings(seed=1)
     seq = make_injected_sequence(spec, ModelExtension())
     truth = seq.frames[0].T_cam_base_true
     assert seq.T_cam_base_reference is None and seq.camera == spec.camera
@@ -99,7 +99,7 @@ def test_nominal_sequence_calibrates_back(panda):
 
 
 def test_trajectory_sweeps_large_angles_at_realistic_speeds(panda):
-    world = inject(InjectionSpec(seed=2))
+    world = inject(InjectionSettings(seed=2))
     q = world.joints_at_images
     assert np.all(q >= panda.joint_lower) and np.all(q <= panda.joint_upper)
     assert np.median(q.max(0) - q.min(0)) > 1.0                   # rad swept per joint
@@ -185,7 +185,7 @@ def test_time_offset_readings_lag_and_are_recoverable(tau, panda):
 
 
 def test_written_sequence_reads_back(tmp_path):
-    spec = InjectionSpec(num_frames=6, seed=4)
+    spec = InjectionSettings(num_frames=6, seed=4)
     seq = make_injected_sequence(spec, ModelExtension(distortion=(0.1, 0, 0, 0)))
     back = read_sequence(write_dream(seq, tmp_path / "inj"))
     assert back.camera == spec.camera and not back.has_images
@@ -196,13 +196,13 @@ def test_written_sequence_reads_back(tmp_path):
 
 def test_deterministic_in_the_seed():
     extension = ModelExtension(joint_offset_rad={"panda_joint2": 0.02}, time_offset_s=0.05)
-    spec = InjectionSpec(num_frames=10, seed=9)
+    spec = InjectionSettings(num_frames=10, seed=9)
     a, b = make_injected_sequence(spec, extension), make_injected_sequence(spec, extension)
     np.testing.assert_array_equal(a.uv_labels(), b.uv_labels())
     np.testing.assert_array_equal(a.joints, b.joints)
-    c = make_injected_sequence(InjectionSpec(num_frames=10, seed=10), extension)
+    c = make_injected_sequence(InjectionSettings(num_frames=10, seed=10), extension)
     assert not np.array_equal(a.joints, c.joints)
-    random = make_injected_sequence(InjectionSpec(num_frames=10, seed=9, motion="random"))
+    random = make_injected_sequence(InjectionSettings(num_frames=10, seed=9, motion="random"))
     assert random.frames[3].timestamp == pytest.approx(0.3)
 
 
@@ -219,7 +219,7 @@ def test_identifiability_probes(panda):
 
 
 def _draws(name, panda, n=6):
-    spec = InjectionSpec(num_frames=50)
+    spec = InjectionSettings(num_frames=50)
     return [random_effect(name, np.random.default_rng(s), panda, spec) for s in range(n)], spec
 
 
@@ -281,20 +281,20 @@ def test_random_effects_lie_in_their_ranges(panda):
 ])
 def test_bad_spec_values_are_refused(kwargs):
     with pytest.raises(InputError):
-        InjectionSpec(**kwargs)
+        InjectionSettings(**kwargs)
 
 
 def test_bad_requests_are_refused(panda):
     with pytest.raises(InputError, match="continuous motion"):
-        inject(InjectionSpec(num_frames=5, motion="random"), ModelExtension(time_offset_s=0.05))
+        inject(InjectionSettings(num_frames=5, motion="random"), ModelExtension(time_offset_s=0.05))
     with pytest.raises(InputError, match="robot"):
-        inject(InjectionSpec(num_frames=5), ModelExtension(robot="ur5"))
+        inject(InjectionSettings(num_frames=5), ModelExtension(robot="ur5"))
     with pytest.raises(InputError, match="000099"):
-        inject(InjectionSpec(num_frames=5), ModelExtension(camera_moved=CameraMove("000099")))
+        inject(InjectionSettings(num_frames=5), ModelExtension(camera_moved=CameraMove("000099")))
     with pytest.raises(InputError, match="unknown effect"):
         random_effect("gravity", np.random.default_rng(0), panda, SMALL)
     with pytest.raises(InputError, match="repeat"):
         random_effects(["joint_offset", "joint_offset"], np.random.default_rng(0), panda, SMALL)
     with pytest.raises(InputError, match="continuous motion"):
         random_effect("time_offset", np.random.default_rng(0), panda,
-                      InjectionSpec(motion="random"))
+                      InjectionSettings(motion="random"))

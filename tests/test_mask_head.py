@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from dream.camera import CameraIntrinsics
-from dream.detect import predict_masks
+from dream.detection import predict_masks
 from dream.errors import InputError
 from dream.polish import check_polish_input
 from dream.preprocess import Preprocess

@@ -11,7 +11,7 @@ from dream.peaks import (
     BELOW_THRESHOLD,
     FOUND,
     OUT_OF_FRAME,
-    PeakParams,
+    PeakSettings,
     find_peaks,
     find_peaks_batch,
     find_peaks_in_image,
@@ -55,7 +55,7 @@ def test_belief_target_peak_sits_on_the_stride_mapped_keypoint():
     maps = belief_maps(uv_input, 64, 48, 4, 1.5)
     assert maps.shape == (2, 12, 16) and maps.dtype == np.float32
     assert not maps[1].any()  # absent keypoint: all zero
-    peaks = find_peaks(maps, PeakParams(smoothing_sigma=0))
+    peaks = find_peaks(maps, PeakSettings(smoothing_sigma=0))
     assert peaks.found.tolist() == [True, False] and peaks.reason[1] == BELOW_THRESHOLD
     np.testing.assert_allclose(peaks.uv_map[0], input_to_map(uv_input[0], 4), atol=1e-6)
     np.testing.assert_allclose(peaks.to_input(4).uv_input[0], uv_input[0], atol=1e-5)
@@ -74,7 +74,7 @@ def test_two_equal_peaks_are_ambiguous_but_a_weak_second_peak_is_not():
     assert peaks.found[0]
     np.testing.assert_allclose(peaks.uv_map[0], [10.2, 12.0], atol=0.1)
     # the ratio is a parameter
-    assert find_peaks(weak, PeakParams(ambiguity_ratio=0.2)).reason[0] == AMBIGUOUS
+    assert find_peaks(weak, PeakSettings(ambiguity_ratio=0.2)).reason[0] == AMBIGUOUS
 
 
 def test_out_of_frame_keypoint_is_not_found():
@@ -93,8 +93,8 @@ def test_keypoint_near_the_border_is_found(rng):
     np.testing.assert_allclose(peaks.uv_map, near, atol=TOLERANCE_PX)
     # a mostly outside Gaussian is found only when it reaches the threshold
     faint = gaussian_map(np.array([[-0.45, 20.0]])) * 0.08
-    assert find_peaks(faint, PeakParams(threshold=0.1)).reason[0] == BELOW_THRESHOLD
-    assert find_peaks(faint, PeakParams(threshold=0.01)).found[0]
+    assert find_peaks(faint, PeakSettings(threshold=0.1)).reason[0] == BELOW_THRESHOLD
+    assert find_peaks(faint, PeakSettings(threshold=0.01)).found[0]
 
 
 def test_maps_refined_together_match_maps_refined_alone(rng):
@@ -143,9 +143,9 @@ def test_bad_inputs_are_input_errors():
         find_peaks(np.zeros((0, 4, 4)))                  # no maps
     assert find_peaks_batch(np.zeros((0, 7, 4, 4))) == []  # no images
     with pytest.raises(InputError):
-        PeakParams(threshold=0)
+        PeakSettings(threshold=0)
     with pytest.raises(InputError):
-        PeakParams(ambiguity_ratio=1.5)
+        PeakSettings(ambiguity_ratio=1.5)
     with pytest.raises(InputError):
         map_to_input(np.zeros(2), 3)
 
@@ -154,9 +154,9 @@ def test_peak_overrides_apply_on_a_base_and_name_the_option():
     from dataclasses import replace
 
     from dream.errors import InputError
-    from dream.peaks import PeakParams, peak_params_from_overrides
+    from dream.peaks import PeakSettings, peak_params_from_overrides
 
-    base = replace(PeakParams(), threshold=0.2)
+    base = replace(PeakSettings(), threshold=0.2)
     params = peak_params_from_overrides(["ambiguity_ratio=1.0", "refine_radius=3"], "--peaks", base)
     assert (params.ambiguity_ratio, params.refine_radius, params.threshold) == (1.0, 3, 0.2)
     with pytest.raises(InputError, match="--peaks colour=1: expected NAME=VALUE"):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scenes import CAMERA, random_scene
 
-from dream.calibrate import Observations, calibrate_all, calibrate_each
+from dream.calibration import Observations, calibrate_all, calibrate_each
 from dream.crb import extrinsic_crb
 from dream.errors import CalibrationError, InputError
 from dream.pnp import (

@@ -23,7 +23,7 @@ from dream.pnp import apply_increment
 from dream.polish import (
     KeypointGuard,
     KeypointSet,
-    PolishParams,
+    PolishSettings,
     fit_shrinkage,
     polish,
     result_doc_with_frame_polishes,
@@ -209,7 +209,7 @@ def test_polish_refuses_to_break_the_keypoint_fit(panda, meshes, guard):
     assert not res.kept and statistic in res.reason and res.guard == guard
     assert np.array_equal(res.T_after, T_keypoints)
     assert res.rmse_after > res.rmse_before + 1.0
-    assert res.median_after > res.median_before + PolishParams().frame_median_margin_px
+    assert res.median_after > res.median_before + PolishSettings().frame_median_margin_px
 
 
 def test_frame_polish_corrects_a_pose_that_followed_a_misplaced_keypoint(panda, meshes):
@@ -230,8 +230,8 @@ def test_frame_polish_corrects_a_pose_that_followed_a_misplaced_keypoint(panda, 
     t1, r1 = pose_errors(frame.T_after, T_true)
     assert frame.kept, frame.reason
     assert t0 > 0.1 and t1 < 0.01 and r1 < r0 / 10, (t0, t1, r0, r1)
-    assert frame.median_after < frame.median_before + PolishParams().frame_median_margin_px
-    assert not many.kept and many.rmse_after > many.rmse_before * PolishParams().max_rmse_factor
+    assert frame.median_after < frame.median_before + PolishSettings().frame_median_margin_px
+    assert not many.kept and many.rmse_after > many.rmse_before * PolishSettings().max_rmse_factor
     with pytest.raises(InputError, match="unknown keypoint guard"):
         polish(meshes, q, mask, CAMERA, T_keypoints, guard, guard="mean")
 
@@ -256,7 +256,7 @@ def test_contour_jacobian_matches_finite_differences(rng):
     camera = CameraIntrinsics(300.0, 300.0, 159.5, 119.5, 320, 240)
     yy, xx = np.mgrid[0:240, 0:320]
     disc = (xx - 170) ** 2 + (yy - 110) ** 2 < 50 ** 2
-    objective = Objective(signed_distance(disc)[None], camera, PolishParams())
+    objective = Objective(signed_distance(disc)[None], camera, PolishSettings())
     T = look_at(np.array([1.0, 0.5, 0.6]), np.zeros(3), 0.1)
     P = rng.normal(size=(200, 3)) * 0.15
     P[:2] = transform_points(np.linalg.inv(T), np.array([[-0.3, 0.0, 0.5],    # left of the
@@ -280,7 +280,7 @@ def test_contour_jacobian_matches_finite_differences(rng):
 def test_contour_outside_the_mask_is_cut_tighter():
     """A contour point outside the observed mask (r > 0) may be hidden by an occluder: no
     weight beyond `max_outside_residual_px`; inside (r < 0) up to `max_residual_px`."""
-    params = PolishParams()
+    params = PolishSettings()
     objective = Objective(np.zeros((1, 4, 4)), CAMERA, params)
     r = np.array([-10.0, -4.0, 4.0, 10.0])
     k = params.huber_scale_px
@@ -290,9 +290,9 @@ def test_contour_outside_the_mask_is_cut_tighter():
     assert objective.rho(np.array([10.0]))[0] == pytest.approx(flat)
     assert objective.rho(np.array([-10.0]))[0] == pytest.approx(k * (10 - 0.5 * k))
     with pytest.raises(InputError, match="max_outside_residual_px"):
-        PolishParams(max_outside_residual_px=20.0)
+        PolishSettings(max_outside_residual_px=20.0)
     with pytest.raises(InputError, match="max_outside_residual_px"):
-        PolishParams(max_outside_residual_px=0.5)
+        PolishSettings(max_outside_residual_px=0.5)
 
 
 def test_occluded_frame_is_polished_closer_with_the_outside_cut(panda, meshes):
@@ -307,8 +307,8 @@ def test_occluded_frame_is_polished_closer_with_the_outside_cut(panda, meshes):
         seen = occluded(masks[:1])
         errors.append([pose_errors(polish(meshes, joints[:1], seen, CAMERA, T0, None,
                                           params).T_polished, T_true)[0]
-                       for params in (PolishParams(),
-                                      PolishParams(max_outside_residual_px=15.0))])
+                       for params in (PolishSettings(),
+                                      PolishSettings(max_outside_residual_px=15.0))])
     tight, wide = np.array(errors).T
     assert np.all(tight < wide), errors
     assert np.median(tight) < np.median(wide) / 2, errors
@@ -335,7 +335,7 @@ def test_median_guard_allows_for_what_the_keypoint_fit_absorbed():
     fitted to 4 keypoints (median 1 px) admits a polished median of up to 1 / 0.5 + 3 = 5 px,
     one fitted to 7 keypoints up to 1 / sqrt(8 / 14) + 3 = 4.32 px; the RMSE guard is as it
     was."""
-    params = PolishParams()
+    params = PolishSettings()
     median = KeypointGuard.MEDIAN
     assert decide(0.5, 0.9, 1.0, 4.9, 4, params, median)[0]
     kept, reason = decide(0.5, 0.9, 1.0, 5.1, 4, params, median)
@@ -349,9 +349,9 @@ def test_median_guard_allows_for_what_the_keypoint_fit_absorbed():
 
 def test_polish_checks_its_input(panda, meshes):
     with pytest.raises(InputError, match="min_iou_gain"):
-        PolishParams(min_iou_gain=-1.0)
+        PolishSettings(min_iou_gain=-1.0)
     with pytest.raises(InputError, match="max_search_frames"):
-        PolishParams(max_search_frames=0)
+        PolishSettings(max_search_frames=0)
     joints = random_joints(np.random.default_rng(0), panda, 2)
     with pytest.raises(InputError, match="masks have shape"):
         polish(meshes, joints, np.zeros((2, 10, 10), bool), CAMERA, np.eye(4), None)
@@ -447,7 +447,7 @@ def test_frame_polish_restarts_are_judged_against_the_keypoint_pose(panda, meshe
     T_keypoints = least_squares_pose(P, uv, T_true)
     T_without_hand = least_squares_pose(P[:4], uv[:4], T_true)
     keypoints = KeypointSet(P, uv)
-    always = PolishParams(frame_restart_below_iou=1.0)
+    always = PolishSettings(frame_restart_below_iou=1.0)
     res = _polish_frame(meshes, q, mask, CAMERA, T_keypoints, keypoints, always, "0",
                         [("panda_hand", T_without_hand)])
     assert res.kept and res.start == "panda_hand", res.reason

@@ -27,8 +27,8 @@ from dream.transforms import transform_points
 from synth.config import config_from_dict
 from synth.generate import SYNTH_INFO, SynthJob, generate
 from synth.nominal import nominal_camera
-from synth.render import RenderOptions, SceneRenderer
-from synth.scene import SceneOptions, build_scene
+from synth.render import RenderSettings, SceneRenderer
+from synth.scene import SceneSettings, build_scene
 
 MARKER_RADIUS_M = 0.012
 MIN_MARKER_PIXELS = 12
@@ -78,9 +78,9 @@ def test_labels_lie_on_the_rendered_extended_robot(tmp_path):
                                                         robot.forward_kinematics(frame.joints)))
         shifts.append(np.linalg.norm(frame.uv_labels - believed, axis=-1))
     assert np.nanmedian(shifts) > MIN_EFFECT_PX
-    scene = build_scene(true_robot, SceneOptions(keypoint_markers=True,
+    scene = build_scene(true_robot, SceneSettings(keypoint_markers=True,
                                                  marker_radius_m=MARKER_RADIUS_M))
-    options = RenderOptions(show_robot=False, show_floor=False, show_distractors=False,
+    options = RenderSettings(show_robot=False, show_floor=False, show_distractors=False,
                             show_markers=True)
     checked, worst = 0, 0.0
     with SceneRenderer(scene, camera, options) as renderer:

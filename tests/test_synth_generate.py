@@ -25,8 +25,8 @@ from dream.transforms import transform_points
 from synth.config import config_from_dict
 from synth.frames import FrameMaker
 from synth.generate import SynthJob, generate
-from synth.render import RenderOptions, SceneRenderer
-from synth.scene import SceneOptions, build_scene
+from synth.render import RenderSettings, SceneRenderer
+from synth.scene import SceneSettings, build_scene
 
 MARKER_RADIUS_M = 0.012
 MIN_MARKER_PIXELS = 12
@@ -47,9 +47,9 @@ def test_written_labels_lie_on_rendered_keypoint_markers(tmp_path, distortion):
     seq = read_sequence(out)
     assert seq.camera.distortion == (None if distortion is None else tuple(distortion))
     robot = load_robot("panda")
-    scene = build_scene(robot, SceneOptions(keypoint_markers=True,
+    scene = build_scene(robot, SceneSettings(keypoint_markers=True,
                                             marker_radius_m=MARKER_RADIUS_M))
-    options = RenderOptions(show_robot=False, show_floor=False, show_distractors=False,
+    options = RenderSettings(show_robot=False, show_floor=False, show_distractors=False,
                             show_markers=True)
     checked, worst = 0, 0.0
     with SceneRenderer(scene, seq.camera, options) as renderer:

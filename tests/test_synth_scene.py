@@ -14,10 +14,10 @@ from dream.robot import load_robot
 from dream.transforms import look_at, transform_points
 from synth import scene as scene_module
 from synth.gl import mujoco
-from synth.render import RenderOptions, SceneRenderer
-from synth.scene import SceneOptions, build_scene
+from synth.render import RenderSettings, SceneRenderer
+from synth.scene import SceneSettings, build_scene
 from synth.scene_cache import MODEL_FILE
-from synth.scene_options import GL_MIN_RENDERBUFFER_PX, MAX_IMAGE_SIZE_PX
+from synth.scene_settings import GL_MIN_RENDERBUFFER_PX, MAX_IMAGE_SIZE_PX
 
 FRAME_TOLERANCE = 1e-9  # m and rotation-matrix entries
 CENTROID_TOLERANCE_PX = 0.5
@@ -44,7 +44,7 @@ def cache_dir(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def panda_markers(cache_dir):
     robot = load_robot("panda")
-    return build_scene(robot, SceneOptions(keypoint_markers=True, marker_radius_m=MARKER_RADIUS_M,
+    return build_scene(robot, SceneSettings(keypoint_markers=True, marker_radius_m=MARKER_RADIUS_M,
                                            floor=True, num_distractors=1, num_textures=1),
                        cache_dir=cache_dir)
 
@@ -93,7 +93,7 @@ def _marker_errors(scene, camera: CameraIntrinsics, rng: np.random.Generator,
                    poses: int) -> list[float]:
     robot = scene.robot
     errors: list[float] = []
-    options = RenderOptions(show_robot=False, show_floor=False, show_markers=True)
+    options = RenderSettings(show_robot=False, show_floor=False, show_markers=True)
     with SceneRenderer(scene, camera, options) as renderer:
         for _ in range(poses):
             q = robot.sample_joints(rng)
@@ -132,7 +132,7 @@ def test_render_is_deterministic_and_shows_the_robot(panda_markers, rng):
     camera = CAMERAS["fx_ne_fy_off_centre"]
     q = robot.sample_joints(rng) * 0.5
     T_cam_base = look_at(np.array([1.2, 0.6, 0.8]), ROBOT_CENTRE)
-    with SceneRenderer(scene, camera, RenderOptions(show_floor=False)) as renderer:
+    with SceneRenderer(scene, camera, RenderSettings(show_floor=False)) as renderer:
         renderer.set_state(q, T_cam_base)
         first = renderer.render(rgb=True, segmentation=True, depth=True)
         second = renderer.render(rgb=True, segmentation=True, depth=True)
@@ -159,7 +159,7 @@ def test_depth_at_base_origin_on_the_floor(panda_markers, camera_name):
     scene = panda_markers
     camera = CAMERAS[camera_name]
     T_cam_base = look_at(np.array([1.3, -0.4, 0.9]), np.array([0.0, 0.0, 0.0]), 0.2)
-    options = RenderOptions(show_robot=False, show_distractors=False)
+    options = RenderSettings(show_robot=False, show_distractors=False)
     with SceneRenderer(scene, camera, options) as renderer:
         renderer.set_state(scene.robot.rest_joints, T_cam_base)
         out = renderer.render(rgb=False, segmentation=True, depth=True)
@@ -184,7 +184,7 @@ def test_randomisation_handles(panda_markers, rng):
     texture, material = scene.texture_ids[0], scene.material_ids[0]
     camera = CAMERAS["square"]
     T_cam_base = look_at(np.array([1.2, 0.0, 0.6]), ROBOT_CENTRE)
-    with SceneRenderer(scene, camera, RenderOptions(show_robot=False)) as renderer:
+    with SceneRenderer(scene, camera, RenderSettings(show_robot=False)) as renderer:
         renderer.set_state(scene.robot.rest_joints, T_cam_base)
         model.body_pos[body] = [0.6, 0.0, 0.5]
         model.geom_matid[geom] = material
@@ -212,9 +212,9 @@ def test_randomisation_handles(panda_markers, rng):
 
 def test_invalid_inputs(panda_markers):
     with pytest.raises(InputError):
-        SceneOptions(num_lights=-1)
+        SceneSettings(num_lights=-1)
     with pytest.raises(InputError):
-        RenderOptions(near_m=1.0, far_m=0.5)
+        RenderSettings(near_m=1.0, far_m=0.5)
     with SceneRenderer(panda_markers, CAMERAS["square"]) as renderer:
         with pytest.raises(InputError, match="rigid"):
             renderer.set_state(panda_markers.robot.rest_joints, np.eye(4) * 2)
@@ -229,10 +229,10 @@ def test_largest_recipe_image_renders_even_when_resampled(cache_dir):
     from square renders its ids into a buffer near 4 times its width, still within OpenGL's
     renderbuffer limit (16384 on Mesa's llvmpipe). A buffer past every OpenGL's limit is an
     InputError that says its size and the fix."""
-    options = RenderOptions()
+    options = RenderSettings()
     assert MAX_IMAGE_SIZE_PX * options.max_render_scale * options.id_oversampling <= \
         GL_MIN_RENDERBUFFER_PX
-    scene = build_scene(load_robot("panda"), SceneOptions(), cache_dir=cache_dir)
+    scene = build_scene(load_robot("panda"), SceneSettings(), cache_dir=cache_dir)
     camera = CameraIntrinsics(1000.0, 1990.0, MAX_IMAGE_SIZE_PX / 2, 16.0, MAX_IMAGE_SIZE_PX, 32)
     with SceneRenderer(scene, camera) as renderer:
         assert renderer.id_lens.width > 0.99 * GL_MIN_RENDERBUFFER_PX
@@ -276,7 +276,7 @@ def _write_user_robot(folder: Path) -> Path:
 
 def test_user_urdf_with_box_and_stl(tmp_path, cache_dir):
     robot = load_robot(_write_user_robot(tmp_path), keypoints=["base", "tip"])
-    scene = build_scene(robot, SceneOptions(keypoint_markers=True), cache_dir=cache_dir)
+    scene = build_scene(robot, SceneSettings(keypoint_markers=True), cache_dir=cache_dir)
     q = np.array([0.4])
     data = mujoco.MjData(scene.model)
     scene.set_joints(data, q)
@@ -296,7 +296,7 @@ def test_user_urdf_with_box_and_stl(tmp_path, cache_dir):
 
 def test_second_build_uses_the_cache(tmp_path, monkeypatch):
     robot = load_robot("panda")
-    options = SceneOptions(num_lights=2)
+    options = SceneSettings(num_lights=2)
     start = time.perf_counter()
     first = build_scene(robot, options, cache_dir=tmp_path)
     first_s = time.perf_counter() - start

@@ -3,7 +3,7 @@ import pytest
 from scenes import CAMERA, random_scene
 from test_pnp import xi_error
 
-from dream.calibrate import (
+from dream.calibration import (
     Observations,
     calibrate_all,
     calibrate_each,

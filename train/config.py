@@ -7,7 +7,7 @@ keeps its default. `--set model.base_width=16 --set data.train=[DIR1,DIR2]` over
 keypoints taken from the data) is written beside the checkpoints and stored inside them.
 
 Sections: `model` (`ModelConfig`), `input` (`dream.preprocess.Preprocess`), `data`, `augment`,
-`optim`, `loss`, `trainer`, `eval` (with `eval.peaks`: `dream.peaks.PeakParams`).
+`optim`, `loss`, `trainer`, `eval` (with `eval.peaks`: `dream.peaks.PeakSettings`).
 
 Multi-GPU and multi-node training is Lightning's DDP, switched by config only:
 `trainer.accelerator=gpu trainer.devices=4 trainer.strategy=ddp trainer.num_nodes=2`
@@ -27,7 +27,7 @@ from typing import Any
 import yaml
 
 from dream.errors import InputError
-from dream.peaks import PeakParams
+from dream.peaks import PeakSettings
 from dream.preprocess import Preprocess
 from dream.recipe import load_recipe, plain, recipe_from_dict
 
@@ -389,11 +389,11 @@ class EvalConfig:
     """Validation metrics: keypoints through the real peak finder, errors in input pixels.
 
     Attributes:
-        peaks: the peak finder's parameters (`dream.peaks.PeakParams`).
+        peaks: the peak finder's parameters (`dream.peaks.PeakSettings`).
         pck_threshold_px: PCK counts a keypoint correct within this many input pixels.
     """
 
-    peaks: PeakParams = field(default_factory=PeakParams)
+    peaks: PeakSettings = field(default_factory=PeakSettings)
     pck_threshold_px: float = 5.0
 
     def __post_init__(self) -> None:

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dream.errors import InputError
-from dream.peaks import PeakParams, find_peaks_batch
+from dream.peaks import PeakSettings, find_peaks_batch
 
 
 @dataclass(frozen=True)
@@ -31,7 +31,7 @@ class KeypointErrors:
 
 def keypoint_errors(belief: np.ndarray, uv_true_input: np.ndarray, stride: int,
                     input_width: int, input_height: int,
-                    params: PeakParams | None = None) -> KeypointErrors:
+                    params: PeakSettings | None = None) -> KeypointErrors:
     """Peaks of (N, K, h, w) belief maps against (N, K, 2) true keypoints in input pixels."""
     belief = np.asarray(belief)
     uv_true = np.asarray(uv_true_input, dtype=float)

@@ -139,7 +139,7 @@ def _read_extension(request: CalibrateRequest):
 def _apply_extension(request: CalibrateRequest, extension, seq, robot, obs, out: TextIO):
     """The data and observations corrected by the model extension (a problem without a file
     of its own names the extension's)."""
-    from dream.diagnose.run import apply_extension_to_observations
+    from dream.diagnosis.run import apply_extension_to_observations
 
     try:
         seq, obs = apply_extension_to_observations(seq, robot, obs, extension)

@@ -19,7 +19,7 @@ def polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames: st
         return _polish_frames(seq, robot, result, obs, doc, out)
     predict = None
     if not has_masks(seq):  # --mask-head (checked)
-        from dream.detect import predict_masks
+        from dream.detection import predict_masks
 
         predict = lambda idx: predict_masks(seq, model, idx)  # noqa: E731
         print("no masks in the data: the polish uses the network's mask head (--mask-head)",
@@ -34,7 +34,7 @@ def polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames: st
 
 def _polish_frames(seq, robot, result, obs, doc: dict, out: TextIO) -> dict:
     """`--polish --frames each`: every solved frame's own pose polished."""
-    from dream.detect import PROGRESS_EVERY_FRAMES
+    from dream.detection import PROGRESS_EVERY_FRAMES
     from dream.polish import polish_frames, result_doc_with_frame_polishes
 
     def progress(done: int, total: int) -> None:

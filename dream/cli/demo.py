@@ -45,10 +45,11 @@ def run_demo(request: DemoRequest) -> dict:
 def _keypoints_only(work: Path, seed: int | None) -> dict:
     """`--keypoints-only`: the keypoint-only sample calibrated from its labels."""
     from dream.io import write_dream
-    from dream.sample import SampleSpec, make_sample
+    from dream.sample import SampleSettings, make_sample
 
     data = work / "sample"
-    spec = SampleSpec(seed=0 if seed is None else seed, outlier_fraction=SAMPLE_OUTLIER_FRACTION)
+    spec = SampleSettings(seed=0 if seed is None else seed,
+                          outlier_fraction=SAMPLE_OUTLIER_FRACTION)
     print(f"built-in synthetic sample: {spec.num_frames} frames of {spec.robot}, "
           f"{spec.pixel_noise_px:g} px noise, {spec.outlier_fraction:.0%} outlier labels "
           f"-> {data}")
@@ -70,7 +71,7 @@ def _rendered_scene(work: Path, seed: int | None, model_path: str | None) -> dic
         raise InputError("the keypoint model is missing", model,
                          "reinstall the project (the bundled model ships in dream/models/), "
                          "give --model MODEL.onnx, or run dream demo --keypoints-only")
-    from dream.detect import load_keypoint_model, robot_for_model
+    from dream.detection import load_keypoint_model, robot_for_model
     from dream.robot import load_robot
 
     loaded = load_keypoint_model(model)  # a bad model fails here, before the rendering

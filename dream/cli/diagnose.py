@@ -36,8 +36,8 @@ class DiagnoseRequest:
 def run_diagnose(request: DiagnoseRequest) -> dict:
     """The diagnosis of `request.data`: REPORT_DIR written, the verdict printed; returns
     diagnosis.json's document."""
-    from dream.diagnose.run import run_diagnosis
-    from dream.diagnose.select import DiagnoseSettings
+    from dream.diagnosis.run import run_diagnosis
+    from dream.diagnosis.select import DiagnoseSettings
     from dream.io import check_output_folder
 
     check_output_folder(request.out)  # before the analysis, which takes a while

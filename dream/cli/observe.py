@@ -30,7 +30,7 @@ def detect(seq, robot: str | None, model: str, out: TextIO, *, threads: int | No
            batch: int | None = None, loaded_model: Any = None):
     """Robot, observations and the loaded network of `--model` (`loaded_model`: that network
     already loaded), with a progress line on stderr every `PROGRESS_EVERY_FRAMES` frames."""
-    from dream.detect import (
+    from dream.detection import (
         DEFAULT_BATCH_SIZE,
         PROGRESS_EVERY_FRAMES,
         check_images,

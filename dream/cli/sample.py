@@ -39,9 +39,9 @@ class SampleRequest:
 def run_sample(request: SampleRequest) -> None:
     """The sample of `request` drawn and written to `request.out`."""
     from dream.io import write_dream
-    from dream.sample import SampleSpec, make_sample
+    from dream.sample import SampleSettings, make_sample
 
-    spec = SampleSpec(robot=request.robot, num_frames=request.num,
+    spec = SampleSettings(robot=request.robot, num_frames=request.num,
                       pixel_noise_px=request.noise_px, outlier_fraction=request.outliers,
                       seed=request.seed)
     write_dream(make_sample(spec), Path(request.out), overwrite=request.overwrite)

@@ -25,7 +25,7 @@ only by their effects.
 `random_effect` draws one effect of the vocabulary with a realistic random magnitude
 (`EFFECT_RANGES`); `random_effects` merges several. Units: metres, radians, seconds, pixels.
 
-Modules: `spec` (`InjectionSpec`), `trajectory` (the joint motion), `world` (the true world and
+Modules: `spec` (`InjectionSettings`), `trajectory` (the joint motion), `world` (the true world and
 the sequence written from it), `identifiability` (what a fixed camera can see), `effects` (random
 effects).
 """
@@ -57,9 +57,9 @@ from dream.inject.identifiability import (
     rigid_motion_residual,
     stretchable_joints,
 )
-from dream.inject.spec import (
+from dream.inject.settings import (
     MOTIONS,
-    InjectionSpec,
+    InjectionSettings,
 )
 from dream.inject.trajectory import (
     CENTRE_JITTER_FRACTION,
@@ -104,7 +104,7 @@ __all__ = [
     "rigid_motion_residual",
     "stretchable_joints",
     "MOTIONS",
-    "InjectionSpec",
+    "InjectionSettings",
     "CENTRE_JITTER_FRACTION",
     "COMPONENT_WEIGHT_RANGE",
     "RELATIVE_FREQUENCY_RANGE",

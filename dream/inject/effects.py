@@ -14,7 +14,7 @@ from dream.inject.identifiability import (
     moving_keypoints,
     stretchable_joints,
 )
-from dream.inject.spec import InjectionSpec
+from dream.inject.settings import InjectionSettings
 from dream.robot import Robot
 
 # ----- realistic effect magnitudes (drawn uniformly in these ranges, random sign/direction) ----
@@ -60,7 +60,7 @@ def _pick(rng: np.random.Generator, names: SequenceOf[str], what: str, robot: Ro
 
 
 def random_effect(effect_name: str, rng: np.random.Generator, robot: Robot,
-                  spec: InjectionSpec) -> ModelExtension:
+                  spec: InjectionSettings) -> ModelExtension:
     """One effect of the vocabulary with a random magnitude in `EFFECT_RANGES`, random sign or
     direction, for `robot` seen as `spec` describes (camera_moved: a frame in the middle of
     `spec`'s frames; intrinsics_error: `spec`'s focal lengths scaled)."""
@@ -111,7 +111,7 @@ def random_effect(effect_name: str, rng: np.random.Generator, robot: Robot,
 
 
 def random_effects(names: SequenceOf[str], rng: np.random.Generator, robot: Robot,
-                   spec: InjectionSpec) -> ModelExtension:
+                   spec: InjectionSettings) -> ModelExtension:
     """Several effects (each drawn by `random_effect`, in order) merged into one extension."""
     if isinstance(names, str):
         names = (names,)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dream.errors import InputError
-from dream.inject.spec import InjectionSpec
+from dream.inject.settings import InjectionSettings
 from dream.robot import Robot
 
 CENTRE_JITTER_FRACTION = 0.3           # trajectory centre within +-this share of the half range
@@ -66,7 +66,7 @@ def trajectory_joints(trajectory: JointTrajectory, times_s: np.ndarray) -> np.nd
 
 
 def random_trajectory(rng: np.random.Generator, robot: Robot,
-                      spec: InjectionSpec) -> JointTrajectory:
+                      spec: InjectionSettings) -> JointTrajectory:
     """A smooth random trajectory inside the central `spec.joint_range_fraction` of the limits.
 
     Per joint: a centre near the middle of the range, a total amplitude that reaches (but does

@@ -15,7 +15,7 @@ from dream.extension import (
     extended_points,
     frames_after_move,
 )
-from dream.inject.spec import InjectionSpec
+from dream.inject.settings import InjectionSettings
 from dream.inject.trajectory import JointTrajectory, random_trajectory, trajectory_joints
 from dream.robot import Robot, load_robot
 from dream.sample import random_camera_pose, random_joints
@@ -42,7 +42,7 @@ class InjectedWorld:
         trajectory: the motion when `spec.motion == "trajectory"`, else None.
     """
 
-    spec: InjectionSpec
+    spec: InjectionSettings
     extension: ModelExtension
     robot: Robot
     camera_nominal: CameraIntrinsics
@@ -57,7 +57,7 @@ class InjectedWorld:
     trajectory: JointTrajectory | None
 
 
-def check_extension(spec: InjectionSpec, robot: Robot, extension: ModelExtension) -> None:
+def check_extension(spec: InjectionSettings, robot: Robot, extension: ModelExtension) -> None:
     """Refuse an extension this spec cannot inject (InputError)."""
     if not isinstance(extension, ModelExtension):
         raise InputError("extension must be a dream.extension.ModelExtension",
@@ -98,7 +98,7 @@ def noisy_labels(uv_true: np.ndarray, noise_px: np.ndarray,
     return np.where(inside[..., None], uv, np.nan)
 
 
-def inject(spec: InjectionSpec, extension: ModelExtension | None = None) -> InjectedWorld:
+def inject(spec: InjectionSettings, extension: ModelExtension | None = None) -> InjectedWorld:
     """The true world of `spec` changed by `extension` (None: nominal), deterministic in
     `spec.seed` (camera, then motion, then noise, whatever the extension)."""
     extension = ModelExtension() if extension is None else extension
@@ -139,7 +139,7 @@ def sequence_of(world: InjectedWorld) -> Sequence:
                     T_cam_base_reference=None)
 
 
-def make_injected_sequence(spec: InjectionSpec,
+def make_injected_sequence(spec: InjectionSettings,
                            extension: ModelExtension | None = None) -> Sequence:
     """A measured-like keypoint-only sequence of the world `extension` describes (module doc).
 

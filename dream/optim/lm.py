@@ -1,7 +1,7 @@
 """Levenberg-Marquardt on a robust (IRLS-weighted) least-squares problem.
 
 The one damped Gauss-Newton loop of the pose solver (`dream.pnp`), the silhouette polish
-(`dream.polish`) and the diagnosis fit (`dream.diagnose.fit`). A problem supplies its cost, its
+(`dream.polish`) and the diagnosis fit (`dream.diagnosis.fit`). A problem supplies its cost, its
 weighted normal equations and how a step moves a parameter (a vector sum, or an SE(3) increment);
 the loop damps the normal equations with Marquardt's scaling, lambda diag(H), and raises or
 lowers lambda on a refused or kept step. `dream.pnp.solve_pnp_batch` runs the same iteration on

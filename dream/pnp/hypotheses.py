@@ -1,6 +1,6 @@
 """Pose hypotheses of a frame ranked by their MSAC score, and the best one refined.
 
-The multi-frame solve (`dream.calibrate.calibrate_all`) gathers hypotheses of the one
+The multi-frame solve (`dream.calibration.calibrate_all`) gathers hypotheses of the one
 extrinsic (each frame's own pose, SQPnP on every keypoint, random samples across frames); these
 rank them over the usable keypoints (squared pixel distances truncated at
 `SolverSettings.ransac_threshold_px`) and refine the best with `fit_pose`.

@@ -6,7 +6,7 @@ further constraints. The polish aligns the silhouette rendered from the URDF's v
 (`dream.silhouette`) with the observed masks of every frame at once (fixed camera), on the CPU.
 
 Modules, in the order of the work:
-    params: `PolishParams`, every constant.
+    params: `PolishSettings`, every constant.
     objective: the signed distance to the observed outline at the model's contour points.
     refine: Levenberg-Marquardt on it and the polish of one pose (`polish`, `PolishResult`).
     guard: whether the polished pose is kept (IoU gain, `KeypointGuard`, `fit_shrinkage`).
@@ -15,7 +15,7 @@ Modules, in the order of the work:
     documents: the `polish` objects of RESULT.json.
 
 Public API:
-    PolishParams, KeypointSet, KeypointGuard, PolishResult, signed_distance(mask),
+    PolishSettings, KeypointSet, KeypointGuard, PolishResult, signed_distance(mask),
     fit_shrinkage(n_keypoints)
     polish(meshes, joints, masks, camera, T_cam_base, keypoints, params, frame_names,
            guard) (pure)
@@ -45,13 +45,13 @@ from dream.polish.documents import (
 )
 from dream.polish.guard import KeypointGuard, KeypointSet, fit_shrinkage
 from dream.polish.objective import signed_distance
-from dream.polish.params import PolishParams
 from dream.polish.refine import PolishResult, polish
+from dream.polish.settings import PolishSettings
 
 __all__ = [
     "KeypointGuard",
     "KeypointSet",
-    "PolishParams",
+    "PolishSettings",
     "PolishResult",
     "SilhouetteInputs",
     "check_polish_input",

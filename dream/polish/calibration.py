@@ -19,14 +19,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from dream.calibrate import CalibrationResult, Observations
+from dream.calibration import CalibrationResult, Observations
 from dream.camera import CameraIntrinsics
 from dream.errors import InputError
 from dream.pnp import PoseFit
 from dream.polish.guard import KeypointGuard, KeypointSet, decide
 from dream.polish.objective import evenly_spaced
-from dream.polish.params import PolishParams
 from dream.polish.refine import PolishResult, polish
+from dream.polish.settings import PolishSettings
 from dream.robot import Robot
 from dream.sequence import Sequence
 from dream.silhouette import RobotMeshes, load_robot_meshes
@@ -92,7 +92,7 @@ class SilhouetteInputs:
     frame_names: tuple[str, ...]
 
 
-def silhouette_inputs(sequence: Sequence, robot: Robot, params: PolishParams,
+def silhouette_inputs(sequence: Sequence, robot: Robot, params: PolishSettings,
                       predict_masks: Callable[[list[int]], np.ndarray] | None = None
                       ) -> SilhouetteInputs:
     """The frames an all-frames polish of `sequence` scores (at most `max_eval_frames`, evenly
@@ -118,15 +118,15 @@ def silhouette_inputs(sequence: Sequence, robot: Robot, params: PolishParams,
 
 
 def polish_calibration(sequence: Sequence, robot: Robot, result: CalibrationResult,
-                       obs: Observations, params: PolishParams | None = None,
+                       obs: Observations, params: PolishSettings | None = None,
                        predict_masks: Callable[[list[int]], np.ndarray] | None = None
                        ) -> PolishResult:
     """Polish an "all"-mode calibration of `sequence` with its masks (`silhouette_inputs`),
     guarded by the calibration's inlier keypoints.
 
     Without masks in the data, `predict_masks(frame_indices) -> (n, H, W) bool` supplies them
-    (the keypoint network's mask head, `dream.detect.predict_masks`)."""
-    params = params or PolishParams()
+    (the keypoint network's mask head, `dream.detection.predict_masks`)."""
+    params = params or PolishSettings()
     if result.mode != "all":
         raise InputError("polish_calibration polishes the one extrinsic of a fixed camera; "
                          "polish an --frames each result with polish_frames")
@@ -138,7 +138,7 @@ def polish_calibration(sequence: Sequence, robot: Robot, result: CalibrationResu
 
 
 def polish_frames(sequence: Sequence, robot: Robot, result: CalibrationResult,
-                  obs: Observations, params: PolishParams | None = None,
+                  obs: Observations, params: PolishSettings | None = None,
                   progress: Callable[[int, int], None] | None = None
                   ) -> tuple[PolishResult | None, ...]:
     """Polish every frame's own pose of an "each"-mode calibration with that frame's mask from
@@ -158,7 +158,7 @@ def polish_frames(sequence: Sequence, robot: Robot, result: CalibrationResult,
     from dream.io import load_mask
     from dream.pipeline import joints_in_robot_order
 
-    params = params or PolishParams()
+    params = params or PolishSettings()
     if result.mode != "each":
         raise InputError("polish_frames polishes each frame's own pose (--frames each); "
                          "polish an all-frames result with polish_calibration")
@@ -186,7 +186,7 @@ def polish_frames(sequence: Sequence, robot: Robot, result: CalibrationResult,
 
 def _polish_frame(meshes: RobotMeshes, joints: np.ndarray, mask: np.ndarray,
                   camera: CameraIntrinsics, T_keypoints: np.ndarray,
-                  keypoints: KeypointSet | None, params: PolishParams, name: str,
+                  keypoints: KeypointSet | None, params: PolishSettings, name: str,
                   other_starts: SequenceOf[tuple[str, np.ndarray]]) -> PolishResult:
     """One frame polished from its keypoint pose and, when that is refused or ends below
     `frame_restart_below_iou`, from `other_starts` (keypoint left out, T) too (`_restarts`)."""
@@ -202,7 +202,7 @@ def _polish_frame(meshes: RobotMeshes, joints: np.ndarray, mask: np.ndarray,
 
 def _restarts(first: PolishResult, starts: SequenceOf[tuple[str, np.ndarray]],
               polish_from: Callable[[np.ndarray], PolishResult],
-              params: PolishParams) -> PolishResult:
+              params: PolishSettings) -> PolishResult:
     """The best of `first` (a frame polished from its keypoint pose) and the polishes
     `polish_from(T)` of the other `starts`, each judged against the keypoint pose (its IoU and
     keypoint median) with the median guard; the highest IoU among those kept wins."""

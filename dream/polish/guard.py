@@ -25,7 +25,7 @@ import numpy as np
 
 from dream.camera import CameraIntrinsics, project
 from dream.errors import InputError
-from dream.polish.params import PolishParams
+from dream.polish.settings import PolishSettings
 
 
 @dataclass(frozen=True)
@@ -87,7 +87,7 @@ def fit_shrinkage(n_keypoints: int) -> float:
 
 
 def decide(iou0: float, iou1: float, kp0: float, kp1: float, n_guard: int,
-           params: PolishParams, guard: str) -> tuple[bool, str]:
+           params: PolishSettings, guard: str) -> tuple[bool, str]:
     """Keep or not (module doc); kp0 / kp1: the guard's keypoint statistic over its
     `n_guard` keypoints (0: no guard)."""
     gain = iou1 - iou0

@@ -34,7 +34,7 @@ from dream.camera import CameraIntrinsics, project
 from dream.errors import InputError
 from dream.optim.robust import huber_rho, huber_weight
 from dream.pnp import linearise
-from dream.polish.params import PolishParams
+from dream.polish.settings import PolishSettings
 from dream.silhouette import render_points
 
 EDGE_OFFSET_PX = 0.5        # a boundary pixel's centre lies half a pixel from the outline
@@ -99,7 +99,7 @@ class Contour:
 
 
 def select_contour(P_frames: np.ndarray, faces: np.ndarray, T: np.ndarray,
-                   camera: CameraIntrinsics, params: PolishParams) -> Contour:
+                   camera: CameraIntrinsics, params: PolishSettings) -> Contour:
     """The contour points at T: of each frame's mesh vertices P_frames (F, V, 3), those that
     project within `contour_band_px` of the silhouette rendered at T (at most
     `max_points_per_frame`, evenly spaced), with their signed distance there."""
@@ -128,7 +128,7 @@ class Objective:
     `max_outside_residual_px` above (module doc). `sdf`: (F, H, W) signed distances to the
     observed outlines (`signed_distance`)."""
 
-    def __init__(self, sdf: np.ndarray, camera: CameraIntrinsics, params: PolishParams):
+    def __init__(self, sdf: np.ndarray, camera: CameraIntrinsics, params: PolishSettings):
         self.sdf = sdf
         self.grad_y, self.grad_x = np.gradient(sdf, axis=(1, 2))
         self.camera = camera

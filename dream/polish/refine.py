@@ -36,7 +36,7 @@ from dream.polish.objective import (
     shrink_mask,
     signed_distance,
 )
-from dream.polish.params import PolishParams
+from dream.polish.settings import PolishSettings
 from dream.silhouette import RobotMeshes, render_points, silhouette_iou, vertices_in_base
 from dream.transforms import invert_T, rotation_angle_between
 
@@ -128,7 +128,7 @@ class _ContourProblem:
 
 
 def _lm_steps(objective: Objective, contour: Contour, T: np.ndarray,
-              params: PolishParams) -> np.ndarray:
+              params: PolishSettings) -> np.ndarray:
     """A few Levenberg-Marquardt steps on one set of contour points (a step is kept only when
     it lowers the cost)."""
     out = objective.residuals(contour, T, jacobian=True)
@@ -154,7 +154,7 @@ def _rms_motion_px(P_base: np.ndarray, T0: np.ndarray, T1: np.ndarray,
 
 def _refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
                  camera: CameraIntrinsics, T_cam_base: np.ndarray,
-                 params: PolishParams) -> tuple[np.ndarray, int, int]:
+                 params: PolishSettings) -> tuple[np.ndarray, int, int]:
     """The silhouette optimum near `T_cam_base` (search resolution already applied).
 
     Args:
@@ -183,7 +183,7 @@ def _refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
 
 def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
            camera: CameraIntrinsics, T_cam_base: np.ndarray, keypoints: KeypointSet | None,
-           params: PolishParams | None = None,
+           params: PolishSettings | None = None,
            frame_names: SequenceOf[str] | None = None,
            guard: str = KeypointGuard.RMSE) -> PolishResult:
     """Refine `T_cam_base` by aligning rendered and observed robot silhouettes (the module docs
@@ -196,7 +196,7 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         camera: the camera's intrinsics.
         T_cam_base: (4, 4) the starting (keypoint) extrinsic.
         keypoints: the calibration's inlier observations (the guard), or None for no guard.
-        params: the constants; default `PolishParams()`.
+        params: the constants; default `PolishSettings()`.
         frame_names: F names (default "0", "1", ...).
         guard: `KeypointGuard.RMSE` (many frames) or `KeypointGuard.MEDIAN` (one frame alone).
     Returns:
@@ -205,7 +205,7 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         InputError: shapes that disagree, no frame with a non-empty mask, an unknown guard.
     """
     start = time.perf_counter()
-    params = params or PolishParams()
+    params = params or PolishSettings()
     q, masks, T0, names, non_empty = _checked(meshes, joints, masks, camera, T_cam_base,
                                               frame_names, guard)
     F = len(q)

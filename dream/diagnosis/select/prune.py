@@ -1,0 +1,104 @@
+"""One effect added to the current model: its identifiable parameters, fitted, pruned to the
+parameter groups that differ from zero, and cross-validated.
+
+Groups are pruned by backward elimination (groups clearly null first, then the least
+significant one at a time), or chosen by forward selection for `FORWARD_EFFECTS`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dream.diagnosis.fit.identify import group_p_values, identifiable_params
+from dream.diagnosis.fit.model import FitResult, Model, fit_model
+from dream.diagnosis.fit.problem import Param, Problem, candidate_params
+from dream.diagnosis.select.camera_move import best_change
+from dream.diagnosis.select.crossval import Evaluation, cross_validate
+from dream.diagnosis.select.settings import DiagnoseSettings
+
+# Effects whose parameter groups are chosen by forward selection (`_forward_groups`): their
+# groups are strongly correlated (k1 / k2), nearly unidentifiable in
+# combination (link lengths), or numerous enough to mimic other effects (keypoint biases).
+FORWARD_EFFECTS = ("link_length", "lens_distortion", "keypoint_bias")
+
+
+def try_effect(effect: str, current: Evaluation, problem: Problem, mask: np.ndarray,
+               scale_px: float, settings: DiagnoseSettings) -> Evaluation | str:
+    """The current model plus `effect`, fitted, pruned and cross-validated; or why not."""
+    base = current.fit
+    candidates = candidate_params(effect, problem)
+    forward = effect in FORWARD_EFFECTS
+    ident = identifiable_params(problem, base, candidates, mask, settings.min_effect_px,
+                                settings.collinearity_tol, against_each_other=not forward)
+    if not ident.kept:
+        return "no identifiable parameter: " + "; ".join(
+            f"{k}: {v}" for k, v in ident.dropped.items())
+    if forward:
+        outcome = _forward_groups(effect, base, list(ident.kept), problem, mask, scale_px,
+                                  settings)
+        if isinstance(outcome, str):
+            return outcome
+        cost, sq, n = cross_validate(outcome, mask, scale_px, settings,
+                                     rescan_change=outcome.model.change_index is not None)
+        return Evaluation(effect, outcome, cost, sq, n, ident, ())
+    params = list(ident.kept)
+    pruned: list[str] = []
+    change = base.model.change_index
+    while True:
+        x0 = np.concatenate([base.x, np.zeros(len(params))])
+        all_params = base.model.params + tuple(params)
+        if effect == "camera_moved":
+            probe = FitResult(Model(problem, all_params, base.model.T0, 0), x0,
+                              np.empty((0, 0)), base.residual, base.cost, base.num_points)
+            model = best_change(problem, probe, mask, scale_px, settings)
+            change = model.change_index
+        else:
+            model = Model(problem, all_params, base.model.T0, change)
+        fit = fit_model(model, mask, scale_px, x0=x0)
+        p_values = group_p_values(fit, effect)
+        worst = max(p_values, key=p_values.get)
+        if p_values[worst] <= settings.group_alpha:
+            break
+        drop = {g for g, v in p_values.items() if v > settings.clear_null_p} or {worst}
+        if len(drop) == len(p_values):
+            drop = {worst}
+        pruned.extend(sorted(drop))
+        params = [p for p in params if p.group not in drop]
+        if not params:
+            return (f"no parameter differs significantly from zero (group p-values "
+                    f"{', '.join(f'{g} {v:.2g}' for g, v in p_values.items())})")
+    cost, sq, n = cross_validate(fit, mask, scale_px, settings,
+                                 rescan_change=model.change_index is not None)
+    return Evaluation(effect, fit, cost, sq, n, ident, tuple(pruned))
+
+
+def _forward_groups(effect: str, base: FitResult, params: list[Param], problem: Problem,
+                    mask: np.ndarray, scale_px: float,
+                    settings: DiagnoseSettings) -> FitResult | str:
+    """Forward selection of `effect`'s parameter groups: add the group that lowers the cost
+    most while its p-value stays below `group_alpha`. Used where combinations of groups are
+    (nearly) unidentifiable, e.g. link lengths: stretching every link in proportion scales the
+    robot, which a camera farther away absorbs exactly; the sparsest explanation is kept."""
+    groups = list(dict.fromkeys(p.group for p in params))
+    chosen: list[str] = []
+    best_fit: FitResult | None = None
+    while len(chosen) < len(groups):
+        trials = []
+        for g in groups:
+            if g in chosen:
+                continue
+            kept = [p for c in chosen for p in params if p.group == c]
+            added = [p for p in params if p.group == g]
+            model = Model(problem, base.model.params + tuple(kept + added), base.model.T0,
+                          base.model.change_index)
+            start = base.x if best_fit is None else best_fit.x
+            x0 = np.concatenate([start, np.zeros(len(added))])
+            trials.append((g, fit_model(model, mask, scale_px, x0=x0)))
+        g, fit = min(trials, key=lambda t: t[1].cost)
+        if group_p_values(fit, effect)[g] > settings.group_alpha:
+            break
+        chosen.append(g)
+        best_fit = fit
+    if best_fit is None:
+        return "no parameter group differs significantly from zero"
+    return best_fit
