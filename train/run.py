@@ -290,6 +290,34 @@ def _unwrap_worker_error(exc: InputError) -> InputError:
     return error
 
 
+def _plan_steps(trainer: L.Trainer, config: TrainConfig, num_train: int, num_val: int,
+                budget_speed: Speed | None) -> None:
+    """Set the trainer's epochs for `trainer.max_steps`; with a time budget (`budget_speed`,
+    the probe's measurement) exactly those steps, a partial last epoch ended by BudgetStop."""
+    epoch_steps = steps_per_epoch(num_train, config.data.batch_size, trainer.world_size)
+    epochs = min(config.trainer.max_epochs, math.ceil(config.trainer.max_steps / epoch_steps))
+    trainer.fit_loop.max_epochs = epochs
+    budgeted = config.trainer.time_budget_minutes is not None
+    if budgeted:
+        trainer.fit_loop.epoch_loop.max_steps = config.trainer.max_steps
+        trainer.callbacks.insert(0, _budget_stop(config, budget_speed, num_val))
+    logger.info("step budget %d: %d epochs of %d steps%s", config.trainer.max_steps,
+                epochs, epoch_steps, "" if budgeted else " (whole epochs)")
+
+
+def _fit_quietly(trainer: L.Trainer, module: BeliefModule, train_loader: Any, val_loader: Any,
+                 ckpt_path: Path | None) -> None:
+    """`trainer.fit` without the warnings that say what this module already says."""
+    with warnings.catch_warnings():
+        # the run folder holds config.yaml (and, resuming, more)
+        warnings.filterwarnings("ignore", message=r".*exists and is not empty")
+        # no validation data: said when the loaders are made
+        warnings.filterwarnings("ignore", message=r".*no `val_dataloader`")
+        # Lightning 2.6 on torch 2.13, not ours to fix
+        warnings.filterwarnings("ignore", message=r".*LeafSpec.*is deprecated")
+        trainer.fit(module, train_loader, val_loader, ckpt_path=ckpt_path)
+
+
 def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | None = None,
                  callbacks: SequenceOf[Callback] = ()) -> TrainResult:
     """Train `config` into `run_dir` (created if needed).
@@ -343,24 +371,8 @@ def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | 
         write_bytes_atomic(run_dir / CONFIG_FILE, dump_config(config).encode("utf-8"),
                            durable=False)
         if config.trainer.max_steps is not None:
-            epoch_steps = steps_per_epoch(len(train_set), config.data.batch_size,
-                                          trainer.world_size)
-            epochs = min(config.trainer.max_epochs,
-                         math.ceil(config.trainer.max_steps / epoch_steps))
-            trainer.fit_loop.max_epochs = epochs
-            if budgeted:  # exactly the planned steps (a partial last epoch), ended by BudgetStop
-                trainer.fit_loop.epoch_loop.max_steps = config.trainer.max_steps
-                trainer.callbacks.insert(0, _budget_stop(config, speed, len(val_set)))
-            logger.info("step budget %d: %d epochs of %d steps%s", config.trainer.max_steps,
-                        epochs, epoch_steps, "" if budgeted else " (whole epochs)")
-        with warnings.catch_warnings():
-            # the run folder holds config.yaml (and, resuming, more)
-            warnings.filterwarnings("ignore", message=r".*exists and is not empty")
-            # no validation data: said above
-            warnings.filterwarnings("ignore", message=r".*no `val_dataloader`")
-            # Lightning 2.6 on torch 2.13, not ours to fix
-            warnings.filterwarnings("ignore", message=r".*LeafSpec.*is deprecated")
-            trainer.fit(module, train_loader, val_loader, ckpt_path=ckpt_path)
+            _plan_steps(trainer, config, len(train_set), len(val_set), speed)
+        _fit_quietly(trainer, module, train_loader, val_loader, ckpt_path)
     except InputError as exc:
         if created is not None and not checkpointed.saved and trainer.is_global_zero:
             shutil.rmtree(created, ignore_errors=True)  # nothing of this run worth keeping

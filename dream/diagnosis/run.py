@@ -3,9 +3,9 @@
     problem_from(sequence, robot, observations) -> Problem
     run_diagnosis(sequence, robot, observations, report_dir, settings) -> dict (diagnosis.json)
 
-`REPORT_DIR` receives `diagnosis.json` (SPEC.md), `extended_model.yaml` (the accepted effects,
-read by `dream calibrate --model-extension` and `dream synth --model-extension`), `report.md`
-and its plots. Nothing is written when the diagnosis fails.
+`REPORT_DIR` receives `diagnosis.json` (docs/data_format.md), `extended_model.yaml` (the
+accepted effects, read by `dream calibrate --model-extension` and `dream synth
+--model-extension`), `report.md` and its plots. Nothing is written when the diagnosis fails.
 """
 
 from __future__ import annotations
@@ -59,7 +59,7 @@ def problem_from(sequence: Sequence, robot: Robot, obs: Observations) -> Problem
 
 
 def _params_with_sigma(fit: FitResult, effect: str) -> tuple[dict, dict]:
-    """(params, sigma) of one effect of a fit, in the SPEC vocabulary."""
+    """(params, sigma) of one effect of a fit, in the extended_model.yaml vocabulary."""
     ext = fit.model.extension(fit.x)
     params = ext.effect_params(effect)
     sigma: dict[str, Any] = {}
@@ -144,7 +144,8 @@ def _truth(sequence: Sequence, diagnosis: Diagnosis) -> dict[str, Any] | None:
 
 def diagnosis_document(sequence: Sequence, diagnosis: Diagnosis,
                        extension_path: Path) -> dict[str, Any]:
-    """diagnosis.json (SPEC.md) plus extensions: sigma, identifiability, truth, notes."""
+    """diagnosis.json (docs/data_format.md): the required keys, and sigma, identifiability,
+    truth and notes."""
     mask = diagnosis.mask
     base, final = diagnosis.baseline, diagnosis.final
 

@@ -26,9 +26,9 @@ from dream.diagnosis.fit.problem import (
     Problem,
     build_extension,
     candidate_params,
-    stretchable_joints,
+    offset_joints,
 )
 
 __all__ = ["POINT_EFFECTS", "VIEW_EFFECTS", "FitResult", "Identifiability", "Model", "Param",
            "Problem", "build_extension", "candidate_params", "fit_model", "group_p_values",
-           "identifiable_params", "stretchable_joints"]
+           "identifiable_params", "offset_joints"]

@@ -90,7 +90,7 @@ def candidate_params(effect: str, problem: Problem) -> list[Param]:
     if effect == "joint_offset":
         return [Param(effect, j, j, np.deg2rad(1.0)) for j in robot.joint_names]
     if effect == "link_length":
-        return [Param(effect, j, j, 0.01) for j in stretchable_joints(robot)]
+        return [Param(effect, j, j, 0.01) for j in offset_joints(robot)]
     if effect == "keypoint_bias":
         return [Param(effect, k, f"{k}.{axis}", 0.01) for k in robot.keypoint_names
                 for axis in "xyz"]
@@ -111,8 +111,10 @@ def candidate_params(effect: str, problem: Problem) -> list[Param]:
     raise InputError(f"unknown effect '{effect}'")
 
 
-def stretchable_joints(robot: Robot) -> tuple[str, ...]:
-    """Joints on the chains from the base to the keypoints whose origin has a length."""
+def offset_joints(robot: Robot) -> tuple[str, ...]:
+    """Joints on the chains from the base to the keypoints whose origin has a length (the
+    candidates of `link_length`; `dream.inject.stretchable_joints` keeps only those whose
+    change the extrinsic cannot absorb)."""
     return tuple(j.name for j in robot.chain_joints if np.linalg.norm(j.origin[:3, 3]) > 1e-9)
 
 

@@ -14,7 +14,7 @@ from dream.diagnosis.report.plots import PLOT_CAPTIONS
 from dream.diagnosis.residuals.image import analyse_overall
 from dream.diagnosis.residuals.residual_set import ResidualSet
 
-# Units of the parameters of each effect (SPEC.md vocabulary).
+# Units of the parameters of each effect (extended_model.yaml's vocabulary, docs/data_format.md)
 EFFECT_UNITS = {"joint_offset": "rad", "lens_distortion": "", "intrinsics_error": "px",
                 "time_offset": "s", "link_length": "m", "keypoint_bias": "m"}
 

@@ -56,7 +56,7 @@ def write_report(report_dir: Path, diagnosis: dict, baseline: ResidualSet,
 
     Args:
         report_dir: the report folder (`dream diagnose --out`).
-        diagnosis: the diagnosis.json content (SPEC.md); optional keys may be missing.
+        diagnosis: the diagnosis.json content (docs/data_format.md); optional keys may be missing.
         baseline: residuals of the nominal model.
         extended: residuals of the extended model on the same frames, or None.
         analysis: `dream.diagnosis.residuals.analyse(baseline)` (or {}).

@@ -44,7 +44,7 @@ def _residuals(seed: int, noise_px: float, times: bool) -> ResidualSet:
 
 
 def _diagnosis(full: bool) -> dict:
-    if not full:   # only the required keys of SPEC.md, verdict empty
+    if not full:   # only the required keys of docs/data_format.md, verdict empty
         return {"baseline": {"rmse_px": 2.0, "heldout_rmse_px": 2.2},
                 "effects": [{"name": "joint_offset", "params": {"joint0": 0.0},
                              "heldout_rmse_px": 2.21, "significant": False,

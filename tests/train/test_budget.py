@@ -21,7 +21,7 @@ from train.checkpoint import checkpoint_config  # noqa: E402
 from train.config import load_config  # noqa: E402
 from train.run import run_training  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TINY = REPO / "configs" / "train" / "tiny.yaml"
 
 

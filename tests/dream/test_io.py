@@ -26,7 +26,7 @@ from dream.io import (
 from dream.sequence import Frame, Sequence
 from dream.transforms import T_from_rotvec_t
 
-REALDATA = Path(__file__).parents[1] / ".." / "shared" / "realdata"
+REALDATA = Path(__file__).parents[2] / ".." / "shared" / "realdata"
 needs_realdata = pytest.mark.skipif(not REALDATA.is_dir(),
                                     reason=f"real data sets not found at {REALDATA}")
 # calibration_info.extrinsic of panda_teleop/panda_1/info.json: Rodrigues vector, then metres
@@ -582,7 +582,7 @@ def test_layout_errors_point_at_a_section_of_the_data_format_doc() -> None:
     from dream.io.dream_layout.names import LAYOUT_DOC
 
     doc, anchor = LAYOUT_DOC.split("#")
-    text = (Path(__file__).parents[1] / doc).read_text(encoding="utf-8")
+    text = (Path(__file__).parents[2] / doc).read_text(encoding="utf-8")
     slugs = {"-".join(line.lstrip("#").strip().lower().split())
              for line in text.splitlines() if line.startswith("#")}
     assert anchor in slugs

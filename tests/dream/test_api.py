@@ -16,7 +16,7 @@ import pytest
 
 import dream
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 DOCTEST_MODULES = ("dream.api", "dream.optim.lm", "dream.optim.robust")
 API = ("read_sequence", "load_robot", "load_keypoint_model", "detect", "labels", "calibrate",

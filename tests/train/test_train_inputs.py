@@ -37,7 +37,7 @@ from train.data import (  # noqa: E402
 from train.metrics import keypoint_errors  # noqa: E402
 from train.run import run_training  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TINY = REPO / "configs" / "train" / "tiny.yaml"
 NUM_FRAMES = 32
 QUICK = ("trainer.num_threads=1", "model.base_width=8", "trainer.max_epochs=1")
