@@ -55,6 +55,7 @@ def _diagnose(seq, robot):
     return doc, diagnosis, problem
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("effect,seed", [(e, 7000 + 10 * i + k) for i, e in
                                          enumerate(EFFECT_NAMES)
                                          for k in range(SEEDS_PER_EFFECT)])

@@ -106,6 +106,7 @@ def _same_dataset(a: Path, b: Path) -> None:
             assert np.array_equal(ia, ib), name
 
 
+@pytest.mark.slow
 def test_killed_run_resumes_to_the_uninterrupted_result(tmp_path):
     killed, whole = tmp_path / "killed", tmp_path / "whole"
     proc = subprocess.Popen(_synth_cmd(killed, 2), start_new_session=True,

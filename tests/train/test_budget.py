@@ -142,6 +142,7 @@ def test_a_budgeted_auto_run_resolves_records_and_resumes_without_probing(drawn,
     assert again.config.trainer.precision == expected
 
 
+@pytest.mark.slow
 def test_a_run_slower_than_its_probe_stops_validated_at_the_deadline(drawn, tmp_path,
                                                                      monkeypatch, caplog):
     overrides = [f"data.train=[{drawn}]", "trainer.time_budget_minutes=1",
