@@ -38,7 +38,7 @@ def run_trial(effects: tuple[str, ...], seed: int, frames: int) -> dict:
     """One seeded trial: hidden `effects` (may be empty) -> scored diagnosis."""
     rng = np.random.default_rng(seed)
     spec = InjectionSettings(num_frames=frames, pixel_noise_px=float(rng.uniform(*NOISE_RANGE_PX)),
-                         seed=seed)
+                             seed=seed)
     robot = load_robot(spec.robot)
     truth = random_effects(list(effects), rng, robot, spec) if effects else ModelExtension()
     seq = make_injected_sequence(spec, truth)

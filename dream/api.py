@@ -76,7 +76,7 @@ def calibrate(sequence: Sequence, observations: Observations, mode: str = "all",
 
 
 def polish_result(sequence: Sequence, robot: Robot, result: CalibrationResult,
-           observations: Observations) -> Any:
+                  observations: Observations) -> Any:
     """The result aligned with the data's robot masks (`dream calibrate --polish`).
 
     Returns a `PolishResult` ("all" mode) or one per frame ("each" mode; None for a frame

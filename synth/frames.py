@@ -74,10 +74,10 @@ class FrameMaker:
             joint_offset_vector(robot, self.extension.joint_offset_rad)
         self.held_slots = int(config.distractors.held_prob > 0)   # the last distractor slot
         options = SceneSettings(num_lights=min(MAX_LIGHTS, config.lights.count[1]),
-                               num_distractors=config.distractors.count[1] + self.held_slots,
-                               num_textures=NUM_TEXTURES,
-                               texture_size=config.background.texture_size, floor=True,
-                               floor_texture_size=FLOOR_TEXTURE_PX)
+                                num_distractors=config.distractors.count[1] + self.held_slots,
+                                num_textures=NUM_TEXTURES,
+                                texture_size=config.background.texture_size, floor=True,
+                                floor_texture_size=FLOOR_TEXTURE_PX)
         self.scene: RobotScene = build_scene(self.true_robot, options)
         self.nominal_camera = nominal_camera(config)
         self.renderer = SceneRenderer(self.scene, self.nominal_camera)

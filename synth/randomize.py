@@ -147,7 +147,7 @@ def sample_scene(rng: np.random.Generator, config: SynthConfig, default_rgba: np
             [np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
         tint = 1.0 + rng.uniform(-lc.color_jitter, lc.color_jitter, 3)
         lights.append(LightDraw(pos, np.clip(rng.uniform(*lc.intensity) * tint, 0, 1),
-                                  np.full(3, rng.uniform(*lc.specular))))
+                                np.full(3, rng.uniform(*lc.specular))))
     ambient = np.full(3, rng.uniform(*lc.ambient))
     ap = config.appearance
     robot_rgba = None
@@ -173,10 +173,10 @@ def sample_scene(rng: np.random.Generator, config: SynthConfig, default_rgba: np
         texture = int(rng.integers(num_textures)) if num_textures and \
             rng.random() < dc.textured_prob else -1
         distractors.append(DistractorDraw(kind, size, position, q / np.linalg.norm(q), rgba,
-                                            texture))
+                                          texture))
     return SceneDraw(camera, T_cam_base, tuple(lights), ambient, robot_rgba, float(specular),
-                       float(shininess), floor, tuple(distractors),
-                       int(rng.integers(2 ** 31)), int(rng.integers(2 ** 31)))
+                     float(shininess), floor, tuple(distractors),
+                     int(rng.integers(2 ** 31)), int(rng.integers(2 ** 31)))
 
 
 def sample_held_object(rng: np.random.Generator, config: SynthConfig, link: str,
@@ -288,4 +288,4 @@ def sample_frame(seed: int, index: int, robot: Robot, config: SynthConfig,
     if mode == "fixed_camera":
         return FrameDraw(index, scene, sample_joints(rng, robot, config, joint_log), timestamp)
     return FrameDraw(index, scene, trajectory_joints(seed, index, robot, config, joint_log),
-                       timestamp)
+                     timestamp)

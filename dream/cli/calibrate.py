@@ -11,7 +11,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from dream.cli.calibrate_report import polish, print_summary
+from dream.cli.calibrate_report import add_polish, print_summary
 from dream.cli.observe import observe
 from dream.cli.options import (
     add_command,
@@ -107,7 +107,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
                                              "cx": seq.camera.cx, "cy": seq.camera.cy,
                                              "distortion": seq.camera.distortion}}
     if request.polish:
-        doc = polish(seq, robot, result, obs, model, doc, out, frames=request.frames,
+        doc = add_polish(seq, robot, result, obs, model, doc, out, frames=request.frames,
                      mask_head=request.mask_head)
     _write_calibration(request, seq, robot, obs, result, doc, ros_path, matrix_path)
     print_summary(doc, out)
@@ -216,7 +216,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mask-head", action="store_true",
                    help="--polish, all frames, data without masks: align with the --model's "
                         "mask head (opt-in: the bundled model's is too coarse and made "
-                        "rendered scenes worse, see README)")
+                        "rendered scenes worse: docs/benchmarks.md)")
     p.add_argument("--loss", choices=("huber", "cauchy", "l2"), default="huber")
     p.add_argument("--loss-scale-px", type=float, default=RobustLoss().scale_px)
     p.add_argument("--seed", type=int, default=0, help="seed of the RANSAC sampling")

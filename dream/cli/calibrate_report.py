@@ -9,8 +9,8 @@ from typing import TextIO
 import numpy as np
 
 
-def polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames: str,
-           mask_head: bool) -> dict:
+def add_polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames: str,
+               mask_head: bool) -> dict:
     """`--polish`: the silhouette polish of the one extrinsic (`frames` "all") or of every
     frame's own pose ("each"); returns RESULT.json's document with it."""
     from dream.polish import has_masks, polish_calibration, result_doc_with_polish

@@ -42,8 +42,8 @@ def run_sample(request: SampleRequest) -> None:
     from dream.sample import SampleSettings, make_sample
 
     spec = SampleSettings(robot=request.robot, num_frames=request.num,
-                      pixel_noise_px=request.noise_px, outlier_fraction=request.outliers,
-                      seed=request.seed)
+                          pixel_noise_px=request.noise_px, outlier_fraction=request.outliers,
+                          seed=request.seed)
     write_dream(make_sample(spec), Path(request.out), overwrite=request.overwrite)
     print(f"wrote {spec.num_frames} keypoint-only frames of {spec.robot} to {request.out}")
 

@@ -18,8 +18,8 @@ import numpy as np
 from dream.camera import CameraIntrinsics
 from dream.extension import ModelExtension
 
-RELATIVE_TOL = 0.10   # the "within 10 %"
-SIGMAS = 3.0          # ... "or the stated uncertainty" (3 standard deviations)
+RELATIVE_TOL = 0.10   # identified: a parameter within 10 % of the truth
+SIGMAS = 3.0          # ... or within 3 of its stated standard deviations
 CHANGE_FRAME_TOL = 1  # camera_moved: frames between the true and the found move
 
 

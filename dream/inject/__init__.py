@@ -25,9 +25,9 @@ only by their effects.
 `random_effect` draws one effect of the vocabulary with a realistic random magnitude
 (`EFFECT_RANGES`); `random_effects` merges several. Units: metres, radians, seconds, pixels.
 
-Modules: `spec` (`InjectionSettings`), `trajectory` (the joint motion), `world` (the true world and
-the sequence written from it), `identifiability` (what a fixed camera can see), `effects` (random
-effects).
+Modules: `settings` (`InjectionSettings`), `trajectory` (the joint motion), `world` (the true
+world and the sequence written from it), `identifiability` (what a fixed camera can see),
+`effects` (random effects).
 """
 
 from dream.inject.effects import (

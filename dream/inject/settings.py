@@ -134,12 +134,12 @@ class InjectionSettings:
     def frame_names(self) -> tuple[str, ...]:
         return tuple(f"{i:06d}" for i in range(self.num_frames))
 
-    def sample_spec(self) -> SampleSettings:
+    def sample_settings(self) -> SampleSettings:
         """The camera placement as `dream.sample` describes it."""
         return SampleSettings(robot=self.robot, num_frames=self.num_frames,
-                          pixel_noise_px=self.pixel_noise_px, distance_m=self.distance_m,
-                          elevation_rad=self.elevation_rad, target_base_m=self.target_base_m,
-                          target_jitter_m=self.target_jitter_m, roll_rad=self.roll_rad,
-                          joint_range_fraction=self.joint_range_fraction, fx=self.fx,
-                          fy=self.fy, width=self.width, height=self.height,
-                          frame_period_s=self.frame_period_s, seed=self.seed)
+                              pixel_noise_px=self.pixel_noise_px, distance_m=self.distance_m,
+                              elevation_rad=self.elevation_rad, target_base_m=self.target_base_m,
+                              target_jitter_m=self.target_jitter_m, roll_rad=self.roll_rad,
+                              joint_range_fraction=self.joint_range_fraction, fx=self.fx,
+                              fy=self.fy, width=self.width, height=self.height,
+                              frame_period_s=self.frame_period_s, seed=self.seed)

@@ -63,7 +63,7 @@ def check_extension(spec: InjectionSettings, robot: Robot, extension: ModelExten
         raise InputError("extension must be a dream.extension.ModelExtension",
                          fix="use ModelExtension() for the nominal world")
     if extension.robot and extension.robot != robot.name:
-        raise InputError(f"the extension is for robot '{extension.robot}', the spec's robot is "
+        raise InputError(f"the extension is for robot '{extension.robot}', the settings' robot is "
                          f"'{robot.name}'", fix="inject an extension of this robot")
     if extension.time_offset_s and spec.motion != "trajectory":
         raise InputError("a time offset needs a continuous motion",
@@ -105,7 +105,7 @@ def inject(spec: InjectionSettings, extension: ModelExtension | None = None) -> 
     robot = load_robot(spec.robot)
     check_extension(spec, robot, extension)
     rng = np.random.default_rng(spec.seed)
-    T_before = random_camera_pose(rng, spec.sample_spec())
+    T_before = random_camera_pose(rng, spec.sample_settings())
     times = spec.times_s
     tau = extension.time_offset_s or 0.0
     trajectory = None

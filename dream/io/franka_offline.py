@@ -1,4 +1,4 @@
-"""The franka_offline layout (see realdata/README.md).
+"""The franka_offline layout (docs/data_format.md#franka_offline).
 
 `K.txt` (3x3 camera matrix), `color/NNNNNN.png` photos, `mask/NNNNNN.png` robot masks (optional)
 and `qpos/NNNNNN.txt` (the seven arm joints in radians, then two finger values, one a line).

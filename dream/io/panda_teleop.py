@@ -1,4 +1,4 @@
-"""The panda_teleop layout: a folder with `info.json` and PNG images (see realdata/README.md).
+"""The panda_teleop layout: `info.json` and PNG images (docs/data_format.md#panda_teleop).
 
 `info.json` holds `calibration_info.intrinsic` (3x3 K, pixels), `calibration_info.extrinsic`
 (`[[rx, ry, rz, tx, ty, tz]]`: Rodrigues vector and metres, X_cam = R X_base + t, the reference

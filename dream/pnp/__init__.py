@@ -21,8 +21,8 @@ from dream.pnp.single import (
     degeneracy,
     fit_pose,
     initial_pose,
-    levenberg_marquardt,
     lm_settings,
+    refine_pose,
     solve_pnp,
 )
 
@@ -40,7 +40,7 @@ __all__ = [
     "fit_pose",
     "increment_between",
     "initial_pose",
-    "levenberg_marquardt",
+    "refine_pose",
     "linearise",
     "lm_settings",
     "refine_best",

@@ -138,11 +138,11 @@ def lm_settings(settings: SolverSettings, dof: int) -> LMSettings:
                       predicted_tolerance=settings.convergence_sigma ** 2 / dof)
 
 
-def levenberg_marquardt(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
-                        T_init: np.ndarray, confidence: np.ndarray,
-                        settings: SolverSettings,
-                        lin_init: tuple[np.ndarray, np.ndarray] | None = None
-                        ) -> tuple[np.ndarray, int, tuple[np.ndarray, np.ndarray]]:
+def refine_pose(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
+                T_init: np.ndarray, confidence: np.ndarray,
+                settings: SolverSettings,
+                lin_init: tuple[np.ndarray, np.ndarray] | None = None
+                ) -> tuple[np.ndarray, int, tuple[np.ndarray, np.ndarray]]:
     """Minimise sum_i c_i rho(|project(T P_i) - uv_i|) over T (IRLS inside LM).
 
     Returns the optimum, the number of iterations and `linearise` at the optimum. Inputs must
@@ -187,8 +187,8 @@ def _fit_checked(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics, T
     iterations = 0
     for round_ in range(settings.outlier_rounds + 1):
         try:
-            T, iterations, lin = levenberg_marquardt(P_base[keep], uv[keep], camera, T,
-                                                     confidence[keep], settings, lin_init)
+            T, iterations, lin = refine_pose(P_base[keep], uv[keep], camera, T,
+                                             confidence[keep], settings, lin_init)
             lin_init = None
         except _BehindCamera:
             return NoSolution("the initial pose puts keypoints behind the camera")

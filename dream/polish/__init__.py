@@ -6,7 +6,7 @@ further constraints. The polish aligns the silhouette rendered from the URDF's v
 (`dream.silhouette`) with the observed masks of every frame at once (fixed camera), on the CPU.
 
 Modules, in the order of the work:
-    params: `PolishSettings`, every constant.
+    settings: `PolishSettings`, every constant.
     objective: the signed distance to the observed outline at the model's contour points.
     refine: Levenberg-Marquardt on it and the polish of one pose (`polish`, `PolishResult`).
     guard: whether the polished pose is kept (IoU gain, `KeypointGuard`, `fit_shrinkage`).

@@ -42,7 +42,8 @@ def check_polish_input(sequence: Sequence, mode: str, network_masks: bool = Fals
     frame alone (`mode` "each") with only the mask head. The mask head is opt-in: on rendered
     frames the bundled model's agrees with the true masks at IoU 0.59, polished single-frame
     poses were worse, and on 40 rendered fixed-camera scenes every all-frames polish against
-    it was worse; the guard kept 7, each 15-27 mm further off than the keypoint pose (README).
+    it was worse; the guard kept 7, each 15-27 mm further off than the keypoint pose
+    (docs/benchmarks.md).
 
     Raises:
         InputError: one line naming the data and the fix.
@@ -54,7 +55,7 @@ def check_polish_input(sequence: Sequence, mode: str, network_masks: bool = Fals
                          "has one", sequence.source,
                          "add NNNNNN.seg.png masks (DREAM layout) or mask/ (franka_offline), "
                          "or drop --polish (--mask-head aligns with the --model's mask head "
-                         "instead; the bundled model's is too coarse: README)")
+                         "instead; the bundled model's is too coarse: docs/benchmarks.md)")
     if mode == "each":
         raise InputError("--frames each --polish needs robot masks in the data (the network's "
                          "mask head is too coarse to polish a frame alone)", sequence.source,

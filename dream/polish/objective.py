@@ -15,7 +15,7 @@ points a little inside the outline do not pull it outwards. Points farther than
 Huber weight (scale `huber_scale_px`). Occluders only remove robot pixels from the observed
 mask, so at the true pose a contour point may lie outside it (r > 0, the robot hidden there)
 but never inside: residuals r > 0 get no weight beyond the tighter `max_outside_residual_px`
-(otherwise a distractor in front of the arm pulls the outline onto the visible part; README).
+(otherwise a distractor in front of the arm pulls the outline onto the visible part).
 Observed outline that no model contour explains (cables, a gripper the URDF lacks) pulls
 nothing: the distance is one-sided on purpose.
 

@@ -28,7 +28,7 @@ class PolishSettings:
             mask, where an occluder may hide the robot) beyond this get no weight (search
             resolution). With 5 px the single-frame ADD AUC of `--frames each --polish` is
             93.8 on the design set and 94.8 on the held-out set, against 91.3 on both with
-            15 px, the same cut both sides (README).
+            15 px, the same cut both sides (docs/benchmarks.md).
         outer_iterations: render -> select contour points -> LM rounds.
         inner_iterations: LM steps on one set of contour points.
         initial_damping: LM lambda, relative to diag(J^T W J).

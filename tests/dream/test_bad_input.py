@@ -71,7 +71,7 @@ def imaged(tmp_path_factory) -> Path:
     """A small sample with (random) images, for the commands that draw on or detect in them."""
     root = tmp_path_factory.mktemp("imaged")
     seq = make_sample(SampleSettings(num_frames=FRAMES, seed=2, width=WIDTH, height=HEIGHT,
-                                 fx=FOCAL, fy=FOCAL, pixel_noise_px=0.0))
+                                     fx=FOCAL, fy=FOCAL, pixel_noise_px=0.0))
     rng = np.random.default_rng(0)
     frames = []
     for frame in seq.frames:

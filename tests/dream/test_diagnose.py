@@ -42,7 +42,7 @@ FRAMES = 150          # like a few seconds of a measured sequence (panda_teleop:
 def _case(effect: str | None, seed: int, frames: int = FRAMES):
     rng = np.random.default_rng(seed)
     spec = InjectionSettings(num_frames=frames, pixel_noise_px=float(rng.uniform(*NOISE_RANGE_PX)),
-                         seed=seed)
+                             seed=seed)
     truth = random_effect(effect, rng, load_robot(spec.robot), spec) if effect \
         else ModelExtension()
     seq = make_injected_sequence(spec, truth)

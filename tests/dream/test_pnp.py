@@ -13,7 +13,7 @@ from dream.pnp import (
     SolverSettings,
     fit_pose,
     increment_between,
-    levenberg_marquardt,
+    refine_pose,
     solve_pnp,
     solve_pnp_batch,
 )
@@ -131,8 +131,8 @@ def test_the_pose_is_the_fit_of_the_keypoints_it_reports_as_inliers(rounds):
         for fit in (from_truth, solved) if isinstance(solved, PoseFit) else (from_truth,):
             checked += 1
             k = fit.inlier
-            refit, _, _ = levenberg_marquardt(obs.P_base[0][k], obs.uv[0][k], CAMERA,
-                                              fit.T_cam_base, np.ones(k.sum()), settings)
+            refit, _, _ = refine_pose(obs.P_base[0][k], obs.uv[0][k], CAMERA,
+                                      fit.T_cam_base, np.ones(k.sum()), settings)
             assert np.abs(increment_between(fit.T_cam_base, refit)).max() < 1e-9
     assert checked >= 50
     for fit, P_f, uv_f in zip(solve_pnp_batch(np.array(P), np.array(uv), [CAMERA] * len(P),

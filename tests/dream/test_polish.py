@@ -487,7 +487,7 @@ def test_calibrate_polish_without_masks_is_one_clear_error(tmp_path, capsys):
 @pytest.mark.parametrize("extra, message", [
     (["--use-labels", "--mask-head"], "--polish was not given"),
     (["--use-labels", "--polish", "--mask-head"], "no --model was given"),
-    # a model with a mask head is no longer used without being asked for
+    # a model's mask head is not used unless asked for
     (["--model", BUNDLED_MODEL, "--polish"], "--polish needs robot masks"),
     (["--model", BUNDLED_MODEL, "--polish", "--mask-head", "--frames", "each"],
      "too coarse to polish a frame alone"),

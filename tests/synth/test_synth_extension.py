@@ -79,9 +79,9 @@ def test_labels_lie_on_the_rendered_extended_robot(tmp_path):
         shifts.append(np.linalg.norm(frame.uv_labels - believed, axis=-1))
     assert np.nanmedian(shifts) > MIN_EFFECT_PX
     scene = build_scene(true_robot, SceneSettings(keypoint_markers=True,
-                                                 marker_radius_m=MARKER_RADIUS_M))
+                                                  marker_radius_m=MARKER_RADIUS_M))
     options = RenderSettings(show_robot=False, show_floor=False, show_distractors=False,
-                            show_markers=True)
+                             show_markers=True)
     checked, worst = 0, 0.0
     with SceneRenderer(scene, camera, options) as renderer:
         for frame in seq.frames:

@@ -48,9 +48,9 @@ def test_written_labels_lie_on_rendered_keypoint_markers(tmp_path, distortion):
     assert seq.camera.distortion == (None if distortion is None else tuple(distortion))
     robot = load_robot("panda")
     scene = build_scene(robot, SceneSettings(keypoint_markers=True,
-                                            marker_radius_m=MARKER_RADIUS_M))
+                                             marker_radius_m=MARKER_RADIUS_M))
     options = RenderSettings(show_robot=False, show_floor=False, show_distractors=False,
-                            show_markers=True)
+                             show_markers=True)
     checked, worst = 0, 0.0
     with SceneRenderer(scene, seq.camera, options) as renderer:
         for frame in seq.frames:

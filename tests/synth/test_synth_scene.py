@@ -45,7 +45,7 @@ def cache_dir(tmp_path_factory) -> Path:
 def panda_markers(cache_dir):
     robot = load_robot("panda")
     return build_scene(robot, SceneSettings(keypoint_markers=True, marker_radius_m=MARKER_RADIUS_M,
-                                           floor=True, num_distractors=1, num_textures=1),
+                                            floor=True, num_distractors=1, num_textures=1),
                        cache_dir=cache_dir)
 
 

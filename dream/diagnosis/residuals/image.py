@@ -22,8 +22,8 @@ from dream.diagnosis.residuals.regression import (
 )
 from dream.diagnosis.residuals.residual_set import (
     ResidualSet,
-    as_list,
     finite_or_none,
+    float_list,
     used_residuals,
 )
 
@@ -43,7 +43,7 @@ def analyse_overall(res: ResidualSet) -> dict:
             "rms_px": finite_or_none(np.sqrt(np.mean(mag ** 2))) if n else None,
             "median_abs_px": finite_or_none(np.median(mag)) if n else None,
             "p95_abs_px": finite_or_none(np.percentile(mag, 95)) if n else None,
-            "mean_px": as_list(r.mean(0)) if n else None}
+            "mean_px": float_list(r.mean(0)) if n else None}
 
 
 def _keypoint_bias(r: np.ndarray, num_tests: int) -> dict:
@@ -55,12 +55,12 @@ def _keypoint_bias(r: np.ndarray, num_tests: int) -> dict:
     if n == 0:
         return out
     mean = r.mean(0)
-    out["mean_px"] = as_list(mean)
+    out["mean_px"] = float_list(mean)
     out["rms_px"] = finite_or_none(np.sqrt(np.mean(np.sum(r ** 2, -1))))
     if n < MIN_KEYPOINT_OBS:
         return out
     cov = np.cov(r.T, ddof=1)
-    out["std_px"] = as_list(np.sqrt(np.diag(cov)))
+    out["std_px"] = float_list(np.sqrt(np.diag(cov)))
     # Regularise a degenerate covariance (noise-free or one-dimensional residuals).
     cov = cov + np.eye(2) * max(1e-12, 1e-9 * float(np.trace(cov)))
     t2 = float(n * mean @ np.linalg.solve(cov, mean))

@@ -1,7 +1,7 @@
 """Observed vs predicted keypoints of one model (`ResidualSet`) and their per-frame summaries.
 
 The residual is `r = uv_observed - uv_predicted` (pixels). Values meant for JSON go through
-`finite_or_none` / `as_list` (None in place of NaN).
+`finite_or_none` / `float_list` (None in place of NaN).
 """
 
 from __future__ import annotations
@@ -27,12 +27,12 @@ def finite_or_none(x: Any) -> float | None:
     return x if math.isfinite(x) else None
 
 
-def as_list(a: np.ndarray) -> list:
+def float_list(a: np.ndarray) -> list:
     """Nested list of floats with None in place of NaN."""
     a = np.asarray(a, dtype=float)
     if a.ndim == 0:
         return finite_or_none(a)  # type: ignore[return-value]
-    return [as_list(x) for x in a]
+    return [float_list(x) for x in a]
 
 
 @dataclass(frozen=True, eq=False)

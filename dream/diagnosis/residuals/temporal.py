@@ -16,8 +16,8 @@ from scipy import stats
 from dream.diagnosis.residuals.regression import ALPHA, corr, slope_through_origin
 from dream.diagnosis.residuals.residual_set import (
     ResidualSet,
-    as_list,
     finite_or_none,
+    float_list,
     image_velocity,
     per_frame_mean,
     per_frame_rms,
@@ -75,9 +75,9 @@ def analyse_time(res: ResidualSet) -> dict | None:
     order = np.argsort(res.times_s, kind="stable")
     rms = per_frame_rms(res)[order]
     mean = per_frame_mean(res)[order]
-    return {"times_s": as_list(res.times_s[order]),
+    return {"times_s": float_list(res.times_s[order]),
             "frames": [res.frame_names[i] for i in order],
-            "rms_px": as_list(rms),
+            "rms_px": float_list(rms),
             "rms_lag1_autocorr": _lag1_autocorr(rms),
             "mean_lag1_autocorr": [_lag1_autocorr(mean[:, 0]), _lag1_autocorr(mean[:, 1])],
             "velocity": analyse_velocity(res)}
@@ -121,7 +121,8 @@ def analyse_change_point(res: ResidualSet) -> dict:
     out: dict[str, Any] = {"index": None, "frame": None, "lr": None, "f_stat": None,
                            "p_value": None, "significant": False, "explained_fraction": None,
                            "step_px": None, "mean_before_px": None, "mean_after_px": None,
-                           "num_candidates": 0, "per_frame_mean_px": as_list(per_frame_mean(res))}
+                           "num_candidates": 0,
+                           "per_frame_mean_px": float_list(per_frame_mean(res))}
     valid, n, s1, s2 = _segment_sums(res)
     V = len(valid)
     if V < 2 * MIN_SEGMENT_FRAMES:
@@ -163,6 +164,6 @@ def analyse_change_point(res: ResidualSet) -> dict:
                significant=bool(p is not None and p < ALPHA),
                explained_fraction=finite_or_none(1.0 - rss1[best] / rss0),
                step_px=finite_or_none(np.sqrt(np.mean(diff ** 2))) if diff.size else None,
-               mean_before_px=as_list(seg_b), mean_after_px=as_list(seg_a),
+               mean_before_px=float_list(seg_b), mean_after_px=float_list(seg_a),
                num_candidates=int(len(splits)))
     return out
