@@ -17,7 +17,7 @@ import numpy as np
 from lightning.pytorch.callbacks import Callback
 
 from dream.io import write_dream
-from dream.sample import SampleSpec, make_sample
+from dream.sample import SampleSettings, make_sample
 
 # distinct RGB colours, one per keypoint (the network can tell the keypoints apart by colour)
 KEYPOINT_COLOURS = ((255, 40, 40), (40, 255, 40), (60, 60, 255), (255, 255, 40), (255, 40, 255),
@@ -52,7 +52,7 @@ def make_drawn_dataset(out_dir: Path, num_frames: int = 32, width: int = 128, he
                        disc_radius: int = 2, line_width: int = 1) -> Path:
     """Write a drawn Panda dataset (images, masks, labels, per-frame ground truth) to `out_dir`:
     `num_frames` frames split among `cameras` random camera poses."""
-    sequences = [make_sample(SampleSpec(
+    sequences = [make_sample(SampleSettings(
         num_frames=len(chunk), pixel_noise_px=0.0, width=width, height=height, fx=focal_px,
         fy=focal_px, seed=seed + c, distance_m=(1.2, 1.6)))
         for c, chunk in enumerate(np.array_split(np.arange(num_frames), cameras)) if len(chunk)]

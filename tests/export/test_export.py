@@ -21,14 +21,14 @@ onnx = pytest.importorskip("onnx")
 pytest.importorskip("onnxruntime")
 
 from dream.cli import main  # noqa: E402
-from dream.detect import detect_keypoints, load_keypoint_model  # noqa: E402
+from dream.detection import detect_keypoints, load_keypoint_model  # noqa: E402
 from dream.errors import InputError  # noqa: E402
 from dream.io import load_image, read_sequence, write_dream  # noqa: E402
-from dream.peaks import PeakParams  # noqa: E402
+from dream.peaks import PeakSettings  # noqa: E402
 from dream.pipeline import robot_for  # noqa: E402
 from dream.preprocess import Preprocess  # noqa: E402
 from dream.ros import CAMERA_OPTICAL_FRAME, output_paths, static_transform_args  # noqa: E402
-from dream.sample import SampleSpec, make_sample  # noqa: E402
+from dream.sample import SampleSettings, make_sample  # noqa: E402
 from dream.transforms import R_from_rotvec, T_from_quaternion_xyzw_t, invert_T, make_T  # noqa: E402
 from export import onnx_export  # noqa: E402
 from export.onnx_export import (  # noqa: E402
@@ -61,9 +61,11 @@ from train.config import (  # noqa: E402
 from train.data import KeypointDataset  # noqa: E402
 from train.run import run_training  # noqa: E402
 
-pytestmark = pytest.mark.filterwarnings("ignore:.*LeafSpec.*")  # lightning on torch 2.13
+# every test here uses a model trained by the module's fixture
+pytestmark = [pytest.mark.slow,
+              pytest.mark.filterwarnings("ignore:.*LeafSpec.*")]  # lightning on torch 2.13
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TINY = REPO / "configs" / "train" / "tiny.yaml"
 NUM_FRAMES = 32
 TRAIN_THREADS = 1  # light on the CPU; the tiny recipe trains in about 15 s
@@ -75,8 +77,8 @@ def drawn(tmp_path_factory) -> Path:
 
 
 # panda_cpu's focal loss: with tiny's weighted MSE the network learned on lucky seeds only (on
-# this set, trainer seeds 0 and 1: 99 and 0 of 224 keypoints found); with it, on seeds 0-2,
-# 179-181 found at a median of 0.11-0.13 image px
+# this set, trainer seeds 0 and 1: 99 and 0 of 224 keypoints found); with it, see
+# test_calibrate_with_model_end_to_end
 FOCAL = ("model.belief_activation=sigmoid", "loss.belief=focal")
 
 
@@ -147,7 +149,7 @@ def test_export_writes_metadata_and_matches_torch(checkpoint, exported, drawn):
 
 def test_exported_file_carries_no_build_paths(exported):
     raw = exported.path.read_bytes()
-    assert b"stack_trace" not in raw and str(Path(__file__).parents[1]).encode() not in raw
+    assert b"stack_trace" not in raw and str(Path(__file__).parents[2]).encode() not in raw
 
 
 def test_failed_parity_leaves_no_file(checkpoint, exported, tmp_path, monkeypatch):
@@ -213,7 +215,7 @@ def untrained_checkpoint(tmp_path_factory) -> Path:
                                            blocks_per_stage=1, decoder_width=16),
                          input=Preprocess(64, 48),
                          data=DataConfig(keypoints=("a", "b", "c"), robot="panda"),
-                         eval=EvalConfig(peaks=PeakParams(threshold=0.3, smoothing_sigma=0.5)))
+                         eval=EvalConfig(peaks=PeakSettings(threshold=0.3, smoothing_sigma=0.5)))
     net = build_model(config.model)
     path = tmp_path_factory.mktemp("untrained") / "untrained.ckpt"
     torch.save({"state_dict": {"model." + k: v for k, v in net.state_dict().items()},
@@ -227,8 +229,8 @@ def test_export_peaks_override_keeps_the_config_eval_peaks(untrained_checkpoint,
     assert main(["export", "--checkpoint", str(untrained_checkpoint), "--out", str(out),
                  "--peaks", "ambiguity_ratio=0.8"]) == 0, capsys.readouterr().err
     props = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
-    written = PeakParams(**json.loads(props["dream.peak_params"]))
-    assert written == PeakParams(threshold=0.3, smoothing_sigma=0.5, ambiguity_ratio=0.8)
+    written = PeakSettings(**json.loads(props["dream.peak_params"]))
+    assert written == PeakSettings(threshold=0.3, smoothing_sigma=0.5, ambiguity_ratio=0.8)
     assert OnnxKeypointModel(out).peak_params == written
     line = _one_line_error(main(["export", "--checkpoint", str(untrained_checkpoint), "--out",
                                  str(tmp_path / "q.onnx"), "--peaks", "sharpness=2"]),
@@ -367,7 +369,12 @@ def test_runner_input_is_the_training_input(exported, checkpoint, drawn):
 # ---------------------------------------------------------------- dream calibrate --model
 
 def test_calibrate_with_model_end_to_end(exported, drawn, tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr("dream.detect.PROGRESS_EVERY_FRAMES", 10)
+    """The checkpoint fixture's network finds 179-182 of the 224 keypoints at a median 0.09-0.14
+    image px, and the camera is 0.3-1.7 mm off (trainer seeds 0-4 with AVX-512 and with AVX2
+    kernels, seeds 0-2 on 2 threads and in bf16-mixed): the bounds below (a third, 2 px, 5 cm)
+    hold on every CPU kind with a wide margin; a network trained 3 epochs finds 4 % of the
+    validation keypoints, and calibrate with it exits 2."""
+    monkeypatch.setattr("dream.detection.PROGRESS_EVERY_FRAMES", 10)
     result = tmp_path / "result.json"
     code = main(["calibrate", "--model", str(exported.path), "--data", str(drawn), "--out",
                  str(result), "--threads", "1", "--batch", "8"])
@@ -438,7 +445,7 @@ sys.exit(code or (3 if tried or loaded else 0))
 
 
 def test_detection_modules_import_neither_torch_nor_export():
-    code = ("import sys, dream.detect, dream.ros\n"
+    code = ("import sys, dream.detection, dream.ros\n"
             "bad = [m for m in sys.modules if m.split('.')[0] in "
             "('torch', 'onnx', 'onnxruntime', 'train', 'export')]\n"
             "print(bad); sys.exit(1 if bad else 0)\n")
@@ -450,7 +457,7 @@ def test_detection_modules_import_neither_torch_nor_export():
 def test_calibrate_model_refuses_data_without_images_or_robot(exported, drawn, tmp_path,
                                                               capsys):
     labels_only = tmp_path / "labels"
-    write_dream(make_sample(SampleSpec(num_frames=4)), labels_only)
+    write_dream(make_sample(SampleSettings(num_frames=4)), labels_only)
     line = _one_line_error(main(["calibrate", "--model", str(exported.path), "--data",
                                  str(labels_only), "--out", str(tmp_path / "r.json")]),
                            capsys.readouterr().err)

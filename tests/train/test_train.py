@@ -31,10 +31,15 @@ from train.model import build_model  # noqa: E402
 from train.module import lr_factor  # noqa: E402
 from train.run import run_training  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 TINY = REPO / "configs" / "train" / "tiny.yaml"
 PANDA_CPU = REPO / "configs" / "train" / "panda_cpu.yaml"
 NUM_FRAMES = 32
+# bounds on what a training run reaches, with a margin over their spread across trainer seeds
+# and CPU kinds (the tests' docstrings)
+LOSS_FALL = 0.5                 # last epoch's loss below this fraction of the first's
+LEARNED_MIN_FOUND_RATE = 0.5    # validation keypoints found
+LEARNED_MAX_MEDIAN_PX = 1.5     # their median error, input pixels
 
 
 @pytest.fixture(scope="module")
@@ -283,6 +288,7 @@ def test_focal_loss_is_float32_under_autocast():
                                         rel=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")
 @pytest.mark.parametrize("activation", ["none", "sigmoid"])
 def test_model_exports_to_onnx(tmp_path, activation):
@@ -311,17 +317,20 @@ def test_schedule_warms_up_then_decays():
 
 # ---------------------------------------------------------------- training
 
+@pytest.mark.slow
 def test_tiny_recipe_learns(trained):
+    """The tiny recipe (plain MSE, 40 epochs) trains: its last epoch's training loss is
+    0.018-0.025 of its first's, its validation MSE 0.09-0.20 (trainer seeds 0-4 with AVX-512
+    and with AVX2 kernels, seeds 0-2 on 1 thread). Whether its maps beat empty maps in this
+    budget depends on the seed (validation MSE 0.73-1.12 of theirs, 0-44 % of the keypoints
+    found), so the focal-loss tests below assert what a trained network finds."""
     result, _ = trained
     rows = _rows(result.run_dir / "metrics.csv")
     assert [int(r["epoch"]) for r in rows] == list(range(len(rows))) and len(rows) == 40
     first, last = float(rows[0]["train/loss"]), float(rows[-1]["train/loss"])
-    assert last < 0.5 * first
-    # better than predicting empty maps, whose MSE is mean(target^2)
-    _, val = make_datasets(result.config, [read_sequence(result.config.data.train[0])])
-    zero_mse = float(np.mean([np.mean(val[i]["belief"].numpy() ** 2) for i in range(len(val))]))
-    assert float(rows[-1]["val/belief_mse"]) < 0.8 * zero_mse
-    assert float(rows[-1]["val/found_rate"]) > 0
+    assert last < LOSS_FALL * first
+    val_first, val_last = float(rows[0]["val/belief_mse"]), float(rows[-1]["val/belief_mse"])
+    assert val_last < LOSS_FALL * val_first
     for name in ("last.ckpt", "best.ckpt", "config.yaml"):
         assert (result.run_dir / name).is_file()
 
@@ -339,6 +348,7 @@ def test_checkpoint_rebuilds_the_same_model(trained):
     assert load_config(result.run_dir / "config.yaml") == config
 
 
+@pytest.mark.slow
 def test_killed_run_resumes_from_its_last_epoch(drawn, tmp_path):
     config = tiny(drawn, "trainer.max_epochs=3", "data.val_fraction=0")
     with pytest.raises(KeyError):
@@ -360,6 +370,7 @@ def test_killed_run_resumes_from_its_last_epoch(drawn, tmp_path):
         run_training(tiny(drawn, "model.base_width=8", "data.val_fraction=0"), tmp_path)
 
 
+@pytest.mark.slow
 def test_dream_train_command_end_to_end(drawn, tmp_path, capsys):
     out = tmp_path / "run"
     code = main(["train", "--config", str(TINY), "--set", f"data.train=[{drawn}]",
@@ -411,12 +422,25 @@ def test_foreground_weight_anneals_geometrically():
         load_config(TINY, ["loss.foreground_weight=0", "loss.foreground_weight_end=1"])
 
 
+def _assert_learned(rows: list[dict[str, str]]) -> None:
+    """The loss fell, and the network finds the validation keypoints where they are."""
+    assert float(rows[-1]["train/loss"]) < LOSS_FALL * float(rows[0]["train/loss"])
+    found, median_px = float(rows[-1]["val/found_rate"]), float(rows[-1]["val/l2_median_px"])
+    assert found >= LEARNED_MIN_FOUND_RATE, found
+    assert median_px < LEARNED_MAX_MEDIAN_PX, median_px
+
+
+@pytest.mark.slow
 def test_tiny_recipe_learns_with_the_focal_loss(drawn, tmp_path):
+    """20 epochs find 84-100 % of the validation keypoints at a median 0.21-0.60 input px, the
+    loss falls to 0.005-0.017 of the first epoch's (trainer seeds 0-4 with AVX-512 and with
+    AVX2 kernels, seeds 0-2 on 1 thread with both and in bf16-mixed); 3 epochs find 4 %, one
+    epoch none."""
     run = run_training(tiny(drawn, "model.belief_activation=sigmoid", "loss.belief=focal",
                             "trainer.max_epochs=20"), tmp_path)
     rows = _rows(run.run_dir / "metrics.csv")
-    assert float(rows[-1]["train/loss"]) < 0.5 * float(rows[0]["train/loss"])
-    assert "val/belief_focal" in rows[-1] and float(rows[-1]["val/found_rate"]) > 0
+    assert "val/belief_focal" in rows[-1]
+    _assert_learned(rows)
     model, _ = load_checkpoint(run.run_dir / "last.ckpt")
     assert model.config.belief_activation == "sigmoid"
 
@@ -450,15 +474,17 @@ class RecordConvMemory(Callback):
             (out.dtype, out.is_contiguous(memory_format=torch.channels_last))))
 
 
+@pytest.mark.slow
 def test_tiny_recipe_learns_in_bfloat16_channels_last(drawn, tmp_path):
+    """20 epochs find 80-96 % of the validation keypoints at a median 0.25-0.41 input px, the
+    loss falls to 0.006-0.016 of the first epoch's (trainer seeds 0-4 with AVX-512 kernels,
+    0-2 with AVX2 kernels, whose bfloat16 is emulated)."""
     record = RecordConvMemory()
     run = run_training(tiny(drawn, "model.belief_activation=sigmoid", "loss.belief=focal",
                             "trainer.max_epochs=20", "trainer.precision=bf16-mixed",
                             "trainer.channels_last=true"), tmp_path, callbacks=[record])
     assert record.seen and all(seen == (torch.bfloat16, True) for seen in record.seen)
-    rows = _rows(run.run_dir / "metrics.csv")
-    assert float(rows[-1]["train/loss"]) < 0.5 * float(rows[0]["train/loss"])
-    assert float(rows[-1]["val/found_rate"]) > 0
+    _assert_learned(_rows(run.run_dir / "metrics.csv"))
     model, config = load_checkpoint(run.run_dir / "last.ckpt")  # a plain float32 model
     assert config.trainer.precision == "bf16-mixed"
     assert all(p.dtype == torch.float32 for p in model.parameters())
@@ -475,6 +501,7 @@ class RecordForegroundWeight(Callback):
         self.weights.append(float(trainer.callback_metrics["train/foreground_weight"]))
 
 
+@pytest.mark.slow
 def test_training_moves_the_foreground_weight_from_start_to_end(drawn, tmp_path):
     record = RecordForegroundWeight()
     run_training(tiny(drawn, "trainer.max_epochs=2", "data.val_fraction=0",
