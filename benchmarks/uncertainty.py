@@ -35,6 +35,7 @@ from dream.errors import DreamError
 from dream.io import read_sequence
 from dream.pipeline import calibrate
 from dream.pnp import PoseFit
+from dream.readings import with_interpolated_readings
 from dream.result import camera_position_covariance
 from dream.transforms import invert_T
 
@@ -70,9 +71,9 @@ def pose_row(T: np.ndarray, T_true: np.ndarray | None, fit_covariance: np.ndarra
 def sequence_rows(data: Path, model, frames: str) -> tuple[list[dict[str, float]], dict]:
     """The rows of one sequence (all: its extrinsic; each: every frame with a jackknife) and,
     in each mode, the errors of the reported frame and of the fit-only choice (the frame with
-    the smallest trace of the fit's covariance among all solved frames: the rule before the
-    jackknife)."""
-    seq = read_sequence(data)
+    the smallest trace of the fit's covariance among all solved frames, without the
+    jackknife). A held joint log is interpolated in time, as `dream calibrate` does."""
+    seq, _ = with_interpolated_readings(read_sequence(data))
     T_true = seq.T_cam_base_truth(seq.frames[0])       # None: sigmas only
     robot = load_model_robot(seq, model)
     obs = detect_keypoints(seq, robot, model, peak_params=model.peak_params)

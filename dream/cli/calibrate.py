@@ -14,10 +14,13 @@ import numpy as np
 from dream.cli.calibrate_report import add_polish, print_summary
 from dream.cli.observe import observe
 from dream.cli.options import (
+    INTERPOLATE,
+    JOINT_READINGS,
     add_command,
     add_data_args,
     add_model_source,
     check_seed,
+    joint_readings,
     read_data,
     request_from,
 )
@@ -46,10 +49,14 @@ class CalibrateRequest:
     threads: int | None = None
     batch: int | None = None
     model_extension: str | None = None
+    joint_readings: str = INTERPOLATE
     loaded_model: Any = None
 
     def __post_init__(self) -> None:
         _check_mask_head(self.mask_head, self.polish, self.model is not None, self.frames)
+        if self.joint_readings not in JOINT_READINGS:
+            raise InputError(f"unknown --joint-readings {self.joint_readings!r}",
+                             fix=f"use one of {', '.join(JOINT_READINGS)}")
         self.solver_settings()  # checks --seed, --loss and --loss-scale-px
 
     def solver_settings(self) -> SolverSettings:
@@ -89,6 +96,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     ros_path, matrix_path = _check_outputs(request)
     extension = _read_extension(request)
     seq = read_data(request.data, request.intrinsics, request.robot)
+    seq, readings = joint_readings(seq, request.joint_readings == INTERPOLATE, out)
     if request.polish:
         from dream.polish import check_polish_input
 
@@ -100,6 +108,9 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
         seq, obs = _apply_extension(request, extension, seq, robot, obs, out)
     result = calibrate(seq, obs, request.frames, settings)
     doc = result_to_dict(result, obs, robot=request.robot or seq.robot)
+    if readings is not None:
+        doc["joint_readings"] = readings.to_dict(readings.held and
+                                                 request.joint_readings == INTERPOLATE)
     if extension is not None:
         doc["model_extension"] = {"file": str(request.model_extension),
                                   "effects": extension.to_dict()["effects"],
@@ -108,7 +119,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
                                              "distortion": seq.camera.distortion}}
     if request.polish:
         doc = add_polish(seq, robot, result, obs, model, doc, out, frames=request.frames,
-                     mask_head=request.mask_head)
+                         mask_head=request.mask_head)
     _write_calibration(request, seq, robot, obs, result, doc, ros_path, matrix_path)
     print_summary(doc, out)
     T_true = truth_poses(seq)
@@ -224,6 +235,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="--model: onnxruntime threads (default: every core)")
     p.add_argument("--batch", type=int, default=None,
                    help="--model: images per network call (default 8)")
+    p.add_argument("--joint-readings", choices=JOINT_READINGS, default=INTERPOLATE,
+                   help="a joint log that updates slower than the images (runs of identical "
+                        "readings, with timestamps): interpolate the readings in time between "
+                        "their updates, or keep them as logged (default: %(default)s)")
     p.add_argument("--model-extension", metavar="FILE",
                    help="extended model (extended_model.yaml of dream diagnose): corrected "
                         "camera, joint offsets, link lengths, keypoint bias, time offset; with "

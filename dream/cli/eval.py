@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dream.cli.options import add_command, add_data_args, read_data, request_from
+from dream.cli.options import add_command, add_data_args, joint_readings, read_data, request_from
 
 
 @dataclass(frozen=True)
@@ -31,6 +31,9 @@ def run_eval(request: EvalRequest) -> dict:
     check_output_file(request.out)
     doc = read_result(request.result)
     seq = read_data(request.data, request.intrinsics, request.robot)
+    # the joints the result was solved with: interpolated where calibrate interpolated them
+    interpolated = bool((doc.get("joint_readings") or {}).get("interpolated"))
+    seq, _ = joint_readings(seq, interpolated)
     names = [k["name"] for f in doc["per_frame"][:1] for k in f.get("keypoints") or []]
     robot_from = request.result if not request.robot and doc.get("robot") else None
     robot = robot_for(seq, request.robot or doc.get("robot"), tuple(names) or None,

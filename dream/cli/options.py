@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 from dataclasses import fields
-from typing import TypeVar
+from typing import Any, TextIO, TypeVar
 
 from dream.camera import CameraIntrinsics
 from dream.errors import InputError
@@ -15,6 +15,8 @@ FIX_INTRINSICS = "give --intrinsics fx,fy,cx,cy or fx,fy,cx,cy,width,height (pix
 INTRINSICS_HELP = "fx,fy,cx,cy[,width,height] for data without them"
 ROBOT_HELP = "built-in robot name or URDF path (default: the data's)"
 DATA_FILE_HELP = "dataset folder or .npz"
+INTERPOLATE, AS_LOGGED = "interpolate", "as-logged"
+JOINT_READINGS = (INTERPOLATE, AS_LOGGED)  # what --joint-readings does with a held joint log
 
 Request = TypeVar("Request")
 
@@ -59,6 +61,23 @@ def read_data(data: str, intrinsics: str | None = None, robot: str | None = None
     from dream.io import read_sequence
 
     return read_sequence(data, intrinsics=parse_intrinsics(intrinsics), robot=robot)
+
+
+def joint_readings(seq: Any, interpolate: bool, out: TextIO | None = None) -> tuple[Any, Any]:
+    """(the sequence, its `dream.readings.ReadingUpdates` or None without timestamps): with a
+    held joint log, the readings interpolated in time when `interpolate`, said on `out`."""
+    from dream.readings import with_interpolated_readings
+
+    interpolated, updates = with_interpolated_readings(seq)
+    if updates is None or not updates.held:
+        return seq, updates
+    if out is not None:
+        done = (f"interpolated in time between the updates (--joint-readings {AS_LOGGED} keeps "
+                "them)" if interpolate else "kept as logged")
+        print(f"joint readings: {len(updates.update_index)} updates in {len(seq)} frames, one "
+              f"every {updates.period_s:.3f} s ({updates.repeat_fraction:.0%} of the frames "
+              f"repeat the previous reading): {done}", file=out)
+    return (interpolated if interpolate else seq), updates
 
 
 def request_from(cls: type[Request], args: argparse.Namespace) -> Request:
