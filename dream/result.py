@@ -28,10 +28,6 @@ def _matrix(a: np.ndarray | None) -> list | None:
     return None if a is None else np.asarray(a, dtype=float).tolist()
 
 
-def _num(x: float | None) -> float | None:
-    return None if x is None or not np.isfinite(x) else float(x)
-
-
 def result_to_dict(result: CalibrationResult, obs: Observations, *, robot: str) -> dict[str, Any]:
     """The RESULT.json document (docs/data_format.md#resultjson)."""
     fit = result.fit

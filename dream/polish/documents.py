@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from dream.arrays import finite_or_none
 from dream.errors import InputError
 from dream.polish.refine import PolishResult
 from dream.transforms import invert_T, quaternion_xyzw_from_R
@@ -23,10 +24,6 @@ from dream.transforms import invert_T, quaternion_xyzw_from_R
 
 def _floats(a: np.ndarray) -> list[float]:
     return [float(x) for x in a]
-
-
-def _finite_or_none(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None
 
 
 def polish_to_dict(res: PolishResult) -> dict[str, Any]:
@@ -40,10 +37,10 @@ def polish_to_dict(res: PolishResult) -> dict[str, Any]:
         "frames": list(res.frames),
         "iou_before_per_frame": _floats(res.iou_before),
         "iou_after_per_frame": _floats(res.iou_after),
-        "rmse_px_before": _finite_or_none(res.rmse_before),
-        "rmse_px_after": _finite_or_none(res.rmse_after),
-        "median_px_before": _finite_or_none(res.median_before),
-        "median_px_after": _finite_or_none(res.median_after),
+        "rmse_px_before": finite_or_none(res.rmse_before),
+        "rmse_px_after": finite_or_none(res.rmse_after),
+        "median_px_before": finite_or_none(res.median_before),
+        "median_px_after": finite_or_none(res.median_after),
         "keypoint_guard": res.guard,
         "started_without_keypoint": res.start or None,
         "T_cam_base_keypoints": res.T_before.tolist(),

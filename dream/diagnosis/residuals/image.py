@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from dream.arrays import finite_or_none
 from dream.diagnosis.residuals.regression import (
     ALPHA,
     MIN_REGRESSION_OBS,
@@ -22,7 +23,6 @@ from dream.diagnosis.residuals.regression import (
 )
 from dream.diagnosis.residuals.residual_set import (
     ResidualSet,
-    finite_or_none,
     float_list,
     used_residuals,
 )

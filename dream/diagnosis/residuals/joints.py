@@ -9,10 +9,10 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from dream.arrays import finite_or_none
 from dream.diagnosis.residuals.regression import ALPHA, MIN_REGRESSION_OBS, corr
 from dream.diagnosis.residuals.residual_set import (
     ResidualSet,
-    finite_or_none,
     used_residuals,
 )
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 from scipy import stats
 
-from dream.diagnosis.residuals.residual_set import finite_or_none
+from dream.arrays import finite_or_none
 
 ALPHA = 0.01                 # family-wise significance level of every "significant" flag
 MIN_REGRESSION_OBS = 4       # observations needed for a correlation or a regression

@@ -1,30 +1,20 @@
 """Observed vs predicted keypoints of one model (`ResidualSet`) and their per-frame summaries.
 
 The residual is `r = uv_observed - uv_predicted` (pixels). Values meant for JSON go through
-`finite_or_none` / `float_list` (None in place of NaN).
+`float_list` (None in place of NaN, as `dream.arrays.finite_or_none`).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from dream.arrays import read_only
+from dream.arrays import finite_or_none, read_only
 from dream.camera import CameraIntrinsics
 from dream.errors import InputError
 
 MAX_VELOCITY_GAP_FACTOR = 5.0  # no finite difference across a gap > this x the median dt
-
-
-def finite_or_none(x: Any) -> float | None:
-    """A float, or None when `x` is NaN/infinite/None."""
-    if x is None:
-        return None
-    x = float(x)
-    return x if math.isfinite(x) else None
 
 
 def float_list(a: np.ndarray) -> list:

@@ -13,10 +13,10 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from dream.arrays import finite_or_none
 from dream.diagnosis.residuals.regression import ALPHA, corr, slope_through_origin
 from dream.diagnosis.residuals.residual_set import (
     ResidualSet,
-    finite_or_none,
     float_list,
     image_velocity,
     per_frame_mean,
