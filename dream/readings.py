@@ -130,21 +130,26 @@ def interpolated_joints(timestamps: np.ndarray, joints: np.ndarray,
     return curve(np.clip(t, knots[0], knots[-1]))
 
 
-def with_interpolated_readings(sequence: Sequence, settings: HeldReadingsSettings | None = None
-                               ) -> tuple[Sequence, ReadingUpdates | None]:
-    """The sequence with held readings interpolated in time, and what was found.
-
-    Returns the sequence unchanged where its frames have no timestamps (None: nothing to tell)
-    or its log is not held.
-    """
+def sequence_updates(sequence: Sequence, settings: HeldReadingsSettings | None = None
+                     ) -> ReadingUpdates | None:
+    """`reading_updates` of a sequence; None where its frames have no timestamps or are not
+    in time order (nothing to tell)."""
     if len(sequence) < 2 or any(f.timestamp is None for f in sequence.frames):
-        return sequence, None
+        return None
     t = np.array([f.timestamp for f in sequence.frames])
     if np.any(np.diff(t) < 0):
-        return sequence, None
-    updates = reading_updates(t, sequence.joints, settings)
-    if not updates.held:
+        return None
+    return reading_updates(t, sequence.joints, settings)
+
+
+def with_interpolated_readings(sequence: Sequence, settings: HeldReadingsSettings | None = None
+                               ) -> tuple[Sequence, ReadingUpdates | None]:
+    """The sequence with held readings interpolated in time, and what was found
+    (`sequence_updates`); the sequence unchanged where its log is not held."""
+    updates = sequence_updates(sequence, settings)
+    if updates is None or not updates.held:
         return sequence, updates
+    t = np.array([f.timestamp for f in sequence.frames])
     q = interpolated_joints(t, sequence.joints, updates)
     frames = tuple(dataclasses.replace(f, joints=q[i]) for i, f in enumerate(sequence.frames))
     log.info("joint readings held between %d updates: interpolated in time",

@@ -73,8 +73,8 @@ def result_to_dict(result: CalibrationResult, obs: Observations, *, robot: str) 
         else obs.frame_names[result.reported_frame],
         "keypoints_used": int(fit.num_inliers),
         # 1-sigma of `covariance_xi` (the fit's, plus the keypoint jackknife's when present)
-        "sigma_translation_m": np.sqrt(np.diag(covariance)[3:]).tolist(),
-        "sigma_rotation_rad": np.sqrt(np.diag(covariance)[:3]).tolist(),
+        "sigma_translation_m": result.sigma_translation_m.tolist(),
+        "sigma_rotation_rad": result.sigma_rotation_rad.tolist(),
         # Extensions: the camera pose in the base frame and the full covariance.
         "T_base_cam": _matrix(T_base_cam),
         "sigma_camera_position_base_m": np.sqrt(np.diag(cov_c)).tolist(),

@@ -96,7 +96,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     ros_path, matrix_path = _check_outputs(request)
     extension = _read_extension(request)
     seq = read_data(request.data, request.intrinsics, request.robot)
-    seq, readings = joint_readings(seq, request.joint_readings == INTERPOLATE, out)
+    seq, readings_doc = joint_readings(seq, request.joint_readings == INTERPOLATE, out)
     if request.polish:
         from dream.polish import check_polish_input
 
@@ -108,9 +108,8 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
         seq, obs = _apply_extension(request, extension, seq, robot, obs, out)
     result = calibrate(seq, obs, request.frames, settings)
     doc = result_to_dict(result, obs, robot=request.robot or seq.robot)
-    if readings is not None:
-        doc["joint_readings"] = readings.to_dict(readings.held and
-                                                 request.joint_readings == INTERPOLATE)
+    if readings_doc is not None:
+        doc["joint_readings"] = readings_doc
     if extension is not None:
         doc["model_extension"] = {"file": str(request.model_extension),
                                   "effects": extension.to_dict()["effects"],

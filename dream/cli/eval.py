@@ -32,8 +32,8 @@ def run_eval(request: EvalRequest) -> dict:
     doc = read_result(request.result)
     seq = read_data(request.data, request.intrinsics, request.robot)
     # the joints the result was solved with: interpolated where calibrate interpolated them
-    interpolated = bool((doc.get("joint_readings") or {}).get("interpolated"))
-    seq, _ = joint_readings(seq, interpolated)
+    if (doc.get("joint_readings") or {}).get("interpolated"):
+        seq, _ = joint_readings(seq, interpolate=True)
     names = [k["name"] for f in doc["per_frame"][:1] for k in f.get("keypoints") or []]
     robot_from = request.result if not request.robot and doc.get("robot") else None
     robot = robot_for(seq, request.robot or doc.get("robot"), tuple(names) or None,

@@ -63,21 +63,24 @@ def read_data(data: str, intrinsics: str | None = None, robot: str | None = None
     return read_sequence(data, intrinsics=parse_intrinsics(intrinsics), robot=robot)
 
 
-def joint_readings(seq: Any, interpolate: bool, out: TextIO | None = None) -> tuple[Any, Any]:
-    """(the sequence, its `dream.readings.ReadingUpdates` or None without timestamps): with a
-    held joint log, the readings interpolated in time when `interpolate`, said on `out`."""
-    from dream.readings import with_interpolated_readings
+def joint_readings(seq: Any, interpolate: bool, out: TextIO | None = None
+                   ) -> tuple[Any, dict | None]:
+    """(the sequence, RESULT.json's `joint_readings` or None without timestamps): with a held
+    joint log, the readings interpolated in time when `interpolate`, said on `out`."""
+    from dream.readings import sequence_updates, with_interpolated_readings
 
-    interpolated, updates = with_interpolated_readings(seq)
+    updates = sequence_updates(seq)
     if updates is None or not updates.held:
-        return seq, updates
+        return seq, None if updates is None else updates.to_dict(interpolated=False)
+    if interpolate:
+        seq, _ = with_interpolated_readings(seq)
     if out is not None:
         done = (f"interpolated in time between the updates (--joint-readings {AS_LOGGED} keeps "
                 "them)" if interpolate else "kept as logged")
         print(f"joint readings: {len(updates.update_index)} updates in {len(seq)} frames, one "
               f"every {updates.period_s:.3f} s ({updates.repeat_fraction:.0%} of the frames "
               f"repeat the previous reading): {done}", file=out)
-    return (interpolated if interpolate else seq), updates
+    return seq, updates.to_dict(interpolated=interpolate)
 
 
 def request_from(cls: type[Request], args: argparse.Namespace) -> Request:
