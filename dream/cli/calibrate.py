@@ -11,7 +11,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from dream.cli.calibrate_report import add_polish, print_summary
+from dream.cli.calibrate_report import add_edges, add_polish, print_summary
 from dream.cli.observe import observe
 from dream.cli.options import (
     INTERPOLATE,
@@ -26,6 +26,9 @@ from dream.cli.options import (
 )
 from dream.errors import InputError
 from dream.pnp import RobustLoss, SolverSettings
+
+AUTO, EDGES, NONE = "auto", "edges", "none"
+REFINE_CHOICES = (AUTO, EDGES, NONE)   # --refine: what refines the keypoint extrinsic
 
 
 @dataclass(frozen=True)
@@ -50,6 +53,8 @@ class CalibrateRequest:
     batch: int | None = None
     model_extension: str | None = None
     joint_readings: str = INTERPOLATE
+    refine: str = AUTO
+    exclude_links: str | None = None
     loaded_model: Any = None
 
     def __post_init__(self) -> None:
@@ -58,6 +63,7 @@ class CalibrateRequest:
             raise InputError(f"unknown --joint-readings {self.joint_readings!r}",
                              fix=f"use one of {', '.join(JOINT_READINGS)}")
         self.solver_settings()  # checks --seed, --loss and --loss-scale-px
+        _check_refine(self.refine, self.frames, self.polish, self.exclude_links)
 
     def solver_settings(self) -> SolverSettings:
         """The solver's settings of `--loss`, `--loss-scale-px` and `--seed`."""
@@ -80,6 +86,36 @@ def _check_mask_head(mask_head: bool, polish: bool, model: bool, frames: str) ->
         raise InputError("--mask-head polishes the one extrinsic of all frames; the mask head "
                          "is too coarse to polish a frame alone",
                          fix="use --frames all, or drop --mask-head")
+
+
+def _check_refine(refine: str, frames: str, polish: bool, exclude_links: str | None) -> None:
+    """`--refine` and `--exclude-links` against the other options (before any reading)."""
+    if refine not in REFINE_CHOICES:
+        raise InputError(f"unknown --refine {refine!r}", fix=f"use one of "
+                         f"{', '.join(REFINE_CHOICES)}")
+    if refine != EDGES:
+        if exclude_links and refine == NONE:
+            raise InputError("--exclude-links chooses the links of the edge alignment, and "
+                             "--refine none turns it off", fix="drop one of them")
+        return
+    if frames != "all":
+        raise InputError("--refine edges aligns the one extrinsic of a fixed camera over all "
+                         "frames", fix="use --frames all, or --refine none")
+    if polish:
+        raise InputError("--refine edges and --polish both refine the extrinsic",
+                         fix="choose one: --polish with masks, --refine edges without")
+
+
+def refine_mode(request: CalibrateRequest, seq) -> str:
+    """What `--refine` does with this data: `auto` aligns edges for all frames of a fixed
+    camera whose frames all have images and no masks, when --polish was not asked for."""
+    if request.refine != AUTO:
+        return request.refine
+    from dream.polish import has_masks
+
+    images = all(f.image_path is not None for f in seq.frames)
+    return EDGES if (request.frames == "all" and not request.polish and images
+                     and not has_masks(seq)) else NONE
 
 
 def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
@@ -116,6 +152,8 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
                                   "camera": {"fx": seq.camera.fx, "fy": seq.camera.fy,
                                              "cx": seq.camera.cx, "cy": seq.camera.cy,
                                              "distortion": seq.camera.distortion}}
+    if refine_mode(request, seq) == EDGES:
+        doc = add_edges(seq, robot, result, obs, doc, out, request.exclude_links)
     if request.polish:
         doc = add_polish(seq, robot, result, obs, model, doc, out, frames=request.frames,
                          mask_head=request.mask_head)
@@ -223,6 +261,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "aligning the robot's rendered silhouette with the data's masks (or, "
                         "all frames with --mask-head, the --model's mask head); kept only when "
                         "the IoU improves without spoiling the keypoint fit")
+    p.add_argument("--refine", choices=REFINE_CHOICES, default=AUTO,
+                   help="edges: align the robot's outline (URDF meshes) with the images' edges "
+                        "from the keypoint extrinsic, coarse to fine over all frames of the "
+                        "fixed camera, no masks needed; kept only when more of the outline "
+                        "lies on edges and the keypoint detections do not contradict it. "
+                        "auto (default): edges for all frames when the data has images and "
+                        "no masks and --polish is not given")
+    p.add_argument("--exclude-links", metavar="LINK[,LINK...]",
+                   help="--refine edges: links left out of the alignment (a tool or gripper "
+                        "the URDF lacks; RESULT.json's edges.mismatched_links names suspects)")
     p.add_argument("--mask-head", action="store_true",
                    help="--polish, all frames, data without masks: align with the --model's "
                         "mask head (opt-in: the bundled model's is too coarse and made "

@@ -1,5 +1,6 @@
-"""What `dream calibrate` adds to its result and prints: the silhouette polish of `--polish`
-and the summary of the extrinsic and its uncertainty."""
+"""What `dream calibrate` adds to its result and prints: the edge alignment of `--refine
+edges`, the silhouette polish of `--polish` and the summary of the extrinsic and its
+uncertainty."""
 
 from __future__ import annotations
 
@@ -55,6 +56,30 @@ def _polish_frames(seq, robot, result, obs, doc: dict, out: TextIO) -> dict:
     if reported is not None and reports[reported] is not None:
         print(f"  reported frame {doc['reported_frame']}: {reports[reported].reason}", file=out)
     return doc
+
+
+def add_edges(seq, robot, result, obs, doc: dict, out: TextIO,
+              exclude_links: str | None) -> dict:
+    """`--refine edges`: the one extrinsic aligned with the images' edges; returns RESULT.json's
+    document with it."""
+    from dream.edges import refine_with_edges
+    from dream.edges.documents import result_doc_with_edges
+    from dream.polish.guard import KeypointSet
+
+    exclude = tuple(n.strip() for n in (exclude_links or "").split(",") if n.strip())
+    res = refine_with_edges(seq, robot, result.fit.T_cam_base, obs, exclude_links=exclude)
+    inlier = result.inlier & obs.found
+    rmse = (KeypointSet(obs.P_base[inlier], obs.uv[inlier]).rmse_px(seq.camera, res.T_after)
+            if inlier.any() else float("nan"))
+    moved_m, moved_rad = res.correction
+    print(f"edge alignment ({len(res.frames)} frames, {res.seconds:.1f} s"
+          f"{', background model' if res.background else ''}): {res.reason}; the aligned pose "
+          f"is {moved_m * 1e3:.1f} mm and {np.rad2deg(moved_rad):.2f} deg from the keypoint "
+          "pose", file=out)
+    if res.mismatched_links:
+        print(f"  links whose outline disagrees with the images (a tool or gripper the URDF "
+              f"lacks? --exclude-links): {', '.join(res.mismatched_links)}", file=out)
+    return result_doc_with_edges(doc, res, rmse)
 
 
 def print_summary(doc: dict, out: TextIO) -> None:

@@ -52,10 +52,11 @@ def polish_to_dict(res: PolishResult) -> dict[str, Any]:
     }
 
 
-def _with_pose(doc: dict[str, Any], T: np.ndarray, rmse_px: float) -> None:
+def with_pose_fields(doc: dict[str, Any], T: np.ndarray, rmse_px: float) -> None:
     """Set a RESULT.json document's pose fields (`T_cam_base`, `translation_m`,
     `quaternion_xyzw`, `T_base_cam`, `sigma_camera_position_base_m`) and, when finite,
-    `rmse_px` to those of the polished pose `T` (the covariance stays the keypoint fit's)."""
+    `rmse_px` to those of the pose `T`, polished or aligned (the covariance stays the keypoint
+    fit's)."""
     from dream.result import camera_position_covariance
 
     doc["T_cam_base"] = T.tolist()
@@ -71,11 +72,11 @@ def _with_pose(doc: dict[str, Any], T: np.ndarray, rmse_px: float) -> None:
 
 def result_doc_with_polish(doc: dict[str, Any], res: PolishResult) -> dict[str, Any]:
     """A copy of an all-frames RESULT.json document with its `polish` object; when the polish
-    is kept, the pose fields and `rmse_px` describe the polished pose (`_with_pose`)."""
+    is kept, the pose fields and `rmse_px` describe the polished pose (`with_pose_fields`)."""
     out = dict(doc)
     out["polish"] = polish_to_dict(res)
     if res.kept:
-        _with_pose(out, res.T_after, res.rmse_after)
+        with_pose_fields(out, res.T_after, res.rmse_after)
     return out
 
 
@@ -112,7 +113,7 @@ def result_doc_with_frame_polishes(doc: dict[str, Any],
     """A copy of an "each"-mode RESULT.json document with each polished frame's `polish`
     object and, where kept, its polished `T_cam_base` and `rmse_px`; the top-level `polish`
     object is `frame_polish_summary`, and the top-level pose is the reported frame's polished
-    one when that frame's polish was kept (`_with_pose`)."""
+    one when that frame's polish was kept (`with_pose_fields`)."""
     if doc.get("frames_mode") != "each" or len(doc["per_frame"]) != len(results):
         raise InputError(f"per-frame polishes need an each-mode result with {len(results)} "
                          "frames")
@@ -127,7 +128,7 @@ def result_doc_with_frame_polishes(doc: dict[str, Any],
                 if np.isfinite(res.rmse_after):
                     entry["rmse_px"] = float(res.rmse_after)
             if entry["frame"] == doc.get("reported_frame") and res.kept:
-                _with_pose(out, res.T_after, res.rmse_after)
+                with_pose_fields(out, res.T_after, res.rmse_after)
         per_frame.append(entry)
     out["per_frame"] = per_frame
     out["polish"] = frame_polish_summary(results)

@@ -142,7 +142,7 @@ def _lm_steps(objective: Objective, contour: Contour, T: np.ndarray,
     return levenberg_marquardt(_ContourProblem(objective, contour), T, settings, start).x
 
 
-def _rms_motion_px(P_base: np.ndarray, T0: np.ndarray, T1: np.ndarray,
+def rms_motion_px(P_base: np.ndarray, T0: np.ndarray, T1: np.ndarray,
                    camera: CameraIntrinsics) -> float:
     """RMS pixel motion of the points P_base (N, 3) from pose T0 to T1 (inf where one does not
     project)."""
@@ -173,7 +173,7 @@ def _refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
             log.info("silhouette polish: only %d contour points, stopping", points)
             break
         T_new = _lm_steps(objective, contour, T, params)
-        moved = _rms_motion_px(contour.P_base, T, T_new, camera)
+        moved = rms_motion_px(contour.P_base, T, T_new, camera)
         T = T_new
         log.debug("silhouette polish round %d: %d points, moved %.3g px", rounds, points, moved)
         if moved < params.step_tolerance_px:

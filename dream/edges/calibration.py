@@ -1,0 +1,195 @@
+"""The edge alignment applied to a fixed-camera calibration, and whether its pose is kept.
+
+`refine_with_edges`: the frames with images (at most `max_search_frames`, evenly spaced), their
+grey images, the background model of the whole sequence (`dream.edges.background`, when it has
+enough frames), the robot's meshes, then the coarse-to-fine alignment from the keypoint
+extrinsic (`dream.edges.refine`). The aligned pose is kept when its outline agrees with more of
+the images' edges than the keypoint pose's (`dream.edges.score`, full resolution) and all the
+keypoint detections, not only the inliers of the keypoint fit, do not contradict it: their
+median distance stays within max(`max_keypoint_factor` x before, before + `keypoint_margin_px`).
+A keypoint fit that kept a small, biased consensus leaves most detections far from its pose,
+so their median does not protect it.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence as SequenceOf
+from dataclasses import dataclass
+
+import numpy as np
+
+from dream.calibration import Observations
+from dream.edges.background import load_grey, sequence_background
+from dream.edges.refine import EdgeTrace, align_edges
+from dream.edges.score import EdgeScore, edge_score
+from dream.edges.search import scale_images
+from dream.edges.settings import EdgeSettings
+from dream.errors import InputError
+from dream.polish.guard import KeypointSet
+from dream.polish.objective import evenly_spaced
+from dream.robot import Robot
+from dream.sequence import Sequence
+from dream.silhouette import RobotMeshes, load_robot_meshes, vertices_in_base
+from dream.transforms import invert_T, rotation_angle_between
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class EdgeResult:
+    """Outcome of the edge alignment of one extrinsic.
+
+    Attributes:
+        T_before: (4, 4) the keypoint extrinsic. T_aligned: (4, 4) the alignment's optimum.
+        T_after: (4, 4) the extrinsic kept: `T_aligned` when `kept`, else `T_before`.
+        kept: whether the aligned pose was kept; reason: why (one sentence).
+        frames: names of the frames aligned and scored.
+        score_before, score_after: the outline's agreement at `T_before` / `T_aligned`.
+        keypoint_median_before, keypoint_median_after: median distance (px) of all keypoint
+            detections at the two poses (NaN without detections).
+        background: whether a background model was used.
+        excluded_links: links left out of the comparison by name.
+        static_links: links left out because they stay in the background model.
+        mismatched_links: links whose outline agrees less than `mismatch_ratio` x the whole
+            outline's agreement at the kept pose.
+        trace: rounds per scale, matched points. seconds: wall time.
+    """
+
+    T_before: np.ndarray
+    T_aligned: np.ndarray
+    T_after: np.ndarray
+    kept: bool
+    reason: str
+    frames: tuple[str, ...]
+    score_before: EdgeScore
+    score_after: EdgeScore
+    keypoint_median_before: float
+    keypoint_median_after: float
+    background: bool
+    excluded_links: tuple[str, ...]
+    static_links: tuple[str, ...]
+    mismatched_links: tuple[str, ...]
+    trace: EdgeTrace
+    seconds: float
+
+    @property
+    def correction(self) -> tuple[float, float]:
+        """(camera position change m, rotation change rad) from T_before to T_aligned."""
+        c0, c1 = invert_T(self.T_before)[:3, 3], invert_T(self.T_aligned)[:3, 3]
+        return (float(np.linalg.norm(c1 - c0)),
+                float(rotation_angle_between(self.T_before[:3, :3], self.T_aligned[:3, :3])))
+
+
+def all_detections(obs: Observations | None) -> KeypointSet | None:
+    """Every found keypoint detection of `obs` (None without any)."""
+    if obs is None or not obs.found.any():
+        return None
+    return KeypointSet(obs.P_base[obs.found], obs.uv[obs.found])
+
+
+def decide_edges(before: EdgeScore, after: EdgeScore, median_before: float,
+                 median_after: float, settings: EdgeSettings) -> tuple[bool, str]:
+    """The keep rule (module doc): (kept, one sentence why)."""
+    gain = after.agreement - before.agreement
+    agreement = (f"outline on the image edges {before.agreement:.1%} -> {after.agreement:.1%}"
+                 f" of {after.points} points")
+    if not gain > settings.min_agreement_gain:
+        return False, f"kept the keypoint pose: {agreement}, no gain"
+    if np.isfinite(median_before):
+        limit = max(settings.max_keypoint_factor * median_before,
+                    median_before + settings.keypoint_margin_px)
+        if not median_after <= limit:
+            return False, (f"kept the keypoint pose: {agreement}, but the keypoint detections' "
+                           f"median distance would grow {median_before:.2f} -> "
+                           f"{median_after:.2f} px (limit {limit:.2f})")
+        return True, (f"aligned to the image edges: {agreement}; keypoint detections' median "
+                      f"distance {median_before:.2f} -> {median_after:.2f} px")
+    return True, f"aligned to the image edges: {agreement}"
+
+
+def usable_vertices(meshes: RobotMeshes, exclude_links: SequenceOf[str]) -> np.ndarray:
+    """(V,) True for the vertices of the links not excluded.
+
+    Raises:
+        InputError: an unknown link name, or every link excluded.
+    """
+    unknown = sorted(set(exclude_links) - set(meshes.links))
+    if unknown:
+        raise InputError(f"unknown link(s) {', '.join(unknown)} to leave out of the edge "
+                         f"alignment", fix=f"use links of the robot: {', '.join(meshes.links)}")
+    excluded = np.isin(np.arange(len(meshes.links)),
+                       [meshes.links.index(name) for name in exclude_links])
+    if excluded.all():
+        raise InputError("every link is left out of the edge alignment, so nothing is left to "
+                         "align", fix="leave out fewer links (--refine-links)")
+    return ~excluded[meshes.vertex_link]
+
+
+def static_links(meshes: RobotMeshes, joints: np.ndarray, settings: EdgeSettings
+                 ) -> tuple[str, ...]:
+    """Links whose vertices move less than `static_link_m` (base frame) over joints (F, J)."""
+    P = vertices_in_base(meshes, joints)                                    # (F, V, 3)
+    moved = np.linalg.norm(P - P[:1], axis=2).max(axis=0)                   # (V,)
+    most = np.zeros(len(meshes.links))
+    np.maximum.at(most, meshes.vertex_link, moved)
+    return tuple(name for name, m in zip(meshes.links, most, strict=True)
+                 if m < settings.static_link_m)
+
+
+def refine_with_edges(sequence: Sequence, robot: Robot, T_cam_base: np.ndarray,
+                      obs: Observations | None = None, settings: EdgeSettings | None = None,
+                      exclude_links: SequenceOf[str] = ()) -> EdgeResult:
+    """Align the one extrinsic of a fixed-camera `sequence` to its images' edges, from
+    `T_cam_base` (the keypoint extrinsic), and keep it or not (module doc).
+
+    Raises:
+        InputError: frames without images, a camera that is not one fixed camera, unknown or
+            all links excluded, or no image edge near the robot's outline at the start.
+    """
+    from dream.pipeline import joints_in_robot_order
+
+    start = time.perf_counter()
+    settings = settings or EdgeSettings()
+    camera = sequence.fixed_camera("align the robot's outline with the image edges")
+    missing = [f.name for f in sequence.frames if f.image_path is None]
+    if missing:
+        raise InputError(f"--refine edges needs the images, and frame {missing[0]} has none",
+                         sequence.source, "add the images, or use --refine none")
+    meshes = load_robot_meshes(robot, settings.max_triangles)
+    usable = usable_vertices(meshes, exclude_links)
+    chosen = evenly_spaced(np.arange(len(sequence)), settings.max_search_frames)
+    gray = load_grey(sequence, chosen, camera)
+    background = sequence_background(sequence, settings)
+    if background is None:
+        log.info("%d frames are too few for a background model: edges are matched without it",
+                 len(sequence))
+    joints = joints_in_robot_order(sequence, robot)
+    static = static_links(meshes, joints, settings) if background is not None else ()
+    if static:
+        usable = usable & usable_vertices(meshes, static)
+        log.info("left out of the edge alignment, in the background model: %s",
+                 ", ".join(static))
+    P = vertices_in_base(meshes, joints[chosen])
+    full = scale_images(gray, camera, camera.width, settings, background)
+    T0 = np.asarray(T_cam_base, dtype=float)
+    score0 = edge_score(meshes, P, T0, full, settings, usable)
+    if score0.points == 0 or score0.agreement * score0.points < settings.min_outline_points:
+        raise InputError(f"no image edges near the robot's outline at the keypoint pose "
+                         f"({score0.points} outline points, {score0.agreement:.0%} on an edge)",
+                         sequence.source, "check the images show the robot and the camera "
+                         "and joints belong to them, or use --refine none")
+    T1, trace = align_edges(P, meshes.faces, gray, camera, T0, settings, background, usable)
+    score1 = edge_score(meshes, P, T1, full, settings, usable)
+    guard = all_detections(obs)
+    med0, med1 = ((guard.median_px(camera, T0), guard.median_px(camera, T1)) if guard
+                  else (float("nan"), float("nan")))
+    kept, reason = decide_edges(score0, score1, med0, med1, settings)
+    log.info("edge alignment: %s", reason)
+    T_after = T1 if kept else T0
+    return EdgeResult(T0, T1, T_after, kept, reason,
+                      tuple(sequence.frames[i].name for i in chosen), score0, score1, med0,
+                      med1, background is not None, tuple(exclude_links), static,
+                      (score1 if kept else score0).mismatched(settings), trace,
+                      time.perf_counter() - start)
