@@ -18,6 +18,8 @@ The API (each name's own help says more):
 - load_keypoint_model(path), BUNDLED_MODEL: a keypoint network (ONNX).
 - detect(sequence, robot, model), labels(sequence, robot): 2D keypoints as Observations.
 - calibrate(sequence, observations, mode="all" | "each"): a CalibrationResult.
+- refine_edges(sequence, robot, result, observations): align the outline with the images'
+  edges (no masks needed).
 - polish_result(sequence, robot, result, observations): align the silhouette with the masks.
 - evaluate(sequence, robot, result, observations): errors against the ground truth.
 - result_document(result, observations, robot), read_result(path): RESULT.json.
@@ -43,6 +45,7 @@ _API = {
     "labels": "dream.api",
     "calibrate": "dream.api",
     "polish_result": "dream.api",
+    "refine_edges": "dream.api",
     "evaluate": "dream.api",
     "diagnose": "dream.api",
     "result_document": "dream.api",

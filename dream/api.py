@@ -91,6 +91,22 @@ def polish_result(sequence: Sequence, robot: Robot, result: CalibrationResult,
     return polish_frames(sequence, robot, result, observations)
 
 
+def refine_edges(sequence: Sequence, robot: Robot, result: CalibrationResult,
+                 observations: Observations, exclude_links: SequenceOf[str] = ()) -> Any:
+    """The all-frames result aligned with the images' edges, no masks needed (`dream calibrate
+    --refine edges`). Returns an `EdgeResult` (`dream.edges`): `T_after` is the extrinsic to
+    use, the aligned one when `kept`; `mismatched_links` names links whose outline disagrees
+    with the images; `exclude_links` leaves links out.
+    """
+    from dream.edges import refine_with_edges
+
+    if result.mode != "all":
+        raise InputError("refine_edges aligns the one extrinsic of a fixed camera",
+                         fix="calibrate with mode='all'")
+    return refine_with_edges(sequence, robot, result.T_cam_base, observations,
+                             exclude_links=exclude_links)
+
+
 def result_document(result: CalibrationResult, observations: Observations,
                     robot: Robot) -> dict[str, Any]:
     """The RESULT.json document of a calibration (docs/data_format.md)."""

@@ -231,3 +231,16 @@ def test_refine_with_edges_needs_images(panda):
                    keypoint_names=panda.keypoint_names, frames=frames)
     with pytest.raises(InputError, match="needs the images"):
         refine_with_edges(seq, panda, np.eye(4))
+
+
+def test_api_refine_edges_aligns_an_all_frames_result(panda, meshes, tmp_path):
+    import dream
+
+    T_true = image_dataset(panda, meshes, tmp_path)
+    seq = dream.read_sequence(tmp_path / "data")
+    robot = dream.load_robot(seq)
+    obs = dream.labels(seq, robot)
+    res = dream.refine_edges(seq, robot, dream.calibrate(seq, obs), obs)
+    assert res.kept and pose_errors(res.T_after, T_true)[0] < 0.002
+    with pytest.raises(InputError, match="one extrinsic of a fixed camera"):
+        dream.refine_edges(seq, robot, dream.calibrate(seq, obs, mode="each"), obs)
