@@ -64,13 +64,12 @@ def add_edges(seq, robot, result, obs, doc: dict, out: TextIO,
     document with it."""
     from dream.edges import refine_with_edges
     from dream.edges.documents import result_doc_with_edges
-    from dream.polish.guard import KeypointSet
+    from dream.polish.calibration import inlier_keypoints
 
     exclude = tuple(n.strip() for n in (exclude_links or "").split(",") if n.strip())
     res = refine_with_edges(seq, robot, result.fit.T_cam_base, obs, exclude_links=exclude)
-    inlier = result.inlier & obs.found
-    rmse = (KeypointSet(obs.P_base[inlier], obs.uv[inlier]).rmse_px(seq.camera, res.T_after)
-            if inlier.any() else float("nan"))
+    inliers = inlier_keypoints(result, obs, slice(None))
+    rmse = inliers.rmse_px(seq.camera, res.T_after) if inliers is not None else float("nan")
     moved_m, moved_rad = res.correction
     print(f"edge alignment ({len(res.frames)} frames, {res.seconds:.1f} s"
           f"{', background model' if res.background else ''}): {res.reason}; the aligned pose "

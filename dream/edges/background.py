@@ -56,10 +56,17 @@ def background_model(frames: np.ndarray, settings: EdgeSettings) -> np.ndarray:
     return np.median(frames, axis=0)
 
 
-def sequence_background(sequence: Sequence, settings: EdgeSettings) -> np.ndarray | None:
-    """The background model of a fixed-camera sequence, or None when it has fewer than
-    `min_background_frames` frames."""
-    if len(sequence) < settings.min_background_frames:
-        return None
-    chosen = evenly_spaced(np.arange(len(sequence)), settings.background_frames)
-    return background_model(load_grey(sequence, chosen), settings)
+def frames_and_background(sequence: Sequence, chosen: np.ndarray, settings: EdgeSettings,
+                          camera: CameraIntrinsics | None = None
+                          ) -> tuple[np.ndarray, np.ndarray | None]:
+    """The grey images (n, H, W) of the frames `chosen` of a fixed-camera sequence, and its
+    background model (None when it has fewer than `min_background_frames` frames); each image
+    is read once."""
+    background_idx = (evenly_spaced(np.arange(len(sequence)), settings.background_frames)
+                      if len(sequence) >= settings.min_background_frames else np.zeros(0, int))
+    needed = np.union1d(chosen, background_idx)
+    images = load_grey(sequence, needed, camera)
+    frames = images[np.searchsorted(needed, chosen)]
+    if not len(background_idx):
+        return frames, None
+    return frames, background_model(images[np.searchsorted(needed, background_idx)], settings)

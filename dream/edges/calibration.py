@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dream.calibration import Observations
-from dream.edges.background import load_grey, sequence_background
+from dream.edges.background import frames_and_background
 from dream.edges.refine import EdgeTrace, align_edges
 from dream.edges.score import EdgeScore, edge_score
 from dream.edges.search import scale_images
@@ -73,6 +73,11 @@ class EdgeResult:
     mismatched_links: tuple[str, ...]
     trace: EdgeTrace
     seconds: float
+
+    @property
+    def score_kept(self) -> EdgeScore:
+        """The agreement at the pose kept (`T_after`)."""
+        return self.score_after if self.kept else self.score_before
 
     @property
     def correction(self) -> tuple[float, float]:
@@ -129,13 +134,16 @@ def usable_vertices(meshes: RobotMeshes, exclude_links: SequenceOf[str]) -> np.n
 
 def static_links(meshes: RobotMeshes, joints: np.ndarray, settings: EdgeSettings
                  ) -> tuple[str, ...]:
-    """Links whose vertices move less than `static_link_m` (base frame) over joints (F, J)."""
-    P = vertices_in_base(meshes, joints)                                    # (F, V, 3)
-    moved = np.linalg.norm(P - P[:1], axis=2).max(axis=0)                   # (V,)
-    most = np.zeros(len(meshes.links))
-    np.maximum.at(most, meshes.vertex_link, moved)
-    return tuple(name for name, m in zip(meshes.links, most, strict=True)
-                 if m < settings.static_link_m)
+    """Links whose vertices move less than `static_link_m` (base frame) over joints (F, J),
+    measured link by link (no (F, V) array of the whole robot)."""
+    T = meshes.robot.link_poses(joints, meshes.links)                      # (F, L, 4, 4)
+    static = []
+    for i, name in enumerate(meshes.links):
+        v = meshes.vertices[meshes.vertex_link == i]                       # (V_i, 3)
+        P = v @ T[:, i, :3, :3].transpose(0, 2, 1) + T[:, i, None, :3, 3]  # (F, V_i, 3)
+        if not len(v) or np.linalg.norm(P - P[:1], axis=2).max() < settings.static_link_m:
+            static.append(name)
+    return tuple(static)
 
 
 def refine_with_edges(sequence: Sequence, robot: Robot, T_cam_base: np.ndarray,
@@ -160,8 +168,7 @@ def refine_with_edges(sequence: Sequence, robot: Robot, T_cam_base: np.ndarray,
     meshes = load_robot_meshes(robot, settings.max_triangles)
     usable = usable_vertices(meshes, exclude_links)
     chosen = evenly_spaced(np.arange(len(sequence)), settings.max_search_frames)
-    gray = load_grey(sequence, chosen, camera)
-    background = sequence_background(sequence, settings)
+    gray, background = frames_and_background(sequence, chosen, settings, camera)
     if background is None:
         log.info("%d frames are too few for a background model: edges are matched without it",
                  len(sequence))

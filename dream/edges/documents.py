@@ -20,7 +20,6 @@ from dream.polish.documents import with_pose_fields
 def edges_to_dict(res: EdgeResult) -> dict[str, Any]:
     """The `edges` object of RESULT.json."""
     moved_m, moved_rad = res.correction
-    kept_score = res.score_after if res.kept else res.score_before
     return {
         "kept": bool(res.kept),
         "reason": res.reason,
@@ -29,7 +28,7 @@ def edges_to_dict(res: EdgeResult) -> dict[str, Any]:
         "outline_points": res.score_after.points,
         "links": {a.link: {"outline_points": a.points, "agreement": a.agreement,
                            "median_edge_distance_px": finite_or_none(a.median_px)}
-                  for a in kept_score.links},
+                  for a in res.score_kept.links},
         "mismatched_links": list(res.mismatched_links),
         "excluded_links": list(res.excluded_links),
         "static_links": list(res.static_links),

@@ -23,23 +23,14 @@ from typing import Any
 import numpy as np
 
 from dream.camera import CameraIntrinsics
-from dream.edges.search import (
-    Outline,
-    ScaleImages,
-    match_edges,
-    scale_images,
-    select_outline,
-)
+from dream.edges.search import Outline, ScaleImages, outline_edges, scale_images
 from dream.edges.settings import EdgeSettings
-from dream.optim import LMSettings, levenberg_marquardt
-from dream.optim.robust import TINY, huber_rho, huber_weight
+from dream.optim import levenberg_marquardt
+from dream.optim.robust import huber_rho, huber_weight
 from dream.pnp import apply_increment, linearise
-from dream.polish.refine import rms_motion_px
+from dream.polish.refine import inner_lm_settings, rms_motion_px
 
 log = logging.getLogger(__name__)
-
-DAMPING_FACTOR = 10.0       # LM lambda is multiplied / divided by this on a refused / kept step
-MAX_DAMPING = 1e8           # the inner loop stops when lambda exceeds this
 
 
 @dataclass(frozen=True)
@@ -91,16 +82,12 @@ def match_outline(P_frames: np.ndarray, faces: np.ndarray, T: np.ndarray,
                   usable: np.ndarray | None = None) -> Matched:
     """The outline points at T (of the vertices `usable`, default all) that face an image
     edge, with the edge's offset."""
-    outline = select_outline(P_frames, faces, T, images.camera, settings, usable)
-    origin = outline.uv - outline.s[:, None] * outline.normal
-    d, found = match_edges(images, outline.frame, origin, outline.normal, settings)
+    outline, d, found = outline_edges(P_frames, faces, T, images, settings, usable)
     return Matched(outline.subset(found), d[found])
 
 
 def _lm_steps(problem: _EdgeProblem, T: np.ndarray, settings: EdgeSettings) -> np.ndarray:
-    lm = LMSettings(initial_damping=settings.initial_damping, damping_up=DAMPING_FACTOR,
-                    damping_down=DAMPING_FACTOR, min_damping=TINY, max_damping=MAX_DAMPING,
-                    max_iterations=settings.inner_iterations, strict_decrease=True)
+    lm = inner_lm_settings(settings.initial_damping, settings.inner_iterations)
     return levenberg_marquardt(problem, T, lm).x
 
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dream.edges.search import ScaleImages, match_edges, select_outline
+from dream.edges.search import ScaleImages, outline_edges
 from dream.edges.settings import EdgeSettings
 from dream.silhouette import RobotMeshes
 
@@ -49,9 +49,7 @@ def edge_score(meshes: RobotMeshes, P_frames: np.ndarray, T: np.ndarray, images:
                settings: EdgeSettings, usable: np.ndarray | None = None) -> EdgeScore:
     """The agreement of the outline at T (of the vertices `usable`) with `images` (module
     doc)."""
-    outline = select_outline(P_frames, meshes.faces, T, images.camera, settings, usable)
-    origin = outline.uv - outline.s[:, None] * outline.normal
-    d, found = match_edges(images, outline.frame, origin, outline.normal, settings)
+    outline, d, found = outline_edges(P_frames, meshes.faces, T, images, settings, usable)
     agree = found & (np.abs(np.nan_to_num(d, nan=np.inf)) <= settings.agree_px)
     link = meshes.vertex_link[outline.vertex]
     per_link = []

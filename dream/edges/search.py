@@ -38,7 +38,7 @@ import numpy as np
 from dream.camera import CameraIntrinsics, project
 from dream.edges.settings import EdgeSettings
 from dream.errors import InputError
-from dream.polish.objective import evenly_spaced, scaled_camera, signed_distance
+from dream.polish.objective import bilinear, evenly_spaced, scaled_camera, signed_distance
 from dream.silhouette import render_points
 
 TINY_GRADIENT = 1e-12   # a normal is undefined where the distance field is flatter than this
@@ -54,20 +54,6 @@ def gradient_images(gray: np.ndarray, blur_sigma_px: float) -> tuple[np.ndarray,
     blurred = cv2.GaussianBlur(g, (0, 0), blur_sigma_px, borderType=cv2.BORDER_REPLICATE)
     gy, gx = np.gradient(blurred)
     return gx, gy
-
-
-def bilinear(images: np.ndarray, frame: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Values of images (F, H, W) at pixels uv (..., 2) of frames `frame` (...,), clamped to
-    the image."""
-    _, H, W = images.shape
-    x = np.clip(uv[..., 0], 0.0, W - 1.0)
-    y = np.clip(uv[..., 1], 0.0, H - 1.0)
-    x0 = np.minimum(np.floor(x).astype(np.int64), max(W - 2, 0))
-    y0 = np.minimum(np.floor(y).astype(np.int64), max(H - 2, 0))
-    ax, ay = x - x0, y - y0
-    x1, y1 = np.minimum(x0 + 1, W - 1), np.minimum(y0 + 1, H - 1)
-    return ((images[frame, y0, x0] * (1 - ax) + images[frame, y0, x1] * ax) * (1 - ay)
-            + (images[frame, y1, x0] * (1 - ax) + images[frame, y1, x1] * ax) * ay)
 
 
 @dataclass(frozen=True)
@@ -215,3 +201,14 @@ def match_edges(images: ScaleImages, frame: np.ndarray, origin: np.ndarray,
     delta = np.where(concave, 0.5 * (a - c) / np.where(concave, curvature, -1.0), 0.0)
     d = np.where(found, k[j] + np.clip(delta, -SUBPIXEL_LIMIT, SUBPIXEL_LIMIT), np.nan)
     return d, found
+
+
+def outline_edges(P_frames: np.ndarray, faces: np.ndarray, T: np.ndarray, images: ScaleImages,
+                  settings: EdgeSettings, usable: np.ndarray | None = None
+                  ) -> tuple[Outline, np.ndarray, np.ndarray]:
+    """The outline points at T (`select_outline`, of the vertices `usable`) and, for each, the
+    offset d of the edge facing it and whether one was found (`match_edges`)."""
+    outline = select_outline(P_frames, faces, T, images.camera, settings, usable)
+    origin = outline.uv - outline.s[:, None] * outline.normal
+    d, found = match_edges(images, outline.frame, origin, outline.normal, settings)
+    return outline, d, found

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dream.errors import InputError
+from dream.settings_checks import check_fields
 from dream.silhouette import DEFAULT_MAX_TRIANGLES
 
 
@@ -90,26 +91,17 @@ class EdgeSettings:
             raise InputError(f"scale_widths_px must be positive widths, coarsest first, got "
                              f"{self.scale_widths_px}")
         object.__setattr__(self, "scale_widths_px", widths)
-        for name in ("background_frames", "min_background_frames", "max_points_per_frame",
-                     "max_search_frames", "rounds_per_scale", "inner_iterations",
-                     "min_outline_points", "max_triangles"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or int(value) != value or value < 1:
-                raise InputError(f"edge parameter {name} must be a positive integer, got "
-                                 f"{value}")
-            object.__setattr__(self, name, int(value))
-        for name in ("search_range_px", "blur_sigma_px", "min_edge_strength", "side_probe_px",
-                     "motion_threshold", "huber_scale_px", "max_residual_px",
-                     "contour_band_px", "initial_damping", "step_tolerance_px", "agree_px",
-                     "max_keypoint_factor", "static_link_m"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise InputError(f"edge parameter {name} must be a positive number, got "
-                                 f"{value}")
-        for name in ("min_agreement_gain", "keypoint_margin_px", "mismatch_ratio"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0):
-                raise InputError(f"edge parameter {name} must be a number >= 0, got {value}")
+        check_fields(self, "edge",
+                     positive_ints=("background_frames", "min_background_frames",
+                                    "max_points_per_frame", "max_search_frames",
+                                    "rounds_per_scale", "inner_iterations", "min_outline_points",
+                                    "max_triangles"),
+                     positive=("search_range_px", "blur_sigma_px", "min_edge_strength",
+                               "side_probe_px", "motion_threshold", "huber_scale_px",
+                               "max_residual_px", "contour_band_px", "initial_damping",
+                               "step_tolerance_px", "agree_px", "max_keypoint_factor",
+                               "static_link_m"),
+                     non_negative=("min_agreement_gain", "keypoint_margin_px", "mismatch_ratio"))
         if not 0 < self.max_edge_angle_rad < np.pi / 2:
             raise InputError(f"max_edge_angle_rad must lie in (0, pi/2), got "
                              f"{self.max_edge_angle_rad}")

@@ -68,8 +68,8 @@ def has_masks(sequence: Sequence) -> bool:
     return any(f.mask_path is not None for f in sequence.frames)
 
 
-def _inlier_keypoints(result: CalibrationResult, obs: Observations,
-                      frames: int | slice) -> KeypointSet | None:
+def inlier_keypoints(result: CalibrationResult, obs: Observations,
+                     frames: int | slice) -> KeypointSet | None:
     """The guard: the inlier observations of `frames` (an index or a slice), None if none."""
     inlier = result.inlier[frames] & obs.found[frames]
     if not inlier.any():
@@ -134,7 +134,7 @@ def polish_calibration(sequence: Sequence, robot: Robot, result: CalibrationResu
     check_polish_input(sequence, "all", network_masks=predict_masks is not None)
     inputs = silhouette_inputs(sequence, robot, params, predict_masks)
     return polish(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
-                  result.fit.T_cam_base, _inlier_keypoints(result, obs, slice(None)), params,
+                  result.fit.T_cam_base, inlier_keypoints(result, obs, slice(None)), params,
                   inputs.frame_names)
 
 
@@ -176,7 +176,7 @@ def polish_frames(sequence: Sequence, robot: Robot, result: CalibrationResult,
         mask = load_mask(frame, camera)
         if mask.any():
             out[i] = _polish_frame(meshes, joints[i:i + 1], mask, camera,
-                                   solution.fit.T_cam_base, _inlier_keypoints(result, obs, i),
+                                   solution.fit.T_cam_base, inlier_keypoints(result, obs, i),
                                    params, frame.name, solution.leave_outs)
         else:
             log.info("frame %s: empty robot mask, not polished", frame.name)

@@ -68,11 +68,12 @@ def signed_distance(mask: np.ndarray) -> np.ndarray:
     return np.where(m > 0, EDGE_OFFSET_PX - d_in, d_out - EDGE_OFFSET_PX).astype(float)
 
 
-def _bilinear(images: np.ndarray, frame: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Values of images (F, H, W) at pixels uv (N, 2) of frames `frame` (N,), clamped."""
+def bilinear(images: np.ndarray, frame: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Values of images (F, H, W) at pixels uv (..., 2) of frames `frame` (...,), clamped to
+    the image."""
     _, H, W = images.shape
-    x = np.clip(uv[:, 0], 0.0, W - 1.0)
-    y = np.clip(uv[:, 1], 0.0, H - 1.0)
+    x = np.clip(uv[..., 0], 0.0, W - 1.0)
+    y = np.clip(uv[..., 1], 0.0, H - 1.0)
     x0 = np.minimum(np.floor(x).astype(np.int64), max(W - 2, 0))
     y0 = np.minimum(np.floor(y).astype(np.int64), max(H - 2, 0))
     x1 = np.minimum(x0 + 1, W - 1)
@@ -111,7 +112,7 @@ def select_contour(P_frames: np.ndarray, faces: np.ndarray, T: np.ndarray,
         uv = project(camera, P @ T[:3, :3].T + T[:3, 3])
         ok = np.all(np.isfinite(uv), axis=1) & camera.in_image(uv)
         s = np.full(len(P), np.inf)
-        s[ok] = _bilinear(signed_distance(rendered)[None], np.zeros(int(ok.sum()), np.int64),
+        s[ok] = bilinear(signed_distance(rendered)[None], np.zeros(int(ok.sum()), np.int64),
                           uv[ok])
         pick = np.flatnonzero(np.abs(s) <= params.contour_band_px)
         pick = evenly_spaced(pick, params.max_points_per_frame)
@@ -142,16 +143,16 @@ class Objective:
         if lin is None:
             return None
         uv, J_uv = lin
-        r = _bilinear(self.sdf, contour.frame, uv) - contour.s
+        r = bilinear(self.sdf, contour.frame, uv) - contour.s
         if not jacobian:
             return r, None
         # the SDF's central differences, interpolated as the SDF is: smoother than the exact
         # derivative of the bilinear interpolant (piecewise constant), a few per cent from it
-        # (tests); zero along an axis where `_bilinear` clamps, as the residual is flat there
+        # (tests); zero along an axis where `bilinear` clamps, as the residual is flat there
         _, H, W = self.sdf.shape
         inside = (uv >= 0.0) & (uv <= [W - 1.0, H - 1.0])
-        g = np.stack([_bilinear(self.grad_x, contour.frame, uv),
-                      _bilinear(self.grad_y, contour.frame, uv)], axis=1) * inside
+        g = np.stack([bilinear(self.grad_x, contour.frame, uv),
+                      bilinear(self.grad_y, contour.frame, uv)], axis=1) * inside
         return r, np.einsum("nk,nkj->nj", g, J_uv)
 
     def cut(self, r: np.ndarray) -> np.ndarray:

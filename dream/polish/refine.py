@@ -127,6 +127,15 @@ class _ContourProblem:
         return apply_increment(T, xi)
 
 
+def inner_lm_settings(initial_damping: float, iterations: int) -> LMSettings:
+    """The LM loop of a few steps on one fixed set of image correspondences (the polish's
+    contour points, the edge alignment's matched edges): a step is kept only when it lowers the
+    cost."""
+    return LMSettings(initial_damping=initial_damping, damping_up=DAMPING_FACTOR,
+                      damping_down=DAMPING_FACTOR, min_damping=TINY, max_damping=MAX_DAMPING,
+                      max_iterations=iterations, strict_decrease=True)
+
+
 def _lm_steps(objective: Objective, contour: Contour, T: np.ndarray,
               params: PolishSettings) -> np.ndarray:
     """A few Levenberg-Marquardt steps on one set of contour points (a step is kept only when
@@ -134,10 +143,7 @@ def _lm_steps(objective: Objective, contour: Contour, T: np.ndarray,
     out = objective.residuals(contour, T, jacobian=True)
     if out is None:
         return T
-    settings = LMSettings(initial_damping=params.initial_damping, damping_up=DAMPING_FACTOR,
-                          damping_down=DAMPING_FACTOR, min_damping=TINY,
-                          max_damping=MAX_DAMPING, max_iterations=params.inner_iterations,
-                          strict_decrease=True)
+    settings = inner_lm_settings(params.initial_damping, params.inner_iterations)
     start = (float(np.sum(objective.rho(out[0]))), out)
     return levenberg_marquardt(_ContourProblem(objective, contour), T, settings, start).x
 

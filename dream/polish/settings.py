@@ -4,9 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from dream.errors import InputError
+from dream.settings_checks import check_fields
 from dream.silhouette import DEFAULT_MAX_TRIANGLES
 
 
@@ -69,25 +68,14 @@ class PolishSettings:
     frame_restart_below_iou: float = 0.95
 
     def __post_init__(self) -> None:
-        for name in ("max_search_frames", "max_eval_frames", "search_width_px", "max_triangles",
-                     "outer_iterations", "inner_iterations", "min_contour_points",
-                     "max_points_per_frame"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or int(value) != value or value < 1:
-                raise InputError(f"polish parameter {name} must be a positive integer, got "
-                                 f"{value}")
-            object.__setattr__(self, name, int(value))
-        for name in ("contour_band_px", "huber_scale_px", "max_residual_px",
-                     "max_outside_residual_px", "initial_damping", "step_tolerance_px",
-                     "max_rmse_factor"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise InputError(f"polish parameter {name} must be a positive number, got "
-                                 f"{value}")
-        for name in ("min_iou_gain", "rmse_margin_px", "frame_median_margin_px"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0):
-                raise InputError(f"polish parameter {name} must be a number >= 0, got {value}")
+        check_fields(self, "polish",
+                     positive_ints=("max_search_frames", "max_eval_frames", "search_width_px",
+                                    "max_triangles", "outer_iterations", "inner_iterations",
+                                    "min_contour_points", "max_points_per_frame"),
+                     positive=("contour_band_px", "huber_scale_px", "max_residual_px",
+                               "max_outside_residual_px", "initial_damping", "step_tolerance_px",
+                               "max_rmse_factor"),
+                     non_negative=("min_iou_gain", "rmse_margin_px", "frame_median_margin_px"))
         if not 0 <= self.frame_restart_below_iou <= 1:
             raise InputError("frame_restart_below_iou must lie in [0, 1], got "
                              f"{self.frame_restart_below_iou}")
