@@ -133,6 +133,12 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     extension = _read_extension(request)
     seq = read_data(request.data, request.intrinsics, request.robot)
     seq, readings_doc = joint_readings(seq, request.joint_readings == INTERPOLATE, out)
+    refine = refine_mode(request, seq)
+    if request.exclude_links and refine == NONE:
+        raise InputError("--exclude-links chooses the links of the edge alignment, and it does "
+                         "not run here (--refine auto runs it for all frames on data with "
+                         "images and no masks, without --polish)", request.data,
+                         "add --refine edges, or drop --exclude-links")
     if request.polish:
         from dream.polish import check_polish_input
 
@@ -152,7 +158,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
                                   "camera": {"fx": seq.camera.fx, "fy": seq.camera.fy,
                                              "cx": seq.camera.cx, "cy": seq.camera.cy,
                                              "distortion": seq.camera.distortion}}
-    if refine_mode(request, seq) == EDGES:
+    if refine == EDGES:
         doc = add_edges(seq, robot, result, obs, doc, out, request.exclude_links)
     if request.polish:
         doc = add_polish(seq, robot, result, obs, model, doc, out, frames=request.frames,

@@ -204,6 +204,7 @@ def test_calibrate_aligns_edges_by_default_without_masks(panda, meshes, tmp_path
     (["--refine", "edges", "--polish"], "both refine the extrinsic"),
     (["--exclude-links", "gripper"], "unknown link"),
     (["--refine", "none", "--exclude-links", "panda_hand"], "--refine none turns it off"),
+    (["--exclude-links", "panda_hand", "--frames", "each"], "it does not run here"),
 ])
 def test_refine_misuse_is_one_clear_error(panda, meshes, tmp_path, capsys, extra, message):
     image_dataset(panda, meshes, tmp_path)
