@@ -177,9 +177,12 @@ def franka_offline(model: Path, data: Path, work: Path, polish: bool) -> None:
                     "--overlays", work / "franka_overlays")
     if polish and "polish" in doc:
         p = doc["polish"]
+        every = np.mean(p["iou_after_per_frame"])
+        left = ", ".join(f"{f['frame']} ({f['reason']})" for f in p["frames_left_out"])
         print(f"4. franka_offline: silhouette IoU {p['iou_before']:.3f} -> {p['iou_after']:.3f}"
-              f" ({p['reason']}); keypoint fit "
-              f"{doc['keypoints_used']} keypoints, RMSE {doc['rmse_px']:.2f} px", flush=True)
+              f" ({p['reason']}); over all {len(p['frames'])} frames {every:.3f}; frames left "
+              f"out: {left or 'none'}; keypoint fit {doc['keypoints_used']} keypoints, RMSE "
+              f"{doc['rmse_px']:.2f} px", flush=True)
     seq = read_sequence(data)
     T_ref = np.asarray(doc["T_cam_base"])
     positions, angles, failures = [], [], 0
@@ -189,7 +192,7 @@ def franka_offline(model: Path, data: Path, work: Path, polish: bool) -> None:
         folder = work / "l2o" / f"{drop[0]}_{drop[1]}"
         write_dream(sub, folder, overwrite=True)
         try:
-            d = calibrate(folder, model, folder / "r.json")
+            d = calibrate(folder, model, folder / "r.json", *(["--polish"] if polish else []))
         except SystemExit:
             failures += 1
             continue
@@ -198,7 +201,8 @@ def franka_offline(model: Path, data: Path, work: Path, polish: bool) -> None:
         angles.append(float(r))
         shutil.rmtree(folder)
     positions, angles = np.array(positions), np.array(angles)
-    print(f"   leave-two-frames-out ({len(positions)} of 45 subsets solved): camera position "
+    print(f"   leave-two-frames-out{' with --polish' if polish else ''} ({len(positions)} of 45 "
+          "subsets solved): camera position "
           f"differs from the all-frames solution by median {1000 * np.median(positions):.1f} mm"
           f" (max {1000 * positions.max():.1f}), rotation median "
           f"{np.rad2deg(np.median(angles)):.2f} deg (max {np.rad2deg(angles.max()):.2f})",

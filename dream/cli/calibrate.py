@@ -11,7 +11,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from dream.cli.calibrate_report import add_edges, add_polish, print_summary
+from dream.cli.calibrate_report import add_edges, add_polish, add_quality, print_summary
 from dream.cli.observe import observe
 from dream.cli.options import (
     INTERPOLATE,
@@ -163,6 +163,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     if request.polish:
         doc = add_polish(seq, robot, result, obs, model, doc, out, frames=request.frames,
                          mask_head=request.mask_head)
+    doc["quality"] = add_quality(result, obs, doc, out)
     _write_calibration(request, seq, robot, obs, result, doc, ros_path, matrix_path)
     print_summary(doc, out)
     T_true = truth_poses(seq)

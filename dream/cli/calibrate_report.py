@@ -15,6 +15,7 @@ def add_polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames
     """`--polish`: the silhouette polish of the one extrinsic (`frames` "all") or of every
     frame's own pose ("each"); returns RESULT.json's document with it."""
     from dream.polish import has_masks, polish_calibration, result_doc_with_polish
+    from dream.polish.calibration import inlier_keypoints
 
     if frames != "all":
         return _polish_frames(seq, robot, result, obs, doc, out)
@@ -30,7 +31,14 @@ def add_polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames
     report = polish_calibration(seq, robot, result, obs, predict_masks=predict)
     print(f"silhouette polish ({len(report.frames)} frames with masks, "
           f"{report.seconds:.1f} s): {report.reason}", file=out)
-    return result_doc_with_polish(doc, report)
+    agreement = report.agreement
+    if agreement is not None and len(agreement.left_out):
+        print("  frames left out (do their joint readings match their images?): " + "; ".join(
+            f"{report.frames[i]} ({agreement.reasons[i]}: IoU {agreement.iou_common[i]:.2f}, "
+            f"{agreement.iou_own[i]:.2f} alone)" for i in agreement.left_out), file=out)
+    inliers = inlier_keypoints(result, obs, slice(None))
+    rmse = inliers.rmse_px(seq.camera, report.T_after) if inliers is not None else float("nan")
+    return result_doc_with_polish(doc, report, rmse)
 
 
 def _polish_frames(seq, robot, result, obs, doc: dict, out: TextIO) -> dict:
@@ -79,6 +87,22 @@ def add_edges(seq, robot, result, obs, doc: dict, out: TextIO,
         print(f"  links whose outline disagrees with the images (a tool or gripper the URDF "
               f"lacks? --exclude-links): {', '.join(res.mismatched_links)}", file=out)
     return result_doc_with_edges(doc, res, rmse)
+
+
+def add_quality(result, obs, doc: dict, out: TextIO) -> dict:
+    """The quality verdict (`dream.quality`): printed when it warns; RESULT.json's `quality`
+    object."""
+    from dream.quality import result_quality
+
+    refined_by = None
+    if doc.get("edges", {}).get("kept"):
+        refined_by = "the edge alignment"
+    elif doc.get("polish", {}).get("kept") and doc.get("frames_mode") == "all":
+        refined_by = "the silhouette polish"
+    quality = result_quality(result, obs, refined_by)
+    for warning in quality.warnings:
+        print(f"quality {quality.verdict}: {warning}", file=out)
+    return quality.to_dict()
 
 
 def print_summary(doc: dict, out: TextIO) -> None:

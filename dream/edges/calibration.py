@@ -27,7 +27,7 @@ from dream.edges.score import EdgeScore, edge_score
 from dream.edges.search import scale_images
 from dream.edges.settings import EdgeSettings
 from dream.errors import InputError
-from dream.polish.guard import KeypointSet
+from dream.polish.calibration import all_detections
 from dream.polish.objective import evenly_spaced
 from dream.robot import Robot
 from dream.sequence import Sequence
@@ -87,13 +87,6 @@ class EdgeResult:
                 float(rotation_angle_between(self.T_before[:3, :3], self.T_aligned[:3, :3])))
 
 
-def all_detections(obs: Observations | None) -> KeypointSet | None:
-    """Every found keypoint detection of `obs` (None without any)."""
-    if obs is None or not obs.found.any():
-        return None
-    return KeypointSet(obs.P_base[obs.found], obs.uv[obs.found])
-
-
 def decide_edges(before: EdgeScore, after: EdgeScore, median_before: float,
                  median_after: float, settings: EdgeSettings) -> tuple[bool, str]:
     """The keep rule (module doc): (kept, one sentence why)."""
@@ -128,7 +121,7 @@ def usable_vertices(meshes: RobotMeshes, exclude_links: SequenceOf[str]) -> np.n
                        [meshes.links.index(name) for name in exclude_links])
     if excluded.all():
         raise InputError("every link is left out of the edge alignment, so nothing is left to "
-                         "align", fix="leave out fewer links (--refine-links)")
+                         "align", fix="leave out fewer links (--exclude-links)")
     return ~excluded[meshes.vertex_link]
 
 

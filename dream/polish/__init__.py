@@ -9,6 +9,7 @@ Modules, in the order of the work:
     settings: `PolishSettings`, every constant.
     objective: the signed distance to the observed outline at the model's contour points.
     refine: Levenberg-Marquardt on it and the polish of one pose (`polish`, `PolishResult`).
+    frames: which frames of a fixed camera agree on its extrinsic (`FrameAgreement`).
     guard: whether the polished pose is kept (IoU gain, `KeypointGuard`, `fit_shrinkage`).
     calibration: the polish of a calibration, all frames or each frame (`dream calibrate
         --polish`).

@@ -5,9 +5,10 @@ anything is solved (a polish that was asked for is never skipped silently), unle
 `--mask-head` asks for the `--model`'s mask head and the mode is all frames (opt-in: the bundled
 model's mask head made rendered scenes worse, and its masks are too coarse for a frame alone;
 `check_polish_input`). All frames (`polish_calibration`): the frames with masks
-(`silhouette_inputs`) align the one extrinsic, guarded by the RMSE of the calibration's inlier
-keypoints. `--frames each` (`polish_frames`): every solved frame with a non-empty mask is
-polished alone, guarded by the median distance of its own inlier keypoints.
+(`silhouette_inputs`) that agree with each other (`dream.polish.frames`) align the one
+extrinsic, guarded by the median distance of all the keypoint detections. `--frames each`
+(`polish_frames`): every solved frame with a non-empty mask is polished alone, guarded by the
+median distance of its own inlier keypoints.
 """
 
 from __future__ import annotations
@@ -134,8 +135,16 @@ def polish_calibration(sequence: Sequence, robot: Robot, result: CalibrationResu
     check_polish_input(sequence, "all", network_masks=predict_masks is not None)
     inputs = silhouette_inputs(sequence, robot, params, predict_masks)
     return polish(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
-                  result.fit.T_cam_base, inlier_keypoints(result, obs, slice(None)), params,
-                  inputs.frame_names)
+                  result.fit.T_cam_base, all_detections(obs), params, inputs.frame_names,
+                  guard=KeypointGuard.ALL_MEDIAN)
+
+
+def all_detections(obs: Observations | None) -> KeypointSet | None:
+    """Every keypoint detection of `obs`, inlier of a fit or not (the "all-median" guard);
+    None without any."""
+    if obs is None or not obs.found.any():
+        return None
+    return KeypointSet(obs.P_base[obs.found], obs.uv[obs.found])
 
 
 def polish_frames(sequence: Sequence, robot: Robot, result: CalibrationResult,

@@ -48,8 +48,19 @@ def polish_to_dict(res: PolishResult) -> dict[str, Any]:
         "camera_position_change_m": moved_m,
         "rotation_change_rad": moved_rad,
         "search_frames": list(res.search_frames),
+        "frames_left_out": _left_out(res),
         "seconds": res.seconds,
     }
+
+
+def _left_out(res: PolishResult) -> list[dict[str, Any]]:
+    """The frames an all-frames polish left out, each with why and its IoU at the common pose
+    and alone (`dream.polish.frames`)."""
+    a = res.agreement
+    if a is None:
+        return []
+    return [{"frame": res.frames[i], "reason": a.reasons[i], "iou_common": float(a.iou_common[i]),
+             "iou_alone": float(a.iou_own[i])} for i in a.left_out]
 
 
 def with_pose_fields(doc: dict[str, Any], T: np.ndarray, rmse_px: float) -> None:
@@ -70,17 +81,20 @@ def with_pose_fields(doc: dict[str, Any], T: np.ndarray, rmse_px: float) -> None
         doc["sigma_camera_position_base_m"] = np.sqrt(np.diag(cov)).tolist()
 
 
-def result_doc_with_polish(doc: dict[str, Any], res: PolishResult) -> dict[str, Any]:
+def result_doc_with_polish(doc: dict[str, Any], res: PolishResult,
+                           rmse_px: float = float("nan")) -> dict[str, Any]:
     """A copy of an all-frames RESULT.json document with its `polish` object; when the polish
-    is kept, the pose fields and `rmse_px` describe the polished pose (`with_pose_fields`)."""
+    is kept, the pose fields and, when finite, `rmse_px` (the fit's inlier keypoints at the
+    polished pose) describe the polished pose (`with_pose_fields`)."""
     out = dict(doc)
     out["polish"] = polish_to_dict(res)
     if res.kept:
-        with_pose_fields(out, res.T_after, res.rmse_after)
+        with_pose_fields(out, res.T_after, rmse_px)
     return out
 
 
-_MULTI_FRAME_KEYS = ("frames", "iou_before_per_frame", "iou_after_per_frame", "search_frames")
+_MULTI_FRAME_KEYS = ("frames", "iou_before_per_frame", "iou_after_per_frame", "search_frames",
+                     "frames_left_out")
 
 
 def frame_polish_to_dict(res: PolishResult) -> dict[str, Any]:

@@ -5,6 +5,11 @@ before and after. The polished pose is kept only when the mean IoU grows by more
 `min_iou_gain` and the keypoint fit is not broken (`KeypointGuard`, `decide`):
 - "rmse" (a fixed camera, all frames): the RMS reprojection error of the calibration's
   inlier keypoints stays within max(`max_rmse_factor` x before, before + `rmse_margin_px`).
+- "all-median" (a fixed camera, all frames; `polish_calibration`): the median pixel distance
+  of all the keypoint detections, inliers of the keypoint fit or not, stays within
+  max(`max_median_factor` x before, before + `median_margin_px`). A keypoint fit that kept a
+  small consensus of a biased set may fit its inliers closely at a wrong pose; the inliers'
+  RMSE would then refuse every pose that leaves them, the right one included.
 - "median" (one frame's own pose, `--frames each`): the median pixel distance of the frame's
   n inlier keypoints may reach at most its value at the keypoint pose divided by
   `fit_shrinkage(n)` = sqrt((2n - 6) / 2n), plus `frame_median_margin_px`. A single frame's
@@ -73,9 +78,10 @@ class KeypointGuard:
     """Which statistic of the inlier keypoints decides that a polish breaks their fit
     (module doc)."""
 
-    RMSE = "rmse"       # many frames of a fixed camera
-    MEDIAN = "median"   # one frame alone
-    ALL = (RMSE, MEDIAN)
+    RMSE = "rmse"               # many frames of a fixed camera, the fit's inliers
+    ALL_MEDIAN = "all-median"   # many frames of a fixed camera, every detection
+    MEDIAN = "median"           # one frame alone
+    ALL = (RMSE, ALL_MEDIAN, MEDIAN)
 
 
 def fit_shrinkage(n_keypoints: int) -> float:
@@ -100,6 +106,9 @@ def decide(iou0: float, iou1: float, kp0: float, kp1: float, n_guard: int,
     if guard == KeypointGuard.RMSE:
         allowed = max(params.max_rmse_factor * kp0, kp0 + params.rmse_margin_px)
         stats = f"keypoint RMSE {kp0:.3f} -> {kp1:.3f} px"
+    elif guard == KeypointGuard.ALL_MEDIAN:
+        allowed = max(params.max_median_factor * kp0, kp0 + params.median_margin_px)
+        stats = f"median distance of all {n_guard} keypoint detections {kp0:.3f} -> {kp1:.3f} px"
     else:
         # the keypoint pose was fitted to these keypoints: its median understates their noise
         allowed = kp0 / fit_shrinkage(n_guard) + params.frame_median_margin_px

@@ -16,7 +16,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Sequence as SequenceOf
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -26,6 +26,7 @@ from dream.errors import InputError
 from dream.optim import LMSettings, levenberg_marquardt
 from dream.optim.robust import TINY
 from dream.pnp import apply_increment
+from dream.polish.frames import FrameAgreement, agreeing_frames
 from dream.polish.guard import KeypointGuard, KeypointSet, decide
 from dream.polish.objective import (
     Contour,
@@ -66,7 +67,10 @@ class PolishResult:
         start: where the search started: "" for `T_before`, else the keypoint left out of the
             frame's solution it started from (`polish_frames`' restarts).
         search_frames: names of the frames the search used.
-        rounds: render / select / LM rounds run; contour_points: in the last round.
+        agreement: the frames' agreement with the common pose (`dream.polish.frames`), None
+            where it was not measured; the frames it leaves out are not in the IoU means.
+        rounds: render / select / LM rounds of the first search (all frames);
+            contour_points: in its last round.
         seconds: wall time of the polish.
     """
 
@@ -86,17 +90,24 @@ class PolishResult:
     guard_keypoints: int = 0
     start: str = ""
     search_frames: tuple[str, ...] = field(default=())
+    agreement: FrameAgreement | None = None
     rounds: int = 0
     contour_points: int = 0
     seconds: float = 0.0
 
     @property
+    def used(self) -> np.ndarray:
+        """(E,) bool, the frames the IoU means are over (all but those left out)."""
+        return (self.agreement.used if self.agreement is not None
+                else np.ones(len(self.iou_before), bool))
+
+    @property
     def iou_before_mean(self) -> float:
-        return float(np.mean(self.iou_before))
+        return float(np.mean(self.iou_before[self.used]))
 
     @property
     def iou_after_mean(self) -> float:
-        return float(np.mean(self.iou_after))
+        return float(np.mean(self.iou_after[self.used]))
 
     @property
     def correction(self) -> tuple[float, float]:
@@ -191,7 +202,7 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
            camera: CameraIntrinsics, T_cam_base: np.ndarray, keypoints: KeypointSet | None,
            params: PolishSettings | None = None,
            frame_names: SequenceOf[str] | None = None,
-           guard: str = KeypointGuard.RMSE) -> PolishResult:
+           guard: str = KeypointGuard.RMSE, check_frames: bool = True) -> PolishResult:
     """Refine `T_cam_base` by aligning rendered and observed robot silhouettes (the module docs
     of `dream.polish.objective`, `dream.polish.refine` and `dream.polish.guard`).
 
@@ -204,7 +215,9 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         keypoints: the calibration's inlier observations (the guard), or None for no guard.
         params: the constants; default `PolishSettings()`.
         frame_names: F names (default "0", "1", ...).
-        guard: `KeypointGuard.RMSE` (many frames) or `KeypointGuard.MEDIAN` (one frame alone).
+        guard: a `KeypointGuard`: RMSE or ALL_MEDIAN (many frames), MEDIAN (one frame alone).
+        check_frames: leave out frames that disagree with the others (`dream.polish.frames`;
+            with more than `min_agreeing_frames` frames).
     Returns:
         A `PolishResult`; `T_after` is the pose to use.
     Raises:
@@ -216,18 +229,36 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
                                               frame_names, guard)
     F = len(q)
     P_all = vertices_in_base(meshes, q)                                    # (F, V, 3)
-    search = evenly_spaced(non_empty, params.max_search_frames)
     width = min(camera.width, params.search_width_px)
     height = max(1, int(round(camera.height * width / camera.width)))
     small = scaled_camera(camera, width, height)
-    small_masks = np.stack([shrink_mask(masks[i], width, height) for i in search])
-    T1, rounds, points = _refine_pose(P_all[search], meshes.faces, small_masks, small, T0, params)
+    small_masks = {int(i): shrink_mask(masks[i], width, height) for i in non_empty}
+    trace: list[tuple[int, int]] = []
 
-    def ious(T: np.ndarray) -> np.ndarray:
+    def search(frames: np.ndarray, T: np.ndarray, rounds: int | None = None) -> np.ndarray:
+        chosen = evenly_spaced(frames, params.max_search_frames)
+        settings = params if rounds is None else replace(params, outer_iterations=rounds)
+        T_new, done, points = _refine_pose(P_all[chosen], meshes.faces,
+                                           np.stack([small_masks[i] for i in chosen]),
+                                           small, T, settings)
+        trace.append((done, points))
+        return T_new
+
+    def search_alone(frame: int, T: np.ndarray) -> np.ndarray:
+        return search(np.array([frame]), T, params.frame_alone_rounds)
+
+    def ious(frames: np.ndarray, T: np.ndarray) -> np.ndarray:
         return np.array([silhouette_iou(render_points(P_all[i], meshes.faces, T, camera),
-                                        masks[i]) for i in range(F)])
+                                        masks[i]) for i in frames])
 
-    iou0, iou1 = ious(T0), ious(T1)
+    T1 = search(non_empty, T0)
+    agreement = None
+    if check_frames and len(non_empty) > params.min_agreeing_frames:
+        candidates = np.isin(np.arange(F), non_empty)
+        T1, agreement = agreeing_frames(T1, candidates, search, search_alone, ious,
+                                        params)
+    used = agreement.used if agreement is not None else np.ones(F, bool)
+    iou0, iou1 = ious(np.arange(F), T0), ious(np.arange(F), T1)
     if keypoints is not None:
         rmse0, rmse1 = keypoints.rmse_px(camera, T0), keypoints.rmse_px(camera, T1)
         median0, median1 = keypoints.median_px(camera, T0), keypoints.median_px(camera, T1)
@@ -235,15 +266,20 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         rmse0 = rmse1 = median0 = median1 = float("nan")
     before, after = (rmse0, rmse1) if guard == KeypointGuard.RMSE else (median0, median1)
     n_guard = 0 if keypoints is None else len(keypoints.P_base)
-    kept, reason = decide(float(iou0.mean()), float(iou1.mean()), before, after, n_guard,
-                          params, guard)
+    kept, reason = decide(float(iou0[used].mean()), float(iou1[used].mean()), before, after,
+                          n_guard, params, guard)
+    if agreement is not None and not used.all():
+        reason += f"; {int((~used).sum())} of {F} frames left out (they disagree with the rest)"
     log.info("silhouette polish: %s", reason)
+    used_search = evenly_spaced(np.flatnonzero(used & np.isin(np.arange(F), non_empty)),
+                                params.max_search_frames)
     return PolishResult(T_before=T0, T_polished=T1, T_after=T1 if kept else T0, frames=names,
                         iou_before=iou0, iou_after=iou1, kept=kept, reason=reason,
                         rmse_before=rmse0, rmse_after=rmse1, median_before=median0,
                         median_after=median1, guard=guard, guard_keypoints=n_guard,
-                        search_frames=tuple(names[i] for i in search), rounds=rounds,
-                        contour_points=points, seconds=time.perf_counter() - start)
+                        search_frames=tuple(names[i] for i in used_search),
+                        rounds=trace[0][0], contour_points=trace[0][1],
+                        agreement=agreement, seconds=time.perf_counter() - start)
 
 
 def _checked(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
