@@ -17,9 +17,11 @@ Prints:
    the scene folders' masks are deleted and `--polish --mask-head` uses the network's), unless
    `--skip-polish`; with `--held-object` the arm holds an object in every scene
    (`distractors.held_prob` 1); `--first-seed` moves the seeds;
-3. panda_teleop: single-frame ADD AUC against its reference extrinsic, and the all-frames
-   extrinsic error before and after `--polish --mask-head` (no masks in the data: the
-   network's mask head, opt-in);
+3. panda_teleop: single-frame ADD AUC against its reference extrinsic (keypoints only and with
+   the edge alignment of each frame), and the all-frames
+   extrinsic error with the edge alignment (the default), and with `--polish --mask-head`
+   and `--polish --motion-masks` (no masks in the data: the network's mask head, or motion
+   masks, both opt-in);
 4. franka_offline: silhouette IoU with the hand-made masks before and after `--polish`, and the
    spread of the extrinsic over the 45 leave-two-frames-out subsets.
 """
@@ -143,26 +145,31 @@ def scenes(model: Path, count: int, work: Path, held_object: bool, polish: bool,
 
 def panda_teleop(model: Path, data: Path, work: Path, polish: bool) -> None:
     each = work / "teleop_each.json"
-    calibrate(data, model, each, "--frames", "each")
+    calibrate(data, model, each, "--frames", "each")      # with the edge alignment (auto)
     m_each = evaluate(data, each, work / "teleop_each.metrics.json")
+    plain = work / "teleop_each_keypoints.json"
+    calibrate(data, model, plain, "--frames", "each", "--refine", "none")
+    m_plain = evaluate(data, plain, work / "teleop_each_keypoints.metrics.json")
     allf = work / "teleop_all.json"
     doc = calibrate(data, model, allf, "--overlays", work / "teleop_overlays")
     m_all = evaluate(data, allf, work / "teleop_all.metrics.json")
-    polished = work / "teleop_all_polish.json"
+    polish_line = ""
     if polish:
-        pdoc = calibrate(data, model, polished, "--polish", "--mask-head")
-        m_pol = evaluate(data, polished, work / "teleop_all_polish.metrics.json")
-        p = pdoc.get("polish", {})
-        polish_line = (f"; with --polish (masks from the network's mask head): IoU "
-                       f"{p.get('iou_before', float('nan')):.3f} -> "
-                       f"{p.get('iou_after', float('nan')):.3f} ({p.get('reason')}), camera "
-                       f"position error {1000 * m_pol['translation_error_m']['median']:.1f} mm, "
-                       f"rotation {np.rad2deg(m_pol['rotation_error_rad']['median']):.2f} deg")
-    else:
-        polish_line = ""
-    print(f"3. panda_teleop ({m_each['frames']} frames): single-frame ADD AUC "
+        for source in ("--mask-head", "--motion-masks"):
+            polished = work / f"teleop_all_polish{source.replace('--', '_')}.json"
+            pdoc = calibrate(data, model, polished, "--polish", source)
+            m_pol = evaluate(data, polished, polished.with_suffix(".metrics.json"))
+            p = pdoc.get("polish", {})
+            polish_line += (f"; --polish {source}: IoU {p.get('iou_before', float('nan')):.3f}"
+                            f" -> {p.get('iou_after', float('nan')):.3f} ({p.get('reason')}), "
+                            f"camera position error "
+                            f"{1000 * m_pol['translation_error_m']['median']:.1f} mm, rotation "
+                            f"{np.rad2deg(m_pol['rotation_error_rad']['median']):.2f} deg")
+    print(f"3. panda_teleop ({m_each['frames']} frames): single-frame ADD AUC, keypoints "
+          f"only {100 * m_plain['add_auc']:.1f}, median ADD "
+          f"{1000 * m_plain['add_m']['median']:.1f} mm; with the edge alignment "
           f"{100 * m_each['add_auc']:.1f} (target >= 80), median ADD "
-          f"{1000 * m_each['add_m']['median']:.1f} mm, keypoint L2 median "
+          f"{1000 * m_each['add_m']['median']:.1f} mm; keypoint L2 median "
           f"{m_each['keypoint_l2_px']['median']:.2f} px; all frames: camera position error "
           f"{1000 * m_all['translation_error_m']['median']:.1f} mm, rotation "
           f"{np.rad2deg(m_all['rotation_error_rad']['median']):.2f} deg (target <= 10 mm, "

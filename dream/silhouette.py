@@ -27,6 +27,7 @@ Public API:
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 from dataclasses import dataclass
@@ -258,6 +259,38 @@ def vertices_in_base(meshes: RobotMeshes, joints: np.ndarray) -> np.ndarray:
     T_vertex = np.take(T, meshes.vertex_link, axis=-3)            # (..., V, 4, 4)
     return (np.einsum("...ij,...j->...i", T_vertex[..., :3, :3], meshes.vertices)
             + T_vertex[..., :3, 3])
+
+
+def static_links(meshes: RobotMeshes, joints: np.ndarray, min_motion_m: float
+                 ) -> tuple[str, ...]:
+    """Links whose vertices move less than `min_motion_m` (base frame) over the joint vectors
+    (F, J): the links a background model of a fixed camera holds. Measured link by link (no
+    (F, V) array of the whole robot)."""
+    T = meshes.robot.link_poses(joints, meshes.links)                      # (F, L, 4, 4)
+    static = []
+    for i, name in enumerate(meshes.links):
+        v = meshes.vertices[meshes.vertex_link == i]                       # (V_i, 3)
+        P = v @ T[:, i, :3, :3].transpose(0, 2, 1) + T[:, i, None, :3, 3]  # (F, V_i, 3)
+        if not len(v) or np.linalg.norm(P - P[:1], axis=2).max() < min_motion_m:
+            static.append(name)
+    return tuple(static)
+
+
+def without_links(meshes: RobotMeshes, links: tuple[str, ...]) -> RobotMeshes:
+    """The same meshes with the triangles of `links` removed (their vertices stay, unused).
+
+    Raises:
+        InputError: an unknown link, or every link with triangles removed.
+    """
+    unknown = sorted(set(links) - set(meshes.links))
+    if unknown:
+        raise InputError(f"unknown link(s) {', '.join(unknown)}",
+                         fix=f"use links of the robot: {', '.join(meshes.links)}")
+    gone = np.isin(meshes.vertex_link, [meshes.links.index(name) for name in links])
+    faces = meshes.faces[~gone[meshes.faces].any(axis=1)]
+    if not len(faces):
+        raise InputError("every link with geometry is left out, so nothing is left to render")
+    return dataclasses.replace(meshes, faces=faces)
 
 
 def _pow2_ceil(n: np.ndarray) -> np.ndarray:

@@ -11,7 +11,13 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from dream.cli.calibrate_report import add_edges, add_polish, add_quality, print_summary
+from dream.cli.calibrate_report import (
+    add_edges,
+    add_frame_edges,
+    add_polish,
+    add_quality,
+    print_summary,
+)
 from dream.cli.observe import observe
 from dream.cli.options import (
     INTERPOLATE,
@@ -46,6 +52,7 @@ class CalibrateRequest:
     overlays: str | None = None
     polish: bool = False
     mask_head: bool = False
+    motion_masks: bool = False
     loss: str = "huber"
     loss_scale_px: float = RobustLoss().scale_px
     seed: int = 0
@@ -59,6 +66,7 @@ class CalibrateRequest:
 
     def __post_init__(self) -> None:
         _check_mask_head(self.mask_head, self.polish, self.model is not None, self.frames)
+        _check_motion_masks(self.motion_masks, self.mask_head, self.polish, self.frames)
         if self.joint_readings not in JOINT_READINGS:
             raise InputError(f"unknown --joint-readings {self.joint_readings!r}",
                              fix=f"use one of {', '.join(JOINT_READINGS)}")
@@ -88,6 +96,22 @@ def _check_mask_head(mask_head: bool, polish: bool, model: bool, frames: str) ->
                          fix="use --frames all, or drop --mask-head")
 
 
+def _check_motion_masks(motion_masks: bool, mask_head: bool, polish: bool, frames: str) -> None:
+    """`--motion-masks` goes with `--polish` and all frames, not with `--mask-head`."""
+    if not motion_masks:
+        return
+    if not polish:
+        raise InputError("--motion-masks chooses the masks of the silhouette polish, and "
+                         "--polish was not given", fix="add --polish or drop --motion-masks")
+    if mask_head:
+        raise InputError("--motion-masks and --mask-head both choose the polish's masks",
+                         fix="choose one")
+    if frames != "all":
+        raise InputError("--motion-masks come from a background model of a fixed camera, for "
+                         "the one extrinsic of all frames", fix="use --frames all, or drop "
+                         "--motion-masks")
+
+
 def _check_refine(refine: str, frames: str, polish: bool, exclude_links: str | None) -> None:
     """`--refine` and `--exclude-links` against the other options (before any reading)."""
     if refine not in REFINE_CHOICES:
@@ -98,24 +122,21 @@ def _check_refine(refine: str, frames: str, polish: bool, exclude_links: str | N
             raise InputError("--exclude-links chooses the links of the edge alignment, and "
                              "--refine none turns it off", fix="drop one of them")
         return
-    if frames != "all":
-        raise InputError("--refine edges aligns the one extrinsic of a fixed camera over all "
-                         "frames", fix="use --frames all, or --refine none")
     if polish:
         raise InputError("--refine edges and --polish both refine the extrinsic",
                          fix="choose one: --polish with masks, --refine edges without")
 
 
 def refine_mode(request: CalibrateRequest, seq) -> str:
-    """What `--refine` does with this data: `auto` aligns edges for all frames of a fixed
-    camera whose frames all have images and no masks, when --polish was not asked for."""
+    """What `--refine` does with this data: `auto` aligns edges (the one extrinsic of all
+    frames, or each frame's own pose) when every frame has an image and none a mask, and
+    --polish was not asked for."""
     if request.refine != AUTO:
         return request.refine
     from dream.polish import has_masks
 
     images = all(f.image_path is not None for f in seq.frames)
-    return EDGES if (request.frames == "all" and not request.polish and images
-                     and not has_masks(seq)) else NONE
+    return EDGES if (not request.polish and images and not has_masks(seq)) else NONE
 
 
 def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
@@ -136,13 +157,14 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     refine = refine_mode(request, seq)
     if request.exclude_links and refine == NONE:
         raise InputError("--exclude-links chooses the links of the edge alignment, and it does "
-                         "not run here (--refine auto runs it for all frames on data with "
-                         "images and no masks, without --polish)", request.data,
+                         "not run here (--refine auto runs it on data with images and no "
+                         "masks, without --polish)", request.data,
                          "add --refine edges, or drop --exclude-links")
     if request.polish:
         from dream.polish import check_polish_input
 
-        check_polish_input(seq, request.frames, network_masks=request.mask_head)
+        check_polish_input(seq, request.frames,
+                           network_masks=request.mask_head or request.motion_masks)
     robot, obs, model = observe(seq, request.robot, request.model, request.use_labels, out,
                                 threads=request.threads, batch=request.batch,
                                 loaded_model=request.loaded_model)
@@ -159,10 +181,11 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
                                              "cx": seq.camera.cx, "cy": seq.camera.cy,
                                              "distortion": seq.camera.distortion}}
     if refine == EDGES:
-        doc = add_edges(seq, robot, result, obs, doc, out, request.exclude_links)
+        add = add_edges if request.frames == "all" else add_frame_edges
+        doc = add(seq, robot, result, obs, doc, out, request.exclude_links)
     if request.polish:
         doc = add_polish(seq, robot, result, obs, model, doc, out, frames=request.frames,
-                         mask_head=request.mask_head)
+                         mask_head=request.mask_head, motion_masks=request.motion_masks)
     doc["quality"] = add_quality(result, obs, doc, out)
     _write_calibration(request, seq, robot, obs, result, doc, ros_path, matrix_path)
     print_summary(doc, out)
@@ -271,10 +294,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--refine", choices=REFINE_CHOICES, default=AUTO,
                    help="edges: align the robot's outline (URDF meshes) with the images' edges "
                         "from the keypoint extrinsic, coarse to fine over all frames of the "
-                        "fixed camera, no masks needed; kept only when more of the outline "
+                        "fixed camera (with --frames each: each frame's own pose), no masks "
+                        "needed; kept only when more of the outline "
                         "lies on edges and the keypoint detections do not contradict it. "
-                        "auto (default): edges for all frames when the data has images and "
-                        "no masks and --polish is not given")
+                        "auto (default): edges when the data has images and no masks and "
+                        "--polish is not given")
     p.add_argument("--exclude-links", metavar="LINK[,LINK...]",
                    help="--refine edges: links left out of the alignment (a tool or gripper "
                         "the URDF lacks; RESULT.json's edges.mismatched_links names suspects)")
@@ -282,6 +306,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="--polish, all frames, data without masks: align with the --model's "
                         "mask head (opt-in: the bundled model's is too coarse and made "
                         "rendered scenes worse: docs/benchmarks.md)")
+    p.add_argument("--motion-masks", action="store_true",
+                   help="--polish, all frames, data without masks: align with motion masks (the "
+                        "pixels that differ from a background model of the fixed camera; "
+                        "links that never move left out; dream masks writes them)")
     p.add_argument("--loss", choices=("huber", "cauchy", "l2"), default="huber")
     p.add_argument("--loss-scale-px", type=float, default=RobustLoss().scale_px)
     p.add_argument("--seed", type=int, default=0, help="seed of the RANSAC sampling")

@@ -11,7 +11,7 @@ import numpy as np
 
 
 def add_polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames: str,
-               mask_head: bool) -> dict:
+               mask_head: bool, motion_masks: bool = False) -> dict:
     """`--polish`: the silhouette polish of the one extrinsic (`frames` "all") or of every
     frame's own pose ("each"); returns RESULT.json's document with it."""
     from dream.polish import has_masks, polish_calibration, result_doc_with_polish
@@ -19,16 +19,21 @@ def add_polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames
 
     if frames != "all":
         return _polish_frames(seq, robot, result, obs, doc, out)
-    predict = None
-    if not has_masks(seq):  # --mask-head (checked)
+    predict, leave_out = None, ()
+    if has_masks(seq):
+        if mask_head or motion_masks:
+            print("the data has masks: the polish uses them, not "
+                  f"{'the mask head' if mask_head else 'motion masks'}", file=out)
+    elif motion_masks:
+        predict, leave_out = _motion_masks(seq, robot, out)
+    else:  # --mask-head (checked)
         from dream.detection import predict_masks
 
         predict = lambda idx: predict_masks(seq, model, idx)  # noqa: E731
         print("no masks in the data: the polish uses the network's mask head (--mask-head)",
               file=out)
-    elif mask_head:
-        print("the data has masks: the polish uses them, not the mask head", file=out)
-    report = polish_calibration(seq, robot, result, obs, predict_masks=predict)
+    report = polish_calibration(seq, robot, result, obs, predict_masks=predict,
+                                leave_out_links=leave_out)
     print(f"silhouette polish ({len(report.frames)} frames with masks, "
           f"{report.seconds:.1f} s): {report.reason}", file=out)
     agreement = report.agreement
@@ -39,6 +44,23 @@ def add_polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames
     inliers = inlier_keypoints(result, obs, slice(None))
     rmse = inliers.rmse_px(seq.camera, report.T_after) if inliers is not None else float("nan")
     return result_doc_with_polish(doc, report, rmse)
+
+
+def _motion_masks(seq, robot, out: TextIO):
+    """`--motion-masks`: the polish's mask source (frame indices -> motion masks) and the links
+    left out of its silhouettes (those that never move stay in the background model)."""
+    from dream.edges.motion import MotionSettings, sequence_background, sequence_motion_masks
+    from dream.pipeline import joints_in_robot_order
+    from dream.silhouette import load_robot_meshes, static_links
+
+    settings = MotionSettings()
+    background = sequence_background(seq, settings)
+    static = static_links(load_robot_meshes(robot), joints_in_robot_order(seq, robot),
+                          settings.static_link_m)
+    print(f"no masks in the data: the polish uses motion masks (--motion-masks), without the "
+          f"links that never move ({', '.join(static) or 'none'})", file=out)
+    return (lambda idx: sequence_motion_masks(seq, np.asarray(idx), settings, background)), \
+        static
 
 
 def _polish_frames(seq, robot, result, obs, doc: dict, out: TextIO) -> dict:
@@ -74,8 +96,8 @@ def add_edges(seq, robot, result, obs, doc: dict, out: TextIO,
     from dream.edges.documents import result_doc_with_edges
     from dream.polish.calibration import inlier_keypoints
 
-    exclude = tuple(n.strip() for n in (exclude_links or "").split(",") if n.strip())
-    res = refine_with_edges(seq, robot, result.fit.T_cam_base, obs, exclude_links=exclude)
+    res = refine_with_edges(seq, robot, result.fit.T_cam_base, obs,
+                            exclude_links=_links(exclude_links))
     inliers = inlier_keypoints(result, obs, slice(None))
     rmse = inliers.rmse_px(seq.camera, res.T_after) if inliers is not None else float("nan")
     moved_m, moved_rad = res.correction
@@ -89,13 +111,43 @@ def add_edges(seq, robot, result, obs, doc: dict, out: TextIO,
     return result_doc_with_edges(doc, res, rmse)
 
 
+def add_frame_edges(seq, robot, result, obs, doc: dict, out: TextIO,
+                    exclude_links: str | None) -> dict:
+    """`--refine edges --frames each`: every solved frame's own pose aligned with its image's
+    edges; returns RESULT.json's document with them."""
+    from dream.detection import PROGRESS_EVERY_FRAMES
+    from dream.edges.documents import result_doc_with_frame_edges
+    from dream.edges.frames import refine_frames_with_edges
+
+    def progress(done: int, total: int) -> None:
+        print(f"aligned {done}/{total} frames with the image edges", file=sys.stderr)
+
+    results = refine_frames_with_edges(
+        seq, robot, result, obs, exclude_links=_links(exclude_links),
+        progress=progress if len(seq) > PROGRESS_EVERY_FRAMES else None)
+    doc = result_doc_with_frame_edges(doc, results)
+    e = doc["edges"]
+    print(f"edge alignment of each frame ({e['frames_aligned']} frames, {e['seconds']:.1f} s"
+          f"{', background model' if e['background_model'] else ''}): kept in "
+          f"{e['frames_kept']}", file=out)
+    reported = result.reported_frame
+    if reported is not None and results[reported] is not None:
+        print(f"  reported frame {doc['reported_frame']}: {results[reported].reason}", file=out)
+    return doc
+
+
+def _links(exclude_links: str | None) -> tuple[str, ...]:
+    """The link names of `--exclude-links A,B`."""
+    return tuple(n.strip() for n in (exclude_links or "").split(",") if n.strip())
+
+
 def add_quality(result, obs, doc: dict, out: TextIO) -> dict:
     """The quality verdict (`dream.quality`): printed when it warns; RESULT.json's `quality`
     object."""
     from dream.quality import result_quality
 
     refined_by = None
-    if doc.get("edges", {}).get("kept"):
+    if doc.get("edges", {}).get("kept") and doc.get("frames_mode") == "all":
         refined_by = "the edge alignment"
     elif doc.get("polish", {}).get("kept") and doc.get("frames_mode") == "all":
         refined_by = "the silhouette polish"

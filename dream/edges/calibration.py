@@ -31,7 +31,7 @@ from dream.polish.calibration import all_detections
 from dream.polish.objective import evenly_spaced
 from dream.robot import Robot
 from dream.sequence import Sequence
-from dream.silhouette import RobotMeshes, load_robot_meshes, vertices_in_base
+from dream.silhouette import RobotMeshes, load_robot_meshes, static_links, vertices_in_base
 from dream.transforms import invert_T, rotation_angle_between
 
 log = logging.getLogger(__name__)
@@ -125,20 +125,6 @@ def usable_vertices(meshes: RobotMeshes, exclude_links: SequenceOf[str]) -> np.n
     return ~excluded[meshes.vertex_link]
 
 
-def static_links(meshes: RobotMeshes, joints: np.ndarray, settings: EdgeSettings
-                 ) -> tuple[str, ...]:
-    """Links whose vertices move less than `static_link_m` (base frame) over joints (F, J),
-    measured link by link (no (F, V) array of the whole robot)."""
-    T = meshes.robot.link_poses(joints, meshes.links)                      # (F, L, 4, 4)
-    static = []
-    for i, name in enumerate(meshes.links):
-        v = meshes.vertices[meshes.vertex_link == i]                       # (V_i, 3)
-        P = v @ T[:, i, :3, :3].transpose(0, 2, 1) + T[:, i, None, :3, 3]  # (F, V_i, 3)
-        if not len(v) or np.linalg.norm(P - P[:1], axis=2).max() < settings.static_link_m:
-            static.append(name)
-    return tuple(static)
-
-
 def refine_with_edges(sequence: Sequence, robot: Robot, T_cam_base: np.ndarray,
                       obs: Observations | None = None, settings: EdgeSettings | None = None,
                       exclude_links: SequenceOf[str] = ()) -> EdgeResult:
@@ -166,7 +152,12 @@ def refine_with_edges(sequence: Sequence, robot: Robot, T_cam_base: np.ndarray,
         log.info("%d frames are too few for a background model: edges are matched without it",
                  len(sequence))
     joints = joints_in_robot_order(sequence, robot)
-    static = static_links(meshes, joints, settings) if background is not None else ()
+    static = (static_links(meshes, joints, settings.static_link_m) if background is not None
+              else ())
+    if set(static) >= set(meshes.links):
+        log.info("the arm does not move in these frames, so the background model holds all of "
+                 "it: edges are matched without it")
+        background, static = None, ()
     if static:
         usable = usable & usable_vertices(meshes, static)
         log.info("left out of the edge alignment, in the background model: %s",
@@ -180,7 +171,8 @@ def refine_with_edges(sequence: Sequence, robot: Robot, T_cam_base: np.ndarray,
                          f"({score0.points} outline points, {score0.agreement:.0%} on an edge)",
                          sequence.source, "check the images show the robot and the camera "
                          "and joints belong to them, or use --refine none")
-    T1, trace = align_edges(P, meshes.faces, gray, camera, T0, settings, background, usable)
+    T1, trace = align_edges(P, meshes.faces, gray, camera, T0, settings, background, usable,
+                           meshes.vertex_link)
     score1 = edge_score(meshes, P, T1, full, settings, usable)
     guard = all_detections(obs)
     med0, med1 = ((guard.median_px(camera, T0), guard.median_px(camera, T1)) if guard

@@ -5,15 +5,19 @@ edges at both poses, per link at the kept pose, the links left out (by name, or 
 background model) and those named as not matching their model, the keypoint detections' median
 distance at both poses, both poses and the change between them. When kept, the document's pose
 fields are the aligned pose's (`dream.polish.documents.with_pose_fields`; the covariance stays
-the keypoint fit's).
+the keypoint fit's). `--frames each`: each aligned frame's `per_frame` entry gets its own
+`edges` object, and the top-level `edges` object counts them.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence as SequenceOf
 from typing import Any
 
 from dream.arrays import finite_or_none
 from dream.edges.calibration import EdgeResult
+from dream.edges.frames import FrameEdgeResult
+from dream.errors import InputError
 from dream.polish.documents import with_pose_fields
 
 
@@ -53,4 +57,48 @@ def result_doc_with_edges(doc: dict[str, Any], res: EdgeResult,
     out["edges"] = edges_to_dict(res)
     if res.kept:
         with_pose_fields(out, res.T_after, rmse_after_px)
+    return out
+
+
+def frame_edges_to_dict(res: FrameEdgeResult) -> dict[str, Any]:
+    """The `edges` object of a `per_frame` entry ("each" mode)."""
+    return {
+        "kept": bool(res.kept),
+        "reason": res.reason,
+        "agreement_before": res.agreement_before,
+        "agreement_after": res.agreement_after,
+        "keypoint_median_px_before": finite_or_none(res.median_before),
+        "keypoint_median_px_after": finite_or_none(res.median_after),
+        "T_cam_base_keypoints": res.T_before.tolist(),
+        "T_cam_base_aligned": res.T_aligned.tolist(),
+        "background_model": bool(res.background),
+        "seconds": res.seconds,
+    }
+
+
+def result_doc_with_frame_edges(doc: dict[str, Any],
+                                results: SequenceOf[FrameEdgeResult | None]) -> dict[str, Any]:
+    """An "each"-mode RESULT.json document with each aligned frame's `edges` object and, where
+    kept, its aligned `T_cam_base`; the top-level `edges` object counts them, and the
+    top-level pose is the reported frame's aligned one when that frame's was kept."""
+    if doc.get("frames_mode") != "each" or len(doc["per_frame"]) != len(results):
+        raise InputError(f"per-frame edge alignments need an each-mode result with "
+                         f"{len(results)} frames")
+    out = dict(doc)
+    per_frame = []
+    for entry, res in zip(doc["per_frame"], results, strict=True):
+        entry = dict(entry)
+        if res is not None:
+            entry["edges"] = frame_edges_to_dict(res)
+            if res.kept:
+                entry["T_cam_base"] = res.T_after.tolist()
+                if entry["frame"] == doc.get("reported_frame"):
+                    with_pose_fields(out, res.T_after, float("nan"))
+        per_frame.append(entry)
+    out["per_frame"] = per_frame
+    done = [r for r in results if r is not None]
+    out["edges"] = {"mode": "each", "frames_aligned": len(done),
+                    "frames_kept": sum(r.kept for r in done),
+                    "background_model": any(r.background for r in done),
+                    "seconds": float(sum(r.seconds for r in done))}
     return out

@@ -42,10 +42,13 @@ class Matched:
 
 
 class _EdgeProblem:
-    """`dream.optim.lm`'s view of the point-to-edge residuals over T_cam_base."""
+    """`dream.optim.lm`'s view of the point-to-edge residuals over T_cam_base, each point's
+    robust weight times its link's (`link_weights`)."""
 
-    def __init__(self, matched: Matched, camera: CameraIntrinsics, settings: EdgeSettings):
+    def __init__(self, matched: Matched, camera: CameraIntrinsics, settings: EdgeSettings,
+                 point_weight: np.ndarray | None = None):
         self.m, self.camera, self.settings = matched, camera, settings
+        self.point_weight = np.ones(len(matched.d)) if point_weight is None else point_weight
 
     def residuals(self, T: np.ndarray, jacobian: bool) -> tuple[np.ndarray, Any] | None:
         o = self.m.outline
@@ -58,11 +61,12 @@ class _EdgeProblem:
 
     def rho(self, r: np.ndarray) -> np.ndarray:
         cut = self.settings.max_residual_px
-        return huber_rho(np.minimum(np.abs(r), cut), self.settings.huber_scale_px)
+        return self.point_weight * huber_rho(np.minimum(np.abs(r), cut),
+                                             self.settings.huber_scale_px)
 
     def weight(self, r: np.ndarray) -> np.ndarray:
-        return np.where(np.abs(r) > self.settings.max_residual_px, 0.0,
-                        huber_weight(r, self.settings.huber_scale_px))
+        return self.point_weight * np.where(np.abs(r) > self.settings.max_residual_px, 0.0,
+                                            huber_weight(r, self.settings.huber_scale_px))
 
     def evaluate(self, T: np.ndarray) -> tuple[float, Any]:
         out = self.residuals(T, jacobian=True)
@@ -86,6 +90,26 @@ def match_outline(P_frames: np.ndarray, faces: np.ndarray, T: np.ndarray,
     return Matched(outline.subset(found), d[found])
 
 
+def link_weights(d: np.ndarray, link: np.ndarray, scale: float) -> np.ndarray:
+    """(N,) each matched point's link weight: min(1, scale x the median |d| of all points / the
+    median |d| of its link's points); all 1 when `scale` is 0 (pure).
+
+    >>> d = np.array([0.5, -0.5, 0.4, 3.0, -3.0])
+    >>> link_weights(d, np.array([0, 0, 0, 1, 1]), 2.0).round(2).tolist()
+    [1.0, 1.0, 1.0, 0.33, 0.33]
+    """
+    out = np.ones(len(d))
+    if scale <= 0 or not len(d):
+        return out
+    overall = float(np.median(np.abs(d)))
+    for value in np.unique(link):
+        mine = link == value
+        own = float(np.median(np.abs(d[mine])))
+        if own > 0:
+            out[mine] = min(1.0, scale * overall / own)
+    return out
+
+
 def _lm_steps(problem: _EdgeProblem, T: np.ndarray, settings: EdgeSettings) -> np.ndarray:
     lm = inner_lm_settings(settings.initial_damping, settings.inner_iterations)
     return levenberg_marquardt(problem, T, lm).x
@@ -102,7 +126,8 @@ class EdgeTrace:
 def align_edges(P_frames: np.ndarray, faces: np.ndarray, gray: np.ndarray,
                 camera: CameraIntrinsics, T_cam_base: np.ndarray,
                 settings: EdgeSettings, background: np.ndarray | None = None,
-                usable: np.ndarray | None = None) -> tuple[np.ndarray, EdgeTrace]:
+                usable: np.ndarray | None = None,
+                vertex_link: np.ndarray | None = None) -> tuple[np.ndarray, EdgeTrace]:
     """The pose whose rendered outline lies on the images' edges, searched from `T_cam_base`.
 
     Args:
@@ -111,6 +136,8 @@ def align_edges(P_frames: np.ndarray, faces: np.ndarray, gray: np.ndarray,
         T_cam_base: (4, 4) the start.
         background: (H, W) the background model (`dream.edges.background`), or None.
         usable: (V,) bool, the vertices whose outline is matched (default all).
+        vertex_link: (V,) each vertex's link, for the links' weights (`link_weights`,
+            `link_weight_scale`); None: no link weights.
     Returns:
         (T (4, 4), what was done).
     """
@@ -126,7 +153,9 @@ def align_edges(P_frames: np.ndarray, faces: np.ndarray, gray: np.ndarray,
             if matched < settings.min_outline_points:
                 log.info("edge alignment: only %d outline points face an edge", matched)
                 return T, EdgeTrace(tuple(rounds + [done]), matched)
-            T_new = _lm_steps(_EdgeProblem(m, level.camera, settings), T, settings)
+            weights = (None if vertex_link is None else link_weights(
+                m.d, vertex_link[m.outline.vertex], settings.link_weight_scale))
+            T_new = _lm_steps(_EdgeProblem(m, level.camera, settings, weights), T, settings)
             moved = rms_motion_px(m.outline.P_base, T, T_new, level.camera)
             T = T_new
             log.debug("edges at width %d, round %d: %d points, moved %.3g px", width, done,

@@ -28,9 +28,10 @@ from dream.polish.guard import KeypointGuard, KeypointSet, decide
 from dream.polish.objective import evenly_spaced
 from dream.polish.refine import PolishResult, polish
 from dream.polish.settings import PolishSettings
+from dream.quality import MIN_KEPT_SHARE
 from dream.robot import Robot
 from dream.sequence import Sequence
-from dream.silhouette import RobotMeshes, load_robot_meshes
+from dream.silhouette import RobotMeshes, load_robot_meshes, without_links
 
 log = logging.getLogger(__name__)
 
@@ -121,22 +122,30 @@ def silhouette_inputs(sequence: Sequence, robot: Robot, params: PolishSettings,
 
 def polish_calibration(sequence: Sequence, robot: Robot, result: CalibrationResult,
                        obs: Observations, params: PolishSettings | None = None,
-                       predict_masks: Callable[[list[int]], np.ndarray] | None = None
-                       ) -> PolishResult:
+                       predict_masks: Callable[[list[int]], np.ndarray] | None = None,
+                       leave_out_links: SequenceOf[str] = ()) -> PolishResult:
     """Polish an "all"-mode calibration of `sequence` with its masks (`silhouette_inputs`),
-    guarded by the calibration's inlier keypoints.
+    guarded by all its keypoint detections.
 
     Without masks in the data, `predict_masks(frame_indices) -> (n, H, W) bool` supplies them
-    (the keypoint network's mask head, `dream.detection.predict_masks`)."""
+    (the keypoint network's mask head, `dream.detection.predict_masks`; motion masks,
+    `dream.edges.motion`). The silhouettes rendered leave out `leave_out_links` (links that
+    masks do not show: those that never move, for motion masks)."""
     params = params or PolishSettings()
     if result.mode != "all":
         raise InputError("polish_calibration polishes the one extrinsic of a fixed camera; "
                          "polish an --frames each result with polish_frames")
     check_polish_input(sequence, "all", network_masks=predict_masks is not None)
     inputs = silhouette_inputs(sequence, robot, params, predict_masks)
-    return polish(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
-                  result.fit.T_cam_base, all_detections(obs), params, inputs.frame_names,
-                  guard=KeypointGuard.ALL_MEDIAN)
+    meshes = without_links(inputs.meshes, tuple(leave_out_links)) if leave_out_links else \
+        inputs.meshes
+    detections = all_detections(obs)
+    inliers = inlier_keypoints(result, obs, slice(None))
+    trusted = (detections is not None and inliers is not None
+               and len(inliers.P_base) >= MIN_KEPT_SHARE * len(detections.P_base))
+    return polish(meshes, inputs.joints, inputs.masks, sequence.camera,
+                  result.fit.T_cam_base, detections, params, inputs.frame_names,
+                  guard=KeypointGuard.ALL_MEDIAN, inliers=inliers if trusted else None)
 
 
 def all_detections(obs: Observations | None) -> KeypointSet | None:

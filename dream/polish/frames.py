@@ -15,8 +15,8 @@ A frame's own optimum is searched once, from the pose of all frames. The frames 
 go first, together: they pull the common pose at which the others are measured. Then, one at a
 time, the frame that breaks a rule by most is left out and the common pose searched again on
 the rest, from T (backward elimination), until every frame kept follows the rules or after
-`frame_check_rounds` searches. Frames left out stay out. With fewer than `min_agreeing_frames`
-frames kept, none is left out.
+`frame_check_rounds` searches. Frames left out stay out. No frame is left out that would leave
+fewer than `min_agreeing_frames` frames, or fewer than `min_agreeing_share` of them.
 """
 
 from __future__ import annotations
@@ -119,7 +119,8 @@ def agreeing_frames(T: np.ndarray, candidates: np.ndarray,
             break
         if not no_fit.any():                                  # the worst one alone
             drop = np.arange(len(used)) == np.argmax(np.where(used, by, -np.inf))
-        if (used & ~drop).sum() < params.min_agreeing_frames:
+        if (used & ~drop).sum() < max(params.min_agreeing_frames,
+                                      params.min_agreeing_share * candidates.sum()):
             break
         for i in np.flatnonzero(drop):
             left_because[i] = reasons[i]

@@ -7,9 +7,12 @@ before and after. The polished pose is kept only when the mean IoU grows by more
   inlier keypoints stays within max(`max_rmse_factor` x before, before + `rmse_margin_px`).
 - "all-median" (a fixed camera, all frames; `polish_calibration`): the median pixel distance
   of all the keypoint detections, inliers of the keypoint fit or not, stays within
-  max(`max_median_factor` x before, before + `median_margin_px`). A keypoint fit that kept a
-  small consensus of a biased set may fit its inliers closely at a wrong pose; the inliers'
-  RMSE would then refuse every pose that leaves them, the right one included.
+  max(`max_median_factor` x before, before + `median_margin_px`); and, where the keypoint fit
+  kept at least half of the detections (`dream.quality.MIN_KEPT_SHARE`), the RMSE of its
+  inliers follows the "rmse" rule too. A keypoint fit that kept a small consensus of a biased
+  set may fit its inliers closely at a wrong pose; their RMSE would then refuse every pose
+  that leaves them, the right one included. A fit that kept most detections is trusted, and
+  the median of all detections alone is too loose along the optical axis.
 - "median" (one frame's own pose, `--frames each`): the median pixel distance of the frame's
   n inlier keypoints may reach at most its value at the keypoint pose divided by
   `fit_shrinkage(n)` = sqrt((2n - 6) / 2n), plus `frame_median_margin_px`. A single frame's
@@ -93,9 +96,11 @@ def fit_shrinkage(n_keypoints: int) -> float:
 
 
 def decide(iou0: float, iou1: float, kp0: float, kp1: float, n_guard: int,
-           params: PolishSettings, guard: str) -> tuple[bool, str]:
+           params: PolishSettings, guard: str,
+           fit_rmse: tuple[float, float] | None = None) -> tuple[bool, str]:
     """Keep or not (module doc); kp0 / kp1: the guard's keypoint statistic over its
-    `n_guard` keypoints (0: no guard)."""
+    `n_guard` keypoints (0: no guard); `fit_rmse`: with the "all-median" guard, the RMSE of
+    the keypoint fit's inliers before and after, held to the "rmse" rule too (None: not)."""
     gain = iou1 - iou0
     ious = f"mean IoU {iou0:.4f} -> {iou1:.4f}"
     if not gain > params.min_iou_gain:
@@ -115,4 +120,11 @@ def decide(iou0: float, iou1: float, kp0: float, kp1: float, n_guard: int,
         stats = f"keypoint median distance {kp0:.3f} -> {kp1:.3f} px"
     if not kp1 <= allowed:
         return False, f"not kept: {ious} but {stats}, above the {allowed:.3f} px allowed"
+    if guard == KeypointGuard.ALL_MEDIAN and fit_rmse is not None:
+        rmse0, rmse1 = fit_rmse
+        limit = max(params.max_rmse_factor * rmse0, rmse0 + params.rmse_margin_px)
+        if not rmse1 <= limit:
+            return False, (f"not kept: {ious}, {stats}, but the keypoint fit's inlier RMSE "
+                           f"{rmse0:.3f} -> {rmse1:.3f} px, above the {limit:.3f} px allowed")
+        stats += f", inlier RMSE {rmse0:.3f} -> {rmse1:.3f} px (at most {limit:.3f})"
     return True, f"kept: {ious}, {stats} (at most {allowed:.3f} px allowed)"

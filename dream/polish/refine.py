@@ -202,7 +202,8 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
            camera: CameraIntrinsics, T_cam_base: np.ndarray, keypoints: KeypointSet | None,
            params: PolishSettings | None = None,
            frame_names: SequenceOf[str] | None = None,
-           guard: str = KeypointGuard.RMSE, check_frames: bool = True) -> PolishResult:
+           guard: str = KeypointGuard.RMSE, check_frames: bool = True,
+           inliers: KeypointSet | None = None) -> PolishResult:
     """Refine `T_cam_base` by aligning rendered and observed robot silhouettes (the module docs
     of `dream.polish.objective`, `dream.polish.refine` and `dream.polish.guard`).
 
@@ -218,6 +219,9 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         guard: a `KeypointGuard`: RMSE or ALL_MEDIAN (many frames), MEDIAN (one frame alone).
         check_frames: leave out frames that disagree with the others (`dream.polish.frames`;
             with more than `min_agreeing_frames` frames).
+        inliers: with the ALL_MEDIAN guard, the keypoint fit's inliers, whose RMSE must not
+            grow either (`dream.polish.guard`; None: not checked); `rmse_before` and
+            `rmse_after` are then theirs.
     Returns:
         A `PolishResult`; `T_after` is the pose to use.
     Raises:
@@ -266,8 +270,12 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         rmse0 = rmse1 = median0 = median1 = float("nan")
     before, after = (rmse0, rmse1) if guard == KeypointGuard.RMSE else (median0, median1)
     n_guard = 0 if keypoints is None else len(keypoints.P_base)
+    fit_rmse = None
+    if inliers is not None:
+        rmse0, rmse1 = inliers.rmse_px(camera, T0), inliers.rmse_px(camera, T1)
+        fit_rmse = (rmse0, rmse1)
     kept, reason = decide(float(iou0[used].mean()), float(iou1[used].mean()), before, after,
-                          n_guard, params, guard)
+                          n_guard, params, guard, fit_rmse)
     if agreement is not None and not used.all():
         reason += f"; {int((~used).sum())} of {F} frames left out (they disagree with the rest)"
     log.info("silhouette polish: %s", reason)

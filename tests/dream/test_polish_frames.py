@@ -23,6 +23,7 @@ from dream.polish.frames import (
     agreeing_frames,
     frame_violations,
 )
+from dream.polish.guard import decide
 from dream.robot import load_robot
 from dream.sample import random_joints
 from dream.silhouette import load_robot_meshes, render_silhouette
@@ -171,3 +172,31 @@ def test_calibrate_names_the_frames_left_out(panda, meshes, tmp_path, capsys):
     assert left == {"000002", "000005"}
     assert doc["polish"]["keypoint_guard"] == KeypointGuard.ALL_MEDIAN
     assert pose_errors(np.array(doc["T_cam_base"]), T_true)[0] < 0.01
+
+
+def test_all_median_guard_holds_a_trusted_fit_to_its_inlier_rmse():
+    """Where the keypoint fit kept most detections, the polish must not break its inliers
+    either: the median of all detections alone is loose along the optical axis."""
+    p = PolishSettings()
+    kept, reason = decide(0.70, 0.75, 1.1, 1.5, 200, p, KeypointGuard.ALL_MEDIAN, (1.0, 2.5))
+    assert not kept and "inlier RMSE" in reason
+    kept, reason = decide(0.70, 0.75, 1.1, 1.5, 200, p, KeypointGuard.ALL_MEDIAN, (1.0, 1.4))
+    assert kept and "inlier RMSE" in reason
+    assert decide(0.70, 0.75, 1.1, 1.5, 200, p, KeypointGuard.ALL_MEDIAN)[0]   # not trusted
+
+
+def test_most_frames_left_out_leave_none_out():
+    """Leaving out more than `1 - min_agreeing_share` of the frames is refused: then the
+    masks, not the frames, are the likelier fault."""
+    p = PolishSettings()
+    T = np.eye(4)
+    n = 20
+    quality = np.full(n, 0.5)
+    quality[:4] = 0.95      # four good frames (more than min_agreeing_frames), 16 no pose fits
+
+    def ious(frames, T_at):
+        return quality[frames]
+
+    T_out, a = agreeing_frames(T, np.ones(n, bool), lambda f, T0: T0, lambda f, T0: T0, ious,
+                               p)
+    assert a.used.all() and T_out is T

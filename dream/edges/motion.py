@@ -1,0 +1,172 @@
+"""Motion masks of a fixed camera: the pixels where a frame differs from the scene behind the arm.
+
+The colour background model is the per-pixel median of many frames (evenly spaced, as
+`dream.edges.background`); a pixel of a frame is "moving" when one of its colour channels
+differs from it by at least `threshold`. An opening removes speckle (sensor noise, compression),
+a closing bridges thin gaps, and blobs smaller than `min_area_fraction` of the image go. What
+the mask holds is the moving arm, plus its shadow and anything else that moved; what it misses
+is any part of the arm that matches the scene behind it in colour, and the links that never move
+(they are in the background model). So a motion mask suits a polish of the moving links only
+(`dream calibrate --polish --motion-masks`) and inspection (`dream masks`), not the robot's
+full silhouette.
+
+    >>> import numpy as np
+    >>> frames = np.zeros((9, 40, 40, 3), np.uint8)
+    >>> frames[0, 10:30, 10:30] = 200                  # something in frame 0 only
+    >>> masks = motion_masks(frames, background_rgb(frames, MotionSettings()), MotionSettings())
+    >>> int(masks[0].sum()), int(masks[1:].sum())
+    (400, 0)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from dream.errors import InputError
+from dream.polish.objective import evenly_spaced
+from dream.sequence import Sequence
+from dream.settings_checks import check_fields
+
+COLOUR_LEVELS = 255.0     # 8-bit colour channels are compared in [0, 1]
+
+
+@dataclass(frozen=True)
+class MotionSettings:
+    """Every constant of the motion masks (module doc); set on rendered fixed-camera scenes.
+
+    Attributes:
+        threshold: a channel must differ from the background by at least this ([0, 1]).
+        open_px, close_px: radii of the opening and the closing, pixels per 320 px of width.
+        min_area_fraction: blobs smaller than this share of the image are dropped.
+        background_frames: frames whose per-pixel median is the background (evenly spaced).
+        min_background_frames: fewer frames give no background model (an error).
+        min_moving_fraction: at least this share of the frames must show motion (a mask
+            covering `min_area_fraction` of the image) for the masks to be made.
+        static_link_m: links whose vertices move less than this over the frames are in the
+            background model, so not in the masks (`dream.silhouette.static_links`).
+    """
+
+    threshold: float = 0.1
+    open_px: float = 1.0
+    close_px: float = 2.0
+    min_area_fraction: float = 0.002
+    background_frames: int = 60
+    min_background_frames: int = 8
+    min_moving_fraction: float = 0.5
+    static_link_m: float = 0.005
+
+    def __post_init__(self) -> None:
+        check_fields(self, "motion masks",
+                     positive_ints=("background_frames", "min_background_frames"),
+                     positive=("threshold", "static_link_m"),
+                     non_negative=("open_px", "close_px", "min_area_fraction",
+                                   "min_moving_fraction"))
+        for name in ("threshold", "min_area_fraction", "min_moving_fraction"):
+            if getattr(self, name) > 1:
+                raise InputError(f"motion masks: {name} must not exceed 1, got "
+                                 f"{getattr(self, name)}")
+
+
+def background_rgb(frames: np.ndarray, settings: MotionSettings) -> np.ndarray:
+    """The per-pixel median (H, W, 3) uint8 of RGB frames (F, H, W, 3).
+
+    Raises:
+        InputError: not (F, H, W, 3), or fewer than `min_background_frames` frames.
+    """
+    frames = np.asarray(frames)
+    if frames.ndim != 4 or frames.shape[3] != 3:
+        raise InputError(f"frames have shape {frames.shape}, expected (F, H, W, 3)")
+    if len(frames) < settings.min_background_frames:
+        raise InputError(f"{len(frames)} frames are too few for a background model (at least "
+                         f"{settings.min_background_frames})",
+                         fix="record more frames of the fixed camera with the arm moving")
+    return np.median(frames, axis=0).astype(np.uint8)
+
+
+def _disk(radius: float) -> np.ndarray | None:
+    r = int(round(radius))
+    return None if r < 1 else cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
+
+
+def motion_masks(frames: np.ndarray, background: np.ndarray, settings: MotionSettings
+                 ) -> np.ndarray:
+    """(F, H, W) bool motion masks of RGB frames (F, H, W, 3) against `background` (H, W, 3)
+    (module doc; pure)."""
+    frames = np.asarray(frames)
+    if frames.ndim != 4 or frames.shape[1:] != np.shape(background):
+        raise InputError(f"frames have shape {frames.shape} and the background "
+                         f"{np.shape(background)}, expected (F, H, W, 3) and (H, W, 3)")
+    F, H, W, _ = frames.shape
+    per_width = W / 320.0
+    opening, closing = _disk(settings.open_px * per_width), _disk(settings.close_px * per_width)
+    min_area = settings.min_area_fraction * H * W
+    out = np.zeros((F, H, W), bool)
+    for f in range(F):
+        diff = np.abs(frames[f].astype(np.int16) - background.astype(np.int16)).max(axis=2)
+        mask = (diff >= settings.threshold * COLOUR_LEVELS).astype(np.uint8)
+        if opening is not None:
+            mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, opening)
+        if closing is not None:
+            mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, closing)
+        count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= min_area)
+        out[f] = np.isin(labels, big[big > 0])
+    return out
+
+
+def check_motion(coverage: np.ndarray, settings: MotionSettings, what: str) -> None:
+    """Refuse the masks of a recording where the arm hardly moves: fewer than
+    `min_moving_fraction` of the frames have at least `min_area_fraction` of their image in
+    the mask (`coverage`: (F,) shares; the background model then holds the arm).
+
+    Raises:
+        InputError: naming `what` (the data) and the fix.
+    """
+    moving = np.asarray(coverage) >= settings.min_area_fraction
+    if moving.mean() < settings.min_moving_fraction:
+        raise InputError(f"only {int(moving.sum())} of {len(moving)} frames show motion against "
+                         "the background model: the arm hardly moves, so the background holds "
+                         "it", what, "record the arm moving through the view (motion masks "
+                         "need a moving arm), or give robot masks")
+
+
+def sequence_background(sequence: Sequence, settings: MotionSettings) -> np.ndarray:
+    """The colour background model (H, W, 3) of a fixed-camera `sequence` (its images read at
+    `background_frames` evenly spaced frames).
+
+    Raises:
+        InputError: frames without images, or too few frames (the fix in the message).
+    """
+    from dream.io import load_image
+
+    camera = sequence.fixed_camera("make motion masks against one background")
+    missing = [f.name for f in sequence.frames if f.image_path is None]
+    if missing:
+        raise InputError(f"motion masks need the images, and frame {missing[0]} has none",
+                         sequence.source, "add the images")
+    if len(sequence) < settings.min_background_frames:
+        raise InputError(f"{len(sequence)} frames are too few for a background model (at least "
+                         f"{settings.min_background_frames})", sequence.source,
+                         "record more frames of the fixed camera with the arm moving")
+    chosen = evenly_spaced(np.arange(len(sequence)), settings.background_frames)
+    return background_rgb(np.stack([load_image(sequence.frames[int(i)], camera)
+                                    for i in chosen]), settings)
+
+
+def sequence_motion_masks(sequence: Sequence, indices: np.ndarray, settings: MotionSettings,
+                          background: np.ndarray | None = None) -> np.ndarray:
+    """(n, H, W) bool motion masks of the frames `indices` of a fixed-camera `sequence`
+    (`background`: its `sequence_background`, made when not given), refused when the arm
+    hardly moves in them (`check_motion`)."""
+    from dream.io import load_image
+
+    if background is None:
+        background = sequence_background(sequence, settings)
+    camera = sequence.camera
+    masks = np.stack([motion_masks(load_image(sequence.frames[int(i)], camera)[None],
+                                   background, settings)[0] for i in indices])
+    check_motion(masks.reshape(len(masks), -1).mean(axis=1), settings, str(sequence.source))
+    return masks

@@ -1,0 +1,141 @@
+"""Motion masks (`dream.edges.motion`), `dream masks` and `dream calibrate --polish
+--motion-masks`, on images of the project's own silhouettes over a cluttered scene
+(`tests/dream/test_edges.py`'s scenes)."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from dream.camera import project
+from dream.cli import main
+from dream.edges.motion import MotionSettings, background_rgb, check_motion, motion_masks
+from dream.errors import InputError
+from dream.io import write_dream
+from dream.metrics import pose_errors
+from dream.sequence import Frame, Sequence
+from dream.silhouette import render_silhouette, static_links, without_links
+from dream.transforms import transform_points
+from tests.dream.test_edges import CAMERA, edge_scene, image_dataset, meshes, panda  # noqa: F401
+
+NOISE_GREY = 6          # sensor noise of the synthetic frames, grey levels of 255
+
+
+def test_motion_masks_find_the_moving_robot_and_drop_speckle(panda, meshes):  # noqa: F811
+    T_true, joints, images, _ = edge_scene(panda, meshes)
+    rng = np.random.default_rng(0)
+    rgb = np.repeat((images * 255).astype(np.int16)[..., None], 3, axis=3)
+    rgb = np.clip(rgb + rng.integers(-NOISE_GREY, NOISE_GREY + 1, rgb.shape), 0, 255)
+    rgb = rgb.astype(np.uint8)
+    settings = MotionSettings()
+    masks = motion_masks(rgb, background_rgb(rgb, settings), settings)
+    moving = without_links(meshes, static_links(meshes, joints, settings.static_link_m))
+    iou, outside = [], []
+    for q, mask in zip(joints, masks, strict=True):
+        truth = render_silhouette(moving, q, T_true, CAMERA)
+        iou.append((truth & mask).sum() / (truth | mask).sum())
+        outside.append((mask & ~render_silhouette(meshes, q, T_true, CAMERA)).sum() / mask.sum())
+    # the moving links, less where they stand over robot pixels of the median of 10 frames;
+    # and little else (where the median holds the robot and the frame does not)
+    assert np.median(iou) > 0.6 and min(iou) > 0.5
+    assert np.median(outside) < 0.12
+
+
+def test_background_needs_frames_and_a_moving_arm():
+    settings = MotionSettings()
+    with pytest.raises(InputError, match="too few for a background model"):
+        background_rgb(np.zeros((3, 8, 8, 3), np.uint8), settings)
+    with pytest.raises(InputError, match="hardly moves"):
+        check_motion(np.zeros(10), settings, "data")
+    check_motion(np.full(10, 0.1), settings, "data")
+    with pytest.raises(InputError, match="threshold"):
+        MotionSettings(threshold=0.0)
+
+
+def test_dream_masks_writes_one_mask_per_frame(panda, meshes, tmp_path, capsys):  # noqa: F811
+    image_dataset(panda, meshes, tmp_path)
+    out = tmp_path / "masks"
+    code = main(["masks", "--data", str(tmp_path / "data"), "--out", str(out)])
+    printed, err = capsys.readouterr()
+    assert code == 0, err
+    assert "wrote 10 motion masks" in printed
+    names = sorted(p.name for p in out.iterdir())
+    assert names == [f"{i:06d}.motion.png" for i in range(10)] + ["background.png"]
+    mask = cv2.imread(str(out / "000000.motion.png"), cv2.IMREAD_UNCHANGED)
+    assert mask.shape == (CAMERA.height, CAMERA.width) and set(np.unique(mask)) <= {0, 255}
+
+
+def still_dataset(panda, meshes, folder, frames: int):  # noqa: F811
+    """A DREAM-layout folder of `frames` identical images of an arm that does not move."""
+    T_true, joints, images, _ = edge_scene(panda, meshes, frames=1)
+    uv = project(CAMERA, transform_points(T_true, panda.forward_kinematics(joints[0])))
+    rng = np.random.default_rng(1)
+    src = folder / "images"
+    src.mkdir(parents=True)
+    out = []
+    for i in range(frames):
+        path = src / f"{i}.png"
+        cv2.imwrite(str(path), np.repeat((images[0] * 255).astype(np.uint8)[..., None], 3, 2))
+        out.append(Frame(name=f"{i:06d}", joints=joints[0], image_path=path,
+                         uv_labels=uv + rng.normal(0.0, 1.0, uv.shape)))
+    write_dream(Sequence(robot="panda", camera=CAMERA, joint_names=panda.joint_names,
+                         keypoint_names=panda.keypoint_names, frames=tuple(out)),
+                folder / "data")
+
+
+@pytest.mark.parametrize("frames, message", [(12, "hardly moves"), (4, "too few")])
+def test_dream_masks_refuses_a_still_or_short_recording(panda, meshes, tmp_path,  # noqa: F811
+                                                        capsys, frames, message):
+    still_dataset(panda, meshes, tmp_path, frames)
+    out = tmp_path / "masks"
+    code = main(["masks", "--data", str(tmp_path / "data"), "--out", str(out)])
+    _, err = capsys.readouterr()
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_edges_of_a_still_arm_are_matched_without_a_background(panda, meshes,  # noqa: F811
+                                                                tmp_path, capsys):
+    """A still arm stays in the background model, so the edge alignment (the default) goes on
+    without one, and --motion-masks is refused with the fix."""
+    still_dataset(panda, meshes, tmp_path, 12)
+    out = tmp_path / "r.json"
+    code = main(["calibrate", "--data", str(tmp_path / "data"), "--use-labels", "--out",
+                 str(out)])
+    _, err = capsys.readouterr()
+    assert code == 0, err
+    assert json.loads(out.read_text())["edges"]["background_model"] is False
+    code = main(["calibrate", "--data", str(tmp_path / "data"), "--use-labels", "--polish",
+                 "--motion-masks", "--out", str(tmp_path / "m.json")])
+    _, err = capsys.readouterr()
+    assert code == 2 and "hardly moves" in err and not (tmp_path / "m.json").exists()
+
+
+def test_calibrate_polishes_with_motion_masks(panda, meshes, tmp_path, capsys):  # noqa: F811
+    T_true = image_dataset(panda, meshes, tmp_path)
+    out = tmp_path / "r.json"
+    code = main(["calibrate", "--data", str(tmp_path / "data"), "--use-labels", "--polish",
+                 "--motion-masks", "--out", str(out)])
+    printed, err = capsys.readouterr()
+    assert code == 0, err
+    assert "motion masks" in printed and "panda_link0" in printed
+    doc = json.loads(out.read_text())
+    assert doc["polish"]["kept"], doc["polish"]["reason"]
+    t_keypoints = pose_errors(np.array(doc["polish"]["T_cam_base_keypoints"]), T_true)[0]
+    t_polished = pose_errors(np.array(doc["T_cam_base"]), T_true)[0]
+    assert t_polished < 0.003 and t_polished < t_keypoints
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--motion-masks"], "--polish was not given"),
+    (["--polish", "--motion-masks", "--frames", "each"], "use --frames all"),
+])
+def test_motion_mask_misuse_is_one_clear_error(tmp_path, capsys, extra, message):
+    out = tmp_path / "r.json"
+    code = main(["calibrate", "--data", str(tmp_path), "--use-labels", "--out", str(out),
+                 *extra])
+    _, err = capsys.readouterr()
+    assert code == 2 and message in err and not out.exists()
