@@ -13,9 +13,10 @@
   included (`trainer.max_steps`, exact: the last epoch may be partial), so that the
   learning-rate schedule spans the time available. `BudgetStop` ends the run validated and
   checkpointed at the last planned step, or earlier at the deadline when the probe was
-  optimistic. The resolved values are written to the run's config.yaml and checkpoints; a
-  resumed run keeps its checkpoint's values (and the time it had spent) instead of probing
-  again.
+  optimistic. During the run the plan is revised from the measured rate (`BudgetStop`,
+  `revised_steps`). The resolved values are written to the run's config.yaml and checkpoints
+  (the checkpoints with the revised plan); a resumed run keeps its checkpoint's values (and
+  the time it had spent) instead of probing again.
 
 `choose_precision`, `steps_per_epoch` and `steps_for_budget` are pure; the rest asks torch and
 times Lightning.
@@ -47,6 +48,8 @@ BF16 = "bf16-mixed"
 FP32 = "32-true"
 _LIGHTNING_INFO_LOGGER = "lightning.pytorch.utilities.rank_zero"  # the trainer banners
 PROBE_WARMUP_STEPS = 3  # untimed first steps: worker start-up, allocator and oneDNN warm-up
+REPLAN_FRACTION = 0.1   # the step plan is revised after every tenth of the time budget
+MIN_REPLAN_CHANGE = 0.05  # ... when it changes by more than 5 %
 
 
 def choose_precision(device: str, native_bf16: bool) -> str:
@@ -253,24 +256,51 @@ def resolve_time_budget(config: TrainConfig, speed: Speed, train_images_per_epoc
     return config.replace(trainer=replace(tc, max_steps=steps))
 
 
+def revised_steps(step: int, s_per_step: float, left_s: float, step_cap: int) -> int:
+    """The step plan revised at optimiser step `step`: those done and the ones that fit in the
+    `left_s` seconds left at the measured `s_per_step` (validations included, as they were in
+    the measurement), at least one more and at most `step_cap` (pure).
+
+    >>> revised_steps(100, 0.5, 60.0, 10_000)
+    220
+    >>> revised_steps(100, 0.5, 60.0, 150)
+    150
+    """
+    if not s_per_step > 0:
+        raise ValueError(f"s_per_step must be > 0, got {s_per_step}")
+    return int(min(step_cap, step + max(1, math.floor(max(left_s, 0.0) / s_per_step))))
+
+
 class BudgetStop(Callback):
     """Ends a time-budgeted run validated and checkpointed: at its last planned step (Lightning
-    ends a partial epoch at `max_steps` without validating) or, when the probe was optimistic,
+    ends a partial epoch at `max_steps` without validating) or, when the plan was optimistic,
     at the deadline. Its clock (the seconds spent, the probe's included) is saved in the
     checkpoints, so a resumed run keeps the deadline.
+
+    With a `step_cap`, the plan is revised after every `REPLAN_FRACTION` of the budget, and at
+    its last step, from the rate measured in this run (`revised_steps`): shrunk whenever it no
+    longer fits, grown when by more than `MIN_REPLAN_CHANGE`. A probe taken while the machine
+    was busy, or a machine that slows down, no longer leaves most of the budget unused or the
+    schedule cut short. The trainer's
+    step and epoch limits and the module's schedule (`replan(steps)`) follow.
 
     Args:
         max_steps: the planned optimiser steps.
         deadline_s: seconds after which the run stops at the next step.
         spent_s: seconds already spent (the probe).
         clock: seconds, monotonic (tests pass their own).
+        step_cap: the most steps the config allows (None: the plan is not revised).
     """
 
     def __init__(self, max_steps: int, deadline_s: float, spent_s: float = 0.0,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.monotonic, step_cap: int | None = None):
         self.max_steps, self.deadline_s, self.clock = max_steps, deadline_s, clock
         self._spent_before, self._start, self._excluded_s = spent_s, clock(), 0.0
         self.stopped_at_deadline: int | None = None  # the step, when the deadline ended the run
+        self.step_cap = step_cap
+        self.revisions: list[tuple[int, int]] = []   # (at step, new plan)
+        self._run_start = (0, spent_s)               # (step, seconds spent) when training began
+        self._next_replan_s = spent_s + REPLAN_FRACTION * deadline_s
 
     def spent_s(self) -> float:
         return self._spent_before + self.clock() - self._start - self._excluded_s
@@ -282,14 +312,41 @@ class BudgetStop(Callback):
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._start, self._excluded_s = self.clock(), 0.0
-        if self.spent_s() >= self.deadline_s:  # a resumed run that had spent its budget
+        spent = self.spent_s()
+        self._run_start = (trainer.global_step, spent)
+        self._next_replan_s = spent + REPLAN_FRACTION * self.deadline_s
+        if spent >= self.deadline_s:  # a resumed run that had spent its budget
             trainer.should_stop = True
+
+    def _replan(self, trainer: L.Trainer, pl_module: L.LightningModule, step: int,
+                spent: float) -> None:
+        """Revise the plan from the rate measured since training began (class doc)."""
+        self._next_replan_s = spent + REPLAN_FRACTION * self.deadline_s
+        done, elapsed = step - self._run_start[0], spent - self._run_start[1]
+        if done < 1 or elapsed <= 0:
+            return
+        new = revised_steps(step, elapsed / done, self.deadline_s - spent, self.step_cap)
+        if self.max_steps <= new <= (1 + MIN_REPLAN_CHANGE) * self.max_steps:
+            return    # a plan that no longer fits always shrinks; one that fits grows by > 5 %
+        logger.info("step plan revised at step %d: %d -> %d steps (%.3f s per step measured)",
+                    step, self.max_steps, new, elapsed / done)
+        self.max_steps = new
+        self.revisions.append((step, new))
+        trainer.fit_loop.epoch_loop.max_steps = new
+        trainer.fit_loop.max_epochs = max(trainer.current_epoch + 1, math.ceil(
+            new / max(1, trainer.num_training_batches)))
+        replan = getattr(pl_module, "replan", None)
+        if replan is not None:
+            replan(new)
 
     def on_train_batch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, outputs: Any,
                            batch: Any, batch_idx: int) -> None:
         step = trainer.global_step
-        late = trainer.strategy.reduce_boolean_decision(self.spent_s() >= self.deadline_s,
-                                                         all=False)
+        spent = self.spent_s()
+        late = trainer.strategy.reduce_boolean_decision(spent >= self.deadline_s, all=False)
+        if self.step_cap is not None and not late and (spent >= self._next_replan_s
+                                                       or step >= self.max_steps):
+            self._replan(trainer, pl_module, step, spent)   # also before ending at the plan
         if step >= self.max_steps or late:
             trainer.should_stop = True   # Lightning validates and checkpoints, then stops
         if late and step < self.max_steps and self.stopped_at_deadline is None:

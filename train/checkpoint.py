@@ -93,7 +93,7 @@ def load_checkpoint(path: str | Path) -> tuple[BeliefNet, TrainConfig]:
     `input` the preprocessing (`config.input.transform_for`, `dream.peaks`)."""
     ckpt = read_checkpoint(path)
     config = _stored_config(ckpt, Path(path))
-    model = build_model(config.model)
+    model = build_model(config.model, load_weights=False)   # the checkpoint's weights follow
     state = {k[len(_MODEL_PREFIX):]: v for k, v in ckpt["state_dict"].items()
              if k.startswith(_MODEL_PREFIX)}
     try:

@@ -26,15 +26,21 @@ from typing import Any
 
 import yaml
 
-from dream.errors import InputError
 from dream.peaks import PeakSettings
 from dream.preprocess import Preprocess
 from dream.recipe import load_recipe, plain, recipe_from_dict
+from train.model_config import (  # noqa: F401  (re-exported)
+    BELIEF_ACTIVATIONS,
+    ENCODERS,
+    FREEZE_MODES,
+    OUTPUT_STRIDES,
+    RESNET,
+    SKIP_MODES,
+    UPSAMPLE_MODES,
+    ModelConfig,
+)
+from train.model_config import require as _require
 
-OUTPUT_STRIDES = (1, 2, 4)
-SKIP_MODES = ("concat", "add")
-UPSAMPLE_MODES = ("bilinear", "nearest")
-BELIEF_ACTIVATIONS = ("none", "sigmoid")
 BELIEF_LOSSES = ("mse", "focal")
 SCHEDULES = ("onecycle", "cosine", "constant")
 MONITOR_MODES = ("min", "max")
@@ -42,12 +48,6 @@ AUTO_PRECISION = "auto"  # bf16-mixed where the hardware has native bfloat16, el
 PRECISIONS = ("32-true", "bf16-mixed", "16-mixed", AUTO_PRECISION)  # 16-mixed: GPUs only
 DEFAULT_INPUT = Preprocess(input_width=256, input_height=192)
 MAX_SEED = 2 ** 32 - 1  # numpy's seeds are 32-bit unsigned
-
-
-def _require(ok: bool, key: str, problem: str) -> None:
-    if not ok:
-        raise InputError(f"config {key}: {problem}", fix="correct the recipe YAML or the --set "
-                         "override")
 
 
 def _unit(value: float, key: str) -> None:
@@ -58,64 +58,6 @@ def _ordered_pair(pair: tuple[float, float], key: str, low: float | None = None)
     _require(pair[0] <= pair[1], key, f"must be (low, high) with low <= high, got {pair}")
     if low is not None:
         _require(pair[0] >= low, key, f"must be >= {low}, got {pair}")
-
-
-@dataclass(frozen=True)
-class ModelConfig:
-    """The belief-map network (`train.model.build_model`).
-
-    Attributes:
-        num_keypoints: belief maps K; null: the number of keypoints of the training data.
-        base_width: channels of the stem and the first encoder stage; stage i has
-            base_width * 2^i channels (at most `max_width`).
-        num_stages: encoder stages after the stride-2 stem, each halving the resolution: the
-            deepest features have stride 2^(num_stages + 1).
-        blocks_per_stage: residual basic blocks per encoder stage (ResNet-18: 2).
-        max_width: cap on encoder channels.
-        decoder_width: cap on decoder channels (a decoder level has min(decoder_width, the
-            encoder's channels at that stride)).
-        output_stride: input pixels per belief-map pixel: 1, 2 or 4 (DREAM's F, H, Q).
-        skip: how the decoder merges skip features: "concat" or "add".
-        upsample: "bilinear" (align_corners=False) or "nearest".
-        mask_head: also predict the robot mask (1-channel logits at the output stride).
-        belief_activation: "none" (the belief head's values are the maps, for the MSE loss) or
-            "sigmoid" (maps in (0, 1), for the focal loss; the head's bias starts at the
-            logit of `belief_prior` so that the first maps are near zero, not 0.5).
-        belief_prior: initial belief value everywhere with "sigmoid".
-    """
-
-    num_keypoints: int | None = None
-    base_width: int = 32
-    num_stages: int = 4
-    blocks_per_stage: int = 2
-    max_width: int = 256
-    decoder_width: int = 128
-    output_stride: int = 2
-    skip: str = "concat"
-    upsample: str = "bilinear"
-    mask_head: bool = True
-    belief_activation: str = "none"
-    belief_prior: float = 0.01
-
-    def __post_init__(self) -> None:
-        if self.num_keypoints is not None:
-            _require(self.num_keypoints >= 1, "model.num_keypoints", "must be >= 1 or null")
-        for name in ("base_width", "num_stages", "blocks_per_stage", "max_width",
-                     "decoder_width"):
-            _require(getattr(self, name) >= 1, f"model.{name}", "must be >= 1")
-        _require(self.output_stride in OUTPUT_STRIDES, "model.output_stride",
-                 f"must be one of {OUTPUT_STRIDES}, got {self.output_stride}")
-        _require(self.skip in SKIP_MODES, "model.skip", f"must be one of {SKIP_MODES}")
-        _require(self.upsample in UPSAMPLE_MODES, "model.upsample",
-                 f"must be one of {UPSAMPLE_MODES}")
-        _require(self.belief_activation in BELIEF_ACTIVATIONS, "model.belief_activation",
-                 f"must be one of {BELIEF_ACTIVATIONS}, got {self.belief_activation!r}")
-        _require(0 < self.belief_prior < 1, "model.belief_prior", "must be in (0, 1)")
-
-    @property
-    def network_stride(self) -> int:
-        """Stride of the deepest features: input sizes must be multiples of it."""
-        return 2 ** (self.num_stages + 1)
 
 
 @dataclass(frozen=True)
@@ -417,7 +359,7 @@ class TrainConfig:
         n = self.model.network_stride
         _require(self.input.input_width % n == 0 and self.input.input_height % n == 0,
                  "input", f"input size {self.input.input_width}x{self.input.input_height} must "
-                 f"be a multiple of the network stride {n} (2^(model.num_stages + 1))")
+                 f"be a multiple of the network stride {n} (model.network_stride)")
         if self.data.keypoints is not None and self.model.num_keypoints is not None:
             _require(len(self.data.keypoints) == self.model.num_keypoints, "model.num_keypoints",
                      f"is {self.model.num_keypoints} but data.keypoints names "

@@ -1,4 +1,5 @@
-"""The belief-map network: residual encoder, decoder with skip connections, belief and mask heads.
+"""The belief-map network: an encoder (residual, or a pretrained EfficientNet-Lite), a decoder
+with skip connections, belief and mask heads.
 
 Pure `nn.Module`s and one factory, `build_model(ModelConfig) -> BeliefNet`. Only ONNX-friendly
 ops: 3x3/1x1 convolutions, batch norm, ReLU, x2 upsampling (bilinear with align_corners=False, or
@@ -22,7 +23,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from dream.errors import InputError
-from train.config import ModelConfig
+from train.config import RESNET, ModelConfig
 
 _UPSAMPLE_FACTOR = 2
 
@@ -93,6 +94,39 @@ class Encoder(nn.Module):
         return features
 
 
+class LiteEncoder(nn.Module):
+    """An EfficientNet-Lite's features at strides 2-32 (`train.efficientnet`), its ImageNet
+    weights loaded when `load_weights` (a checkpoint brings its own), its classifier dropped,
+    and the layers `freeze` names kept as they are (weights and batch-norm statistics)."""
+
+    def __init__(self, config: ModelConfig, load_weights: bool):
+        super().__init__()
+        from train.efficientnet import EfficientNetLite, pretrained
+
+        net = pretrained(config.encoder) if load_weights and config.pretrained else \
+            EfficientNetLite(config.encoder)
+        del net._conv_head, net._bn1, net._fc          # the classifier: not used here
+        self.net = net
+        self.widths = list(net.widths)
+        self.frozen: list[nn.Module] = []
+        if config.freeze_encoder == "all":
+            self.frozen = [net]
+        elif config.freeze_encoder == "partial":     # the stem and the stride-2 and -4 blocks
+            self.frozen = [net._conv_stem, net._bn0, *net._blocks[:net.taps[1] + 1]]
+        for module in self.frozen:     # eval from the start: Lightning's fit keeps the modes
+            module.requires_grad_(False)
+            module.eval()
+
+    def train(self, mode: bool = True) -> LiteEncoder:
+        super().train(mode)
+        for module in self.frozen:                     # frozen batch norms keep their stats
+            module.eval()
+        return self
+
+    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
+        return self.net.features(x)
+
+
 class DecoderLevel(nn.Module):
     """x2 upsampling of the coarser features, merged with the skip features, then two 3x3
     convolutions."""
@@ -123,15 +157,18 @@ class BeliefNet(nn.Module):
 
     Args:
         config: `ModelConfig` with `num_keypoints` set.
+        load_weights: load a pretrained encoder's ImageNet weights (`config.pretrained`);
+            False where a checkpoint's weights follow.
     """
 
-    def __init__(self, config: ModelConfig):
+    def __init__(self, config: ModelConfig, load_weights: bool = True):
         super().__init__()
         if config.num_keypoints is None:
             raise InputError("model.num_keypoints is not set",
                              fix="set it, or let training take it from the data")
         self.config = config
-        self.encoder = Encoder(config, full_resolution=config.output_stride == 1)
+        self.encoder = (Encoder(config, full_resolution=config.output_stride == 1)
+                        if config.encoder == RESNET else LiteEncoder(config, load_weights))
         widths = self.encoder.widths  # strides: [1,] 2, 4, ..., network stride
         first_stride = 1 if config.output_stride == 1 else 2
         strides = [first_stride * 2 ** i for i in range(len(widths))]
@@ -180,9 +217,10 @@ class BeliefNet(nn.Module):
         return BeliefOutput(torch.sigmoid(belief) if self.sigmoid else belief, mask)
 
 
-def build_model(config: ModelConfig) -> BeliefNet:
-    """The network of `config` (num_keypoints must be set)."""
-    return BeliefNet(config)
+def build_model(config: ModelConfig, load_weights: bool = True) -> BeliefNet:
+    """The network of `config` (num_keypoints must be set); `load_weights`: a pretrained
+    encoder's ImageNet weights (False where a checkpoint's weights follow)."""
+    return BeliefNet(config, load_weights)
 
 
 def count_parameters(model: nn.Module) -> int:

@@ -13,6 +13,7 @@ The checkpoint carries the resolved config (keypoint names, robot, preprocessing
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -174,11 +175,19 @@ class BeliefModule(L.LightningModule):
             (decay if param.ndim >= 2 else no_decay).append(param)
         optimizer = torch.optim.AdamW([{"params": decay, "weight_decay": optim.weight_decay},
                                        {"params": no_decay, "weight_decay": 0.0}], lr=optim.lr)
-        total = max(1, int(self.trainer.estimated_stepping_batches))
+        self._planned_steps = max(1, int(self.trainer.estimated_stepping_batches))
         scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: lr_factor(
-            step, total, optim.schedule, optim.warmup_fraction, optim.final_lr_fraction))
+            step, self._planned_steps, optim.schedule, optim.warmup_fraction,
+            optim.final_lr_fraction))
         return {"optimizer": optimizer,
                 "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
+
+    def replan(self, total_steps: int) -> None:
+        """The run's step plan revised (`train.budget.BudgetStop`): the learning-rate schedule
+        spans `total_steps` from now on, and checkpoints record them."""
+        self._planned_steps = max(1, int(total_steps))
+        self.config = self.config.replace(trainer=dataclasses.replace(
+            self.config.trainer, max_steps=self._planned_steps))
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         checkpoint[CHECKPOINT_KEY] = checkpoint_payload(self.config)

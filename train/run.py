@@ -196,14 +196,24 @@ def _fit_time_budget(config: TrainConfig, trainer: L.Trainer, train_loader: Data
     return resolve_time_budget(config, speed, len(train_loader.dataset), val_images), speed
 
 
-def _budget_stop(config: TrainConfig, speed: Speed | None, val_images: int) -> BudgetStop:
+def _budget_stop(config: TrainConfig, speed: Speed | None, val_images: int,
+                 step_cap: int | None = None) -> BudgetStop:
     """The stop of a time-budgeted run: its deadline leaves time for one last validation
-    (a resumed run, `speed` None, takes its clock and deadline from the checkpoint)."""
+    (a resumed run, `speed` None, takes its clock and deadline from the checkpoint); with a
+    `step_cap` (the most steps the config allows) it revises the plan as the run goes."""
     budget_s = 60 * config.trainer.time_budget_minutes
     if speed is None:
         return BudgetStop(config.trainer.max_steps, budget_s)
     return BudgetStop(config.trainer.max_steps, budget_s - speed.validation_s(val_images),
-                      speed.probe_s)
+                      speed.probe_s, step_cap=step_cap)
+
+
+def _step_cap(config: TrainConfig, train_images: int) -> int:
+    """The most optimiser steps the config allows: its max_epochs, and its max_steps when set
+    (before a time budget replaces them)."""
+    tc = config.trainer
+    cap = tc.max_epochs * steps_per_epoch(train_images, config.data.batch_size)
+    return min(cap, tc.max_steps) if tc.max_steps is not None else cap
 
 
 def _trainer(config: TrainConfig, run_dir: Path, has_val: bool,
@@ -291,7 +301,7 @@ def _unwrap_worker_error(exc: InputError) -> InputError:
 
 
 def _plan_steps(trainer: L.Trainer, config: TrainConfig, num_train: int, num_val: int,
-                budget_speed: Speed | None) -> None:
+                budget_speed: Speed | None, step_cap: int | None = None) -> None:
     """Set the trainer's epochs for `trainer.max_steps`; with a time budget (`budget_speed`,
     the probe's measurement) exactly those steps, a partial last epoch ended by BudgetStop."""
     epoch_steps = steps_per_epoch(num_train, config.data.batch_size, trainer.world_size)
@@ -300,7 +310,7 @@ def _plan_steps(trainer: L.Trainer, config: TrainConfig, num_train: int, num_val
     budgeted = config.trainer.time_budget_minutes is not None
     if budgeted:
         trainer.fit_loop.epoch_loop.max_steps = config.trainer.max_steps
-        trainer.callbacks.insert(0, _budget_stop(config, budget_speed, num_val))
+        trainer.callbacks.insert(0, _budget_stop(config, budget_speed, num_val, step_cap))
     logger.info("step budget %d: %d epochs of %d steps%s", config.trainer.max_steps,
                 epochs, epoch_steps, "" if budgeted else " (whole epochs)")
 
@@ -360,8 +370,9 @@ def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | 
     trainer, best = _trainer(config, run_dir, val_loader is not None,
                              [checkpointed, *callbacks])
     budgeted = config.trainer.time_budget_minutes is not None
-    speed = None
+    speed, step_cap = None, None
     if budgeted and ckpt_path is None:
+        step_cap = _step_cap(config, len(train_set))
         config, speed = _fit_time_budget(config, trainer, train_loader, val_loader)
     module = BeliefModule(config)
     if config.trainer.init_from is not None and ckpt_path is None:
@@ -371,7 +382,7 @@ def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | 
         write_bytes_atomic(run_dir / CONFIG_FILE, dump_config(config).encode("utf-8"),
                            durable=False)
         if config.trainer.max_steps is not None:
-            _plan_steps(trainer, config, len(train_set), len(val_set), speed)
+            _plan_steps(trainer, config, len(train_set), len(val_set), speed, step_cap)
         _fit_quietly(trainer, module, train_loader, val_loader, ckpt_path)
     except InputError as exc:
         if created is not None and not checkpointed.saved and trainer.is_global_zero:

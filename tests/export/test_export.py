@@ -484,3 +484,25 @@ def test_ros_argument_line_is_the_camera_pose_in_the_base_frame():
                                                  Path("out/a.result.T_base_cam.txt"))
     with pytest.raises(InputError):
         static_transform_args(np.eye(4) * 2, "base_link")
+
+
+def test_a_lite_encoder_exports_with_the_same_interface(tmp_path):
+    """An EfficientNet-Lite network (untrained here) exports to the same inputs, outputs and
+    metadata, checked against torch by the exporter itself; its checkpoint rebuilds without the
+    weights package (they are in the checkpoint)."""
+    from train.model import build_model
+
+    config = TrainConfig(model=ModelConfig(num_keypoints=3, encoder="efficientnet_lite0",
+                                           pretrained=False, decoder_width=16),
+                         input=Preprocess(64, 64),
+                         data=DataConfig(keypoints=("a", "b", "c"), robot="panda"))
+    net = build_model(config.model)
+    checkpoint = tmp_path / "lite.ckpt"
+    torch.save({"state_dict": {"model." + k: v for k, v in net.state_dict().items()},
+                CHECKPOINT_KEY: checkpoint_payload(config)}, checkpoint)
+    result = export_model(checkpoint, tmp_path / "lite.onnx")
+    assert result.output_names == ("belief", "mask")
+    assert max(result.max_abs_diff.values()) <= PARITY_ATOL
+    model = OnnxKeypointModel(result.path, threads=1)
+    out = model.run(np.zeros((2, 3, 64, 64), np.float32))
+    assert out["belief"].shape == (2, 3, 32, 32) and model.keypoint_names == ("a", "b", "c")

@@ -14,6 +14,7 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("lightning")
 pytest.importorskip("albumentations")
 
+import train.run as train_run  # noqa: E402
 from dream.errors import InputError  # noqa: E402
 from tests.trainkit import make_drawn_dataset  # noqa: E402
 from train import budget  # noqa: E402
@@ -104,6 +105,7 @@ def test_the_budget_clock_leaves_out_excluded_work_and_survives_a_checkpoint():
     assert (resumed.spent_s(), resumed.deadline_s) == (35.0, 60.0)
 
 
+
 def _planned_speed(steps_that_fit: int, budget_s: float):
     """A probe's answer under which `steps_that_fit` steps of batch 8 fill `budget_s`."""
     def speed(*args, **kwargs):
@@ -117,6 +119,7 @@ def test_a_budgeted_auto_run_resolves_records_and_resumes_without_probing(drawn,
                  "trainer.time_budget_minutes=1", "trainer.max_epochs=200"]
     # 5 steps fit: 4 steps an epoch (28 training frames of 32), so the second epoch is partial
     monkeypatch.setattr("train.run.measure_speed", _planned_speed(5, 60.0))
+    monkeypatch.setattr("train.run._step_cap", lambda *args: None)   # the plan as probed
     run = run_training(load_config(TINY, overrides), tmp_path)
     trainer = run.config.trainer
     expected = budget.choose_precision("cpu", budget.native_bf16("cpu"))
@@ -148,10 +151,11 @@ def test_a_run_slower_than_its_probe_stops_validated_at_the_deadline(drawn, tmp_
     overrides = [f"data.train=[{drawn}]", "trainer.time_budget_minutes=1",
                  "trainer.max_epochs=200"]
     monkeypatch.setattr("train.run.measure_speed", _planned_speed(400, 60.0))
+    monkeypatch.setattr("train.run._step_cap", lambda *args: None)   # the deadline, no new plan
     ticks = iter(range(0, 10**6, 10))     # a clock that advances 10 s at every reading
     stops: list[budget.BudgetStop] = []
 
-    def fake_clock_stop(config, speed, val_images):
+    def fake_clock_stop(config, speed, val_images, step_cap=None):
         stops.append(budget.BudgetStop(config.trainer.max_steps, 60.0, 0.0,
                                        clock=lambda: float(next(ticks))))
         return stops[-1]
@@ -170,6 +174,54 @@ def test_a_run_slower_than_its_probe_stops_validated_at_the_deadline(drawn, tmp_
     assert stops[-1].spent_s() >= 60.0 and again.config.trainer.max_steps == 400
     assert torch.load(again.last_checkpoint, map_location="cpu",
                       weights_only=False)["global_step"] == stopped
+
+
+@pytest.mark.parametrize("probed, tick_s", [
+    (400, 1.0),   # a probe about 8x optimistic: the plan shrinks, the deadline does not cut it
+    (40, 0.25),   # a probe taken while the machine was busy: the plan grows to fill the budget
+    (5, 0.25),    # so pessimistic that the plan ends before the first revision: extended there
+])
+def test_the_step_plan_follows_the_measured_rate(drawn, tmp_path, monkeypatch, probed, tick_s):
+    """A fake clock that advances `tick_s` at every reading (one a step, two a checkpoint):
+    the plan is revised from the measured rate, and the run ends at its plan, not at the
+    deadline, with the learning rate at the end of its schedule, validated, the checkpoint
+    recording the revised plan, which spends most of the budget."""
+    overrides = [f"data.train=[{drawn}]", "trainer.time_budget_minutes=1",
+                 "trainer.max_epochs=200"]
+    monkeypatch.setattr("train.run.measure_speed", _planned_speed(probed, 60.0))
+    ticks = (tick_s * i for i in range(10**6))
+    stops: list[budget.BudgetStop] = []
+    real_stop = train_run._budget_stop
+
+    def fake_clock_stop(config, speed, val_images, step_cap=None):
+        stop = real_stop(config, speed, val_images, step_cap)
+        stop.clock = lambda: float(next(ticks))
+        stop._start = stop.clock()
+        stops.append(stop)
+        return stop
+
+    monkeypatch.setattr("train.run._budget_stop", fake_clock_stop)
+    run = run_training(load_config(TINY, overrides), tmp_path)
+    stop = stops[0]
+    assert stop.revisions and stop.stopped_at_deadline is None
+    final = stop.revisions[-1][1]
+    assert (final < probed) == (tick_s >= 1.0), stop.revisions
+    spent = stop.spent_s()      # (this reading and the last checkpoints' advance the clock too)
+    assert 0.8 * stop.deadline_s <= spent <= stop.deadline_s + 10 * tick_s
+    ckpt = torch.load(run.last_checkpoint, map_location="cpu", weights_only=False)
+    assert ckpt["global_step"] == final
+    assert checkpoint_config(run.last_checkpoint).trainer.max_steps == final
+    lr = ckpt["lr_schedulers"][0]["_last_lr"][0]
+    assert lr <= 2 * run.config.optim.lr * run.config.optim.final_lr_fraction
+    assert _rows(tmp_path / "metrics.csv")[-1]["val/loss"] != ""
+
+
+def test_revised_steps():
+    assert budget.revised_steps(100, 0.5, 60.0, 10_000) == 220
+    assert budget.revised_steps(100, 0.5, 60.0, 150) == 150
+    assert budget.revised_steps(100, 0.5, -5.0, 10_000) == 101      # at least one more
+    with pytest.raises(ValueError):
+        budget.revised_steps(100, 0.0, 60.0, 10_000)
 
 
 def _rows(path: Path) -> list[dict[str, str]]:
