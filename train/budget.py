@@ -352,7 +352,7 @@ class BudgetStop(Callback):
         if late and step < self.max_steps and self.stopped_at_deadline is None:
             self.stopped_at_deadline = step
             logger.warning("time budget spent (%.1f min) at step %d of the %d planned: the "
-                           "speed probe was optimistic; stopping with the learning rate at "
+                           "step plan was optimistic; stopping with the learning rate at "
                            "%.2e", self.spent_s() / 60, step, self.max_steps,
                            trainer.optimizers[0].param_groups[0]["lr"])
 

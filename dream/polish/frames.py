@@ -34,6 +34,7 @@ log = logging.getLogger(__name__)
 NO_POSE_FITS = "no pose fits"
 PREFERS_ANOTHER_POSE = "prefers another pose"
 FITS_WORSE = "fits worse than the others"
+EMPTY_MASK = "empty mask"
 
 
 @dataclass(frozen=True)
@@ -105,7 +106,7 @@ def agreeing_frames(T: np.ndarray, candidates: np.ndarray,
     own = np.zeros(len(candidates))
     own[idx] = [ious(np.array([i]), search_alone(int(i), T))[0] for i in idx]
     used = candidates.copy()
-    left_because = ["" if c else NO_POSE_FITS for c in candidates]
+    left_because = ["" if c else EMPTY_MASK for c in candidates]
     rounds = 0
     while True:
         common = np.zeros(len(candidates))

@@ -168,7 +168,7 @@ def test_a_run_slower_than_its_probe_stops_validated_at_the_deadline(drawn, tmp_
     assert torch.load(run.last_checkpoint, map_location="cpu",
                       weights_only=False)["global_step"] == stopped
     assert _rows(tmp_path / "metrics.csv")[-1]["val/loss"] != ""
-    assert "speed probe was optimistic" in caplog.text
+    assert "step plan was optimistic" in caplog.text
     # run again into the folder: the checkpoint's clock says the budget is spent, no more steps
     again = run_training(load_config(TINY, overrides), tmp_path)
     assert stops[-1].spent_s() >= 60.0 and again.config.trainer.max_steps == 400
