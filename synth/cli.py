@@ -8,15 +8,21 @@ import time
 from pathlib import Path
 from typing import TextIO
 
-PROGRESS_PERIOD_S = 1.0
+PROGRESS_PERIOD_S = 1.0          # a terminal: the progress line is rewritten this often
+PIPED_PROGRESS_PERIOD_S = 10.0   # a file or pipe: one whole line this often
 
 
 class Progress:
-    """The command's one-line progress report on stderr (frames, rate, time left), fed by
-    `synth.generate.generate`'s `on_start` and `on_progress` callbacks."""
+    """The command's progress report on stderr (frames, rate, time left), fed by
+    `synth.generate.generate`'s `on_start` and `on_progress` callbacks: on a terminal one line
+    rewritten in place every `PROGRESS_PERIOD_S`; written to a file or a pipe, a whole line
+    every `PIPED_PROGRESS_PERIOD_S` (no carriage returns piling up in one line)."""
 
     def __init__(self, stream: TextIO | None = None) -> None:
         self.stream = stream or sys.stderr
+        isatty = getattr(self.stream, "isatty", None)
+        self.interactive = bool(isatty()) if callable(isatty) else False
+        self.period_s = PROGRESS_PERIOD_S if self.interactive else PIPED_PROGRESS_PERIOD_S
         self.total = self.done = self.already = 0
         self.start = time.perf_counter()
         self.last = 0.0
@@ -24,20 +30,24 @@ class Progress:
 
     def begin(self, total: int, already: int) -> None:
         self.total, self.done, self.already = total, already, already
-        self.start = time.perf_counter()
+        self.start = self.last = time.perf_counter()
 
     def update(self, n: int) -> None:
         self.done += n
         now = time.perf_counter()
-        if now - self.last >= PROGRESS_PERIOD_S or self.done == self.total:
+        if now - self.last >= self.period_s or self.done == self.total:
             self.last = now
             rate = (self.done - self.already) / max(now - self.start, 1e-9)
             left = (self.total - self.done) / rate if rate > 0 else float("inf")
-            print(f"\rsynth: {self.done}/{self.total} frames, {rate:.1f} frames/s, "
-                  f"{left:.0f} s left ", end="", file=self.stream, flush=True)
-            self.open_line = True
-            if self.done == self.total:
-                self.close()
+            text = (f"synth: {self.done}/{self.total} frames, {rate:.1f} frames/s, "
+                    f"{left:.0f} s left")
+            if self.interactive:
+                print(f"\r{text} ", end="", file=self.stream, flush=True)
+                self.open_line = True
+                if self.done == self.total:
+                    self.close()
+            else:
+                print(text, file=self.stream, flush=True)
 
     def close(self) -> None:
         """End the progress line (so that an error message starts a line of its own)."""

@@ -1,6 +1,7 @@
 """Synth recipe, per-frame randomness and labels: the parts that need no rendering."""
 
 import colorsys
+import io
 
 import numpy as np
 import pytest
@@ -193,3 +194,31 @@ def test_joints_drawn_around_a_joint_log(tmp_path):
     path.write_text("1 2 3\n")
     with pytest.raises(InputError, match="rows of 7"):
         load_joint_log(path, PANDA)
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+@pytest.mark.parametrize("stream_type", [io.StringIO, _Terminal])
+def test_progress_rewrites_a_line_only_on_a_terminal(stream_type, monkeypatch):
+    """Piped to a file, progress is whole lines (no carriage returns piling up in one line);
+    on a terminal, one line rewritten in place and ended when the work is done."""
+    from synth import cli
+
+    clock = iter(range(0, 1000, 4))                  # 4 s between readings
+    monkeypatch.setattr(cli.time, "perf_counter", lambda: float(next(clock)))
+    stream = stream_type()
+    progress = cli.Progress(stream)
+    progress.begin(10, 0)
+    for _ in range(10):
+        progress.update(1)
+    progress.close()
+    text = stream.getvalue()
+    assert text.endswith("synth: 10/10 frames, 0.2 frames/s, 0 s left" +
+                         (" \n" if stream_type is _Terminal else "\n"))
+    if stream_type is _Terminal:
+        assert text.count("\r") == 10 and text.count("\n") == 1       # every 1 s: each update
+    else:
+        assert "\r" not in text and text.count("\n") == 4              # every 10 s, and the end
