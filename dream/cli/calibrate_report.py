@@ -15,7 +15,6 @@ def add_polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames
     """`--polish`: the silhouette polish of the one extrinsic (`frames` "all") or of every
     frame's own pose ("each"); returns RESULT.json's document with it."""
     from dream.polish import has_masks, polish_calibration, result_doc_with_polish
-    from dream.polish.calibration import inlier_keypoints
 
     if frames != "all":
         return _polish_frames(seq, robot, result, obs, doc, out)
@@ -41,9 +40,15 @@ def add_polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames
         print("  frames left out (do their joint readings match their images?): " + "; ".join(
             f"{report.frames[i]} ({agreement.reasons[i]}: IoU {agreement.iou_common[i]:.2f}, "
             f"{agreement.iou_own[i]:.2f} alone)" for i in agreement.left_out), file=out)
+    return result_doc_with_polish(doc, report, _inlier_rmse(seq, result, obs, report.T_after))
+
+
+def _inlier_rmse(seq, result, obs, T: np.ndarray) -> float:
+    """RESULT.json's `rmse_px` at a refined pose T: the keypoint fit's inliers' (NaN without)."""
+    from dream.polish.calibration import inlier_keypoints
+
     inliers = inlier_keypoints(result, obs, slice(None))
-    rmse = inliers.rmse_px(seq.camera, report.T_after) if inliers is not None else float("nan")
-    return result_doc_with_polish(doc, report, rmse)
+    return inliers.rmse_px(seq.camera, T) if inliers is not None else float("nan")
 
 
 def _motion_masks(seq, robot, out: TextIO):
@@ -94,12 +99,9 @@ def add_edges(seq, robot, result, obs, doc: dict, out: TextIO,
     document with it."""
     from dream.edges import refine_with_edges
     from dream.edges.documents import result_doc_with_edges
-    from dream.polish.calibration import inlier_keypoints
 
     res = refine_with_edges(seq, robot, result.fit.T_cam_base, obs,
                             exclude_links=_links(exclude_links))
-    inliers = inlier_keypoints(result, obs, slice(None))
-    rmse = inliers.rmse_px(seq.camera, res.T_after) if inliers is not None else float("nan")
     moved_m, moved_rad = res.correction
     print(f"edge alignment ({len(res.frames)} frames, {res.seconds:.1f} s"
           f"{', background model' if res.background else ''}): {res.reason}; the aligned pose "
@@ -108,7 +110,7 @@ def add_edges(seq, robot, result, obs, doc: dict, out: TextIO,
     if res.mismatched_links:
         print(f"  links whose outline disagrees with the images (a tool or gripper the URDF "
               f"lacks? --exclude-links): {', '.join(res.mismatched_links)}", file=out)
-    return result_doc_with_edges(doc, res, rmse)
+    return result_doc_with_edges(doc, res, _inlier_rmse(seq, result, obs, res.T_after))
 
 
 def add_frame_edges(seq, robot, result, obs, doc: dict, out: TextIO,

@@ -125,6 +125,26 @@ def usable_vertices(meshes: RobotMeshes, exclude_links: SequenceOf[str]) -> np.n
     return ~excluded[meshes.vertex_link]
 
 
+def moving_vertices(meshes: RobotMeshes, joints: np.ndarray, usable: np.ndarray,
+                    background: np.ndarray | None, settings: EdgeSettings
+                    ) -> tuple[np.ndarray, np.ndarray | None, tuple[str, ...]]:
+    """With a background model, the links that never move over joints (F, J) are in it, so
+    their vertices leave `usable`; an arm that does not move at all is in it whole, so the
+    background model is dropped instead. Returns (usable, background, the static links)."""
+    if background is None:
+        return usable, None, ()
+    static = static_links(meshes, joints, settings.static_link_m)
+    if set(static) >= set(meshes.links):
+        log.info("the arm does not move in these frames, so the background model holds all of "
+                 "it: edges are matched without it")
+        return usable, None, ()
+    if static:
+        log.info("left out of the edge alignment, in the background model: %s",
+                 ", ".join(static))
+        usable = usable & usable_vertices(meshes, static)
+    return usable, background, static
+
+
 def refine_with_edges(sequence: Sequence, robot: Robot, T_cam_base: np.ndarray,
                       obs: Observations | None = None, settings: EdgeSettings | None = None,
                       exclude_links: SequenceOf[str] = ()) -> EdgeResult:
@@ -152,16 +172,7 @@ def refine_with_edges(sequence: Sequence, robot: Robot, T_cam_base: np.ndarray,
         log.info("%d frames are too few for a background model: edges are matched without it",
                  len(sequence))
     joints = joints_in_robot_order(sequence, robot)
-    static = (static_links(meshes, joints, settings.static_link_m) if background is not None
-              else ())
-    if set(static) >= set(meshes.links):
-        log.info("the arm does not move in these frames, so the background model holds all of "
-                 "it: edges are matched without it")
-        background, static = None, ()
-    if static:
-        usable = usable & usable_vertices(meshes, static)
-        log.info("left out of the edge alignment, in the background model: %s",
-                 ", ".join(static))
+    usable, background, static = moving_vertices(meshes, joints, usable, background, settings)
     P = vertices_in_base(meshes, joints[chosen])
     full = scale_images(gray, camera, camera.width, settings, background)
     T0 = np.asarray(T_cam_base, dtype=float)

@@ -17,8 +17,7 @@ from typing import Any
 from dream.arrays import finite_or_none
 from dream.edges.calibration import EdgeResult
 from dream.edges.frames import FrameEdgeResult
-from dream.errors import InputError
-from dream.polish.documents import with_pose_fields
+from dream.polish.documents import with_frame_refinements, with_pose_fields
 
 
 def edges_to_dict(res: EdgeResult) -> dict[str, Any]:
@@ -79,23 +78,9 @@ def frame_edges_to_dict(res: FrameEdgeResult) -> dict[str, Any]:
 def result_doc_with_frame_edges(doc: dict[str, Any],
                                 results: SequenceOf[FrameEdgeResult | None]) -> dict[str, Any]:
     """An "each"-mode RESULT.json document with each aligned frame's `edges` object and, where
-    kept, its aligned `T_cam_base`; the top-level `edges` object counts them, and the
-    top-level pose is the reported frame's aligned one when that frame's was kept."""
-    if doc.get("frames_mode") != "each" or len(doc["per_frame"]) != len(results):
-        raise InputError(f"per-frame edge alignments need an each-mode result with "
-                         f"{len(results)} frames")
-    out = dict(doc)
-    per_frame = []
-    for entry, res in zip(doc["per_frame"], results, strict=True):
-        entry = dict(entry)
-        if res is not None:
-            entry["edges"] = frame_edges_to_dict(res)
-            if res.kept:
-                entry["T_cam_base"] = res.T_after.tolist()
-                if entry["frame"] == doc.get("reported_frame"):
-                    with_pose_fields(out, res.T_after, float("nan"))
-        per_frame.append(entry)
-    out["per_frame"] = per_frame
+    kept, its aligned `T_cam_base` (`dream.polish.documents.with_frame_refinements`); the
+    top-level `edges` object counts them."""
+    out = with_frame_refinements(doc, results, "edges", frame_edges_to_dict)
     done = [r for r in results if r is not None]
     out["edges"] = {"mode": "each", "frames_aligned": len(done),
                     "frames_kept": sum(r.kept for r in done),

@@ -23,7 +23,7 @@ import numpy as np
 
 from dream.calibration import CalibrationResult, Observations
 from dream.edges.background import background_model, load_grey
-from dream.edges.calibration import usable_vertices
+from dream.edges.calibration import moving_vertices, usable_vertices
 from dream.edges.refine import align_edges
 from dream.edges.score import edge_score
 from dream.edges.search import scale_images
@@ -35,7 +35,7 @@ from dream.polish.guard import fit_shrinkage
 from dream.polish.objective import evenly_spaced
 from dream.robot import Robot
 from dream.sequence import Sequence
-from dream.silhouette import load_robot_meshes, static_links, vertices_in_base
+from dream.silhouette import load_robot_meshes, vertices_in_base
 
 log = logging.getLogger(__name__)
 
@@ -128,13 +128,8 @@ def refine_frames_with_edges(sequence: Sequence, robot: Robot, result: Calibrati
     meshes = load_robot_meshes(robot, settings.max_triangles)
     usable = usable_vertices(meshes, exclude_links)
     joints = joints_in_robot_order(sequence, robot)
-    background = _shared_background(sequence, settings)
-    static = (static_links(meshes, joints, settings.static_link_m) if background is not None
-              else ())
-    if set(static) >= set(meshes.links):         # a still arm: the background holds it all
-        background, static = None, ()
-    if static:
-        usable = usable & usable_vertices(meshes, static)
+    usable, background, _ = moving_vertices(meshes, joints, usable,
+                                            _shared_background(sequence, settings), settings)
     out: list[FrameEdgeResult | None] = [None] * len(sequence)
     for done, i in enumerate(todo, start=1):
         out[i] = _align_frame(sequence, i, meshes, joints[i:i + 1], result, obs, settings,

@@ -11,6 +11,7 @@ top-level pose is the reported frame's polished one when that frame's polish was
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from collections.abc import Sequence as SequenceOf
 from typing import Any
 
@@ -125,25 +126,43 @@ def frame_polish_summary(results: SequenceOf[PolishResult | None]) -> dict[str, 
 def result_doc_with_frame_polishes(doc: dict[str, Any],
                                    results: SequenceOf[PolishResult | None]) -> dict[str, Any]:
     """A copy of an "each"-mode RESULT.json document with each polished frame's `polish`
-    object and, where kept, its polished `T_cam_base` and `rmse_px`; the top-level `polish`
-    object is `frame_polish_summary`, and the top-level pose is the reported frame's polished
-    one when that frame's polish was kept (`with_pose_fields`)."""
+    object and, where kept, its polished `T_cam_base` and `rmse_px` (`with_frame_refinements`);
+    the top-level `polish` object is `frame_polish_summary`."""
+    out = with_frame_refinements(doc, results, "polish", frame_polish_to_dict,
+                                 lambda res: res.rmse_after)
+    out["polish"] = frame_polish_summary(results)
+    return out
+
+
+def with_frame_refinements(doc: dict[str, Any], results: SequenceOf[Any | None], key: str,
+                           to_dict: Callable[[Any], dict[str, Any]],
+                           rmse_after: Callable[[Any], float] = lambda res: float("nan")
+                           ) -> dict[str, Any]:
+    """A copy of an "each"-mode RESULT.json document with each refined frame's `key` object
+    (`to_dict(result)`) in its `per_frame` entry and, where the refinement was kept
+    (`result.kept`, pose `result.T_after`), that pose as the entry's `T_cam_base` and, when
+    finite, `rmse_after(result)` as its `rmse_px`; the top-level pose is the reported frame's
+    refined one when that frame's was kept (`with_pose_fields`). None: a frame not refined.
+
+    Raises:
+        InputError: not an each-mode document with one entry per result.
+    """
     if doc.get("frames_mode") != "each" or len(doc["per_frame"]) != len(results):
-        raise InputError(f"per-frame polishes need an each-mode result with {len(results)} "
-                         "frames")
+        raise InputError(f"per-frame {key} results need an each-mode result with "
+                         f"{len(results)} frames")
     out = dict(doc)
     per_frame = []
     for entry, res in zip(doc["per_frame"], results, strict=True):
         entry = dict(entry)
         if res is not None:
-            entry["polish"] = frame_polish_to_dict(res)
+            entry[key] = to_dict(res)
             if res.kept:
+                rmse = rmse_after(res)
                 entry["T_cam_base"] = res.T_after.tolist()
-                if np.isfinite(res.rmse_after):
-                    entry["rmse_px"] = float(res.rmse_after)
-            if entry["frame"] == doc.get("reported_frame") and res.kept:
-                with_pose_fields(out, res.T_after, res.rmse_after)
+                if np.isfinite(rmse):
+                    entry["rmse_px"] = float(rmse)
+                if entry["frame"] == doc.get("reported_frame"):
+                    with_pose_fields(out, res.T_after, rmse)
         per_frame.append(entry)
     out["per_frame"] = per_frame
-    out["polish"] = frame_polish_summary(results)
     return out

@@ -160,7 +160,7 @@ def _lm_steps(objective: Objective, contour: Contour, T: np.ndarray,
 
 
 def rms_motion_px(P_base: np.ndarray, T0: np.ndarray, T1: np.ndarray,
-                   camera: CameraIntrinsics) -> float:
+                  camera: CameraIntrinsics) -> float:
     """RMS pixel motion of the points P_base (N, 3) from pose T0 to T1 (inf where one does not
     project)."""
     uv0 = project(camera, P_base @ T0[:3, :3].T + T0[:3, 3])
@@ -237,25 +237,25 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     height = max(1, int(round(camera.height * width / camera.width)))
     small = scaled_camera(camera, width, height)
     small_masks = {int(i): shrink_mask(masks[i], width, height) for i in non_empty}
-    trace: list[tuple[int, int]] = []
 
-    def search(frames: np.ndarray, T: np.ndarray, rounds: int | None = None) -> np.ndarray:
+    def refine(frames: np.ndarray, T: np.ndarray, settings: PolishSettings
+               ) -> tuple[np.ndarray, int, int]:
         chosen = evenly_spaced(frames, params.max_search_frames)
-        settings = params if rounds is None else replace(params, outer_iterations=rounds)
-        T_new, done, points = _refine_pose(P_all[chosen], meshes.faces,
-                                           np.stack([small_masks[i] for i in chosen]),
-                                           small, T, settings)
-        trace.append((done, points))
-        return T_new
+        return _refine_pose(P_all[chosen], meshes.faces,
+                            np.stack([small_masks[i] for i in chosen]), small, T, settings)
+
+    def search(frames: np.ndarray, T: np.ndarray) -> np.ndarray:
+        return refine(frames, T, params)[0]
 
     def search_alone(frame: int, T: np.ndarray) -> np.ndarray:
-        return search(np.array([frame]), T, params.frame_alone_rounds)
+        alone = replace(params, outer_iterations=params.frame_alone_rounds)
+        return refine(np.array([frame]), T, alone)[0]
 
     def ious(frames: np.ndarray, T: np.ndarray) -> np.ndarray:
         return np.array([silhouette_iou(render_points(P_all[i], meshes.faces, T, camera),
                                         masks[i]) for i in frames])
 
-    T1 = search(non_empty, T0)
+    T1, rounds, points = refine(non_empty, T0, params)
     agreement = None
     if check_frames and len(non_empty) > params.min_agreeing_frames:
         candidates = np.isin(np.arange(F), non_empty)
@@ -286,7 +286,7 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
                         rmse_before=rmse0, rmse_after=rmse1, median_before=median0,
                         median_after=median1, guard=guard, guard_keypoints=n_guard,
                         search_frames=tuple(names[i] for i in used_search),
-                        rounds=trace[0][0], contour_points=trace[0][1],
+                        rounds=rounds, contour_points=points,
                         agreement=agreement, seconds=time.perf_counter() - start)
 
 
