@@ -69,6 +69,11 @@ def cmd_synth(args: argparse.Namespace) -> int:
     job = SynthJob(robot=args.robot, out_dir=Path(args.out), num_frames=args.num,
                    config=load_config(args.config, args.set), seed=args.seed, keypoints=keypoints,
                    workers=args.workers, extension=extension)
+    if args.contact_sheet and not args.contact_sheet.lower().endswith(".png"):
+        from dream.errors import InputError
+
+        raise InputError("the contact sheet is written as PNG", args.contact_sheet,
+                         "give --contact-sheet a file name ending in .png")
     progress = Progress()
     try:
         stats = generate(job, overwrite=args.overwrite, on_progress=progress.update,
@@ -77,6 +82,10 @@ def cmd_synth(args: argparse.Namespace) -> int:
         progress.close()
     print(f"{args.out}: {stats['rendered']} frames rendered, {stats['skipped']} already there, "
           f"{stats['frames_per_s']:.1f} frames/s")
+    if args.contact_sheet:
+        from synth.contact_sheet import write_contact_sheet
+
+        print(f"contact sheet: {write_contact_sheet(args.out, args.contact_sheet)}")
     return 0
 
 
@@ -97,6 +106,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "diagnose: joint_offset, link_length, lens_distortion, "
                         "intrinsics_error, keypoint_bias; time_offset and camera_moved in "
                         "sequence modes) and write the nominal joints and camera")
+    p.add_argument("--contact-sheet", metavar="FILE.png",
+                   help="after rendering, write the first 16 frames side by side with their "
+                        "keypoint labels (to judge a recipe by eye)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace a folder made with other settings")
     p.set_defaults(func=cmd_synth)

@@ -78,9 +78,16 @@ class CameraShell:
     target_m: tuple[float, float, float] = (0.0, 0.0, 0.4)
     target_jitter_m: float = 0.15               # aim point uniform in a cube of this half-size
     roll_rad: Range = (-0.3, 0.3)
+    # A close-up: with this probability the camera is `closeup_radius_m` from one keypoint,
+    # aimed at it, so that links leave the frame (as when the flange fills a real view).
+    closeup_prob: float = 0.0
+    closeup_radius_m: Range = (0.3, 0.8)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "radius_m", _range("camera.radius_m", self.radius_m, 1e-3))
+        object.__setattr__(self, "closeup_radius_m",
+                           _range("camera.closeup_radius_m", self.closeup_radius_m, 1e-3))
+        _probability("camera.closeup_prob", self.closeup_prob)
         object.__setattr__(self, "azimuth_rad", _range("camera.azimuth_rad", self.azimuth_rad))
         object.__setattr__(self, "elevation_rad",
                            _range("camera.elevation_rad", self.elevation_rad, -1.5, 1.5))
@@ -193,7 +200,10 @@ class Lights:
 class Appearance:
     """Robot colours: the real ones with `keep_real_colors_prob`, else jittered per part (each
     visual geom): the hue moved by up to `hue_jitter` of the circle (0.5 or more: any hue),
-    saturation drawn, value scaled."""
+    saturation drawn, value scaled. Then, with `white_plastic_prob`, the light parts become
+    glossy white plastic, or with `metal_prob` every part brushed metal (grey, strong broad
+    highlights); with `hide_hand_prob` the visuals of the last keypoint's link and the links
+    below it (a gripper's fingers) are not drawn, as where a real arm carries another tool."""
 
     keep_real_colors_prob: float = 0.5
     hue_jitter: float = 0.5              # fraction of the hue circle, each way
@@ -201,9 +211,17 @@ class Appearance:
     value_scale: Range = (0.5, 1.2)
     specular: Range = (0.0, 0.8)
     shininess: Range = (0.0, 1.0)
+    white_plastic_prob: float = 0.0
+    metal_prob: float = 0.0
+    hide_hand_prob: float = 0.0
 
     def __post_init__(self) -> None:
         _probability("appearance.keep_real_colors_prob", self.keep_real_colors_prob)
+        for name in ("white_plastic_prob", "metal_prob", "hide_hand_prob"):
+            _probability(f"appearance.{name}", getattr(self, name))
+        if self.white_plastic_prob + self.metal_prob > 1.0:
+            raise InputError("appearance.white_plastic_prob + metal_prob must be at most 1, got "
+                             f"{self.white_plastic_prob} + {self.metal_prob}")
         _non_negative("appearance.hue_jitter", self.hue_jitter)
         for name, hi_limit in (("saturation", 1.0), ("value_scale", np.inf), ("specular", 1.0),
                                ("shininess", 1.0)):
@@ -255,6 +273,14 @@ class Distractors:
     held_offset_m: Range = (0.03, 0.15)   # its centre from the link origin, any direction
     held_board_prob: float = 0.5          # a thin plate (like a board) instead of a primitive
     held_textured_prob: float = 0.8
+    held_parts: tuple[int, int] = (1, 1)  # parts of the held assembly (a tool, a fixture)
+    held_checker_prob: float = 0.0        # the held assembly shows a black-and-white checkerboard
+    # Another robot in the scene, unlabelled: with `robot_prob`, the robot `robot_name` (a
+    # built-in name or URDF; None: the same robot) stands `robot_distance_m` from the base, on
+    # the far side from the camera, in its own random joint configuration.
+    robot_prob: float = 0.0
+    robot_name: str | None = None
+    robot_distance_m: Range = (0.8, 2.0)
 
     def __post_init__(self) -> None:
         lo, hi = self.count
@@ -264,8 +290,14 @@ class Distractors:
         object.__setattr__(self, "size_m", _range("distractors.size_m", self.size_m, 1e-3))
         object.__setattr__(self, "distance_m", _range("distractors.distance_m", self.distance_m,
                                                       0.0))
+        lo, hi = self.held_parts
+        if not 1 <= lo <= hi:
+            raise InputError("distractors.held_parts must be [low, high] with 1 <= low <= high")
+        object.__setattr__(self, "held_parts", (int(lo), int(hi)))
+        object.__setattr__(self, "robot_distance_m",
+                           _range("distractors.robot_distance_m", self.robot_distance_m, 0.0))
         for name in ("occluder_prob", "textured_prob", "held_prob", "held_board_prob",
-                     "held_textured_prob"):
+                     "held_textured_prob", "held_checker_prob", "robot_prob"):
             _probability(f"distractors.{name}", getattr(self, name))
         for name in ("held_size_m", "held_offset_m"):
             lo, hi = getattr(self, name)

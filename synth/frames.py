@@ -12,13 +12,14 @@ import logging
 import numpy as np
 
 from dream.extension import ModelExtension, extended_robot, joint_offset_vector
-from dream.robot import Robot
+from dream.robot import Robot, load_robot
 from dream.transforms import R_from_quaternion_xyzw, invert_T, quaternion_xyzw_from_R
 from synth.config import SynthConfig
 from synth.extension import normalised, true_camera, true_keypoints_cam, true_pose
 from synth.gl import mujoco
 from synth.labels import keypoint_labels
 from synth.nominal import nominal_camera
+from synth.other_robot import OtherRobotGeoms
 from synth.randomize import (
     DistractorDraw,
     FrameDraw,
@@ -30,7 +31,8 @@ from synth.render import BACKGROUND_GEOM, SceneRenderer
 from synth.rendered import RenderedFrame
 from synth.scene import RobotScene, build_scene
 from synth.scene_settings import MAX_LIGHTS, SceneSettings
-from synth.textures import list_photos, random_texture
+from synth.scene_spec import ROBOT_GROUP
+from synth.textures import calibration_board, list_photos, random_texture
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +59,23 @@ def _primitive_size(kind: str, size: np.ndarray) -> tuple[np.ndarray, float, np.
     return np.array([a, b, c]), float(np.linalg.norm(size)), np.array([a, b, c])
 
 
+def other_robot_of(robot: Robot, config: SynthConfig) -> Robot | None:
+    """The robot drawn as a distractor (`distractors.robot_name`; None: `robot` itself), or None
+    when the recipe never shows one."""
+    dc = config.distractors
+    if dc.robot_prob <= 0:
+        return None
+    return robot if dc.robot_name is None else load_robot(dc.robot_name)
+
+
+def hand_geoms(scene: RobotScene) -> np.ndarray:
+    """The robot geoms of the last keypoint's link and of every link below it."""
+    tree, hand = scene.robot.tree, scene.robot.keypoint_names[-1]
+    links = [i + 1 for i, link in enumerate(scene.link_names)
+             if link == hand or tree.is_ancestor(hand, link)]
+    return scene.robot_geom_ids[np.isin(scene.geom_link_index[scene.robot_geom_ids], links)]
+
+
 class FrameMaker:
     """Renders and labels frames of one robot under one recipe and seed.
 
@@ -72,13 +91,19 @@ class FrameMaker:
             extended_robot(robot, self.extension)
         self.joint_offsets = np.zeros(robot.num_joints) if self.extension is None else \
             joint_offset_vector(robot, self.extension.joint_offset_rad)
-        self.held_slots = int(config.distractors.held_prob > 0)   # the last distractor slot
+        dc = config.distractors
+        # the last distractor slots hold the parts of the held assembly
+        self.held_slots = dc.held_parts[1] if dc.held_prob > 0 else 0
         options = SceneSettings(num_lights=min(MAX_LIGHTS, config.lights.count[1]),
-                                num_distractors=config.distractors.count[1] + self.held_slots,
+                                num_distractors=dc.count[1] + self.held_slots,
                                 num_textures=NUM_TEXTURES,
                                 texture_size=config.background.texture_size, floor=True,
                                 floor_texture_size=FLOOR_TEXTURE_PX)
-        self.scene: RobotScene = build_scene(self.true_robot, options)
+        self.other_robot = other_robot_of(robot, config)
+        self.scene: RobotScene = build_scene(self.true_robot, options,
+                                             other_robot=self.other_robot)
+        self.other_geoms = None if self.other_robot is None else \
+            OtherRobotGeoms.from_model(self.scene.model, self.other_robot)
         self.nominal_camera = nominal_camera(config)
         self.renderer = SceneRenderer(self.scene, self.nominal_camera)
         self.joint_log = load_joint_log(config.joints.log, robot) if config.joints.log else None
@@ -88,6 +113,9 @@ class FrameMaker:
         self.distractor_set = set(self.scene.distractor_geom_ids.tolist())
         if self.scene.floor_geom_id >= 0:
             self.distractor_set.add(int(self.scene.floor_geom_id))
+        if self.other_geoms is not None:
+            self.distractor_set.update(self.other_geoms.geom_ids.tolist())
+        self.hand_geoms = hand_geoms(self.scene)
         self.floor_group = int(model.geom_group[self.scene.floor_geom_id])
         self.hidden_group = int(np.flatnonzero(self.renderer.options.geom_groups() == 0)[-1])
         self.ray_groups = np.asarray(self.renderer.options.geom_groups(), np.uint8)
@@ -100,7 +128,7 @@ class FrameMaker:
         return sample_frame(self.seed, index, self.robot, self.config, self.default_rgba,
                             len(self.scene.light_ids),
                             len(self.scene.distractor_geom_ids) - self.held_slots,
-                            len(self.scene.texture_ids), self.joint_log)
+                            len(self.scene.texture_ids), self.joint_log, self.other_robot)
 
     # ----- applying the randomisation --------------------------------------------------------
 
@@ -127,44 +155,53 @@ class FrameMaker:
         model.geom_rgba[scene.robot_geom_ids] = rgba
         model.mat_specular[scene.robot_material_id] = p.scene.robot_specular
         model.mat_shininess[scene.robot_material_id] = p.scene.robot_shininess
+        model.geom_group[self.hand_geoms] = self.hidden_group if p.scene.hide_hand else \
+            ROBOT_GROUP
+        if self.other_geoms is not None:
+            self.other_geoms.apply(model, p.scene.other_robot)
 
     def _apply_textures(self, p: FrameDraw) -> None:
         model, scene = self.scene.model, self.scene
         rng = np.random.default_rng(p.scene.texture_seed)
         kinds = {k: w for k, w in self.config.background.kinds.items() if k != "photo"}
-        shapes = p.scene.distractors + ((p.scene.held.shape,) if p.scene.held else ())
+        held = p.scene.held
+        shapes = p.scene.distractors + (held.parts if held else ())
         used = {d.texture for d in shapes if d.texture >= 0}
+        board = held.parts[0].texture if held is not None and held.checkerboard else None
         textures = [(t, int(scene.texture_ids[t])) for t in sorted(used)]
         if p.scene.floor and scene.floor_texture_id >= 0:
             textures.append((-1, int(scene.floor_texture_id)))
-        for _, tex in textures:
+        for slot, tex in textures:
             h, w = int(model.tex_height[tex]), int(model.tex_width[tex])
             n = int(model.tex_nchannel[tex])
-            image = random_texture(rng, h, w, kinds)
+            image = calibration_board(rng, h, w) if slot == board else \
+                random_texture(rng, h, w, kinds)
             adr = int(model.tex_adr[tex])
             model.tex_data[adr:adr + h * w * n] = image[..., :n].reshape(-1)
             self.renderer.upload_texture(tex)
 
-    def _held_shape(self, p: FrameDraw, q_true: np.ndarray) -> DistractorDraw | None:
-        """The held object with its pose moved from its link's frame to the base frame."""
+    def _held_shapes(self, p: FrameDraw, q_true: np.ndarray) -> list[DistractorDraw | None]:
+        """The held assembly's parts with their poses moved from the link's frame to the base
+        frame, None for each unused slot."""
         held = p.scene.held
         if held is None:
-            return None
+            return [None] * self.held_slots
         T_base_link = self.true_robot.link_poses(q_true, held.link)[0]
-        R_link_object = R_from_quaternion_xyzw(np.roll(held.shape.quaternion_wxyz, -1))
-        R_base_object = T_base_link[:3, :3] @ R_link_object
-        return dataclasses.replace(
-            held.shape,
-            position_m=T_base_link[:3, :3] @ held.shape.position_m + T_base_link[:3, 3],
-            quaternion_wxyz=np.roll(quaternion_xyzw_from_R(R_base_object), 1))
+        shapes: list[DistractorDraw | None] = []
+        for part in held.parts:
+            R_link_object = R_from_quaternion_xyzw(np.roll(part.quaternion_wxyz, -1))
+            R_base_object = T_base_link[:3, :3] @ R_link_object
+            shapes.append(dataclasses.replace(
+                part, position_m=T_base_link[:3, :3] @ part.position_m + T_base_link[:3, 3],
+                quaternion_wxyz=np.roll(quaternion_xyzw_from_R(R_base_object), 1)))
+        return shapes + [None] * (self.held_slots - len(shapes))
 
     def _apply_distractors(self, p: FrameDraw, q_true: np.ndarray) -> None:
         model, scene = self.scene.model, self.scene
         shapes: list[DistractorDraw | None] = list(p.scene.distractors)
         regular = len(scene.distractor_body_ids) - self.held_slots
         shapes += [None] * (regular - len(shapes))
-        if self.held_slots:
-            shapes.append(self._held_shape(p, q_true))
+        shapes += self._held_shapes(p, q_true)
         for body, geom, d in zip(scene.distractor_body_ids, scene.distractor_geom_ids, shapes,
                                  strict=True):
             if d is None:

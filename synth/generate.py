@@ -155,7 +155,7 @@ def done_indices(out_dir: Path) -> set[int]:
 
 def check_inputs(config: SynthConfig, robot) -> None:
     """Fail before anything is written when the recipe names a missing photo folder, a photo
-    that cannot be read or an unreadable joint log."""
+    that cannot be read, an unreadable joint log or an unknown other robot."""
     from synth.randomize import load_joint_log
     from synth.textures import list_photos, read_photo
 
@@ -164,6 +164,8 @@ def check_inputs(config: SynthConfig, robot) -> None:
             read_photo(path)
     if config.joints.log:
         load_joint_log(config.joints.log, robot)
+    if config.distractors.robot_prob > 0 and config.distractors.robot_name is not None:
+        load_robot(config.distractors.robot_name)   # an unknown name fails here
 
 
 def check_camera(camera: CameraIntrinsics) -> None:
@@ -223,12 +225,28 @@ def discard_unfinished(out: Path, created: Path | None) -> None:
 RETIRED_CONFIG_KEYS = (("appearance", "reflectance"),)
 
 
+# recipe keys added later whose defaults render what folders made before them rendered:
+# filled in with those defaults before comparing, so such a folder still resumes
+ADDED_CONFIG_KEYS = (("camera", "closeup_prob"), ("camera", "closeup_radius_m"),
+                     ("appearance", "white_plastic_prob"), ("appearance", "metal_prob"),
+                     ("appearance", "hide_hand_prob"), ("distractors", "held_parts"),
+                     ("distractors", "held_checker_prob"), ("distractors", "robot_prob"),
+                     ("distractors", "robot_name"), ("distractors", "robot_distance_m"))
+
+
 def without_retired_keys(info: Any) -> Any:
-    """A folder's `_synth.json` content without `RETIRED_CONFIG_KEYS` (changed in place)."""
+    """A folder's `_synth.json` content without `RETIRED_CONFIG_KEYS` and with the defaults of
+    `ADDED_CONFIG_KEYS` where it lacks them (changed in place)."""
     config = info.get("config") if isinstance(info, dict) else None
+    if not isinstance(config, dict):
+        return info
     for section, key in RETIRED_CONFIG_KEYS:
-        if isinstance(config, dict) and isinstance(config.get(section), dict):
+        if isinstance(config.get(section), dict):
             config[section].pop(key, None)
+    defaults = SynthConfig().to_dict()
+    for section, key in ADDED_CONFIG_KEYS:
+        if isinstance(config.get(section), dict):
+            config[section].setdefault(key, defaults[section][key])
     return info
 
 

@@ -20,6 +20,8 @@ from dream.errors import InputError
 from dream.robot import Robot
 from dream.transforms import look_at
 from synth.config import SynthConfig
+from synth.other_robot import OtherRobotDraw
+from synth.realism import with_realism
 
 SEQUENCE_STREAM = 0x5E0     # spawn key of the per-sequence random stream
 FRAME_STREAM = 0xF4A        # spawn key of the per-frame random streams
@@ -27,6 +29,9 @@ HELD_STREAM = 0x4E1D        # spawn key of the held object's stream (held_prob =
                             # other draws, and so older data sets, unchanged)
 HELD_BOARD_THICKNESS_M = (0.004, 0.02)  # full thickness of a held plate
 HELD_MIN_SIDE_FRACTION = 0.3           # a held object's other sides: 0.3-1 x its largest
+HELD_PART_SCALE = (0.3, 0.7)           # a further part of an assembly, x the held size
+HELD_PART_OVERLAP = 0.8                # parts' centres this fraction of their reach apart
+CHECKER_RGBA = (1.0, 1.0, 1.0, 1.0)    # the texture alone gives a checkerboard's colours
 DISTRACTOR_TYPES = ("box", "sphere", "cylinder", "capsule", "ellipsoid")
 OCCLUDER_PATH_FRACTION = (0.4, 0.85)   # where on the camera -> robot segment an occluder sits
 OCCLUDER_AIM_JITTER_M = 0.3            # the segment ends this far (per axis) around the target
@@ -64,11 +69,13 @@ class DistractorDraw:
 
 @dataclass(frozen=True)
 class HeldObjectDraw:
-    """An object moving with `link`: `shape.position_m` and `shape.quaternion_wxyz` are its pose
-    in that link's frame."""
+    """An assembly moving with `link`: each part's `position_m` and `quaternion_wxyz` are its
+    pose in that link's frame. With `checkerboard`, the first part shows a black-and-white
+    checkerboard (in its texture slot)."""
 
     link: str
-    shape: DistractorDraw
+    parts: tuple[DistractorDraw, ...]
+    checkerboard: bool = False
 
 
 @dataclass(frozen=True)
@@ -87,6 +94,8 @@ class SceneDraw:
     texture_seed: int           # textures (floor, distractors) are drawn from this
     background_seed: int        # the 2D background is drawn from this
     held: HeldObjectDraw | None = None
+    hide_hand: bool = False     # the hand's visuals are not drawn (synth.realism)
+    other_robot: OtherRobotDraw | None = None
 
 
 @dataclass(frozen=True)
@@ -179,11 +188,23 @@ def sample_scene(rng: np.random.Generator, config: SynthConfig, default_rgba: np
                      int(rng.integers(2 ** 31)), int(rng.integers(2 ** 31)))
 
 
+def _random_shape(rng: np.random.Generator, half_sides: np.ndarray, position: np.ndarray,
+                  textured_prob: float, num_textures: int, kind: str | None = None
+                  ) -> DistractorDraw:
+    kind = kind or DISTRACTOR_TYPES[int(rng.integers(len(DISTRACTOR_TYPES)))]
+    q = rng.normal(size=4)
+    rgba = np.array([*rng.random(3), 1.0])
+    texture = int(rng.integers(num_textures)) if num_textures and \
+        rng.random() < textured_prob else -1
+    return DistractorDraw(kind, half_sides, position, q / np.linalg.norm(q), rgba, texture)
+
+
 def sample_held_object(rng: np.random.Generator, config: SynthConfig, link: str,
                        num_textures: int) -> HeldObjectDraw | None:
-    """With probability `distractors.held_prob`, an object held at `link`: a thin plate or a
+    """With probability `distractors.held_prob`, an assembly held at `link`: a thin plate or a
     random primitive, its centre `held_offset_m` from the link origin in a random direction,
-    randomly turned and coloured."""
+    randomly turned and coloured, then `held_parts` - 1 smaller primitives, each attached to the
+    part before; with `held_checker_prob` the first part is a checkerboard."""
     dc = config.distractors
     if rng.random() >= dc.held_prob:
         return None
@@ -197,12 +218,20 @@ def sample_held_object(rng: np.random.Generator, config: SynthConfig, link: str,
         kind = DISTRACTOR_TYPES[int(rng.integers(len(DISTRACTOR_TYPES)))]
     direction = rng.normal(size=3)
     position = direction / np.linalg.norm(direction) * rng.uniform(*dc.held_offset_m)
-    q = rng.normal(size=4)
-    rgba = np.array([*rng.random(3), 1.0])
-    texture = int(rng.integers(num_textures)) if num_textures and \
-        rng.random() < dc.held_textured_prob else -1
-    return HeldObjectDraw(link, DistractorDraw(kind, sides, position, q / np.linalg.norm(q),
-                                                   rgba, texture))
+    parts = [_random_shape(rng, sides, position, dc.held_textured_prob, num_textures, kind)]
+    for _ in range(int(rng.integers(dc.held_parts[0], dc.held_parts[1] + 1)) - 1):
+        previous = parts[-1]
+        half = rng.uniform(*dc.held_size_m) / 2 * rng.uniform(*HELD_PART_SCALE, 3)
+        direction = rng.normal(size=3)
+        reach = (float(previous.size_m.max()) + float(half.max())) * HELD_PART_OVERLAP
+        parts.append(_random_shape(rng, half, previous.position_m + direction /
+                                   np.linalg.norm(direction) * reach, dc.held_textured_prob,
+                                   num_textures))
+    checkerboard = bool(rng.random() < dc.held_checker_prob) and num_textures > 0
+    if checkerboard:
+        slot = parts[0].texture if parts[0].texture >= 0 else int(rng.integers(num_textures))
+        parts[0] = dataclasses.replace(parts[0], rgba=np.array(CHECKER_RGBA), texture=slot)
+    return HeldObjectDraw(link, tuple(parts), checkerboard)
 
 
 def _occluder_placement(rng: np.random.Generator, camera_position: np.ndarray,
@@ -272,20 +301,26 @@ def trajectory_joints_at(seed: int, t: float, robot: Robot, config: SynthConfig,
 
 def sample_frame(seed: int, index: int, robot: Robot, config: SynthConfig,
                  default_rgba: np.ndarray, num_lights_max: int, num_distractors_max: int,
-                 num_textures: int, joint_log: np.ndarray | None = None) -> FrameDraw:
-    """All randomness of frame `index`."""
+                 num_textures: int, joint_log: np.ndarray | None = None,
+                 other_robot: Robot | None = None) -> FrameDraw:
+    """All randomness of frame `index`. `other_robot`: the robot drawn as a distractor where
+    the recipe asks for one (`synth.realism`)."""
     mode = config.sequence.mode
     rng = frame_rng(seed, index)
     limits = (default_rgba, num_lights_max, num_distractors_max, num_textures)
     held_key = [seed, HELD_STREAM] + ([index] if mode == "random" else [])
     held = sample_held_object(np.random.default_rng(held_key), config, robot.keypoint_names[-1],
                               num_textures)
+    timestamp = None if mode == "random" else index / config.sequence.fps
     if mode == "random":
-        scene = dataclasses.replace(sample_scene(rng, config, *limits), held=held)
-        return FrameDraw(index, scene, sample_joints(rng, robot, config, joint_log), None)
-    scene = dataclasses.replace(sample_scene(sequence_rng(seed), config, *limits), held=held)
-    timestamp = index / config.sequence.fps
-    if mode == "fixed_camera":
-        return FrameDraw(index, scene, sample_joints(rng, robot, config, joint_log), timestamp)
-    return FrameDraw(index, scene, trajectory_joints(seed, index, robot, config, joint_log),
-                     timestamp)
+        scene = sample_scene(rng, config, *limits)
+        joints = sample_joints(rng, robot, config, joint_log)
+    else:
+        scene = sample_scene(sequence_rng(seed), config, *limits)
+        joints = sample_joints(rng, robot, config, joint_log) if mode == "fixed_camera" else \
+            trajectory_joints(seed, index, robot, config, joint_log)
+    # a sequence's close-up aims at where the keypoints are in the middle of the joint ranges
+    aim = joints if mode == "random" else (robot.joint_lower + robot.joint_upper) / 2
+    scene = with_realism(dataclasses.replace(scene, held=held), seed, index, config, robot, aim,
+                         default_rgba, other_robot)
+    return FrameDraw(index, scene, joints, timestamp)

@@ -269,7 +269,8 @@ def _mesh_files(visuals) -> list[Path]:
 
 
 def build_scene(robot: Robot, options: SceneSettings | None = None,
-                cache_dir: str | Path | None = None, use_cache: bool = True) -> RobotScene:
+                cache_dir: str | Path | None = None, use_cache: bool = True,
+                other_robot: Robot | None = None) -> RobotScene:
     """The MuJoCo scene of `robot` (links below its base, visual meshes) plus the extras of
     `options`, from the on-disk cache when possible.
 
@@ -279,6 +280,8 @@ def build_scene(robot: Robot, options: SceneSettings | None = None,
         cache_dir: folder of cache entries; default `$DREAM_CACHE_DIR/scenes` or
             `~/.cache/dream/scenes`.
         use_cache: read and write the cache.
+        other_robot: another robot whose visuals join the scene as a distractor (posed by
+            `synth.other_robot.OtherRobotGeoms`).
     Raises:
         InputError: unreadable URDF or mesh file.
         RobotError: a robot MuJoCo cannot compile (the message says why).
@@ -288,7 +291,13 @@ def build_scene(robot: Robot, options: SceneSettings | None = None,
         raise RobotError(f"options must be SceneSettings, got {type(options).__name__}")
     start = time.perf_counter()
     visuals = read_link_visuals(robot.urdf_path)
-    key, description = scene_cache.scene_key(robot, _mesh_files(visuals), options.as_dict())
+    files, described = _mesh_files(visuals), options.as_dict()
+    other_visuals = None
+    if other_robot is not None:
+        other_visuals = read_link_visuals(other_robot.urdf_path)
+        files += [Path(other_robot.urdf_path)] + _mesh_files(other_visuals)
+        described["other_robot"] = f"{other_robot.name}:{other_robot.urdf_path}"
+    key, description = scene_cache.scene_key(robot, files, described)
     root = scene_cache.cache_root(cache_dir)
     if use_cache:
         try:
@@ -302,7 +311,7 @@ def build_scene(robot: Robot, options: SceneSettings | None = None,
             logger.debug("scene %s from cache in %.3f s", key, time.perf_counter() - start)
             return scene
     try:
-        model = build_spec(robot, visuals, options).compile()
+        model = build_spec(robot, visuals, options, other_visuals).compile()
     except ValueError as e:
         raise RobotError(f"MuJoCo cannot compile the scene of robot '{robot.name}' ({e}); "
                          "check the URDF's visuals and joints") from e

@@ -9,8 +9,10 @@ the URDF link frame for every joint value.
 Elements are found again by name (`synth.scene.RobotScene`), so a model loaded from the cache needs
 nothing else: bodies `link:<link>`, joints `joint:<joint>`, robot geoms
 `visual:<link>:<visual>:<part>`, markers `marker:<link>`, distractors `distractor:<i>`, lights
-`light:<i>`, textures and materials `texture:<i>` / `material:<i>`, floor `floor`, and the
-render camera `camera`.
+`light:<i>`, textures and materials `texture:<i>` / `material:<i>`, floor `floor`, the
+render camera `camera`, and, when asked for, another robot as a distractor: a world body
+`other_robot:<link>` per link with visuals, its geoms `other:<link>:<visual>:<part>`, placed by
+the caller (`synth.other_robot`).
 """
 
 from __future__ import annotations
@@ -42,6 +44,8 @@ ROBOT_MATERIAL = "robot"
 ROBOT_MATERIAL_RGBA = (0.5, 0.5, 0.5, 1.0)  # MuJoCo's default geom rgba: defaults look alike
 FLOOR_NAME = "floor"
 CAMERA_NAME = "camera"
+OTHER_ROBOT_BODY = "other_robot"
+OTHER_PREFIX = "other:"
 
 ROBOT_GROUP = 0  # geom groups, so a renderer can show or hide each kind
 FLOOR_GROUP = 1
@@ -132,34 +136,35 @@ def _geom_common(geom, rgba, group: int) -> None:
 
 
 def _add_visuals(body, link: str, visuals: tuple[LinkVisual, ...], meshes: _MeshAssets,
-                 options: SceneSettings) -> None:
+                 options: SceneSettings, prefix: str = VISUAL_PREFIX,
+                 group: int = ROBOT_GROUP) -> None:
     primitive = {"box": mujoco.mjtGeom.mjGEOM_BOX, "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER,
                  "sphere": mujoco.mjtGeom.mjGEOM_SPHERE}
     for v_index, visual in enumerate(visuals):
         pos, quat = visual.T_link_visual[:3, 3], _quat_wxyz(visual.T_link_visual[:3, :3])
         fallback = options.default_rgba if visual.rgba is None else visual.rgba
         if visual.kind != MESH:
-            geom = body.add_geom(name=f"{VISUAL_PREFIX}{link}:{v_index}:0",
+            geom = body.add_geom(name=f"{prefix}{link}:{v_index}:0",
                                  type=primitive[visual.kind], size=visual.size, pos=pos,
                                  quat=quat)
-            _geom_common(geom, fallback, ROBOT_GROUP)
+            _geom_common(geom, fallback, group)
             continue
         for p_index, part in enumerate(load_mesh_parts(visual.mesh_path, visual.mesh_scale)):
             if len(part.vertices) < MIN_MESH_VERTICES:
                 logger.debug("%s: skipping a part with %d vertices", visual.mesh_path,
                              len(part.vertices))
                 continue
-            geom = body.add_geom(name=f"{VISUAL_PREFIX}{link}:{v_index}:{p_index}",
+            geom = body.add_geom(name=f"{prefix}{link}:{v_index}:{p_index}",
                                  type=mujoco.mjtGeom.mjGEOM_MESH, pos=pos, quat=quat,
                                  meshname=meshes.add(part.vertices, part.faces))
-            _geom_common(geom, fallback if part.rgba is None else part.rgba, ROBOT_GROUP)
+            _geom_common(geom, fallback if part.rgba is None else part.rgba, group)
 
 
 def _add_robot(spec: mujoco.MjSpec, robot: Robot,
-               visuals: Mapping[str, tuple[LinkVisual, ...]], options: SceneSettings) -> None:
+               visuals: Mapping[str, tuple[LinkVisual, ...]], options: SceneSettings,
+               meshes: _MeshAssets) -> None:
     tree = robot.tree
     spec.add_material(name=ROBOT_MATERIAL, rgba=list(ROBOT_MATERIAL_RGBA))
-    meshes = _MeshAssets(spec)
     keypoints = set(robot.keypoint_names) if options.keypoint_markers else set()
     bodies = {robot.base_link: _add_link_body(spec.worldbody, robot.base_link, np.eye(4),
                                               options)}
@@ -179,6 +184,18 @@ def _add_robot(spec: mujoco.MjSpec, robot: Robot,
             bodies[joint.child] = _add_link_body(body, joint.child, joint.origin, options)
             _add_joint(bodies[joint.child], joint)
         stack.extend(j.child for j in reversed(children.get(link, ())))
+
+
+def _add_other_robot(spec: mujoco.MjSpec, visuals: Mapping[str, tuple[LinkVisual, ...]],
+                     options: SceneSettings, meshes: _MeshAssets) -> None:
+    """Another robot's visuals: one parked world body per link (no joints); the caller moves
+    each body to its link's pose every frame."""
+    for link, link_visuals in visuals.items():
+        if not link_visuals:
+            continue
+        body = spec.worldbody.add_body(name=f"{OTHER_ROBOT_BODY}:{link}",
+                                       pos=[0.0, 0.0, options.distractor_parking_z_m])
+        _add_visuals(body, link, link_visuals, meshes, options, OTHER_PREFIX, DISTRACTOR_GROUP)
 
 
 def _add_extras(spec: mujoco.MjSpec, options: SceneSettings) -> None:
@@ -219,8 +236,11 @@ def _add_textured_material(spec: mujoco.MjSpec, texture: str, material: str, siz
 
 
 def build_spec(robot: Robot, visuals: Mapping[str, tuple[LinkVisual, ...]],
-               options: SceneSettings) -> mujoco.MjSpec:
-    """The MjSpec of `robot` below its base link with `visuals` and the extras of `options`.
+               options: SceneSettings,
+               other_visuals: Mapping[str, tuple[LinkVisual, ...]] | None = None
+               ) -> mujoco.MjSpec:
+    """The MjSpec of `robot` below its base link with `visuals` and the extras of `options`,
+    plus another robot's visuals (`other_visuals`, by link) as a distractor when given.
 
     Gravity and contacts are off (kinematics and rendering only); every geom has
     contype = conaffinity = 0.
@@ -234,8 +254,11 @@ def build_spec(robot: Robot, visuals: Mapping[str, tuple[LinkVisual, ...]],
     spec.option.disableflags |= (mujoco.mjtDisableBit.mjDSBL_CONTACT
                                  | mujoco.mjtDisableBit.mjDSBL_GRAVITY)
     spec.visual.global_.ipd = 0.0
-    _add_robot(spec, robot, visuals, options)
+    meshes = _MeshAssets(spec)
+    _add_robot(spec, robot, visuals, options, meshes)
     _add_extras(spec, options)
+    if other_visuals:
+        _add_other_robot(spec, other_visuals, options, meshes)
     camera = spec.worldbody.add_camera(name=CAMERA_NAME)
     camera.mode = mujoco.mjtCamLight.mjCAMLIGHT_FIXED
     camera.ipd = 0.0

@@ -111,6 +111,25 @@ def shapes(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
     return image
 
 
+BOARD_SQUARES = (4, 10)            # a calibration board's squares per side
+BOARD_BORDER_SQUARES = 0.5         # its white margin, in squares
+
+
+def calibration_board(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    """A black-and-white checkerboard with a white margin, as printed calibration targets are
+    (squares aligned with the texture's axes)."""
+    n = int(rng.integers(BOARD_SQUARES[0], BOARD_SQUARES[1] + 1))
+    cell = min(h, w) / (n + 2 * BOARD_BORDER_SQUARES)
+    u, v = _pixel_grid(h, w)
+    i = np.floor(u / cell - BOARD_BORDER_SQUARES)
+    j = np.floor(v / cell - BOARD_BORDER_SQUARES)
+    inside = (i >= 0) & (i < n) & (j >= 0) & (j < n)
+    black = inside & ((i + j) % 2 == 0)
+    image = np.full((h, w, 3), 255, np.uint8)
+    image[black] = 0
+    return image
+
+
 def list_photos(folder: str | Path) -> tuple[Path, ...]:
     """Image files of a user's photo folder, sorted (so the choice is reproducible)."""
     folder = Path(folder)

@@ -24,7 +24,7 @@ from dream.robot import load_robot
 from dream.transforms import transform_points
 from synth.config import config_from_dict
 from synth.frames import FrameMaker
-from synth.generate import SynthJob, generate
+from synth.generate import ADDED_CONFIG_KEYS, SynthJob, generate
 from synth.render import RenderSettings, SceneRenderer
 from synth.scene import SceneSettings, build_scene
 
@@ -186,7 +186,7 @@ def test_held_object_moves_with_the_hand():
             rendered = maker.make(i)
             p = maker.params(i)
             T_base_link = robot.link_poses(p.joints, p.scene.held.link)[0]
-            centre = transform_points(T_base_link, p.scene.held.shape.position_m)
+            centre = transform_points(T_base_link, p.scene.held.parts[0].position_m)
             assert np.allclose(maker.scene.model.body_pos[held_body], centre, atol=1e-9)
             ids = maker.renderer.render(rgb=False, segmentation=True).geom_ids
             v, u = np.nonzero(ids == held_geom)
@@ -203,12 +203,15 @@ def test_held_object_moves_with_the_hand():
 
 
 def test_folder_of_an_earlier_version_with_a_retired_key_resumes(tmp_path):
-    """`appearance.reflectance` (never read by the renderer) was removed from the recipe; a
-    folder whose _synth.json still names it resumes instead of being refused."""
+    """`appearance.reflectance` (never read by the renderer) was removed from the recipe, and
+    keys were added whose defaults render as before; a folder whose _synth.json still names the
+    one and lacks the others resumes instead of being refused."""
     out = tmp_path / "old"
     quiet(SynthJob("panda", out, 1, config_from_dict({}), seed=1))
     info = json.loads((out / "_synth.json").read_text())
     info["config"]["appearance"]["reflectance"] = [0.0, 0.0]
+    for section, key in ADDED_CONFIG_KEYS:
+        del info["config"][section][key]
     (out / "_synth.json").write_text(json.dumps(info))
     first = (out / "000000.rgb.png").read_bytes()
     quiet(SynthJob("panda", out, 2, config_from_dict({}), seed=1))

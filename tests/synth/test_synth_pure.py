@@ -32,6 +32,12 @@ def frame(seed, index, config):
     ({"lights": {"intensity": "bright"}}, "lights.intensity"),
     ({"distractors": {"held_prob": 1.5}}, "distractors.held_prob"),
     ({"distractors": {"held_offset_m": [0.2, 0.1]}}, "distractors.held_offset_m"),
+    ({"distractors": {"held_parts": [0, 2]}}, "distractors.held_parts"),
+    ({"distractors": {"robot_prob": 2}}, "distractors.robot_prob"),
+    ({"distractors": {"robot_distance_m": [2.0, 1.0]}}, "distractors.robot_distance_m"),
+    ({"camera": {"closeup_prob": -0.1}}, "camera.closeup_prob"),
+    ({"camera": {"closeup_radius_m": [0.0, 0.5]}}, "camera.closeup_radius_m"),
+    ({"appearance": {"white_plastic_prob": 0.7, "metal_prob": 0.5}}, "at most 1"),
     ({"lights": {"elevation_rad": [20, 80]}}, "lights.elevation_rad"),   # degrees by mistake
     ({"lights": {"count": [1, 40]}}, "lights.count"),
     ({"lights": {"intensity": [1.0, 0.2]}}, "lights.intensity"),
@@ -126,16 +132,16 @@ def test_held_object_is_drawn_apart_from_everything_else():
         assert [d.position_m.tolist() for d in plain.scene.distractors] == \
             [d.position_m.tolist() for d in held.scene.distractors]
         h = held.scene.held
-        assert h.link == PANDA.keypoint_names[-1] and h.shape.kind == "box"
-        assert 0.05 <= h.shape.size_m[0] <= 0.1            # half of the largest side
-        assert np.all(h.shape.size_m[1] <= h.shape.size_m[0])
-        assert h.shape.size_m[2] <= 0.01                   # a thin plate
-        assert 0.05 <= np.linalg.norm(h.shape.position_m) <= 0.08
-        assert np.linalg.norm(h.shape.quaternion_wxyz) == pytest.approx(1.0)
+        assert h.link == PANDA.keypoint_names[-1] and h.parts[0].kind == "box"
+        assert 0.05 <= h.parts[0].size_m[0] <= 0.1            # half of the largest side
+        assert np.all(h.parts[0].size_m[1] <= h.parts[0].size_m[0])
+        assert h.parts[0].size_m[2] <= 0.01                   # a thin plate
+        assert 0.05 <= np.linalg.norm(h.parts[0].position_m) <= 0.08
+        assert np.linalg.norm(h.parts[0].quaternion_wxyz) == pytest.approx(1.0)
     sequence = config_from_dict({**recipe, "sequence": {"mode": "trajectory"}})
     first, later = frame(3, 0, sequence).scene.held, frame(3, 9, sequence).scene.held
-    assert np.array_equal(first.shape.position_m, later.shape.position_m)
-    assert np.array_equal(first.shape.size_m, later.shape.size_m)
+    assert np.array_equal(first.parts[0].position_m, later.parts[0].position_m)
+    assert np.array_equal(first.parts[0].size_m, later.parts[0].size_m)
     some = config_from_dict({"distractors": {"held_prob": 0.5}})
     count = sum(frame(8, i, some).scene.held is not None for i in range(200))
     assert 70 < count < 130

@@ -1,0 +1,63 @@
+"""A contact sheet of a written dataset: the first frames side by side, keypoint labels drawn.
+
+What a recipe's randomisation does is easiest to judge by eye; `dream synth --contact-sheet
+FILE` writes one after rendering.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from dream.errors import InputError
+from dream.io import read_sequence, write_bytes_atomic
+from dream.io.images import load_image
+from dream.overlay import draw_skeleton
+
+SHEET_FRAMES = 16     # frames on a sheet
+SHEET_COLUMNS = 4
+TILE_WIDTH_PX = 320   # each frame is scaled to this width (its aspect kept)
+
+
+def contact_sheet(folder: str | Path, num_frames: int = SHEET_FRAMES,
+                  columns: int = SHEET_COLUMNS) -> np.ndarray:
+    """(H, W, 3) uint8 RGB: the first `num_frames` frames of the dataset in `folder`, in rows of
+    `columns`, each with its in-image keypoint labels as dots.
+
+    Raises:
+        InputError: not a dataset folder, or `num_frames` / `columns` below 1.
+    """
+    if num_frames < 1 or columns < 1:
+        raise InputError(f"a contact sheet needs at least one frame and one column, got "
+                         f"{num_frames} frames in {columns} columns")
+    sequence = read_sequence(folder)
+    tiles = []
+    for frame in sequence.frames[:num_frames]:
+        rgb = load_image(frame)
+        if frame.uv_labels is not None:
+            rgb = draw_skeleton(rgb, frame.uv_labels, ())
+        height = round(rgb.shape[0] * TILE_WIDTH_PX / rgb.shape[1])
+        tiles.append(cv2.resize(rgb, (TILE_WIDTH_PX, height), interpolation=cv2.INTER_AREA))
+    height = max(t.shape[0] for t in tiles)
+    blank = np.zeros((height, TILE_WIDTH_PX, 3), np.uint8)
+    tiles = [np.pad(t, ((0, height - t.shape[0]), (0, 0), (0, 0))) for t in tiles]
+    tiles += [blank] * (-len(tiles) % columns)
+    rows = [np.hstack(tiles[i:i + columns]) for i in range(0, len(tiles), columns)]
+    return np.vstack(rows)
+
+
+def write_contact_sheet(folder: str | Path, out_path: str | Path,
+                        num_frames: int = SHEET_FRAMES) -> Path:
+    """Write `contact_sheet(folder, num_frames)` as a PNG at `out_path` (atomically)."""
+    out_path = Path(out_path)
+    if out_path.suffix.lower() != ".png":
+        raise InputError("the contact sheet is written as PNG", out_path,
+                         "give a file name ending in .png")
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(contact_sheet(folder, num_frames),
+                                                cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise InputError("could not encode the contact sheet", out_path)
+    write_bytes_atomic(out_path, buf.tobytes())
+    return out_path

@@ -1,0 +1,140 @@
+"""Randomisation aimed at what real recordings show, beyond the DREAM-style scene draws.
+
+- close-up cameras: the camera near one keypoint, so links leave the frame
+  (`camera.closeup_prob`, `camera.closeup_radius_m`);
+- robot materials: glossy white plastic or brushed metal (`appearance.white_plastic_prob`,
+  `appearance.metal_prob`);
+- the hand's visuals hidden, so that the flange carries only what the recipe attaches there
+  (`appearance.hide_hand_prob`);
+- another robot in the scene, unlabelled (`distractors.robot_*`).
+
+Each draw comes from its own random stream, keyed by the seed (and the frame index in `random`
+mode; per sequence otherwise), so a recipe that leaves them at 0 renders what it rendered
+before they existed. Pure functions of (config, random generator, arrays).
+"""
+
+from __future__ import annotations
+
+import colorsys
+import dataclasses
+
+import numpy as np
+
+from dream.robot import Robot
+from dream.transforms import invert_T, look_at
+from synth.config import SynthConfig
+from synth.other_robot import OtherRobotDraw
+
+CLOSEUP_STREAM = 0xC105
+MATERIAL_STREAM = 0x3A7
+HIDE_HAND_STREAM = 0x41DE
+OTHER_ROBOT_STREAM = 0x07E2
+
+LIGHT_PART_VALUE = 0.5                 # a part this light (HSV value) turns white plastic
+WHITE_PLASTIC_VALUE = (0.85, 1.0)
+WHITE_PLASTIC_SATURATION = (0.0, 0.05)
+WHITE_PLASTIC_SPECULAR = (0.4, 0.9)
+WHITE_PLASTIC_SHININESS = (0.5, 1.0)   # tight, bright highlights
+METAL_VALUE = (0.45, 0.8)
+METAL_SATURATION = (0.0, 0.08)
+METAL_SPECULAR = (0.6, 1.0)
+METAL_SHININESS = (0.1, 0.5)           # broad highlights, as on a brushed surface
+OTHER_ROBOT_AZIMUTH_SPREAD_RAD = 1.0   # around the direction from the camera through the base
+
+
+def stream(seed: int, key: int, index: int, mode: str) -> np.random.Generator:
+    """The random stream of one kind of draw: per frame in `random` mode, else per sequence."""
+    return np.random.default_rng([seed, key] + ([index] if mode == "random" else []))
+
+
+def closeup_pose(rng: np.random.Generator, config: SynthConfig,
+                 P_base_keypoints: np.ndarray) -> np.ndarray | None:
+    """With `camera.closeup_prob`, T_cam_base aimed at one of the keypoints (K, 3) from
+    `camera.closeup_radius_m`, on the shell's elevation range; else None."""
+    s = config.camera
+    if rng.random() >= s.closeup_prob:
+        return None
+    target = P_base_keypoints[int(rng.integers(len(P_base_keypoints)))]
+    radius = rng.uniform(*s.closeup_radius_m)
+    azimuth, elevation = rng.uniform(-np.pi, np.pi), rng.uniform(*s.elevation_rad)
+    position = target + radius * np.array([np.cos(elevation) * np.cos(azimuth),
+                                           np.cos(elevation) * np.sin(azimuth),
+                                           np.sin(elevation)])
+    return look_at(position, target, rng.uniform(*s.roll_rad))
+
+
+def _grey(rng: np.random.Generator, value: tuple[float, float],
+          saturation: tuple[float, float], alpha: float) -> np.ndarray:
+    rgb = colorsys.hsv_to_rgb(rng.random(), rng.uniform(*saturation), rng.uniform(*value))
+    return np.array([*rgb, alpha])
+
+
+def sample_material(rng: np.random.Generator, config: SynthConfig, real_rgba: np.ndarray
+                    ) -> tuple[np.ndarray, float, float] | None:
+    """With `appearance.white_plastic_prob`: the light parts of `real_rgba` (G, 4) white, the
+    rest as they are; with `appearance.metal_prob`: every part grey metal. Returns (rgba (G, 4),
+    specular, shininess), or None to keep the scene's draw."""
+    a = config.appearance
+    draw = rng.random()
+    if draw < a.white_plastic_prob:
+        light = np.array([colorsys.rgb_to_hsv(*np.clip(c[:3], 0, 1))[2] > LIGHT_PART_VALUE
+                          for c in real_rgba])
+        white = _grey(rng, WHITE_PLASTIC_VALUE, WHITE_PLASTIC_SATURATION, 1.0)
+        rgba = np.where(light[:, None], white, real_rgba)
+        rgba[:, 3] = real_rgba[:, 3]
+        return rgba, rng.uniform(*WHITE_PLASTIC_SPECULAR), rng.uniform(*WHITE_PLASTIC_SHININESS)
+    if draw < a.white_plastic_prob + a.metal_prob:
+        metal = _grey(rng, METAL_VALUE, METAL_SATURATION, 1.0)
+        rgba = np.tile(metal, (len(real_rgba), 1))
+        rgba[:, 3] = real_rgba[:, 3]
+        return rgba, rng.uniform(*METAL_SPECULAR), rng.uniform(*METAL_SHININESS)
+    return None
+
+
+def sample_other_robot(rng: np.random.Generator, config: SynthConfig, other: Robot,
+                       T_cam_base: np.ndarray) -> OtherRobotDraw | None:
+    """With `distractors.robot_prob`, the other robot on the floor `robot_distance_m` from the
+    base, beyond it as the camera sees it (within +-`OTHER_ROBOT_AZIMUTH_SPREAD_RAD`), turned
+    at random, in random joints within its limits; real colours with
+    `appearance.keep_real_colors_prob`, else one random colour."""
+    dc = config.distractors
+    if rng.random() >= dc.robot_prob:
+        return None
+    camera = invert_T(T_cam_base)[:3, 3]
+    away = np.arctan2(-camera[1], -camera[0])
+    azimuth = away + rng.uniform(-OTHER_ROBOT_AZIMUTH_SPREAD_RAD, OTHER_ROBOT_AZIMUTH_SPREAD_RAD)
+    distance, yaw = rng.uniform(*dc.robot_distance_m), rng.uniform(-np.pi, np.pi)
+    T = np.eye(4)
+    T[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0],
+                 [0.0, 0.0, 1.0]]
+    T[:2, 3] = distance * np.array([np.cos(azimuth), np.sin(azimuth)])
+    joints = rng.uniform(other.joint_lower, other.joint_upper)
+    rgba = None
+    if rng.random() >= config.appearance.keep_real_colors_prob:
+        rgba = np.array([*rng.random(3), 1.0])
+    return OtherRobotDraw(T, joints, rgba)
+
+
+def with_realism(scene, seed: int, index: int, config: SynthConfig, robot: Robot,
+                 aim_joints: np.ndarray, real_rgba: np.ndarray, other: Robot | None):
+    """`scene` (a `synth.randomize.SceneDraw`) with this module's draws applied. `aim_joints`
+    (J,) place the keypoints a close-up aims at."""
+    mode = config.sequence.mode
+    changes = {}
+    if config.camera.closeup_prob > 0:
+        T_closeup = closeup_pose(stream(seed, CLOSEUP_STREAM, index, mode), config,
+                                 robot.forward_kinematics(aim_joints))
+        if T_closeup is not None:
+            changes["T_cam_base"] = T_closeup
+    material = sample_material(stream(seed, MATERIAL_STREAM, index, mode), config, real_rgba)
+    if material is not None:
+        changes.update(zip(("robot_rgba", "robot_specular", "robot_shininess"),
+                           (material[0], float(material[1]), float(material[2])), strict=True))
+    hide = stream(seed, HIDE_HAND_STREAM, index, mode).random() < \
+        config.appearance.hide_hand_prob
+    changes["hide_hand"] = bool(hide)
+    if other is not None:
+        changes["other_robot"] = sample_other_robot(
+            stream(seed, OTHER_ROBOT_STREAM, index, mode), config, other,
+            changes.get("T_cam_base", scene.T_cam_base))
+    return dataclasses.replace(scene, **changes)

@@ -1,0 +1,118 @@
+"""Randomisation aimed at real photos (synth.realism, held assemblies, boards): the draws."""
+
+import colorsys
+
+import numpy as np
+import pytest
+
+from dream.camera import project
+from dream.robot import load_robot
+from dream.transforms import invert_T, transform_points
+from synth.config import config_from_dict
+from synth.randomize import HELD_PART_OVERLAP, sample_frame
+from synth.realism import (
+    METAL_SPECULAR,
+    OTHER_ROBOT_AZIMUTH_SPREAD_RAD,
+    WHITE_PLASTIC_SATURATION,
+    WHITE_PLASTIC_SPECULAR,
+    WHITE_PLASTIC_VALUE,
+)
+from synth.textures import calibration_board
+
+PANDA = load_robot("panda")
+UR5 = load_robot("ur5")
+# two light parts and two dark ones, as a Panda's white links and black joints
+RGBA = np.array([[0.9, 0.9, 0.9, 1.0], [0.1, 0.1, 0.1, 1.0], [0.95, 0.95, 0.9, 1.0],
+                 [0.2, 0.2, 0.25, 1.0]])
+ALL_ON = {"camera": {"closeup_prob": 0.5}, "intrinsics": {"hfov_rad": [0.9, 1.75]},
+          "appearance": {"white_plastic_prob": 0.3, "metal_prob": 0.3, "hide_hand_prob": 0.5},
+          "distractors": {"held_prob": 1.0, "held_parts": [1, 3], "held_checker_prob": 0.5,
+                          "robot_prob": 0.5}}
+
+
+def frame(seed, index, values, other=None):
+    return sample_frame(seed, index, PANDA, config_from_dict(values), RGBA, 4, 6, 4,
+                        other_robot=other)
+
+
+def test_new_draws_leave_the_others_as_they_were():
+    """Each draw has its own random stream: a recipe using them draws the same joints, lights,
+    distractors and backgrounds as one without them, and by default nothing new appears."""
+    for i in range(20):
+        plain, real = frame(5, i, {}), frame(5, i, ALL_ON, PANDA)
+        assert not plain.scene.hide_hand and plain.scene.other_robot is None
+        assert np.array_equal(plain.joints, real.joints)
+        assert plain.scene.background_seed == real.scene.background_seed
+        assert [d.position_m.tolist() for d in plain.scene.distractors] == \
+            [d.position_m.tolist() for d in real.scene.distractors]
+        assert [lt.position_m.tolist() for lt in plain.scene.lights] == \
+            [lt.position_m.tolist() for lt in real.scene.lights]
+
+
+def test_closeup_cameras_aim_at_a_keypoint_from_close():
+    values = {"camera": {"closeup_prob": 1.0, "closeup_radius_m": [0.3, 0.5]}}
+    for i in range(20):
+        f = frame(9, i, values)
+        P_cam = transform_points(f.scene.T_cam_base, PANDA.forward_kinematics(f.joints))
+        camera = f.scene.camera
+        # aimed at: one keypoint projects to the image centre, from 0.3-0.5 m
+        centred = np.all(np.abs(project(camera, P_cam) - [camera.cx, camera.cy]) < 1e-6,
+                         axis=1) & (P_cam[:, 2] > 0)
+        assert centred.any()
+        assert np.all((np.linalg.norm(P_cam[centred], axis=1) >= 0.3 - 1e-9)
+                      & (np.linalg.norm(P_cam[centred], axis=1) <= 0.5 + 1e-9))
+    shares = [frame(9, i, {"camera": {"closeup_prob": 0.3}}).scene.T_cam_base for i in range(200)]
+    close = sum(np.linalg.norm(invert_T(T)[:3, 3] - [0, 0, 0.4]) < 0.95 for T in shares)
+    assert 35 <= close <= 85
+
+
+def test_white_plastic_keeps_dark_parts_and_metal_greys_every_part():
+    white = frame(2, 0, {"appearance": {"white_plastic_prob": 1.0}}).scene
+    assert WHITE_PLASTIC_SPECULAR[0] <= white.robot_specular <= WHITE_PLASTIC_SPECULAR[1]
+    for part, real in zip(white.robot_rgba, RGBA, strict=True):
+        h, s, v = colorsys.rgb_to_hsv(*part[:3])
+        if colorsys.rgb_to_hsv(*real[:3])[2] > 0.5:
+            assert v >= WHITE_PLASTIC_VALUE[0] and s <= WHITE_PLASTIC_SATURATION[1]
+        else:
+            assert np.array_equal(part, real)
+    metal = frame(2, 0, {"appearance": {"metal_prob": 1.0}}).scene
+    assert METAL_SPECULAR[0] <= metal.robot_specular <= METAL_SPECULAR[1]
+    assert np.allclose(metal.robot_rgba, metal.robot_rgba[0])
+
+
+def test_held_assemblies_and_boards():
+    values = {"distractors": {"held_prob": 1.0, "held_parts": [3, 3], "held_checker_prob": 1.0,
+                              "held_size_m": [0.1, 0.2]}}
+    for i in range(10):
+        held = frame(4, i, values).scene.held
+        assert len(held.parts) == 3 and held.checkerboard
+        assert held.parts[0].texture >= 0 and np.array_equal(held.parts[0].rgba, [1, 1, 1, 1])
+        for a, b in zip(held.parts, held.parts[1:], strict=False):
+            reach = (a.size_m.max() + b.size_m.max()) * HELD_PART_OVERLAP
+            assert np.linalg.norm(b.position_m - a.position_m) == pytest.approx(reach)
+    # one part, as before the assemblies existed
+    assert len(frame(4, 0, {"distractors": {"held_prob": 1.0}}).scene.held.parts) == 1
+
+
+def test_calibration_board_is_black_and_white_with_a_white_margin():
+    board = calibration_board(np.random.default_rng(0), 64, 64)
+    assert set(np.unique(board).tolist()) == {0, 255}
+    assert np.all(board[0] == 255) and np.all(board[:, 0] == 255)
+    assert 0.2 < np.mean(board == 0) < 0.5
+
+
+def test_other_robot_stands_beyond_the_arm_in_its_own_joints():
+    values = {"distractors": {"robot_prob": 1.0, "robot_distance_m": [1.0, 1.5]}}
+    for i in range(20):
+        f = frame(6, i, values, UR5)
+        other = f.scene.other_robot
+        xy = other.T_base_other[:2, 3]
+        assert 1.0 - 1e-9 <= np.linalg.norm(xy) <= 1.5 + 1e-9
+        camera = invert_T(f.scene.T_cam_base)[:2, 3]
+        angle = np.arccos(np.dot(xy, -camera) / np.linalg.norm(xy) / np.linalg.norm(camera))
+        assert angle <= OTHER_ROBOT_AZIMUTH_SPREAD_RAD + 1e-9
+        assert other.T_base_other[2, 3] == 0.0 and other.joints.shape == (UR5.num_joints,)
+        assert np.all(other.joints >= UR5.joint_lower) and np.all(other.joints <= UR5.joint_upper)
+    sequence = {**values, "sequence": {"mode": "fixed_camera"}}
+    a, b = frame(6, 0, sequence, UR5), frame(6, 5, sequence, UR5)
+    assert np.array_equal(a.scene.other_robot.joints, b.scene.other_robot.joints)
