@@ -15,7 +15,8 @@ class DreamError(Exception):
 def _message(problem: str, path: Path | None, fix: str | None) -> str:
     where = f"{path}: " if path is not None else ""
     how = f" Fix: {fix}" if fix else ""
-    return f"{where}{problem.rstrip('.')}.{how}"
+    ended = problem if problem.endswith(("?", "!")) else f"{problem.rstrip('.')}."
+    return f"{where}{ended}{how}"
 
 
 class InputError(DreamError):

@@ -1,15 +1,21 @@
-"""The quality verdict of a calibration: how much of its keypoint evidence the pose stands on.
+"""The quality verdict of a calibration: `good`, `check` or `unreliable`, with the reasons.
 
-A robust keypoint fit discards the detections that disagree with it. When most of them
-disagree, the fit may stand on a small consensus of a biased set (a detector that misplaces
-keypoints on these photos, joint readings that do not match the images): it can fit those few
-to a fraction of a pixel at a pose centimetres off, and its small RMSE and 1-sigma then say
-nothing about the error. The verdict says so instead of passing a confident pose, and names
-the image refinement (`--polish`, `--refine edges`) when one was kept: its pose does not rest on
-that consensus.
+A small reprojection error does not make a calibration right. The verdict looks at what the
+error cannot show:
 
-RESULT.json's `quality` object: `detections` (keypoints found), `kept` (inliers of the fit),
-`kept_share`, `verdict` ("ok" or "doubtful") and `warnings` (sentences).
+- **kept share**: a robust keypoint fit discards the detections that disagree with it. When
+  most of them disagree, the fit may stand on a small consensus of a biased set (a detector that
+  misplaces keypoints on these photos, joint readings that do not match the images) and fit
+  those few to a fraction of a pixel at a pose centimetres off. A kept image refinement
+  (`--polish`, `--refine edges`) does not rest on that consensus, so it softens the verdict.
+- **condition**: the reported 1-sigma of the camera position and rotation, with the
+  worst-constrained direction named in words and the motion that would constrain it.
+- **duplicate frames**: frames with the same joint readings and the same detections count as
+  independent evidence in the 1-sigma, which they are not.
+- **static arm**: frames whose keypoints hardly move add no geometry.
+
+RESULT.json's `quality` object: `detections`, `kept`, `kept_share`, `verdict` and `warnings`
+(one sentence each, with what to do).
 """
 
 from __future__ import annotations
@@ -21,12 +27,25 @@ import numpy as np
 
 from dream.calibration import CalibrationResult, Observations
 from dream.errors import InputError
+from dream.transforms import skew
 
-# Below this share of the detections kept by the fit, the verdict is "doubtful". With the
+# Below this share of the detections kept by the fit, the verdict is at least "check". With the
 # bundled model on rendered fixed-camera scenes (benchmarks/edge_align.py's seeds 100-119)
 # the all-frames fit keeps 66-89 % of the detections.
 MIN_KEPT_SHARE = 0.5
-OK, DOUBTFUL = "ok", "doubtful"
+# Limits on the reported 1-sigma (the fit's plus the keypoint jackknife's) of the camera
+# position and rotation: "check" beyond the first (a centimetre, a degree: too loose for
+# grasping), "unreliable" beyond the second.
+POSITION_SIGMA_CHECK_M = 0.01
+POSITION_SIGMA_UNRELIABLE_M = 0.05
+ROTATION_SIGMA_CHECK_RAD = np.deg2rad(1.0)
+ROTATION_SIGMA_UNRELIABLE_RAD = np.deg2rad(5.0)
+DEPTH_AXIS_COS = 0.8          # a direction this close to the optical axis counts as depth
+DUPLICATE_JOINTS_M = 1e-6     # keypoints this close in the base frame: the same readings
+DUPLICATE_UV_PX = 0.05        # detections this close (median): the same image again
+STATIC_MOTION_M = 0.01        # keypoints moving less than this across frames: a static arm
+GOOD, CHECK, UNRELIABLE = "good", "check", "unreliable"
+LEVELS = (GOOD, CHECK, UNRELIABLE)
 
 
 @dataclass(frozen=True)
@@ -35,7 +54,7 @@ class Quality:
 
     Attributes:
         detections: keypoint detections found. kept: of them, inliers of the fit.
-        verdict: OK or DOUBTFUL. warnings: why, one sentence each with what to do.
+        verdict: GOOD, CHECK or UNRELIABLE. warnings: why, one sentence each with what to do.
     """
 
     detections: int
@@ -47,8 +66,9 @@ class Quality:
         if not 0 <= self.kept <= self.detections:
             raise InputError(f"kept ({self.kept}) must lie in [0, detections "
                              f"({self.detections})]")
-        if self.verdict not in (OK, DOUBTFUL):
-            raise InputError(f"verdict must be '{OK}' or '{DOUBTFUL}', got '{self.verdict}'")
+        if self.verdict not in LEVELS:
+            raise InputError(f"verdict must be one of {', '.join(LEVELS)}, got "
+                             f"'{self.verdict}'")
 
     @property
     def kept_share(self) -> float:
@@ -61,34 +81,112 @@ class Quality:
                 "warnings": list(self.warnings)}
 
 
-def keypoint_quality(detections: int, kept: int, refined_by: str | None = None,
-                     min_kept_share: float = MIN_KEPT_SHARE) -> Quality:
-    """The verdict from the counts of detections found and kept (pure); `refined_by` names an
-    image refinement that was kept ("the silhouette polish", "the edge alignment").
+Finding = tuple[str, str]   # (level, sentence)
 
-    >>> keypoint_quality(70, 20).verdict
-    'doubtful'
-    >>> keypoint_quality(210, 180).warnings
-    ()
+
+def kept_finding(detections: int, kept: int, refined_by: str | None = None,
+                 min_kept_share: float = MIN_KEPT_SHARE) -> Finding | None:
+    """The kept-share finding (pure); `refined_by` names an image refinement that was kept
+    ("the silhouette polish", "the edge alignment").
+
+    >>> kept_finding(70, 20)[0]
+    'unreliable'
+    >>> kept_finding(210, 180) is None
+    True
     """
     if not 0 < min_kept_share <= 1:
         raise InputError(f"min_kept_share must lie in (0, 1], got {min_kept_share}")
     share = kept / detections if detections else 0.0
     if share >= min_kept_share:
-        return Quality(detections, kept, OK, ())
+        return None
     warning = (f"only {kept} of {detections} keypoint detections ({share:.0%}) agree with the "
                "keypoint pose: it may follow a biased few, and its RMSE and 1-sigma do not "
                "measure its error")
     if refined_by:
-        warning += f"; the pose kept is {refined_by}'s, which does not rest on them"
-        return Quality(detections, kept, OK, (warning,))
-    return Quality(detections, kept, DOUBTFUL, (warning + "; check the overlays (--overlays "
-                                                "DIR) or refine with the images (--polish "
-                                                "with masks, --refine edges without)",))
+        return CHECK, warning + f"; the pose kept is {refined_by}'s, which does not rest on them"
+    return UNRELIABLE, warning + ("; check the overlays (--overlays DIR) or refine with the "
+                                 "images (--polish with masks, --refine edges without)")
+
+
+def camera_position_covariance(covariance: np.ndarray, T_cam_base: np.ndarray) -> np.ndarray:
+    """(3, 3) covariance of the camera position, in camera axes, from the (6, 6) covariance of
+    the fit's parameters (rotation about, then translation along the camera axes;
+    `dream.calibration`): the camera centre moves by -[t]x w - d for a rotation w and a shift
+    d."""
+    t = T_cam_base[:3, 3]
+    J = np.hstack([-skew(t), -np.eye(3)])
+    return J @ covariance @ J.T
+
+
+def condition_findings(covariance: np.ndarray, T_cam_base: np.ndarray) -> list[Finding]:
+    """The camera position's and rotation's 1-sigma against the limits, the worst direction
+    in words."""
+    findings = []
+    values, vectors = np.linalg.eigh(camera_position_covariance(covariance, T_cam_base))
+    sigma, direction = float(np.sqrt(max(values[-1], 0.0))), vectors[:, -1]
+    if sigma > POSITION_SIGMA_CHECK_M:
+        if abs(direction[2]) >= DEPTH_AXIS_COS:
+            what = ("depth along the camera axis is poorly constrained; move the arm towards and "
+                    "away from the camera")
+        else:
+            what = ("the camera position across the view is poorly constrained; move the arm "
+                    "across the whole image, and turn its wrist")
+        level = UNRELIABLE if sigma > POSITION_SIGMA_UNRELIABLE_M else CHECK
+        findings.append((level, f"camera position 1-sigma {sigma * 1e3:.1f} mm: {what}"))
+    rotation = float(np.sqrt(max(np.linalg.eigvalsh(covariance[:3, :3])[-1], 0.0)))
+    if rotation > ROTATION_SIGMA_CHECK_RAD:
+        level = UNRELIABLE if rotation > ROTATION_SIGMA_UNRELIABLE_RAD else CHECK
+        findings.append((level, f"camera rotation 1-sigma {np.rad2deg(rotation):.2f} deg: record "
+                                "configurations that spread the keypoints over the image"))
+    return findings
+
+
+def duplicate_finding(obs: Observations) -> Finding | None:
+    """Frames that repeat an earlier frame's joint readings and detections."""
+    repeats = 0
+    for i in range(1, len(obs.frame_names)):
+        same_joints = np.max(np.abs(obs.P_base[:i] - obs.P_base[i]), axis=(1, 2)) \
+            < DUPLICATE_JOINTS_M
+        for j in np.flatnonzero(same_joints):
+            both = obs.found[i] & obs.found[j]
+            if both.any() and np.median(np.linalg.norm(obs.uv[i, both] - obs.uv[j, both],
+                                                       axis=-1)) < DUPLICATE_UV_PX:
+                repeats += 1
+                break
+    if not repeats:
+        return None
+    return CHECK, (f"{repeats} of {len(obs.frame_names)} frames repeat another frame's joint "
+                   "readings and detections: the 1-sigma counts them as independent, so it is "
+                   "too small; drop the repeats or record other configurations")
+
+
+def static_finding(obs: Observations) -> Finding | None:
+    """An arm whose keypoints hardly move across the frames."""
+    if len(obs.frame_names) < 2:
+        return None
+    motion = float(np.max(np.linalg.norm(obs.P_base - obs.P_base[:1], axis=-1)))
+    if motion >= STATIC_MOTION_M:
+        return None
+    return CHECK, (f"the keypoints move at most {motion * 1e3:.1f} mm across the "
+                   f"{len(obs.frame_names)} frames: they add no geometry to one view; record "
+                   "10 or more configurations spread over the workspace")
+
+
+def quality_from(detections: int, kept: int, findings: list[Finding | None]) -> Quality:
+    """The verdict: the most severe level among the findings (GOOD without any)."""
+    found = [f for f in findings if f is not None]
+    level = max((LEVELS.index(lv) for lv, _ in found), default=0)
+    return Quality(detections, kept, LEVELS[level], tuple(text for _, text in found))
 
 
 def result_quality(result: CalibrationResult, obs: Observations,
                    refined_by: str | None = None) -> Quality:
-    """`keypoint_quality` of a calibration: its detections found and its inliers."""
+    """The verdict on a calibration: its detections found and kept, and, for the one
+    extrinsic of all frames, its condition, duplicate frames and a static arm."""
     found = obs.found
-    return keypoint_quality(int(found.sum()), int(np.sum(result.inlier & found)), refined_by)
+    detections, kept = int(found.sum()), int(np.sum(result.inlier & found))
+    findings = [kept_finding(detections, kept, refined_by)]
+    if result.mode == "all":
+        findings += condition_findings(result.covariance, result.T_cam_base)
+        findings += [duplicate_finding(obs), static_finding(obs)]
+    return quality_from(detections, kept, findings)

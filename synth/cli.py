@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -58,7 +59,7 @@ class Progress:
 
 def cmd_synth(args: argparse.Namespace) -> int:
     from synth.config import load_config
-    from synth.generate import SynthJob, generate
+    from synth.generate import CHUNK_FRAMES, SynthJob, generate, worker_count
 
     keypoints = tuple(k for k in args.keypoints.split(",") if k) if args.keypoints else None
     extension = None
@@ -74,6 +75,11 @@ def cmd_synth(args: argparse.Namespace) -> int:
 
         raise InputError("the contact sheet is written as PNG", args.contact_sheet,
                          "give --contact-sheet a file name ending in .png")
+    workers = worker_count(args.workers, args.num)
+    if workers < args.workers:
+        print(f"synth: {workers} rendering processes instead of --workers {args.workers} (no more "
+              f"than the CPU's {os.cpu_count()} cores or the {args.num} frames' chunks of "
+              f"{CHUNK_FRAMES})", file=sys.stderr)
     progress = Progress()
     try:
         stats = generate(job, overwrite=args.overwrite, on_progress=progress.update,

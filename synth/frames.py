@@ -104,7 +104,7 @@ class FrameMaker:
                                              other_robot=self.other_robot)
         self.other_geoms = None if self.other_robot is None else \
             OtherRobotGeoms.from_model(self.scene.model, self.other_robot)
-        self.nominal_camera = nominal_camera(config)
+        self.nominal_camera = nominal_camera(config, seed)
         self.renderer = SceneRenderer(self.scene, self.nominal_camera)
         self.joint_log = load_joint_log(config.joints.log, robot) if config.joints.log else None
         self.photos = list_photos(config.background.photos) if config.background.photos else ()

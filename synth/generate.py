@@ -362,7 +362,7 @@ def generate(job: SynthJob, overwrite: bool = False,
     check_inputs(job.config, robot)
     if job.extension is not None:
         check_extension(job.extension, robot, job.config, job.num_frames)
-    nominal = nominal_camera(job.config)
+    nominal = nominal_camera(job.config, job.seed)
     check_camera(nominal)
     settings = Sequence(robot=robot.name, camera=nominal, joint_names=robot.joint_names,
                         keypoint_names=robot.keypoint_names,
@@ -378,8 +378,12 @@ def generate(job: SynthJob, overwrite: bool = False,
         if on_start is not None:
             on_start(job.num_frames, len(done))
         start = time.perf_counter()
+        workers = worker_count(job.workers, len(todo))
+        if workers < job.workers:
+            log.info("%d rendering processes instead of %d: %d frames to render, %d cores",
+                     workers, job.workers, len(todo), os.cpu_count() or 1)
         if todo:
-            _run(job, todo, on_progress or (lambda n: None))
+            _run(job, todo, on_progress or (lambda n: None), workers)
         seconds = time.perf_counter() - start
         finished = True
     finally:
@@ -387,11 +391,20 @@ def generate(job: SynthJob, overwrite: bool = False,
             discard_unfinished(job.out_dir, created)
     log.info("%s: %d frames rendered, %d already there", job.out_dir, len(todo), len(done))
     return {"frames": job.num_frames, "rendered": len(todo), "skipped": len(done),
-            "seconds": seconds, "frames_per_s": len(todo) / seconds if todo else 0.0}
+            "seconds": seconds, "frames_per_s": len(todo) / seconds if todo else 0.0,
+            "workers": workers}
 
 
-def _run(job: SynthJob, todo: list[int], report: Callable[[int], None]) -> None:
-    if job.workers == 1:
+def worker_count(asked: int, frames: int, cores: int | None = None) -> int:
+    """The rendering processes to start: `asked`, but no more than the frames to render (in
+    chunks of `CHUNK_FRAMES`) or the CPU's cores; each process loads its own scene, so more
+    would only wait."""
+    cores = cores if cores is not None else (os.cpu_count() or 1)
+    return max(1, min(asked, -(-frames // CHUNK_FRAMES), cores))
+
+
+def _run(job: SynthJob, todo: list[int], report: Callable[[int], None], workers: int) -> None:
+    if workers == 1:
         _worker_init(job)
         try:
             for chunk in _chunks(todo, CHUNK_FRAMES):
@@ -401,7 +414,7 @@ def _run(job: SynthJob, todo: list[int], report: Callable[[int], None]) -> None:
         return
     ctx = mp.get_context("spawn")
     chunks: Iterable[list[int]] = _chunks(todo, CHUNK_FRAMES)
-    with ctx.Pool(job.workers, initializer=_worker_init, initargs=(job,)) as pool:
+    with ctx.Pool(workers, initializer=_worker_init, initargs=(job,)) as pool:
         try:
             for chunk in pool.imap_unordered(_worker_render, chunks):
                 report(len(chunk))

@@ -48,6 +48,7 @@ class CalibrateRequest:
     use_labels: bool = False
     robot: str | None = None
     intrinsics: str | None = None
+    override_intrinsics: bool = False
     frames: str = "all"
     overlays: str | None = None
     polish: bool = False
@@ -146,13 +147,16 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     software (`dream.ros`). Every output location is checked before the work, and the files
     and the --overlays folder appear together or not at all."""
     from dream.pipeline import calibrate, truth_poses
+    from dream.provenance import data_record
     from dream.result import result_to_dict
 
     out = out or sys.stdout
     settings = request.solver_settings()
     ros_path, matrix_path = _check_outputs(request)
     extension = _read_extension(request)
-    seq = read_data(request.data, request.intrinsics, request.robot)
+    seq = read_data(request.data, request.intrinsics, request.robot,
+                    request.override_intrinsics)
+    data_doc = data_record(seq, request.data)
     seq, readings_doc = joint_readings(seq, request.joint_readings == INTERPOLATE, out)
     refine = refine_mode(request, seq)
     if request.exclude_links and refine == NONE:
@@ -172,6 +176,8 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
         seq, obs = _apply_extension(request, extension, seq, robot, obs, out)
     result = calibrate(seq, obs, request.frames, settings)
     doc = result_to_dict(result, obs, robot=request.robot or seq.robot)
+    doc["data"] = data_doc
+    doc["settings"] = {k: v for k, v in vars(request).items() if k != "loaded_model"}
     if readings_doc is not None:
         doc["joint_readings"] = readings_doc
     if extension is not None:

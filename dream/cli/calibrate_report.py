@@ -144,8 +144,8 @@ def _links(exclude_links: str | None) -> tuple[str, ...]:
 
 
 def add_quality(result, obs, doc: dict, out: TextIO) -> dict:
-    """The quality verdict (`dream.quality`): printed when it warns; RESULT.json's `quality`
-    object."""
+    """The quality verdict (`dream.quality`): printed, with its reasons; RESULT.json's
+    `quality` object."""
     from dream.quality import result_quality
 
     refined_by = None
@@ -154,8 +154,9 @@ def add_quality(result, obs, doc: dict, out: TextIO) -> dict:
     elif doc.get("polish", {}).get("kept") and doc.get("frames_mode") == "all":
         refined_by = "the silhouette polish"
     quality = result_quality(result, obs, refined_by)
+    print(f"quality: {quality.verdict}", file=out)
     for warning in quality.warnings:
-        print(f"quality {quality.verdict}: {warning}", file=out)
+        print(f"  - {warning}", file=out)
     return quality.to_dict()
 
 

@@ -23,6 +23,7 @@ class DiagnoseRequest:
     use_labels: bool = False
     robot: str | None = None
     intrinsics: str | None = None
+    override_intrinsics: bool = False
     effects: str | None = None
     folds: int = 5
     threads: int | None = None
@@ -41,7 +42,8 @@ def run_diagnose(request: DiagnoseRequest) -> dict:
     from dream.io import check_output_folder
 
     check_output_folder(request.out)  # before the analysis, which takes a while
-    seq = read_data(request.data, request.intrinsics, request.robot)
+    seq = read_data(request.data, request.intrinsics, request.robot,
+                    request.override_intrinsics)
     robot, obs, _ = observe(seq, request.robot, request.model, request.use_labels, sys.stdout,
                             threads=request.threads, batch=request.batch)
     effects = request.effect_names()

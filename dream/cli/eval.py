@@ -19,6 +19,7 @@ class EvalRequest:
     out: str
     robot: str | None = None
     intrinsics: str | None = None
+    override_intrinsics: bool = False
 
 
 def run_eval(request: EvalRequest) -> dict:
@@ -26,11 +27,14 @@ def run_eval(request: EvalRequest) -> dict:
     summarised on stdout; returns METRICS.json's document."""
     from dream.io import check_output_file, write_json_atomic
     from dream.pipeline import evaluate, robot_for
+    from dream.provenance import check_same_data
     from dream.result import read_result
 
     check_output_file(request.out)
     doc = read_result(request.result)
-    seq = read_data(request.data, request.intrinsics, request.robot)
+    seq = read_data(request.data, request.intrinsics, request.robot,
+                    request.override_intrinsics)
+    check_same_data(doc, seq, request.data, request.result)
     # the joints the result was solved with: interpolated where calibrate interpolated them
     if (doc.get("joint_readings") or {}).get("interpolated"):
         seq, _ = joint_readings(seq, interpolate=True)

@@ -7,7 +7,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dream.cli.options import DATA_FILE_HELP, INTRINSICS_HELP, add_command, read_data, request_from
+from dream.cli.options import (
+    DATA_FILE_HELP,
+    add_command,
+    add_intrinsics_args,
+    read_data,
+    request_from,
+)
 
 
 @dataclass(frozen=True)
@@ -16,12 +22,14 @@ class InfoRequest:
 
     data: str
     intrinsics: str | None = None
+    override_intrinsics: bool = False
     robot: str | None = None
 
 
 def run_info(request: InfoRequest) -> None:
     """The summary of `request.data`, printed."""
-    seq = read_data(request.data, request.intrinsics, request.robot)
+    seq = read_data(request.data, request.intrinsics, request.robot,
+                    request.override_intrinsics)
     cam = seq.camera
     print(f"data:      {request.data} ({len(seq)} frames)")
     print(f"robot:     {seq.robot}")
@@ -61,5 +69,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = add_command(sub, "info", cmd_info,
                     "summarise a dataset: frames, robot, camera, labels, truth")
     p.add_argument("data", help=DATA_FILE_HELP)
-    p.add_argument("--intrinsics", help=INTRINSICS_HELP)
+    add_intrinsics_args(p)
     p.add_argument("--robot", help=argparse.SUPPRESS)

@@ -10,7 +10,13 @@ from typing import TextIO
 
 import numpy as np
 
-from dream.cli.options import DATA_FILE_HELP, INTRINSICS_HELP, add_command, read_data, request_from
+from dream.cli.options import (
+    DATA_FILE_HELP,
+    add_command,
+    add_intrinsics_args,
+    read_data,
+    request_from,
+)
 
 PROGRESS_EVERY = 100            # frames between progress lines
 
@@ -22,6 +28,7 @@ class MasksRequest:
     data: str
     out: str
     intrinsics: str | None = None
+    override_intrinsics: bool = False
 
 
 def run_masks(request: MasksRequest, out: TextIO | None = None) -> int:
@@ -43,7 +50,8 @@ def run_masks(request: MasksRequest, out: TextIO | None = None) -> int:
 
     out = out or sys.stdout
     check_output_folder(request.out)                     # before any reading
-    seq = read_data(request.data, request.intrinsics)
+    seq = read_data(request.data, request.intrinsics,
+                    override_intrinsics=request.override_intrinsics)
     settings = MotionSettings()
     background = sequence_background(seq, settings)
     cover = np.zeros(len(seq))
@@ -76,5 +84,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--data", required=True, help=DATA_FILE_HELP)
     p.add_argument("--out", required=True,
                    help="folder for background.png and NNNNNN.motion.png (0 / 255)")
-    p.add_argument("--intrinsics", help=INTRINSICS_HELP)
+    add_intrinsics_args(p)
 

@@ -20,9 +20,11 @@ def observe(seq, robot: str | None, model: str | None, use_labels: bool, out: Te
         return detect(seq, robot, model, out, threads=threads, batch=batch,
                       loaded_model=loaded_model)
     from dream.pipeline import observations_from_labels, robot_for
+    from dream.plausibility import check_robot_readings
 
     keypoints = seq.keypoint_names if use_labels else None
     robot_model = robot_for(seq, robot, keypoints, keypoints_from=seq.source)
+    check_robot_readings(seq, robot_model)
     return robot_model, observations_from_labels(seq, robot_model), None
 
 
@@ -38,6 +40,7 @@ def detect(seq, robot: str | None, model: str, out: TextIO, *, threads: int | No
         load_keypoint_model,
         load_model_robot,
     )
+    from dream.plausibility import check_robot_readings
 
     check_positive(batch, "--batch", "give --batch 1 or more images per network call "
                    f"(default {DEFAULT_BATCH_SIZE})")
@@ -47,6 +50,7 @@ def detect(seq, robot: str | None, model: str, out: TextIO, *, threads: int | No
     if network is None:
         network = load_keypoint_model(model, threads=threads)
     robot_model = load_model_robot(seq, network, robot)
+    check_robot_readings(seq, robot_model)
     trained_on = getattr(network, "robot", None)
     if trained_on is not None and trained_on != robot_model.name:
         log.warning("the model was trained on robot '%s', the data is of '%s'", trained_on,

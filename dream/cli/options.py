@@ -8,15 +8,20 @@ from collections.abc import Callable
 from dataclasses import fields
 from typing import Any, TextIO, TypeVar
 
+import numpy as np
+
 from dream.camera import CameraIntrinsics
 from dream.errors import InputError
 
 FIX_INTRINSICS = "give --intrinsics fx,fy,cx,cy or fx,fy,cx,cy,width,height (pixels)"
-INTRINSICS_HELP = "fx,fy,cx,cy[,width,height] for data without them"
+INTRINSICS_HELP = ("fx,fy,cx,cy[,width,height] in pixels, for data without intrinsics (data with "
+                   "its own needs --override-intrinsics as well)")
+OVERRIDE_HELP = "let --intrinsics replace the data's own intrinsics"
 ROBOT_HELP = "built-in robot name or URDF path (default: the data's)"
 DATA_FILE_HELP = "dataset folder or .npz"
 INTERPOLATE, AS_LOGGED = "interpolate", "as-logged"
 JOINT_READINGS = (INTERPOLATE, AS_LOGGED)  # what --joint-readings does with a held joint log
+INTRINSICS_RTOL = 1e-6   # --intrinsics this close to the data's own agree with them
 
 Request = TypeVar("Request")
 
@@ -56,11 +61,41 @@ def check_seed(seed: int | None) -> None:
                          fix="give --seed 0 or a positive integer")
 
 
-def read_data(data: str, intrinsics: str | None = None, robot: str | None = None):
-    """The `Sequence` of `--data`, with the camera of `--intrinsics` where given."""
+def read_data(data: str, intrinsics: str | None = None, robot: str | None = None,
+              override_intrinsics: bool = False):
+    """The `Sequence` of `--data`, with the camera of `--intrinsics` where given, its cameras
+    checked for plausibility (`dream.plausibility`). `--intrinsics` that differ from the data's
+    own are refused unless `override_intrinsics`."""
+    from dream.io import read_sequence
+    from dream.plausibility import check_sequence_cameras
+
+    if not data or not data.strip():
+        raise InputError("--data is empty", fix="give --data the dataset folder or file")
+    given = parse_intrinsics(intrinsics)
+    if given is not None and not override_intrinsics:
+        _refuse_conflicting_intrinsics(data, given, robot)
+    seq = read_sequence(data, intrinsics=given, robot=robot)
+    check_sequence_cameras(seq)
+    return seq
+
+
+def _refuse_conflicting_intrinsics(data: str, given, robot: str | None) -> None:
+    """Refuse `--intrinsics` that differ from intrinsics the data has itself."""
     from dream.io import read_sequence
 
-    return read_sequence(data, intrinsics=parse_intrinsics(intrinsics), robot=robot)
+    try:
+        own = read_sequence(data, robot=robot)
+    except InputError:  # no intrinsics of its own (or an error the real read reports)
+        return
+    mine = tuple(given[:4]) if not isinstance(given, CameraIntrinsics) else \
+        (given.fx, given.fy, given.cx, given.cy)
+    theirs = (own.camera.fx, own.camera.fy, own.camera.cx, own.camera.cy)
+    if not np.allclose(mine, theirs, rtol=INTRINSICS_RTOL, atol=0.0):
+        raise InputError(f"--intrinsics {','.join(f'{v:g}' for v in mine)} differ from the "
+                         f"data's own (fx {theirs[0]:g}, fy {theirs[1]:g}, cx {theirs[2]:g}, "
+                         f"cy {theirs[3]:g})", own.source,
+                         "drop --intrinsics to use the data's camera, or add "
+                         "--override-intrinsics to replace it")
 
 
 def joint_readings(seq: Any, interpolate: bool, out: TextIO | None = None
@@ -103,7 +138,13 @@ def add_data_args(p: argparse.ArgumentParser, required: bool = True) -> None:
     p.add_argument("--data", required=required, help="dataset folder (DREAM layout, "
                    "panda_teleop, franka_offline) or ManiUniCon .npz")
     p.add_argument("--robot", help=ROBOT_HELP)
+    add_intrinsics_args(p)
+
+
+def add_intrinsics_args(p: argparse.ArgumentParser) -> None:
+    """`--intrinsics` and `--override-intrinsics`."""
     p.add_argument("--intrinsics", help=INTRINSICS_HELP)
+    p.add_argument("--override-intrinsics", action="store_true", help=OVERRIDE_HELP)
 
 
 def add_model_source(p: argparse.ArgumentParser, model_help: str) -> None:

@@ -10,9 +10,9 @@ import numpy as np
 
 from dream.cli.options import (
     DATA_FILE_HELP,
-    INTRINSICS_HELP,
     ROBOT_HELP,
     add_command,
+    add_intrinsics_args,
     read_data,
     request_from,
 )
@@ -28,6 +28,7 @@ class OverlayRequest:
     extrinsic: str | None = None
     robot: str | None = None
     intrinsics: str | None = None
+    override_intrinsics: bool = False
     limit: int | None = None
 
     def __post_init__(self) -> None:
@@ -45,7 +46,8 @@ def run_overlay(request: OverlayRequest) -> int:
     from dream.result import read_result
 
     check_output_folder(request.out)  # before any reading or drawing
-    seq = read_data(request.data, request.intrinsics, request.robot)
+    seq = read_data(request.data, request.intrinsics, request.robot,
+                    request.override_intrinsics)
     robot = robot_for(seq, request.robot)
     if request.extrinsic is not None:
         T = read_result(request.extrinsic)["T_cam_base"]
@@ -75,5 +77,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="folder for the overlay PNGs")
     p.add_argument("--extrinsic", help="RESULT.json to draw with (default: the data's reference)")
     p.add_argument("--robot", help=ROBOT_HELP)
-    p.add_argument("--intrinsics", help=INTRINSICS_HELP)
+    add_intrinsics_args(p)
     p.add_argument("--limit", type=int, default=None, help="draw at most this many frames")

@@ -358,3 +358,31 @@ def test_progress_is_shown_by_the_command_not_the_library(tmp_path, capsys):
     assert capsys.readouterr().err == ""
     assert main(["synth", "--robot", "panda", "--num", "1", "--out", str(tmp_path / "cli")]) == 0
     assert "synth: 1/1 frames" in capsys.readouterr().err
+
+
+def test_fixed_camera_sequence_with_a_random_field_of_view_names_its_one_camera(tmp_path):
+    """In the sequence modes the field of view is drawn once: `_camera_settings.json` gives that
+    camera, and no frame carries other intrinsics."""
+    out = tmp_path / "fixed"
+    quiet(SynthJob("panda", out, 3, config_from_dict({"sequence": {"mode": "fixed_camera"}}),
+                   seed=4))
+    seq = read_sequence(out)
+    settings = json.loads((out / "_camera_settings.json").read_text())
+    fx = settings["camera_settings"][0]["intrinsic_settings"]["fx"]
+    assert seq.camera.fx == pytest.approx(fx)
+    assert all(f.camera is None or f.camera == seq.camera for f in seq.frames)
+    for f in seq.frames:
+        uv = project(seq.camera, f.P_cam_labels)
+        assert np.allclose(uv, f.uv_labels, atol=1e-6)
+
+
+def test_workers_are_capped_at_the_frames_and_cores(tmp_path, capsys):
+    from synth.generate import worker_count
+
+    assert worker_count(64, 1, cores=2) == 1
+    assert worker_count(64, 100, cores=2) == 2
+    assert worker_count(3, 100, cores=16) == 3
+    code = main(["synth", "--robot", "panda", "--num", "1", "--workers", "64", "--out",
+                 str(tmp_path / "one")])
+    assert code == 0 and "1 rendering processes instead of --workers 64" in \
+        capsys.readouterr().err

@@ -1,0 +1,143 @@
+"""Plausibility of the inputs before solving: the mistakes that look like valid data.
+
+Joint readings in degrees, a focal length in millimetres, a principal point from another
+resolution, a distortion coefficient off by orders of magnitude: each still gives a solution,
+with a small reprojection error and an extrinsic metres off. These checks refuse such input with
+one line naming the value and the likely fix.
+
+    >>> import numpy as np
+    >>> from dream.camera import CameraIntrinsics
+    >>> check_camera(CameraIntrinsics(4.0, 4.0, 319.5, 239.5, 640, 480))
+    Traceback (most recent call last):
+    ...
+    dream.errors.InputError: fx = 4 px gives a 178.6 deg horizontal field of view on 640 px wide \
+images; is the focal length in millimetres? Fix: give fx and fy in pixels (the focal length \
+in mm divided by the pixel pitch in mm), as ROS CameraInfo's K does
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence as SequenceOf
+from pathlib import Path
+
+import numpy as np
+
+from dream.camera import CameraIntrinsics
+from dream.errors import InputError
+
+JOINT_LIMIT_MARGIN_RAD = 0.1     # readings this far beyond a revolute limit are refused
+JOINT_LIMIT_MARGIN_M = 0.01      # ... and this far beyond a prismatic one
+MIN_HFOV_DEG = 2.0               # a pinhole camera's horizontal field of view, plausible range
+MAX_HFOV_DEG = 160.0
+MAX_FOCAL_ASPECT = 1.5           # fx / fy (or fy / fx): pixels are nearly square
+MAX_RADIAL_SCALE_CHANGE = 0.5    # distortion may scale a radius by 0.5-1.5 inside the image
+RADIAL_SAMPLES = 64              # radii checked from the centre to the farthest corner
+
+
+def check_joint_readings(joints: np.ndarray, joint_names: SequenceOf[str], lower: np.ndarray,
+                         upper: np.ndarray, prismatic: np.ndarray,
+                         frame_names: SequenceOf[str], where: Path | None = None) -> None:
+    """Refuse readings (N, J) beyond the limits (J,) by more than the margin; `prismatic` (J,)
+    bool picks metres over radians. Continuous joints have infinite limits and pass.
+
+    Raises:
+        InputError: the first reading out of bounds, with the frame, the joint, its limits and
+            "are these degrees?" (or millimetres).
+    """
+    joints = np.atleast_2d(np.asarray(joints, dtype=float))
+    margin = np.where(prismatic, JOINT_LIMIT_MARGIN_M, JOINT_LIMIT_MARGIN_RAD)
+    below, above = joints < lower - margin, joints > upper + margin
+    bad = np.argwhere(below | above)
+    if not len(bad):
+        return
+    i, j = (int(k) for k in bad[0])
+    value, name = joints[i, j], joint_names[j]
+    count = len(np.unique(bad[:, 0]))
+    if prismatic[j]:
+        unit, guess, fix = "m", "are these millimetres?", "give prismatic joints in metres"
+    else:
+        unit = "rad"
+        guess = f"are these degrees? ({value:g} deg = {np.deg2rad(value):.3f} rad)"
+        fix = "give joint readings in radians (degrees x pi / 180)"
+    raise InputError(f"frame {frame_names[i]}: joint {name} = {value:g} lies outside its URDF "
+                     f"limits [{lower[j]:.3f}, {upper[j]:.3f}] {unit} ({count} of {len(joints)} "
+                     f"frames are out of bounds); {guess}", where,
+                     f"{fix}, and check that the readings are in the robot's joint order "
+                     f"({', '.join(joint_names)})")
+
+
+def check_robot_readings(seq, robot) -> None:
+    """`check_joint_readings` for a `Sequence` of `robot` (its joints taken by name)."""
+    from dream.pipeline import joints_in_robot_order
+    from dream.robot.tree import PRISMATIC
+
+    prismatic = np.array([robot.tree.joints[robot.tree.joint_index[n]].type == PRISMATIC
+                          for n in robot.joint_names])
+    lower, upper = _finite_limits(robot)
+    check_joint_readings(joints_in_robot_order(seq, robot), robot.joint_names, lower, upper,
+                         prismatic, [f.name for f in seq.frames], seq.source)
+
+
+def _finite_limits(robot) -> tuple[np.ndarray, np.ndarray]:
+    """The robot's limits with continuous joints unbounded."""
+    from dream.robot.tree import CONTINUOUS
+
+    continuous = np.array([robot.tree.joints[robot.tree.joint_index[n]].type == CONTINUOUS
+                           for n in robot.joint_names])
+    return (np.where(continuous, -np.inf, robot.joint_lower),
+            np.where(continuous, np.inf, robot.joint_upper))
+
+
+def check_camera(camera: CameraIntrinsics, where: Path | None = None) -> None:
+    """Refuse intrinsics that cannot belong to the images: a principal point outside them, a
+    field of view outside [`MIN_HFOV_DEG`, `MAX_HFOV_DEG`], fx and fy far apart, distortion
+    that folds or scales radii by more than `MAX_RADIAL_SCALE_CHANGE` inside the image."""
+    w, h = camera.width, camera.height
+    for name, value, size, side in (("cx", camera.cx, w, "wide"), ("cy", camera.cy, h, "high")):
+        if not -0.5 <= value <= size - 0.5:
+            raise InputError(f"{name} = {value:g} px lies outside the {size} px {side} images",
+                             where, "give the principal point in pixels of these images (for "
+                             "a resized image, scale fx, fy, cx and cy by the same factor)")
+    hfov = np.rad2deg(2 * np.arctan(w / 2 / camera.fx))
+    if not MIN_HFOV_DEG <= hfov <= MAX_HFOV_DEG:
+        guess = "is the focal length in millimetres?" if hfov > MAX_HFOV_DEG else \
+            "is it for a larger image?"
+        raise InputError(f"fx = {camera.fx:g} px gives a {hfov:.1f} deg horizontal field of view "
+                         f"on {w} px wide images; {guess}", where,
+                         "give fx and fy in pixels (the focal length in mm divided by the pixel "
+                         "pitch in mm), as ROS CameraInfo's K does")
+    aspect = camera.fx / camera.fy
+    if not 1 / MAX_FOCAL_ASPECT <= aspect <= MAX_FOCAL_ASPECT:
+        raise InputError(f"fx = {camera.fx:g} and fy = {camera.fy:g} px differ by a factor "
+                         f"{max(aspect, 1 / aspect):.2f}; camera pixels are nearly square",
+                         where, "check fx and fy (and their order: fx, fy, cx, cy)")
+    if camera.distortion is not None:
+        _check_distortion(camera, where)
+
+
+def _check_distortion(camera: CameraIntrinsics, where: Path | None) -> None:
+    k1, k2, _, _, k3 = camera.distortion
+    corners = np.array([[0, 0], [camera.width - 1, 0], [0, camera.height - 1],
+                        [camera.width - 1, camera.height - 1]], dtype=float)
+    x = (corners[:, 0] - camera.cx) / camera.fx
+    y = (corners[:, 1] - camera.cy) / camera.fy
+    r = np.linspace(0.0, float(np.hypot(x, y).max()), RADIAL_SAMPLES)
+    scale = 1 + k1 * r ** 2 + k2 * r ** 4 + k3 * r ** 6
+    folds = np.any(np.diff(r * scale) <= 0)
+    if folds or np.max(np.abs(scale - 1)) > MAX_RADIAL_SCALE_CHANGE:
+        what = "folds the image over" if folds else \
+            f"scales radii by {scale[np.argmax(np.abs(scale - 1))]:.2f} at the image corner"
+        raise InputError(f"distortion (k1 {k1:g}, k2 {k2:g}, k3 {k3:g}) {what}; a lens "
+                         "model from another camera or resolution?", where,
+                         "give plumb_bob coefficients (k1, k2, p1, p2, k3) for normalised "
+                         "image coordinates, as OpenCV and ROS CameraInfo's D do")
+
+
+def check_sequence_cameras(seq) -> None:
+    """`check_camera` for the sequence's camera and every frame's own."""
+    seen = {seq.camera}
+    check_camera(seq.camera, seq.source)
+    for frame in seq.frames:
+        if frame.camera is not None and frame.camera not in seen:
+            seen.add(frame.camera)
+            check_camera(frame.camera, frame.source or seq.source)

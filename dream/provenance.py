@@ -1,0 +1,79 @@
+"""Which data a result was made from: a record for RESULT.json and the check `dream eval` makes.
+
+The record names the data's path and frames and carries a content hash: SHA-256 over every
+frame's name, joint readings, timestamp and image and mask file contents, in frame order. A
+result scored against other data would give confident, meaningless metrics.
+
+    >>> import numpy as np
+    >>> from dream.camera import CameraIntrinsics
+    >>> from dream.sequence import Frame, Sequence
+    >>> seq = Sequence("panda", CameraIntrinsics(100, 100, 49.5, 49.5, 100, 100),
+    ...                ("j1",), ("k1",), (Frame("000000", np.zeros(1)),))
+    >>> len(content_hash(seq))
+    64
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dream.errors import InputError
+from dream.io.fields import os_reason
+
+HASH_CHUNK_BYTES = 1 << 20
+
+
+def _file_digest(path: Path, cache: dict[Path, bytes]) -> bytes:
+    if path not in cache:
+        digest = hashlib.sha256()
+        try:
+            with open(path, "rb") as f:
+                for chunk in iter(lambda: f.read(HASH_CHUNK_BYTES), b""):
+                    digest.update(chunk)
+        except OSError as exc:
+            raise InputError(f"cannot read the file ({os_reason(exc)})", path,
+                             "check that the data's files are readable") from None
+        cache[path] = digest.digest()
+    return cache[path]
+
+
+def content_hash(seq) -> str:
+    """SHA-256 (hex) of the frames' names, joints, timestamps, image and mask contents."""
+    digest, files = hashlib.sha256(), {}
+    digest.update(",".join(seq.joint_names).encode())
+    for frame in seq.frames:
+        digest.update(frame.name.encode())
+        digest.update(np.asarray(frame.joints, dtype="<f8").tobytes())
+        digest.update(b"" if frame.timestamp is None else np.float64(frame.timestamp).tobytes())
+        for path in (frame.image_path, frame.mask_path):
+            digest.update(b"-" if path is None else _file_digest(Path(path), files))
+        digest.update(str(frame.image_index).encode())
+    return digest.hexdigest()
+
+
+def data_record(seq, data: str) -> dict[str, Any]:
+    """RESULT.json's `data`: the path given, its frames, the content hash and the camera."""
+    c = seq.camera
+    return {"path": str(Path(data).resolve()), "num_frames": len(seq.frames),
+            "frames": [f.name for f in seq.frames], "content_sha256": content_hash(seq),
+            "camera": {"width": c.width, "height": c.height, "fx": c.fx, "fy": c.fy, "cx": c.cx,
+                       "cy": c.cy, "distortion": None if c.distortion is None
+                       else list(c.distortion)}}
+
+
+def check_same_data(result: dict[str, Any], seq, data: str, result_path: str | Path) -> None:
+    """Refuse to score a result made from other data than `seq` (`--data`). Results written
+    before the record existed carry none and pass."""
+    record = result.get("data")
+    if not isinstance(record, dict) or "content_sha256" not in record:
+        return
+    if record["content_sha256"] == content_hash(seq):
+        return
+    raise InputError(f"was calibrated from other data ({record.get('path')}, "
+                     f"{record.get('num_frames')} frames) than --data {data} "
+                     f"({len(seq.frames)} frames, other content)", result_path,
+                     "give --data the dataset the result was made from, or calibrate this one")

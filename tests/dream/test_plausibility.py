@@ -1,0 +1,181 @@
+"""Plausible-looking mistakes are refused before solving: joints in degrees or beyond their
+limits, intrinsics that cannot belong to the images, distortion off by orders of magnitude,
+`--intrinsics` that silently replace the data's own."""
+
+from __future__ import annotations
+
+import doctest
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import dream.plausibility
+from dream.camera import CameraIntrinsics
+from dream.cli import main
+from dream.errors import InputError
+from dream.plausibility import check_camera, check_joint_readings
+from dream.robot import load_robot
+
+
+def refused(argv: list, capsys) -> str:
+    code = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    return err.strip()
+
+
+@pytest.fixture(scope="module")
+def labels(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("plausible") / "data"
+    assert main(["sample", "--out", str(out), "--num", "6", "--seed", "5"]) == 0
+    return out
+
+
+def edited(labels: Path, dest: Path, frame_edit=None, camera_edit=None) -> Path:
+    dest.mkdir()
+    for f in labels.iterdir():
+        text = f.read_text()
+        if f.name.startswith("0") and frame_edit is not None:
+            doc = json.loads(text)
+            frame_edit(doc)
+            text = json.dumps(doc)
+        if f.name == "_camera_settings.json" and camera_edit is not None:
+            doc = json.loads(text)
+            camera_edit(doc["camera_settings"][0]["intrinsic_settings"])
+            text = json.dumps(doc)
+        (dest / f.name).write_text(text)
+    return dest
+
+
+def _in_degrees(doc: dict) -> None:
+    for joint in doc["sim_state"]["joints"]:
+        joint["position"] = float(np.rad2deg(joint["position"]))
+
+
+def test_joints_in_degrees_are_refused_naming_the_joint(labels, tmp_path, capsys):
+    data = edited(labels, tmp_path / "deg", _in_degrees)
+    line = refused(["calibrate", "--data", data, "--use-labels", "--out", tmp_path / "r.json"],
+                   capsys)
+    assert "are these degrees?" in line and "panda_joint" in line and "URDF limits" in line
+    assert "radians" in line and not (tmp_path / "r.json").exists()
+    line = refused(["diagnose", "--data", data, "--use-labels", "--out", tmp_path / "d"],
+                   capsys)
+    assert "are these degrees?" in line and not (tmp_path / "d").exists()
+
+
+def test_a_joint_far_beyond_its_limit_is_refused(labels, tmp_path, capsys):
+    def joint4_positive(doc):
+        for joint in doc["sim_state"]["joints"]:
+            if joint["name"] == "panda_joint4":
+                joint["position"] = 1.5
+
+    data = edited(labels, tmp_path / "j4", joint4_positive)
+    line = refused(["calibrate", "--data", data, "--use-labels", "--out", tmp_path / "r.json"],
+                   capsys)
+    assert "panda_joint4 = 1.5" in line and "-0.070" in line
+
+
+def test_limits_margin_continuous_and_prismatic_joints():
+    lower, upper = np.array([-1.0, -np.inf, 0.0]), np.array([1.0, np.inf, 0.04])
+    prismatic = np.array([False, False, True])
+    names, frames = ("a", "b", "finger"), ("000000", "000001")
+    ok = np.array([[1.09, 100.0, 0.045], [-1.09, -50.0, -0.009]])
+    check_joint_readings(ok, names, lower, upper, prismatic, frames)  # within the margins
+    with pytest.raises(InputError, match="are these millimetres"):
+        check_joint_readings(np.array([[0.0, 0.0, 40.0]]), names, lower, upper, prismatic,
+                             frames)
+    with pytest.raises(InputError, match=r"frame 000001: joint a = 1\.2.*1 of 2 frames"):
+        check_joint_readings(np.array([[0.0, 0, 0], [1.2, 0, 0]]), names, lower, upper,
+                             prismatic, frames)
+
+
+def test_clean_inputs_pass(labels, tmp_path):
+    robot = load_robot("panda")
+    q = np.stack([robot.joint_lower, robot.joint_upper, robot.rest_joints])
+    check_joint_readings(q, robot.joint_names, robot.joint_lower, robot.joint_upper,
+                         np.zeros(robot.num_joints, bool), ("0", "1", "2"))
+    for camera in (CameraIntrinsics(151.1, 151.1, 160.1, 120.7, 320, 240),
+                   CameraIntrinsics(615.0, 615.0, 319.5, 239.5, 640, 480,
+                                    (0.1, -0.25, 0.001, 0.001, 0.1)),
+                   CameraIntrinsics(1400.0, 1400.0, 960.0, 540.0, 1920, 1080)):
+        check_camera(camera)
+    assert main(["calibrate", "--data", str(labels), "--use-labels", "--out",
+                 str(tmp_path / "r.json")]) == 0
+
+
+@pytest.mark.parametrize("camera, words", [
+    (CameraIntrinsics(600.0, 600.0, 3313.0, 240.0, 640, 480), "cx = 3313 px lies outside"),
+    (CameraIntrinsics(600.0, 600.0, 320.0, -80.0, 640, 480), "cy = -80 px lies outside"),
+    (CameraIntrinsics(4.0, 4.0, 319.5, 239.5, 640, 480), "millimetres"),
+    (CameraIntrinsics(40000.0, 40000.0, 319.5, 239.5, 640, 480), "larger image"),
+    (CameraIntrinsics(600.0, 200.0, 319.5, 239.5, 640, 480), "differ by a factor 3.00"),
+    (CameraIntrinsics(600.0, 600.0, 319.5, 239.5, 640, 480, (50.0, 0, 0, 0, 0)),
+     "scales radii by"),
+    (CameraIntrinsics(600.0, 600.0, 319.5, 239.5, 640, 480, (-3.0, 0, 0, 0, 0)), "folds"),
+])
+def test_implausible_cameras_are_refused(camera, words):
+    with pytest.raises(InputError, match=words):
+        check_camera(camera)
+
+
+def test_implausible_data_camera_is_refused_on_reading(labels, tmp_path, capsys):
+    data = edited(labels, tmp_path / "cx", camera_edit=lambda k: k.update(cx=3313.0))
+    line = refused(["info", data], capsys)
+    assert "cx = 3313" in line and str(data) in line
+    data = edited(labels, tmp_path / "mm", camera_edit=lambda k: k.update(fx=3.6, fy=3.6))
+    line = refused(["calibrate", "--data", data, "--use-labels", "--out", tmp_path / "r.json"],
+                   capsys)
+    assert "millimetres" in line
+
+
+def test_intrinsics_that_differ_from_the_datas_own_need_the_override(labels, tmp_path, capsys):
+    settings = json.loads((labels / "_camera_settings.json").read_text())
+    k = settings["camera_settings"][0]["intrinsic_settings"]
+    mine = f"{k['fx'] * 1.3},{k['fy'] * 1.3},{k['cx']},{k['cy']}"
+    out = tmp_path / "r.json"
+    line = refused(["calibrate", "--data", labels, "--use-labels", "--intrinsics", mine,
+                    "--out", out], capsys)
+    assert "differ from the data's own" in line and "--override-intrinsics" in line
+    assert not out.exists()
+    same = f"{k['fx']},{k['fy']},{k['cx']},{k['cy']}"
+    assert main(["calibrate", "--data", str(labels), "--use-labels", "--intrinsics", same,
+                 "--out", str(out)]) == 0
+    assert main(["calibrate", "--data", str(labels), "--use-labels", "--intrinsics", mine,
+                 "--override-intrinsics", "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["data"]["camera"]["fx"] == pytest.approx(k["fx"] * 1.3)
+    assert doc["settings"]["override_intrinsics"] and doc["settings"]["intrinsics"] == mine
+
+
+def test_empty_data_path_is_refused(tmp_path, capsys):
+    line = refused(["calibrate", "--data", "", "--use-labels", "--out", tmp_path / "r.json"],
+                   capsys)
+    assert "--data is empty" in line
+
+
+def test_docstring_example():
+    assert doctest.testmod(dream.plausibility, optionflags=doctest.ELLIPSIS).failed == 0
+
+
+def test_eval_refuses_a_result_of_other_data(labels, tmp_path, capsys):
+    result, metrics = tmp_path / "r.json", tmp_path / "m.json"
+    assert main(["calibrate", "--data", str(labels), "--use-labels", "--out", str(result)]) == 0
+    doc = json.loads(result.read_text())
+    assert doc["data"]["path"] == str(labels.resolve()) and doc["data"]["num_frames"] == 6
+    assert len(doc["data"]["content_sha256"]) == 64 and doc["settings"]["frames"] == "all"
+    assert main(["eval", "--data", str(labels), "--result", str(result), "--out",
+                 str(metrics)]) == 0
+    other = tmp_path / "other"
+    assert main(["sample", "--out", str(other), "--num", "6", "--seed", "6"]) == 0
+    line = refused(["eval", "--data", other, "--result", result, "--out", tmp_path / "m2.json"],
+                   capsys)
+    assert "other data" in line and str(labels.resolve()) in line
+    assert not (tmp_path / "m2.json").exists()
+    # a result written before the record existed is still scored
+    del doc["data"]
+    result.write_text(json.dumps(doc))
+    assert main(["eval", "--data", str(other), "--result", str(result), "--out",
+                 str(metrics)]) == 0
