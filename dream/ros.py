@@ -13,10 +13,20 @@
 - `RESULT.T_base_cam.txt`: `T_base_cam` (maps camera-frame points into the base frame, the
   inverse of RESULT.json's `T_cam_base`), 4 rows of 4 numbers with 9 significant digits after
   a comment line; `numpy.loadtxt` reads it.
+- `RESULT.urdf.xml`: a fixed URDF `<joint>` from the base link to the camera frame (and the
+  camera `<link>`), to paste into the robot's URDF or xacro; `origin` xyz in metres, rpy in
+  radians (fixed axes: R = Rz(yaw) Ry(pitch) Rx(roll)).
+- `RESULT.launch.py`: a ROS 2 launch file starting `static_transform_publisher` with the pose.
+- `RESULT.handeye.yaml`: the calibration in easy_handeye's YAML (`eye_on_hand: false`,
+  `robot_base_frame`, `tracking_base_frame`, `transformation` x y z qx qy qz qw).
+
+Frame names: the base frame defaults to the robot's base link and the camera frame to
+`camera_optical_frame`; `dream calibrate --base-frame / --camera-frame` set them.
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +37,11 @@ from dream.transforms import invert_T, is_rigid, quaternion_xyzw_from_R
 CAMERA_OPTICAL_FRAME = "camera_optical_frame"
 ROS_SUFFIX = ".ros.txt"
 MATRIX_SUFFIX = ".T_base_cam.txt"
+URDF_SUFFIX = ".urdf.xml"
+LAUNCH_SUFFIX = ".launch.py"
+HANDEYE_SUFFIX = ".handeye.yaml"
 SIGNIFICANT_DIGITS = 9
+FRAME_NAME = re.compile(r"[A-Za-z0-9_./-]+")
 _RIGID_TOLERANCE = 1e-6
 
 
@@ -44,8 +58,9 @@ def _check_T(T: np.ndarray, what: str) -> np.ndarray:
 
 
 def _check_frame(name: str, what: str) -> str:
-    if not isinstance(name, str) or not name or any(c.isspace() for c in name):
-        raise InputError(f"{what} {name!r} must be a non-empty name without spaces")
+    if not isinstance(name, str) or not FRAME_NAME.fullmatch(name):
+        raise InputError(f"{what} {name!r} must be a non-empty tf frame name (letters, digits, "
+                         "'_', '/', '.', '-')")
     return name
 
 
@@ -92,3 +107,80 @@ def output_paths(result_path: str | Path) -> tuple[Path, Path]:
     """(RESULT.ros.txt, RESULT.T_base_cam.txt) next to RESULT.json (its suffix replaced)."""
     path = Path(result_path)
     return path.with_suffix(ROS_SUFFIX), path.with_suffix(MATRIX_SUFFIX)
+
+
+def _pose_numbers(T_cam_base: np.ndarray) -> tuple[list[str], list[str]]:
+    """(x y z, qx qy qz qw) of T_base_cam as text."""
+    T_base_cam = invert_T(_check_T(T_cam_base, "T_cam_base"))
+    return ([_number(v) for v in T_base_cam[:3, 3]],
+            [_number(v) for v in quaternion_xyzw_from_R(T_base_cam[:3, :3])])
+
+
+def rpy_from_R(R: np.ndarray) -> np.ndarray:
+    """(roll, pitch, yaw), rad, of R = Rz(yaw) Ry(pitch) Rx(roll) (URDF's fixed-axis rpy).
+
+    >>> rpy_from_R(np.eye(3)).tolist()
+    [0.0, -0.0, 0.0]
+    """
+    R = np.asarray(R, dtype=float)
+    pitch = np.arcsin(np.clip(-R[2, 0], -1.0, 1.0))
+    return np.array([np.arctan2(R[2, 1], R[2, 2]), pitch, np.arctan2(R[1, 0], R[0, 0])])
+
+
+def urdf_text(T_cam_base: np.ndarray, base_frame: str,
+              camera_frame: str = CAMERA_OPTICAL_FRAME) -> str:
+    """The RESULT.urdf.xml file: a fixed joint base -> camera and the camera link."""
+    base, camera = _check_frame(base_frame, "base frame"), _check_frame(camera_frame,
+                                                                          "camera frame")
+    T_base_cam = invert_T(_check_T(T_cam_base, "T_cam_base"))
+    xyz = " ".join(_number(v) for v in T_base_cam[:3, 3])
+    rpy = " ".join(_number(v) for v in rpy_from_R(T_base_cam[:3, :3]))
+    return (f"<!-- camera pose from dream calibrate: paste into the robot's URDF or xacro; "
+            f"{camera} is the OpenCV optical frame (x right, y down, z forward) -->\n"
+            f'<joint name="{camera}_joint" type="fixed">\n'
+            f'  <parent link="{base}"/>\n'
+            f'  <child link="{camera}"/>\n'
+            f'  <origin xyz="{xyz}" rpy="{rpy}"/>\n'
+            f"</joint>\n"
+            f'<link name="{camera}"/>\n')
+
+
+def launch_text(T_cam_base: np.ndarray, base_frame: str,
+                camera_frame: str = CAMERA_OPTICAL_FRAME) -> str:
+    """The RESULT.launch.py file: a ROS 2 launch description with the static transform."""
+    base, camera = _check_frame(base_frame, "base frame"), _check_frame(camera_frame,
+                                                                          "camera frame")
+    (x, y, z), (qx, qy, qz, qw) = _pose_numbers(T_cam_base)
+    args = ", ".join(f"'--{k}', '{v}'" for k, v in (
+        ("x", x), ("y", y), ("z", z), ("qx", qx), ("qy", qy), ("qz", qz), ("qw", qw),
+        ("frame-id", base), ("child-frame-id", camera)))
+    return ("# camera pose from dream calibrate: ros2 launch this file, or include it\n"
+            "from launch import LaunchDescription\n"
+            "from launch_ros.actions import Node\n\n\n"
+            "def generate_launch_description():\n"
+            "    return LaunchDescription([Node(\n"
+            "        package='tf2_ros', executable='static_transform_publisher',\n"
+            f"        name='{camera}_static_tf',\n"
+            f"        arguments=[{args}])])\n")
+
+
+def handeye_text(T_cam_base: np.ndarray, base_frame: str,
+                 camera_frame: str = CAMERA_OPTICAL_FRAME) -> str:
+    """The RESULT.handeye.yaml file, in easy_handeye's calibration format (eye on base)."""
+    base, camera = _check_frame(base_frame, "base frame"), _check_frame(camera_frame,
+                                                                          "camera frame")
+    (x, y, z), (qx, qy, qz, qw) = _pose_numbers(T_cam_base)
+    return ("# camera pose from dream calibrate, in easy_handeye's format (eye on base)\n"
+            "eye_on_hand: false\n"
+            f"robot_base_frame: {base}\n"
+            f"tracking_base_frame: {camera}\n"
+            "transformation:\n"
+            f"  x: {x}\n  y: {y}\n  z: {z}\n"
+            f"  qx: {qx}\n  qy: {qy}\n  qz: {qz}\n  qw: {qw}\n")
+
+
+def snippet_paths(result_path: str | Path) -> tuple[Path, Path, Path]:
+    """(RESULT.urdf.xml, RESULT.launch.py, RESULT.handeye.yaml) next to RESULT.json."""
+    path = Path(result_path)
+    return (path.with_suffix(URDF_SUFFIX), path.with_suffix(LAUNCH_SUFFIX),
+            path.with_suffix(HANDEYE_SUFFIX))

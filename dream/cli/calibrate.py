@@ -32,6 +32,7 @@ from dream.cli.options import (
 )
 from dream.errors import InputError
 from dream.pnp import RobustLoss, SolverSettings
+from dream.ros import CAMERA_OPTICAL_FRAME
 
 AUTO, EDGES, NONE = "auto", "edges", "none"
 REFINE_CHOICES = (AUTO, EDGES, NONE)   # --refine: what refines the keypoint extrinsic
@@ -63,6 +64,8 @@ class CalibrateRequest:
     joint_readings: str = INTERPOLATE
     refine: str = AUTO
     exclude_links: str | None = None
+    base_frame: str | None = None
+    camera_frame: str = CAMERA_OPTICAL_FRAME
     loaded_model: Any = None
 
     def __post_init__(self) -> None:
@@ -73,11 +76,25 @@ class CalibrateRequest:
                              fix=f"use one of {', '.join(JOINT_READINGS)}")
         self.solver_settings()  # checks --seed, --loss and --loss-scale-px
         _check_refine(self.refine, self.frames, self.polish, self.exclude_links)
+        _check_frames(self.base_frame, self.camera_frame)
 
     def solver_settings(self) -> SolverSettings:
         """The solver's settings of `--loss`, `--loss-scale-px` and `--seed`."""
         check_seed(self.seed)
         return SolverSettings(loss=RobustLoss(self.loss, self.loss_scale_px), seed=self.seed)
+
+
+def _check_frames(base_frame: str | None, camera_frame: str) -> None:
+    """`--base-frame` and `--camera-frame` are tf frame names (before any reading)."""
+    from dream.ros import static_transform_args
+
+    try:
+        static_transform_args(np.eye(4), base_frame or "base", camera_frame)
+    except InputError as exc:
+        raise InputError(exc.problem.replace("base frame", "--base-frame")
+                         .replace("camera frame", "--camera-frame"),
+                         fix="give a frame name as tf uses it, e.g. camera_color_optical_frame"
+                         ) from None
 
 
 def _check_mask_head(mask_head: bool, polish: bool, model: bool, frames: str) -> None:
@@ -152,7 +169,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
 
     out = out or sys.stdout
     settings = request.solver_settings()
-    ros_path, matrix_path = _check_outputs(request)
+    paths = _check_outputs(request)
     extension = _read_extension(request)
     seq = read_data(request.data, request.intrinsics, request.robot,
                     request.override_intrinsics)
@@ -193,7 +210,8 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
         doc = add_polish(seq, robot, result, obs, model, doc, out, frames=request.frames,
                          mask_head=request.mask_head, motion_masks=request.motion_masks)
     doc["quality"] = add_quality(result, obs, doc, out)
-    _write_calibration(request, seq, robot, obs, result, doc, ros_path, matrix_path)
+    base_frame = request.base_frame or robot.base_link
+    _write_calibration(request, seq, robot, obs, result, doc, paths, base_frame)
     print_summary(doc, out)
     T_true = truth_poses(seq)
     if request.frames == "all" and np.all(np.isfinite(T_true[0])):
@@ -202,8 +220,11 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
         t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true[0])
         print(f"error vs ground truth: camera position {t_err * 1000:.2f} mm, rotation "
               f"{np.rad2deg(r_err):.3f} deg", file=out)
+    ros_path, matrix_path, urdf_path, launch_path, handeye_path = paths
     print(f"wrote {request.out}, {ros_path} (ROS static_transform_publisher: x y z qx qy qz qw "
-          f"{robot.base_link} camera_optical_frame) and {matrix_path} (T_base_cam)", file=out)
+          f"{base_frame} {request.camera_frame}), {matrix_path} (T_base_cam), {urdf_path} (URDF "
+          f"joint), {launch_path} (ROS 2 launch) and {handeye_path} (easy_handeye YAML)",
+          file=out)
     return doc
 
 
@@ -236,15 +257,15 @@ def _apply_extension(request: CalibrateRequest, extension, seq, robot, obs, out:
     return seq, obs
 
 
-def _check_outputs(request: CalibrateRequest) -> tuple[Path, Path]:
-    """Before any work: RESULT.json, RESULT.ros.txt and RESULT.T_base_cam.txt can be written
-    and the --overlays folder can be made; returns the paths of the two text files."""
+def _check_outputs(request: CalibrateRequest) -> tuple[Path, ...]:
+    """Before any work: RESULT.json and the files written next to it (`dream.ros`) can be
+    written and the --overlays folder can be made; returns the paths of those files."""
     from dream.io import check_output_file, check_output_folder
-    from dream.ros import output_paths
+    from dream.ros import output_paths, snippet_paths
 
     check_output_file(request.out)
-    ros_path, matrix_path = output_paths(request.out)
-    for path in (ros_path, matrix_path):
+    paths = output_paths(request.out) + snippet_paths(request.out)
+    for path in paths:
         try:
             check_output_file(path)
         except InputError as exc:
@@ -252,23 +273,28 @@ def _check_outputs(request: CalibrateRequest) -> tuple[Path, Path]:
                              exc.path, "remove it, or choose another --out") from None
     if request.overlays:
         check_output_folder(request.overlays)
-    return ros_path, matrix_path
+    return paths
 
 
 def _write_calibration(request: CalibrateRequest, seq, robot, obs, result, doc: dict,
-                       ros_path: Path, matrix_path: Path) -> None:
+                       paths: tuple[Path, ...], base_frame: str) -> None:
     """RESULT.json, its two text files and the --overlays folder, all or none: the files are
     written, then the overlays drawn (`write_result_overlays` stages them in a temporary folder
     and moves them into place); on a failure of either (an unreadable image...) the files are
     put back as they were before the command."""
     from dream.io import replacing_files
     from dream.io.atomic import dumps
-    from dream.ros import matrix_text, ros_text
+    from dream.ros import handeye_text, launch_text, matrix_text, ros_text, urdf_text
 
-    T = np.asarray(doc["T_cam_base"])
-    files = {Path(request.out): dumps(doc).encode("utf-8"),
-             ros_path: ros_text(T, robot.base_link, file_name=ros_path.name).encode("utf-8"),
-             matrix_path: matrix_text(T, robot.base_link).encode("utf-8")}
+    T, camera = np.asarray(doc["T_cam_base"]), request.camera_frame
+    ros_path, matrix_path, urdf_path, launch_path, handeye_path = paths
+    texts = {Path(request.out): dumps(doc),
+             ros_path: ros_text(T, base_frame, camera, file_name=ros_path.name),
+             matrix_path: matrix_text(T, base_frame),
+             urdf_path: urdf_text(T, base_frame, camera),
+             launch_path: launch_text(T, base_frame, camera),
+             handeye_path: handeye_text(T, base_frame, camera)}
+    files = {path: text.encode("utf-8") for path, text in texts.items()}
     with replacing_files(files):  # a failure puts the files back
         if request.overlays:
             from dream.overlay import write_result_overlays
@@ -316,6 +342,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="--polish, all frames, data without masks: align with motion masks (the "
                         "pixels that differ from a background model of the fixed camera; "
                         "links that never move left out; dream masks writes them)")
+    p.add_argument("--base-frame", metavar="NAME",
+                   help="the robot base's tf frame in the written snippets (default: the URDF's "
+                        "base link)")
+    p.add_argument("--camera-frame", metavar="NAME", default=CAMERA_OPTICAL_FRAME,
+                   help="the camera's optical tf frame (x right, y down, z forward) in the "
+                        "written snippets (default: %(default)s)")
     p.add_argument("--loss", choices=("huber", "cauchy", "l2"), default="huber")
     p.add_argument("--loss-scale-px", type=float, default=RobustLoss().scale_px)
     p.add_argument("--seed", type=int, default=0, help="seed of the RANSAC sampling")

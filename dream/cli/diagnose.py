@@ -11,6 +11,7 @@ import numpy as np
 
 from dream.cli.observe import observe
 from dream.cli.options import add_command, add_data_args, add_model_source, read_data, request_from
+from dream.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -44,11 +45,17 @@ def run_diagnose(request: DiagnoseRequest) -> dict:
     check_output_folder(request.out)  # before the analysis, which takes a while
     seq = read_data(request.data, request.intrinsics, request.robot,
                     request.override_intrinsics)
-    robot, obs, _ = observe(seq, request.robot, request.model, request.use_labels, sys.stdout,
-                            threads=request.threads, batch=request.batch)
     effects = request.effect_names()
     settings = DiagnoseSettings(**({"effects": effects} if effects else {}),
                                 folds=request.folds)
+    if len(seq) <= settings.folds:
+        raise InputError(f"{len(seq)} frame(s) are too few to diagnose: each of the "
+                         f"{settings.folds} cross-validation folds needs frames to fit and "
+                         "others to predict", request.data,
+                         f"record more than {settings.folds} frames (20 or more give a useful "
+                         "diagnosis), or lower --folds")
+    robot, obs, _ = observe(seq, request.robot, request.model, request.use_labels, sys.stdout,
+                            threads=request.threads, batch=request.batch)
     doc = run_diagnosis(seq, robot, obs, request.out, settings,
                         progress=lambda message: print(message, file=sys.stderr))
     _print_diagnosis(doc, request.out)

@@ -261,8 +261,9 @@ def test_calibrate_writes_its_files_and_overlays_all_or_none(imaged, afile, tmp_
     code, _, err = run(["calibrate", "--data", imaged, "--use-labels", "--overlays",
                         tmp_path / "ov", "--out", tmp_path / "r.json"], capsys)
     assert code == 0, err
-    assert leftovers(tmp_path) == ["afile", "half.ros.txt", "ov", "r.T_base_cam.txt", "r.json",
-                                   "r.ros.txt"]
+    assert leftovers(tmp_path) == ["afile", "half.ros.txt", "ov", "r.T_base_cam.txt",
+                                   "r.handeye.yaml", "r.json", "r.launch.py", "r.ros.txt",
+                                   "r.urdf.xml"]
     assert len(list((tmp_path / "ov").glob("*.result.png"))) == FRAMES
     assert (tmp_path / "ov" / "summary.png").is_file()
 

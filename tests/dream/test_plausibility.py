@@ -179,3 +179,11 @@ def test_eval_refuses_a_result_of_other_data(labels, tmp_path, capsys):
     result.write_text(json.dumps(doc))
     assert main(["eval", "--data", str(other), "--result", str(result), "--out",
                  str(metrics)]) == 0
+
+
+def test_diagnose_of_too_few_frames_says_so(tmp_path, capsys):
+    one = tmp_path / "one"
+    assert main(["sample", "--out", str(one), "--num", "1"]) == 0
+    line = refused(["diagnose", "--data", one, "--use-labels", "--out", tmp_path / "d"], capsys)
+    assert "too few to diagnose" in line and "more than 5 frames" in line
+    assert not (tmp_path / "d").exists()
