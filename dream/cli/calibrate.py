@@ -22,6 +22,7 @@ from dream.cli.observe import observe
 from dream.cli.options import (
     INTERPOLATE,
     JOINT_READINGS,
+    DataOptions,
     add_command,
     add_data_args,
     add_model_source,
@@ -39,7 +40,7 @@ REFINE_CHOICES = (AUTO, EDGES, NONE)   # --refine: what refines the keypoint ext
 
 
 @dataclass(frozen=True)
-class CalibrateRequest:
+class CalibrateRequest(DataOptions):
     """What `dream calibrate` does: the options of its command line (`loaded_model`: the
     network of `model` already loaded, as `dream demo` does before rendering)."""
 
@@ -47,9 +48,6 @@ class CalibrateRequest:
     out: str
     model: str | None = None
     use_labels: bool = False
-    robot: str | None = None
-    intrinsics: str | None = None
-    override_intrinsics: bool = False
     frames: str = "all"
     overlays: str | None = None
     polish: bool = False
@@ -171,8 +169,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     settings = request.solver_settings()
     paths = _check_outputs(request)
     extension = _read_extension(request)
-    seq = read_data(request.data, request.intrinsics, request.robot,
-                    request.override_intrinsics)
+    seq = read_data(request)
     data_doc = data_record(seq, request.data)
     seq, readings_doc = joint_readings(seq, request.joint_readings == INTERPOLATE, out)
     refine = refine_mode(request, seq)

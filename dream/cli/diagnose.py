@@ -10,21 +10,25 @@ from pathlib import Path
 import numpy as np
 
 from dream.cli.observe import observe
-from dream.cli.options import add_command, add_data_args, add_model_source, read_data, request_from
+from dream.cli.options import (
+    DataOptions,
+    add_command,
+    add_data_args,
+    add_model_source,
+    read_data,
+    request_from,
+)
 from dream.errors import InputError
 
 
 @dataclass(frozen=True)
-class DiagnoseRequest:
+class DiagnoseRequest(DataOptions):
     """What `dream diagnose` does: the options of its command line."""
 
     data: str
     out: str
     model: str | None = None
     use_labels: bool = False
-    robot: str | None = None
-    intrinsics: str | None = None
-    override_intrinsics: bool = False
     effects: str | None = None
     folds: int = 5
     threads: int | None = None
@@ -43,8 +47,7 @@ def run_diagnose(request: DiagnoseRequest) -> dict:
     from dream.io import check_output_folder
 
     check_output_folder(request.out)  # before the analysis, which takes a while
-    seq = read_data(request.data, request.intrinsics, request.robot,
-                    request.override_intrinsics)
+    seq = read_data(request)
     effects = request.effect_names()
     settings = DiagnoseSettings(**({"effects": effects} if effects else {}),
                                 folds=request.folds)

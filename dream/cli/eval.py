@@ -7,19 +7,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dream.cli.options import add_command, add_data_args, joint_readings, read_data, request_from
+from dream.cli.options import (
+    DataOptions,
+    add_command,
+    add_data_args,
+    joint_readings,
+    read_data,
+    request_from,
+)
 
 
 @dataclass(frozen=True)
-class EvalRequest:
+class EvalRequest(DataOptions):
     """What `dream eval` does: the options of its command line."""
 
     data: str
     result: str
     out: str
-    robot: str | None = None
-    intrinsics: str | None = None
-    override_intrinsics: bool = False
 
 
 def run_eval(request: EvalRequest) -> dict:
@@ -32,8 +36,7 @@ def run_eval(request: EvalRequest) -> dict:
 
     check_output_file(request.out)
     doc = read_result(request.result)
-    seq = read_data(request.data, request.intrinsics, request.robot,
-                    request.override_intrinsics)
+    seq = read_data(request)
     check_same_data(doc, seq, request.data, request.result)
     # the joints the result was solved with: interpolated where calibrate interpolated them
     if (doc.get("joint_readings") or {}).get("interpolated"):

@@ -9,6 +9,7 @@ import numpy as np
 
 from dream.cli.options import (
     DATA_FILE_HELP,
+    DataOptions,
     add_command,
     add_intrinsics_args,
     read_data,
@@ -17,19 +18,15 @@ from dream.cli.options import (
 
 
 @dataclass(frozen=True)
-class InfoRequest:
+class InfoRequest(DataOptions):
     """What `dream info` does: the options of its command line."""
 
     data: str
-    intrinsics: str | None = None
-    override_intrinsics: bool = False
-    robot: str | None = None
 
 
 def run_info(request: InfoRequest) -> None:
     """The summary of `request.data`, printed."""
-    seq = read_data(request.data, request.intrinsics, request.robot,
-                    request.override_intrinsics)
+    seq = read_data(request)
     cam = seq.camera
     print(f"data:      {request.data} ({len(seq)} frames)")
     print(f"robot:     {seq.robot}")

@@ -12,6 +12,7 @@ import numpy as np
 
 from dream.cli.options import (
     DATA_FILE_HELP,
+    DataOptions,
     add_command,
     add_intrinsics_args,
     read_data,
@@ -22,13 +23,11 @@ PROGRESS_EVERY = 100            # frames between progress lines
 
 
 @dataclass(frozen=True)
-class MasksRequest:
+class MasksRequest(DataOptions):
     """What `dream masks` does: the options of its command line."""
 
     data: str
     out: str
-    intrinsics: str | None = None
-    override_intrinsics: bool = False
 
 
 def run_masks(request: MasksRequest, out: TextIO | None = None) -> int:
@@ -50,8 +49,7 @@ def run_masks(request: MasksRequest, out: TextIO | None = None) -> int:
 
     out = out or sys.stdout
     check_output_folder(request.out)                     # before any reading
-    seq = read_data(request.data, request.intrinsics,
-                    override_intrinsics=request.override_intrinsics)
+    seq = read_data(request)
     settings = MotionSettings()
     background = sequence_background(seq, settings)
     cover = np.zeros(len(seq))

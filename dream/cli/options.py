@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from typing import Any, TextIO, TypeVar
 
 import numpy as np
@@ -16,12 +16,13 @@ from dream.errors import InputError
 FIX_INTRINSICS = "give --intrinsics fx,fy,cx,cy or fx,fy,cx,cy,width,height (pixels)"
 INTRINSICS_HELP = ("fx,fy,cx,cy[,width,height] in pixels, for data without intrinsics (data with "
                    "its own needs --override-intrinsics as well)")
-OVERRIDE_HELP = "let --intrinsics replace the data's own intrinsics"
+OVERRIDE_HELP = "let --intrinsics or --camera-info replace the data's own camera"
 ROBOT_HELP = "built-in robot name or URDF path (default: the data's)"
 DATA_FILE_HELP = "dataset folder or .npz"
 INTERPOLATE, AS_LOGGED = "interpolate", "as-logged"
 JOINT_READINGS = (INTERPOLATE, AS_LOGGED)  # what --joint-readings does with a held joint log
 INTRINSICS_RTOL = 1e-6   # --intrinsics this close to the data's own agree with them
+INTRINSICS_ATOL = 1e-9   # (distortion coefficients: this close to zero)
 
 Request = TypeVar("Request")
 
@@ -61,41 +62,108 @@ def check_seed(seed: int | None) -> None:
                          fix="give --seed 0 or a positive integer")
 
 
-def read_data(data: str, intrinsics: str | None = None, robot: str | None = None,
-              override_intrinsics: bool = False):
-    """The `Sequence` of `--data`, with the camera of `--intrinsics` where given, its cameras
-    checked for plausibility (`dream.plausibility`). `--intrinsics` that differ from the data's
-    own are refused unless `override_intrinsics`."""
+def camera_argument(intrinsics: str | None, camera_info: str | None = None,
+                    distortion: str | None = None):
+    """The readers' `intrinsics` argument from `--intrinsics`, `--camera-info` and
+    `--distortion` (None when none is given)."""
+    if camera_info is not None:
+        if intrinsics is not None or distortion is not None:
+            raise InputError("--camera-info gives the whole camera; --intrinsics and "
+                             "--distortion would contradict it", fix="give one of them")
+        from dream.io.camera_info import read_camera_info
+
+        return read_camera_info(camera_info)
+    given = parse_intrinsics(intrinsics)
+    if distortion is None:
+        return given
+    if given is None:
+        raise InputError("--distortion goes with --intrinsics (the camera it belongs to)",
+                         fix="add --intrinsics fx,fy,cx,cy, or give --camera-info FILE")
+    coeffs = _parse_distortion(distortion)
+    if isinstance(given, CameraIntrinsics):
+        return CameraIntrinsics(given.fx, given.fy, given.cx, given.cy, given.width,
+                                given.height, coeffs)
+    return tuple(given) + coeffs
+
+
+def _parse_distortion(text: str) -> tuple[float, ...]:
+    fix = "give --distortion k1,k2,p1,p2[,k3] (OpenCV's plumb_bob order)"
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError(f"--distortion '{text}' must be comma-separated numbers",
+                         fix=fix) from None
+    if len(values) not in (4, 5) or not np.all(np.isfinite(values)):
+        raise InputError(f"--distortion '{text}' must be 4 or 5 finite numbers", fix=fix)
+    return values + (0.0,) * (5 - len(values))
+
+
+@dataclass(frozen=True, kw_only=True)
+class DataOptions:
+    """The options of the commands that read a dataset, besides `--data` itself: `--robot`,
+    the camera (`--intrinsics`, `--distortion`, `--camera-info`, `--override-intrinsics`) and a
+    ROS bag's topics. The commands' requests derive from it."""
+
+    robot: str | None = None
+    intrinsics: str | None = None
+    override_intrinsics: bool = False
+    camera_info: str | None = None
+    distortion: str | None = None
+    image_topic: str | None = None
+    joint_topic: str | None = None
+    camera_info_topic: str | None = None
+
+    def topics(self):
+        from dream.io.rosbag import BagTopics
+
+        return BagTopics(self.image_topic, self.joint_topic, self.camera_info_topic)
+
+
+def read_data(request: Any):
+    """The `Sequence` of a request's `data` under its `DataOptions`: the camera of
+    `--intrinsics` (and `--distortion`) or `--camera-info` where given, the cameras checked for
+    plausibility (`dream.plausibility`). A camera given that differs from the data's own is
+    refused unless `--override-intrinsics`."""
     from dream.io import read_sequence
     from dream.plausibility import check_sequence_cameras
 
+    data = request.data
     if not data or not data.strip():
         raise InputError("--data is empty", fix="give --data the dataset folder or file")
-    given = parse_intrinsics(intrinsics)
-    if given is not None and not override_intrinsics:
-        _refuse_conflicting_intrinsics(data, given, robot)
-    seq = read_sequence(data, intrinsics=given, robot=robot)
+    given = camera_argument(request.intrinsics, request.camera_info, request.distortion)
+    topics = request.topics()
+    if given is not None and not request.override_intrinsics:
+        _refuse_conflicting_intrinsics(data, given, request.robot, topics)
+    seq = read_sequence(data, intrinsics=given, robot=request.robot, topics=topics)
     check_sequence_cameras(seq)
     return seq
 
 
-def _refuse_conflicting_intrinsics(data: str, given, robot: str | None) -> None:
+def _refuse_conflicting_intrinsics(data: str, given, robot: str | None, topics) -> None:
     """Refuse `--intrinsics` that differ from intrinsics the data has itself."""
     from dream.io import read_sequence
 
     try:
-        own = read_sequence(data, robot=robot)
+        own = read_sequence(data, robot=robot, topics=topics)
     except InputError:  # no intrinsics of its own (or an error the real read reports)
         return
-    mine = tuple(given[:4]) if not isinstance(given, CameraIntrinsics) else \
-        (given.fx, given.fy, given.cx, given.cy)
-    theirs = (own.camera.fx, own.camera.fy, own.camera.cx, own.camera.cy)
-    if not np.allclose(mine, theirs, rtol=INTRINSICS_RTOL, atol=0.0):
-        raise InputError(f"--intrinsics {','.join(f'{v:g}' for v in mine)} differ from the "
-                         f"data's own (fx {theirs[0]:g}, fy {theirs[1]:g}, cx {theirs[2]:g}, "
-                         f"cy {theirs[3]:g})", own.source,
-                         "drop --intrinsics to use the data's camera, or add "
+    c = own.camera
+    theirs = (c.fx, c.fy, c.cx, c.cy, *(c.distortion or (0.0,) * 5))
+    if isinstance(given, CameraIntrinsics):
+        mine = (given.fx, given.fy, given.cx, given.cy, *(given.distortion or (0.0,) * 5))
+    else:
+        mine = tuple(given) + (0.0,) * (len(theirs) - len(given))
+    if not np.allclose(mine, theirs, rtol=INTRINSICS_RTOL, atol=INTRINSICS_ATOL):
+        raise InputError(f"the camera given ({_camera_text(mine)}) differs from the data's own "
+                         f"({_camera_text(theirs)})", own.source,
+                         "drop --intrinsics / --camera-info to use the data's camera, or add "
                          "--override-intrinsics to replace it")
+
+
+def _camera_text(values: tuple[float, ...]) -> str:
+    text = ", ".join(f"{k} {v:g}" for k, v in zip(("fx", "fy", "cx", "cy"), values[:4],
+                                                    strict=True))
+    return text + (f", distortion {list(values[4:])}" if any(values[4:]) else "")
 
 
 def joint_readings(seq: Any, interpolate: bool, out: TextIO | None = None
@@ -142,8 +210,21 @@ def add_data_args(p: argparse.ArgumentParser, required: bool = True) -> None:
 
 
 def add_intrinsics_args(p: argparse.ArgumentParser) -> None:
-    """`--intrinsics` and `--override-intrinsics`."""
+    """`--intrinsics`, `--distortion`, `--camera-info`, `--override-intrinsics` and a ROS
+    bag's topics."""
+    p.add_argument("--image-topic", help="ROS bag: the image topic (Image or CompressedImage; "
+                   "default: the bag's one image topic)")
+    p.add_argument("--joint-topic", help="ROS bag: the JointState topic (default: the bag's "
+                   "one); each image takes the message nearest in time")
+    p.add_argument("--camera-info-topic", help="ROS bag: the CameraInfo topic (default: the "
+                   "bag's one, if any)")
     p.add_argument("--intrinsics", help=INTRINSICS_HELP)
+    p.add_argument("--distortion", metavar="K1,K2,P1,P2[,K3]",
+                   help="plumb_bob distortion coefficients of the --intrinsics camera (OpenCV "
+                        "order)")
+    p.add_argument("--camera-info", metavar="FILE",
+                   help="the camera from a ROS CameraInfo YAML (camera_calibration's file or an "
+                        "echoed message)")
     p.add_argument("--override-intrinsics", action="store_true", help=OVERRIDE_HELP)
 
 

@@ -11,6 +11,7 @@ import numpy as np
 from dream.cli.options import (
     DATA_FILE_HELP,
     ROBOT_HELP,
+    DataOptions,
     add_command,
     add_intrinsics_args,
     read_data,
@@ -20,15 +21,12 @@ from dream.errors import InputError
 
 
 @dataclass(frozen=True)
-class OverlayRequest:
+class OverlayRequest(DataOptions):
     """What `dream overlay` does: the options of its command line."""
 
     data: str
     out: str
     extrinsic: str | None = None
-    robot: str | None = None
-    intrinsics: str | None = None
-    override_intrinsics: bool = False
     limit: int | None = None
 
     def __post_init__(self) -> None:
@@ -46,8 +44,7 @@ def run_overlay(request: OverlayRequest) -> int:
     from dream.result import read_result
 
     check_output_folder(request.out)  # before any reading or drawing
-    seq = read_data(request.data, request.intrinsics, request.robot,
-                    request.override_intrinsics)
+    seq = read_data(request)
     robot = robot_for(seq, request.robot)
     if request.extrinsic is not None:
         T = read_result(request.extrinsic)["T_cam_base"]

@@ -1,8 +1,8 @@
 """Camera intrinsics from the places the readers find them: an argument, `K.txt`, a JSON file.
 
 The `intrinsics` argument of the readers is either a full `CameraIntrinsics` or the four numbers
-(fx, fy, cx, cy) in pixels; the image size then comes from the images. A full `CameraIntrinsics`
-must have the images' size.
+(fx, fy, cx, cy) in pixels, optionally followed by the five plumb_bob coefficients; the image
+size then comes from the images. A full `CameraIntrinsics` must have the images' size.
 """
 
 from __future__ import annotations
@@ -69,11 +69,13 @@ def camera_from_argument(arg: IntrinsicsArg, width: int, height: int,
     except (TypeError, ValueError):
         raise InputError(f"intrinsics must be (fx, fy, cx, cy), got {arg!r}", where,
                          FIX_ARGUMENT) from None
-    if len(values) != len(PINHOLE_PARAMS):
-        raise InputError(f"intrinsics must be four numbers (fx, fy, cx, cy), got {len(values)}",
-                         where, FIX_ARGUMENT)
+    n = len(PINHOLE_PARAMS)
+    if len(values) not in (n, n + max(DISTORTION_SIZES)):
+        raise InputError(f"intrinsics must be four numbers (fx, fy, cx, cy), optionally with "
+                         f"five distortion coefficients, got {len(values)}", where, FIX_ARGUMENT)
+    distortion = tuple(values[n:]) or None
     with fields.errors_name(where, FIX_ARGUMENT):
-        return CameraIntrinsics(*values, width=width, height=height)
+        return CameraIntrinsics(*values[:n], width=width, height=height, distortion=distortion)
 
 
 def camera_from_K(K: np.ndarray, width: int, height: int, path: Path,

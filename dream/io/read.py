@@ -8,12 +8,15 @@ from collections.abc import Sequence as SequenceOf
 from pathlib import Path
 
 from dream.errors import InputError
+from dream.io.csv_layout import read_csv_layout
 from dream.io.detect import (
+    CSV,
     DREAM,
     FORMATS,
     FRANKA_OFFLINE,
     MANIUNICON,
     PANDA_TELEOP,
+    ROSBAG,
     detect_format,
 )
 from dream.io.dream_layout.read import read_dream
@@ -21,6 +24,7 @@ from dream.io.franka_offline import read_franka_offline
 from dream.io.intrinsics import IntrinsicsArg
 from dream.io.maniunicon import read_maniunicon
 from dream.io.panda_teleop import read_panda_teleop
+from dream.io.rosbag import BagTopics, read_rosbag
 from dream.sequence import Sequence
 
 logger = logging.getLogger(__name__)
@@ -30,13 +34,15 @@ READERS: dict[str, Callable[..., Sequence]] = {
     PANDA_TELEOP: read_panda_teleop,
     FRANKA_OFFLINE: read_franka_offline,
     MANIUNICON: read_maniunicon,
+    CSV: read_csv_layout,
+    ROSBAG: read_rosbag,
 }
 
 
 def read_sequence(path: str | Path, *, fmt: str | None = None,
                   joint_names: SequenceOf[str] | None = None,
                   intrinsics: IntrinsicsArg | None = None,
-                  robot: str | None = None) -> Sequence:
+                  robot: str | None = None, topics: BagTopics | None = None) -> Sequence:
     """Read the dataset at `path` into a `Sequence`.
 
     Args:
@@ -48,6 +54,8 @@ def read_sequence(path: str | Path, *, fmt: str | None = None,
             the images; replaces the dataset's own intrinsics (required for maniunicon without a
             side file).
         robot: robot name or URDF path; default from the data (dream) or "panda".
+        topics: the image, joint state and camera info topics of a ROS bag (default: found by
+            their message types); refused for the other layouts.
 
     Raises:
         InputError: for any missing, unreadable or malformed input, naming the file and the fix.
@@ -58,4 +66,10 @@ def read_sequence(path: str | Path, *, fmt: str | None = None,
         logger.debug("%s: detected the %s layout", path, fmt)
     elif fmt not in READERS:
         raise InputError(f"unknown format {fmt!r}", path, f"use one of {', '.join(FORMATS)}")
+    if fmt == ROSBAG:
+        return read_rosbag(path, joint_names=joint_names, intrinsics=intrinsics, robot=robot,
+                           topics=topics)
+    if topics is not None and topics != BagTopics():
+        raise InputError(f"topics are for ROS bags, and this is the {fmt} layout", path,
+                         "drop --image-topic, --joint-topic and --camera-info-topic")
     return READERS[fmt](path, joint_names=joint_names, intrinsics=intrinsics, robot=robot)

@@ -138,7 +138,7 @@ def test_intrinsics_that_differ_from_the_datas_own_need_the_override(labels, tmp
     out = tmp_path / "r.json"
     line = refused(["calibrate", "--data", labels, "--use-labels", "--intrinsics", mine,
                     "--out", out], capsys)
-    assert "differ from the data's own" in line and "--override-intrinsics" in line
+    assert "differs from the data's own" in line and "--override-intrinsics" in line
     assert not out.exists()
     same = f"{k['fx']},{k['fy']},{k['cx']},{k['cy']}"
     assert main(["calibrate", "--data", str(labels), "--use-labels", "--intrinsics", same,
