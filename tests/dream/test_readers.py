@@ -18,7 +18,7 @@ import pytest
 from dream.camera import CameraIntrinsics
 from dream.cli import BUNDLED_MODEL, main
 from dream.errors import InputError
-from dream.io import read_sequence, write_dream
+from dream.io import read_sequence
 from dream.io.camera_info import camera_info_text, read_camera_info
 from dream.io.images import load_image
 from dream.io.rosbag import BagTopics
