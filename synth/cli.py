@@ -105,8 +105,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--config", help="YAML recipe (default: configs/synth/default.yaml values)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a recipe key (repeatable), e.g. camera.radius_m=[1.0,1.5]")
-    p.add_argument("--workers", type=int, default=1, help="parallel rendering processes")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=1,
+                   help="parallel rendering processes, at most the cores (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed: each frame depends only on it and its index (default: "
+                        "%(default)s)")
     p.add_argument("--model-extension", metavar="FILE",
                    help="render the world this model extension describes (YAML of dream "
                         "diagnose: joint_offset, link_length, lens_distortion, "

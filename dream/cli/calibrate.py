@@ -313,7 +313,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "onnxruntime, no torch)")
     p.add_argument("--out", required=True, help="RESULT.json to write")
     p.add_argument("--frames", choices=("all", "each"), default="all",
-                   help="all: one extrinsic from every frame (fixed camera); each: per frame")
+                   help="all: one extrinsic from every frame (fixed camera); each: per frame "
+                        "(default: %(default)s)")
     p.add_argument("--overlays", help="folder for per-frame overlays and a summary image")
     p.add_argument("--polish", action="store_true",
                    help="refine the extrinsic (with --frames each: every frame's own pose) by "
@@ -345,9 +346,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--camera-frame", metavar="NAME", default=CAMERA_OPTICAL_FRAME,
                    help="the camera's optical tf frame (x right, y down, z forward) in the "
                         "written snippets (default: %(default)s)")
-    p.add_argument("--loss", choices=("huber", "cauchy", "l2"), default="huber")
-    p.add_argument("--loss-scale-px", type=float, default=RobustLoss().scale_px)
-    p.add_argument("--seed", type=int, default=0, help="seed of the RANSAC sampling")
+    p.add_argument("--loss", choices=("huber", "cauchy", "l2"), default="huber",
+                   help="robust loss of the keypoint fit (default: %(default)s)")
+    p.add_argument("--loss-scale-px", type=float, default=RobustLoss().scale_px,
+                   help="where the robust loss turns from quadratic, pixels (default: "
+                        "%(default)s)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the RANSAC sampling (default: %(default)s)")
     p.add_argument("--threads", type=int, default=None,
                    help="--model: onnxruntime threads (default: every core)")
     p.add_argument("--batch", type=int, default=None,

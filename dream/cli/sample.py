@@ -56,10 +56,13 @@ def cmd_sample(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     """The `dream sample` parser."""
     p = add_command(sub, "sample", cmd_sample, "write the built-in keypoint-only synthetic sample")
-    p.add_argument("--out", required=True)
-    p.add_argument("--robot", default="panda")
-    p.add_argument("--num", type=int, default=20, help="frames")
-    p.add_argument("--noise-px", type=float, default=1.0)
-    p.add_argument("--outliers", type=float, default=0.0, help="fraction of random labels")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--out", required=True, help="dataset folder to write (DREAM layout)")
+    p.add_argument("--robot", default="panda",
+                   help="built-in robot name or URDF path (default: %(default)s)")
+    p.add_argument("--num", type=int, default=20, help="frames (default: %(default)s)")
+    p.add_argument("--noise-px", type=float, default=1.0,
+                   help="Gaussian noise of the 2D labels, pixels (default: %(default)s)")
+    p.add_argument("--outliers", type=float, default=0.0,
+                   help="fraction of random labels (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")

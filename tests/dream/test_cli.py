@@ -226,3 +226,21 @@ def test_requests_check_their_options_and_run_without_a_command_line(sample_dir,
     doc = run_calibrate(defaults)
     assert "reprojection RMSE" in capsys.readouterr().out
     assert np.allclose(json.loads(Path(out).read_text())["T_cam_base"], doc["T_cam_base"])
+
+
+def test_every_option_says_what_it_does_and_its_default():
+    """`--help` of every command explains each option and shows its default where it has one."""
+    import argparse
+
+    from dream.cli.app import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    silent = []
+    for name, parser in sub.choices.items():
+        for action in parser._actions:
+            if isinstance(action, argparse._HelpAction) or action.help == argparse.SUPPRESS:
+                continue
+            has_default = action.default not in (None, False, [])
+            if not action.help or (has_default and "default" not in action.help):
+                silent.append(f"{name} {'/'.join(action.option_strings) or action.dest}")
+    assert not silent, silent
