@@ -187,7 +187,8 @@ def detect_keypoints(sequence: Sequence, robot: Robot, model: KeypointModel,
         robot: the sequence's robot; its keypoints are replaced by the model's.
         model: a `KeypointModel` (e.g. `load_keypoint_model("model.onnx")`).
         batch_size: images per `model.run` call.
-        peak_params: the peak finder's constants (default `PeakSettings()`).
+        peak_params: the peak finder's constants (default: the model's own, `peak_params` of
+            an exported model's metadata, else `PeakSettings()`).
         progress: called as `progress(frames_done, frames_total)` after every batch.
 
     Returns:
@@ -195,7 +196,7 @@ def detect_keypoints(sequence: Sequence, robot: Robot, model: KeypointModel,
         peak value (0 where not found) and P_base from the robot's forward kinematics.
     """
     settings = DetectionSettings(batch_size, peak_params)
-    params = settings.peak_params or PeakSettings()
+    params = settings.peak_params or getattr(model, "peak_params", None) or PeakSettings()
     robot = robot_for_model(robot, model)
     check_images(sequence)
     stride = int(model.stride)

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from dream.camera import CameraIntrinsics
-from dream.detection import predict_masks
+from dream.detection import detect_keypoints, predict_masks
 from dream.errors import InputError
+from dream.peaks import PeakSettings
 from dream.polish import check_polish_input
 from dream.preprocess import Preprocess
 from dream.sequence import Frame, Sequence
@@ -76,3 +77,28 @@ def test_model_without_mask_head_is_refused(tmp_path):
 
     with pytest.raises(InputError, match="mask head"):
         predict_masks(_sequence(tmp_path), NoMask(), [0])
+
+
+class WeakPeakModel(BoxMaskModel):
+    """One weak belief peak (0.2): found under the default threshold (0.1), not under the
+    model's own (0.3)."""
+
+    peak_params = PeakSettings(threshold=0.3)
+
+    def run(self, batch: np.ndarray) -> dict[str, np.ndarray]:
+        out = super().run(batch)
+        belief = np.zeros_like(out["belief"])
+        belief[:, 0, 22:27, 30:35] = 0.2
+        return {**out, "belief": belief}
+
+
+def test_detection_takes_the_models_own_peak_constants(tmp_path):
+    """`dream.detect` (the Python API) finds what `dream calibrate --model` finds: the peak
+    finder runs with the model's constants unless others are given."""
+    import dream
+
+    seq = _sequence(tmp_path)
+    robot = dream.load_robot("panda")
+    assert not dream.detect(seq, robot, WeakPeakModel()).found.any()
+    found = detect_keypoints(seq, robot, WeakPeakModel(), peak_params=PeakSettings())
+    assert found.found.all()

@@ -13,7 +13,7 @@ import pytest
 
 import dream.plausibility
 from dream.camera import CameraIntrinsics
-from dream.cli import main
+from dream.cli import BUNDLED_MODEL, main
 from dream.errors import InputError
 from dream.plausibility import check_camera, check_joint_readings
 from dream.robot import load_robot
@@ -187,3 +187,20 @@ def test_diagnose_of_too_few_frames_says_so(tmp_path, capsys):
     line = refused(["diagnose", "--data", one, "--use-labels", "--out", tmp_path / "d"], capsys)
     assert "too few to diagnose" in line and "more than 5 frames" in line
     assert not (tmp_path / "d").exists()
+
+
+def test_franka_offline_in_degrees_names_the_unit_not_collinear_keypoints(realdata, tmp_path,
+                                                                          capsys):
+    source = realdata / "franka_offline"
+    data = tmp_path / "deg"
+    data.mkdir()
+    for entry in source.iterdir():
+        if entry.name != "qpos":
+            (data / entry.name).symlink_to(entry)
+    (data / "qpos").mkdir()
+    for path in (source / "qpos").iterdir():
+        values = np.loadtxt(path)
+        np.savetxt(data / "qpos" / path.name, np.rad2deg(values))
+    line = refused(["calibrate", "--data", data, "--model", BUNDLED_MODEL, "--out",
+                    tmp_path / "r.json"], capsys)
+    assert "are these degrees?" in line and "collinear" not in line
