@@ -100,6 +100,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--effects", help="comma-separated effects to test (default: all of "
                    "joint_offset, lens_distortion, intrinsics_error, time_offset, link_length, "
                    "camera_moved, keypoint_bias)")
-    p.add_argument("--folds", type=int, default=5, help="cross-validation folds over frames (default: %(default)s)")
+    p.add_argument("--folds", type=int, default=5,
+                   help="cross-validation folds over frames (default: %(default)s)")
     p.add_argument("--threads", type=int, default=None, help=argparse.SUPPRESS)
     p.add_argument("--batch", type=int, default=None, help=argparse.SUPPRESS)
