@@ -2,13 +2,18 @@
 
 Each trial draws a keypoint-only measured-like sequence (`dream.inject`: a fixed camera, a
 smooth random arm trajectory, 1-2 px label noise) with one hidden effect of the catalog (random
-magnitude in a realistic range, `random_effects`), two effects together, or none, runs the
+magnitude in a realistic range, `random_effects`), held readings with a time offset, two
+effects together, or none, runs the
 diagnosis (labels as observations) and scores it (`dream.diagnosis.score`): identified = the
 verdict names the hidden effects and recovers their parameters within 10 % or 3 stated sigmas;
 exact = that, and nothing else in the verdict. Null trials must give an empty verdict.
 
+A trial with held readings films at 30 frames/s (a joint log of 3-10 Hz against the camera)
+for as long as the others (`--frames` at 10 frames/s).
+
     python benchmarks/diagnose_identification.py [--trials-per-effect 12] [--null-trials 16]
-        [--pair-trials 8] [--seed 0] [--frames 100] [--workers 2] [--json OUT.json]
+        [--pair-trials 8] [--seed 0] [--frames 100] [--workers 2] [--only EFFECT,...]
+        [--json OUT.json]
 """
 
 from __future__ import annotations
@@ -32,13 +37,18 @@ from dream.pipeline import observations_from_labels, robot_for
 from dream.robot import load_robot
 
 NOISE_RANGE_PX = (1.0, 2.0)
+HELD_FRAME_PERIOD_S = 1 / 30   # the camera of a trial with held readings
+BASE_FRAME_PERIOD_S = 0.1      # the other trials' (InjectionSettings' default)
+HELD_WITH_OFFSET = ("held_readings", "time_offset")
 
 
 def run_trial(effects: tuple[str, ...], seed: int, frames: int) -> dict:
     """One seeded trial: hidden `effects` (may be empty) -> scored diagnosis."""
     rng = np.random.default_rng(seed)
-    spec = InjectionSettings(num_frames=frames, pixel_noise_px=float(rng.uniform(*NOISE_RANGE_PX)),
-                             seed=seed)
+    period = HELD_FRAME_PERIOD_S if "held_readings" in effects else BASE_FRAME_PERIOD_S
+    spec = InjectionSettings(num_frames=round(frames * BASE_FRAME_PERIOD_S / period),
+                             frame_period_s=period,
+                             pixel_noise_px=float(rng.uniform(*NOISE_RANGE_PX)), seed=seed)
     robot = load_robot(spec.robot)
     truth = random_effects(list(effects), rng, robot, spec) if effects else ModelExtension()
     seq = make_injected_sequence(spec, truth)
@@ -60,18 +70,22 @@ def run_trial(effects: tuple[str, ...], seed: int, frames: int) -> dict:
 def trials(args: argparse.Namespace) -> list[tuple[tuple[str, ...], int]]:
     out = []
     seed = args.seed * 100_000
-    for effect in EFFECT_NAMES:
+    only = tuple(args.only.split(",")) if args.only else None
+    for effects in [(e,) for e in EFFECT_NAMES] + [HELD_WITH_OFFSET]:
         for _ in range(args.trials_per_effect):
             seed += 1
-            out.append(((effect,), seed))
+            if only is None or set(effects) <= set(only):
+                out.append((effects, seed))
     rng = np.random.default_rng(args.seed)
     for _ in range(args.pair_trials):
         seed += 1
         pair = tuple(rng.choice(EFFECT_NAMES, 2, replace=False).tolist())
-        out.append((pair, seed))
+        if only is None:
+            out.append((pair, seed))
     for _ in range(args.null_trials):
         seed += 1
-        out.append(((), seed))
+        if only is None:
+            out.append(((), seed))
     return out
 
 
@@ -83,6 +97,8 @@ def main() -> int:
     parser.add_argument("--frames", type=int, default=100)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--only", help="comma-separated effects: only the trials hiding these "
+                        "(no pairs, no null trials)")
     parser.add_argument("--json", type=Path, help="write every trial here")
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
@@ -107,7 +123,8 @@ def main() -> int:
     groups: dict[str, list[dict]] = {}
     for r in results:
         key = ("pair: " if len(r["hidden"]) == 2 else "") + (",".join(r["hidden"]) or "none")
-        key = "pairs" if len(r["hidden"]) == 2 else key
+        key = "pairs" if len(r["hidden"]) == 2 and tuple(r["hidden"]) != HELD_WITH_OFFSET \
+            else key
         groups.setdefault(key, []).append(r)
     for key, rs in groups.items():
         n = len(rs)

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dream.extension import distinct_readings, interpolate_joints
+from dream.extended import distinct_readings, interpolate_joints
 from dream.io import load_image, read_sequence
 
 LAG_STEP_S = 0.01

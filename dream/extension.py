@@ -13,6 +13,12 @@ camera with the data's intrinsics. An extension corrects it where the real syste
 - `camera_moved`: from frame `frame` on, T_cam_base(after) = dT @ T_cam_base(before), dT the
   rotation vector `rotation_rad` and translation `translation_m` in the camera frame.
 - `keypoint_bias`: the keypoint is not its link's origin but this point of the link frame (m).
+- `held_readings`: the joint log updates every `period_s` (slower than the camera) and repeats
+  its last reading in between; the arm's state at an image is interpolated in time between the
+  updates (`dream.readings.interpolated_joints`). `joints` names the held joints (empty: all);
+  `phase_s` (within half a frame interval) is when the updates were sampled relative to the
+  middle of the frame interval in which they first appear, as `time_offset` counts. With
+  `time_offset` as well, the updates also lag the images by its seconds.
 
 A `ModelExtension` reads and writes a small YAML file (`dream diagnose` writes it;
 `dream calibrate --model-extension` and `dream synth --model-extension` read it). Applying an
@@ -31,13 +37,11 @@ from typing import Any
 import numpy as np
 import yaml
 
-from dream.camera import CameraIntrinsics
 from dream.errors import InputError
-from dream.robot import Robot
 from dream.transforms import T_from_rotvec_t
 
 EFFECT_NAMES = ("joint_offset", "lens_distortion", "intrinsics_error", "time_offset",
-                "link_length", "camera_moved", "keypoint_bias")
+                "link_length", "camera_moved", "keypoint_bias", "held_readings")
 DISTORTION_NAMES = ("k1", "k2", "p1", "p2")
 INTRINSIC_NAMES = ("fx", "fy", "cx", "cy")
 FORMAT = "dream-model-extension"
@@ -97,6 +101,28 @@ class CameraMove:
 
 
 @dataclass(frozen=True)
+class HeldReadings:
+    """A joint log that updates every `period_s` and repeats its last reading in between;
+    `joints`: the held joints (empty: all); `phase_s`: the updates' sampling phase (module
+    doc)."""
+
+    period_s: float
+    joints: tuple[str, ...] = ()
+    phase_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "phase_s", _finite(self.phase_s, "held_readings.phase_s"))
+        period = _finite(self.period_s, "held_readings.period_s")
+        if period <= 0:
+            raise InputError(f"held_readings.period_s must be > 0, got {period}")
+        object.__setattr__(self, "period_s", period)
+        if isinstance(self.joints, str) or not all(isinstance(j, str) for j in self.joints):
+            raise InputError(f"held_readings.joints must be a list of joint names, got "
+                             f"{self.joints!r}")
+        object.__setattr__(self, "joints", tuple(self.joints))
+
+
+@dataclass(frozen=True)
 class ModelExtension:
     """Corrections of the nominal robot and camera model (all optional; empty = nominal).
 
@@ -108,6 +134,7 @@ class ModelExtension:
         intrinsics: corrected (fx, fy, cx, cy), pixels, or None.
         time_offset_s: joint readings lag the images by this, s (None: not modelled).
         camera_moved: the camera's move during the sequence, or None.
+        held_readings: the joint log's updates, or None (readings as logged).
         robot: the robot the extension was fitted for (informative; checked when given).
     """
 
@@ -118,6 +145,7 @@ class ModelExtension:
     intrinsics: tuple[float, float, float, float] | None = None
     time_offset_s: float | None = None
     camera_moved: CameraMove | None = None
+    held_readings: HeldReadings | None = None
     robot: str | None = None
 
     def __post_init__(self) -> None:
@@ -145,6 +173,8 @@ class ModelExtension:
                                                               "time_offset.seconds"))
         if self.camera_moved is not None and not isinstance(self.camera_moved, CameraMove):
             raise InputError("camera_moved must be a CameraMove")
+        if self.held_readings is not None and not isinstance(self.held_readings, HeldReadings):
+            raise InputError("held_readings must be a HeldReadings")
 
     # ----- what it holds ------------------------------------------------------------------
 
@@ -159,6 +189,7 @@ class ModelExtension:
             "link_length": bool(self.link_length_m),
             "camera_moved": self.camera_moved is not None,
             "keypoint_bias": bool(self.keypoint_bias_m),
+            "held_readings": self.held_readings is not None,
         }
         return tuple(n for n in EFFECT_NAMES if present[n])
 
@@ -179,6 +210,8 @@ class ModelExtension:
             else self.time_offset_s,
             camera_moved=other.camera_moved if other.camera_moved is not None
             else self.camera_moved,
+            held_readings=other.held_readings if other.held_readings is not None
+            else self.held_readings,
             robot=self.robot or other.robot)
 
     # ----- effect parameters in the extended_model.yaml vocabulary -------------------------
@@ -207,6 +240,11 @@ class ModelExtension:
                     "translation_m": list(move.translation_m),
                     "rotation_angle_rad": move.rotation_angle_rad,
                     "camera_displacement_m": move.camera_displacement_m}
+        if name == "held_readings":
+            held = self.held_readings
+            return {} if held is None else {"period_s": held.period_s,
+                                            "joints": list(held.joints),
+                                            "phase_s": held.phase_s}
         raise InputError(f"unknown effect '{name}'", fix=f"use one of {', '.join(EFFECT_NAMES)}")
 
     def to_dict(self) -> dict[str, Any]:
@@ -226,6 +264,7 @@ EFFECT_KEYS: dict[str, tuple[str, ...]] = {
     "time_offset": ("seconds",),
     "camera_moved": ("frame", "rotation_rad", "translation_m", "rotation_angle_rad",
                      "camera_displacement_m"),
+    "held_readings": ("period_s", "joints", "phase_s"),
 }
 FILE_KEYS = ("format", "version", "robot", "effects")
 
@@ -276,6 +315,12 @@ def extension_from_effects(effects: Mapping[str, Mapping[str, Any]],
             kwargs["camera_moved"] = CameraMove(str(params["frame"]),
                                                 params.get("rotation_rad", (0.0, 0.0, 0.0)),
                                                 params.get("translation_m", (0.0, 0.0, 0.0)))
+        elif name == "held_readings":
+            if "period_s" not in params:
+                raise InputError("held_readings needs 'period_s' (the time between updates)")
+            kwargs["held_readings"] = HeldReadings(params["period_s"],
+                                                   tuple(params.get("joints") or ()),
+                                                   params.get("phase_s", 0.0))
     return ModelExtension(**kwargs)
 
 
@@ -317,122 +362,3 @@ def extension_yaml(extension: ModelExtension) -> str:
               "and camera.\n# Read by: dream calibrate --model-extension FILE, dream synth "
               "--model-extension FILE.\n# Units: metres, radians, seconds, pixels.\n")
     return header + yaml.safe_dump(extension.to_dict(), sort_keys=False)
-
-
-# ----- applying an extension (pure) ----------------------------------------------------------
-
-def extended_camera(camera: CameraIntrinsics, extension: ModelExtension) -> CameraIntrinsics:
-    """The camera with corrected intrinsics and distortion (others kept)."""
-    fx, fy, cx, cy = extension.intrinsics or (camera.fx, camera.fy, camera.cx, camera.cy)
-    distortion = camera.distortion
-    if extension.distortion is not None:
-        k3 = camera.distortion[4] if camera.distortion else 0.0
-        distortion = tuple(extension.distortion) + (k3,)
-    return CameraIntrinsics(fx, fy, cx, cy, camera.width, camera.height, distortion)
-
-
-def extended_robot(robot: Robot, extension: ModelExtension) -> Robot:
-    """The robot with the link length changes applied (unknown joint -> RobotError)."""
-    if extension.robot and extension.robot != robot.name:
-        raise InputError(f"the model extension was fitted for robot '{extension.robot}', not "
-                         f"'{robot.name}'", fix="use the extension of this robot")
-    return robot.with_link_length_changes(extension.link_length_m) \
-        if extension.link_length_m else robot
-
-
-def joint_offset_vector(robot: Robot, offsets: Mapping[str, float]) -> np.ndarray:
-    """(J,) offsets in the robot's joint order from joint name -> offset."""
-    out = np.zeros(robot.num_joints)
-    for name, value in offsets.items():
-        if name not in robot.joint_names:
-            raise InputError(f"joint offset for unknown joint '{name}'",
-                             fix=f"use joints of {robot.name}: {', '.join(robot.joint_names)}")
-        out[robot.joint_names.index(name)] = value
-    return out
-
-
-def distinct_readings(times_s: np.ndarray, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The readings at which the joint vector changed (a logger that repeats the last reading
-    between updates writes stale copies: the time of a reading is when its value appeared).
-
-    Args:
-        times_s: (F,) increasing times; joints: (F, J).
-    Returns:
-        (times (M,), joints (M, J)) with M >= 1.
-    """
-    times_s = np.asarray(times_s, dtype=float)
-    joints = np.asarray(joints, dtype=float)
-    if times_s.ndim != 1 or joints.shape[:1] != times_s.shape:
-        raise InputError(f"times {times_s.shape} and joints {joints.shape} do not match")
-    keep = np.ones(len(times_s), bool)
-    keep[1:] = np.any(joints[1:] != joints[:-1], axis=1)
-    return times_s[keep], joints[keep]
-
-
-def interpolate_joints(times_s: np.ndarray, joints: np.ndarray,
-                       query_s: np.ndarray) -> np.ndarray:
-    """Joint readings (M,) / (M, J) interpolated at `query_s` (Q,): shape-preserving cubic
-    (PCHIP) between readings, held constant outside them. Returns (Q, J)."""
-    from scipy.interpolate import PchipInterpolator
-
-    times_s = np.asarray(times_s, dtype=float)
-    joints = np.asarray(joints, dtype=float)
-    query = np.clip(np.asarray(query_s, dtype=float), times_s[0], times_s[-1])
-    if len(times_s) == 1:
-        return np.broadcast_to(joints[0], (len(query), joints.shape[1])).copy()
-    if np.any(np.diff(times_s) <= 0):
-        raise InputError("joint reading times must increase strictly",
-                         fix="sort frames by timestamp")
-    return PchipInterpolator(times_s, joints, axis=0, extrapolate=False)(query)
-
-
-def effective_joints(joints: np.ndarray, times_s: np.ndarray | None,
-                     time_offset_s: float | None) -> np.ndarray:
-    """(F, J) joint values at the image times: the readings shifted by the time offset."""
-    joints = np.asarray(joints, dtype=float)
-    if time_offset_s is None:  # not modelled: the readings as logged
-        return joints  # (a modelled offset of 0 still interpolates: one model for every value)
-    if times_s is None:
-        raise InputError("a time offset needs frame timestamps",
-                         fix="give data with timestamps or drop the time_offset effect")
-    t, q = distinct_readings(times_s, joints)
-    return interpolate_joints(t, q, np.asarray(times_s, dtype=float) + time_offset_s)
-
-
-def keypoint_points(robot: Robot, joints: np.ndarray, joint_offsets: np.ndarray | None,
-                    keypoint_bias_m: Mapping[str, Any]) -> np.ndarray:
-    """(F, K, 3) keypoints in the base frame: link origins, or biased points of the links."""
-    if not keypoint_bias_m:
-        return robot.forward_kinematics(joints, joint_offsets)
-    for name in keypoint_bias_m:
-        if name not in robot.keypoint_names:
-            raise InputError(f"keypoint bias for unknown keypoint '{name}'",
-                             fix=f"use keypoints of {robot.name}: "
-                                 f"{', '.join(robot.keypoint_names)}")
-    T = robot.link_poses(joints, robot.keypoint_names, joint_offsets)
-    bias = np.array([keypoint_bias_m.get(k, (0.0, 0.0, 0.0)) for k in robot.keypoint_names],
-                    dtype=float)
-    return np.einsum("...kij,kj->...ki", T[..., :3, :3], bias) + T[..., :3, 3]
-
-
-def frames_after_move(frame_names: tuple[str, ...], extension: ModelExtension) -> np.ndarray:
-    """(F,) bool: frames at or after the camera move (all False without one)."""
-    after = np.zeros(len(frame_names), bool)
-    if extension.camera_moved is None:
-        return after
-    if extension.camera_moved.frame not in frame_names:
-        raise InputError(f"camera_moved names frame '{extension.camera_moved.frame}', which "
-                         f"the data does not have", fix="use the extension of this data")
-    after[frame_names.index(extension.camera_moved.frame):] = True
-    return after
-
-
-def extended_points(robot: Robot, joints: np.ndarray, times_s: np.ndarray | None,
-                    extension: ModelExtension) -> np.ndarray:
-    """(F, K, 3) keypoints in the base frame under the extension's kinematic effects
-    (time offset, joint offsets, link lengths, keypoint bias)."""
-    robot_x = extended_robot(robot, extension)
-    q = effective_joints(joints, times_s, extension.time_offset_s)
-    offsets = joint_offset_vector(robot_x, extension.joint_offset_rad) \
-        if extension.joint_offset_rad else None
-    return keypoint_points(robot_x, q, offsets, extension.keypoint_bias_m)

@@ -157,6 +157,18 @@ def with_interpolated_readings(sequence: Sequence, settings: HeldReadingsSetting
     return dataclasses.replace(sequence, frames=frames), updates
 
 
+UPDATE_TIME_TOLERANCE = 1e-9   # of a period
+
+
+def held_update_times(times_s: np.ndarray, period_s: float, phase_s: float) -> np.ndarray:
+    """(F,) the time of the last update at or before each image time, for a log that updates
+    every `period_s`, the first update `phase_s` before the first image."""
+    times_s = np.asarray(times_s, dtype=float)
+    first = times_s[0] - phase_s
+    # an update that falls on an image time shows in that image (rounding aside)
+    return first + np.floor((times_s - first) / period_s + UPDATE_TIME_TOLERANCE) * period_s
+
+
 def held_log(sequence: Sequence, hold_frames: int, rng: np.random.Generator) -> Sequence:
     """The sequence as a log that updates every `hold_frames` frames records it (a simulation
     of a held log, for tests and benchmarks): each reading is sampled from the frames' joints,

@@ -25,14 +25,10 @@ import numpy as np
 
 from dream.camera import CameraIntrinsics
 from dream.errors import InputError, RobotError
-from dream.extension import (
-    ModelExtension,
-    extended_camera,
-    extended_robot,
-    joint_offset_vector,
-    keypoint_points,
-)
+from dream.extended import extended_camera, extended_robot, joint_offset_vector, keypoint_points
+from dream.extension import ModelExtension
 from dream.io.common import FRAME_DIGITS, frame_name
+from dream.readings import held_update_times
 from dream.robot import Robot
 from dream.transforms import transform_points
 from synth.config import SynthConfig
@@ -91,6 +87,14 @@ def check_extension(extension: ModelExtension, robot: Robot, config: SynthConfig
     if extension.time_offset_s and mode != "trajectory":
         raise InputError(f"time_offset needs sequence.mode trajectory, not '{mode}'",
                          fix=f"set sequence.mode=trajectory, or {KEYPOINT_ONLY_HINT}")
+    if extension.held_readings is not None:
+        if mode != "trajectory":
+            raise InputError(f"held_readings needs sequence.mode trajectory, not '{mode}'",
+                             fix=f"set sequence.mode=trajectory, or {KEYPOINT_ONLY_HINT}")
+        unknown = [j for j in extension.held_readings.joints if j not in robot.joint_names]
+        if unknown:
+            raise InputError(f"held_readings names unknown joints {', '.join(unknown)}",
+                             fix=f"use joints of {robot.name}: {', '.join(robot.joint_names)}")
     index = move_index(extension)
     if index is not None:
         if mode == "random":
@@ -130,3 +134,14 @@ def true_keypoints_cam(true_robot: Robot, q_true: np.ndarray, T_cam_base: np.nda
         raise InputError(f"q_true must be (J,), got shape {q_true.shape}")
     bias = {} if extension is None else extension.keypoint_bias_m
     return transform_points(T_cam_base, keypoint_points(true_robot, q_true, None, bias))
+
+
+def held_reading_time(timestamp: float, extension: ModelExtension | None) -> float:
+    """When the reading written with the frame at `timestamp` was sampled: the last update of
+    the held log at or before it (updates every `period_s` from time 0, shifted by the
+    extension's sampling phase); the frame's own time without held readings."""
+    held = None if extension is None else extension.held_readings
+    if held is None:
+        return timestamp
+    return float(held_update_times(np.array([0.0, timestamp]), held.period_s, 0.0)[1]
+                 - held.phase_s)

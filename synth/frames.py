@@ -11,11 +11,18 @@ import logging
 
 import numpy as np
 
-from dream.extension import ModelExtension, extended_robot, joint_offset_vector
+from dream.extended import extended_robot, joint_offset_vector
+from dream.extension import ModelExtension
 from dream.robot import Robot, load_robot
 from dream.transforms import R_from_quaternion_xyzw, invert_T, quaternion_xyzw_from_R
 from synth.config import SynthConfig
-from synth.extension import normalised, true_camera, true_keypoints_cam, true_pose
+from synth.extension import (
+    held_reading_time,
+    normalised,
+    true_camera,
+    true_keypoints_cam,
+    true_pose,
+)
 from synth.gl import mujoco
 from synth.labels import keypoint_labels
 from synth.nominal import nominal_camera
@@ -252,9 +259,18 @@ class FrameMaker:
             return p, p.joints, p.joints
         T_true = true_pose(p.scene.T_cam_base, p.index, self.extension)
         readings = p.joints
-        if self.extension.time_offset_s:  # the readings lag the images (trajectory mode)
-            readings = trajectory_joints_at(self.seed, p.timestamp - self.extension.time_offset_s,
-                                            self.robot, self.config, self.joint_log)
+        tau = self.extension.time_offset_s or 0.0
+        held = self.extension.held_readings
+        if tau or held is not None:  # the readings lag the images, or are held (trajectory)
+            readings = trajectory_joints_at(self.seed, p.timestamp - tau, self.robot,
+                                            self.config, self.joint_log)
+        if held is not None:
+            sampled = trajectory_joints_at(
+                self.seed, held_reading_time(p.timestamp, self.extension) - tau, self.robot,
+                self.config, self.joint_log)
+            columns = [self.robot.joint_names.index(j) for j in held.joints] or slice(None)
+            readings = readings.copy()
+            readings[columns] = sampled[columns]
         p = dataclasses.replace(p, scene=dataclasses.replace(p.scene, T_cam_base=T_true))
         return p, p.joints + self.joint_offsets, readings
 

@@ -10,6 +10,7 @@ accepted effects, read by `dream calibrate --model-extension` and `dream synth
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from pathlib import Path
 from typing import Any
@@ -18,15 +19,16 @@ import numpy as np
 
 from dream.calibration import Observations, calibrate_all
 from dream.diagnosis.fit import FitResult, Problem
+from dream.diagnosis.held import (
+    corrected_problem,
+    fold_sampling_phase,
+    held_entry,
+    held_readings_in,
+)
 from dream.diagnosis.select import DiagnoseSettings, Diagnosis, Verdict, diagnose
 from dream.errors import InputError
-from dream.extension import (
-    ModelExtension,
-    extended_camera,
-    extended_robot,
-    extension_yaml,
-    joint_offset_vector,
-)
+from dream.extended import extended_camera, extended_robot, joint_offset_vector
+from dream.extension import ModelExtension, extension_yaml
 from dream.io.atomic import check_output_folder, dumps, staged_directory, write_bytes_atomic
 from dream.metrics import add_per_frame, pose_errors
 from dream.pipeline import joints_in_robot_order, truth_poses
@@ -131,7 +133,8 @@ def _truth(sequence: Sequence, diagnosis: Diagnosis) -> dict[str, Any] | None:
     if not has.any():
         return None
     out: dict[str, Any] = {"frames_with_truth": int(has.sum())}
-    for label, fit in (("before", diagnosis.baseline.fit), ("after", diagnosis.final.fit)):
+    before = diagnosis.baseline_as_logged or diagnosis.baseline
+    for label, fit in (("before", before.fit), ("after", diagnosis.final.fit)):
         T_est = fit.model.poses(fit.x)
         t_err, r_err = pose_errors(T_est[has], T_true[has])
         P = fit.model.points(fit.x)[has]
@@ -243,9 +246,46 @@ def diagnose_sequence(sequence: Sequence, robot: Robot, obs: Observations,
     camera = sequence.fixed_camera("diagnose a sequence recorded by one camera")
     problem = problem_from(sequence, robot, obs)
     start = calibrate_all(obs, camera)
+    held = held_readings_in(problem)
+    logged = problem
+    if held is not None:  # found in the data: the search runs on the interpolated readings
+        problem = corrected_problem(problem, held)
     diagnosis = diagnose(problem, start.fit.T_cam_base, settings, progress)
+    if held is not None:
+        diagnosis = _with_held_readings(diagnosis, logged, held, settings)
     doc = diagnosis_document(sequence, diagnosis, extension_path or Path(EXTENSION_FILE))
+    if held is not None:
+        as_logged = diagnosis.baseline_as_logged
+        interval = float(np.median(np.diff(logged.times_s)))
+        doc["frame_interval_s"] = interval
+        folded = fold_sampling_phase(doc, held, interval)
+        if folded is not held:  # the time offset became the held readings' phase
+            ext = dataclasses.replace(diagnosis.extension, time_offset_s=None,
+                                      held_readings=folded)
+            diagnosis = dataclasses.replace(diagnosis, extension=ext)
+            held = folded
+        doc["verdict"].insert(0, "held_readings")
+        doc["effects"].insert(0, held_entry(logged, held, as_logged.heldout_rmse_px,
+                                            diagnosis.baseline.heldout_rmse_px))
+        doc["baseline"]["heldout_rmse_px_interpolated"] = doc["baseline"]["heldout_rmse_px"]
+        doc["baseline"]["heldout_rmse_px"] = as_logged.heldout_rmse_px
+        doc["gain"]["heldout_rmse_px_before"] = as_logged.heldout_rmse_px
     return doc, diagnosis, problem
+
+
+def _with_held_readings(diagnosis: Diagnosis, logged: Problem, held, settings
+                        ) -> Diagnosis:
+    """The diagnosis with held readings in its extension, and the baseline of the readings as
+    logged (`baseline_as_logged`) for the record."""
+    from dream.diagnosis.fit.model import Model
+    from dream.diagnosis.select import evaluate
+
+    as_logged = evaluate("baseline as logged",
+                         Model(logged, (), diagnosis.baseline.fit.T_cam_base), diagnosis.mask,
+                         diagnosis.scale_px, settings or DiagnoseSettings())
+    return dataclasses.replace(diagnosis, extension=diagnosis.extension.merged(
+                                   ModelExtension(held_readings=held)),
+                               baseline_as_logged=as_logged)
 
 
 def run_diagnosis(sequence: Sequence, robot: Robot, obs: Observations, report_dir: str | Path,
@@ -297,9 +337,7 @@ def apply_extension_to_observations(sequence: Sequence, robot: Robot, obs: Obser
     """`dream calibrate --model-extension`: the sequence with the corrected camera and the
     observations with the extended keypoint positions; with a camera move, only the frames
     from the move on (the extrinsic reported is the camera's latest pose)."""
-    import dataclasses
-
-    from dream.extension import extended_points, frames_after_move
+    from dream.extended import extended_points, frames_after_move
 
     names = tuple(f.name for f in sequence.frames)
     P_base = extended_points(robot, joints_in_robot_order(sequence, robot),

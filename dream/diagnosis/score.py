@@ -123,6 +123,11 @@ def score_effect(name: str, truth: ModelExtension, camera: CameraIntrinsics,
             parts.append(f"{key}: {np.round(e, 5).tolist()} vs {np.round(t, 5).tolist()}"
                          f"{'' if good else ' MISS'}")
         detail = "; ".join(parts)
+    elif name == "held_readings":  # the period, read from frames: within one frame interval
+        interval = float(doc.get("frame_interval_s") or 0.0)
+        t, e = float(true["period_s"]), float(est.get("period_s", np.nan))
+        ok = bool(abs(e - t) <= max(relative_tol * t, interval + 1e-9))
+        detail = f"period_s: {e:.4g} vs {t:.4g}{'' if ok else ' MISS'}"
     else:
         return EffectScore(name, named, False, f"unknown effect {name}")
     if equivalent:

@@ -8,7 +8,7 @@ from collections.abc import Sequence as SequenceOf
 import numpy as np
 
 from dream.errors import InputError
-from dream.extension import EFFECT_NAMES, CameraMove, ModelExtension
+from dream.extension import EFFECT_NAMES, CameraMove, HeldReadings, ModelExtension
 from dream.inject.identifiability import (
     identifiable_joints,
     moving_keypoints,
@@ -28,6 +28,7 @@ CAMERA_ROTATION_RANGE_RAD = (math.radians(0.5), math.radians(2.0))  # ... or rot
 CAMERA_MOVE_FRAME_FRACTION = (0.2, 0.8)           # the move happens in the middle 60 % of frames
 CAMERA_MOVE_ROTATION_PROB = 0.5                   # chance that a camera move is a rotation
 KEYPOINT_BIAS_RANGE_M = (0.010, 0.030)            # |offset| on one keypoint, random direction
+HELD_PERIOD_RANGE_S = (0.1, 0.3)                  # a joint log's time between updates, s
 
 EFFECT_RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "joint_offset": {"offset_rad": JOINT_OFFSET_RANGE_RAD},
@@ -39,6 +40,7 @@ EFFECT_RANGES: dict[str, dict[str, tuple[float, float]]] = {
                      "rotation_rad": CAMERA_ROTATION_RANGE_RAD,
                      "frame_fraction": CAMERA_MOVE_FRAME_FRACTION},
     "keypoint_bias": {"metres": KEYPOINT_BIAS_RANGE_M},
+    "held_readings": {"period_s": HELD_PERIOD_RANGE_S},
 }
 
 
@@ -87,6 +89,12 @@ def random_effect(effect_name: str, rng: np.random.Generator, robot: Robot,
             raise InputError("a time offset needs a continuous motion",
                              fix="use motion='trajectory' to inject time_offset")
         return ModelExtension(time_offset_s=_sign(rng) * rng.uniform(*TIME_OFFSET_RANGE_S),
+                              robot=name)
+    if effect_name == "held_readings":
+        if spec.motion != "trajectory":
+            raise InputError("held readings need a continuous motion",
+                             fix="use motion='trajectory' to inject held_readings")
+        return ModelExtension(held_readings=HeldReadings(rng.uniform(*HELD_PERIOD_RANGE_S)),
                               robot=name)
     if effect_name == "link_length":
         joint = _pick(rng, stretchable_joints(robot), "joint with a stretchable offset", robot)

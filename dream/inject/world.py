@@ -9,14 +9,11 @@ import numpy as np
 
 from dream.camera import CameraIntrinsics, project
 from dream.errors import InputError
-from dream.extension import (
-    ModelExtension,
-    extended_camera,
-    extended_points,
-    frames_after_move,
-)
+from dream.extended import extended_camera, extended_points, frames_after_move
+from dream.extension import ModelExtension
 from dream.inject.settings import InjectionSettings
 from dream.inject.trajectory import JointTrajectory, random_trajectory, trajectory_joints
+from dream.readings import held_update_times
 from dream.robot import Robot, load_robot
 from dream.sample import random_camera_pose, random_joints
 from dream.sequence import Frame, Sequence
@@ -34,7 +31,8 @@ class InjectedWorld:
         times_s: (F,) image times, s.
         joints_at_images: (F, J) the reading signal at the image times (what
             `effective_joints(readings, times_s, tau)` should recover), rad.
-        readings: (F, J) the written joint readings (lagging by the time offset), rad.
+        readings: (F, J) the written joint readings (lagging by the time offset, held between
+            updates with held readings), rad.
         T_cam_base: (F, 4, 4) the true extrinsic of each frame.
         P_base: (F, K, 3) the true keypoints in the base frame, m.
         uv_true: (F, K, 2) their noise-free projections through the true camera, px.
@@ -65,9 +63,26 @@ def check_extension(spec: InjectionSettings, robot: Robot, extension: ModelExten
     if extension.robot and extension.robot != robot.name:
         raise InputError(f"the extension is for robot '{extension.robot}', the settings' robot is "
                          f"'{robot.name}'", fix="inject an extension of this robot")
-    if extension.time_offset_s and spec.motion != "trajectory":
-        raise InputError("a time offset needs a continuous motion",
-                         fix="use motion='trajectory' to inject time_offset")
+    if (extension.time_offset_s or extension.held_readings) and spec.motion != "trajectory":
+        raise InputError("a time offset or held readings need a continuous motion",
+                         fix="use motion='trajectory' to inject time_offset or held_readings")
+
+
+HELD_STREAM = 0x4E1D   # spawn key of the held log's update phase (other draws unchanged)
+
+
+def held_readings_of(trajectory: JointTrajectory, times_s: np.ndarray, tau: float,
+                     extension: ModelExtension, robot: Robot, seed: int) -> np.ndarray:
+    """(F, J) the readings a held log writes: the held joints sampled at their last update
+    (lagging by `tau`), the others at the image times (lagging by `tau`)."""
+    held = extension.held_readings
+    readings = trajectory_joints(trajectory, times_s - tau)
+    phase = np.random.default_rng([seed, HELD_STREAM]).uniform(0.0, held.period_s)
+    updates = held_update_times(times_s, held.period_s, phase)
+    sampled = trajectory_joints(trajectory, updates - tau)
+    columns = [robot.joint_names.index(j) for j in held.joints] or slice(None)
+    readings[:, columns] = sampled[:, columns]
+    return readings
 
 
 def frame_poses(T_cam_base_before: np.ndarray, after: np.ndarray,
@@ -113,11 +128,14 @@ def inject(spec: InjectionSettings, extension: ModelExtension | None = None) -> 
         trajectory = random_trajectory(rng, robot, spec)
         joints_at_images = trajectory_joints(trajectory, times)
         readings = trajectory_joints(trajectory, times - tau)
+        if extension.held_readings is not None:
+            readings = held_readings_of(trajectory, times, tau, extension, robot, spec.seed)
     else:
         joints_at_images = random_joints(rng, robot, spec.num_frames, spec.joint_range_fraction)
         readings = joints_at_images
     noise = rng.normal(0.0, spec.pixel_noise_px, (spec.num_frames, robot.num_keypoints, 2))
-    kinematic = dataclasses.replace(extension, time_offset_s=None)  # joints already at images
+    # joints already at the images: no lag, no holding
+    kinematic = dataclasses.replace(extension, time_offset_s=None, held_readings=None)
     P_base = extended_points(robot, joints_at_images, times, kinematic)
     T_cam_base = frame_poses(T_before, frames_after_move(spec.frame_names, extension), extension)
     camera_true = extended_camera(spec.camera, extension)

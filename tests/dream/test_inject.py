@@ -11,7 +11,8 @@ import pytest
 from dream.calibration import calibrate_all
 from dream.camera import project, project_with_jacobian
 from dream.errors import InputError
-from dream.extension import CameraMove, ModelExtension, effective_joints
+from dream.extended import effective_joints
+from dream.extension import CameraMove, ModelExtension
 from dream.inject import (
     CAMERA_MOVE_FRAME_FRACTION,
     CAMERA_ROTATION_RANGE_RAD,

@@ -12,15 +12,14 @@ import pytest
 from dream.camera import project
 from dream.cli import main
 from dream.errors import InputError
-from dream.extension import (
+from dream.extended import (
     effective_joints,
     extended_camera,
     extended_robot,
-    extension_from_effects,
-    extension_yaml,
     joint_offset_vector,
     keypoint_points,
 )
+from dream.extension import extension_from_effects, extension_yaml
 from dream.io import read_sequence
 from dream.robot import load_robot
 from dream.transforms import transform_points

@@ -22,7 +22,8 @@ import numpy as np
 from dream.camera import project
 from dream.diagnosis.fit.problem import POINT_EFFECTS, Param, Problem, build_extension
 from dream.errors import InputError
-from dream.extension import ModelExtension, extended_camera, extended_points
+from dream.extended import extended_camera, extended_points
+from dream.extension import ModelExtension
 from dream.optim.lm import LMSettings, levenberg_marquardt
 from dream.optim.robust import huber_rho, huber_weight
 from dream.pnp import apply_increment

@@ -25,7 +25,8 @@ from dream.diagnosis.select.crossval import Evaluation, evaluate
 from dream.diagnosis.select.plausible import first_implausible, implausible_effect
 from dream.diagnosis.select.prune import try_effect
 from dream.diagnosis.select.settings import DiagnoseSettings
-from dream.extension import ModelExtension, distinct_readings
+from dream.extended import distinct_readings
+from dream.extension import ModelExtension
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +61,7 @@ class Diagnosis:
     seconds: float
     notes: list[str] = field(default_factory=list)
     alternatives: dict[str, list[str]] = field(default_factory=dict)
+    baseline_as_logged: Evaluation | None = None   # with held readings: before interpolating
 
 
 def _motion_rad_s(problem: Problem) -> float:
@@ -188,7 +190,8 @@ def diagnose(problem: Problem, T_cam_base_init: np.ndarray,
     tested: list[Verdict] = []
     notes: list[str] = []
     alternatives: dict[str, list[str]] = {}
-    remaining = [e for e in settings.effects]
+    # held_readings is read from the data before the search (dream.diagnosis.held)
+    remaining = [e for e in settings.effects if e != "held_readings"]
     for effect in list(remaining):
         why = applicable(effect, problem, settings)
         if why is not None:

@@ -42,7 +42,7 @@ class DiagnoseSettings:
             absorbing wrong detections, not a property of the robot or camera).
     """
 
-    effects: tuple[str, ...] = EFFECT_NAMES
+    effects: tuple[str, ...] = EFFECT_NAMES   # held_readings: found from the data first
     folds: int = 5
     alpha: float = 0.01
     bic_margin: float = 10.0

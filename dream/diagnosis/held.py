@@ -1,0 +1,95 @@
+"""Held joint readings in a diagnosis: found in the data, corrected before the model search.
+
+A joint log that updates slower than the camera repeats its last reading between updates (runs
+of identical readings while the images change). That is seen in the data itself, not fitted:
+the diagnosis names it `held_readings` (its period and the held joints), interpolates the
+readings in time between their updates (`dream.readings.interpolated_joints`, as `dream
+calibrate` does), and searches the catalog on the corrected readings. A constant lag of the
+updates behind the images is then `time_offset` on top of it, so held readings are never
+reported as a time offset.
+
+When a log updates at a fixed rate against a camera at a fixed rate, the instants at which its
+updates are sampled keep about the same place within the frame interval in which they first
+appear: a lag within half a frame interval that the data cannot tell from a time offset. A
+fitted time offset that small is that sampling phase (`HeldReadings.phase_s`), not a time
+offset; a larger one is a time offset whose 1-sigma includes the phase's spread (a frame
+interval / sqrt(12), uniform over the interval).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from dream.diagnosis.fit import Problem
+from dream.extended import effective_joints
+from dream.extension import HeldReadings
+from dream.readings import reading_updates
+
+
+def held_readings_in(problem: Problem) -> HeldReadings | None:
+    """The held readings the data shows (None without timestamps or runs of repeats):
+    the period between updates and the held joints (empty: all)."""
+    if problem.times_s is None:
+        return None
+    updates = reading_updates(problem.times_s, problem.joints)
+    names = problem.robot.joint_names
+    held = [n for j, n in enumerate(names)
+            if reading_updates(problem.times_s, problem.joints[:, [j]]).held]
+    if not held or updates.period_s is None:
+        return None
+    return HeldReadings(updates.period_s, () if len(held) == len(names) else tuple(held))
+
+
+def corrected_problem(problem: Problem, held: HeldReadings) -> Problem:
+    """The problem with the held readings interpolated in time between their updates."""
+    joints = effective_joints(problem.joints, problem.times_s, None, held,
+                              problem.robot.joint_names)
+    return dataclasses.replace(problem, joints=joints)
+
+
+def held_entry(problem: Problem, held: HeldReadings, logged_rmse_px: float,
+               corrected_rmse_px: float) -> dict[str, Any]:
+    """diagnosis.json's `effects` entry of held readings: the data's evidence and the held-out
+    RMSE of the baseline with the readings as logged and interpolated."""
+    updates = reading_updates(problem.times_s, problem.joints)
+    return {"name": "held_readings", "significant": True, "round": 0,
+            "params": {"period_s": held.period_s, "joints": list(held.joints),
+                       "phase_s": held.phase_s},
+            "evidence": (f"{len(updates.update_index)} reading updates in "
+                         f"{problem.num_frames} frames, one every {held.period_s:.3f} s "
+                         f"({updates.repeat_fraction:.0%} of the frames repeat the previous "
+                         f"reading); held-out RMSE {logged_rmse_px:.3f} px as logged, "
+                         f"{corrected_rmse_px:.3f} px interpolated between the updates"),
+            "heldout_rmse_px": corrected_rmse_px,
+            "heldout_rmse_px_as_logged": logged_rmse_px,
+            "from_data": True,
+            "frames_per_update": float(np.diff(updates.update_index).mean())
+            if len(updates.update_index) > 1 else None}
+
+
+def fold_sampling_phase(doc: dict[str, Any], held: HeldReadings, frame_interval_s: float
+                        ) -> HeldReadings:
+    """Move an accepted time offset within half a frame interval out of `doc`'s verdict and
+    into the held readings' phase (returned); widen a larger one's sigma by the phase's
+    spread (module doc)."""
+    entry = next((e for e in doc["effects"] if e["name"] == "time_offset"
+                  and "time_offset" in doc["verdict"]), None)
+    if entry is None:
+        return held
+    seconds = float(entry["params"]["seconds"])
+    if abs(seconds) <= frame_interval_s / 2:
+        doc["verdict"].remove("time_offset")
+        doc["notes"].append(f"a lag of {seconds * 1e3:.1f} ms, within half a frame interval "
+                            f"({frame_interval_s * 1e3:.1f} ms), is the held readings' sampling "
+                            "phase, not a time offset")
+        return dataclasses.replace(held, phase_s=seconds)
+    sigma = entry.get("sigma") or {}
+    spread = frame_interval_s / np.sqrt(12.0)
+    sigma["seconds"] = float(np.hypot(sigma.get("seconds") or 0.0, spread))
+    entry["sigma"] = sigma
+    entry["evidence"] = (f"{entry.get('evidence', '')}; 1-sigma includes the held updates' "
+                         f"unknown sampling phase ({spread * 1e3:.1f} ms)")
+    return held

@@ -1,0 +1,119 @@
+"""Held joint readings as a model effect: found in the data by the diagnosis (never as a time
+offset alone), written to extended_model.yaml, honoured by calibrate and synth."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from dream.cli import main
+from dream.diagnosis.run import diagnose_sequence
+from dream.errors import InputError
+from dream.extended import effective_joints
+from dream.extension import (
+    HeldReadings,
+    ModelExtension,
+    extension_from_effects,
+    extension_yaml,
+    read_extension,
+)
+from dream.inject import InjectionSettings, make_injected_sequence
+from dream.io import read_sequence, write_dream
+from dream.pipeline import observations_from_labels, robot_for
+from dream.readings import sequence_updates
+
+FPS_PERIOD = 1 / 30
+
+
+def _injected(period_s: float, tau: float | None = None, seed: int = 1, frames: int = 150):
+    spec = InjectionSettings(num_frames=frames, frame_period_s=FPS_PERIOD, pixel_noise_px=1.5,
+                             seed=seed)
+    truth = ModelExtension(held_readings=HeldReadings(period_s), time_offset_s=tau)
+    return make_injected_sequence(spec, truth)
+
+
+def test_held_readings_round_trip_and_checks(tmp_path):
+    ext = ModelExtension(held_readings=HeldReadings(0.2, ("panda_joint1",), 0.01), robot="panda")
+    path = tmp_path / "x.yaml"
+    path.write_text(extension_yaml(ext))
+    assert read_extension(path) == ext and ext.effects == ("held_readings",)
+    with pytest.raises(InputError, match="period_s"):
+        extension_from_effects({"held_readings": {"joints": []}})
+    with pytest.raises(InputError, match="unknown parameter 'hz'"):
+        extension_from_effects({"held_readings": {"period_s": 0.2, "hz": 5}})
+    with pytest.raises(InputError, match="must be > 0"):
+        HeldReadings(0.0)
+
+
+def test_inject_writes_a_held_log_and_interpolation_recovers_the_joints():
+    seq = _injected(0.2)
+    updates = sequence_updates(seq)
+    assert updates.held and updates.period_s == pytest.approx(0.2, abs=FPS_PERIOD)
+    times = np.array([f.timestamp for f in seq.frames])
+    logged = np.stack([f.joints for f in seq.frames])
+    corrected = effective_joints(logged, times, None, HeldReadings(0.2), seq.joint_names)
+    nominal = make_injected_sequence(
+        InjectionSettings(num_frames=150, frame_period_s=FPS_PERIOD, pixel_noise_px=1.5, seed=1))
+    true = np.stack([f.joints for f in nominal.frames])
+    assert np.abs(corrected - true).mean() < 0.25 * np.abs(logged - true).mean()
+
+
+def _diagnosis(seq):
+    robot = robot_for(seq, None, seq.keypoint_names)
+    doc, _, _ = diagnose_sequence(seq, robot, observations_from_labels(seq, robot))
+    return doc
+
+
+def test_diagnosis_names_held_readings_not_a_time_offset():
+    doc = _diagnosis(_injected(0.27, seed=2))
+    assert doc["verdict"] == ["held_readings"]
+    entry = doc["effects"][0]
+    assert entry["name"] == "held_readings" and entry["from_data"]
+    assert entry["params"]["period_s"] == pytest.approx(0.27, abs=FPS_PERIOD)
+    assert doc["gain"]["heldout_rmse_px_after"] < 0.5 * doc["gain"]["heldout_rmse_px_before"]
+    truth = doc["truth"]
+    assert truth["after"]["translation_error_m"] < 0.5 * truth["before"]["translation_error_m"]
+
+
+def test_diagnosis_separates_held_readings_and_a_time_offset():
+    doc = _diagnosis(_injected(0.15, tau=0.08, seed=3))
+    assert doc["verdict"][0] == "held_readings" and "time_offset" in doc["verdict"]
+    offset = next(e for e in doc["effects"] if e["name"] == "time_offset")
+    assert abs(offset["params"]["seconds"] - 0.08) <= 3 * offset["sigma"]["seconds"]
+
+
+def test_calibrate_honours_a_held_readings_extension(tmp_path):
+    seq = _injected(0.2, seed=4)
+    data = write_dream(seq, tmp_path / "data")
+    ext = tmp_path / "held.yaml"
+    ext.write_text(extension_yaml(ModelExtension(held_readings=HeldReadings(0.2), robot="panda")))
+    results = {}
+    for name, extra in (("logged", ["--joint-readings", "as-logged"]),
+                        ("extension", ["--joint-readings", "as-logged", "--model-extension",
+                                       str(ext)]),
+                        ("interpolated", [])):
+        out = tmp_path / f"{name}.json"
+        assert main(["calibrate", "--data", str(data), "--use-labels", "--out", str(out),
+                     *extra]) == 0
+        results[name] = np.array(json.loads(out.read_text())["T_cam_base"])
+    assert np.allclose(results["extension"], results["interpolated"], atol=1e-9)
+    assert not np.allclose(results["logged"], results["interpolated"], atol=1e-4)
+
+
+def test_synth_renders_a_held_log(tmp_path):
+    ext = tmp_path / "held.yaml"
+    ext.write_text(extension_yaml(ModelExtension(held_readings=HeldReadings(0.2), robot="panda")))
+    out = tmp_path / "set"
+    assert main(["synth", "--robot", "panda", "--config", "configs/synth/panda_teleop_like.yaml",
+                 "--num", "24", "--out", str(out), "--model-extension", str(ext),
+                 "--set", "intrinsics.width=160", "--set", "intrinsics.height=120",
+                 "--set", "intrinsics.cx=79.5", "--set", "intrinsics.cy=59.5"]) == 0
+    updates = sequence_updates(read_sequence(out))
+    assert updates.held and updates.update_index.tolist() == [0, 6, 12, 18]
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(extension_yaml(ModelExtension(held_readings=HeldReadings(0.2, ("nope",)))))
+    assert main(["synth", "--robot", "panda", "--config", "configs/synth/panda_teleop_like.yaml",
+                 "--num", "2", "--out", str(tmp_path / "b"), "--model-extension",
+                 str(bad)]) == 2
