@@ -226,7 +226,10 @@ def _draws(name, panda, n=6):
 
 def test_random_effects_lie_in_their_ranges(panda):
     assert set(EFFECT_RANGES) == {"joint_offset", "lens_distortion", "intrinsics_error",
-                                  "time_offset", "link_length", "camera_moved", "keypoint_bias"}
+                                  "time_offset", "link_length", "camera_moved", "keypoint_bias",
+                                  "held_readings"}
+    for x in _draws("held_readings", panda)[0]:
+        assert 0.1 <= x.held_readings.period_s <= 0.3 and x.held_readings.joints == ()
     eps = 1e-12
     draws, spec = _draws("joint_offset", panda)
     for x in draws:

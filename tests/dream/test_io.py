@@ -342,7 +342,7 @@ def test_maniunicon_with_argument(tmp_path: Path) -> None:
 
 
 def test_formats_and_image_size(tmp_path: Path) -> None:
-    assert FORMATS == ("dream", "panda_teleop", "franka_offline", "maniunicon")
+    assert FORMATS == ("dream", "panda_teleop", "franka_offline", "maniunicon", "csv", "rosbag")
     rgb = _rgb(np.random.default_rng(0), 17, 9)
     for name in ("x.png", "x.jpg"):
         assert image_size(_write_rgb(tmp_path / name, rgb)) == (17, 9)
