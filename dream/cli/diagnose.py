@@ -73,6 +73,10 @@ def _print_diagnosis(doc: dict, out_dir: str) -> None:
         if effect["name"] in doc["verdict"]:
             print(f"  {effect['name']}: {effect['params']}")
     print(f"extended model: held-out RMSE {gain['heldout_rmse_px_after']:.3f} px")
+    remaining = doc.get("remaining") or {}
+    if remaining.get("unexplained_share") is not None:
+        print(f"unexplained: {remaining['unexplained_share']:.0%} of the baseline's held-out "
+              f"mean squared error; the remaining misfit looks like {remaining['looks_like']}")
     truth = doc.get("truth")
     if truth:
         for label in ("before", "after"):

@@ -25,6 +25,7 @@ from dream.diagnosis.held import (
     held_entry,
     held_readings_in,
 )
+from dream.diagnosis.remaining import remaining_misfit
 from dream.diagnosis.select import DiagnoseSettings, Diagnosis, Verdict, diagnose
 from dream.errors import InputError
 from dream.extended import extended_camera, extended_robot, joint_offset_vector
@@ -186,6 +187,9 @@ def diagnosis_document(sequence: Sequence, diagnosis: Diagnosis,
         "seconds": diagnosis.seconds,
         "notes": list(diagnosis.notes),
     }
+    doc["remaining"] = remaining_misfit(final.fit.residual, mask & final.fit.model.problem.observed,
+                                        final.fit.model.problem.robot.keypoint_names,
+                                        base.heldout_rmse_px, final.heldout_rmse_px)
     truth = _truth(sequence, diagnosis)
     if truth is not None:
         doc["truth"] = truth
@@ -270,6 +274,8 @@ def diagnose_sequence(sequence: Sequence, robot: Robot, obs: Observations,
         doc["baseline"]["heldout_rmse_px_interpolated"] = doc["baseline"]["heldout_rmse_px"]
         doc["baseline"]["heldout_rmse_px"] = as_logged.heldout_rmse_px
         doc["gain"]["heldout_rmse_px_before"] = as_logged.heldout_rmse_px
+        doc["remaining"]["unexplained_share"] = (diagnosis.final.heldout_rmse_px
+                                                 / as_logged.heldout_rmse_px) ** 2
     return doc, diagnosis, problem
 
 

@@ -154,7 +154,20 @@ def _gain(diagnosis: Mapping) -> list[str]:
     if before is None or after is None:
         return ["Held-out RMSE gain: n/a."]
     rel = f" ({100.0 * (after - before) / before:+.1f} %)" if before > 0 else ""
-    return [f"Held-out RMSE: {fmt(before)} px (nominal) -> {fmt(after)} px (extended){rel}."]
+    lines = [f"Held-out RMSE: {fmt(before)} px (nominal) -> {fmt(after)} px (extended){rel}."]
+    remaining = diagnosis.get("remaining") if isinstance(diagnosis.get("remaining"),
+                                                         Mapping) else {}
+    share = num(remaining.get("unexplained_share"))
+    if share is not None:
+        lines += ["", f"Unexplained: {100 * share:.0f} % of the baseline's held-out mean "
+                      f"squared error. The remaining misfit looks like "
+                      f"{cell(remaining.get('looks_like', ''))}."]
+    truth = diagnosis.get("truth") if isinstance(diagnosis.get("truth"), Mapping) else {}
+    if truth.get("before") and truth.get("after"):
+        lines += ["", "Against the data's reference extrinsic: camera position "
+                      f"{fmt(1e3 * truth['before']['translation_error_m'])} mm (nominal) -> "
+                      f"{fmt(1e3 * truth['after']['translation_error_m'])} mm (extended)."]
+    return lines
 
 
 def _highlights(analysis: Mapping | None) -> list[str]:
