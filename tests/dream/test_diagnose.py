@@ -37,12 +37,14 @@ from dream.robot import load_robot
 NOISE_RANGE_PX = (1.0, 2.0)
 SEEDS_PER_EFFECT = 2
 FRAMES = 150          # like a few seconds of a measured sequence (panda_teleop: 275)
+HELD_FRAME_PERIOD_S = 1 / 30   # a log slower than the camera needs a camera at video rate
 
 
 def _case(effect: str | None, seed: int, frames: int = FRAMES):
     rng = np.random.default_rng(seed)
+    period = HELD_FRAME_PERIOD_S if effect == "held_readings" else 0.1
     spec = InjectionSettings(num_frames=frames, pixel_noise_px=float(rng.uniform(*NOISE_RANGE_PX)),
-                             seed=seed)
+                             frame_period_s=period, seed=seed)
     truth = random_effect(effect, rng, load_robot(spec.robot), spec) if effect \
         else ModelExtension()
     seq = make_injected_sequence(spec, truth)
@@ -184,7 +186,8 @@ def test_model_extension_file_round_trip_and_bad_files(tmp_path):
         "time_offset": {"seconds": 0.05}, "link_length": {"panda_joint4": 0.01},
         "camera_moved": {"frame": "000010", "rotation_rad": [0, 0.01, 0],
                          "translation_m": [0.01, 0, 0]},
-        "keypoint_bias": {"panda_hand": [0, 0, 0.02]}}, "panda")
+        "keypoint_bias": {"panda_hand": [0, 0, 0.02]},
+        "held_readings": {"period_s": 0.2, "joints": ["panda_joint1"], "phase_s": 0.01}}, "panda")
     path = tmp_path / "ext.yaml"
     path.write_text(extension_yaml(ext))
     assert read_extension(path) == ext
