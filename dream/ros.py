@@ -109,6 +109,10 @@ def output_paths(result_path: str | Path) -> tuple[Path, Path]:
     return path.with_suffix(ROS_SUFFIX), path.with_suffix(MATRIX_SUFFIX)
 
 
+def _check_frames(base_frame: str, camera_frame: str) -> tuple[str, str]:
+    return _check_frame(base_frame, "base frame"), _check_frame(camera_frame, "camera frame")
+
+
 def _pose_numbers(T_cam_base: np.ndarray) -> tuple[list[str], list[str]]:
     """(x y z, qx qy qz qw) of T_base_cam as text."""
     T_base_cam = invert_T(_check_T(T_cam_base, "T_cam_base"))
@@ -130,8 +134,7 @@ def rpy_from_R(R: np.ndarray) -> np.ndarray:
 def urdf_text(T_cam_base: np.ndarray, base_frame: str,
               camera_frame: str = CAMERA_OPTICAL_FRAME) -> str:
     """The RESULT.urdf.xml file: a fixed joint base -> camera and the camera link."""
-    base, camera = _check_frame(base_frame, "base frame"), _check_frame(camera_frame,
-                                                                          "camera frame")
+    base, camera = _check_frames(base_frame, camera_frame)
     T_base_cam = invert_T(_check_T(T_cam_base, "T_cam_base"))
     xyz = " ".join(_number(v) for v in T_base_cam[:3, 3])
     rpy = " ".join(_number(v) for v in rpy_from_R(T_base_cam[:3, :3]))
@@ -148,8 +151,7 @@ def urdf_text(T_cam_base: np.ndarray, base_frame: str,
 def launch_text(T_cam_base: np.ndarray, base_frame: str,
                 camera_frame: str = CAMERA_OPTICAL_FRAME) -> str:
     """The RESULT.launch.py file: a ROS 2 launch description with the static transform."""
-    base, camera = _check_frame(base_frame, "base frame"), _check_frame(camera_frame,
-                                                                          "camera frame")
+    base, camera = _check_frames(base_frame, camera_frame)
     (x, y, z), (qx, qy, qz, qw) = _pose_numbers(T_cam_base)
     args = ", ".join(f"'--{k}', '{v}'" for k, v in (
         ("x", x), ("y", y), ("z", z), ("qx", qx), ("qy", qy), ("qz", qz), ("qw", qw),
@@ -167,8 +169,7 @@ def launch_text(T_cam_base: np.ndarray, base_frame: str,
 def handeye_text(T_cam_base: np.ndarray, base_frame: str,
                  camera_frame: str = CAMERA_OPTICAL_FRAME) -> str:
     """The RESULT.handeye.yaml file, in easy_handeye's calibration format (eye on base)."""
-    base, camera = _check_frame(base_frame, "base frame"), _check_frame(camera_frame,
-                                                                          "camera frame")
+    base, camera = _check_frames(base_frame, camera_frame)
     (x, y, z), (qx, qy, qz, qw) = _pose_numbers(T_cam_base)
     return ("# camera pose from dream calibrate, in easy_handeye's format (eye on base)\n"
             "eye_on_hand: false\n"
