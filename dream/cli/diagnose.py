@@ -77,6 +77,12 @@ def _print_diagnosis(doc: dict, out_dir: str) -> None:
     if remaining.get("unexplained_share") is not None:
         print(f"unexplained: {remaining['unexplained_share']:.0%} of the baseline's held-out "
               f"mean squared error; the remaining misfit looks like {remaining['looks_like']}")
+    evidence = doc.get("image_evidence")
+    if evidence:
+        steps = ", ".join(f"{s['model']} {s['agreement']:.1%}" for s in evidence["steps"])
+        print(f"image evidence (robot outline on image edges): {steps}; supported by the "
+              f"keypoints only: {', '.join(evidence['unsupported']) or 'none'}; links whose "
+              f"outline disagrees: {', '.join(evidence['mismatched_links']) or 'none'}")
     truth = doc.get("truth")
     if truth:
         for label in ("before", "after"):

@@ -308,6 +308,7 @@ def run_diagnosis(sequence: Sequence, robot: Robot, obs: Observations, report_di
     final_res = None if not diagnosis.accepted else _residual_set(problem, diagnosis.final.fit,
                                                                   diagnosis.mask)
     analysis = analyse(baseline_res)
+    _add_image_evidence(doc, sequence, diagnosis)
     panels = _silhouette_panels(sequence, problem, diagnosis)
     if panels:
         doc["silhouette_iou"] = [{"frame": p.frame, "before": p.iou_before, "after": p.iou_after}
@@ -324,6 +325,47 @@ def run_diagnosis(sequence: Sequence, robot: Robot, obs: Observations, report_di
         if name not in made:
             (report_dir / name).unlink(missing_ok=True)
     return doc
+
+
+def _model_steps(diagnosis: Diagnosis) -> list[tuple[str, FitResult]]:
+    """(label, fit) of the baseline and of the model after each accepted effect, in order."""
+    steps = []
+    if diagnosis.baseline_as_logged is not None:
+        steps.append(("baseline", diagnosis.baseline_as_logged.fit))
+        steps.append(("held_readings", diagnosis.baseline.fit))
+    else:
+        steps.append(("baseline", diagnosis.baseline.fit))
+    for name in diagnosis.accepted:
+        fits = [v.evaluation.fit for v in diagnosis.tested
+                if v.name == name and v.significant and v.evaluation is not None]
+        if fits:
+            steps.append((name, fits[-1]))
+    if diagnosis.accepted:
+        steps[-1] = (steps[-1][0], diagnosis.final.fit)
+    return steps
+
+
+def _add_image_evidence(doc: dict[str, Any], sequence: Sequence, diagnosis: Diagnosis) -> None:
+    """`image_evidence` (`dream.diagnosis.images`) where the frames have images; an accepted
+    effect after which the outline agrees less is marked and noted."""
+    from dream.diagnosis.images import outline_evidence
+
+    try:
+        evidence = outline_evidence(sequence, _model_steps(diagnosis))
+    except InputError as exc:  # no edges near the outline: nothing to say from the images
+        log.info("no image evidence: %s", exc)
+        return
+    if evidence is None:
+        return
+    doc["image_evidence"] = evidence
+    agreement = {step["model"]: step["agreement"] for step in evidence["steps"]}
+    for entry in doc["effects"]:
+        if entry["name"] in agreement and entry["name"] in doc["verdict"]:
+            entry["image_support"] = entry["name"] not in evidence["unsupported"]
+    for name in evidence["unsupported"]:
+        doc["notes"].append(f"{name}: the robot's outline agrees less with the images after it "
+                            f"(outline agreement {agreement[name]:.1%}); only the keypoint "
+                            "detections support it")
 
 
 def json_safe(value: Any) -> Any:

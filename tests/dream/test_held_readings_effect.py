@@ -117,3 +117,41 @@ def test_synth_renders_a_held_log(tmp_path):
     assert main(["synth", "--robot", "panda", "--config", "configs/synth/panda_teleop_like.yaml",
                  "--num", "2", "--out", str(tmp_path / "b"), "--model-extension",
                  str(bad)]) == 2
+
+
+@pytest.mark.slow
+def test_rendered_held_log_diagnosis_with_image_evidence(tmp_path):
+    """A rendered trajectory whose joint log is held: the report names held readings, and
+    the robot's outline agrees with the images at least as well after interpolating them."""
+    ext = tmp_path / "held.yaml"
+    ext.write_text(extension_yaml(ModelExtension(held_readings=HeldReadings(0.2), robot="panda")))
+    data = tmp_path / "set"
+    assert main(["synth", "--robot", "panda", "--config", "configs/synth/panda_teleop_like.yaml",
+                 "--num", "60", "--out", str(data), "--model-extension", str(ext), "--seed", "3",
+                 "--set", "intrinsics.width=160", "--set", "intrinsics.height=120",
+                 "--set", "intrinsics.fx=120", "--set", "intrinsics.fy=120",
+                 "--set", "intrinsics.cx=79.5", "--set", "intrinsics.cy=59.5"]) == 0
+    report = tmp_path / "report"
+    assert main(["diagnose", "--data", str(data), "--use-labels", "--out", str(report)]) == 0
+    doc = json.loads((report / "diagnosis.json").read_text())
+    assert doc["verdict"][0] == "held_readings"
+    steps = {s["model"]: s["agreement"] for s in doc["image_evidence"]["steps"]}
+    assert steps["held_readings"] >= steps["baseline"] - 0.01
+    assert "held_readings" not in doc["image_evidence"]["unsupported"]
+
+
+def test_an_effect_the_images_contradict_is_marked(monkeypatch):
+    """Where the outline agrees less after an accepted effect, the effect is marked as
+    supported by the keypoints only, and a note says so."""
+    import dream.diagnosis.images as images
+    from dream.diagnosis.run import _add_image_evidence
+
+    evidence = {"frames": 10, "steps": [{"model": "baseline", "agreement": 0.5},
+                                        {"model": "time_offset", "agreement": 0.4}],
+                "unsupported": ["time_offset"], "mismatched_links": ["panda_hand"]}
+    monkeypatch.setattr(images, "outline_evidence", lambda sequence, steps: evidence)
+    monkeypatch.setattr("dream.diagnosis.run._model_steps", lambda diagnosis: [])
+    doc = {"effects": [{"name": "time_offset"}], "verdict": ["time_offset"], "notes": []}
+    _add_image_evidence(doc, None, None)
+    assert doc["effects"][0]["image_support"] is False
+    assert "only the keypoint detections support it" in doc["notes"][0]
