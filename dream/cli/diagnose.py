@@ -90,6 +90,10 @@ def _print_diagnosis(doc: dict, out_dir: str) -> None:
             print(f"vs ground truth {label}: camera position {1000 * t['translation_error_m']:.2f}"
                   f" mm, rotation {np.rad2deg(t['rotation_error_rad']):.3f} deg, ADD "
                   f"{1000 * t['add_mean_m']:.2f} mm")
+        if truth.get("steps"):
+            print("vs ground truth after each accepted effect: " + ", ".join(
+                f"{s['model']} {1000 * s['translation_error_m']:.1f} mm"
+                for s in truth["steps"]))
     print(f"wrote {Path(out_dir) / 'diagnosis.json'}, {doc['extended_model']} and "
           f"{Path(out_dir) / 'report.md'} ({doc['seconds']:.1f} s)")
 

@@ -309,6 +309,8 @@ def run_diagnosis(sequence: Sequence, robot: Robot, obs: Observations, report_di
                                                                   diagnosis.mask)
     analysis = analyse(baseline_res)
     _add_image_evidence(doc, sequence, diagnosis)
+    if "truth" in doc:
+        doc["truth"]["steps"] = _truth_steps(sequence, diagnosis)
     panels = _silhouette_panels(sequence, problem, diagnosis)
     if panels:
         doc["silhouette_iou"] = [{"frame": p.frame, "before": p.iou_before, "after": p.iou_after}
@@ -343,6 +345,18 @@ def _model_steps(diagnosis: Diagnosis) -> list[tuple[str, FitResult]]:
     if diagnosis.accepted:
         steps[-1] = (steps[-1][0], diagnosis.final.fit)
     return steps
+
+
+def _truth_steps(sequence: Sequence, diagnosis: Diagnosis) -> list[dict[str, Any]]:
+    """The extrinsic error against the data's truth after each accepted effect, in order."""
+    T_true = truth_poses(sequence)
+    has = np.all(np.isfinite(T_true.reshape(len(sequence), -1)), axis=1)
+    out = []
+    for label, fit in _model_steps(diagnosis):
+        t_err, r_err = pose_errors(fit.model.poses(fit.x)[has], T_true[has])
+        out.append({"model": label, "translation_error_m": float(np.median(t_err)),
+                    "rotation_error_rad": float(np.median(r_err))})
+    return out
 
 
 def _add_image_evidence(doc: dict[str, Any], sequence: Sequence, diagnosis: Diagnosis) -> None:

@@ -138,6 +138,8 @@ def test_rendered_held_log_diagnosis_with_image_evidence(tmp_path):
     steps = {s["model"]: s["agreement"] for s in doc["image_evidence"]["steps"]}
     assert steps["held_readings"] >= steps["baseline"] - 0.01
     assert "held_readings" not in doc["image_evidence"]["unsupported"]
+    steps = [s["model"] for s in doc["truth"]["steps"]]      # ground truth after each effect
+    assert steps[:2] == ["baseline", "held_readings"]
 
 
 def test_an_effect_the_images_contradict_is_marked(monkeypatch):
