@@ -162,8 +162,12 @@ def _write_stack(images: list[np.ndarray], target: Path, path: Path) -> None:
                          "record one resolution")
     buffer = io.BytesIO()
     np.savez(buffer, **{STACK_KEY: np.stack(images)})
-    target.parent.mkdir(parents=True, exist_ok=True)
-    write_bytes_atomic(target, buffer.getvalue())
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        write_bytes_atomic(target, buffer.getvalue())
+    except OSError as exc:
+        raise InputError(f"cannot cache the bag's images ({fields.os_reason(exc)})",
+                         target.parent, f"set {CACHE_ENV} to a writable folder") from None
 
 
 def _read_messages(path: Path, topics: BagTopics):

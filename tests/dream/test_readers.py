@@ -238,3 +238,13 @@ def test_teleop_calibrates_the_same_from_three_layouts(realdata, tmp_path):
         T[name] = np.array(json.loads(out.read_text())["T_cam_base"])
     assert np.abs(T["csv"] - T["own"]).max() < 1e-9
     assert np.abs(T["bag"] - T["own"]).max() < 1e-9
+
+
+def test_bag_cache_that_cannot_be_written_says_what_to_do(imaged, tmp_path, monkeypatch):
+    seq, _ = imaged
+    bag = write_bag(seq, tmp_path / "run")
+    blocker = tmp_path / "not_a_folder"
+    blocker.write_text("x")
+    monkeypatch.setenv("DREAM_CACHE_DIR", str(blocker))
+    with pytest.raises(InputError, match="DREAM_CACHE_DIR"):
+        read_sequence(bag)
