@@ -24,13 +24,12 @@ import numpy as np
 
 import dream
 from dream.errors import InputError
+from dream.io.common import cache_folder
 from dream.robot import Robot
 from synth.gl import mujoco
 
 logger = logging.getLogger(__name__)
 
-CACHE_ENV = "DREAM_CACHE_DIR"
-DEFAULT_CACHE_ROOT = Path("~/.cache/dream")
 SCENES_FOLDER = "scenes"
 SCENE_FORMAT_VERSION = 3  # bump when the model layout or naming changes
 MODEL_FILE = "model.mjb"
@@ -47,8 +46,7 @@ def cache_root(cache_dir: str | Path | None = None) -> Path:
     `~/.cache/dream/scenes`."""
     if cache_dir is not None:
         return Path(cache_dir).expanduser()
-    base = os.environ.get(CACHE_ENV)
-    return (Path(base) if base else DEFAULT_CACHE_ROOT).expanduser() / SCENES_FOLDER
+    return cache_folder(SCENES_FOLDER)
 
 
 def _tree_digest(robot: Robot) -> str:

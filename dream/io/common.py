@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
@@ -12,6 +13,15 @@ from dream.io.images import check_size, image_size
 PANDA_ROBOT = "panda"
 PANDA_ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
 FRAME_DIGITS = 6
+CACHE_ENV = "DREAM_CACHE_DIR"
+DEFAULT_CACHE_ROOT = Path("~/.cache/dream")
+
+
+def cache_folder(name: str) -> Path:
+    """`$DREAM_CACHE_DIR/NAME`, or `~/.cache/dream/NAME`: where the project keeps what it can
+    rebuild (compiled scenes, a bag's decoded images)."""
+    base = os.environ.get(CACHE_ENV)
+    return (Path(base) if base else DEFAULT_CACHE_ROOT).expanduser() / name
 
 
 def frame_name(index: int) -> str:

@@ -12,14 +12,14 @@ with the `rosbags` library (the `ros` extra). Three topics are used:
 A topic not named (`BagTopics`) is found by its type when the bag has exactly one topic of it.
 Times are the messages' header stamps (the bag's receive time where a stamp is zero). The
 images are decoded once into an image stack (`.npz`) in the cache (`$DREAM_CACHE_DIR/bags` or
-`~/.cache/dream/bags`), keyed by the bag's files and the topics.
+`~/.cache/dream/bags`), keyed by the bag's files and the topics; later reads of the same bag
+use that stack instead of decoding the images again.
 """
 
 from __future__ import annotations
 
 import hashlib
 import logging
-import os
 from collections.abc import Sequence as SequenceOf
 from dataclasses import dataclass
 from fractions import Fraction
@@ -32,9 +32,17 @@ import numpy as np
 from dream.errors import InputError
 from dream.io import fields
 from dream.io.atomic import write_bytes_atomic
-from dream.io.common import PANDA_ROBOT, check_joint_names, check_robot, frame_name
+from dream.io.common import (
+    CACHE_ENV,
+    PANDA_ROBOT,
+    cache_folder,
+    check_joint_names,
+    check_robot,
+    frame_name,
+)
 from dream.io.images import STACK_KEY
 from dream.io.intrinsics import IntrinsicsArg, camera_from_argument, camera_from_K
+from dream.io.npz import read_header
 from dream.sequence import Frame, Sequence
 
 logger = logging.getLogger(__name__)
@@ -48,8 +56,7 @@ ROS2_METADATA = "metadata.yaml"
 ROS2_FILES = (".db3", ".mcap")
 MAX_JOINT_GAP_S = 0.1    # an image farther than this from every joint message is left out
 NS_PER_S = 10 ** 9
-CACHE_ENV, BAGS_FOLDER = "DREAM_CACHE_DIR", "bags"
-DEFAULT_CACHE_ROOT = Path("~/.cache/dream")
+BAGS_FOLDER = "bags"
 FIX_ROSBAGS = "pip install rosbags (or the project's 'ros' extra: pip install -e '.[ros]')"
 CHANNEL_ORDER = {"rgb8": None, "bgr8": cv2.COLOR_BGR2RGB, "rgba8": cv2.COLOR_RGBA2RGB,
                  "bgra8": cv2.COLOR_BGRA2RGB, "mono8": cv2.COLOR_GRAY2RGB}
@@ -149,9 +156,20 @@ def _cache_file(bag: Path, topics: tuple[str, str]) -> Path:
     for f in files:
         stat = f.stat()
         digest.update(f"{f.resolve()}:{stat.st_size}:{stat.st_mtime_ns}".encode())
-    base = os.environ.get(CACHE_ENV)
-    root = (Path(base) if base else DEFAULT_CACHE_ROOT).expanduser() / BAGS_FOLDER
-    return root / f"{digest.hexdigest()[:32]}.npz"
+    return cache_folder(BAGS_FOLDER) / f"{digest.hexdigest()[:32]}.npz"
+
+
+def _cached_stack(stack: Path, count: int) -> tuple[int, int] | None:
+    """(height, width) of a cached image stack of `count` images, None where there is none
+    (or an unreadable or stale one, which is decoded again)."""
+    if not stack.is_file():
+        return None
+    try:
+        header = read_header(stack, STACK_KEY)
+    except InputError:
+        return None
+    shape = tuple(header.shape)
+    return (shape[1], shape[2]) if len(shape) == 4 and shape[0] == count else None
 
 
 def _write_stack(images: list[np.ndarray], target: Path, path: Path) -> None:
@@ -170,9 +188,10 @@ def _write_stack(images: list[np.ndarray], target: Path, path: Path) -> None:
                          target.parent, f"set {CACHE_ENV} to a writable folder") from None
 
 
-def _read_messages(path: Path, topics: BagTopics):
+def _read_messages(path: Path, topics: BagTopics, reuse: bool = True):
     """(image times, RGB images, joint times, joint names, joint positions, CameraInfo or
-    None, the image and joint topics)."""
+    None, the image and joint topics). With `reuse`, where the images' stack is already in the
+    cache, the images are not decoded (None each)."""
     try:
         from rosbags.highlevel import AnyReader, AnyReaderError
         from rosbags.typesys import Stores, get_typestore
@@ -188,6 +207,8 @@ def _read_messages(path: Path, topics: BagTopics):
                             "--joint-topic")
             info_c = _pick(conns, topics.camera_info, (CAMERA_INFO,), "camera infos", path,
                            "--camera-info-topic", required=topics.camera_info is not None)
+            used = (image_c[0].topic, joint_c[0].topic)
+            decode = not (reuse and _cache_file(path, used).is_file())
             image_t, images, joint_t, joint_names, positions, info = [], [], [], None, [], None
             for conn, received, raw in reader.messages(connections=image_c + joint_c + info_c):
                 msg = reader.deserialize(raw, conn.msgtype)
@@ -195,7 +216,7 @@ def _read_messages(path: Path, topics: BagTopics):
                     info = info if info is not None else msg
                 elif conn in image_c:
                     image_t.append(_stamp_s(msg, received))
-                    images.append(_rgb(msg, conn.msgtype, path))
+                    images.append(_rgb(msg, conn.msgtype, path) if decode else None)
                 else:
                     joint_t.append(_stamp_s(msg, received))
                     joint_names = joint_names or tuple(msg.name)
@@ -207,8 +228,7 @@ def _read_messages(path: Path, topics: BagTopics):
     except (AnyReaderError, OSError, KeyError) as exc:
         raise InputError(f"cannot read the bag ({fields.one_line(exc)})", path,
                          "give a ROS 1 .bag file or a ROS 2 bag folder") from None
-    return (image_t, images, joint_t, joint_names, positions, info,
-            (image_c[0].topic, joint_c[0].topic))
+    return image_t, images, joint_t, joint_names, positions, info, used
 
 
 def read_rosbag(path: str | Path, *, joint_names: SequenceOf[str] | None = None,
@@ -224,8 +244,8 @@ def read_rosbag(path: str | Path, *, joint_names: SequenceOf[str] | None = None,
         topics: the topics; default: found by type.
     """
     path = _bag_path(Path(path))
-    image_t, images, joint_t, names, positions, info, used = \
-        _read_messages(path, topics or BagTopics())
+    topics = topics or BagTopics()
+    image_t, images, joint_t, names, positions, info, used = _read_messages(path, topics)
     if not images or not joint_t:
         raise InputError(f"holds {len(images)} images and {len(joint_t)} joint states", path,
                          "record both the image and the joint state topics")
@@ -237,7 +257,25 @@ def read_rosbag(path: str | Path, *, joint_names: SequenceOf[str] | None = None,
     q = np.stack(positions)[:, [names.index(n) for n in keep]]
     order = np.argsort(joint_t, kind="stable")
     joint_t, q = np.asarray(joint_t)[order], q[order]
-    height, width = images[0].shape[:2]
+    pairs = []   # (image, its nearest joint state), images in time order
+    for i in np.argsort(image_t, kind="stable"):
+        j = int(np.argmin(np.abs(joint_t - image_t[i])))
+        if abs(joint_t[j] - image_t[i]) <= MAX_JOINT_GAP_S:
+            pairs.append((int(i), j))
+    if len(pairs) < len(images):
+        logger.warning("%s: %d of %d images have no joint state within %.2f s and are left out",
+                       path, len(images) - len(pairs), len(images), MAX_JOINT_GAP_S)
+    if not pairs:
+        raise InputError(f"no image has a joint state within {MAX_JOINT_GAP_S} s", path,
+                         "record the joint states with the images (and check their stamps)")
+    stack = _cache_file(path, used)
+    size = _cached_stack(stack, len(pairs)) if images[0] is None else None
+    if images[0] is None and size is None:   # a stale stack: decode the images again
+        images = _read_messages(path, topics, reuse=False)[1]
+    if images[0] is not None:
+        _write_stack([images[i] for i, _ in pairs], stack, path)
+        size = images[0].shape[:2]
+    height, width = size
     if intrinsics is not None:
         camera = camera_from_argument(intrinsics, width, height, path)
     elif info is not None:
@@ -245,22 +283,8 @@ def read_rosbag(path: str | Path, *, joint_names: SequenceOf[str] | None = None,
     else:
         raise InputError("has no CameraInfo topic", path, "name one with --camera-info-topic, "
                          "or give --camera-info FILE or --intrinsics fx,fy,cx,cy")
-    stack = _cache_file(path, used)
-    frames, kept = [], []
-    for i in np.argsort(image_t, kind="stable"):
-        j = int(np.argmin(np.abs(joint_t - image_t[i])))
-        if abs(joint_t[j] - image_t[i]) > MAX_JOINT_GAP_S:
-            continue
-        frames.append(Frame(name=frame_name(len(frames)), joints=q[j], image_path=stack,
-                            image_index=len(kept), timestamp=image_t[i], source=path))
-        kept.append(images[i])
-    if len(kept) < len(images):
-        logger.warning("%s: %d of %d images have no joint state within %.2f s and are left out",
-                       path, len(images) - len(kept), len(images), MAX_JOINT_GAP_S)
-    if not kept:
-        raise InputError(f"no image has a joint state within {MAX_JOINT_GAP_S} s", path,
-                         "record the joint states with the images (and check their stamps)")
-    _write_stack(kept, stack, path)
+    frames = [Frame(name=frame_name(k), joints=q[j], image_path=stack, image_index=k,
+                    timestamp=image_t[i], source=path) for k, (i, j) in enumerate(pairs)]
     logger.info("read %d frames of %s and %s from %s", len(frames), *used, path)
     return Sequence(robot=check_robot(robot, PANDA_ROBOT), camera=camera, joint_names=keep,
                     keypoint_names=(), frames=tuple(frames), source=path)

@@ -248,3 +248,21 @@ def test_bag_cache_that_cannot_be_written_says_what_to_do(imaged, tmp_path, monk
     monkeypatch.setenv("DREAM_CACHE_DIR", str(blocker))
     with pytest.raises(InputError, match="DREAM_CACHE_DIR"):
         read_sequence(bag)
+
+
+def test_a_bag_read_again_takes_its_images_from_the_cache(imaged, tmp_path, monkeypatch):
+    import dream.io.rosbag as rosbag
+
+    seq, _ = imaged
+    bag = write_bag(seq, tmp_path / "run")
+    first = read_sequence(bag, joint_names=seq.joint_names)
+
+    def no_decoding(*args):
+        raise AssertionError("decoded again")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(rosbag, "_rgb", no_decoding)
+        _same(read_sequence(bag, joint_names=seq.joint_names), first)
+    stack = first.frames[0].image_path
+    np.savez(stack, rgb_images=np.zeros((2, HEIGHT, WIDTH, 3), np.uint8))   # stale: 2 of 5
+    _same(read_sequence(bag, joint_names=seq.joint_names), seq)
