@@ -128,7 +128,8 @@ def _alternative_fits(tested: list[Verdict], alternatives: dict[str, list[str]]
 
 
 def _truth(sequence: Sequence, diagnosis: Diagnosis) -> dict[str, Any] | None:
-    """Extrinsic error and ADD of the baseline and extended fits against the data's truth."""
+    """Extrinsic error and ADD of the baseline and extended fits against the data's truth, and
+    the extrinsic error after each accepted effect (`steps`)."""
     T_true = truth_poses(sequence)
     has = np.all(np.isfinite(T_true.reshape(len(sequence), -1)), axis=1)
     if not has.any():
@@ -143,6 +144,11 @@ def _truth(sequence: Sequence, diagnosis: Diagnosis) -> dict[str, Any] | None:
         out[label] = {"translation_error_m": float(np.median(t_err)),
                       "rotation_error_rad": float(np.median(r_err)),
                       "add_mean_m": float(np.mean(add))}
+    out["steps"] = []   # after each accepted effect, in order
+    for label, fit in _model_steps(diagnosis):
+        t_err, r_err = pose_errors(fit.model.poses(fit.x)[has], T_true[has])
+        out["steps"].append({"model": label, "translation_error_m": float(np.median(t_err)),
+                             "rotation_error_rad": float(np.median(r_err))})
     return out
 
 
@@ -152,6 +158,7 @@ def diagnosis_document(sequence: Sequence, diagnosis: Diagnosis,
     truth and notes."""
     mask = diagnosis.mask
     base, final = diagnosis.baseline, diagnosis.final
+    before = diagnosis.baseline_as_logged or base   # with held readings: as logged
 
     def fit_rmse(fit: FitResult) -> float:
         r = fit.residual[mask]
@@ -175,21 +182,23 @@ def diagnosis_document(sequence: Sequence, diagnosis: Diagnosis,
         "frames": len(sequence),
         "keypoints_used": int(mask.sum()),
         "huber_scale_px": diagnosis.scale_px,
-        "baseline": {"rmse_px": fit_rmse(base.fit), "heldout_rmse_px": base.heldout_rmse_px,
+        "baseline": {"rmse_px": fit_rmse(base.fit), "heldout_rmse_px": before.heldout_rmse_px,
                      "T_cam_base": base.fit.T_cam_base.tolist()},
         "effects": effects,
         "verdict": list(diagnosis.accepted),
         "alternatives": dict(diagnosis.alternatives),
         "extended_model": str(extension_path),
         "extended": {"rmse_px": fit_rmse(final.fit), "T_cam_base": final.fit.T_cam_base.tolist()},
-        "gain": {"heldout_rmse_px_before": base.heldout_rmse_px,
+        "gain": {"heldout_rmse_px_before": before.heldout_rmse_px,
                  "heldout_rmse_px_after": final.heldout_rmse_px},
         "seconds": diagnosis.seconds,
         "notes": list(diagnosis.notes),
     }
+    if before is not base:
+        doc["baseline"]["heldout_rmse_px_interpolated"] = base.heldout_rmse_px
     doc["remaining"] = remaining_misfit(final.fit.residual, mask & final.fit.model.problem.observed,
                                         final.fit.model.problem.robot.keypoint_names,
-                                        base.heldout_rmse_px, final.heldout_rmse_px)
+                                        before.heldout_rmse_px, final.heldout_rmse_px)
     truth = _truth(sequence, diagnosis)
     if truth is not None:
         doc["truth"] = truth
@@ -271,11 +280,6 @@ def diagnose_sequence(sequence: Sequence, robot: Robot, obs: Observations,
         doc["verdict"].insert(0, "held_readings")
         doc["effects"].insert(0, held_entry(logged, held, as_logged.heldout_rmse_px,
                                             diagnosis.baseline.heldout_rmse_px))
-        doc["baseline"]["heldout_rmse_px_interpolated"] = doc["baseline"]["heldout_rmse_px"]
-        doc["baseline"]["heldout_rmse_px"] = as_logged.heldout_rmse_px
-        doc["gain"]["heldout_rmse_px_before"] = as_logged.heldout_rmse_px
-        doc["remaining"]["unexplained_share"] = (diagnosis.final.heldout_rmse_px
-                                                 / as_logged.heldout_rmse_px) ** 2
     return doc, diagnosis, problem
 
 
@@ -309,8 +313,6 @@ def run_diagnosis(sequence: Sequence, robot: Robot, obs: Observations, report_di
                                                                   diagnosis.mask)
     analysis = analyse(baseline_res)
     _add_image_evidence(doc, sequence, diagnosis)
-    if "truth" in doc:
-        doc["truth"]["steps"] = _truth_steps(sequence, diagnosis)
     panels = _silhouette_panels(sequence, problem, diagnosis)
     if panels:
         doc["silhouette_iou"] = [{"frame": p.frame, "before": p.iou_before, "after": p.iou_after}
@@ -345,18 +347,6 @@ def _model_steps(diagnosis: Diagnosis) -> list[tuple[str, FitResult]]:
     if diagnosis.accepted:
         steps[-1] = (steps[-1][0], diagnosis.final.fit)
     return steps
-
-
-def _truth_steps(sequence: Sequence, diagnosis: Diagnosis) -> list[dict[str, Any]]:
-    """The extrinsic error against the data's truth after each accepted effect, in order."""
-    T_true = truth_poses(sequence)
-    has = np.all(np.isfinite(T_true.reshape(len(sequence), -1)), axis=1)
-    out = []
-    for label, fit in _model_steps(diagnosis):
-        t_err, r_err = pose_errors(fit.model.poses(fit.x)[has], T_true[has])
-        out.append({"model": label, "translation_error_m": float(np.median(t_err)),
-                    "rotation_error_rad": float(np.median(r_err))})
-    return out
 
 
 def _add_image_evidence(doc: dict[str, Any], sequence: Sequence, diagnosis: Diagnosis) -> None:
