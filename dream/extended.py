@@ -87,13 +87,8 @@ def held_joints(joints: np.ndarray, times_s: np.ndarray, held: HeldReadings,
     is left as it is."""
     from dream.readings import interpolated_joints, reading_updates
 
-    unknown = [j for j in held.joints if j not in joint_names]
-    if unknown:
-        raise InputError(f"held_readings names unknown joints {', '.join(unknown)}",
-                         fix=f"use joints of the robot: {', '.join(joint_names)}")
-    columns = [joint_names.index(j) for j in held.joints] or list(range(len(joint_names)))
     out = np.array(joints, dtype=float)
-    for j in columns:
+    for j in held.columns(tuple(joint_names)):
         column = out[:, [j]]
         updates = reading_updates(times_s, column)
         if updates.held:

@@ -121,6 +121,18 @@ class HeldReadings:
                              f"{self.joints!r}")
         object.__setattr__(self, "joints", tuple(self.joints))
 
+    def columns(self, joint_names: tuple[str, ...]) -> list[int]:
+        """Indices of the held joints among `joint_names` (all of them when `joints` is empty).
+
+        Raises:
+            InputError: a held joint that is not among `joint_names`.
+        """
+        unknown = [j for j in self.joints if j not in joint_names]
+        if unknown:
+            raise InputError(f"held_readings names unknown joints {', '.join(unknown)}",
+                             fix=f"use joints of the robot: {', '.join(joint_names)}")
+        return [joint_names.index(j) for j in self.joints] or list(range(len(joint_names)))
+
 
 @dataclass(frozen=True)
 class ModelExtension:

@@ -91,10 +91,7 @@ def check_extension(extension: ModelExtension, robot: Robot, config: SynthConfig
         if mode != "trajectory":
             raise InputError(f"held_readings needs sequence.mode trajectory, not '{mode}'",
                              fix=f"set sequence.mode=trajectory, or {KEYPOINT_ONLY_HINT}")
-        unknown = [j for j in extension.held_readings.joints if j not in robot.joint_names]
-        if unknown:
-            raise InputError(f"held_readings names unknown joints {', '.join(unknown)}",
-                             fix=f"use joints of {robot.name}: {', '.join(robot.joint_names)}")
+        extension.held_readings.columns(robot.joint_names)
     index = move_index(extension)
     if index is not None:
         if mode == "random":

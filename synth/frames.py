@@ -268,7 +268,7 @@ class FrameMaker:
             sampled = trajectory_joints_at(
                 self.seed, held_reading_time(p.timestamp, self.extension) - tau, self.robot,
                 self.config, self.joint_log)
-            columns = [self.robot.joint_names.index(j) for j in held.joints] or slice(None)
+            columns = held.columns(self.robot.joint_names)
             readings = readings.copy()
             readings[columns] = sampled[columns]
         p = dataclasses.replace(p, scene=dataclasses.replace(p.scene, T_cam_base=T_true))

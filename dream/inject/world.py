@@ -80,7 +80,7 @@ def held_readings_of(trajectory: JointTrajectory, times_s: np.ndarray, tau: floa
     phase = np.random.default_rng([seed, HELD_STREAM]).uniform(0.0, held.period_s)
     updates = held_update_times(times_s, held.period_s, phase)
     sampled = trajectory_joints(trajectory, updates - tau)
-    columns = [robot.joint_names.index(j) for j in held.joints] or slice(None)
+    columns = held.columns(robot.joint_names)
     readings[:, columns] = sampled[:, columns]
     return readings
 
