@@ -57,10 +57,11 @@ def _check_T(T: np.ndarray, what: str) -> np.ndarray:
     return T
 
 
-def _check_frame(name: str, what: str) -> str:
+def check_frame_name(name: str, what: str, fix: str | None = None) -> str:
+    """`name` when it is a tf frame name; else an `InputError` naming `what` (e.g. an option)."""
     if not isinstance(name, str) or not FRAME_NAME.fullmatch(name):
         raise InputError(f"{what} {name!r} must be a non-empty tf frame name (letters, digits, "
-                         "'_', '/', '.', '-')")
+                         "'_', '/', '.', '-')", fix=fix)
     return name
 
 
@@ -71,8 +72,7 @@ def static_transform_args(T_base_cam: np.ndarray, base_frame: str,
     T = _check_T(T_base_cam, "T_base_cam")
     q = quaternion_xyzw_from_R(T[:3, :3])
     numbers = " ".join(_number(v) for v in (*T[:3, 3], *q))
-    return f"{numbers} {_check_frame(base_frame, 'base frame')} " \
-           f"{_check_frame(camera_frame, 'camera frame')}"
+    return f"{numbers} {' '.join(_check_frames(base_frame, camera_frame))}"
 
 
 def ros_text(T_cam_base: np.ndarray, base_frame: str, camera_frame: str = CAMERA_OPTICAL_FRAME,
@@ -110,7 +110,8 @@ def output_paths(result_path: str | Path) -> tuple[Path, Path]:
 
 
 def _check_frames(base_frame: str, camera_frame: str) -> tuple[str, str]:
-    return _check_frame(base_frame, "base frame"), _check_frame(camera_frame, "camera frame")
+    return (check_frame_name(base_frame, "base frame"),
+            check_frame_name(camera_frame, "camera frame"))
 
 
 def _pose_numbers(T_cam_base: np.ndarray) -> tuple[list[str], list[str]]:

@@ -84,15 +84,12 @@ class CalibrateRequest(DataOptions):
 
 def _check_frames(base_frame: str | None, camera_frame: str) -> None:
     """`--base-frame` and `--camera-frame` are tf frame names (before any reading)."""
-    from dream.ros import static_transform_args
+    from dream.ros import check_frame_name
 
-    try:
-        static_transform_args(np.eye(4), base_frame or "base", camera_frame)
-    except InputError as exc:
-        raise InputError(exc.problem.replace("base frame", "--base-frame")
-                         .replace("camera frame", "--camera-frame"),
-                         fix="give a frame name as tf uses it, e.g. camera_color_optical_frame"
-                         ) from None
+    fix = "give a frame name as tf uses it, e.g. camera_color_optical_frame"
+    if base_frame is not None:
+        check_frame_name(base_frame, "--base-frame", fix)
+    check_frame_name(camera_frame, "--camera-frame", fix)
 
 
 def _check_mask_head(mask_head: bool, polish: bool, model: bool, frames: str) -> None:
