@@ -13,7 +13,7 @@ import numpy as np
 
 from dream.errors import InputError
 from dream.io import read_sequence, write_bytes_atomic
-from dream.io.images import load_image
+from dream.io.images import encode_png, load_image
 from dream.overlay import draw_skeleton
 
 SHEET_FRAMES = 16     # frames on a sheet
@@ -55,9 +55,5 @@ def write_contact_sheet(folder: str | Path, out_path: str | Path,
     if out_path.suffix.lower() != ".png":
         raise InputError("the contact sheet is written as PNG", out_path,
                          "give a file name ending in .png")
-    ok, buf = cv2.imencode(".png", cv2.cvtColor(contact_sheet(folder, num_frames),
-                                                cv2.COLOR_RGB2BGR))
-    if not ok:
-        raise InputError("could not encode the contact sheet", out_path)
-    write_bytes_atomic(out_path, buf.tobytes())
+    write_bytes_atomic(out_path, encode_png(contact_sheet(folder, num_frames), out_path))
     return out_path
