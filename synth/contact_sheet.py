@@ -33,15 +33,33 @@ def contact_sheet(folder: str | Path, num_frames: int = SHEET_FRAMES,
         raise InputError(f"a contact sheet needs at least one frame and one column, got "
                          f"{num_frames} frames in {columns} columns")
     sequence = read_sequence(folder)
-    tiles = []
+    images = []
     for frame in sequence.frames[:num_frames]:
         rgb = load_image(frame)
         if frame.uv_labels is not None:
             rgb = draw_skeleton(rgb, frame.uv_labels, ())
-        height = round(rgb.shape[0] * TILE_WIDTH_PX / rgb.shape[1])
-        tiles.append(cv2.resize(rgb, (TILE_WIDTH_PX, height), interpolation=cv2.INTER_AREA))
+        images.append(rgb)
+    return tile(images, columns)
+
+
+def tile(images: list[np.ndarray], columns: int = SHEET_COLUMNS,
+         tile_width_px: int = TILE_WIDTH_PX) -> np.ndarray:
+    """(H, W, 3) uint8 RGB: `images` (each (h, w, 3) uint8) scaled to `tile_width_px` wide
+    (aspect kept) in rows of `columns`, the last row padded with black.
+
+    >>> sheet = tile([np.zeros((48, 64, 3), np.uint8)] * 3, columns=2, tile_width_px=32)
+    >>> sheet.shape
+    (48, 64, 3)
+    """
+    if not images or columns < 1:
+        raise InputError(f"a sheet needs at least one image and one column, got {len(images)} "
+                         f"images in {columns} columns")
+    tiles = []
+    for rgb in images:
+        height = round(rgb.shape[0] * tile_width_px / rgb.shape[1])
+        tiles.append(cv2.resize(rgb, (tile_width_px, height), interpolation=cv2.INTER_AREA))
     height = max(t.shape[0] for t in tiles)
-    blank = np.zeros((height, TILE_WIDTH_PX, 3), np.uint8)
+    blank = np.zeros((height, tile_width_px, 3), np.uint8)
     tiles = [np.pad(t, ((0, height - t.shape[0]), (0, 0), (0, 0))) for t in tiles]
     tiles += [blank] * (-len(tiles) % columns)
     rows = [np.hstack(tiles[i:i + columns]) for i in range(0, len(tiles), columns)]

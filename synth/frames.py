@@ -34,6 +34,7 @@ from synth.randomize import (
     sample_frame,
     trajectory_joints_at,
 )
+from synth.rays import keypoint_ray_hits
 from synth.render import BACKGROUND_GEOM, SceneRenderer
 from synth.rendered import RenderedFrame
 from synth.scene import RobotScene, build_scene
@@ -126,7 +127,6 @@ class FrameMaker:
         self.floor_group = int(model.geom_group[self.scene.floor_geom_id])
         self.hidden_group = int(np.flatnonzero(self.renderer.options.geom_groups() == 0)[-1])
         self.ray_groups = np.asarray(self.renderer.options.geom_groups(), np.uint8)
-        self.link_names = tuple(self.scene.link_names)
 
     def close(self) -> None:
         self.renderer.close()
@@ -234,24 +234,6 @@ class FrameMaker:
 
     # ----- rendering and labels ------------------------------------------------------------------
 
-    def _ray_hits(self, P_cam: np.ndarray, T_cam_base: np.ndarray):
-        """First geom met by rays from the camera centre to each keypoint."""
-        model, data = self.scene.model, self.renderer.data
-        T_base_cam = invert_T(T_cam_base)
-        origin = T_base_cam[:3, 3].copy()
-        links, distractor, distance = [], [], []
-        geom_id = np.zeros(1, np.int32)
-        for P in P_cam:
-            direction = T_base_cam[:3, :3] @ (P / np.linalg.norm(P))
-            d = mujoco.mj_ray(model, data, origin, direction, self.ray_groups, 1, -1, geom_id)
-            g = int(geom_id[0])
-            hit = d >= 0 and g >= 0
-            distance.append(d if hit else np.inf)
-            link = int(self.scene.geom_link_index[g]) if hit else 0
-            links.append(self.link_names[link - 1] if link > 0 else None)
-            distractor.append(hit and g in self.distractor_set)
-        return links, np.array(distractor), np.array(distance)
-
     def _true_state(self, p: FrameDraw) -> tuple[FrameDraw, np.ndarray, np.ndarray]:
         """(the parameters with the true extrinsic, the true joints (J,), the written joint
         readings (J,)) of a frame; without an extension the parameters as drawn."""
@@ -294,7 +276,8 @@ class FrameMaker:
                                 camera.width, self.config.background.kinds, self.photos)
             rgb[background] = bg[background]
         P_cam = true_keypoints_cam(self.true_robot, q_true, p.scene.T_cam_base, self.extension)
-        hits = self._ray_hits(P_cam, p.scene.T_cam_base)
+        hits = keypoint_ray_hits(self.scene, self.renderer.data, P_cam, p.scene.T_cam_base,
+                                 self.ray_groups, self.distractor_set)
         labels = keypoint_labels(self.robot, P_cam, render_camera, *hits)
         return RenderedFrame(index=index, rgb=rgb, link_ids=out.link_ids, depth=out.depth,
                              camera=camera, T_cam_base=p.scene.T_cam_base, joints=readings,

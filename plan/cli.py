@@ -1,0 +1,234 @@
+"""`dream plan`: registered through the `dream.commands` entry point; imports nothing heavy."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from dream.cli.options import add_command, check_positive, check_seed, parse_intrinsics
+from dream.errors import InputError
+
+PROGRESS_PERIOD_S = 5.0   # candidate-search progress lines on stderr at most this often
+FIX_CAMERA = ("give --camera RESULT.json (an earlier calibration), or --camera X,Y,Z with "
+              "--look-at X,Y,Z and --intrinsics fx,fy,cx,cy,width,height (metres, base frame)")
+NONE = "none"
+
+
+def _floats(text: str, count: int, option: str, fix: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError(f"{option} '{text}' must be comma-separated numbers", fix=fix) from None
+    if len(values) != count or not all(math.isfinite(v) for v in values):
+        raise InputError(f"{option} '{text}' must be {count} finite numbers", fix=fix)
+    return values
+
+
+def _joint_ranges(items: list[str]) -> dict[str, tuple[float, float]]:
+    fix = "give --joint-range NAME=LOW:HIGH, e.g. panda_joint1=-1.5:1.5 (radians)"
+    out = {}
+    for item in items:
+        name, _, span = item.partition("=")
+        low, _, high = span.partition(":")
+        try:
+            out[name.strip()] = (float(low), float(high))
+        except ValueError:
+            raise InputError(f"--joint-range '{item}' is not NAME=LOW:HIGH", fix=fix) from None
+    return out
+
+
+@dataclass(frozen=True)
+class PlanRequest:
+    """What `dream plan` does: the options of its command line."""
+
+    robot: str
+    camera: str
+    out: str
+    look_at: str | None = None
+    intrinsics: str | None = None
+    position_sigma_m: float | None = None
+    rotation_sigma_deg: float | None = None
+    num: int = 12
+    joint_range: tuple[str, ...] = ()
+    table_z: str = "0"
+    keep_out: tuple[str, ...] = ()
+    model: str | None = None
+    noise_px: float = 1.0
+    margin_px: float = 20.0
+    max_cut: float = 0.2
+    clearance_m: float = 0.01
+    candidates: int = 600
+    max_draws: int = 60000
+    camera_samples: int = 16
+    start: str | None = None
+    seed: int = 0
+    overwrite: bool = False
+
+    def __post_init__(self) -> None:
+        check_seed(self.seed)
+        check_positive(self.num, "--num", "give --num 1 or more poses")
+        object.__setattr__(self, "joint_range", tuple(self.joint_range or ()))
+        object.__setattr__(self, "keep_out", tuple(self.keep_out or ()))
+        for name in ("position_sigma_m", "rotation_sigma_deg"):
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and value >= 0):
+                raise InputError(f"--{name.replace('_', '-')} must be a finite number >= 0, "
+                                 f"got {value}")
+
+    def camera_is_position(self) -> bool:
+        """--camera is X,Y,Z rather than a result file."""
+        return not Path(self.camera).is_file() and "," in self.camera
+
+    def table_z_m(self) -> float | None:
+        if self.table_z.strip().lower() == NONE:
+            return None
+        return _floats(self.table_z, 1, "--table-z", "give the table height in metres "
+                       "(base frame), or --table-z none")[0]
+
+
+def _prior(request: PlanRequest):
+    from plan.camera_prior import prior_from_look_at, prior_from_result
+
+    camera = parse_intrinsics(request.intrinsics)
+    if camera is not None and not hasattr(camera, "width"):
+        raise InputError("--intrinsics needs the image size too",
+                         fix="give --intrinsics fx,fy,cx,cy,width,height")
+    rotation = None if request.rotation_sigma_deg is None else \
+        math.radians(request.rotation_sigma_deg)
+    if not request.camera_is_position():
+        if request.look_at is not None:
+            raise InputError("--look-at goes with a camera position, not a result file",
+                             fix=FIX_CAMERA)
+        return prior_from_result(request.camera, camera, request.position_sigma_m, rotation)
+    if request.look_at is None or camera is None:
+        raise InputError("a camera position needs --look-at and --intrinsics", fix=FIX_CAMERA)
+    position = _floats(request.camera, 3, "--camera", FIX_CAMERA)
+    target = _floats(request.look_at, 3, "--look-at", FIX_CAMERA)
+    kwargs = {k: v for k, v in (("position_sigma_m", request.position_sigma_m),
+                                ("rotation_sigma_rad", rotation)) if v is not None}
+    return prior_from_look_at(position, target, camera, **kwargs)
+
+
+def _robot(request: PlanRequest):
+    from dream.detection import load_keypoint_model
+    from dream.robot import load_robot
+
+    robot = load_robot(request.robot)
+    if request.model is not None:
+        robot = robot.with_keypoints(load_keypoint_model(request.model).keypoint_names)
+    return robot
+
+
+def _feasibility(request: PlanRequest):
+    from plan.feasibility import Box, Feasibility
+
+    fix = "give --keep-out xmin,ymin,zmin,xmax,ymax,zmax in metres (base frame)"
+    boxes = []
+    for text in request.keep_out:
+        v = _floats(text, 6, "--keep-out", fix)
+        boxes.append(Box(v[:3], v[3:]))
+    return Feasibility(table_z_m=request.table_z_m(), keep_out=tuple(boxes),
+                       clearance_m=request.clearance_m, margin_px=request.margin_px,
+                       max_cut=request.max_cut)
+
+
+class _Progress:
+    def __init__(self) -> None:
+        self.last = time.perf_counter()
+
+    def __call__(self, found: int, draws: int) -> None:
+        now = time.perf_counter()
+        if now - self.last >= PROGRESS_PERIOD_S:
+            self.last = now
+            print(f"plan: {found} valid poses in {draws} draws", file=sys.stderr, flush=True)
+
+
+def run_plan(request: PlanRequest) -> None:
+    """Plan, write PLAN_DIR, print a summary."""
+    from dream.io.atomic import check_output_dir
+    from plan.output import render_sheet, write_plan
+    from plan.planner import PlanSettings, choose_poses, find_candidates, joint_ranges
+
+    check_output_dir(Path(request.out), request.overwrite)
+    robot = _robot(request)
+    prior = _prior(request)
+    feasibility = _feasibility(request)
+    settings = PlanSettings(num_poses=request.num, candidates=request.candidates,
+                            max_draws=request.max_draws, camera_samples=request.camera_samples,
+                            noise_px=request.noise_px, seed=request.seed)
+    ranges = joint_ranges(robot, _joint_ranges(list(request.joint_range)))
+    start = None if request.start is None else _floats(
+        request.start, robot.num_joints, "--start",
+        f"give {robot.num_joints} joint values ({', '.join(robot.joint_names)}), radians")
+    candidates = find_candidates(robot, prior, feasibility, settings, ranges, _Progress())
+    plan = choose_poses(robot, prior, candidates, settings, start)
+    write_plan(request.out, plan, robot, prior, feasibility, settings,
+               render_sheet(plan, robot, prior, feasibility), request.overwrite)
+    p, r = plan.predicted, plan.random_predicted
+    print(f"planned {len(plan.joints)} poses of {robot.name} from {len(candidates.joints)} valid "
+          f"candidates ({candidates.draws} draws); joint path {plan.path_length:.2f} rad")
+    print(f"predicted 1-sigma at {request.noise_px:g} px keypoint noise: camera position "
+          f"{p['position_worst_m'] * 1e3:.2f} mm, rotation "
+          f"{math.degrees(p['rotation_worst_rad']):.3f} deg (random valid poses: "
+          f"{r['position_worst_m'] * 1e3:.2f} mm, {math.degrees(r['rotation_worst_rad']):.3f} "
+          "deg)")
+    print(f"wrote {request.out}/joints.txt, plan.json, contact_sheet.png")
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    from dream.cli.options import request_from
+
+    run_plan(request_from(PlanRequest, args))
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """The `dream plan` parser."""
+    p = add_command(sub, "plan", cmd_plan, "choose the robot poses to record for the most "
+                    "accurate calibration (D-optimal, collision-free, keypoints in view)")
+    p.add_argument("--robot", required=True, help="built-in robot name or URDF path")
+    p.add_argument("--camera", required=True, metavar="RESULT.json|X,Y,Z",
+                   help="the camera roughly: an earlier calibration's RESULT.json, or its "
+                        "position in the base frame (m, with --look-at; write --camera=-1,0,1 "
+                        "when the first number is negative)")
+    p.add_argument("--look-at", metavar="X,Y,Z", help="a point the camera looks at, base frame, m")
+    p.add_argument("--intrinsics", metavar="FX,FY,CX,CY,W,H",
+                   help="camera intrinsics and image size in pixels (default: the result's)")
+    p.add_argument("--position-sigma-m", type=float, help="1-sigma of the camera position per "
+                   "axis, m (default: the result's, else 0.05)")
+    p.add_argument("--rotation-sigma-deg", type=float, help="1-sigma of the camera orientation "
+                   "per axis, deg (default: the result's, else 3)")
+    p.add_argument("--num", type=int, default=12, help="poses to plan (default: %(default)s)")
+    p.add_argument("--out", required=True, help="plan folder to write")
+    p.add_argument("--joint-range", action="append", metavar="NAME=LOW:HIGH",
+                   help="narrow a joint's range within its URDF limits, rad (repeatable; "
+                        "default: the limits)")
+    p.add_argument("--table-z", default="0", help="height of the table plane no link may go "
+                   "below, m in the base frame, or 'none' (default: %(default)s)")
+    p.add_argument("--keep-out", action="append", metavar="XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX",
+                   help="a box no link may enter, m in the base frame (repeatable; default: "
+                        "none)")
+    p.add_argument("--model", metavar="MODEL.onnx", help="take the keypoints this detector "
+                   "finds (default: the robot's own keypoints)")
+    p.add_argument("--noise-px", type=float, default=1.0, help="expected keypoint noise, px "
+                   "1-sigma (default: %(default)s)")
+    p.add_argument("--margin-px", type=float, default=20.0, help="keypoints at least this far "
+                   "inside the image border (default: %(default)s)")
+    p.add_argument("--max-cut", type=float, default=0.2, help="largest share of the robot "
+                   "outside the image (default: %(default)s)")
+    p.add_argument("--clearance-m", type=float, default=0.01, help="least distance between "
+                   "links, to boxes and to the table, m (default: %(default)s)")
+    p.add_argument("--candidates", type=int, default=600, help="valid poses to choose from "
+                   "(default: %(default)s)")
+    p.add_argument("--max-draws", type=int, default=60000, help="random poses drawn at most "
+                   "while looking for them (default: %(default)s)")
+    p.add_argument("--camera-samples", type=int, default=16, help="camera poses drawn from its "
+                   "uncertainty to average the criterion over (default: %(default)s)")
+    p.add_argument("--start", metavar="Q1,...,QJ", help="the configuration the robot starts "
+                   "from, rad (default: zero clipped into the limits)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
