@@ -210,8 +210,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--table-z", default="0", help="height of the table plane no link may go "
                    "below, m in the base frame, or 'none' (default: %(default)s)")
     p.add_argument("--keep-out", action="append", metavar="XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX",
-                   help="a box no link may enter, m in the base frame (repeatable; default: "
-                        "none)")
+                   help="a box no link may enter, m in the base frame (repeatable; write "
+                        "--keep-out=-1,... when the first number is negative; default: none)")
     p.add_argument("--model", metavar="MODEL.onnx", help="take the keypoints this detector "
                    "finds (default: the robot's own keypoints)")
     p.add_argument("--noise-px", type=float, default=1.0, help="expected keypoint noise, px "
@@ -229,6 +229,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--camera-samples", type=int, default=16, help="camera poses drawn from its "
                    "uncertainty to average the criterion over (default: %(default)s)")
     p.add_argument("--start", metavar="Q1,...,QJ", help="the configuration the robot starts "
-                   "from, rad (default: zero clipped into the limits)")
+                   "from, rad (--start=-1,... when the first is negative; default: zero clipped "
+                   "into the limits)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")

@@ -135,6 +135,32 @@ def test_a_result_file_states_the_camera(tmp_path):
     assert prior_from_result(bare, CAMERA).position_sigma_m > 0
 
 
+def test_dream_plan_from_a_result_with_the_model_keypoints(tmp_path):
+    """--camera RESULT.json, --model, --start, --joint-range and --table-z none together."""
+    from dream.models import BUNDLED_MODEL
+
+    result = tmp_path / "RESULT.json"
+    result.write_text(json.dumps({
+        "T_cam_base": T_CAM_BASE.tolist(),
+        "data": {"camera": {"fx": 600, "fy": 600, "cx": 319.5, "cy": 239.5, "width": 640,
+                            "height": 480}}}))
+    start = ",".join(str(v) for v in VALID)
+    out = tmp_path / "plan"
+    assert main(["plan", "--robot", "panda", "--camera", str(result), "--model",
+                 str(BUNDLED_MODEL), f"--start={start}", "--joint-range",
+                 "panda_joint1=-2.5:0", "--table-z", "none", "--num", "4", "--candidates", "40",
+                 "--out", str(out)]) == 0
+    doc = json.loads((out / "plan.json").read_text())
+    assert doc["camera"]["source"] == str(result)
+    assert doc["start_joints_rad"] == pytest.approx(VALID)
+    assert doc["feasibility"]["table_z_m"] is None
+    joints = np.array([p["joints_rad"] for p in doc["poses"]])
+    assert np.all((joints[:, 0] >= -2.5) & (joints[:, 0] <= 0.0))
+    from dream.detection import load_keypoint_model
+
+    assert doc["keypoint_names"] == list(load_keypoint_model(BUNDLED_MODEL).keypoint_names)
+
+
 @pytest.mark.parametrize(("args", "message"), [
     (["--camera=-3,0,0.5", "--look-at=-6,0,0.5",
       "--intrinsics", "600,600,319.5,239.5,640,480"], "in none of"),
