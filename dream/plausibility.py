@@ -78,6 +78,17 @@ def check_robot_readings(seq, robot) -> None:
                          prismatic, [f.name for f in seq.frames], seq.source)
 
 
+def check_robot_joints(robot, joints: np.ndarray, names: SequenceOf[str]) -> None:
+    """`check_joint_readings` for joint vectors (N, J) of `robot` in its joint order, named
+    `names` in the message (e.g. "--start")."""
+    from dream.robot.tree import PRISMATIC
+
+    prismatic = np.array([robot.tree.joints[robot.tree.joint_index[n]].type == PRISMATIC
+                          for n in robot.joint_names])
+    lower, upper = _finite_limits(robot)
+    check_joint_readings(joints, robot.joint_names, lower, upper, prismatic, names)
+
+
 def _finite_limits(robot) -> tuple[np.ndarray, np.ndarray]:
     """The robot's limits with continuous joints unbounded."""
     from dream.robot.tree import CONTINUOUS

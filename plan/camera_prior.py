@@ -7,6 +7,7 @@ or from a camera position and a point it looks at, both in the base frame.
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +23,8 @@ from dream.transforms import R_from_rotvec, check_pose, invert_T, look_at
 DEFAULT_POSITION_SIGMA_M = 0.05
 DEFAULT_ROTATION_SIGMA_RAD = float(np.deg2rad(3.0))
 MIN_LOOK_DISTANCE_M = 0.05   # the look-at point must lie at least this far from the camera
+NEAR_VERTICAL_COS = 0.99     # a view this close to straight down (or up) takes base x as up
+BASE_X = np.array([1.0, 0.0, 0.0])
 
 
 @dataclass(frozen=True, eq=False)
@@ -76,24 +79,36 @@ def prior_from_look_at(position_base_m: np.ndarray, target_base_m: np.ndarray,
                        camera: CameraIntrinsics,
                        position_sigma_m: float = DEFAULT_POSITION_SIGMA_M,
                        rotation_sigma_rad: float = DEFAULT_ROTATION_SIGMA_RAD) -> CameraPrior:
-    """A camera at `position_base_m` (3,) aimed at `target_base_m` (3,), image x axis level."""
+    """A camera at `position_base_m` (3,) aimed at `target_base_m` (3,): the image x axis
+    level, or for a camera looking (nearly) straight down or up, the image up along base x."""
     position = np.asarray(position_base_m, float)
     target = np.asarray(target_base_m, float)
-    if np.linalg.norm(target - position) < MIN_LOOK_DISTANCE_M:
+    distance = np.linalg.norm(target - position)
+    if distance < MIN_LOOK_DISTANCE_M:
         raise InputError(f"the camera at {position.tolist()} and the point it looks at "
                          f"{target.tolist()} coincide",
                          fix="give --look-at a point on the robot, metres in the base frame")
-    return CameraPrior(camera, look_at(position, target), position_sigma_m, rotation_sigma_rad,
+    vertical = abs((target - position)[2]) / distance > NEAR_VERTICAL_COS
+    T = look_at(position, target, up_base=BASE_X) if vertical else look_at(position, target)
+    return CameraPrior(camera, T, position_sigma_m, rotation_sigma_rad,
                        f"position {position.tolist()} looking at {target.tolist()}")
 
 
 def prior_from_result(path: str | Path, camera: CameraIntrinsics | None = None,
                       position_sigma_m: float | None = None,
-                      rotation_sigma_rad: float | None = None) -> CameraPrior:
+                      rotation_sigma_rad: float | None = None,
+                      robot_names: Collection[str] = ()) -> CameraPrior:
     """The extrinsic of a RESULT.json, its camera (unless `camera` is given) and its 1-sigma
-    (unless given): the largest of its camera-position and rotation sigmas."""
+    (unless given): the largest of its camera-position and rotation sigmas. A result that
+    names a robot not among `robot_names` (by name, URDF path or its stem) is refused."""
     path = Path(path)
     doc = read_result(path)
+    named = doc.get("robot")
+    if robot_names and named is not None and named not in robot_names \
+            and Path(named).stem not in robot_names:
+        raise InputError(f"the result calibrated robot '{named}', not "
+                         f"'{sorted(robot_names)[0]}'", path,
+                         f"give the result of a calibration of this robot, or --robot {named}")
     if camera is None:
         camera = _result_camera(doc, path)
     if position_sigma_m is None:

@@ -16,6 +16,7 @@ PROGRESS_PERIOD_S = 5.0   # candidate-search progress lines on stderr at most th
 FIX_CAMERA = ("give --camera RESULT.json (an earlier calibration), or --camera X,Y,Z with "
               "--look-at X,Y,Z and --intrinsics fx,fy,cx,cy,width,height (metres, base frame)")
 NONE = "none"
+INTRINSICS_FIELDS = ("fx", "fy", "cx", "cy", "width", "height")
 
 
 def _floats(text: str, count: int, option: str, fix: str) -> tuple[float, ...]:
@@ -35,9 +36,13 @@ def _joint_ranges(items: list[str]) -> dict[str, tuple[float, float]]:
         name, _, span = item.partition("=")
         low, _, high = span.partition(":")
         try:
-            out[name.strip()] = (float(low), float(high))
+            values = (float(low), float(high))
         except ValueError:
             raise InputError(f"--joint-range '{item}' is not NAME=LOW:HIGH", fix=fix) from None
+        if name.strip() in out:
+            raise InputError(f"--joint-range names {name.strip()} twice", fix="give one range "
+                             "per joint")
+        out[name.strip()] = values
     return out
 
 
@@ -83,6 +88,10 @@ class PlanRequest:
         """--camera is X,Y,Z rather than a result file."""
         return not Path(self.camera).is_file() and "," in self.camera
 
+    def robot_names(self) -> set[str]:
+        """Names a RESULT.json of this robot may record: as given, or a URDF's stem."""
+        return {self.robot, Path(self.robot).stem}
+
     def table_z_m(self) -> float | None:
         if self.table_z.strip().lower() == NONE:
             return None
@@ -93,17 +102,24 @@ class PlanRequest:
 def _prior(request: PlanRequest):
     from plan.camera_prior import prior_from_look_at, prior_from_result
 
-    camera = parse_intrinsics(request.intrinsics)
-    if camera is not None and not hasattr(camera, "width"):
-        raise InputError("--intrinsics needs the image size too",
-                         fix="give --intrinsics fx,fy,cx,cy,width,height")
+    camera = None
+    if request.intrinsics is not None:
+        if len(request.intrinsics.split(",")) != len(INTRINSICS_FIELDS):
+            raise InputError(f"--intrinsics '{request.intrinsics}' must be six numbers "
+                             f"{','.join(INTRINSICS_FIELDS)}",
+                             fix="give e.g. --intrinsics 600,600,319.5,239.5,640,480 (pixels)")
+        camera = parse_intrinsics(request.intrinsics)
     rotation = None if request.rotation_sigma_deg is None else \
         math.radians(request.rotation_sigma_deg)
     if not request.camera_is_position():
         if request.look_at is not None:
             raise InputError("--look-at goes with a camera position, not a result file",
                              fix=FIX_CAMERA)
-        return prior_from_result(request.camera, camera, request.position_sigma_m, rotation)
+        if not Path(request.camera).is_file():
+            raise InputError(f"--camera '{request.camera}' is neither a RESULT.json file nor a "
+                             "position X,Y,Z", fix=FIX_CAMERA)
+        return prior_from_result(request.camera, camera, request.position_sigma_m, rotation,
+                                 request.robot_names())
     if request.look_at is None or camera is None:
         raise InputError("a camera position needs --look-at and --intrinsics", fix=FIX_CAMERA)
     position = _floats(request.camera, 3, "--camera", FIX_CAMERA)
@@ -149,9 +165,17 @@ class _Progress:
 
 def run_plan(request: PlanRequest) -> None:
     """Plan, write PLAN_DIR, print a summary."""
+    import numpy as np
+
     from dream.io.atomic import check_output_dir
     from plan.output import render_sheet, write_plan
-    from plan.planner import PlanSettings, choose_poses, find_candidates, joint_ranges
+    from plan.planner import (
+        PlanSettings,
+        choose_poses,
+        find_candidates,
+        joint_ranges,
+        start_joints,
+    )
 
     check_output_dir(Path(request.out), request.overwrite)
     robot = _robot(request)
@@ -161,9 +185,9 @@ def run_plan(request: PlanRequest) -> None:
                             max_draws=request.max_draws, camera_samples=request.camera_samples,
                             noise_px=request.noise_px, seed=request.seed)
     ranges = joint_ranges(robot, _joint_ranges(list(request.joint_range)))
-    start = None if request.start is None else _floats(
+    start = start_joints(robot, None if request.start is None else _floats(
         request.start, robot.num_joints, "--start",
-        f"give {robot.num_joints} joint values ({', '.join(robot.joint_names)}), radians")
+        f"give {robot.num_joints} joint values ({', '.join(robot.joint_names)}), radians"))
     candidates = find_candidates(robot, prior, feasibility, settings, ranges, _Progress())
     plan = choose_poses(robot, prior, candidates, settings, start)
     write_plan(request.out, plan, robot, prior, feasibility, settings,
@@ -176,6 +200,11 @@ def run_plan(request: PlanRequest) -> None:
           f"{math.degrees(p['rotation_worst_rad']):.3f} deg (random valid poses: "
           f"{r['position_worst_m'] * 1e3:.2f} mm, {math.degrees(r['rotation_worst_rad']):.3f} "
           "deg)")
+    moves = plan.move_clearance_m
+    if moves is not None and np.any(moves < feasibility.clearance_m):
+        print(f"warning: {int(np.sum(moves < feasibility.clearance_m))} of {len(moves)} "
+              "straight joint moves between the poses pass closer than the clearance to a "
+              "link, box or the table (plan.json \"moves\"): drive those with a motion planner")
     print(f"wrote {request.out}/joints.txt, plan.json, contact_sheet.png")
 
 
@@ -197,7 +226,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "when the first number is negative)")
     p.add_argument("--look-at", metavar="X,Y,Z", help="a point the camera looks at, base frame, m")
     p.add_argument("--intrinsics", metavar="FX,FY,CX,CY,W,H",
-                   help="camera intrinsics and image size in pixels (default: the result's)")
+                   help="camera intrinsics and image size in pixels; with a result, they replace "
+                        "its camera, distortion included (default: the result's)")
     p.add_argument("--position-sigma-m", type=float, help="1-sigma of the camera position per "
                    "axis, m (default: the result's, else 0.05)")
     p.add_argument("--rotation-sigma-deg", type=float, help="1-sigma of the camera orientation "

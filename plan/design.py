@@ -24,7 +24,7 @@ import numpy as np
 
 from dream.camera import CameraIntrinsics
 from dream.errors import InputError
-from dream.pnp import linearise
+from dream.pnp.reprojection import linearise_rows
 from dream.result import camera_position_covariance
 
 # added to every summed information, relative to its mean diagonal: keeps log det finite for
@@ -37,7 +37,8 @@ MAX_EXCHANGE_ROUNDS = 20    # passes over the chosen poses; each pass swaps each
 def pose_information(P_base: np.ndarray, camera: CameraIntrinsics, T_cam_base: np.ndarray,
                      noise_px: float) -> np.ndarray:
     """(6, 6) Fisher information about xi of K keypoints at `P_base` (K, 3) seen by a camera at
-    `T_cam_base` with i.i.d. Gaussian pixel noise `noise_px`; zeros when one is behind it.
+    `T_cam_base` with i.i.d. Gaussian pixel noise `noise_px`. A keypoint behind that camera or
+    outside its image is not observed and adds nothing.
 
     >>> from dream.transforms import look_at
     >>> camera = CameraIntrinsics(600.0, 600.0, 319.5, 239.5, 640, 480)
@@ -52,10 +53,9 @@ def pose_information(P_base: np.ndarray, camera: CameraIntrinsics, T_cam_base: n
     if not (np.isfinite(noise_px) and noise_px > 0):
         raise InputError(f"the keypoint noise must be a positive number of pixels, got "
                          f"{noise_px}", fix="give e.g. --noise-px 2")
-    lin = linearise(P_base, np.zeros((len(P_base), 2)), camera, T_cam_base)
-    if lin is None:
-        return np.zeros((6, 6))
-    J = lin[1].reshape(-1, 6)
+    uv, J, front = linearise_rows(P_base, np.zeros((len(P_base), 2)), camera, T_cam_base)
+    seen = front & camera.in_image(uv) & np.all(np.isfinite(uv), axis=-1)
+    J = J[seen].reshape(-1, 6)
     return J.T @ J / noise_px ** 2
 
 

@@ -5,10 +5,11 @@ Geometry is the URDF's visual meshes in the MuJoCo scene of `synth.scene` (MuJoC
 meshes by their convex hulls, so the checks err on the safe side). A pose is valid when
 
 - no two links that are not neighbours (`synth.labels.adjacent_links`) come closer than the
-  clearance, and no link comes that close to a keep-out box; pairs that are already that close
-  at the robot's rest pose (a gripper's closed fingers) are always in contact and not checked,
-  as MoveIt's setup assistant leaves out its "default" pairs;
-- every link except the base and its neighbours stays the clearance above the table plane;
+  clearance; pairs that are that close in nearly every random pose (a gripper's closed
+  fingers) are always in contact and not checked, as MoveIt's setup assistant leaves out its
+  "always" pairs;
+- every link except the base and its neighbours stays the clearance above the table plane and
+  away from every keep-out box (so a box may hold the robot's base, like a table);
 - every keypoint lies in the image, at least the margin inside its border, in front of the
   camera, and is not hidden behind another link or a keep-out box
   (`synth.labels.keypoint_labels`);
@@ -42,6 +43,10 @@ logger = logging.getLogger(__name__)
 
 SURFACE_POINTS_PER_GEOM = 200   # mesh points per geom for the share cut by the image border
 DISTANCE_HORIZON_M = 0.2        # clearances are measured up to this distance (larger: capped)
+CONTACT_SAMPLES = 200           # random poses that decide which link pairs always touch
+ALWAYS_IN_CONTACT_SHARE = 0.95  # pairs touching in this share of them are not checked
+CONTACT_SEED = 0
+MOTION_STEP_RAD = 0.05          # a move between poses is checked at least this finely
 
 
 @dataclass(frozen=True)
@@ -196,7 +201,8 @@ class PoseChecker:
         self._box_geoms = frozenset(self.scene.distractor_geom_ids.tolist())
 
     def _index_pairs(self) -> None:
-        """Geom pairs of non-neighbouring links; robot geoms that the table may touch."""
+        """Geom pairs of non-neighbouring links, less those in contact in nearly every pose;
+        robot geoms that the table and boxes are tested against."""
         scene, robot = self.scene, self.robot
         link_of = {int(g): scene.link_names[scene.geom_link_index[g] - 1]
                    for g in scene.robot_geom_ids}
@@ -204,14 +210,22 @@ class PoseChecker:
         pairs = np.array([(a, b) for i, a in enumerate(geoms) for b in geoms[i + 1:]
                           if link_of[b] not in adjacent_links(robot, link_of[a])],
                          dtype=int).reshape(-1, 2)
-        scene.set_joints(self.data, robot.rest_joints)
-        touching = self._distances(pairs) < self.feasibility.clearance_m
-        for a, b in pairs[touching]:
-            logger.debug("%s and %s touch at the rest pose: not checked", link_of[a], link_of[b])
-        self._pairs = pairs[~touching]
-        on_table = adjacent_links(robot, robot.base_link) | rigid_group(robot, robot.base_link)
-        self._table_geoms = [g for g in geoms if link_of[g] not in on_table]
-        self._geoms = geoms
+        rng = np.random.default_rng(CONTACT_SEED)
+        touching = np.zeros(len(pairs))
+        for q in rng.uniform(robot.joint_lower, robot.joint_upper,
+                             (CONTACT_SAMPLES, robot.num_joints)):
+            scene.set_joints(self.data, q)
+            touching += self._distances(pairs) < self.feasibility.clearance_m
+        always = touching >= ALWAYS_IN_CONTACT_SHARE * CONTACT_SAMPLES
+        self.always_in_contact = tuple(sorted({(link_of[a], link_of[b])
+                                               for a, b in pairs[always]}))
+        for a, b in self.always_in_contact:
+            logger.info("%s and %s touch in nearly every pose: not checked", a, b)
+        self._pairs = pairs[~always]
+        grounded = adjacent_links(robot, robot.base_link) | rigid_group(robot, robot.base_link)
+        self._free_geoms = [g for g in geoms if link_of[g] not in grounded]
+        self._box_pairs = np.array([(b, g) for b in scene.distractor_geom_ids
+                                    for g in self._free_geoms], dtype=int).reshape(-1, 2)
 
     def _distances(self, pairs: np.ndarray) -> np.ndarray:
         """(K,) distance of each geom pair (K, 2) in the current state, m (negative: they
@@ -235,11 +249,11 @@ class PoseChecker:
 
     def _table_clearance(self) -> float:
         z0 = self.feasibility.table_z_m
-        if z0 is None or not self._table_geoms:
+        if z0 is None or not self._free_geoms:
             return float("inf")
         data = self.data
         lowest = min(float(np.min(self._hulls[g] @ data.geom_xmat[g].reshape(3, 3)[2]))
-                     + float(data.geom_xpos[g][2]) for g in self._table_geoms)
+                     + float(data.geom_xpos[g][2]) for g in self._free_geoms)
         return lowest - z0
 
     def _world_points(self, points: dict[int, np.ndarray]) -> np.ndarray:
@@ -254,6 +268,19 @@ class PoseChecker:
         inside = self.camera.in_image(uv) & (P_cam[:, 2] > 0) & np.all(np.isfinite(uv), -1)
         return float(1.0 - inside.mean())
 
+    def motion_clearance(self, q_from: np.ndarray, q_to: np.ndarray) -> float:
+        """The least clearance (links, boxes, table; m, capped at the horizon) along the
+        straight joint-space move from `q_from` to `q_to`, sampled every `MOTION_STEP_RAD` of
+        the joint that moves most."""
+        q_from, q_to = np.asarray(q_from, float), np.asarray(q_to, float)
+        steps = max(1, int(np.ceil(np.max(np.abs(q_to - q_from)) / MOTION_STEP_RAD)))
+        least = float("inf")
+        for t in np.linspace(0.0, 1.0, steps + 1):
+            self.scene.set_joints(self.data, q_from + t * (q_to - q_from))
+            least = min(least, self._table_clearance(), self._clearance(self._pairs),
+                        self._clearance(self._box_pairs))
+        return least
+
     def check(self, q: np.ndarray) -> PoseCheck:
         """All checks of joint vector `q` (J,), in order of cost; stops at the first failure."""
         f = self.feasibility
@@ -267,9 +294,7 @@ class PoseChecker:
         own = self._clearance(self._pairs)
         if own < f.clearance_m:
             return PoseCheck(False, "self-collision", own, table_clearance_m=table)
-        box_pairs = np.array([(b, g) for b in self.scene.distractor_geom_ids
-                              for g in self._geoms], dtype=int).reshape(-1, 2)
-        boxes = self._clearance(box_pairs)
+        boxes = self._clearance(self._box_pairs)
         if boxes < f.clearance_m:
             return PoseCheck(False, "keep-out box", own, boxes, table)
         P_cam = transform_points(self.T_cam_base, P_base)

@@ -2,7 +2,8 @@
 
 An open path from a start configuration through every pose once: nearest neighbour first, then
 2-opt moves (reversing a stretch of the path) while they shorten it. Lengths are Euclidean in
-joint space (rad, or m for prismatic joints).
+joint space (rad, or m for prismatic joints). `order_clear_moves` also keeps the straight
+joint-space moves along the path clear of collisions where it can.
 
     >>> import numpy as np
     >>> Q = np.array([[3.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
@@ -12,12 +13,16 @@ joint space (rad, or m for prismatic joints).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from dream.errors import InputError
 
 MAX_TWO_OPT_ROUNDS = 100   # passes over every pair of path edges
 IMPROVEMENT_TOLERANCE = 1e-12
+BLOCKED_MOVE_PENALTY = 1e3  # added to the length of a move that collides (rad)
+MAX_REORDERS = 20          # orderings tried while new colliding moves turn up
 
 
 def path_length(Q: np.ndarray, start: np.ndarray, order: np.ndarray) -> float:
@@ -57,8 +62,10 @@ def _two_opt(D: np.ndarray, order: list[int]) -> list[int]:
     return order
 
 
-def order_poses(Q: np.ndarray, start: np.ndarray) -> np.ndarray:
-    """Indices (N,) into `Q` (N, J) giving a short open path from `start` (J,)."""
+def order_poses(Q: np.ndarray, start: np.ndarray, penalty: np.ndarray | None = None
+                ) -> np.ndarray:
+    """Indices (N,) into `Q` (N, J) giving a short open path from `start` (J,); `penalty`
+    (N + 1, N + 1), node 0 the start, is added to the length of each move."""
     Q = np.asarray(Q, dtype=float)
     start = np.asarray(start, dtype=float)
     if Q.ndim != 2 or start.shape != (Q.shape[1],):
@@ -66,5 +73,40 @@ def order_poses(Q: np.ndarray, start: np.ndarray) -> np.ndarray:
                          f"{start.shape}")
     points = np.vstack([start[None], Q])
     D = np.linalg.norm(points[:, None] - points[None], axis=-1)
+    if penalty is not None:
+        D = D + penalty
     order = _two_opt(D, _nearest_neighbour(D))
     return np.array(order[1:], dtype=int) - 1
+
+
+def order_clear_moves(Q: np.ndarray, start: np.ndarray,
+                      move_clearance: Callable[[np.ndarray, np.ndarray], float],
+                      min_clearance: float, check_start: bool = True
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """`order_poses`, avoiding moves whose `move_clearance(q_from, q_to)` (m) is below
+    `min_clearance`: such a move is found on the path, made `BLOCKED_MOVE_PENALTY` longer and
+    the path ordered again, until the path has no new blocked move. Returns the order and
+    the clearance of each of its N moves (from the start first); a move that could not be
+    avoided keeps its low clearance. Without `check_start` the move from the start is not
+    checked (its clearance is inf)."""
+    Q, start = np.asarray(Q, dtype=float), np.asarray(start, dtype=float)
+    points = np.vstack([start[None], Q])
+    penalty = np.zeros((len(points), len(points)))
+    known: dict[tuple[int, int], float] = {}
+    for _ in range(MAX_REORDERS):
+        order = order_poses(Q, start, penalty)
+        nodes = [0, *(order + 1)]
+        blocked_new = False
+        for a, b in zip(nodes[:-1], nodes[1:], strict=True):
+            key = (min(a, b), max(a, b))
+            if key not in known:
+                known[key] = float("inf") if (0 in key and not check_start) else \
+                    move_clearance(points[a], points[b])
+                if known[key] < min_clearance:
+                    penalty[a, b] = penalty[b, a] = BLOCKED_MOVE_PENALTY
+                    blocked_new = True
+        if not blocked_new:
+            break
+    clearances = [known[(min(a, b), max(a, b))] for a, b in zip(nodes[:-1], nodes[1:],
+                                                                 strict=True)]
+    return order, np.array(clearances)

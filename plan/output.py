@@ -2,8 +2,8 @@
 
 - joints.txt: one configuration a line, radians (m for prismatic joints), space-separated, in
   the robot's joint order, which a `#` comment line names first (`numpy.loadtxt` reads it);
-- plan.json: the poses with their checks, the predicted 1-sigma of the calibration, the camera
-  and the settings the plan was made with;
+- plan.json: the poses with their checks, the moves between them with their clearance, the
+  predicted 1-sigma of the calibration, the camera and the settings the plan was made with;
 - contact_sheet.png: each pose rendered from the stated camera, keypoints drawn.
 """
 
@@ -23,7 +23,7 @@ from dream.overlay import draw_skeleton
 from dream.robot import Robot
 from dream.transforms import invert_T, transform_points
 from plan.camera_prior import CameraPrior
-from plan.feasibility import Box, Feasibility, place_boxes
+from plan.feasibility import DISTANCE_HORIZON_M, Box, Feasibility, place_boxes
 from plan.planner import Plan, PlanSettings
 from synth.contact_sheet import tile
 from synth.render import SceneRenderer
@@ -54,11 +54,13 @@ def plan_document(plan: Plan, robot: Robot, prior: CameraPrior, feasibility: Fea
     """plan.json's document."""
     c = prior.camera
     poses = [{"index": i, "joints_rad": q.tolist(),
-              "self_clearance_m": _finite(min(check.self_clearance_m, check.box_clearance_m)),
+              "self_clearance_m": _finite(check.self_clearance_m),
+              "box_clearance_m": _finite(check.box_clearance_m),
               "table_clearance_m": _finite(check.table_clearance_m),
               "robot_share_outside_image": check.cut,
               "keypoint_border_px": check.border_px}
              for i, (q, check) in enumerate(zip(plan.joints, plan.checks, strict=True))]
+    checker = plan.candidates.checker
     return {
         "format_version": PLAN_FORMAT_VERSION,
         "robot": robot.name,
@@ -74,8 +76,14 @@ def plan_document(plan: Plan, robot: Robot, prior: CameraPrior, feasibility: Fea
                                   else list(c.distortion)}},
         "predicted": {**_sigmas(plan.predicted), "keypoint_noise_px": settings.noise_px},
         "random_valid_poses_median": _sigmas(plan.random_predicted),
-        "start_joints_rad": plan.start.tolist(),
+        "start_joints_rad": None if plan.start is None else plan.start.tolist(),
         "path_length_rad": plan.path_length,
+        "moves": _moves(plan, feasibility),
+        "clearance_cap_m": DISTANCE_HORIZON_M,
+        "always_in_contact": [] if checker is None else
+        [list(pair) for pair in checker.always_in_contact],
+        "other_joints": {} if checker is None else dict(zip(
+            checker.scene.extra_joint_names, checker.scene.extra_rest.tolist(), strict=True)),
         "candidates": {"valid": len(plan.candidates.joints), "draws": plan.candidates.draws,
                        "rejected": dict(plan.candidates.failures)},
         "feasibility": {**asdict(feasibility),
@@ -83,6 +91,18 @@ def plan_document(plan: Plan, robot: Robot, prior: CameraPrior, feasibility: Fea
         "settings": asdict(settings),
         "poses": poses,
     }
+
+
+def _moves(plan: Plan, feasibility: Feasibility) -> list[dict[str, Any]]:
+    """Each straight joint-space move of the path (from the start, then pose to pose) with its
+    least clearance; `clear` False where it comes closer than the clearance asked for."""
+    if plan.move_clearance_m is None:
+        return []
+    first = 0 if plan.start is not None else 1
+    names = ["start", *range(len(plan.joints))]
+    return [{"from": names[i], "to": i, "clearance_m": _finite(c),
+             "clear": bool(c >= feasibility.clearance_m)}
+            for i, c in enumerate(plan.move_clearance_m, start=first)]
 
 
 def joints_text(plan: Plan, robot: Robot) -> str:

@@ -19,12 +19,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dream.errors import InputError
+from dream.plausibility import check_robot_joints
 from dream.robot import Robot
 from dream.settings_checks import check_fields
 from plan.camera_prior import CameraPrior
 from plan.design import information_table, predicted_sigmas, select_d_optimal
 from plan.feasibility import Feasibility, PoseCheck, PoseChecker, keypoints_in_view
-from plan.ordering import order_poses, path_length
+from plan.ordering import order_clear_moves, order_poses, path_length
 
 logger = logging.getLogger(__name__)
 
@@ -60,17 +61,22 @@ class PlanSettings:
         check_fields(self, "plan", positive_ints=("num_poses", "candidates", "max_draws",
                                                   "camera_samples"),
                      positive=("noise_px",), non_negative=("restarts", "seed"))
+        if self.num_poses > self.candidates:
+            raise InputError(f"{self.num_poses} poses cannot be chosen from {self.candidates} "
+                             "candidates", fix="ask for more --candidates than --num poses")
 
 
 @dataclass(frozen=True, eq=False)
 class Candidates:
-    """Valid poses found: `joints` (N, J) and their checks; `draws` made and why the others
-    failed (check name -> count)."""
+    """Valid poses found: `joints` (N, J) and their checks; `draws` examined and why the others
+    failed (check name -> count); the `checker` that checked them (moves between the chosen
+    poses are checked with it)."""
 
     joints: np.ndarray
     checks: tuple[PoseCheck, ...]
     draws: int
     failures: Mapping[str, int] = field(default_factory=dict)
+    checker: PoseChecker | None = field(default=None, repr=False)
 
     def describe_failures(self) -> str:
         return ", ".join(f"{n} {why}" for why, n in Counter(self.failures).most_common()) \
@@ -87,9 +93,14 @@ class Plan:
         predicted: `plan.design.predicted_sigmas` of the set at the stated camera.
         random_predicted: the median over random valid sets of the same size of their
             worst-direction camera-position and rotation 1-sigma.
-        path_length: joint-space length of the path from `start`.
-        start: (J,) the start configuration.
+        path_length: joint-space length of the path from `start` (without one: from the
+            first pose).
+        start: (J,) the start configuration given, or None (the path then begins at the pose
+            nearest the robot's rest configuration).
         candidates: the candidate search it chose from.
+        move_clearance_m: (N,) the least clearance along each straight joint-space move of
+            the path (from the start first, when one was given;
+            `PoseChecker.motion_clearance`), None: unchecked.
     """
 
     joints: np.ndarray
@@ -97,8 +108,9 @@ class Plan:
     predicted: dict
     random_predicted: dict
     path_length: float
-    start: np.ndarray
+    start: np.ndarray | None
     candidates: Candidates
+    move_clearance_m: np.ndarray | None = None
 
 
 def joint_ranges(robot: Robot, ranges: Mapping[str, tuple[float, float]] | None = None
@@ -137,13 +149,15 @@ def find_candidates(robot: Robot, prior: CameraPrior, feasibility: Feasibility,
     while len(found) < settings.candidates and draws < settings.max_draws:
         batch = rng.uniform(*ranges, size=(min(DRAW_BATCH, settings.max_draws - draws),
                                             robot.num_joints))
-        draws += len(batch)
         each = keypoints_in_view(robot.forward_kinematics(batch), prior.camera,
                                  prior.T_cam_base, feasibility.margin_px)
         ever_seen |= each.any(axis=0)
         seen = each.all(axis=1)
-        failures["keypoint out of view"] += int((~seen).sum())
-        for q in batch[seen]:
+        for i, q in enumerate(batch):
+            draws += 1
+            if not seen[i]:
+                failures["keypoint out of view"] += 1
+                continue
             check = checker.check(q)
             if check.valid:
                 found.append(q)
@@ -162,11 +176,16 @@ def find_candidates(robot: Robot, prior: CameraPrior, feasibility: Feasibility,
                          fix="check the camera position and look-at point (metres, base frame) "
                              "and the intrinsics, or lower --margin-px")
     joints = np.array(found).reshape(-1, robot.num_joints)
-    return Candidates(joints, tuple(checks), draws, dict(failures))
+    return Candidates(joints, tuple(checks), draws, dict(failures), checker)
 
 
 def _check_enough(candidates: Candidates, num: int) -> None:
     found = len(candidates.joints)
+    if found == 0:
+        raise InputError(f"no valid pose was found in {candidates.draws} draws (rejected: "
+                         f"{candidates.describe_failures()})",
+                         fix="lower the table (--table-z), move keep-out boxes, widen the joint "
+                             "ranges or lower --margin-px / --clearance-m")
     if found < num:
         raise InputError(f"only {found} valid poses were found in {candidates.draws} draws "
                          f"(rejected: {candidates.describe_failures()}), fewer than the "
@@ -178,18 +197,30 @@ def _check_enough(candidates: Candidates, num: int) -> None:
                        "random poses", found, num)
 
 
+def start_joints(robot: Robot, start: np.ndarray | None) -> np.ndarray | None:
+    """`start` (J,) checked against the URDF limits ("are these degrees?"); None stays None."""
+    if start is None:
+        return None
+    start = robot.validate_joints(start)
+    check_robot_joints(robot, start[None], ["--start"])
+    return start
+
+
 def choose_poses(robot: Robot, prior: CameraPrior, candidates: Candidates,
                  settings: PlanSettings, start: np.ndarray | None = None) -> Plan:
-    """The D-optimal `settings.num_poses` of `candidates`, ordered from `start` (default:
-    the robot's rest configuration)."""
+    """The D-optimal `settings.num_poses` of `candidates`, ordered from `start` (default: the
+    path begins at the pose nearest the robot's rest configuration; the rest configuration
+    itself is not a pose of the plan, and the convex hulls the checks use may overlap there)."""
     _check_enough(candidates, settings.num_poses)
     rng = np.random.default_rng(settings.seed)
-    start = robot.rest_joints if start is None else robot.validate_joints(start)
+    start = start_joints(robot, start)
     P_base = robot.forward_kinematics(candidates.joints)
     F = information_table(P_base, prior.camera, prior.samples(rng, settings.camera_samples),
                           settings.noise_px)
     chosen = select_d_optimal(F, settings.num_poses, restarts=settings.restarts, rng=rng)
-    chosen = chosen[order_poses(candidates.joints[chosen], start)]
+    order, moves = _order(candidates, chosen, robot.rest_joints if start is None else start,
+                          check_first=start is not None)
+    chosen = chosen[order]
     nominal = F[0]
     random_sets = [predicted_sigmas(nominal[rng.choice(len(nominal), settings.num_poses,
                                                        replace=False)].sum(0),
@@ -199,5 +230,20 @@ def choose_poses(robot: Robot, prior: CameraPrior, candidates: Candidates,
                 predicted=predicted_sigmas(nominal[chosen].sum(0), prior.T_cam_base),
                 random_predicted={key: float(np.median([s[key] for s in random_sets]))
                                   for key in ("position_worst_m", "rotation_worst_rad")},
-                path_length=path_length(joints, start, np.arange(len(joints))),
-                start=start, candidates=candidates)
+                path_length=path_length(joints, joints[0] if start is None else start,
+                                        np.arange(len(joints))),
+                start=start, candidates=candidates, move_clearance_m=moves)
+
+
+def _order(candidates: Candidates, chosen: np.ndarray, start: np.ndarray, check_first: bool
+           ) -> tuple[np.ndarray, np.ndarray | None]:
+    """The visiting order of the chosen poses from `start` and each move's clearance (None:
+    unchecked, when the candidates carry no checker); without `check_first` the move from
+    `start` is neither checked nor returned."""
+    Q = candidates.joints[chosen]
+    checker = candidates.checker
+    if checker is None:
+        return order_poses(Q, start), None
+    order, moves = order_clear_moves(Q, start, checker.motion_clearance,
+                                     checker.feasibility.clearance_m, check_first)
+    return order, moves if check_first else moves[1:]

@@ -55,9 +55,12 @@ def test_information_is_the_inverse_of_the_cramer_rao_bound(panda_poses):
     assert np.allclose(np.linalg.inv(F), crb, rtol=1e-8, atol=1e-14)
 
 
-def test_a_point_behind_the_camera_gives_no_information():
-    P = np.array([[0.0, 0.0, 0.4], [3.0, 1.0, 1.0]])   # the second lies behind the camera
-    assert not pose_information(P, CAMERA, T_CAM_BASE, 1.0).any()
+def test_keypoints_behind_the_camera_or_outside_the_image_add_nothing():
+    P = np.array([[0.0, 0.0, 0.4], [3.0, 1.0, 1.0], [0.0, 3.0, 0.4]])  # behind; outside
+    assert transform_points(T_CAM_BASE, P[1:2])[0, 2] < 0
+    assert not CAMERA.in_image(project(CAMERA, transform_points(T_CAM_BASE, P[2:])))[0]
+    assert np.allclose(pose_information(P, CAMERA, T_CAM_BASE, 1.0),
+                       pose_information(P[:1], CAMERA, T_CAM_BASE, 1.0))
 
 
 def test_selection_finds_the_brute_force_optimum(panda_poses):
@@ -134,6 +137,22 @@ def test_path_order_is_no_longer_than_nearest_neighbour_or_given_order():
         order = order_poses(Q, start)
         assert sorted(order.tolist()) == list(range(10))
         assert path_length(Q, start, order) <= path_length(Q, start, np.arange(10)) + 1e-12
+
+
+def test_a_colliding_move_is_avoided_when_another_order_exists():
+    from plan.ordering import order_clear_moves
+
+    Q, start = np.array([[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]]), np.zeros(2)
+    blocked = {(1.0, 2.0), (2.0, 1.0)}   # the move between the first two poses collides
+
+    def clearance(a, b):
+        return -0.01 if (a[0], b[0]) in blocked else 0.1
+
+    order, moves = order_clear_moves(Q, start, clearance, 0.01)
+    assert order.tolist() != [0, 1, 2] and sorted(order.tolist()) == [0, 1, 2]
+    assert np.all(moves >= 0.01)
+    always, moves = order_clear_moves(Q, start, lambda a, b: -1.0, 0.01)
+    assert sorted(always.tolist()) == [0, 1, 2] and np.all(moves < 0)
 
 
 def test_path_order_matches_brute_force_on_small_sets():

@@ -117,6 +117,35 @@ def test_dream_plan_writes_the_plan_folder(tmp_path, panda, checker, capsys):
     assert (out / "contact_sheet.png").stat().st_size > 0
 
 
+def test_a_box_may_hold_the_base_and_moves_are_checked(tmp_path, panda):
+    """A keep-out box under the robot (a table given as a box) leaves the base alone; every
+    move of the plan is reported with its clearance."""
+    out = tmp_path / "plan"
+    assert main(["plan", "--robot", "panda", *CAMERA_ARGS, "--keep-out=-1,-1,-0.5,1,1,0",
+                 "--num", "5", "--candidates", "40", "--out", str(out)]) == 0
+    doc = json.loads((out / "plan.json").read_text())
+    assert [(m["from"], m["to"]) for m in doc["moves"]] == [(i, i + 1) for i in range(4)]
+    assert doc["start_joints_rad"] is None
+    assert ["panda_leftfinger", "panda_rightfinger"] in doc["always_in_contact"]
+    assert doc["other_joints"]   # the fingers, at the value the checks used
+    checker = PoseChecker(panda, Feasibility(), CAMERA, T_CAM_BASE)
+    joints = np.array([p["joints_rad"] for p in doc["poses"]])
+    for move, q_from, q_to in zip(doc["moves"], joints[:-1], joints[1:], strict=True):
+        clear = checker.motion_clearance(q_from, q_to) >= 0.01
+        assert move["clear"] == clear or not clear   # the box only makes moves less clear
+
+
+def test_an_overhead_camera_and_a_result_of_another_robot(tmp_path):
+    from plan.camera_prior import prior_from_look_at
+
+    prior = prior_from_look_at(np.array([0.5, 0.0, 1.5]), np.array([0.5, 0.0, 0.0]), CAMERA)
+    assert np.allclose(prior.position_base_m, [0.5, 0.0, 1.5])
+    result = tmp_path / "RESULT.json"
+    result.write_text(json.dumps({"T_cam_base": T_CAM_BASE.tolist(), "robot": "ur5"}))
+    with pytest.raises(InputError, match="calibrated robot 'ur5', not 'panda'"):
+        prior_from_result(result, CAMERA, robot_names={"panda"})
+
+
 def test_a_result_file_states_the_camera(tmp_path):
     result = tmp_path / "RESULT.json"
     result.write_text(json.dumps({
@@ -153,6 +182,7 @@ def test_dream_plan_from_a_result_with_the_model_keypoints(tmp_path):
     doc = json.loads((out / "plan.json").read_text())
     assert doc["camera"]["source"] == str(result)
     assert doc["start_joints_rad"] == pytest.approx(VALID)
+    assert doc["moves"][0]["from"] == "start" and len(doc["moves"]) == 4
     assert doc["feasibility"]["table_z_m"] is None
     joints = np.array([p["joints_rad"] for p in doc["poses"]])
     assert np.all((joints[:, 0] >= -2.5) & (joints[:, 0] <= 0.0))
@@ -165,7 +195,14 @@ def test_dream_plan_from_a_result_with_the_model_keypoints(tmp_path):
     (["--camera=-3,0,0.5", "--look-at=-6,0,0.5",
       "--intrinsics", "600,600,319.5,239.5,640,480"], "in none of"),
     ([*CAMERA_ARGS, "--joint-range", "panda_joint1=-90:90"], "outside the URDF limits"),
-    ([*CAMERA_ARGS, "--num", "40", "--candidates", "30"], "only 30 valid poses"),
+    ([*CAMERA_ARGS, "--num", "12", "--max-draws", "20"], "only 3 valid poses were found in 20"),
+    ([*CAMERA_ARGS, "--num", "40", "--candidates", "30"], "cannot be chosen from 30"),
+    ([*CAMERA_ARGS, "--start=0,-45,0,-135,0,90,45"], "are these degrees?"),
+    ([*CAMERA_ARGS, "--joint-range", "panda_joint1=-1:1", "--joint-range",
+      "panda_joint1=-2:2"], "names panda_joint1 twice"),
+    (["--camera", "1.6 0 0.6"], "neither a RESULT.json file nor a position"),
+    (["--camera", "1.6,0,0.6", "--look-at", "0,0,0.4", "--intrinsics", "600,600,319.5,239.5"],
+     "must be six numbers"),
     (["--camera", "1.6,0,0.6", "--intrinsics", "600,600,319.5,239.5,640,480"],
      "needs --look-at"),
     ([*CAMERA_ARGS, "--keep-out", "1,2,3"], "must be 6 finite numbers"),
