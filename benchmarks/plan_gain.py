@@ -8,7 +8,8 @@ calibrated (one extrinsic from all frames, `dream calibrate --frames all`'s solv
 
 - predicted: the worst-direction 1-sigma of the camera position from the Fisher information;
 - labels: the true projections plus `--noise-px` Gaussian noise, `--noise-trials` draws;
-- detector: the poses rendered from the true camera (plain scene) and detected by `--model`;
+- detector: the poses rendered from the true camera (plain scene, grey background) and
+  detected by `--model`;
 - offset: the plan made with a stated camera `--offset-m` and `--offset-deg` away from the truth
   (random directions; one in which it sees the robot whole in no pose is drawn again), measured
   with noisy labels at the true camera against the plan made with the true camera.

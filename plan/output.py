@@ -26,7 +26,7 @@ from plan.camera_prior import CameraPrior
 from plan.feasibility import DISTANCE_HORIZON_M, Box, Feasibility, place_boxes
 from plan.planner import Plan, PlanSettings
 from synth.contact_sheet import tile
-from synth.render import SceneRenderer
+from synth.render import BACKGROUND_GEOM, SceneRenderer
 from synth.scene import build_scene
 from synth.scene_settings import SceneSettings
 
@@ -34,6 +34,7 @@ JOINTS_FILE, PLAN_FILE, SHEET_FILE = "joints.txt", "plan.json", "contact_sheet.p
 PLAN_FORMAT_VERSION = 1
 JOINTS_DECIMALS = 6
 BOX_RGBA = (0.9, 0.3, 0.2, 0.5)   # keep-out boxes on the contact sheet
+BACKGROUND_RGB = (110, 120, 130)  # behind the robot on the contact sheet
 
 
 def _finite(x: float) -> float | None:
@@ -115,7 +116,7 @@ def joints_text(plan: Plan, robot: Robot) -> str:
 def render_poses(robot: Robot, joints: np.ndarray, camera: CameraIntrinsics,
                  T_cam_base: np.ndarray, boxes: tuple[Box, ...] = ()) -> list[np.ndarray]:
     """(H, W, 3) uint8 renders of the robot at each of `joints` (N, J) through `camera` at
-    `T_cam_base`, keep-out `boxes` shaded, on black."""
+    `T_cam_base`, keep-out `boxes` shaded, on grey (dark arms stay visible)."""
     scene = build_scene(robot, SceneSettings(num_lights=2, num_distractors=len(boxes)))
     place_boxes(scene, boxes)
     scene.model.geom_rgba[scene.distractor_geom_ids] = BOX_RGBA
@@ -123,7 +124,10 @@ def render_poses(robot: Robot, joints: np.ndarray, camera: CameraIntrinsics,
         images = []
         for q in joints:
             renderer.set_state(q, T_cam_base)
-            images.append(renderer.render(rgb=True, segmentation=False).rgb)
+            out = renderer.render(rgb=True, segmentation=True)
+            rgb = out.rgb.copy()
+            rgb[out.geom_ids == BACKGROUND_GEOM] = BACKGROUND_RGB
+            images.append(rgb)
     return images
 
 
