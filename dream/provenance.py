@@ -55,14 +55,18 @@ def content_hash(seq) -> str:
     return digest.hexdigest()
 
 
+def camera_record(c) -> dict[str, Any]:
+    """A camera (`dream.camera.CameraIntrinsics`) as JSON: size, fx, fy, cx, cy (pixels) and
+    its distortion coefficients or None."""
+    return {"width": c.width, "height": c.height, "fx": c.fx, "fy": c.fy, "cx": c.cx,
+            "cy": c.cy, "distortion": None if c.distortion is None else list(c.distortion)}
+
+
 def data_record(seq, data: str) -> dict[str, Any]:
     """RESULT.json's `data`: the path given, its frames, the content hash and the camera."""
-    c = seq.camera
     return {"path": str(Path(data).resolve()), "num_frames": len(seq.frames),
             "frames": [f.name for f in seq.frames], "content_sha256": content_hash(seq),
-            "camera": {"width": c.width, "height": c.height, "fx": c.fx, "fy": c.fy, "cx": c.cx,
-                       "cy": c.cy, "distortion": None if c.distortion is None
-                       else list(c.distortion)}}
+            "camera": camera_record(seq.camera)}
 
 
 def check_same_data(result: dict[str, Any], seq, data: str, result_path: str | Path) -> None:

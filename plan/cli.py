@@ -9,7 +9,13 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from dream.cli.options import add_command, check_positive, check_seed, parse_intrinsics
+from dream.cli.options import (
+    add_command,
+    check_positive,
+    check_seed,
+    parse_intrinsics,
+    parse_numbers,
+)
 from dream.errors import InputError
 
 PROGRESS_PERIOD_S = 5.0   # candidate-search progress lines on stderr at most this often
@@ -17,16 +23,6 @@ FIX_CAMERA = ("give --camera RESULT.json (an earlier calibration), or --camera X
               "--look-at X,Y,Z and --intrinsics fx,fy,cx,cy,width,height (metres, base frame)")
 NONE = "none"
 INTRINSICS_FIELDS = ("fx", "fy", "cx", "cy", "width", "height")
-
-
-def _floats(text: str, count: int, option: str, fix: str) -> tuple[float, ...]:
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise InputError(f"{option} '{text}' must be comma-separated numbers", fix=fix) from None
-    if len(values) != count or not all(math.isfinite(v) for v in values):
-        raise InputError(f"{option} '{text}' must be {count} finite numbers", fix=fix)
-    return values
 
 
 def _joint_ranges(items: list[str]) -> dict[str, tuple[float, float]]:
@@ -95,7 +91,7 @@ class PlanRequest:
     def table_z_m(self) -> float | None:
         if self.table_z.strip().lower() == NONE:
             return None
-        return _floats(self.table_z, 1, "--table-z", "give the table height in metres "
+        return parse_numbers(self.table_z, (1,), "--table-z", "give the table height in metres "
                        "(base frame), or --table-z none")[0]
 
 
@@ -122,8 +118,8 @@ def _prior(request: PlanRequest):
                                  request.robot_names())
     if request.look_at is None or camera is None:
         raise InputError("a camera position needs --look-at and --intrinsics", fix=FIX_CAMERA)
-    position = _floats(request.camera, 3, "--camera", FIX_CAMERA)
-    target = _floats(request.look_at, 3, "--look-at", FIX_CAMERA)
+    position = parse_numbers(request.camera, (3,), "--camera", FIX_CAMERA)
+    target = parse_numbers(request.look_at, (3,), "--look-at", FIX_CAMERA)
     kwargs = {k: v for k, v in (("position_sigma_m", request.position_sigma_m),
                                 ("rotation_sigma_rad", rotation)) if v is not None}
     return prior_from_look_at(position, target, camera, **kwargs)
@@ -145,7 +141,7 @@ def _feasibility(request: PlanRequest):
     fix = "give --keep-out xmin,ymin,zmin,xmax,ymax,zmax in metres (base frame)"
     boxes = []
     for text in request.keep_out:
-        v = _floats(text, 6, "--keep-out", fix)
+        v = parse_numbers(text, (6,), "--keep-out", fix)
         boxes.append(Box(v[:3], v[3:]))
     return Feasibility(table_z_m=request.table_z_m(), keep_out=tuple(boxes),
                        clearance_m=request.clearance_m, margin_px=request.margin_px,
@@ -185,8 +181,8 @@ def run_plan(request: PlanRequest) -> None:
                             max_draws=request.max_draws, camera_samples=request.camera_samples,
                             noise_px=request.noise_px, seed=request.seed)
     ranges = joint_ranges(robot, _joint_ranges(list(request.joint_range)))
-    start = start_joints(robot, None if request.start is None else _floats(
-        request.start, robot.num_joints, "--start",
+    start = start_joints(robot, None if request.start is None else parse_numbers(
+        request.start, (robot.num_joints,), "--start",
         f"give {robot.num_joints} joint values ({', '.join(robot.joint_names)}), radians"))
     candidates = find_candidates(robot, prior, feasibility, settings, ranges, _Progress())
     plan = choose_poses(robot, prior, candidates, settings, start)
@@ -259,7 +255,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--camera-samples", type=int, default=16, help="camera poses drawn from its "
                    "uncertainty to average the criterion over (default: %(default)s)")
     p.add_argument("--start", metavar="Q1,...,QJ", help="the configuration the robot starts "
-                   "from, rad (--start=-1,... when the first is negative; default: zero clipped "
-                   "into the limits)")
+                   "from, rad, its move to the first pose checked (--start=-1,... when the first "
+                   "is negative; default: none, the path begins at the pose nearest zero "
+                   "clipped into the limits)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")

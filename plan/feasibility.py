@@ -114,15 +114,21 @@ class PoseCheck:
     border_px: float = float("nan")
 
 
+def border_distance_px(uv: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
+    """(...) how far each pixel `uv` (..., 2) lies inside the image border (negative:
+    outside; NaN where `uv` is)."""
+    return np.minimum.reduce([uv[..., 0], uv[..., 1], camera.width - 1 - uv[..., 0],
+                              camera.height - 1 - uv[..., 1]])
+
+
 def keypoints_in_view(P_base: np.ndarray, camera: CameraIntrinsics, T_cam_base: np.ndarray,
                       margin_px: float) -> np.ndarray:
     """(N, K) True where keypoint k of pose n (`P_base` (N, K, 3)) lies in front of the camera
     and at least `margin_px` inside the image border."""
     P_cam = transform_points(T_cam_base, P_base)
     uv = project(camera, P_cam)
-    inside = (uv[..., 0] >= margin_px) & (uv[..., 0] <= camera.width - 1 - margin_px) & \
-        (uv[..., 1] >= margin_px) & (uv[..., 1] <= camera.height - 1 - margin_px)
-    return inside & (P_cam[..., 2] > 0) & np.all(np.isfinite(uv), -1)
+    return (border_distance_px(uv, camera) >= margin_px) & (P_cam[..., 2] > 0) & \
+        np.all(np.isfinite(uv), -1)
 
 
 def in_view(P_base: np.ndarray, camera: CameraIntrinsics, T_cam_base: np.ndarray,
@@ -307,7 +313,5 @@ class PoseChecker:
         cut = self.cut_share()
         if cut > f.max_cut:
             return PoseCheck(False, "cut by the image border", own, boxes, table, cut)
-        border = np.min(np.stack([labels.uv[:, 0], labels.uv[:, 1],
-                                  self.camera.width - 1 - labels.uv[:, 0],
-                                  self.camera.height - 1 - labels.uv[:, 1]]))
-        return PoseCheck(True, None, own, boxes, table, cut, float(border))
+        border = float(np.min(border_distance_px(labels.uv, self.camera)))
+        return PoseCheck(True, None, own, boxes, table, cut, border)

@@ -20,6 +20,7 @@ from dream.io import atomic_directory
 from dream.io.atomic import dumps
 from dream.io.images import encode_png
 from dream.overlay import draw_skeleton
+from dream.provenance import camera_record
 from dream.robot import Robot
 from dream.transforms import invert_T, transform_points
 from plan.camera_prior import CameraPrior
@@ -53,7 +54,6 @@ def _sigmas(predicted: dict) -> dict[str, Any]:
 def plan_document(plan: Plan, robot: Robot, prior: CameraPrior, feasibility: Feasibility,
                   settings: PlanSettings) -> dict[str, Any]:
     """plan.json's document."""
-    c = prior.camera
     poses = [{"index": i, "joints_rad": q.tolist(),
               "self_clearance_m": _finite(check.self_clearance_m),
               "box_clearance_m": _finite(check.box_clearance_m),
@@ -71,10 +71,7 @@ def plan_document(plan: Plan, robot: Robot, prior: CameraPrior, feasibility: Fea
                    "position_base_m": invert_T(prior.T_cam_base)[:3, 3].tolist(),
                    "position_sigma_m": prior.position_sigma_m,
                    "rotation_sigma_deg": float(np.rad2deg(prior.rotation_sigma_rad)),
-                   "intrinsics": {"fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
-                                  "width": c.width, "height": c.height,
-                                  "distortion": None if c.distortion is None
-                                  else list(c.distortion)}},
+                   "intrinsics": camera_record(prior.camera)},
         "predicted": {**_sigmas(plan.predicted), "keypoint_noise_px": settings.noise_px},
         "random_valid_poses_median": _sigmas(plan.random_predicted),
         "start_joints_rad": None if plan.start is None else plan.start.tolist(),

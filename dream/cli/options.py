@@ -86,15 +86,23 @@ def camera_argument(intrinsics: str | None, camera_info: str | None = None,
     return tuple(given) + coeffs
 
 
-def _parse_distortion(text: str) -> tuple[float, ...]:
-    fix = "give --distortion k1,k2,p1,p2[,k3] (OpenCV's plumb_bob order)"
+def parse_numbers(text: str, counts: tuple[int, ...], option: str, fix: str
+                  ) -> tuple[float, ...]:
+    """The comma-separated finite numbers of an option's value, as many as one of `counts`;
+    anything else is one `InputError` line naming `option`, with `fix`."""
     try:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
-        raise InputError(f"--distortion '{text}' must be comma-separated numbers",
-                         fix=fix) from None
-    if len(values) not in (4, 5) or not np.all(np.isfinite(values)):
-        raise InputError(f"--distortion '{text}' must be 4 or 5 finite numbers", fix=fix)
+        raise InputError(f"{option} '{text}' must be comma-separated numbers", fix=fix) from None
+    if len(values) not in counts or not np.all(np.isfinite(values)):
+        allowed = " or ".join(str(c) for c in counts)
+        raise InputError(f"{option} '{text}' must be {allowed} finite numbers", fix=fix)
+    return values
+
+
+def _parse_distortion(text: str) -> tuple[float, ...]:
+    values = parse_numbers(text, (4, 5), "--distortion",
+                           "give --distortion k1,k2,p1,p2[,k3] (OpenCV's plumb_bob order)")
     return values + (0.0,) * (5 - len(values))
 
 
