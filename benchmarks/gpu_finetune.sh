@@ -6,7 +6,9 @@
 # 1. renders up to NUM new `dream synth` Panda frames (seed SEED, half of them holding an object)
 #    into DATA_DIR/train_SEED with one process per core, stopping after RENDER_S seconds (a killed
 #    render leaves only complete frames; frames already there are kept), and completes 200
-#    held-out frames (seed 2000) for the curve; a render that fails stops the script;
+#    held-out frames (seed 2000) for the curve; a render that fails stops the script. With
+#    SYNTH_CONFIG=FILE in the environment (e.g. configs/synth/real_world.yaml), half the frames
+#    and half the time go to that recipe instead (seed SEED + 1, DATA_DIR/train_<SEED+1>_<name>);
 # 2. measures the training speed in a 30-second probe run;
 # 3. trains from INIT_CKPT's weights (fresh optimiser, one-cycle schedule) on every DATA_DIR/train_*
 #    folder with a step budget of TRAIN_S seconds at the measured speed, rounded up to whole
@@ -38,15 +40,27 @@ if [ -e "$out/run" ]; then
 fi
 mkdir -p "$out" "$data"
 
-echo "== render: up to $num frames, seed $seed, $workers processes, at most $render_s s"
-set +e
-timeout "$render_s" dream synth --robot panda --num "$num" --workers "$workers" --seed "$seed" \
-  --set distractors.held_prob=0.5 --out "$data/train_$seed" | tr '\r' '\n' | tail -n 2
-render_rc=${PIPESTATUS[0]}
-set -e
-if [ "$render_rc" -ne 0 ] && [ "$render_rc" -ne 124 ]; then  # 124: stopped by the time limit
-  echo "gpu_finetune.sh: dream synth failed (exit $render_rc); see its error above" >&2
-  exit 1
+render() {  # SEED NUM SECONDS DIR [dream synth options...]: a render that fails stops here
+  local seed=$1 n=$2 seconds=$3 dir=$4
+  shift 4
+  echo "== render: up to $n frames, seed $seed, $workers processes, at most $seconds s ($*)"
+  set +e
+  timeout "$seconds" dream synth --robot panda --num "$n" --workers "$workers" --seed "$seed" \
+    "$@" --out "$dir" | tr '\r' '\n' | tail -n 2
+  local rc=${PIPESTATUS[0]}
+  set -e
+  if [ "$rc" -ne 0 ] && [ "$rc" -ne 124 ]; then  # 124: stopped by the time limit
+    echo "gpu_finetune.sh: dream synth failed (exit $rc); see its error above" >&2
+    exit 1
+  fi
+}
+if [ -n "${SYNTH_CONFIG:-}" ]; then
+  render "$seed" $((num / 2)) $((render_s / 2)) "$data/train_$seed" \
+    --set distractors.held_prob=0.5
+  render $((seed + 1)) $((num / 2)) $((render_s / 2)) \
+    "$data/train_$((seed + 1))_$(basename "$SYNTH_CONFIG" .yaml)" --config "$SYNTH_CONFIG"
+else
+  render "$seed" "$num" "$render_s" "$data/train_$seed" --set distractors.held_prob=0.5
 fi
 dream synth --robot panda --num 200 --workers "$workers" --seed 2000 --out "$data/heldout" \
   | tr '\r' '\n' | tail -n 1

@@ -257,6 +257,9 @@ class TrainerConfig:
         init_from: a checkpoint whose network weights start this run (fine-tuning, or a
             longer run with a fresh schedule); its model and input settings must equal this
             config's. Unlike resuming, the epoch count, optimiser and schedule start afresh.
+            An exported `.onnx` model (the bundled one, say) works too: its batch norms,
+            folded into the convolutions by the export, are split again on training images
+            (`train.onnx_init`).
         precision: Lightning's precision: "32-true", or "bf16-mixed" (convolutions in
             bfloat16 under autocast, weights, losses and belief maps in float32; on CPUs with
             AVX512-BF16 or AMX about 1.6x the training speed, on other CPUs about 10x slower),

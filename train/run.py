@@ -49,6 +49,13 @@ from train.data import (
     resolve_from_data,
 )
 from train.module import BeliefModule
+from train.onnx_init import (
+    check_metadata,
+    init_from_onnx,
+    is_onnx_model,
+    read_onnx_weights,
+    sample_images,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -164,12 +171,25 @@ def _check_resumable(config: TrainConfig, checkpoint: Path,
     return saved
 
 
-def _init_weights(module: BeliefModule, config: TrainConfig) -> None:
-    """Start `module` from the network weights of `config.trainer.init_from`."""
+def _check_init_source(config: TrainConfig) -> None:
+    """`trainer.init_from` (a checkpoint or an exported model) must fit this run."""
     source = Path(config.trainer.init_from)
-    _check_resumable(config, source, action="start from")
-    state = read_checkpoint(source)["state_dict"]
-    module.load_state_dict(state)
+    if is_onnx_model(source):
+        check_metadata(read_onnx_weights(source)[1], config, source)
+    else:
+        _check_resumable(config, source, action="start from")
+
+
+def _init_weights(module: BeliefModule, config: TrainConfig, train_set) -> None:
+    """Start `module` from the network weights of `config.trainer.init_from`: a checkpoint's,
+    or an exported model's with its batch norms split on training images (`train.onnx_init`)."""
+    source = Path(config.trainer.init_from)
+    if is_onnx_model(source):
+        images = sample_images(train_set, config.data.batch_size, config.trainer.seed)
+        init_from_onnx(module.model, source, config, images)
+    else:
+        _check_resumable(config, source, action="start from")
+        module.load_state_dict(read_checkpoint(source)["state_dict"])
     logger.info("network weights from %s (fresh optimiser and schedule)", source)
 
 
@@ -357,7 +377,7 @@ def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | 
         logger.info("resuming from %s", ckpt_path)
         config = _as_started(config, saved)
     elif config.trainer.init_from is not None:
-        _check_resumable(config, Path(config.trainer.init_from), action="start from")
+        _check_init_source(config)
     config = resolve_precision(config)
     train_set, val_set = make_datasets(config, train_sequences, val_sequences)
     check_image_files(train_set, val_set)
@@ -376,7 +396,7 @@ def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | 
         config, speed = _fit_time_budget(config, trainer, train_loader, val_loader)
     module = BeliefModule(config)
     if config.trainer.init_from is not None and ckpt_path is None:
-        _init_weights(module, config)
+        _init_weights(module, config, train_set)
     created = _make_run_dir(run_dir)
     try:
         write_bytes_atomic(run_dir / CONFIG_FILE, dump_config(config).encode("utf-8"),
