@@ -92,21 +92,24 @@ def polish_result(sequence: Sequence, robot: Robot, result: CalibrationResult,
 
 
 def refine_edges(sequence: Sequence, robot: Robot, result: CalibrationResult,
-                 observations: Observations, exclude_links: SequenceOf[str] = ()) -> Any:
+                 observations: Observations, exclude_links: SequenceOf[str] = (),
+                 link_geometry: tuple = ()) -> Any:
     """The result aligned with the images' edges, no masks needed (`dream calibrate --refine
     edges`). All frames: an `EdgeResult` (`dream.edges`): `T_after` is the extrinsic to use,
     the aligned one when `kept`; `mismatched_links` names links whose outline disagrees with
     the images. Each frame (mode "each"): a tuple of `FrameEdgeResult` (`dream.edges.frames`),
-    None for frames without a pose or an image. `exclude_links` leaves links out.
+    None for frames without a pose or an image. `exclude_links` leaves links out;
+    `link_geometry` (a `dream.extension.ModelExtension`'s) corrects links' geometry.
     """
     from dream.edges import refine_with_edges
     from dream.edges.frames import refine_frames_with_edges
 
     if result.mode == "each":
         return refine_frames_with_edges(sequence, robot, result, observations,
-                                        exclude_links=exclude_links)
+                                        exclude_links=exclude_links,
+                                        link_geometry=link_geometry)
     return refine_with_edges(sequence, robot, result.T_cam_base, observations,
-                             exclude_links=exclude_links)
+                             exclude_links=exclude_links, link_geometry=link_geometry)
 
 
 def result_document(result: CalibrationResult, observations: Observations,

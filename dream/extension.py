@@ -19,6 +19,9 @@ camera with the data's intrinsics. An extension corrects it where the real syste
   `phase_s` (within half a frame interval) is when the updates were sampled relative to the
   middle of the frame interval in which they first appear, as `time_offset` counts. With
   `time_offset` as well, the updates also lag the images by its seconds.
+- `link_geometry`: the visible geometry of a link differs from the URDF (a tool, a gripper, a
+  held board): a box attached to it, its visuals scaled, or its outline excluded from image
+  comparisons (`dream.robot.link_geometry`); per link. Keypoints stay link origins.
 
 A `ModelExtension` reads and writes a small YAML file (`dream diagnose` writes it;
 `dream calibrate --model-extension` and `dream synth --model-extension` read it). Applying an
@@ -38,10 +41,14 @@ import numpy as np
 import yaml
 
 from dream.errors import InputError
+from dream.robot.link_geometry import LinkGeometry, parse_link_geometry
 from dream.transforms import T_from_rotvec_t
 
+# the effects keypoint data shows (the diagnosis search, dream.inject), and those only images show
 EFFECT_NAMES = ("joint_offset", "lens_distortion", "intrinsics_error", "time_offset",
                 "link_length", "camera_moved", "keypoint_bias", "held_readings")
+IMAGE_EFFECT_NAMES = ("link_geometry",)
+VOCABULARY = EFFECT_NAMES + IMAGE_EFFECT_NAMES
 DISTORTION_NAMES = ("k1", "k2", "p1", "p2")
 INTRINSIC_NAMES = ("fx", "fy", "cx", "cy")
 FORMAT = "dream-model-extension"
@@ -147,6 +154,7 @@ class ModelExtension:
         time_offset_s: joint readings lag the images by this, s (None: not modelled).
         camera_moved: the camera's move during the sequence, or None.
         held_readings: the joint log's updates, or None (readings as logged).
+        link_geometry: links whose visible geometry differs from the URDF (one entry each).
         robot: the robot the extension was fitted for (informative; checked when given).
     """
 
@@ -158,6 +166,7 @@ class ModelExtension:
     time_offset_s: float | None = None
     camera_moved: CameraMove | None = None
     held_readings: HeldReadings | None = None
+    link_geometry: tuple[LinkGeometry, ...] = ()
     robot: str | None = None
 
     def __post_init__(self) -> None:
@@ -187,6 +196,12 @@ class ModelExtension:
             raise InputError("camera_moved must be a CameraMove")
         if self.held_readings is not None and not isinstance(self.held_readings, HeldReadings):
             raise InputError("held_readings must be a HeldReadings")
+        geometry = tuple(self.link_geometry)
+        if not all(isinstance(g, LinkGeometry) for g in geometry):
+            raise InputError("link_geometry must hold dream.robot.link_geometry.LinkGeometry")
+        if len({g.link for g in geometry}) != len(geometry):
+            raise InputError("link_geometry names a link twice", fix="give one entry per link")
+        object.__setattr__(self, "link_geometry", geometry)
 
     # ----- what it holds ------------------------------------------------------------------
 
@@ -202,8 +217,9 @@ class ModelExtension:
             "camera_moved": self.camera_moved is not None,
             "keypoint_bias": bool(self.keypoint_bias_m),
             "held_readings": self.held_readings is not None,
+            "link_geometry": bool(self.link_geometry),
         }
-        return tuple(n for n in EFFECT_NAMES if present[n])
+        return tuple(n for n in VOCABULARY if present[n])
 
     @property
     def is_empty(self) -> bool:
@@ -224,6 +240,8 @@ class ModelExtension:
             else self.camera_moved,
             held_readings=other.held_readings if other.held_readings is not None
             else self.held_readings,
+            link_geometry=tuple({g.link: g for g in (*self.link_geometry,
+                                                     *other.link_geometry)}.values()),
             robot=self.robot or other.robot)
 
     # ----- effect parameters in the extended_model.yaml vocabulary -------------------------
@@ -257,7 +275,9 @@ class ModelExtension:
             return {} if held is None else {"period_s": held.period_s,
                                             "joints": list(held.joints),
                                             "phase_s": held.phase_s}
-        raise InputError(f"unknown effect '{name}'", fix=f"use one of {', '.join(EFFECT_NAMES)}")
+        if name == "link_geometry":
+            return {g.link: g.to_params() for g in self.link_geometry}
+        raise InputError(f"unknown effect '{name}'", fix=f"use one of {', '.join(VOCABULARY)}")
 
     def to_dict(self) -> dict[str, Any]:
         doc: dict[str, Any] = {"format": FORMAT, "version": FORMAT_VERSION}
@@ -297,9 +317,9 @@ def extension_from_effects(effects: Mapping[str, Mapping[str, Any]],
     unknown effect or parameter is an `InputError` naming it."""
     kwargs: dict[str, Any] = {"robot": robot}
     for name, params in effects.items():
-        if name not in EFFECT_NAMES:
+        if name not in VOCABULARY:
             raise InputError(f"unknown effect '{name}'",
-                             fix=f"use one of {', '.join(EFFECT_NAMES)}")
+                             fix=f"use one of {', '.join(VOCABULARY)}")
         if not isinstance(params, Mapping):
             raise InputError(f"effect '{name}' needs a mapping of parameters, got {params!r}")
         _check_keys(name, params)
@@ -333,6 +353,8 @@ def extension_from_effects(effects: Mapping[str, Mapping[str, Any]],
             kwargs["held_readings"] = HeldReadings(params["period_s"],
                                                    tuple(params.get("joints") or ()),
                                                    params.get("phase_s", 0.0))
+        elif name == "link_geometry":
+            kwargs["link_geometry"] = parse_link_geometry(params)
     return ModelExtension(**kwargs)
 
 

@@ -15,6 +15,9 @@ camera; the written data is what a user would log from that world:
   t = 0 the arm rests at the trajectory's start.
 - `camera_moved` (sequence modes `fixed_camera`, `trajectory`): from the named frame on, the
   true extrinsic is dT @ T_cam_base; the written ground truth is the true per-frame pose.
+- `link_geometry`: boxes are rendered attached to their links and scaled links scaled; they are
+  part of the robot in the masks and occlude keypoints in the labels. `exclude` (an unknown
+  outline) cannot be rendered and is refused.
 
 Other modes refuse the last two (`dream.inject` makes keypoint-only data with them).
 """
@@ -30,6 +33,7 @@ from dream.extension import ModelExtension
 from dream.io.common import FRAME_DIGITS, frame_name
 from dream.readings import held_update_times
 from dream.robot import Robot
+from dream.robot.link_geometry import check_links, extended_visuals
 from dream.transforms import transform_points
 from synth.config import SynthConfig
 from synth.nominal import nominal_camera
@@ -77,6 +81,8 @@ def check_extension(extension: ModelExtension, robot: Robot, config: SynthConfig
         raise InputError(f"the model extension does not fit robot '{robot.name}': {exc}") \
             from None
     joint_offset_vector(robot, extension.joint_offset_rad)
+    check_links(extension.link_geometry, robot.link_names)
+    extended_visuals({}, extension.link_geometry)      # refuses what it cannot render
     keypoint_points(true_robot, robot.rest_joints[None], None, extension.keypoint_bias_m)
     if extension.intrinsics is not None and not config.intrinsics.fixed:
         raise InputError("intrinsics_error gives absolute intrinsics, but the recipe draws a "

@@ -108,8 +108,9 @@ class FrameMaker:
                                 texture_size=config.background.texture_size, floor=True,
                                 floor_texture_size=FLOOR_TEXTURE_PX)
         self.other_robot = other_robot_of(robot, config)
-        self.scene: RobotScene = build_scene(self.true_robot, options,
-                                             other_robot=self.other_robot)
+        self.scene: RobotScene = build_scene(
+            self.true_robot, options, other_robot=self.other_robot,
+            link_geometry=() if self.extension is None else self.extension.link_geometry)
         self.other_geoms = None if self.other_robot is None else \
             OtherRobotGeoms.from_model(self.scene.model, self.other_robot)
         self.nominal_camera = nominal_camera(config, seed)

@@ -21,6 +21,7 @@ import numpy as np
 from dream.arrays import read_only
 from dream.errors import RobotError
 from dream.robot import Robot
+from dream.robot.link_geometry import LinkGeometry, extended_visuals
 from dream.robot.visuals import MESH, read_link_visuals
 from synth import scene_cache
 from synth.gl import mujoco
@@ -270,7 +271,8 @@ def _mesh_files(visuals) -> list[Path]:
 
 def build_scene(robot: Robot, options: SceneSettings | None = None,
                 cache_dir: str | Path | None = None, use_cache: bool = True,
-                other_robot: Robot | None = None) -> RobotScene:
+                other_robot: Robot | None = None,
+                link_geometry: tuple[LinkGeometry, ...] = ()) -> RobotScene:
     """The MuJoCo scene of `robot` (links below its base, visual meshes) plus the extras of
     `options`, from the on-disk cache when possible.
 
@@ -282,6 +284,8 @@ def build_scene(robot: Robot, options: SceneSettings | None = None,
         use_cache: read and write the cache.
         other_robot: another robot whose visuals join the scene as a distractor (posed by
             `synth.other_robot.OtherRobotGeoms`).
+        link_geometry: boxes added to links, or links scaled (a model extension's
+            `link_geometry`, `dream.robot.link_geometry`); they are part of the robot.
     Raises:
         InputError: unreadable URDF or mesh file.
         RobotError: a robot MuJoCo cannot compile (the message says why).
@@ -290,8 +294,10 @@ def build_scene(robot: Robot, options: SceneSettings | None = None,
     if not isinstance(options, SceneSettings):
         raise RobotError(f"options must be SceneSettings, got {type(options).__name__}")
     start = time.perf_counter()
-    visuals = read_link_visuals(robot.urdf_path)
+    visuals = extended_visuals(read_link_visuals(robot.urdf_path), tuple(link_geometry))
     files, described = _mesh_files(visuals), options.as_dict()
+    if link_geometry:
+        described["link_geometry"] = {g.link: g.to_params() for g in link_geometry}
     other_visuals = None
     if other_robot is not None:
         other_visuals = read_link_visuals(other_robot.urdf_path)

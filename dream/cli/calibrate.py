@@ -199,7 +199,11 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
                                              "distortion": seq.camera.distortion}}
     if refine == EDGES:
         add = add_edges if request.frames == "all" else add_frame_edges
-        doc = add(seq, robot, result, obs, doc, out, request.exclude_links)
+        doc = add(seq, robot, result, obs, doc, out, request.exclude_links,
+                  () if extension is None else extension.link_geometry)
+    elif extension is not None and extension.link_geometry:
+        print("note: the model extension's link_geometry changes only the image refinement "
+              "(--refine edges), which does not run here", file=out)
     if request.polish:
         doc = add_polish(seq, robot, result, obs, model, doc, out, frames=request.frames,
                          mask_head=request.mask_head, motion_masks=request.motion_masks)

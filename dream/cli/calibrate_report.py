@@ -94,14 +94,14 @@ def _polish_frames(seq, robot, result, obs, doc: dict, out: TextIO) -> dict:
 
 
 def add_edges(seq, robot, result, obs, doc: dict, out: TextIO,
-              exclude_links: str | None) -> dict:
+              exclude_links: str | None, link_geometry: tuple = ()) -> dict:
     """`--refine edges`: the one extrinsic aligned with the images' edges; returns RESULT.json's
     document with it."""
     from dream.edges import refine_with_edges
     from dream.edges.documents import result_doc_with_edges
 
     res = refine_with_edges(seq, robot, result.fit.T_cam_base, obs,
-                            exclude_links=_links(exclude_links))
+                            exclude_links=_links(exclude_links), link_geometry=link_geometry)
     moved_m, moved_rad = res.correction
     print(f"edge alignment ({len(res.frames)} frames, {res.seconds:.1f} s"
           f"{', background model' if res.background else ''}): {res.reason}; the aligned pose "
@@ -114,7 +114,7 @@ def add_edges(seq, robot, result, obs, doc: dict, out: TextIO,
 
 
 def add_frame_edges(seq, robot, result, obs, doc: dict, out: TextIO,
-                    exclude_links: str | None) -> dict:
+                    exclude_links: str | None, link_geometry: tuple = ()) -> dict:
     """`--refine edges --frames each`: every solved frame's own pose aligned with its image's
     edges; returns RESULT.json's document with them."""
     from dream.detection import PROGRESS_EVERY_FRAMES
@@ -126,7 +126,8 @@ def add_frame_edges(seq, robot, result, obs, doc: dict, out: TextIO,
 
     results = refine_frames_with_edges(
         seq, robot, result, obs, exclude_links=_links(exclude_links),
-        progress=progress if len(seq) > PROGRESS_EVERY_FRAMES else None)
+        progress=progress if len(seq) > PROGRESS_EVERY_FRAMES else None,
+        link_geometry=link_geometry)
     doc = result_doc_with_frame_edges(doc, results)
     e = doc["edges"]
     print(f"edge alignment of each frame ({e['frames_aligned']} frames, {e['seconds']:.1f} s"

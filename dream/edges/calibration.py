@@ -30,6 +30,7 @@ from dream.errors import InputError
 from dream.polish.calibration import all_detections
 from dream.polish.objective import evenly_spaced
 from dream.robot import Robot
+from dream.robot.link_geometry import LinkGeometry, excluded_links, with_link_geometry
 from dream.sequence import Sequence
 from dream.silhouette import RobotMeshes, load_robot_meshes, static_links, vertices_in_base
 from dream.transforms import invert_T, rotation_angle_between
@@ -147,9 +148,11 @@ def moving_vertices(meshes: RobotMeshes, joints: np.ndarray, usable: np.ndarray,
 
 def refine_with_edges(sequence: Sequence, robot: Robot, T_cam_base: np.ndarray,
                       obs: Observations | None = None, settings: EdgeSettings | None = None,
-                      exclude_links: SequenceOf[str] = ()) -> EdgeResult:
+                      exclude_links: SequenceOf[str] = (),
+                      link_geometry: tuple[LinkGeometry, ...] = ()) -> EdgeResult:
     """Align the one extrinsic of a fixed-camera `sequence` to its images' edges, from
-    `T_cam_base` (the keypoint extrinsic), and keep it or not (module doc).
+    `T_cam_base` (the keypoint extrinsic), and keep it or not (module doc). `link_geometry`
+    (a model extension's) adds or scales link geometry, or leaves links out.
 
     Raises:
         InputError: frames without images, a camera that is not one fixed camera, unknown or
@@ -164,7 +167,8 @@ def refine_with_edges(sequence: Sequence, robot: Robot, T_cam_base: np.ndarray,
     if missing:
         raise InputError(f"--refine edges needs the images, and frame {missing[0]} has none",
                          sequence.source, "add the images, or use --refine none")
-    meshes = load_robot_meshes(robot, settings.max_triangles)
+    meshes = with_link_geometry(load_robot_meshes(robot, settings.max_triangles), link_geometry)
+    exclude_links = (*exclude_links, *excluded_links(link_geometry))
     usable = usable_vertices(meshes, exclude_links)
     chosen = evenly_spaced(np.arange(len(sequence)), settings.max_search_frames)
     gray, background = frames_and_background(sequence, chosen, settings, camera)

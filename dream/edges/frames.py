@@ -34,6 +34,7 @@ from dream.polish.calibration import inlier_keypoints
 from dream.polish.guard import fit_shrinkage
 from dream.polish.objective import evenly_spaced
 from dream.robot import Robot
+from dream.robot.link_geometry import LinkGeometry, excluded_links, with_link_geometry
 from dream.sequence import Sequence
 from dream.silhouette import load_robot_meshes, vertices_in_base
 
@@ -103,11 +104,13 @@ def decide_frame(agreement0: float, agreement1: float, median0: float, median1: 
 def refine_frames_with_edges(sequence: Sequence, robot: Robot, result: CalibrationResult,
                              obs: Observations, settings: EdgeSettings | None = None,
                              exclude_links: SequenceOf[str] = (),
-                             progress: Callable[[int, int], None] | None = None
+                             progress: Callable[[int, int], None] | None = None,
+                             link_geometry: tuple[LinkGeometry, ...] = ()
                              ) -> tuple[FrameEdgeResult | None, ...]:
     """Align every solved frame of an "each"-mode `result` with its own image's edges (module
     doc); None for frames without a solution or an image. `progress(done, total)` is called
-    every `PROGRESS_EVERY_ALIGNED` frames and at the end.
+    every `PROGRESS_EVERY_ALIGNED` frames and at the end. `link_geometry` as in
+    `dream.edges.refine_with_edges`.
 
     Raises:
         InputError: not an each-mode result, no frame with an image, unknown or all links
@@ -125,8 +128,8 @@ def refine_frames_with_edges(sequence: Sequence, robot: Robot, result: Calibrati
     if not todo:
         raise InputError("--refine edges needs solved frames with images, and there are none",
                          sequence.source, "add the images, or use --refine none")
-    meshes = load_robot_meshes(robot, settings.max_triangles)
-    usable = usable_vertices(meshes, exclude_links)
+    meshes = with_link_geometry(load_robot_meshes(robot, settings.max_triangles), link_geometry)
+    usable = usable_vertices(meshes, (*exclude_links, *excluded_links(link_geometry)))
     joints = joints_in_robot_order(sequence, robot)
     usable, background, _ = moving_vertices(meshes, joints, usable,
                                             _shared_background(sequence, settings), settings)

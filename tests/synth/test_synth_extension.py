@@ -22,7 +22,7 @@ from dream.extended import (
 from dream.extension import extension_from_effects, extension_yaml
 from dream.io import read_sequence
 from dream.robot import load_robot
-from dream.transforms import transform_points
+from dream.transforms import look_at, transform_points
 from synth.config import config_from_dict
 from synth.generate import SYNTH_INFO, SynthJob, generate
 from synth.nominal import nominal_camera
@@ -141,6 +141,8 @@ def test_time_offset_camera_move_and_keypoint_bias_in_a_trajectory(tmp_path):
     ("random", {"link_length": {"panda_joint2": 0.01}}, "zero origin offset"),
     ("random", {"keypoint_bias": {"panda_link1": [0, 0, 0.01]}}, "panda_link1"),
     ("random", {"lens_distortion": {"k1": -3.0}}, "distortion"),
+    ("random", {"link_geometry": {"panda_hand": "exclude"}}, "cannot be rendered"),
+    ("random", {"link_geometry": {"tool0": {"kind": "scale", "scale": 1.1}}}, "tool0"),
 ])
 def test_unrenderable_extensions_are_refused_before_writing(tmp_path, mode, effects, match):
     config = config_from_dict({"intrinsics": FIXED, "sequence": {"mode": mode}})
@@ -185,3 +187,30 @@ def test_cli_option_and_resume_checks_the_extension(tmp_path, capsys):
     plain = SynthJob("panda", tmp_path / "x", 1, config_from_dict({}),
                      extension=extension_from_effects({}))
     assert plain.extension is None and "model_extension" not in plain.info()
+
+
+def test_an_added_box_is_rendered_as_part_of_the_robot(tmp_path):
+    """A plate at the hand: the same pose rendered with it shows more robot, the plate's pixels
+    belong to the hand, and synth writes such frames (labels stay link origins)."""
+    robot = load_robot("panda")
+    plate = extension_from_effects({"link_geometry": {"panda_hand": {
+        "kind": "box", "size_m": [0.3, 0.22, 0.01], "position_m": [0.0, 0.0, 0.14]}}})
+    config = config_from_dict({"intrinsics": FIXED, "distractors": {"count": [0, 0]}})
+    camera = nominal_camera(config)
+    q = robot.rest_joints
+    T_cam_base = look_at(np.array([0.9, 0.3, 1.6]), robot.forward_kinematics(q)[-1])
+    robot_pixels, hand_geoms = [], None
+    for geometry in ((), plate.link_geometry):
+        scene = build_scene(robot, SceneSettings(), link_geometry=geometry)
+        options = RenderSettings(show_floor=False, show_distractors=False)
+        with SceneRenderer(scene, camera, options) as renderer:
+            renderer.set_state(q, T_cam_base)
+            ids = renderer.render(rgb=False, segmentation=True).geom_ids
+        robot_pixels.append(int(np.isin(ids, scene.robot_geom_ids).sum()))
+        hand = scene.robot_geom_ids[scene.geom_link_index[scene.robot_geom_ids]
+                                    == robot.link_names.index("panda_hand") + 1]
+        hand_geoms = int(np.isin(ids, hand).sum())
+    gained = robot_pixels[1] - robot_pixels[0]
+    assert gained > 0.1 * robot_pixels[0] and hand_geoms > gained
+    quiet(SynthJob("panda", tmp_path / "out", 2, config, extension=plate))
+    assert len(read_sequence(tmp_path / "out").frames) == 2
