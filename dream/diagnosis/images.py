@@ -34,7 +34,7 @@ log = logging.getLogger(__name__)
 AGREEMENT_DROP = 0.01   # an outline agreement lower by more than this is a loss
 
 
-def _fit_joints(fit: FitResult) -> np.ndarray:
+def fit_joints(fit: FitResult) -> np.ndarray:
     """(F, J) the joints a fit's model puts at the image times (offsets included)."""
     problem = fit.model.problem
     ext = fit.model.extension(fit.x)
@@ -70,7 +70,7 @@ def outline_evidence(sequence: Sequence, steps: list[tuple[str, FitResult]],
     images = scale_images(gray, camera, camera.width, settings, background)
     scored = []
     for label, fit in steps:
-        P = vertices_in_base(meshes, _fit_joints(fit)[chosen])
+        P = vertices_in_base(meshes, fit_joints(fit)[chosen])
         scored.append((label, edge_score(meshes, P, fit.T_cam_base, images, settings, usable)))
     out: dict[str, Any] = {"frames": len(chosen),
                            "steps": [{"model": label, **_score_to_dict(s)}

@@ -313,6 +313,7 @@ def run_diagnosis(sequence: Sequence, robot: Robot, obs: Observations, report_di
                                                                   diagnosis.mask)
     analysis = analyse(baseline_res)
     _add_image_evidence(doc, sequence, diagnosis)
+    diagnosis = _add_attached_geometry(doc, sequence, diagnosis)
     panels = _silhouette_panels(sequence, problem, diagnosis)
     if panels:
         doc["silhouette_iou"] = [{"frame": p.frame, "before": p.iou_before, "after": p.iou_after}
@@ -370,6 +371,32 @@ def _add_image_evidence(doc: dict[str, Any], sequence: Sequence, diagnosis: Diag
         doc["notes"].append(f"{name}: the robot's outline agrees less with the images after it "
                             f"(outline agreement {agreement[name]:.1%}); only the keypoint "
                             "detections support it")
+
+
+def _add_attached_geometry(doc: dict[str, Any], sequence: Sequence,
+                           diagnosis: Diagnosis) -> Diagnosis:
+    """`link_geometry` found by carving the images' unexplained motion
+    (`dream.diagnosis.attached`): named in the verdict, described in `image_findings`, added to
+    the extension. Nothing where the frames lack images or the camera moved."""
+    from dream.diagnosis.attached import find_attached_geometry
+    from dream.diagnosis.images import fit_joints
+
+    fit = _model_steps(diagnosis)[-1][1]
+    if any(f.image_path is None for f in sequence.frames) or fit.model.change_index is not None:
+        return diagnosis
+    try:
+        found = find_attached_geometry(sequence, fit.model.problem.robot, fit_joints(fit),
+                                       fit.T_cam_base)
+    except InputError as exc:  # too few frames, an arm that hardly moves: nothing to carve
+        log.info("no attached geometry: %s", exc)
+        return diagnosis
+    if found is None:
+        return diagnosis
+    doc["verdict"].append("link_geometry")
+    doc["image_findings"] = {"link_geometry": {found.geometry.link: found.to_dict()}}
+    doc["notes"].append(found.note())
+    return dataclasses.replace(diagnosis, extension=diagnosis.extension.merged(
+        ModelExtension(link_geometry=(found.geometry,))))
 
 
 def json_safe(value: Any) -> Any:

@@ -1,0 +1,213 @@
+"""Something the URDF lacks, carried by a link: found by carving the images' unexplained motion.
+
+A fixed camera sees the arm move in front of a still scene. Its motion masks (`dream.edges.motion`)
+hold everything that moved; the fitted model's silhouette (dilated by a few pixels for the pose's
+error) explains most of it. What is left over, frame after frame, is the arm's shadow, other
+motion, and anything the arm carries that the URDF does not describe: a tool, a gripper, a held
+board. Only the last moves rigidly with a link. So, for each rigid group of moving links (links
+whose relative pose stays the same over the frames), a grid of points fixed in the group's link
+frame is carved (space carving): a point is kept when it projects into moving pixels in almost
+every frame where it is in the image, and into unexplained pixels in a good share of them. The
+kept points of the most distal group that keeps about as many as the best group are the
+attached geometry; their trimmed bounding box in that link's frame becomes a `link_geometry`
+box (`dream.robot.link_geometry`). A single view cannot tell a plate's thickness along the
+line of sight, so the box is a visual hull: too thick, rarely too small.
+
+Pure except for reading the sequence's images.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from dream.camera import project
+from dream.edges.motion import MotionSettings, sequence_motion_masks
+from dream.polish.objective import evenly_spaced
+from dream.robot import Robot
+from dream.robot.link_geometry import BOX_KIND, LinkGeometry
+from dream.sequence import Sequence
+from dream.settings_checks import check_fields
+from dream.silhouette import load_robot_meshes, render_silhouette
+
+log = logging.getLogger(__name__)
+
+MIN_DEPTH_M = 0.05   # grid points closer to the camera than this are not projected
+RIGID_TOLERANCE_M = 1e-6   # links whose relative pose varies less than this are one body
+WIDTH_REFERENCE_PX = 320.0  # dilate_px is per this many pixels of image width
+
+
+@dataclass(frozen=True)
+class AttachedSettings:
+    """Every constant of the carving (module doc); set on rendered sequences.
+
+    Attributes:
+        frames: frames carved (evenly spaced).
+        voxel_m, half_extent_m: the grid around each link origin: spacing and half size.
+        dilate_px: the model silhouette grows by this (per 320 px of width) before it explains.
+        min_seen_frames: a grid point must be in the image in at least this many frames.
+        moving_share: ... and in moving or model pixels in at least this share of them,
+        unexplained_share: ... and in unexplained pixels in at least this share.
+        min_points: fewer kept points: nothing attached.
+        group_share: a more distal group wins when it keeps this share of the best group's
+            points: a wrist joint that hardly moves makes the groups on both sides of it carve
+            alike, and tools are attached at the distal end far more often.
+        trim_percentile: the box spans these percentiles of the kept points (each axis).
+        max_unexplained_share: nothing is looked for when more than this share of the moving
+            pixels is unexplained: the model's pose or joints are then too far off for the
+            leftover to be something carried (a majority; 0.18-0.34 on rendered sequences
+            of an arm carrying a 30 x 22 cm plate).
+    """
+
+    frames: int = 30
+    voxel_m: float = 0.02
+    half_extent_m: float = 0.35
+    dilate_px: float = 3.0
+    min_seen_frames: int = 10
+    moving_share: float = 0.9
+    unexplained_share: float = 0.3
+    min_points: int = 20
+    group_share: float = 0.4
+    trim_percentile: float = 5.0
+    max_unexplained_share: float = 0.5
+
+    def __post_init__(self) -> None:
+        check_fields(self, "attached geometry",
+                     positive_ints=("frames", "min_seen_frames", "min_points"),
+                     positive=("voxel_m", "half_extent_m", "moving_share",
+                               "unexplained_share", "group_share", "max_unexplained_share"),
+                     non_negative=("dilate_px", "trim_percentile"))
+
+
+@dataclass(frozen=True)
+class AttachedFinding:
+    """The geometry found, the link it moves with, and the evidence."""
+
+    geometry: LinkGeometry
+    points: int
+    frames: int
+    points_per_link: dict[str, int]
+
+    def note(self) -> str:
+        """The diagnosis note that names the finding."""
+        g = self.geometry
+        return (f"link_geometry: something the URDF lacks moves with {g.link} (about "
+                f"{' x '.join(f'{100 * s:.0f}' for s in g.size_m)} cm, centred "
+                f"{100 * float(np.linalg.norm(g.position_m)):.0f} cm from its origin; "
+                f"{self.points} carved points over {self.frames} frames): a tool, gripper or "
+                "held object; extended_model.yaml adds it as a box (a visual hull: thicker than "
+                "it is along the camera's line of sight)")
+
+    def to_dict(self) -> dict:
+        return {**self.geometry.to_params(), "carved_points": self.points,
+                "frames": self.frames, "carved_points_per_link": dict(self.points_per_link)}
+
+
+def rigid_groups(robot: Robot, joints: np.ndarray, links: tuple[str, ...]
+                 ) -> list[tuple[str, ...]]:
+    """`links` grouped by a constant relative pose over the joint vectors (F, J), in order."""
+    T = robot.link_poses(joints, links)                           # (F, L, 4, 4)
+    groups: list[list[int]] = []
+    for i in range(len(links)):
+        for group in groups:
+            rel = np.linalg.inv(T[:, group[0]]) @ T[:, i]           # (F, 4, 4)
+            if np.abs(rel - rel[0]).max() < RIGID_TOLERANCE_M:
+                group.append(i)
+                break
+        else:
+            groups.append([i])
+    return [tuple(links[i] for i in g) for g in groups]
+
+
+def unexplained_motion(sequence: Sequence, robot: Robot, joints: np.ndarray,
+                       T_cam_base: np.ndarray, indices: np.ndarray,
+                       settings: AttachedSettings) -> tuple[np.ndarray, np.ndarray, float]:
+    """(moving or model, unexplained) (n, H, W) bool masks of the frames `indices`, and the
+    share of the moving pixels left unexplained."""
+    camera = sequence.camera
+    motion = sequence_motion_masks(sequence, indices, MotionSettings())
+    meshes = load_robot_meshes(robot)
+    radius = max(1, int(round(settings.dilate_px * camera.width / WIDTH_REFERENCE_PX)))
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+    model = np.stack([cv2.dilate(render_silhouette(meshes, joints[i], T_cam_base, camera)
+                                 .astype(np.uint8), disk) > 0 for i in indices])
+    unexplained = motion & ~model
+    return motion | model, unexplained, float(unexplained.sum() / max(int(motion.sum()), 1))
+
+
+def carve(robot: Robot, link: str, joints: np.ndarray, T_cam_base: np.ndarray, camera,
+          moving: np.ndarray, unexplained: np.ndarray, settings: AttachedSettings) -> np.ndarray:
+    """(N, 3) the grid points in `link`'s frame kept by the carving (module doc)."""
+    axis = np.arange(-settings.half_extent_m, settings.half_extent_m + 1e-9, settings.voxel_m)
+    grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    T_base_link = robot.link_poses(joints, [link])[:, 0]
+    seen, on_moving, on_unexplained = (np.zeros(len(grid)) for _ in range(3))
+    for f, T_link in enumerate(T_base_link):
+        T = T_cam_base @ T_link
+        P = grid @ T[:3, :3].T + T[:3, 3]
+        front = P[:, 2] > MIN_DEPTH_M
+        uv = np.full((len(P), 2), -1.0)
+        uv[front] = project(camera, P[front])
+        u, v = np.round(uv[:, 0]).astype(int), np.round(uv[:, 1]).astype(int)
+        ok = front & (u >= 0) & (v >= 0) & (u < camera.width) & (v < camera.height)
+        seen += ok
+        on_moving[ok] += moving[f][v[ok], u[ok]]
+        on_unexplained[ok] += unexplained[f][v[ok], u[ok]]
+    keep = ((seen >= settings.min_seen_frames) & (on_moving >= settings.moving_share * seen)
+            & (on_unexplained >= settings.unexplained_share * seen))
+    return grid[keep]
+
+
+def find_attached_geometry(sequence: Sequence, robot: Robot, joints: np.ndarray,
+                           T_cam_base: np.ndarray, settings: AttachedSettings | None = None
+                           ) -> AttachedFinding | None:
+    """The geometry a moving link carries that the model lacks, or None (module doc).
+
+    Args:
+        sequence: a fixed-camera sequence with images (motion masks need them).
+        robot: the robot; joints: (F, J) its joints at the image times (the fitted model's).
+        T_cam_base: (4, 4) the fitted extrinsic.
+
+    Raises:
+        InputError: no images, too few frames, or an arm that hardly moves (motion masks).
+    """
+    settings = settings or AttachedSettings()
+    indices = evenly_spaced(np.arange(len(sequence)), settings.frames)
+    q = np.asarray(joints, dtype=float)[indices]
+    origins = robot.link_poses(q, robot.link_names)[..., :3, 3]            # (n, L, 3)
+    moving_links = tuple(name for name, travel in zip(
+        robot.link_names, np.ptp(origins, axis=0).max(axis=1), strict=True)
+        if travel > MotionSettings().static_link_m)
+    if not moving_links:
+        return None
+    moving, unexplained, share = unexplained_motion(sequence, robot, joints, T_cam_base,
+                                                    indices, settings)
+    if share > settings.max_unexplained_share:
+        log.info("the model leaves %.0f%% of the moving pixels unexplained: too far off to look "
+                 "for attached geometry", 100 * share)
+        return None
+    kept: list[tuple[str, np.ndarray]] = []
+    for group in rigid_groups(robot, q, moving_links):
+        link = _representative(robot, group)
+        kept.append((link, carve(robot, link, q, T_cam_base, sequence.camera, moving,
+                                 unexplained, settings)))
+    best = max(len(points) for _, points in kept)
+    if best < settings.min_points:
+        return None
+    link, points = [(k, p) for k, p in kept if len(p) >= settings.group_share * best][-1]
+    low, high = np.percentile(points, [settings.trim_percentile,
+                                       100 - settings.trim_percentile], axis=0)
+    size = np.maximum(high - low, 0.0) + settings.voxel_m
+    box = LinkGeometry(link, BOX_KIND, size_m=tuple(size), position_m=tuple((low + high) / 2))
+    return AttachedFinding(box, len(points), len(indices),
+                           {k: int(len(p)) for k, p in kept})
+
+
+def _representative(robot: Robot, group: tuple[str, ...]) -> str:
+    """The link that names a rigid group: its last keypoint link (base to tip), else its last
+    link in the URDF's order."""
+    keypoints = [k for k in robot.keypoint_names if k in group]
+    return keypoints[-1] if keypoints else group[-1]

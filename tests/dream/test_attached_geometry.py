@@ -1,0 +1,82 @@
+"""Finding what a link carries that the URDF lacks (`dream.diagnosis.attached`): rigid groups of
+links, the carving of unexplained motion, and `dream diagnose` naming a hidden plate."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from dream.cli import main
+from dream.diagnosis.attached import AttachedSettings, carve, rigid_groups
+from dream.extension import HeldReadings, ModelExtension, extension_yaml, read_extension
+from dream.robot import load_robot
+from dream.robot.link_geometry import BOX_KIND, LinkGeometry, with_link_geometry
+from dream.sample import random_joints
+from dream.silhouette import load_robot_meshes, render_silhouette
+from dream.transforms import look_at
+from tests.dream.test_edges import CAMERA, TARGET
+
+PLATE = LinkGeometry("panda_hand", BOX_KIND, size_m=(0.30, 0.22, 0.01),
+                     position_m=(0.0, 0.0, 0.14))
+
+
+@pytest.fixture(scope="module")
+def panda():
+    return load_robot("panda")
+
+
+def test_links_that_keep_their_relative_pose_form_one_group(panda):
+    q = random_joints(np.random.default_rng(0), panda, 6, 0.8)
+    links = ("panda_link6", "panda_link7", "panda_hand", "panda_leftfinger")
+    assert rigid_groups(panda, q, links) == [("panda_link6",),
+                                             ("panda_link7", "panda_hand", "panda_leftfinger")]
+    q[:, 6] = q[0, 6]                                   # a wrist joint that never turns
+    assert rigid_groups(panda, q, links) == [links]
+
+
+def test_carving_recovers_a_plate_from_silhouettes(panda):
+    """Frames whose moving pixels are the robot with a plate, explained by the URDF's: the
+    points kept in the hand's frame span the plate's extent (its thickness is a visual hull)."""
+    meshes = load_robot_meshes(panda)
+    q = random_joints(np.random.default_rng(1), panda, 16, 0.8)
+    T = look_at(TARGET + np.array([1.3, 0.5, 0.6]), TARGET)
+    true = with_link_geometry(meshes, (PLATE,))
+    moving = np.stack([render_silhouette(true, qi, T, CAMERA) for qi in q])
+    model = np.stack([render_silhouette(meshes, qi, T, CAMERA) for qi in q])
+    settings = AttachedSettings()
+    points = carve(panda, "panda_hand", q, T, CAMERA, moving | model, moving & ~model, settings)
+    assert len(points) >= settings.min_points
+    extent = np.ptp(points, axis=0) + settings.voxel_m
+    assert np.all(np.abs(extent[:2] - np.array(PLATE.size_m[:2])) < 0.06), extent
+    assert abs(np.median(points[:, 2]) - PLATE.position_m[2]) < 0.05
+    none = carve(panda, "panda_hand", q, T, CAMERA, model, np.zeros_like(model), settings)
+    assert len(none) == 0
+
+
+@pytest.mark.slow
+def test_diagnose_names_a_hidden_plate_and_held_readings_in_rendered_images(tmp_path):
+    hidden = tmp_path / "hidden.yaml"
+    hidden.write_text(extension_yaml(ModelExtension(
+        held_readings=HeldReadings(0.2), link_geometry=(PLATE,), robot="panda")))
+    base = ["synth", "--robot", "panda", "--config", "configs/synth/panda_teleop_like.yaml",
+            "--num", "60", "--seed", "4"]
+    assert main([*base, "--out", str(tmp_path / "plate"), "--model-extension",
+                 str(hidden)]) == 0
+    assert main([*base, "--out", str(tmp_path / "null")]) == 0
+    assert main(["diagnose", "--data", str(tmp_path / "plate"), "--use-labels", "--out",
+                 str(tmp_path / "r1")]) == 0
+    doc = json.loads((tmp_path / "r1" / "diagnosis.json").read_text())
+    assert doc["verdict"][0] == "held_readings" and "link_geometry" in doc["verdict"]
+    found = read_extension(tmp_path / "r1" / "extended_model.yaml").link_geometry
+    assert [(g.link, g.kind) for g in found] == [("panda_hand", BOX_KIND)]
+    size, centre = np.array(found[0].size_m), np.array(found[0].position_m)
+    assert np.all(np.abs(size[:2] - np.array(PLATE.size_m[:2])) < 0.06), size
+    assert np.linalg.norm(centre - np.array(PLATE.position_m)) < 0.08, centre
+    assert doc["truth"]["after"]["translation_error_m"] <= \
+        0.5 * doc["truth"]["before"]["translation_error_m"]
+    assert main(["diagnose", "--data", str(tmp_path / "null"), "--use-labels", "--out",
+                 str(tmp_path / "r2")]) == 0
+    doc = json.loads((tmp_path / "r2" / "diagnosis.json").read_text())
+    assert "link_geometry" not in doc["verdict"] and "image_findings" not in doc
