@@ -9,6 +9,9 @@ accepted effect, on the same frames: per link and in all. An accepted effect aft
 outline agrees less (by more than `AGREEMENT_DROP`) is marked as supported by the keypoints
 only; links whose outline disagrees with the images at the final model are named (their
 visible shape differs from the URDF, or the images do not show them).
+
+`add_image_evidence` and `add_attached_geometry` (`dream.diagnosis.attached`: what a link
+carries that the URDF lacks) put both into diagnosis.json's document.
 """
 
 from __future__ import annotations
@@ -24,8 +27,10 @@ from dream.edges.calibration import moving_vertices, usable_vertices
 from dream.edges.score import EdgeScore, edge_score
 from dream.edges.search import scale_images
 from dream.edges.settings import EdgeSettings
+from dream.errors import InputError
 from dream.extended import effective_joints, joint_offset_vector
 from dream.polish.objective import evenly_spaced
+from dream.robot.link_geometry import LinkGeometry
 from dream.sequence import Sequence
 from dream.silhouette import load_robot_meshes, vertices_in_base
 
@@ -83,3 +88,48 @@ def outline_evidence(sequence: Sequence, steps: list[tuple[str, FitResult]],
     log.info("outline agreement: %s", ", ".join(f"{label} {s.agreement:.1%}"
                                                 for label, s in scored))
     return out
+
+
+def add_image_evidence(doc: dict[str, Any], sequence: Sequence,
+                       steps: list[tuple[str, FitResult]]) -> None:
+    """`image_evidence` where the frames have images; an accepted effect after which the
+    outline agrees less is marked and noted."""
+    try:
+        evidence = outline_evidence(sequence, steps)
+    except InputError as exc:  # no edges near the outline: nothing to say from the images
+        log.info("no image evidence: %s", exc)
+        return
+    if evidence is None:
+        return
+    doc["image_evidence"] = evidence
+    agreement = {step["model"]: step["agreement"] for step in evidence["steps"]}
+    for entry in doc["effects"]:
+        if entry["name"] in agreement and entry["name"] in doc["verdict"]:
+            entry["image_support"] = entry["name"] not in evidence["unsupported"]
+    for name in evidence["unsupported"]:
+        doc["notes"].append(f"{name}: the robot's outline agrees less with the images after it "
+                            f"(outline agreement {agreement[name]:.1%}); only the keypoint "
+                            "detections support it")
+
+
+def add_attached_geometry(doc: dict[str, Any], sequence: Sequence,
+                          fit: FitResult) -> LinkGeometry | None:
+    """The `link_geometry` box found at the final `fit` by carving the images' unexplained
+    motion (`dream.diagnosis.attached`), named in the verdict and described in
+    `image_findings`; None where nothing is found, the frames lack images or the camera moved."""
+    from dream.diagnosis.attached import find_attached_geometry
+
+    if any(f.image_path is None for f in sequence.frames) or fit.model.change_index is not None:
+        return None
+    try:
+        found = find_attached_geometry(sequence, fit.model.problem.robot, fit_joints(fit),
+                                       fit.T_cam_base)
+    except InputError as exc:  # too few frames, an arm that hardly moves: nothing to carve
+        log.info("no attached geometry: %s", exc)
+        return None
+    if found is None:
+        return None
+    doc["verdict"].append("link_geometry")
+    doc["image_findings"] = {"link_geometry": {found.geometry.link: found.to_dict()}}
+    doc["notes"].append(found.note())
+    return found.geometry

@@ -301,6 +301,7 @@ def _with_held_readings(diagnosis: Diagnosis, logged: Problem, held, settings
 def run_diagnosis(sequence: Sequence, robot: Robot, obs: Observations, report_dir: str | Path,
                   settings: DiagnoseSettings | None = None, progress=None) -> dict[str, Any]:
     """Diagnose `sequence` and write REPORT_DIR (diagnosis.json, extended_model.yaml, report)."""
+    from dream.diagnosis.images import add_attached_geometry, add_image_evidence
     from dream.diagnosis.report import PLOT_FILES, write_report
     from dream.diagnosis.residuals import analyse
 
@@ -312,8 +313,12 @@ def run_diagnosis(sequence: Sequence, robot: Robot, obs: Observations, report_di
     final_res = None if not diagnosis.accepted else _residual_set(problem, diagnosis.final.fit,
                                                                   diagnosis.mask)
     analysis = analyse(baseline_res)
-    _add_image_evidence(doc, sequence, diagnosis)
-    diagnosis = _add_attached_geometry(doc, sequence, diagnosis)
+    steps = _model_steps(diagnosis)
+    add_image_evidence(doc, sequence, steps)
+    found = add_attached_geometry(doc, sequence, steps[-1][1])
+    if found is not None:
+        diagnosis = dataclasses.replace(diagnosis, extension=diagnosis.extension.merged(
+            ModelExtension(link_geometry=(found,))))
     panels = _silhouette_panels(sequence, problem, diagnosis)
     if panels:
         doc["silhouette_iou"] = [{"frame": p.frame, "before": p.iou_before, "after": p.iou_after}
@@ -348,55 +353,6 @@ def _model_steps(diagnosis: Diagnosis) -> list[tuple[str, FitResult]]:
     if diagnosis.accepted:
         steps[-1] = (steps[-1][0], diagnosis.final.fit)
     return steps
-
-
-def _add_image_evidence(doc: dict[str, Any], sequence: Sequence, diagnosis: Diagnosis) -> None:
-    """`image_evidence` (`dream.diagnosis.images`) where the frames have images; an accepted
-    effect after which the outline agrees less is marked and noted."""
-    from dream.diagnosis.images import outline_evidence
-
-    try:
-        evidence = outline_evidence(sequence, _model_steps(diagnosis))
-    except InputError as exc:  # no edges near the outline: nothing to say from the images
-        log.info("no image evidence: %s", exc)
-        return
-    if evidence is None:
-        return
-    doc["image_evidence"] = evidence
-    agreement = {step["model"]: step["agreement"] for step in evidence["steps"]}
-    for entry in doc["effects"]:
-        if entry["name"] in agreement and entry["name"] in doc["verdict"]:
-            entry["image_support"] = entry["name"] not in evidence["unsupported"]
-    for name in evidence["unsupported"]:
-        doc["notes"].append(f"{name}: the robot's outline agrees less with the images after it "
-                            f"(outline agreement {agreement[name]:.1%}); only the keypoint "
-                            "detections support it")
-
-
-def _add_attached_geometry(doc: dict[str, Any], sequence: Sequence,
-                           diagnosis: Diagnosis) -> Diagnosis:
-    """`link_geometry` found by carving the images' unexplained motion
-    (`dream.diagnosis.attached`): named in the verdict, described in `image_findings`, added to
-    the extension. Nothing where the frames lack images or the camera moved."""
-    from dream.diagnosis.attached import find_attached_geometry
-    from dream.diagnosis.images import fit_joints
-
-    fit = _model_steps(diagnosis)[-1][1]
-    if any(f.image_path is None for f in sequence.frames) or fit.model.change_index is not None:
-        return diagnosis
-    try:
-        found = find_attached_geometry(sequence, fit.model.problem.robot, fit_joints(fit),
-                                       fit.T_cam_base)
-    except InputError as exc:  # too few frames, an arm that hardly moves: nothing to carve
-        log.info("no attached geometry: %s", exc)
-        return diagnosis
-    if found is None:
-        return diagnosis
-    doc["verdict"].append("link_geometry")
-    doc["image_findings"] = {"link_geometry": {found.geometry.link: found.to_dict()}}
-    doc["notes"].append(found.note())
-    return dataclasses.replace(diagnosis, extension=diagnosis.extension.merged(
-        ModelExtension(link_geometry=(found.geometry,))))
 
 
 def json_safe(value: Any) -> Any:

@@ -146,14 +146,12 @@ def test_an_effect_the_images_contradict_is_marked(monkeypatch):
     """Where the outline agrees less after an accepted effect, the effect is marked as
     supported by the keypoints only, and a note says so."""
     import dream.diagnosis.images as images
-    from dream.diagnosis.run import _add_image_evidence
 
     evidence = {"frames": 10, "steps": [{"model": "baseline", "agreement": 0.5},
                                         {"model": "time_offset", "agreement": 0.4}],
                 "unsupported": ["time_offset"], "mismatched_links": ["panda_hand"]}
     monkeypatch.setattr(images, "outline_evidence", lambda sequence, steps: evidence)
-    monkeypatch.setattr("dream.diagnosis.run._model_steps", lambda diagnosis: [])
     doc = {"effects": [{"name": "time_offset"}], "verdict": ["time_offset"], "notes": []}
-    _add_image_evidence(doc, None, None)
+    images.add_image_evidence(doc, None, [])
     assert doc["effects"][0]["image_support"] is False
     assert "only the keypoint detections support it" in doc["notes"][0]
