@@ -56,9 +56,11 @@ class AttachedSettings:
             points: a wrist joint that hardly moves makes the groups on both sides of it carve
             alike, and tools are attached at the distal end far more often.
         trim_percentile: the box spans these percentiles of the kept points (each axis).
+        background_arm_share: pixels the model covers in at least this share of the carved
+            frames are no evidence: the median background there is the arm itself.
         max_unexplained_share: nothing is looked for when more than this share of the moving
             pixels is unexplained: the model's pose or joints are then too far off for the
-            leftover to be something carried (a majority; 0.18-0.34 on rendered sequences
+            leftover to be something carried (a majority; at most 0.34 on rendered sequences
             of an arm carrying a 30 x 22 cm plate).
     """
 
@@ -73,12 +75,14 @@ class AttachedSettings:
     group_share: float = 0.4
     trim_percentile: float = 5.0
     max_unexplained_share: float = 0.5
+    background_arm_share: float = 0.5
 
     def __post_init__(self) -> None:
         check_fields(self, "attached geometry",
                      positive_ints=("frames", "min_seen_frames", "min_points"),
                      positive=("voxel_m", "half_extent_m", "moving_share",
-                               "unexplained_share", "group_share", "max_unexplained_share"),
+                               "unexplained_share", "group_share", "max_unexplained_share",
+                               "background_arm_share"),
                      non_negative=("dilate_px", "trim_percentile"))
 
 
@@ -134,7 +138,10 @@ def unexplained_motion(sequence: Sequence, robot: Robot, joints: np.ndarray,
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
     model = np.stack([cv2.dilate(render_silhouette(meshes, joints[i], T_cam_base, camera)
                                  .astype(np.uint8), disk) > 0 for i in indices])
-    unexplained = motion & ~model
+    # where the arm stays, the median background holds the arm itself, and the frames in which
+    # it has moved away "move" there: ghosts, no evidence of anything carried
+    ghost = model.mean(axis=0) >= settings.background_arm_share
+    unexplained = motion & ~model & ~ghost
     return motion | model, unexplained, float(unexplained.sum() / max(int(motion.sum()), 1))
 
 
