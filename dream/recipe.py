@@ -10,6 +10,7 @@ YAML file and applies `KEY=VALUE` overrides. Used by the synth and train recipes
 from __future__ import annotations
 
 import dataclasses
+import re
 import types
 import typing
 from pathlib import Path
@@ -18,6 +19,9 @@ from typing import Any
 import yaml
 
 from dream.errors import InputError
+
+# YAML 1.1 (PyYAML) reads an exponent without a decimal point, such as 1e-3, as a string
+_DECIMAL = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
 
 T = typing.TypeVar("T")
 
@@ -82,6 +86,8 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
             return int(value)
     elif tp is float:
         if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        if isinstance(value, str) and _DECIMAL.fullmatch(value.strip()):
             return float(value)
     elif tp is str:
         if isinstance(value, (str, Path)):

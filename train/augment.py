@@ -22,9 +22,13 @@ instead (`reseed`), and the data loader reseeds it in every worker.
 from __future__ import annotations
 
 import math
+import os
 import random
 
-import albumentations as A
+# albumentations asks PyPI for its latest version at import unless told not to: no network here
+os.environ.setdefault("NO_ALBUMENTATIONS_UPDATE", "1")
+
+import albumentations as A  # noqa: E402
 import cv2
 import numpy as np
 

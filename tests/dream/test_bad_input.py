@@ -496,6 +496,18 @@ def test_a_png_damaged_in_the_middle_gives_one_line(imaged, tmp_path, capfd):
 @dataclass(frozen=True)
 class _Recipe:
     size: int = 1
+    rate: float = 0.5
+
+
+def test_an_exponent_without_a_decimal_point_is_a_number(tmp_path):
+    """PyYAML reads 1e-3 as a string (YAML 1.1); a float field takes it as the number."""
+    path = tmp_path / "r.yaml"
+    path.write_text("rate: 1e-3\n")
+    assert load_recipe(_Recipe, path).rate == 1e-3
+    assert load_recipe(_Recipe, None, ["rate=-2E4"]).rate == -2e4
+    for text in ("fast", "nan", "1e"):
+        with pytest.raises(InputError, match="expected float"):
+            load_recipe(_Recipe, None, [f"rate={text}"])
 
 
 def test_invalid_recipe_yaml_says_what_to_do(tmp_path):
