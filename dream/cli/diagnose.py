@@ -72,6 +72,12 @@ def _print_diagnosis(doc: dict, out_dir: str) -> None:
     for effect in doc["effects"]:
         if effect["name"] in doc["verdict"]:
             print(f"  {effect['name']}: {effect['params']}")
+    for name, found in (doc.get("image_findings") or {}).items():
+        for link, params in found.items():
+            size = " x ".join(f"{100 * s:.0f}" for s in params["size_m"])
+            centre = ", ".join(str(round(100 * c)) for c in params["position_m"])
+            print(f"  {name}: a box of {size} cm at ({centre}) cm in the frame of {link} "
+                  f"(found in the images)")
     print(f"extended model: held-out RMSE {gain['heldout_rmse_px_after']:.3f} px")
     remaining = doc.get("remaining") or {}
     if remaining.get("unexplained_share") is not None:

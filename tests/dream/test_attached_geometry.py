@@ -56,7 +56,7 @@ def test_carving_recovers_a_plate_from_silhouettes(panda):
 
 
 @pytest.mark.slow
-def test_diagnose_names_a_hidden_plate_and_held_readings_in_rendered_images(tmp_path):
+def test_diagnose_names_a_hidden_plate_and_held_readings_in_rendered_images(tmp_path, capsys):
     hidden = tmp_path / "hidden.yaml"
     hidden.write_text(extension_yaml(ModelExtension(
         held_readings=HeldReadings(0.2), link_geometry=(PLATE,), robot="panda")))
@@ -65,8 +65,11 @@ def test_diagnose_names_a_hidden_plate_and_held_readings_in_rendered_images(tmp_
     assert main([*base, "--out", str(tmp_path / "plate"), "--model-extension",
                  str(hidden)]) == 0
     assert main([*base, "--out", str(tmp_path / "null")]) == 0
+    capsys.readouterr()
     assert main(["diagnose", "--data", str(tmp_path / "plate"), "--use-labels", "--out",
                  str(tmp_path / "r1")]) == 0
+    assert "cm in the frame of panda_hand (found in the images)" in capsys.readouterr().out
+    assert "| link_geometry | panda_hand.size_m[0] |" in (tmp_path / "r1" / "report.md").read_text()
     doc = json.loads((tmp_path / "r1" / "diagnosis.json").read_text())
     assert doc["verdict"][0] == "held_readings" and "link_geometry" in doc["verdict"]
     found = read_extension(tmp_path / "r1" / "extended_model.yaml").link_geometry

@@ -16,7 +16,8 @@ from dream.diagnosis.residuals.residual_set import ResidualSet
 
 # Units of the parameters of each effect (extended_model.yaml's vocabulary, docs/data_format.md)
 EFFECT_UNITS = {"joint_offset": "rad", "lens_distortion": "", "intrinsics_error": "px",
-                "time_offset": "s", "link_length": "m", "keypoint_bias": "m"}
+                "time_offset": "s", "link_length": "m", "keypoint_bias": "m",
+                "link_geometry": "m"}
 
 
 def _flatten(value: Any, path: tuple = ()) -> list[tuple[tuple, Any]]:
@@ -107,6 +108,15 @@ def _effects_table(diagnosis: Mapping) -> list[str]:
     return lines
 
 
+def _image_finding(diagnosis: Mapping, name: str) -> dict:
+    """An effect found in the images (`image_findings`), as an effect entry: per link, the
+    shape's parameters without the carving's evidence."""
+    found = (diagnosis.get("image_findings") or {}).get(name) or {}
+    shape = ("size_m", "position_m", "scale")
+    return {"params": {link: {k: v for k, v in params.items() if k in shape}
+                       for link, params in found.items() if isinstance(params, Mapping)}}
+
+
 def _parameter_table(diagnosis: Mapping) -> list[str]:
     accepted = verdict_names(diagnosis)
     by_name = {str(e.get("name")): e for e in effect_entries(diagnosis)}
@@ -116,7 +126,7 @@ def _parameter_table(diagnosis: Mapping) -> list[str]:
     head = "| effect | parameter | value | 1-sigma | unit |" + (" truth |" if truth else "")
     lines = [head, "|---|---|---:|---:|---|" + ("---:|" if truth else "")]
     for name in accepted:
-        e = by_name.get(name, {})
+        e = by_name.get(name) or _image_finding(diagnosis, name)
         params = e.get("params")
         leaves = _flatten(params) if params not in (None, {}) else []
         if not leaves:
