@@ -33,7 +33,7 @@ from dream.extension import ModelExtension
 from dream.io.common import FRAME_DIGITS, frame_name
 from dream.readings import held_update_times
 from dream.robot import Robot
-from dream.robot.link_geometry import check_links, extended_visuals
+from dream.robot.link_geometry import check_links, check_renderable
 from dream.transforms import transform_points
 from synth.config import SynthConfig
 from synth.nominal import nominal_camera
@@ -82,7 +82,7 @@ def check_extension(extension: ModelExtension, robot: Robot, config: SynthConfig
             from None
     joint_offset_vector(robot, extension.joint_offset_rad)
     check_links(extension.link_geometry, robot.link_names)
-    extended_visuals({}, extension.link_geometry)      # refuses what it cannot render
+    check_renderable(extension.link_geometry)
     keypoint_points(true_robot, robot.rest_joints[None], None, extension.keypoint_bias_m)
     if extension.intrinsics is not None and not config.intrinsics.fixed:
         raise InputError("intrinsics_error gives absolute intrinsics, but the recipe draws a "

@@ -178,7 +178,7 @@ def init_from_onnx(model: BeliefNet, path: str | Path, config: TrainConfig,
     finally:
         for module, training in modes.items():   # train or eval, as the caller left them
             module.train(training)
-    logger.info("network weights from %s (batch norms split on %d images)", path,
+    logger.info("%s: batch norms split on %d training images", path,
                 sum(len(b) for b in batches))
 
 

@@ -126,6 +126,17 @@ def usable_vertices(meshes: RobotMeshes, exclude_links: SequenceOf[str]) -> np.n
     return ~excluded[meshes.vertex_link]
 
 
+def outline_meshes(robot: Robot, settings: EdgeSettings, exclude_links: SequenceOf[str],
+                   link_geometry: tuple[LinkGeometry, ...]
+                   ) -> tuple[RobotMeshes, np.ndarray, tuple[str, ...]]:
+    """The meshes whose outline is aligned (a model extension's `link_geometry` applied), the
+    vertices usable for it (`usable_vertices`) and the links left out: `exclude_links` and the
+    extension's excluded ones."""
+    meshes = with_link_geometry(load_robot_meshes(robot, settings.max_triangles), link_geometry)
+    excluded = (*exclude_links, *excluded_links(link_geometry))
+    return meshes, usable_vertices(meshes, excluded), excluded
+
+
 def moving_vertices(meshes: RobotMeshes, joints: np.ndarray, usable: np.ndarray,
                     background: np.ndarray | None, settings: EdgeSettings
                     ) -> tuple[np.ndarray, np.ndarray | None, tuple[str, ...]]:
@@ -167,9 +178,8 @@ def refine_with_edges(sequence: Sequence, robot: Robot, T_cam_base: np.ndarray,
     if missing:
         raise InputError(f"--refine edges needs the images, and frame {missing[0]} has none",
                          sequence.source, "add the images, or use --refine none")
-    meshes = with_link_geometry(load_robot_meshes(robot, settings.max_triangles), link_geometry)
-    exclude_links = (*exclude_links, *excluded_links(link_geometry))
-    usable = usable_vertices(meshes, exclude_links)
+    meshes, usable, exclude_links = outline_meshes(robot, settings, exclude_links,
+                                                   link_geometry)
     chosen = evenly_spaced(np.arange(len(sequence)), settings.max_search_frames)
     gray, background = frames_and_background(sequence, chosen, settings, camera)
     if background is None:

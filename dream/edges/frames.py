@@ -23,7 +23,7 @@ import numpy as np
 
 from dream.calibration import CalibrationResult, Observations
 from dream.edges.background import background_model, load_grey
-from dream.edges.calibration import moving_vertices, usable_vertices
+from dream.edges.calibration import moving_vertices, outline_meshes
 from dream.edges.refine import align_edges
 from dream.edges.score import edge_score
 from dream.edges.search import scale_images
@@ -34,9 +34,9 @@ from dream.polish.calibration import inlier_keypoints
 from dream.polish.guard import fit_shrinkage
 from dream.polish.objective import evenly_spaced
 from dream.robot import Robot
-from dream.robot.link_geometry import LinkGeometry, excluded_links, with_link_geometry
+from dream.robot.link_geometry import LinkGeometry
 from dream.sequence import Sequence
-from dream.silhouette import load_robot_meshes, vertices_in_base
+from dream.silhouette import vertices_in_base
 
 log = logging.getLogger(__name__)
 
@@ -128,8 +128,7 @@ def refine_frames_with_edges(sequence: Sequence, robot: Robot, result: Calibrati
     if not todo:
         raise InputError("--refine edges needs solved frames with images, and there are none",
                          sequence.source, "add the images, or use --refine none")
-    meshes = with_link_geometry(load_robot_meshes(robot, settings.max_triangles), link_geometry)
-    usable = usable_vertices(meshes, (*exclude_links, *excluded_links(link_geometry)))
+    meshes, usable, _ = outline_meshes(robot, settings, exclude_links, link_geometry)
     joints = joints_in_robot_order(sequence, robot)
     usable, background, _ = moving_vertices(meshes, joints, usable,
                                             _shared_background(sequence, settings), settings)

@@ -182,6 +182,15 @@ def with_link_geometry(meshes, geometries: tuple[LinkGeometry, ...]):
                                vertex_link=vertex_link, faces=np.concatenate(faces))
 
 
+def check_renderable(geometries: tuple[LinkGeometry, ...]) -> None:
+    """Refuse `exclude`, which has no geometry to render."""
+    for g in geometries:
+        if g.kind == EXCLUDE_KIND:
+            raise InputError(f"link_geometry exclude of '{g.link}' says its true outline is "
+                             "unknown, so it cannot be rendered",
+                             fix="give a box or a scale for the link to render it")
+
+
 def extended_visuals(visuals: Mapping[str, tuple], geometries: tuple[LinkGeometry, ...]
                      ) -> dict[str, tuple]:
     """URDF visuals (`dream.robot.visuals.read_link_visuals`) with each box added to its link as
@@ -192,12 +201,9 @@ def extended_visuals(visuals: Mapping[str, tuple], geometries: tuple[LinkGeometr
     """
     from dream.robot.visuals import BOX, LinkVisual
 
+    check_renderable(geometries)
     out = dict(visuals)
     for g in geometries:
-        if g.kind == EXCLUDE_KIND:
-            raise InputError(f"link_geometry exclude of '{g.link}' says its true outline is "
-                             "unknown, so it cannot be rendered",
-                             fix="give a box or a scale for the link to render it")
         if g.kind == SCALE_KIND:
             out[g.link] = tuple(_scaled(v, g.scale) for v in out.get(g.link, ()))
         else:
