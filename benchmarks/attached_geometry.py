@@ -8,13 +8,19 @@ each from its labels (`--use-labels`) or from a model's detections (`--model`). 
 verdict, the box found (link, size, centre) and the camera position error against the rendered
 ground truth before and after the diagnosis's extension.
 
-    python benchmarks/attached_geometry.py [--seeds 8 9 10 11 12 13] [--model ONNX]
+With `--polish`, each plate sequence is also calibrated from the same observations with the
+silhouette polish against its rendered masks (`dream calibrate --polish`), which show the plate:
+with the nominal model, with the diagnosis's extended_model.yaml, and with that extension
+without its `link_geometry`, so the box's own share of the gain is seen.
+
+    python benchmarks/attached_geometry.py [--seeds 8 9 10 11 12 13] [--model ONNX] [--polish]
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import io
 import json
 import os
@@ -22,12 +28,20 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from dream.cli import main  # noqa: E402
-from dream.extension import HeldReadings, ModelExtension, extension_yaml  # noqa: E402
+from dream.extension import (  # noqa: E402
+    HeldReadings,
+    ModelExtension,
+    extension_yaml,
+    read_extension,
+)
+from dream.metrics import pose_errors  # noqa: E402
 from dream.robot.link_geometry import BOX_KIND, LinkGeometry  # noqa: E402
 
 RECIPE = REPO / "configs" / "synth" / "panda_teleop_like.yaml"
@@ -46,6 +60,31 @@ def _diagnose(data: Path, report: Path, model: Path | None) -> dict:
     if _quiet(["diagnose", "--data", str(data), *source, "--out", str(report)]) != 0:
         sys.exit(f"dream diagnose failed on {data}")
     return json.loads((report / "diagnosis.json").read_text())
+
+
+def _polished_mm(data: Path, out: Path, source: list[str], extension: Path | None) -> float:
+    """Camera position error (mm) of `dream calibrate --polish` on `data` (its masks)."""
+    from dream.io import read_sequence
+    from dream.pipeline import truth_poses
+
+    extra = ["--model-extension", str(extension)] if extension else []
+    if _quiet(["calibrate", "--data", str(data), *source, "--polish", "--out", str(out),
+               *extra]) != 0:
+        sys.exit(f"dream calibrate --polish failed on {data}")
+    T = np.array(json.loads(out.read_text())["T_cam_base"])
+    return pose_errors(T, truth_poses(read_sequence(data))[0])[0] * 1e3
+
+
+def _polish_columns(data: Path, report: Path, source: list[str]) -> str:
+    """The polish's camera position errors: nominal, diagnosed extension, and the extension
+    without its link_geometry."""
+    found = report / "extended_model.yaml"
+    no_box = report / "without_box.yaml"
+    no_box.write_text(extension_yaml(dataclasses.replace(read_extension(found),
+                                                         link_geometry=())))
+    errors = [_polished_mm(data, report / f"p{i}.json", source, ext)
+              for i, ext in enumerate((None, found, no_box))]
+    return "  polish mm: nominal {:.1f}, extension {:.1f}, without its box {:.1f}".format(*errors)
 
 
 def _row(seed: int, kind: str, doc: dict) -> str:
@@ -67,7 +106,10 @@ def run() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[8, 9, 10, 11, 12, 13])
     parser.add_argument("--frames", type=int, default=60)
     parser.add_argument("--model", type=Path, help="detect keypoints with this ONNX model")
+    parser.add_argument("--polish", action="store_true",
+                        help="also calibrate each plate sequence with the silhouette polish")
     args = parser.parse_args()
+    source = ["--model", str(args.model)] if args.model else ["--use-labels"]
     hidden = ModelExtension(held_readings=HELD, link_geometry=(PLATE,), robot="panda")
     named = {"plate": 0, "null": 0}
     print(f"{'seed':>4} {'set':>5}  {'verdict':<36} {'box found':<42} {'mm before':>8} "
@@ -85,7 +127,10 @@ def run() -> None:
                     sys.exit(f"dream synth failed for seed {seed}")
                 doc = _diagnose(data, work / f"r_{kind}{seed}", args.model)
                 named[kind] += "link_geometry" in doc["verdict"]
-                print(_row(seed, kind, doc))
+                row = _row(seed, kind, doc)
+                if args.polish and kind == "plate":
+                    row += _polish_columns(data, work / f"r_{kind}{seed}", source)
+                print(row, flush=True)
     n = len(args.seeds)
     print(f"link_geometry named: {named['plate']} of {n} plate sequences, {named['null']} of "
           f"{n} null sequences")

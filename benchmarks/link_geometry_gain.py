@@ -1,14 +1,17 @@
-"""Does describing a tool the URDF lacks help the edge alignment? Rendered sequences of a Panda
-carrying a plate at the hand, calibrated with and without the plate in the model extension.
+"""Does describing a tool the URDF lacks help the image refinement? Rendered sequences of a
+Panda carrying a plate at the hand, calibrated with and without the plate in the model
+extension.
 
 For each seed: `dream synth --config configs/synth/panda_teleop_like.yaml --model-extension
 PLATE` renders a fixed-camera trajectory whose hand carries a box (`--size-m`, at
-`--offset-m` along the hand's z axis); `dream calibrate --model MODEL --refine edges` then
-solves it from the detector's keypoints and the edges, once with the nominal URDF outline and
-once with `--model-extension PLATE`. Prints the camera position and rotation error against the
-rendered ground truth, per seed and as medians.
+`--offset-m` along the hand's z axis); `dream calibrate --model MODEL` then solves it from the
+detector's keypoints refined by the edges (`--refine edges`) or by the silhouette polish with
+the rendered masks, which show the plate (`--refine polish`: `dream calibrate --polish`), once
+with the nominal URDF and once with `--model-extension PLATE`. Prints the camera position and
+rotation error against the rendered ground truth, per seed and as medians.
 
     python benchmarks/link_geometry_gain.py [--seeds 3 4 5 6 7] [--frames 60] [--model ONNX]
+        [--refine edges|polish]
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ from dream.metrics import pose_errors  # noqa: E402
 from dream.robot.link_geometry import BOX_KIND, LinkGeometry  # noqa: E402
 
 RECIPE = REPO / "configs" / "synth" / "panda_teleop_like.yaml"
+REFINEMENTS = {"edges": ["--refine", "edges"], "polish": ["--polish"]}
 
 
 def _quiet(argv: list[str]) -> int:
@@ -57,6 +61,7 @@ def main_() -> None:
     parser.add_argument("--model", type=Path, default=REPO / "dream" / "models" / "panda_cpu.onnx")
     parser.add_argument("--size-m", type=float, nargs=3, default=[0.30, 0.22, 0.01])
     parser.add_argument("--offset-m", type=float, default=0.14)
+    parser.add_argument("--refine", choices=REFINEMENTS, default="edges")
     args = parser.parse_args()
     plate = ModelExtension(link_geometry=(LinkGeometry(
         "panda_hand", BOX_KIND, size_m=tuple(args.size_m),
@@ -77,7 +82,7 @@ def main_() -> None:
             for extra in ([], ["--model-extension", str(ext)]):
                 out = work / f"r{seed}_{len(extra)}.json"
                 if _quiet(["calibrate", "--data", str(data), "--model", str(args.model),
-                           "--refine", "edges", "--out", str(out), *extra]) != 0:
+                           *REFINEMENTS[args.refine], "--out", str(out), *extra]) != 0:
                     sys.exit(f"dream calibrate failed for seed {seed}")
                 row.extend(_error(out, data))
             rows.append(row)

@@ -76,19 +76,21 @@ def calibrate(sequence: Sequence, observations: Observations, mode: str = "all",
 
 
 def polish_result(sequence: Sequence, robot: Robot, result: CalibrationResult,
-                  observations: Observations) -> Any:
+                  observations: Observations, link_geometry: tuple = ()) -> Any:
     """The result aligned with the data's robot masks (`dream calibrate --polish`).
 
     Returns a `PolishResult` ("all" mode) or one per frame ("each" mode; None for a frame
     that was not polished); a polish is kept only where it raises the silhouette IoU without
-    spoiling the keypoint fit (its `kept` attribute).
+    spoiling the keypoint fit (its `kept` attribute). `link_geometry` (a
+    `dream.extension.ModelExtension`'s) corrects the rendered links: a tool the URDF lacks.
     """
     from dream.polish import check_polish_input, polish_calibration, polish_frames
 
     check_polish_input(sequence, result.mode)
     if result.mode == "all":
-        return polish_calibration(sequence, robot, result, observations)
-    return polish_frames(sequence, robot, result, observations)
+        return polish_calibration(sequence, robot, result, observations,
+                                  link_geometry=link_geometry)
+    return polish_frames(sequence, robot, result, observations, link_geometry=link_geometry)
 
 
 def refine_edges(sequence: Sequence, robot: Robot, result: CalibrationResult,

@@ -156,3 +156,15 @@ def extended_points(robot: Robot, joints: np.ndarray, times_s: np.ndarray | None
     offsets = joint_offset_vector(robot_x, extension.joint_offset_rad) \
         if extension.joint_offset_rad else None
     return keypoint_points(robot_x, q, offsets, extension.keypoint_bias_m)
+
+
+def image_joints(robot: Robot, joints: np.ndarray, times_s: np.ndarray | None,
+                 extension: ModelExtension) -> np.ndarray:
+    """(F, J) the joint values the images show under the extension's timing effects and joint
+    offsets (time offset, held readings; true joint = reading + offset), in the robot's joint
+    order: what the image refinements render (with `extended_robot`'s link lengths)."""
+    q = effective_joints(joints, times_s, extension.time_offset_s, extension.held_readings,
+                         robot.joint_names)
+    if extension.joint_offset_rad:
+        q = q + joint_offset_vector(robot, extension.joint_offset_rad)
+    return q

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -84,6 +84,22 @@ def joints_in_robot_order(sequence: Sequence, robot: Robot) -> np.ndarray:
     except RobotError as exc:
         raise InputError(f"the data's joints do not fit robot '{robot.name}': {exc}",
                          sequence.source) from None
+
+
+def with_robot_joints(sequence: Sequence, robot: Robot, joints: np.ndarray) -> Sequence:
+    """The sequence with the robot's joints of every frame replaced by `joints` (F, J), in the
+    robot's joint order (other joints of the data, such as fingers, kept)."""
+    joints = np.asarray(joints, dtype=float)
+    if joints.shape != (len(sequence), len(robot.joint_names)):
+        raise InputError(f"joints of shape {joints.shape} for {len(sequence)} frames of robot "
+                         f"'{robot.name}' ({len(robot.joint_names)} joints)")
+    columns = [list(sequence.joint_names).index(n) for n in robot.joint_names]
+    frames = []
+    for frame, q in zip(sequence.frames, joints, strict=True):
+        values = np.array(frame.joints, dtype=float)
+        values[columns] = q
+        frames.append(replace(frame, joints=values))
+    return replace(sequence, frames=tuple(frames))
 
 
 def observations_from_labels(sequence: Sequence, robot: Robot) -> Observations:

@@ -184,7 +184,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
                                 threads=request.threads, batch=request.batch,
                                 loaded_model=request.loaded_model)
     if extension is not None:
-        seq, obs = _apply_extension(request, extension, seq, robot, obs, out)
+        seq, robot, obs = _apply_extension(request, extension, seq, robot, obs, out)
     result = calibrate(seq, obs, request.frames, settings)
     doc = result_to_dict(result, obs, robot=request.robot or seq.robot)
     doc["data"] = data_doc
@@ -201,12 +201,13 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
         add = add_edges if request.frames == "all" else add_frame_edges
         doc = add(seq, robot, result, obs, doc, out, request.exclude_links,
                   () if extension is None else extension.link_geometry)
-    elif extension is not None and extension.link_geometry:
-        print("note: the model extension's link_geometry changes only the image refinement "
-              "(--refine edges), which does not run here", file=out)
+    elif extension is not None and extension.link_geometry and not request.polish:
+        print("note: the model extension's link_geometry changes only the image refinements "
+              "(--refine edges, --polish), and neither runs here", file=out)
     if request.polish:
         doc = add_polish(seq, robot, result, obs, model, doc, out, frames=request.frames,
-                         mask_head=request.mask_head, motion_masks=request.motion_masks)
+                         mask_head=request.mask_head, motion_masks=request.motion_masks,
+                         link_geometry=() if extension is None else extension.link_geometry)
     doc["quality"] = add_quality(result, obs, doc, out)
     base_frame = request.base_frame or robot.base_link
     _write_calibration(request, seq, robot, obs, result, doc, paths, base_frame)
@@ -227,32 +228,30 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
 
 
 def _read_extension(request: CalibrateRequest):
-    """The `--model-extension` (None without one); it cannot go with `--polish`."""
+    """The `--model-extension` (None without one)."""
     if not request.model_extension:
         return None
     from dream.extension import read_extension
 
-    if request.polish:
-        raise InputError("--polish renders the nominal robot and cannot use a model "
-                         "extension", request.model_extension,
-                         "drop --polish or --model-extension")
     return read_extension(request.model_extension)
 
 
 def _apply_extension(request: CalibrateRequest, extension, seq, robot, obs, out: TextIO):
-    """The data and observations corrected by the model extension (a problem without a file
-    of its own names the extension's)."""
+    """The data, robot (its link lengths) and observations corrected by the model extension (a
+    problem without a file of its own names the extension's)."""
     from dream.diagnosis.run import apply_extension_to_observations
+    from dream.extended import extended_robot
 
     try:
         seq, obs = apply_extension_to_observations(seq, robot, obs, extension)
+        robot = extended_robot(robot, extension)
     except InputError as exc:
         if exc.path is not None:
             raise
         raise InputError(exc.problem, request.model_extension, exc.fix) from None
     print(f"model extension {request.model_extension}: "
           f"{', '.join(extension.effects) or 'no effect'}", file=out)
-    return seq, obs
+    return seq, robot, obs
 
 
 def _check_outputs(request: CalibrateRequest) -> tuple[Path, ...]:

@@ -11,13 +11,14 @@ import numpy as np
 
 
 def add_polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames: str,
-               mask_head: bool, motion_masks: bool = False) -> dict:
+               mask_head: bool, motion_masks: bool = False, link_geometry: tuple = ()) -> dict:
     """`--polish`: the silhouette polish of the one extrinsic (`frames` "all") or of every
-    frame's own pose ("each"); returns RESULT.json's document with it."""
+    frame's own pose ("each"), rendering the model extension's `link_geometry`; returns
+    RESULT.json's document with it."""
     from dream.polish import has_masks, polish_calibration, result_doc_with_polish
 
     if frames != "all":
-        return _polish_frames(seq, robot, result, obs, doc, out)
+        return _polish_frames(seq, robot, result, obs, doc, out, link_geometry)
     predict, leave_out = None, ()
     if has_masks(seq):
         if mask_head or motion_masks:
@@ -32,7 +33,7 @@ def add_polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames
         print("no masks in the data: the polish uses the network's mask head (--mask-head)",
               file=out)
     report = polish_calibration(seq, robot, result, obs, predict_masks=predict,
-                                leave_out_links=leave_out)
+                                leave_out_links=leave_out, link_geometry=link_geometry)
     print(f"silhouette polish ({len(report.frames)} frames with masks, "
           f"{report.seconds:.1f} s): {report.reason}", file=out)
     agreement = report.agreement
@@ -68,7 +69,8 @@ def _motion_masks(seq, robot, out: TextIO):
         static
 
 
-def _polish_frames(seq, robot, result, obs, doc: dict, out: TextIO) -> dict:
+def _polish_frames(seq, robot, result, obs, doc: dict, out: TextIO,
+                   link_geometry: tuple = ()) -> dict:
     """`--polish --frames each`: every solved frame's own pose polished."""
     from dream.detection import PROGRESS_EVERY_FRAMES
     from dream.polish import polish_frames, result_doc_with_frame_polishes
@@ -77,7 +79,8 @@ def _polish_frames(seq, robot, result, obs, doc: dict, out: TextIO) -> dict:
         print(f"polished {done}/{total} frames", file=sys.stderr)
 
     reports = polish_frames(seq, robot, result, obs,
-                            progress=progress if len(seq) > PROGRESS_EVERY_FRAMES else None)
+                            progress=progress if len(seq) > PROGRESS_EVERY_FRAMES else None,
+                            link_geometry=link_geometry)
     doc = result_doc_with_frame_polishes(doc, reports)
     p = doc["polish"]
     if p["frames_polished"]:

@@ -4,11 +4,14 @@ each accepted effect?
 The search judges effects by how well they predict held-out keypoint detections. A detector
 that misplaces one link's keypoints on these photos can make an effect look significant that
 the images themselves do not support. Where every frame has an image, the outline of the URDF
-meshes (`dream.edges.score`) is scored against the image edges for the baseline and after each
-accepted effect, on the same frames: per link and in all. An accepted effect after which the
-outline agrees less (by more than `AGREEMENT_DROP`) is marked as supported by the keypoints
-only; links whose outline disagrees with the images at the final model are named (their
-visible shape differs from the URDF, or the images do not show them).
+meshes (`dream.edges.score`) is scored against the image edges of the same frames
+(`OutlineJudge`). During the search, an effect significant on the keypoints is not accepted
+when the outline agrees less with it than without it (by more than `AGREEMENT_DROP`;
+`OutlineJudge.veto`). For the report, the baseline and the model after each accepted effect are
+scored per link and in all; an accepted effect after which the outline agrees less (after the
+refits that follow it) is marked as supported by the keypoints only; links whose outline
+disagrees with the images at the final model are named (their visible shape differs from the
+URDF, or the images do not show them).
 
 `add_image_evidence` and `add_attached_geometry` (`dream.diagnosis.attached`: what a link
 carries that the URDF lacks) put both into diagnosis.json's document.
@@ -16,23 +19,26 @@ carries that the URDF lacks) put both into diagnosis.json's document.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from dream.diagnosis.fit import FitResult
+from dream.calibration import Observations
+from dream.diagnosis.fit import FitResult, Problem
 from dream.edges.background import frames_and_background
 from dream.edges.calibration import moving_vertices, usable_vertices
 from dream.edges.score import EdgeScore, edge_score
 from dream.edges.search import scale_images
 from dream.edges.settings import EdgeSettings
 from dream.errors import InputError
-from dream.extended import effective_joints, joint_offset_vector
+from dream.extended import image_joints
 from dream.polish.objective import evenly_spaced
 from dream.robot.link_geometry import LinkGeometry
 from dream.sequence import Sequence
-from dream.silhouette import load_robot_meshes, vertices_in_base
+from dream.silhouette import RobotMeshes, load_robot_meshes, vertices_in_base
 
 log = logging.getLogger(__name__)
 
@@ -42,12 +48,8 @@ AGREEMENT_DROP = 0.01   # an outline agreement lower by more than this is a loss
 def fit_joints(fit: FitResult) -> np.ndarray:
     """(F, J) the joints a fit's model puts at the image times (offsets included)."""
     problem = fit.model.problem
-    ext = fit.model.extension(fit.x)
-    q = effective_joints(problem.joints, problem.times_s, ext.time_offset_s, ext.held_readings,
-                         problem.robot.joint_names)
-    if ext.joint_offset_rad:
-        q = q + joint_offset_vector(problem.robot, ext.joint_offset_rad)
-    return q
+    return image_joints(problem.robot, problem.joints, problem.times_s,
+                        fit.model.extension(fit.x))
 
 
 def _score_to_dict(score: EdgeScore) -> dict[str, Any]:
@@ -55,33 +57,72 @@ def _score_to_dict(score: EdgeScore) -> dict[str, Any]:
             "per_link": {a.link: a.agreement for a in score.links}}
 
 
-def outline_evidence(sequence: Sequence, steps: list[tuple[str, FitResult]],
-                     settings: EdgeSettings | None = None) -> dict[str, Any] | None:
-    """diagnosis.json's `image_evidence` for the fits of `steps` ((label, fit): the baseline,
-    then the model after each accepted effect); None where a frame has no image or the camera
-    moved (one pose per step is scored)."""
-    if not steps or any(f.image_path is None for f in sequence.frames):
-        return None
-    if any(fit.model.change_index is not None for _, fit in steps):
+@dataclass(frozen=True)
+class OutlineJudge:
+    """The URDF outline of a diagnosis's fits scored against the image edges of the same
+    frames (`chosen`, with a background model where the camera is fixed): built once per
+    sequence by `outline_judge`."""
+
+    meshes: RobotMeshes
+    usable: np.ndarray
+    images: Any
+    chosen: np.ndarray
+    settings: EdgeSettings
+
+    def score(self, fit: FitResult) -> EdgeScore:
+        """The outline's agreement at the fit's model: its joints at the image times and each
+        frame's pose (a camera move gives two)."""
+        P = vertices_in_base(self.meshes, fit_joints(fit)[self.chosen])      # (n, V, 3)
+        poses = fit.model.poses(fit.x)[self.chosen]
+        T = poses[0]
+        # each frame's vertices moved so that T projects them as the frame's own pose does
+        A = np.linalg.inv(T) @ poses
+        P = np.einsum("fij,fvj->fvi", A[:, :3, :3], P) + A[:, None, :3, 3]
+        return edge_score(self.meshes, P, T, self.images, self.settings, self.usable)
+
+    def veto(self, candidate: FitResult, current: FitResult) -> str | None:
+        """Why the images contradict adding an effect (`candidate`, fitted on top of
+        `current`): the outline agrees less by more than `AGREEMENT_DROP`; else None."""
+        before, after = self.score(current), self.score(candidate)
+        if after.agreement >= before.agreement - AGREEMENT_DROP:
+            return None
+        return (f"the images contradict it: the outline on the image edges {before.agreement:.1%}"
+                f" -> {after.agreement:.1%}")
+
+
+def outline_judge(sequence: Sequence, problem: Problem,
+                  settings: EdgeSettings | None = None) -> OutlineJudge | None:
+    """The `OutlineJudge` of a sequence whose every frame has an image (None otherwise, or
+    where the images show no edges near the outline)."""
+    if any(f.image_path is None for f in sequence.frames):
         return None
     settings = settings or EdgeSettings()
-    problem = steps[0][1].model.problem
-    camera = problem.camera
     meshes = load_robot_meshes(problem.robot, settings.max_triangles)
     chosen = evenly_spaced(np.arange(len(sequence)), settings.max_search_frames)
-    gray, background = frames_and_background(sequence, chosen, settings, camera)
-    usable, background, _ = moving_vertices(meshes, problem.joints,
-                                            usable_vertices(meshes, ()), background, settings)
-    images = scale_images(gray, camera, camera.width, settings, background)
-    scored = []
-    for label, fit in steps:
-        P = vertices_in_base(meshes, fit_joints(fit)[chosen])
-        scored.append((label, edge_score(meshes, P, fit.T_cam_base, images, settings, usable)))
-    out: dict[str, Any] = {"frames": len(chosen),
+    try:
+        gray, background = frames_and_background(sequence, chosen, settings, problem.camera)
+        usable, background, _ = moving_vertices(meshes, problem.joints,
+                                                usable_vertices(meshes, ()), background,
+                                                settings)
+        images = scale_images(gray, problem.camera, problem.camera.width, settings, background)
+    except InputError as exc:  # no edges near the outline: nothing to say from the images
+        log.info("no image evidence: %s", exc)
+        return None
+    return OutlineJudge(meshes, usable, images, chosen, settings)
+
+
+def outline_evidence(judge: OutlineJudge | None, steps: list[tuple[str, FitResult]]
+                     ) -> dict[str, Any] | None:
+    """diagnosis.json's `image_evidence` for the fits of `steps` ((label, fit): the baseline,
+    then the model after each accepted effect); None without a judge."""
+    if judge is None or not steps:
+        return None
+    scored = [(label, judge.score(fit)) for label, fit in steps]
+    out: dict[str, Any] = {"frames": len(judge.chosen),
                            "steps": [{"model": label, **_score_to_dict(s)}
                                      for label, s in scored],
                            "unsupported": [], "mismatched_links": list(
-                               scored[-1][1].mismatched(settings))}
+                               scored[-1][1].mismatched(judge.settings))}
     for (_, before), (label, after) in zip(scored, scored[1:], strict=False):
         if after.agreement < before.agreement - AGREEMENT_DROP:
             out["unsupported"].append(label)
@@ -90,15 +131,11 @@ def outline_evidence(sequence: Sequence, steps: list[tuple[str, FitResult]],
     return out
 
 
-def add_image_evidence(doc: dict[str, Any], sequence: Sequence,
+def add_image_evidence(doc: dict[str, Any], judge: OutlineJudge | None,
                        steps: list[tuple[str, FitResult]]) -> None:
-    """`image_evidence` where the frames have images; an accepted effect after which the
-    outline agrees less is marked and noted."""
-    try:
-        evidence = outline_evidence(sequence, steps)
-    except InputError as exc:  # no edges near the outline: nothing to say from the images
-        log.info("no image evidence: %s", exc)
-        return
+    """`image_evidence` where the frames have images (`judge`); an accepted effect after which
+    the outline agrees less is marked and noted."""
+    evidence = outline_evidence(judge, steps)
     if evidence is None:
         return
     doc["image_evidence"] = evidence
@@ -112,24 +149,51 @@ def add_image_evidence(doc: dict[str, Any], sequence: Sequence,
                             "detections support it")
 
 
-def add_attached_geometry(doc: dict[str, Any], sequence: Sequence,
-                          fit: FitResult) -> LinkGeometry | None:
+def carving_view(sequence: Sequence, fit: FitResult, obs: Observations | None
+                 ) -> tuple[Sequence, np.ndarray, bool]:
+    """What the carving looks from: the sequence at the fit's joints and camera, and the fit's
+    extrinsic aligned with the image edges (`dream.edges.refine_with_edges`, guarded by the
+    detections `obs` at the fit's keypoints) where that alignment is kept: a keypoint fit can
+    be centimetres off, and then the model's silhouette misses the arm it should explain.
+    Returns (sequence, T_cam_base, aligned)."""
+    from dream.edges import refine_with_edges
+    from dream.extended import extended_camera
+    from dream.pipeline import with_robot_joints
+
+    problem = fit.model.problem
+    seq = with_robot_joints(sequence, problem.robot, fit_joints(fit))
+    seq = dataclasses.replace(seq, camera=extended_camera(problem.camera,
+                                                          fit.model.extension(fit.x)))
+    guard = None if obs is None else dataclasses.replace(obs, P_base=fit.model.points(fit.x))
+    try:
+        aligned = refine_with_edges(seq, problem.robot, fit.T_cam_base, guard)
+    except InputError as exc:   # no edges near the outline: carve from the fit's pose
+        log.info("the carving looks from the fit's pose: %s", exc)
+        return seq, fit.T_cam_base, False
+    return seq, aligned.T_after, aligned.kept
+
+
+def add_attached_geometry(doc: dict[str, Any], sequence: Sequence, fit: FitResult,
+                          obs: Observations | None = None) -> LinkGeometry | None:
     """The `link_geometry` box found at the final `fit` by carving the images' unexplained
-    motion (`dream.diagnosis.attached`), named in the verdict and described in
-    `image_findings`; None where nothing is found, the frames lack images or the camera moved."""
+    motion (`dream.diagnosis.attached`) from `carving_view`, named in the verdict and described
+    in `image_findings`; None where nothing is found, the frames lack images or the camera
+    moved."""
     from dream.diagnosis.attached import find_attached_geometry
 
     if any(f.image_path is None for f in sequence.frames) or fit.model.change_index is not None:
         return None
     try:
-        found = find_attached_geometry(sequence, fit.model.problem.robot, fit_joints(fit),
-                                       fit.T_cam_base)
+        seq, T_cam_base, aligned = carving_view(sequence, fit, obs)
+        found = find_attached_geometry(seq, fit.model.problem.robot, fit_joints(fit),
+                                       T_cam_base)
     except InputError as exc:  # too few frames, an arm that hardly moves: nothing to carve
         log.info("no attached geometry: %s", exc)
         return None
     if found is None:
         return None
     doc["verdict"].append("link_geometry")
-    doc["image_findings"] = {"link_geometry": {found.geometry.link: found.to_dict()}}
+    doc["image_findings"] = {"link_geometry": {found.geometry.link: {
+        **found.to_dict(), "carved_at": "edge-aligned pose" if aligned else "fit's pose"}}}
     doc["notes"].append(found.note())
     return found.geometry

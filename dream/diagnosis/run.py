@@ -253,9 +253,11 @@ def _silhouette_panels(sequence: Sequence, problem: Problem, diagnosis: Diagnosi
 
 def diagnose_sequence(sequence: Sequence, robot: Robot, obs: Observations,
                       settings: DiagnoseSettings | None = None, progress=None,
-                      extension_path: Path | None = None
+                      extension_path: Path | None = None, judge=None
                       ) -> tuple[dict[str, Any], Diagnosis, Problem]:
-    """The diagnosis of a sequence, in memory: (diagnosis.json document, Diagnosis, Problem)."""
+    """The diagnosis of a sequence, in memory: (diagnosis.json document, Diagnosis, Problem).
+    With a `judge` (`dream.diagnosis.images.OutlineJudge`), an effect the images contradict is
+    not accepted."""
     camera = sequence.fixed_camera("diagnose a sequence recorded by one camera")
     problem = problem_from(sequence, robot, obs)
     start = calibrate_all(obs, camera)
@@ -263,7 +265,8 @@ def diagnose_sequence(sequence: Sequence, robot: Robot, obs: Observations,
     logged = problem
     if held is not None:  # found in the data: the search runs on the interpolated readings
         problem = corrected_problem(problem, held)
-    diagnosis = diagnose(problem, start.fit.T_cam_base, settings, progress)
+    diagnosis = diagnose(problem, start.fit.T_cam_base, settings, progress,
+                         None if judge is None else judge.veto)
     if held is not None:
         diagnosis = _with_held_readings(diagnosis, logged, held, settings)
     doc = diagnosis_document(sequence, diagnosis, extension_path or Path(EXTENSION_FILE))
@@ -301,21 +304,22 @@ def _with_held_readings(diagnosis: Diagnosis, logged: Problem, held, settings
 def run_diagnosis(sequence: Sequence, robot: Robot, obs: Observations, report_dir: str | Path,
                   settings: DiagnoseSettings | None = None, progress=None) -> dict[str, Any]:
     """Diagnose `sequence` and write REPORT_DIR (diagnosis.json, extended_model.yaml, report)."""
-    from dream.diagnosis.images import add_attached_geometry, add_image_evidence
+    from dream.diagnosis.images import add_attached_geometry, add_image_evidence, outline_judge
     from dream.diagnosis.report import PLOT_FILES, write_report
     from dream.diagnosis.residuals import analyse
 
     report_dir = check_output_folder(report_dir)  # before the analysis, not after it
     extension_path = report_dir / EXTENSION_FILE
+    judge = outline_judge(sequence, problem_from(sequence, robot, obs))
     doc, diagnosis, problem = diagnose_sequence(sequence, robot, obs, settings, progress,
-                                                extension_path)
+                                                extension_path, judge)
     baseline_res = _residual_set(problem, diagnosis.baseline.fit, diagnosis.mask)
     final_res = None if not diagnosis.accepted else _residual_set(problem, diagnosis.final.fit,
                                                                   diagnosis.mask)
     analysis = analyse(baseline_res)
     steps = _model_steps(diagnosis)
-    add_image_evidence(doc, sequence, steps)
-    found = add_attached_geometry(doc, sequence, steps[-1][1])
+    add_image_evidence(doc, judge, steps)
+    found = add_attached_geometry(doc, sequence, steps[-1][1], obs)
     if found is not None:
         diagnosis = dataclasses.replace(diagnosis, extension=diagnosis.extension.merged(
             ModelExtension(link_geometry=(found,))))
@@ -370,14 +374,18 @@ def json_safe(value: Any) -> Any:
 def apply_extension_to_observations(sequence: Sequence, robot: Robot, obs: Observations,
                                     extension: ModelExtension) -> tuple[Sequence, Observations]:
     """`dream calibrate --model-extension`: the sequence with the corrected camera and the
-    observations with the extended keypoint positions; with a camera move, only the frames
-    from the move on (the extrinsic reported is the camera's latest pose)."""
-    from dream.extended import extended_points, frames_after_move
+    joints its images show (`dream.extended.image_joints`: timing effects and joint offsets,
+    for the image refinements, which render `extended_robot`), and the observations with the
+    extended keypoint positions; with a camera move, only the frames from the move on (the
+    extrinsic reported is the camera's latest pose)."""
+    from dream.extended import extended_points, frames_after_move, image_joints
+    from dream.pipeline import with_robot_joints
 
     names = tuple(f.name for f in sequence.frames)
-    P_base = extended_points(robot, joints_in_robot_order(sequence, robot),
-                             frame_times(sequence), extension)
+    joints, times = joints_in_robot_order(sequence, robot), frame_times(sequence)
+    P_base = extended_points(robot, joints, times, extension)
     obs = dataclasses.replace(obs, P_base=P_base)
+    sequence = with_robot_joints(sequence, robot, image_joints(robot, joints, times, extension))
     sequence = dataclasses.replace(sequence, camera=extended_camera(sequence.camera, extension))
     if extension.camera_moved is not None:
         keep = frames_after_move(names, extension)

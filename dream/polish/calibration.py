@@ -30,6 +30,7 @@ from dream.polish.refine import PolishResult, polish
 from dream.polish.settings import PolishSettings
 from dream.quality import MIN_KEPT_SHARE
 from dream.robot import Robot
+from dream.robot.link_geometry import LinkGeometry, excluded_links, with_link_geometry
 from dream.sequence import Sequence
 from dream.silhouette import RobotMeshes, load_robot_meshes, without_links
 
@@ -95,12 +96,24 @@ class SilhouetteInputs:
     frame_names: tuple[str, ...]
 
 
+def polish_meshes(robot: Robot, params: PolishSettings,
+                  link_geometry: tuple[LinkGeometry, ...] = (),
+                  leave_out_links: SequenceOf[str] = ()) -> RobotMeshes:
+    """The meshes whose silhouettes are rendered: a model extension's `link_geometry` applied
+    (boxes added, links scaled), without its excluded links and `leave_out_links`."""
+    meshes = with_link_geometry(load_robot_meshes(robot, params.max_triangles), link_geometry)
+    left_out = (*leave_out_links, *excluded_links(link_geometry))
+    return without_links(meshes, tuple(left_out)) if left_out else meshes
+
+
 def silhouette_inputs(sequence: Sequence, robot: Robot, params: PolishSettings,
-                      predict_masks: Callable[[list[int]], np.ndarray] | None = None
-                      ) -> SilhouetteInputs:
+                      predict_masks: Callable[[list[int]], np.ndarray] | None = None,
+                      link_geometry: tuple[LinkGeometry, ...] = (),
+                      leave_out_links: SequenceOf[str] = ()) -> SilhouetteInputs:
     """The frames an all-frames polish of `sequence` scores (at most `max_eval_frames`, evenly
-    spaced, among those with a mask), their joints and masks, and the robot's meshes. Without
-    masks in the data, `predict_masks(frame_indices) -> (n, H, W) bool` supplies them."""
+    spaced, among those with a mask), their joints and masks, and the meshes to render
+    (`polish_meshes`). Without masks in the data, `predict_masks(frame_indices) -> (n, H, W)
+    bool` supplies them."""
     from dream.io import load_mask
     from dream.pipeline import joints_in_robot_order
 
@@ -115,7 +128,7 @@ def silhouette_inputs(sequence: Sequence, robot: Robot, params: PolishSettings,
                              sequence.source, "add masks or pass predict_masks")
         chosen = evenly_spaced(np.arange(len(sequence)), params.max_eval_frames)
         masks = predict_masks([int(i) for i in chosen]).astype(np.uint8)
-    return SilhouetteInputs(load_robot_meshes(robot, params.max_triangles),
+    return SilhouetteInputs(polish_meshes(robot, params, link_geometry, leave_out_links),
                             joints_in_robot_order(sequence, robot)[chosen], masks,
                             tuple(sequence.frames[i].name for i in chosen))
 
@@ -123,27 +136,29 @@ def silhouette_inputs(sequence: Sequence, robot: Robot, params: PolishSettings,
 def polish_calibration(sequence: Sequence, robot: Robot, result: CalibrationResult,
                        obs: Observations, params: PolishSettings | None = None,
                        predict_masks: Callable[[list[int]], np.ndarray] | None = None,
-                       leave_out_links: SequenceOf[str] = ()) -> PolishResult:
+                       leave_out_links: SequenceOf[str] = (),
+                       link_geometry: tuple[LinkGeometry, ...] = ()) -> PolishResult:
     """Polish an "all"-mode calibration of `sequence` with its masks (`silhouette_inputs`),
     guarded by all its keypoint detections.
 
     Without masks in the data, `predict_masks(frame_indices) -> (n, H, W) bool` supplies them
     (the keypoint network's mask head, `dream.detection.predict_masks`; motion masks,
     `dream.edges.motion`). The silhouettes rendered leave out `leave_out_links` (links that
-    masks do not show: those that never move, for motion masks)."""
+    masks do not show: those that never move, for motion masks). `link_geometry` (a model
+    extension's) corrects the rendered geometry: a tool the URDF lacks, a scaled link; its
+    excluded links are left out of the silhouettes."""
     params = params or PolishSettings()
     if result.mode != "all":
         raise InputError("polish_calibration polishes the one extrinsic of a fixed camera; "
                          "polish an --frames each result with polish_frames")
     check_polish_input(sequence, "all", network_masks=predict_masks is not None)
-    inputs = silhouette_inputs(sequence, robot, params, predict_masks)
-    meshes = without_links(inputs.meshes, tuple(leave_out_links)) if leave_out_links else \
-        inputs.meshes
+    inputs = silhouette_inputs(sequence, robot, params, predict_masks, link_geometry,
+                               leave_out_links)
     detections = all_detections(obs)
     inliers = inlier_keypoints(result, obs, slice(None))
     trusted = (detections is not None and inliers is not None
                and len(inliers.P_base) >= MIN_KEPT_SHARE * len(detections.P_base))
-    return polish(meshes, inputs.joints, inputs.masks, sequence.camera,
+    return polish(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
                   result.fit.T_cam_base, detections, params, inputs.frame_names,
                   guard=KeypointGuard.ALL_MEDIAN, inliers=inliers if trusted else None)
 
@@ -158,7 +173,8 @@ def all_detections(obs: Observations | None) -> KeypointSet | None:
 
 def polish_frames(sequence: Sequence, robot: Robot, result: CalibrationResult,
                   obs: Observations, params: PolishSettings | None = None,
-                  progress: Callable[[int, int], None] | None = None
+                  progress: Callable[[int, int], None] | None = None,
+                  link_geometry: tuple[LinkGeometry, ...] = ()
                   ) -> tuple[PolishResult | None, ...]:
     """Polish every frame's own pose of an "each"-mode calibration with that frame's mask from
     the data (`check_polish_input`) and its own camera (`sequence.frame_camera`), guarded by
@@ -172,7 +188,8 @@ def polish_frames(sequence: Sequence, robot: Robot, result: CalibrationResult,
     highest IoU that passes is kept (`_restarts`).
 
     Frames without a solution, without a mask file or with an empty mask get None.
-    `progress(done, total)` is called every `PROGRESS_EVERY_POLISHED` frames and at the end.
+    `link_geometry` as in `polish_calibration`. `progress(done, total)` is called every
+    `PROGRESS_EVERY_POLISHED` frames and at the end.
     """
     from dream.io import load_mask
     from dream.pipeline import joints_in_robot_order
@@ -186,7 +203,7 @@ def polish_frames(sequence: Sequence, robot: Robot, result: CalibrationResult,
                                                         strict=True))
             if isinstance(solution.fit, PoseFit) and frame.mask_path is not None]
     joints = joints_in_robot_order(sequence, robot)
-    meshes = load_robot_meshes(robot, params.max_triangles)
+    meshes = polish_meshes(robot, params, link_geometry)
     out: list[PolishResult | None] = [None] * len(sequence)
     for done, i in enumerate(todo, start=1):
         frame, solution = sequence.frames[i], result.frames[i]

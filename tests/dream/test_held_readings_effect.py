@@ -150,7 +150,7 @@ def test_an_effect_the_images_contradict_is_marked(monkeypatch):
     evidence = {"frames": 10, "steps": [{"model": "baseline", "agreement": 0.5},
                                         {"model": "time_offset", "agreement": 0.4}],
                 "unsupported": ["time_offset"], "mismatched_links": ["panda_hand"]}
-    monkeypatch.setattr(images, "outline_evidence", lambda sequence, steps: evidence)
+    monkeypatch.setattr(images, "outline_evidence", lambda judge, steps: evidence)
     doc = {"effects": [{"name": "time_offset"}], "verdict": ["time_offset"], "notes": []}
     images.add_image_evidence(doc, None, [])
     assert doc["effects"][0]["image_support"] is False

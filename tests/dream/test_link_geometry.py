@@ -147,7 +147,7 @@ def test_calibrate_honours_link_geometry_in_the_edge_alignment(panda, meshes, tm
                  "none", "--model-extension", str(path), "--out", str(tmp_path / "r2.json")])
     printed, err = capsys.readouterr()
     assert code == 0, err
-    assert "link_geometry changes only the image refinement" in printed
+    assert "link_geometry changes only the image refinements" in printed
 
 
 def test_calibrate_refuses_link_geometry_of_an_unknown_link(panda, meshes, tmp_path, capsys):

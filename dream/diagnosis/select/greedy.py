@@ -4,9 +4,10 @@ For the current model (at first the baseline: the extrinsic alone) every remaini
 catalog is added in turn (`dream.diagnosis.select.prune.try_effect`). The effect is significant
 only when (1) the held-out cost per frame falls with a one-sided paired t-test p-value below
 `alpha`, (2) the BIC falls by more than `bic_margin`, and (3) the held-out RMSE falls by at least
-`min_relative_gain`, with every fitted effect physically plausible. The most helpful significant
-effect is accepted and the search repeats on top of it; on data without an effect the verdict
-is empty.
+`min_relative_gain`, with every fitted effect physically plausible, and (4) no `veto` from
+other evidence (the images: `dream.diagnosis.images.OutlineJudge.veto`). The most helpful
+significant effect is accepted and the search repeats on top of it; on data without an effect
+the verdict is empty.
 """
 
 from __future__ import annotations
@@ -138,10 +139,14 @@ def _first_fit(problem: Problem, T_cam_base_init: np.ndarray,
     return first, mask, scale
 
 
+Veto = Callable[[FitResult, FitResult], "str | None"]   # (candidate, current) -> why not
+
+
 def _test_round(round_: int, remaining: list[str], current: Evaluation, accepted: list[str],
                 mask: np.ndarray, scale_px: float, settings: DiagnoseSettings,
-                say: Callable[[str], None]) -> list[Verdict]:
-    """The verdict of every remaining effect added to `current`, in the order tested."""
+                say: Callable[[str], None], veto: Veto | None = None) -> list[Verdict]:
+    """The verdict of every remaining effect added to `current`, in the order tested; a
+    significant effect that `veto` objects to is not significant."""
     problem = current.fit.model.problem
     verdicts = []
     for effect in remaining:
@@ -155,6 +160,8 @@ def _test_round(round_: int, remaining: list[str], current: Evaluation, accepted
         # the new effect's fit must keep every effect plausible, the accepted ones too (their
         # parameters are refitted with it)
         why_not = first_implausible(outcome.fit, (effect, *accepted), settings.plausible)
+        if why_not is None and significant and veto is not None:
+            why_not = veto(outcome.fit, current.fit)
         if why_not is not None:
             significant, evidence = False, f"{why_not}; {evidence}"
         verdicts.append(Verdict(effect, outcome, significant, evidence, p, bic_delta, round_))
@@ -169,7 +176,8 @@ def _equivalent(best: Verdict, results: list[Verdict], settings: DiagnoseSetting
 
 
 def diagnose(problem: Problem, T_cam_base_init: np.ndarray,
-             settings: DiagnoseSettings | None = None, progress=None) -> Diagnosis:
+             settings: DiagnoseSettings | None = None, progress=None,
+             veto: Veto | None = None) -> Diagnosis:
     """Greedy, cross-validated search of the effects the data supports.
 
     Args:
@@ -177,6 +185,8 @@ def diagnose(problem: Problem, T_cam_base_init: np.ndarray,
         T_cam_base_init: a starting extrinsic (e.g. the robust `calibrate_all` solution).
         settings: the constants (`DiagnoseSettings()` by default).
         progress: optional callable(str) told about each step.
+        veto: optional callable(candidate fit, current fit) -> why the effect is not accepted
+            though significant (other evidence contradicts it), or None.
     """
     settings = settings or DiagnoseSettings()
     say = progress or (lambda message: log.info(message))
@@ -200,7 +210,8 @@ def diagnose(problem: Problem, T_cam_base_init: np.ndarray,
     for round_ in range(1, settings.max_rounds + 1):
         if not remaining:
             break
-        verdicts = _test_round(round_, remaining, current, accepted, mask, scale, settings, say)
+        verdicts = _test_round(round_, remaining, current, accepted, mask, scale, settings, say,
+                               veto)
         tested.extend(verdicts)
         results = [v for v in verdicts if v.significant]
         if not results:
