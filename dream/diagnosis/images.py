@@ -34,7 +34,7 @@ from dream.edges.score import EdgeScore, edge_score
 from dream.edges.search import scale_images
 from dream.edges.settings import EdgeSettings
 from dream.errors import InputError
-from dream.extended import image_joints
+from dream.extended import extended_camera, extended_robot, image_joints
 from dream.polish.objective import evenly_spaced
 from dream.robot.link_geometry import LinkGeometry
 from dream.sequence import Sequence
@@ -70,15 +70,20 @@ class OutlineJudge:
     settings: EdgeSettings
 
     def score(self, fit: FitResult) -> EdgeScore:
-        """The outline's agreement at the fit's model: its joints at the image times and each
-        frame's pose (a camera move gives two)."""
-        P = vertices_in_base(self.meshes, fit_joints(fit)[self.chosen])      # (n, V, 3)
+        """The outline's agreement at the fit's model: its link lengths, its joints at the
+        image times, its camera, and each frame's pose (a camera move gives two)."""
+        ext = fit.model.extension(fit.x)
+        meshes = dataclasses.replace(self.meshes, robot=extended_robot(fit.model.problem.robot,
+                                                                       ext))
+        P = vertices_in_base(meshes, fit_joints(fit)[self.chosen])           # (n, V, 3)
         poses = fit.model.poses(fit.x)[self.chosen]
         T = poses[0]
         # each frame's vertices moved so that T projects them as the frame's own pose does
         A = np.linalg.inv(T) @ poses
         P = np.einsum("fij,fvj->fvi", A[:, :3, :3], P) + A[:, None, :3, 3]
-        return edge_score(self.meshes, P, T, self.images, self.settings, self.usable)
+        images = dataclasses.replace(self.images, camera=extended_camera(self.images.camera,
+                                                                         ext))
+        return edge_score(meshes, P, T, images, self.settings, self.usable)
 
     def veto(self, candidate: FitResult, current: FitResult) -> str | None:
         """Why the images contradict adding an effect (`candidate`, fitted on top of
@@ -104,6 +109,7 @@ def outline_judge(sequence: Sequence, problem: Problem,
         usable, background, _ = moving_vertices(meshes, problem.joints,
                                                 usable_vertices(meshes, ()), background,
                                                 settings)
+        # at the camera's own size, so that a fit's corrected camera replaces it (`score`)
         images = scale_images(gray, problem.camera, problem.camera.width, settings, background)
     except InputError as exc:  # no edges near the outline: nothing to say from the images
         log.info("no image evidence: %s", exc)
@@ -157,16 +163,15 @@ def carving_view(sequence: Sequence, fit: FitResult, obs: Observations | None
     be centimetres off, and then the model's silhouette misses the arm it should explain.
     Returns (sequence, T_cam_base, aligned)."""
     from dream.edges import refine_with_edges
-    from dream.extended import extended_camera
     from dream.pipeline import with_robot_joints
 
-    problem = fit.model.problem
+    problem, ext = fit.model.problem, fit.model.extension(fit.x)
     seq = with_robot_joints(sequence, problem.robot, fit_joints(fit))
-    seq = dataclasses.replace(seq, camera=extended_camera(problem.camera,
-                                                          fit.model.extension(fit.x)))
+    seq = dataclasses.replace(seq, camera=extended_camera(problem.camera, ext))
     guard = None if obs is None else dataclasses.replace(obs, P_base=fit.model.points(fit.x))
     try:
-        aligned = refine_with_edges(seq, problem.robot, fit.T_cam_base, guard)
+        aligned = refine_with_edges(seq, extended_robot(problem.robot, ext), fit.T_cam_base,
+                                    guard)
     except InputError as exc:   # no edges near the outline: carve from the fit's pose
         log.info("the carving looks from the fit's pose: %s", exc)
         return seq, fit.T_cam_base, False
@@ -185,8 +190,8 @@ def add_attached_geometry(doc: dict[str, Any], sequence: Sequence, fit: FitResul
         return None
     try:
         seq, T_cam_base, aligned = carving_view(sequence, fit, obs)
-        found = find_attached_geometry(seq, fit.model.problem.robot, fit_joints(fit),
-                                       T_cam_base)
+        robot = extended_robot(fit.model.problem.robot, fit.model.extension(fit.x))
+        found = find_attached_geometry(seq, robot, fit_joints(fit), T_cam_base)
     except InputError as exc:  # too few frames, an arm that hardly moves: nothing to carve
         log.info("no attached geometry: %s", exc)
         return None

@@ -83,3 +83,23 @@ def test_a_camera_move_is_scored_with_each_frames_pose(panda, tmp_path):
     assert judge.score(_fit(problem, T_true, 0.0)).agreement == pytest.approx(still)
     assert judge.score(_fit(problem, T_true, OFF_M)).agreement < still - 0.05
     assert "contradict" in judge.veto(_fit(problem, T_true, OFF_M), _fit(problem, T_true))
+
+
+@pytest.mark.parametrize("effect, value", [("link_length", 0.05), ("intrinsics_error", 0.05)])
+def test_the_judge_draws_the_fits_own_links_and_camera(panda, tmp_path, effect, value):
+    """A link 5 cm longer, or a focal length 5 % longer, moves the drawn outline off the
+    arm's edges at the true pose."""
+    T_true = image_dataset(panda, load_robot_meshes(panda), tmp_path)
+    seq = read_sequence(tmp_path / "data")
+    problem = problem_from(seq, panda, observations_from_labels(seq, panda))
+    judge = outline_judge(seq, problem)
+    params = tuple(candidate_params(effect, problem))[:1]
+    nan = np.full((7, 7), np.nan)
+
+    def fit(v: float) -> FitResult:
+        return FitResult(Model(problem, params, T_true), np.append(np.zeros(6), v), nan,
+                         np.zeros(problem.uv.shape), 0.0, 0)
+
+    assert judge.score(fit(0.0)).agreement == pytest.approx(judge.score(_fit(problem, T_true))
+                                                            .agreement)
+    assert judge.score(fit(value)).agreement < judge.score(fit(0.0)).agreement - 0.02
