@@ -151,11 +151,8 @@ def extended_points(robot: Robot, joints: np.ndarray, times_s: np.ndarray | None
     """(F, K, 3) keypoints in the base frame under the extension's kinematic effects
     (time offset, joint offsets, link lengths, keypoint bias)."""
     robot_x = extended_robot(robot, extension)
-    q = effective_joints(joints, times_s, extension.time_offset_s, extension.held_readings,
-                         robot.joint_names)
-    offsets = joint_offset_vector(robot_x, extension.joint_offset_rad) \
-        if extension.joint_offset_rad else None
-    return keypoint_points(robot_x, q, offsets, extension.keypoint_bias_m)
+    return keypoint_points(robot_x, image_joints(robot_x, joints, times_s, extension), None,
+                           extension.keypoint_bias_m)
 
 
 def image_joints(robot: Robot, joints: np.ndarray, times_s: np.ndarray | None,

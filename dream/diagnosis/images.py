@@ -27,15 +27,17 @@ from typing import Any
 import numpy as np
 
 from dream.calibration import Observations
+from dream.camera import CameraIntrinsics
 from dream.diagnosis.fit import FitResult, Problem
 from dream.edges.background import frames_and_background
 from dream.edges.calibration import moving_vertices, usable_vertices
 from dream.edges.score import EdgeScore, edge_score
-from dream.edges.search import scale_images
+from dream.edges.search import ScaleImages, scale_images
 from dream.edges.settings import EdgeSettings
 from dream.errors import InputError
 from dream.extended import extended_camera, extended_robot, image_joints
 from dream.polish.objective import evenly_spaced
+from dream.robot import Robot
 from dream.robot.link_geometry import LinkGeometry
 from dream.sequence import Sequence
 from dream.silhouette import RobotMeshes, load_robot_meshes, vertices_in_base
@@ -65,7 +67,7 @@ class OutlineJudge:
 
     meshes: RobotMeshes
     usable: np.ndarray
-    images: Any
+    images: ScaleImages
     chosen: np.ndarray
     settings: EdgeSettings
 
@@ -155,43 +157,44 @@ def add_image_evidence(doc: dict[str, Any], judge: OutlineJudge | None,
                             "detections support it")
 
 
-def carving_view(sequence: Sequence, fit: FitResult, obs: Observations | None
+def carving_view(sequence: Sequence, robot: Robot, joints: np.ndarray, camera: CameraIntrinsics,
+                 T_cam_base: np.ndarray, guard: Observations | None
                  ) -> tuple[Sequence, np.ndarray, bool]:
-    """What the carving looks from: the sequence at the fit's joints and camera, and the fit's
-    extrinsic aligned with the image edges (`dream.edges.refine_with_edges`, guarded by the
-    detections `obs` at the fit's keypoints) where that alignment is kept: a keypoint fit can
-    be centimetres off, and then the model's silhouette misses the arm it should explain.
-    Returns (sequence, T_cam_base, aligned)."""
+    """What the carving looks from: the sequence at a fit's `joints` (image times) and
+    `camera`, and the fit's extrinsic aligned with the image edges (`dream.edges.
+    refine_with_edges`, guarded by the detections `guard` at the fit's keypoints) where that
+    alignment is kept: a keypoint fit can be centimetres off, and then the model's silhouette
+    misses the arm it should explain. Returns (sequence, T_cam_base, aligned)."""
     from dream.edges import refine_with_edges
     from dream.pipeline import with_robot_joints
 
-    problem, ext = fit.model.problem, fit.model.extension(fit.x)
-    seq = with_robot_joints(sequence, problem.robot, fit_joints(fit))
-    seq = dataclasses.replace(seq, camera=extended_camera(problem.camera, ext))
-    guard = None if obs is None else dataclasses.replace(obs, P_base=fit.model.points(fit.x))
+    seq = dataclasses.replace(with_robot_joints(sequence, robot, joints), camera=camera)
     try:
-        aligned = refine_with_edges(seq, extended_robot(problem.robot, ext), fit.T_cam_base,
-                                    guard)
+        aligned = refine_with_edges(seq, robot, T_cam_base, guard)
     except InputError as exc:   # no edges near the outline: carve from the fit's pose
         log.info("the carving looks from the fit's pose: %s", exc)
-        return seq, fit.T_cam_base, False
+        return seq, T_cam_base, False
     return seq, aligned.T_after, aligned.kept
 
 
 def add_attached_geometry(doc: dict[str, Any], sequence: Sequence, fit: FitResult,
                           obs: Observations | None = None) -> LinkGeometry | None:
-    """The `link_geometry` box found at the final `fit` by carving the images' unexplained
-    motion (`dream.diagnosis.attached`) from `carving_view`, named in the verdict and described
-    in `image_findings`; None where nothing is found, the frames lack images or the camera
-    moved."""
+    """The `link_geometry` box found at the final `fit` (its link lengths, joints at the image
+    times and camera) by carving the images' unexplained motion (`dream.diagnosis.attached`)
+    from `carving_view`, named in the verdict and described in `image_findings`; None where
+    nothing is found, the frames lack images or the camera moved."""
     from dream.diagnosis.attached import find_attached_geometry
 
     if any(f.image_path is None for f in sequence.frames) or fit.model.change_index is not None:
         return None
+    problem, ext = fit.model.problem, fit.model.extension(fit.x)
+    robot, joints = extended_robot(problem.robot, ext), fit_joints(fit)
+    guard = None if obs is None else dataclasses.replace(obs, P_base=fit.model.points(fit.x))
     try:
-        seq, T_cam_base, aligned = carving_view(sequence, fit, obs)
-        robot = extended_robot(fit.model.problem.robot, fit.model.extension(fit.x))
-        found = find_attached_geometry(seq, robot, fit_joints(fit), T_cam_base)
+        seq, T_cam_base, aligned = carving_view(sequence, robot, joints,
+                                                extended_camera(problem.camera, ext),
+                                                fit.T_cam_base, guard)
+        found = find_attached_geometry(seq, robot, joints, T_cam_base)
     except InputError as exc:  # too few frames, an arm that hardly moves: nothing to carve
         log.info("no attached geometry: %s", exc)
         return None
