@@ -37,3 +37,19 @@ def realdata() -> Path:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def panda():
+    """The Panda of `example-robot-data`."""
+    from dream.robot import load_robot
+
+    return load_robot("panda")
+
+
+@pytest.fixture(scope="session")
+def meshes(panda):
+    """The Panda's visual meshes (`dream.silhouette.load_robot_meshes`)."""
+    from dream.silhouette import load_robot_meshes
+
+    return load_robot_meshes(panda)

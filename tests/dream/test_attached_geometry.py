@@ -11,7 +11,6 @@ import pytest
 from dream.cli import main
 from dream.diagnosis.attached import AttachedSettings, carve, rigid_groups
 from dream.extension import HeldReadings, ModelExtension, extension_yaml, read_extension
-from dream.robot import load_robot
 from dream.robot.link_geometry import BOX_KIND, LinkGeometry, with_link_geometry
 from dream.sample import random_joints
 from dream.silhouette import load_robot_meshes, render_silhouette
@@ -20,11 +19,6 @@ from tests.dream.test_edges import CAMERA, TARGET
 
 PLATE = LinkGeometry("panda_hand", BOX_KIND, size_m=(0.30, 0.22, 0.01),
                      position_m=(0.0, 0.0, 0.14))
-
-
-@pytest.fixture(scope="module")
-def panda():
-    return load_robot("panda")
 
 
 def test_links_that_keep_their_relative_pose_form_one_group(panda):

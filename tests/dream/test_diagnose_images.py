@@ -12,7 +12,6 @@ from dream.diagnosis.images import OutlineJudge, outline_judge
 from dream.diagnosis.run import diagnose_sequence, problem_from
 from dream.io import read_sequence
 from dream.pipeline import observations_from_labels
-from dream.robot import load_robot
 from dream.silhouette import load_robot_meshes
 from dream.transforms import T_from_rotvec_t
 from tests.dream.test_diagnose import _case
@@ -40,11 +39,6 @@ def test_a_vetoed_effect_is_not_accepted():
     assert judge.asked >= 1 and doc["verdict"] == [] and diagnosis.extension.is_empty
     entry = next(e for e in doc["effects"] if e["name"] == "link_length")
     assert "the images contradict it" in entry["evidence"]
-
-
-@pytest.fixture(scope="module")
-def panda():
-    return load_robot("panda")
 
 
 def _fit(problem, T: np.ndarray, move_m: float | None = None) -> FitResult:

@@ -27,10 +27,9 @@ from dream.edges.search import match_edges, scale_images
 from dream.errors import InputError
 from dream.io import write_dream
 from dream.metrics import pose_errors
-from dream.robot import load_robot
 from dream.sample import random_joints
 from dream.sequence import Frame, Sequence
-from dream.silhouette import load_robot_meshes, render_silhouette, vertices_in_base
+from dream.silhouette import render_silhouette, vertices_in_base
 from dream.transforms import T_from_rotvec_t, look_at, transform_points
 
 WIDTH, HEIGHT = 320, 240
@@ -39,16 +38,6 @@ TARGET = np.array([0.0, 0.0, 0.4])     # the camera aims at this point of the ba
 ROBOT_GREY, BLOCKS = 0.85, 60          # the robot's grey level; clutter blocks in the scene
 START_OFFSET_M, START_TURN_RAD = 0.04, np.deg2rad(3.0)   # a keypoint start's error
 NUM_FRAMES = 10
-
-
-@pytest.fixture(scope="module")
-def panda():
-    return load_robot("panda")
-
-
-@pytest.fixture(scope="module")
-def meshes(panda):
-    return load_robot_meshes(panda)
 
 
 def cluttered_background(rng: np.random.Generator) -> np.ndarray:

@@ -21,15 +21,10 @@ from dream.pipeline import (
     observations_from_labels,
     robot_for,
 )
-from tests.dream.test_edges import (  # noqa: F401
-    edge_scene,
-    image_dataset,
-    meshes,
-    panda,
-)
+from tests.dream.test_edges import edge_scene, image_dataset
 
 
-def test_calibrate_each_aligns_every_frame_by_default_without_masks(panda, meshes,  # noqa: F811
+def test_calibrate_each_aligns_every_frame_by_default_without_masks(panda, meshes,
                                                                     tmp_path, capsys):
     T_true = image_dataset(panda, meshes, tmp_path)
     out = tmp_path / "r.json"
@@ -52,7 +47,7 @@ def test_calibrate_each_aligns_every_frame_by_default_without_masks(panda, meshe
     assert np.allclose(after[~kept], before[~kept])
 
 
-def test_background_is_used_only_when_it_explains_the_frames(panda, meshes):  # noqa: F811
+def test_background_is_used_only_when_it_explains_the_frames(panda, meshes):
     settings = EdgeSettings()
     _, _, images, background = edge_scene(panda, meshes)
     assert background_explains(images, background, settings)
@@ -75,7 +70,7 @@ def test_frame_keep_rule():
         EdgeSettings(min_static_share=1.5)
 
 
-def test_frame_alignment_needs_an_each_mode_result(panda, meshes, tmp_path):  # noqa: F811
+def test_frame_alignment_needs_an_each_mode_result(panda, meshes, tmp_path):
     image_dataset(panda, meshes, tmp_path)
     seq = read_sequence(tmp_path / "data")
     robot = robot_for(seq)

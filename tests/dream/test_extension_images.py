@@ -21,11 +21,10 @@ from dream.metrics import pose_errors
 from dream.pipeline import observations_from_labels, with_robot_joints
 from dream.polish import PolishSettings, polish
 from dream.polish.calibration import polish_meshes
-from dream.robot import load_robot
 from dream.robot.link_geometry import BOX_KIND, EXCLUDE_KIND, LinkGeometry, with_link_geometry
 from dream.sample import random_joints
 from dream.sequence import Frame, Sequence
-from dream.silhouette import load_robot_meshes, render_silhouette
+from dream.silhouette import render_silhouette
 from dream.transforms import transform_points
 from tests.dream.test_polish import CAMERA, camera_pose, keypoints_at, perturbed
 
@@ -33,16 +32,6 @@ PLATE = LinkGeometry("panda_hand", BOX_KIND, size_m=(0.30, 0.22, 0.01),
                      position_m=(0.0, 0.0, 0.14), rotation_rad=(0.0, 0.0, 0.3))
 FRAMES = 6
 START_M, START_RAD = 0.008, np.deg2rad(0.8)
-
-
-@pytest.fixture(scope="module")
-def panda():
-    return load_robot("panda")
-
-
-@pytest.fixture(scope="module")
-def meshes(panda):
-    return load_robot_meshes(panda)
 
 
 def plate_scene(panda, meshes, seed: int):

@@ -36,7 +36,6 @@ from dream.inject import (
 from dream.io import read_sequence, write_dream
 from dream.metrics import pose_errors
 from dream.pipeline import observations_from_labels
-from dream.robot import load_robot
 from dream.transforms import transform_points
 
 CALIBRATION_TRANSLATION_TOLERANCE_M = 0.003
@@ -47,11 +46,6 @@ INTERPOLATION_TOLERANCE_RAD = 2e-3  # PCHIP between 10 Hz readings of the smooth
 END_FRAMES = 2                    # frames at each end where interpolation clamps
 MIN_IN_IMAGE_FRACTION = 0.85
 SMALL = InjectionSettings(num_frames=40, pixel_noise_px=0.0, seed=3)
-
-
-@pytest.fixture(scope="module")
-def panda():
-    return load_robot("panda")
 
 
 def _nominal_uv(world) -> np.ndarray:

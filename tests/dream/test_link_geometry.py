@@ -16,7 +16,6 @@ from dream.edges.score import edge_score
 from dream.edges.search import scale_images
 from dream.errors import InputError
 from dream.extension import extension_yaml, read_extension
-from dream.robot import load_robot
 from dream.robot.link_geometry import (
     BOX_KIND,
     EXCLUDE_KIND,
@@ -27,22 +26,12 @@ from dream.robot.link_geometry import (
 )
 from dream.robot.visuals import BOX, read_link_visuals
 from dream.sample import random_joints
-from dream.silhouette import load_robot_meshes, render_silhouette, vertices_in_base
+from dream.silhouette import render_silhouette, vertices_in_base
 from dream.transforms import look_at
 from tests.dream.test_edges import CAMERA, ROBOT_GREY, TARGET, cluttered_background, image_dataset
 
 PLATE = LinkGeometry("panda_hand", BOX_KIND, size_m=(0.30, 0.22, 0.01),
                      position_m=(0.0, 0.0, 0.14), rotation_rad=(0.0, 0.0, 0.3))
-
-
-@pytest.fixture(scope="module")
-def panda():
-    return load_robot("panda")
-
-
-@pytest.fixture(scope="module")
-def meshes(panda):
-    return load_robot_meshes(panda)
 
 
 def _write(tmp_path, effects: dict):

@@ -19,12 +19,12 @@ from dream.metrics import pose_errors
 from dream.sequence import Frame, Sequence
 from dream.silhouette import render_silhouette, static_links, without_links
 from dream.transforms import transform_points
-from tests.dream.test_edges import CAMERA, edge_scene, image_dataset, meshes, panda  # noqa: F401
+from tests.dream.test_edges import CAMERA, edge_scene, image_dataset
 
 NOISE_GREY = 6          # sensor noise of the synthetic frames, grey levels of 255
 
 
-def test_motion_masks_find_the_moving_robot_and_drop_speckle(panda, meshes):  # noqa: F811
+def test_motion_masks_find_the_moving_robot_and_drop_speckle(panda, meshes):
     T_true, joints, images, _ = edge_scene(panda, meshes)
     rng = np.random.default_rng(0)
     rgb = np.repeat((images * 255).astype(np.int16)[..., None], 3, axis=3)
@@ -55,7 +55,7 @@ def test_background_needs_frames_and_a_moving_arm():
         MotionSettings(threshold=0.0)
 
 
-def test_dream_masks_writes_one_mask_per_frame(panda, meshes, tmp_path, capsys):  # noqa: F811
+def test_dream_masks_writes_one_mask_per_frame(panda, meshes, tmp_path, capsys):
     image_dataset(panda, meshes, tmp_path)
     out = tmp_path / "masks"
     code = main(["masks", "--data", str(tmp_path / "data"), "--out", str(out)])
@@ -68,7 +68,7 @@ def test_dream_masks_writes_one_mask_per_frame(panda, meshes, tmp_path, capsys):
     assert mask.shape == (CAMERA.height, CAMERA.width) and set(np.unique(mask)) <= {0, 255}
 
 
-def still_dataset(panda, meshes, folder, frames: int):  # noqa: F811
+def still_dataset(panda, meshes, folder, frames: int):
     """A DREAM-layout folder of `frames` identical images of an arm that does not move."""
     T_true, joints, images, _ = edge_scene(panda, meshes, frames=1)
     uv = project(CAMERA, transform_points(T_true, panda.forward_kinematics(joints[0])))
@@ -87,7 +87,7 @@ def still_dataset(panda, meshes, folder, frames: int):  # noqa: F811
 
 
 @pytest.mark.parametrize("frames, message", [(12, "hardly moves"), (4, "too few")])
-def test_dream_masks_refuses_a_still_or_short_recording(panda, meshes, tmp_path,  # noqa: F811
+def test_dream_masks_refuses_a_still_or_short_recording(panda, meshes, tmp_path,
                                                         capsys, frames, message):
     still_dataset(panda, meshes, tmp_path, frames)
     out = tmp_path / "masks"
@@ -97,7 +97,7 @@ def test_dream_masks_refuses_a_still_or_short_recording(panda, meshes, tmp_path,
     assert not out.exists()
 
 
-def test_edges_of_a_still_arm_are_matched_without_a_background(panda, meshes,  # noqa: F811
+def test_edges_of_a_still_arm_are_matched_without_a_background(panda, meshes,
                                                                 tmp_path, capsys):
     """A still arm stays in the background model, so the edge alignment (the default) goes on
     without one, and --motion-masks is refused with the fix."""
@@ -114,7 +114,7 @@ def test_edges_of_a_still_arm_are_matched_without_a_background(panda, meshes,  #
     assert code == 2 and "hardly moves" in err and not (tmp_path / "m.json").exists()
 
 
-def test_calibrate_polishes_with_motion_masks(panda, meshes, tmp_path, capsys):  # noqa: F811
+def test_calibrate_polishes_with_motion_masks(panda, meshes, tmp_path, capsys):
     T_true = image_dataset(panda, meshes, tmp_path)
     out = tmp_path / "r.json"
     code = main(["calibrate", "--data", str(tmp_path / "data"), "--use-labels", "--polish",

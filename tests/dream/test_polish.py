@@ -32,11 +32,9 @@ from dream.polish import (
 from dream.polish.calibration import _polish_frame
 from dream.polish.guard import decide
 from dream.polish.objective import Contour, Objective
-from dream.robot import load_robot
 from dream.sample import random_joints
 from dream.sequence import Frame, Sequence
 from dream.silhouette import (
-    load_robot_meshes,
     rasterize_triangles,
     render_silhouette,
     silhouette_iou,
@@ -50,16 +48,6 @@ NUM_FRAMES = 5
 PERTURB_M = 0.01
 PERTURB_RAD = np.deg2rad(1.0)
 GUARD_OFFSET_M = 0.03
-
-
-@pytest.fixture(scope="module")
-def panda():
-    return load_robot("panda")
-
-
-@pytest.fixture(scope="module")
-def meshes(panda):
-    return load_robot_meshes(panda)
 
 
 def camera_pose(rng: np.random.Generator, distance=(1.2, 1.8)) -> np.ndarray:

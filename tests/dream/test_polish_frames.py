@@ -24,9 +24,8 @@ from dream.polish.frames import (
     frame_violations,
 )
 from dream.polish.guard import decide
-from dream.robot import load_robot
 from dream.sample import random_joints
-from dream.silhouette import load_robot_meshes, render_silhouette
+from dream.silhouette import render_silhouette
 from dream.transforms import T_from_rotvec_t, look_at, transform_points
 
 WIDTH, HEIGHT = 320, 240
@@ -35,16 +34,6 @@ TARGET = np.array([0.0, 0.0, 0.4])
 NUM_FRAMES = 8
 WRONG_READINGS = (2, 5)        # frames whose joints are not those of their mask
 READING_ERROR_RAD = 0.35       # added to joints 2 and 4 of those frames
-
-
-@pytest.fixture(scope="module")
-def panda():
-    return load_robot("panda")
-
-
-@pytest.fixture(scope="module")
-def meshes(panda):
-    return load_robot_meshes(panda)
 
 
 def moved(T: np.ndarray, rng: np.random.Generator, shift_m: float, angle_rad: float

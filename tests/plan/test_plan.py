@@ -10,7 +10,6 @@ import pytest
 from dream.camera import CameraIntrinsics, project
 from dream.cli.app import main
 from dream.errors import InputError
-from dream.robot import load_robot
 from dream.transforms import look_at, transform_points
 from plan.camera_prior import CameraPrior, prior_from_result
 from plan.feasibility import Box, Feasibility, PoseChecker, in_view
@@ -26,11 +25,6 @@ SELF_COLLISION = [2.88, -1.54, 2.54, -2.97, 0.64, 0.39, 2.71]
 HIDDEN = [1.33, -1.14, 2.1, -1.45, -1.16, 1.58, -2.73]
 CAMERA_ARGS = ["--camera", "1.6,0,0.6", "--look-at", "0,0,0.4",
                "--intrinsics", "600,600,319.5,239.5,640,480"]
-
-
-@pytest.fixture(scope="module")
-def panda():
-    return load_robot("panda")
 
 
 @pytest.fixture(scope="module")
