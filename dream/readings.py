@@ -4,8 +4,10 @@ A joint log that updates at 5 Hz beside a 30 Hz camera gives every frame the lat
 runs of identical readings follow each other while the arm moves on: a frame's joints lag the
 arm by up to one log period, and a fixed camera's extrinsic absorbs that as millimetres of
 error. `reading_updates` finds the frames where a new reading first appears. A reading was
-logged after the last frame that lacks it and at the latest at the first frame that has it, so
-`interpolated_joints` places it at the midpoint of those two frame times and interpolates each
+logged after the last frame that lacks it and at the latest at the first frame that has it.
+`update_times` places it in that interval: on the line of a regular log clock where the
+updates follow one (a controller logging at a fixed rate: each interval narrows where the
+others put the clock), else at the interval's midpoint. `interpolated_joints` interpolates each
 joint in time between the readings with a shape-preserving cubic (PCHIP: it does not overshoot
 where the arm stops; the last reading is held).
 
@@ -111,23 +113,69 @@ def reading_updates(timestamps: np.ndarray, joints: np.ndarray,
     return ReadingUpdates(update_index, repeat_fraction, bool(held), period)
 
 
+MIN_CLOCK_UPDATES = 4           # a log clock is fitted to at least this many updates
+CLOCK_TOLERANCE_FRACTION = 0.25  # ... and kept when it misses no update's interval by more
+                                 # than this fraction of the frame interval (timing jitter)
+
+
+def update_times(timestamps: np.ndarray, update_index: np.ndarray) -> np.ndarray:
+    """(U,) the times at which the readings first seen at `update_index` were logged.
+
+    Reading u was logged in (t[i-1], t[i]] with i = update_index[u] (the first frame's at
+    t[0]). Where the updates follow a regular clock s = a + period * n (n: the update's count,
+    updates that left the reading unchanged skipped), the least-squares line through the
+    intervals' midpoints locates each update to a fraction of a frame interval; it is kept when
+    it passes within `CLOCK_TOLERANCE_FRACTION` of a frame interval of every interval, and
+    clipped into them. Otherwise each update sits at its interval's midpoint.
+
+        >>> t = np.arange(12) / 30
+        >>> np.round(update_times(t, np.array([0, 3, 6, 9])) * 30, 2).tolist()
+        [0.0, 2.5, 5.5, 8.5]
+    """
+    t = np.asarray(timestamps, dtype=float)
+    index = np.asarray(update_index, dtype=int)
+    lo, hi = t[np.maximum(index - 1, 0)], t[index]
+    mid = np.where(index > 0, 0.5 * (lo + hi), hi)
+    later = index > 0
+    if later.sum() < MIN_CLOCK_UPDATES:
+        return mid
+    m = mid[later]
+    period = float(np.median(np.diff(m)))
+    if period <= 0:
+        return mid
+    steps = np.round(np.diff(m) / period)   # 2 and more: updates that changed nothing
+    if np.any(steps < 1):
+        return mid
+    count = np.concatenate([[0.0], np.cumsum(steps)])
+    slope, intercept = np.polyfit(count, m, 1)
+    clock = intercept + slope * count
+    miss = np.maximum(lo[later] - clock, clock - hi[later])
+    if np.max(miss) > CLOCK_TOLERANCE_FRACTION * float(np.median(np.diff(t))):
+        return mid
+    out = mid.copy()
+    out[later] = np.clip(clock, lo[later], hi[later])
+    return out
+
+
 def interpolated_joints(timestamps: np.ndarray, joints: np.ndarray,
                         updates: ReadingUpdates) -> np.ndarray:
     """(F, J) every frame's joints interpolated in time between the readings' updates.
 
-    A reading first seen at frame i > 0 is placed at (t[i-1] + t[i]) / 2, the first frame's
-    at t[0]; between them PCHIP interpolates each joint (on rendered trajectories: 3.7 mm
-    median camera error against 5.2 mm for linear interpolation, `benchmarks/held_readings.py`);
-    after the last update the last reading is held.
+    Each reading is placed at its `update_times` time, the first frame's at t[0]; between them
+    PCHIP interpolates each joint (on rendered trajectories: 3.7 mm median camera error against
+    5.2 mm for linear interpolation, `benchmarks/held_readings.py`); after the last update the
+    last reading is held.
     """
     t, q = _check(timestamps, joints)
     index = updates.update_index
-    knots = np.where(index > 0, 0.5 * (t[np.maximum(index - 1, 0)] + t[index]), t[index])
+    knots = update_times(t, index)
     if len(index) < 2:
         return q.copy()
     # shape-preserving cubic (no overshoot where the arm stops); linear through two readings
     curve = PchipInterpolator(knots, q[index], axis=0)
-    return curve(np.clip(t, knots[0], knots[-1]))
+    out = curve(np.clip(t, knots[0], knots[-1]))
+    out[t >= knots[-1]] = q[index[-1]]   # the last reading held, exactly
+    return out
 
 
 def sequence_updates(sequence: Sequence, settings: HeldReadingsSettings | None = None

@@ -19,6 +19,7 @@ from dream.readings import (
     held_log,
     interpolated_joints,
     reading_updates,
+    update_times,
     with_interpolated_readings,
 )
 
@@ -49,6 +50,41 @@ def test_linear_motion_sampled_between_frames_is_recovered_exactly():
     before_last = t <= t_sample[-1]
     np.testing.assert_allclose(q[before_last], (t[:, None] * speed)[before_last], atol=1e-12)
     np.testing.assert_array_equal(q[~before_last], q_logged[~before_last])  # the last is held
+
+
+def _clock_log(period_s: float, phase_s: float, frames: int, skip: int, seed: int):
+    """Frame times, the frames where a log sampled every `period_s` shows a new reading (`skip`
+    updates left out: the arm stood still) and the true sample times of those updates."""
+    t = np.arange(frames) * FRAME_PERIOD_S
+    sampled = phase_s + np.arange(0.0, t[-1], period_s)
+    sampled = sampled[sampled <= t[-1]]
+    index, first = np.unique(np.searchsorted(t, sampled), return_index=True)
+    keep = np.ones(len(index), bool)
+    keep[np.random.default_rng(seed).choice(np.arange(2, len(index)), skip, replace=False)] = False
+    return t, index[keep], sampled[first][keep]
+
+
+@pytest.mark.parametrize("period_s,phase_s", [(0.17, 0.013), (0.23, 0.004), (0.11, 0.03)])
+def test_a_regular_log_clock_places_its_updates_within_a_fraction_of_a_frame(period_s, phase_s):
+    t, index, sampled = _clock_log(period_s, phase_s, 450, skip=5, seed=1)
+    found = update_times(t, index)
+    later = index > 0
+    midpoint = 0.5 * (t[index - 1] + t[index])[later]
+    assert np.all((found[later] >= t[index - 1][later]) & (found[later] <= t[index][later]))
+    error = np.sqrt(np.mean((found[later] - sampled[later]) ** 2))
+    assert error < 0.25 * np.sqrt(np.mean((midpoint - sampled[later]) ** 2)), error
+    assert error < 0.1 * FRAME_PERIOD_S
+
+
+def test_a_log_without_a_regular_clock_keeps_the_midpoints():
+    t, index, _ = _clock_log(0.17, 0.013, 450, skip=5, seed=1)
+    rng = np.random.default_rng(2)
+    jittered = np.unique(np.clip(index + rng.integers(-2, 3, len(index)), 1, len(t) - 1))
+    np.testing.assert_allclose(update_times(t, jittered),
+                               0.5 * (t[jittered - 1] + t[jittered]))
+    few = index[:3]   # too few updates to fit a clock
+    np.testing.assert_allclose(update_times(t, few)[few > 0],
+                               0.5 * (t[few - 1] + t[few])[few > 0])
 
 
 def test_sequences_without_timestamps_or_in_disorder_are_left_alone():
