@@ -85,6 +85,18 @@ def test_null_sequence_gives_empty_verdict(seed):
     assert doc["gain"]["heldout_rmse_px_after"] == doc["gain"]["heldout_rmse_px_before"]
 
 
+def test_a_weak_k1_is_named_as_k1_not_as_higher_lens_terms():
+    """k1 = -0.052 (seed 23): over the arm's part of the image a strong k2 (r^4) or the
+    tangential pair mimic it about as well; the lens terms enter in calibration order (k2 only
+    after k1) and each priced by the BIC, so k1 is found and the others stay zero."""
+    seq, robot, truth = _case("lens_distortion", 23)
+    doc, _, _ = _diagnose(seq, robot)
+    (s,) = score_diagnosis(truth, seq.camera, tuple(f.name for f in seq.frames), doc)["scores"]
+    assert doc["verdict"] == ["lens_distortion"] and s.recovered, s.detail
+    params = next(e for e in doc["effects"] if e["name"] == "lens_distortion")["params"]
+    assert params["k2"] == params["p1"] == params["p2"] == 0.0
+
+
 def test_many_far_off_detections_do_not_move_the_baseline():
     """60 % of the detections of every keypoint but the base placed far off (as a detector that
     puts the wrist on a held board): the diagnosis cuts them at the robust calibration it

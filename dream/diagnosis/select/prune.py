@@ -20,6 +20,9 @@ from dream.diagnosis.select.settings import DiagnoseSettings
 # groups are strongly correlated (k1 / k2), nearly unidentifiable in
 # combination (link lengths), or numerous enough to mimic other effects (keypoint biases).
 FORWARD_EFFECTS = ("link_length", "lens_distortion", "keypoint_bias")
+# Groups that enter only after another one (a lens's k2 refines its k1 as in the usual lens
+# calibration order; alone, the r^4 term of a strong k2 mimics the r^2 term of a weak k1)
+AFTER_GROUP = {"k2": "k1"}
 
 
 def try_effect(effect: str, current: Evaluation, problem: Problem, mask: np.ndarray,
@@ -75,17 +78,18 @@ def try_effect(effect: str, current: Evaluation, problem: Problem, mask: np.ndar
 def _forward_groups(effect: str, base: FitResult, params: list[Param], problem: Problem,
                     mask: np.ndarray, scale_px: float,
                     settings: DiagnoseSettings) -> FitResult | str:
-    """Forward selection of `effect`'s parameter groups: add the group that lowers the cost
-    most while its p-value stays below `group_alpha`. Used where combinations of groups are
-    (nearly) unidentifiable, e.g. link lengths: stretching every link in proportion scales the
-    robot, which a camera farther away absorbs exactly; the sparsest explanation is kept."""
+    """Forward selection of `effect`'s parameter groups: add the group that lowers the BIC
+    most (the cost, each parameter priced) while its p-value stays below `group_alpha`; a
+    group of `AFTER_GROUP` only once its predecessor is in. Used where combinations of groups
+    are (nearly) unidentifiable, e.g. link lengths: stretching every link in proportion scales
+    the robot, which a camera farther away absorbs exactly; the sparsest explanation is kept."""
     groups = list(dict.fromkeys(p.group for p in params))
     chosen: list[str] = []
     best_fit: FitResult | None = None
     while len(chosen) < len(groups):
         trials = []
         for g in groups:
-            if g in chosen:
+            if g in chosen or AFTER_GROUP.get(g, g) not in (*chosen, g):
                 continue
             kept = [p for c in chosen for p in params if p.group == c]
             added = [p for p in params if p.group == g]
@@ -94,7 +98,10 @@ def _forward_groups(effect: str, base: FitResult, params: list[Param], problem: 
             start = base.x if best_fit is None else best_fit.x
             x0 = np.concatenate([start, np.zeros(len(added))])
             trials.append((g, fit_model(model, mask, scale_px, x0=x0)))
-        g, fit = min(trials, key=lambda t: t[1].cost)
+        if not trials:
+            break
+        # the lowest BIC: a group of more parameters must lower the cost by more
+        g, fit = min(trials, key=lambda t: t[1].bic(mask, scale_px))
         if group_p_values(fit, effect)[g] > settings.group_alpha:
             break
         chosen.append(g)
