@@ -28,7 +28,7 @@ from dream.diagnosis.held import (
 from dream.diagnosis.remaining import remaining_misfit
 from dream.diagnosis.select import DiagnoseSettings, Diagnosis, Verdict, diagnose
 from dream.errors import InputError
-from dream.extended import extended_camera, extended_robot, joint_offset_vector
+from dream.extended import extended_camera, extended_robot
 from dream.extension import ModelExtension, extension_yaml
 from dream.io.atomic import check_output_folder, dumps, staged_directory, write_bytes_atomic
 from dream.metrics import add_per_frame, pose_errors
@@ -216,6 +216,7 @@ def _residual_set(problem: Problem, fit: FitResult, mask: np.ndarray):
 
 def _silhouette_panels(sequence: Sequence, problem: Problem, diagnosis: Diagnosis) -> list:
     """Observed masks against the rendered robot before and after the extension."""
+    from dream.diagnosis.images import fit_joints
     from dream.diagnosis.report import SilhouettePanel
     from dream.io import load_image, load_mask
     from dream.silhouette import load_robot_meshes, render_silhouette, silhouette_iou
@@ -231,7 +232,7 @@ def _silhouette_panels(sequence: Sequence, problem: Problem, diagnosis: Diagnosi
     robot_x = extended_robot(problem.robot, ext)
     meshes, meshes_x = load_robot_meshes(problem.robot), load_robot_meshes(robot_x)
     camera_x = extended_camera(problem.camera, ext)
-    offsets = joint_offset_vector(robot_x, ext.joint_offset_rad)
+    joints_base, joints_final = fit_joints(base), fit_joints(final)
     T_base, T_final = base.model.poses(base.x), final.model.poses(final.x)
     panels = []
     for c in chosen:
@@ -239,11 +240,10 @@ def _silhouette_panels(sequence: Sequence, problem: Problem, diagnosis: Diagnosi
         frame = sequence.frames[i]
         observed = load_mask(frame, sequence.camera) > 0
         image = load_image(frame, sequence.camera)
-        before = render_silhouette(meshes, problem.joints[i], T_base[i], problem.camera)
+        before = render_silhouette(meshes, joints_base[i], T_base[i], problem.camera)
         after = None
         if not ext.is_empty:
-            after = render_silhouette(meshes_x, problem.joints[i] + offsets, T_final[i],
-                                      camera_x)
+            after = render_silhouette(meshes_x, joints_final[i], T_final[i], camera_x)
         panels.append(SilhouettePanel(frame.name, image, observed, before, after,
                                       silhouette_iou(observed, before),
                                       None if after is None else silhouette_iou(observed,
