@@ -4,19 +4,24 @@ interpolating its readings in time gives back.
 Draws keypoint-only measured-like sequences (`dream.inject`: a fixed camera, a smooth random arm
 trajectory at `--fps`, labels with `--noise-px` Gaussian noise), records their joints as a log
 updating every `--hold-frames` frames (`dream.readings.held_log`: each reading sampled at a
-random instant between two frames, then held), and solves the all-frames extrinsic from the
-labels (`dream calibrate --use-labels`) three ways: the readings as logged, interpolated in time
-(`--joint-readings interpolate`, the default) and, for reference, the true joints. Prints the
+random instant between two frames, then held) or, with `--log-period-s`, by a log with a
+regular clock of that period and a random phase (`dream.inject`'s `held_readings`: a controller
+logging at a fixed rate), and solves the all-frames extrinsic from the
+labels (`dream calibrate --use-labels`) four ways: the readings as logged; interpolated in time
+with every update at the midpoint of the frame interval where it appears (no log clock fitted);
+interpolated as `dream calibrate` does (`--joint-readings interpolate`, the default: the updates
+on the log's clock where one fits); and, for reference, the true joints. Prints the
 camera position and rotation error of each per sequence and their medians.
 
     python benchmarks/held_readings.py [--sequences 10] [--frames 120] [--fps 30]
-        [--hold-frames 6] [--noise-px 1.0] [--seed 0]
+        [--hold-frames 6 | --log-period-s 0.17] [--noise-px 1.0] [--seed 0]
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import io
 import json
 import sys
@@ -27,13 +32,15 @@ from pathlib import Path
 import numpy as np
 
 from dream.cli import main as dream_main
+from dream.extension import HeldReadings, ModelExtension
 from dream.inject import InjectionSettings, make_injected_sequence
 from dream.io import write_dream
 from dream.metrics import pose_errors
-from dream.readings import held_log
+from dream.readings import held_log, interpolated_joints, reading_updates
+from dream.sequence import Sequence
 
-WAYS = (("as logged", "held", "as-logged"), ("interpolated", "held", "interpolate"),
-        ("true joints", "true", "as-logged"))
+WAYS = (("as logged", "held", "as-logged"), ("midpoints", "midpoints", "as-logged"),
+        ("interpolated", "held", "interpolate"), ("true joints", "true", "as-logged"))
 
 
 def errors_of(folder: Path, way: tuple[str, str, str], T_true: np.ndarray) -> tuple[float, float]:
@@ -50,28 +57,45 @@ def errors_of(folder: Path, way: tuple[str, str, str], T_true: np.ndarray) -> tu
     return float(t_err[0]), float(r_err[0])
 
 
+def at_midpoints(held: Sequence) -> Sequence:
+    """The held log interpolated in time with every update at its frame interval's midpoint."""
+    t = np.array([f.timestamp for f in held.frames])
+    q = interpolated_joints(t, held.joints, reading_updates(t, held.joints), use_clock=False)
+    return dataclasses.replace(held, frames=tuple(
+        dataclasses.replace(f, joints=q[i]) for i, f in enumerate(held.frames)))
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--sequences", type=int, default=10)
     p.add_argument("--frames", type=int, default=120)
     p.add_argument("--fps", type=float, default=30.0)
     p.add_argument("--hold-frames", type=int, default=6)
+    p.add_argument("--log-period-s", type=float,
+                   help="a log with a regular clock of this period instead of --hold-frames")
     p.add_argument("--noise-px", type=float, default=1.0)
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args()
     start = time.perf_counter()
-    print(f"{args.sequences} sequences of {args.frames} frames at {args.fps:g} Hz, a joint log "
-          f"updating every {args.hold_frames} frames, labels with {args.noise_px:g} px noise")
+    log = (f"a joint log clocked every {args.log_period_s:g} s" if args.log_period_s
+           else f"a joint log updating every {args.hold_frames} frames")
+    print(f"{args.sequences} sequences of {args.frames} frames at {args.fps:g} Hz, {log}, "
+          f"labels with {args.noise_px:g} px noise")
     print("seed  " + "  ".join(f"{name:>22}" for name, _, _ in WAYS))
     table = []
     for seed in range(args.seed, args.seed + args.sequences):
-        seq = make_injected_sequence(InjectionSettings(
-            num_frames=args.frames, frame_period_s=1.0 / args.fps, pixel_noise_px=args.noise_px,
-            seed=seed))
+        spec = InjectionSettings(num_frames=args.frames, frame_period_s=1.0 / args.fps,
+                                 pixel_noise_px=args.noise_px, seed=seed)
+        seq = make_injected_sequence(spec)
+        if args.log_period_s:  # the same camera, motion and labels; the joints as logged
+            held = make_injected_sequence(spec, ModelExtension(
+                held_readings=HeldReadings(args.log_period_s)))
+        else:
+            held = held_log(seq, args.hold_frames, np.random.default_rng(seed))
         with tempfile.TemporaryDirectory() as tmp:
             folder = Path(tmp)
-            write_dream(held_log(seq, args.hold_frames, np.random.default_rng(seed)),
-                        folder / "held")
+            write_dream(held, folder / "held")
+            write_dream(at_midpoints(held), folder / "midpoints")
             write_dream(seq, folder / "true")
             row = [errors_of(folder, way, seq.frames[0].T_cam_base_true) for way in WAYS]
         table.append(row)

@@ -118,7 +118,8 @@ CLOCK_TOLERANCE_FRACTION = 0.25  # ... and kept when it misses no update's inter
                                  # than this fraction of the frame interval (timing jitter)
 
 
-def update_times(timestamps: np.ndarray, update_index: np.ndarray) -> np.ndarray:
+def update_times(timestamps: np.ndarray, update_index: np.ndarray,
+                 use_clock: bool = True) -> np.ndarray:
     """(U,) the times at which the readings first seen at `update_index` were logged.
 
     Reading u was logged in (t[i-1], t[i]] with i = update_index[u] (the first frame's at
@@ -126,7 +127,8 @@ def update_times(timestamps: np.ndarray, update_index: np.ndarray) -> np.ndarray
     updates that left the reading unchanged skipped), the least-squares line through the
     intervals' midpoints locates each update to a fraction of a frame interval; it is kept when
     it passes within `CLOCK_TOLERANCE_FRACTION` of a frame interval of every interval, and
-    clipped into them. Otherwise each update sits at its interval's midpoint.
+    clipped into them. Otherwise (or with `use_clock` False) each update sits at its interval's
+    midpoint.
 
         >>> t = np.arange(12) / 30
         >>> np.round(update_times(t, np.array([0, 3, 6, 9])) * 30, 2).tolist()
@@ -137,7 +139,7 @@ def update_times(timestamps: np.ndarray, update_index: np.ndarray) -> np.ndarray
     lo, hi = t[np.maximum(index - 1, 0)], t[index]
     mid = np.where(index > 0, 0.5 * (lo + hi), hi)
     later = index > 0
-    if later.sum() < MIN_CLOCK_UPDATES:
+    if not use_clock or later.sum() < MIN_CLOCK_UPDATES:
         return mid
     m = mid[later]
     period = float(np.median(np.diff(m)))
@@ -158,17 +160,18 @@ def update_times(timestamps: np.ndarray, update_index: np.ndarray) -> np.ndarray
 
 
 def interpolated_joints(timestamps: np.ndarray, joints: np.ndarray,
-                        updates: ReadingUpdates) -> np.ndarray:
+                        updates: ReadingUpdates, use_clock: bool = True) -> np.ndarray:
     """(F, J) every frame's joints interpolated in time between the readings' updates.
 
-    Each reading is placed at its `update_times` time, the first frame's at t[0]; between them
+    Each reading is placed at its `update_times` time (`use_clock`: on a regular log clock
+    where one fits), the first frame's at t[0]; between them
     PCHIP interpolates each joint (on rendered trajectories: 3.7 mm median camera error against
     5.2 mm for linear interpolation, `benchmarks/held_readings.py`); after the last update the
     last reading is held.
     """
     t, q = _check(timestamps, joints)
     index = updates.update_index
-    knots = update_times(t, index)
+    knots = update_times(t, index, use_clock)
     if len(index) < 2:
         return q.copy()
     # shape-preserving cubic (no overshoot where the arm stops); linear through two readings

@@ -74,6 +74,7 @@ def test_a_regular_log_clock_places_its_updates_within_a_fraction_of_a_frame(per
     error = np.sqrt(np.mean((found[later] - sampled[later]) ** 2))
     assert error < 0.25 * np.sqrt(np.mean((midpoint - sampled[later]) ** 2)), error
     assert error < 0.1 * FRAME_PERIOD_S
+    np.testing.assert_allclose(update_times(t, index, use_clock=False)[later], midpoint)
 
 
 def test_a_log_without_a_regular_clock_keeps_the_midpoints():
