@@ -70,14 +70,16 @@ def main() -> int:
     p.add_argument("--sequences", type=int, default=10)
     p.add_argument("--frames", type=int, default=120)
     p.add_argument("--fps", type=float, default=30.0)
-    p.add_argument("--hold-frames", type=int, default=6)
-    p.add_argument("--log-period-s", type=float,
-                   help="a log with a regular clock of this period instead of --hold-frames")
+    logs = p.add_mutually_exclusive_group()
+    logs.add_argument("--hold-frames", type=int, default=6)
+    logs.add_argument("--log-period-s", type=float,
+                     help="a log with a regular clock of this period instead of --hold-frames")
     p.add_argument("--noise-px", type=float, default=1.0)
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args()
     start = time.perf_counter()
-    log = (f"a joint log clocked every {args.log_period_s:g} s" if args.log_period_s
+    clocked = args.log_period_s is not None
+    log = (f"a joint log clocked every {args.log_period_s:g} s" if clocked
            else f"a joint log updating every {args.hold_frames} frames")
     print(f"{args.sequences} sequences of {args.frames} frames at {args.fps:g} Hz, {log}, "
           f"labels with {args.noise_px:g} px noise")
@@ -87,7 +89,7 @@ def main() -> int:
         spec = InjectionSettings(num_frames=args.frames, frame_period_s=1.0 / args.fps,
                                  pixel_noise_px=args.noise_px, seed=seed)
         seq = make_injected_sequence(spec)
-        if args.log_period_s:  # the same camera, motion and labels; the joints as logged
+        if clocked:  # the same camera, motion and labels; the joints as logged
             held = make_injected_sequence(spec, ModelExtension(
                 held_readings=HeldReadings(args.log_period_s)))
         else:

@@ -116,6 +116,7 @@ def reading_updates(timestamps: np.ndarray, joints: np.ndarray,
 MIN_CLOCK_UPDATES = 4           # a log clock is fitted to at least this many updates
 CLOCK_TOLERANCE_FRACTION = 0.25  # ... and kept when it misses no update's interval by more
                                  # than this fraction of the frame interval (timing jitter)
+CLOCK_REFITS = 3                 # fits of the clock, each recounting the updates by the last
 
 
 def update_times(timestamps: np.ndarray, update_index: np.ndarray,
@@ -123,40 +124,62 @@ def update_times(timestamps: np.ndarray, update_index: np.ndarray,
     """(U,) the times at which the readings first seen at `update_index` were logged.
 
     Reading u was logged in (t[i-1], t[i]] with i = update_index[u] (the first frame's at
-    t[0]). Where the updates follow a regular clock s = a + period * n (n: the update's count,
-    updates that left the reading unchanged skipped), the least-squares line through the
-    intervals' midpoints locates each update to a fraction of a frame interval; it is kept when
-    it passes within `CLOCK_TOLERANCE_FRACTION` of a frame interval of every interval, and
-    clipped into them. Otherwise (or with `use_clock` False) each update sits at its interval's
-    midpoint.
+    the latest at t[0]). Where the updates follow a regular clock s = a + period * n (n: the
+    update's count, updates that left the reading unchanged skipped), the least-squares line
+    through the intervals' midpoints locates each update to a fraction of a frame interval; it
+    is kept when it passes within `CLOCK_TOLERANCE_FRACTION` of a frame interval of every
+    interval, and clipped into them; the first frame's reading then sits one period before the
+    next update (at most t[0]). Otherwise (or with `use_clock` False) each update sits at its
+    interval's midpoint, the first frame's at t[0].
 
         >>> t = np.arange(12) / 30
         >>> np.round(update_times(t, np.array([0, 3, 6, 9])) * 30, 2).tolist()
         [0.0, 2.5, 5.5, 8.5]
     """
     t = np.asarray(timestamps, dtype=float)
-    index = np.asarray(update_index, dtype=int)
+    index = np.asarray(update_index)
+    if (t.ndim != 1 or not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0)
+            or index.ndim != 1 or len(index) == 0 or not np.issubdtype(index.dtype, np.integer)
+            or index[0] < 0 or index[-1] >= len(t) or np.any(np.diff(index) < 1)):
+        raise InputError("update_times needs finite increasing timestamps (F,) and strictly "
+                         "increasing frame indices (U,) within them")
     lo, hi = t[np.maximum(index - 1, 0)], t[index]
     mid = np.where(index > 0, 0.5 * (lo + hi), hi)
     later = index > 0
     if not use_clock or later.sum() < MIN_CLOCK_UPDATES:
         return mid
-    m = mid[later]
-    period = float(np.median(np.diff(m)))
-    if period <= 0:
+    fitted = _clock_line(mid[later])
+    if fitted is None:
         return mid
-    steps = np.round(np.diff(m) / period)   # 2 and more: updates that changed nothing
-    if np.any(steps < 1):
-        return mid
-    count = np.concatenate([[0.0], np.cumsum(steps)])
-    slope, intercept = np.polyfit(count, m, 1)
-    clock = intercept + slope * count
+    clock, period = fitted
     miss = np.maximum(lo[later] - clock, clock - hi[later])
     if np.max(miss) > CLOCK_TOLERANCE_FRACTION * float(np.median(np.diff(t))):
         return mid
     out = mid.copy()
-    out[later] = np.clip(clock, lo[later], hi[later])
+    out[later] = np.clip(clock, np.nextafter(lo[later], np.inf), hi[later])  # (t[i-1], t[i]]
+    if index[0] == 0:  # the first frame's reading: the tick before the next update, <= t[0]
+        out[0] = min(t[0], out[later][0] - period)
     return out
+
+
+def _clock_line(mid: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """The regular clock a + period * n fitted to the update intervals' midpoints `mid` (U,):
+    (its time at each update's count n, the period); None where the spacing does not fit one.
+    Each fit's period
+    recounts the updates that changed nothing (a gap of several periods), so a long pause
+    counted from the first, frame-rounded period estimate is corrected."""
+    period = float(np.median(np.diff(mid)))
+    clock = None
+    for _ in range(CLOCK_REFITS):
+        if not period > 0:
+            return None
+        steps = np.round(np.diff(mid) / period)
+        if np.any(steps < 1):
+            return None
+        count = np.concatenate([[0.0], np.cumsum(steps)])
+        period, intercept = np.polyfit(count, mid, 1)
+        clock = intercept + period * count
+    return (clock, float(period)) if period > 0 else None
 
 
 def interpolated_joints(timestamps: np.ndarray, joints: np.ndarray,

@@ -44,7 +44,7 @@ def test_linear_motion_sampled_between_frames_is_recovered_exactly():
     t = np.arange(30) * FRAME_PERIOD_S
     speed = np.array([0.8, -0.3])
     starts = np.arange(0, 30, HOLD_FRAMES)
-    t_sample = np.where(starts > 0, t[starts] - FRAME_PERIOD_S / 2, t[0])
+    t_sample = t[starts] - FRAME_PERIOD_S / 2   # a regular log: frame 0's reading too
     q_logged = (t_sample[:, None] * speed)[np.arange(30) // HOLD_FRAMES]
     q = interpolated_joints(t, q_logged, reading_updates(t, q_logged))
     before_last = t <= t_sample[-1]
@@ -70,11 +70,35 @@ def test_a_regular_log_clock_places_its_updates_within_a_fraction_of_a_frame(per
     found = update_times(t, index)
     later = index > 0
     midpoint = 0.5 * (t[index - 1] + t[index])[later]
-    assert np.all((found[later] >= t[index - 1][later]) & (found[later] <= t[index][later]))
+    assert np.all((found[later] > t[index - 1][later]) & (found[later] <= t[index][later]))
     error = np.sqrt(np.mean((found[later] - sampled[later]) ** 2))
     assert error < 0.25 * np.sqrt(np.mean((midpoint - sampled[later]) ** 2)), error
     assert error < 0.1 * FRAME_PERIOD_S
     np.testing.assert_allclose(update_times(t, index, use_clock=False)[later], midpoint)
+
+
+def test_a_long_pause_in_a_regular_log_keeps_its_clock():
+    """A 7 Hz log whose arm stands still for 1.3 s (9 updates change nothing): counted with the
+    first, frame-rounded period the pause would break the clock."""
+    t, index, sampled = _clock_log(1 / 7, 0.01, 450, skip=0, seed=1)
+    pause = np.arange(20, 29)
+    index, sampled = np.delete(index, pause), np.delete(sampled, pause)
+    later = index > 0
+    error = np.sqrt(np.mean((update_times(t, index)[later] - sampled[later]) ** 2))
+    assert error < 0.1 * FRAME_PERIOD_S, error
+
+
+def test_clock_placed_updates_stay_in_their_intervals_and_in_order():
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        t, index, _ = _clock_log(rng.uniform(0.05, 0.35), rng.uniform(0.0, 0.05),
+                                 int(rng.integers(60, 200)), skip=0, seed=0)
+        found = update_times(t, index)
+        later = index > 0
+        assert np.all(np.diff(found) > 0)
+        assert np.all((found[later] > t[index - 1][later]) & (found[later] <= t[index][later]))
+        q = np.sin(t)[:, None][np.searchsorted(index, np.arange(len(t)), side="right") - 1]
+        interpolated_joints(t, q, reading_updates(t, q))   # strictly increasing knots
 
 
 def test_a_log_without_a_regular_clock_keeps_the_midpoints():
@@ -108,6 +132,10 @@ def test_a_simulated_held_log_holds_each_reading_for_its_frames():
 
 
 def test_bad_arguments_are_input_errors():
+    with pytest.raises(InputError, match="strictly increasing frame indices"):
+        update_times(np.arange(5.0), np.array([0, 3, 2]))
+    with pytest.raises(InputError, match="finite increasing timestamps"):
+        update_times(np.array([0.0, np.nan, 1.0]), np.array([0, 1]))
     with pytest.raises(InputError, match="min_repeat_fraction"):
         HeldReadingsSettings(min_repeat_fraction=1.5)
     with pytest.raises(InputError, match="increasing"):

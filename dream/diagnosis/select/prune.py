@@ -89,7 +89,8 @@ def _forward_groups(effect: str, base: FitResult, params: list[Param], problem: 
     while len(chosen) < len(groups):
         trials = []
         for g in groups:
-            if g in chosen or AFTER_GROUP.get(g, g) not in (*chosen, g):
+            before = AFTER_GROUP.get(g)
+            if g in chosen or (before is not None and before not in chosen):
                 continue
             kept = [p for c in chosen for p in params if p.group == c]
             added = [p for p in params if p.group == g]
