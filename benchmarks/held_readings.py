@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import io
 import json
 import sys
@@ -36,8 +35,7 @@ from dream.extension import HeldReadings, ModelExtension
 from dream.inject import InjectionSettings, make_injected_sequence
 from dream.io import write_dream
 from dream.metrics import pose_errors
-from dream.readings import held_log, interpolated_joints, reading_updates
-from dream.sequence import Sequence
+from dream.readings import held_log, with_interpolated_readings
 
 WAYS = (("as logged", "held", "as-logged"), ("midpoints", "midpoints", "as-logged"),
         ("interpolated", "held", "interpolate"), ("true joints", "true", "as-logged"))
@@ -55,14 +53,6 @@ def errors_of(folder: Path, way: tuple[str, str, str], T_true: np.ndarray) -> tu
     T = np.array(json.loads(out.read_text())["T_cam_base"])
     t_err, r_err = pose_errors(T[None], T_true[None])
     return float(t_err[0]), float(r_err[0])
-
-
-def at_midpoints(held: Sequence) -> Sequence:
-    """The held log interpolated in time with every update at its frame interval's midpoint."""
-    t = np.array([f.timestamp for f in held.frames])
-    q = interpolated_joints(t, held.joints, reading_updates(t, held.joints), use_clock=False)
-    return dataclasses.replace(held, frames=tuple(
-        dataclasses.replace(f, joints=q[i]) for i, f in enumerate(held.frames)))
 
 
 def main() -> int:
@@ -97,7 +87,9 @@ def main() -> int:
         with tempfile.TemporaryDirectory() as tmp:
             folder = Path(tmp)
             write_dream(held, folder / "held")
-            write_dream(at_midpoints(held), folder / "midpoints")
+            # every update at its frame interval's midpoint, no log clock fitted
+            write_dream(with_interpolated_readings(held, use_clock=False)[0],
+                        folder / "midpoints")
             write_dream(seq, folder / "true")
             row = [errors_of(folder, way, seq.frames[0].T_cam_base_true) for way in WAYS]
         table.append(row)

@@ -89,9 +89,16 @@ def _check(timestamps: np.ndarray, joints: np.ndarray) -> tuple[np.ndarray, np.n
     if t.ndim != 1 or q.ndim != 2 or len(t) != len(q) or len(t) == 0:
         raise InputError(f"timestamps (F,) and joints (F, J) expected, got {t.shape} and "
                          f"{q.shape}")
+    return _check_times(t), q
+
+
+def _check_times(timestamps: np.ndarray) -> np.ndarray:
+    t = np.asarray(timestamps, dtype=float)
+    if t.ndim != 1 or len(t) == 0:
+        raise InputError(f"timestamps (F,) expected, got {t.shape}")
     if not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
         raise InputError("timestamps must be finite and in increasing order")
-    return t, q
+    return t
 
 
 def reading_updates(timestamps: np.ndarray, joints: np.ndarray,
@@ -136,13 +143,12 @@ def update_times(timestamps: np.ndarray, update_index: np.ndarray,
         >>> np.round(update_times(t, np.array([0, 3, 6, 9])) * 30, 2).tolist()
         [0.0, 2.5, 5.5, 8.5]
     """
-    t = np.asarray(timestamps, dtype=float)
+    t = _check_times(timestamps)
     index = np.asarray(update_index)
-    if (t.ndim != 1 or not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0)
-            or index.ndim != 1 or len(index) == 0 or not np.issubdtype(index.dtype, np.integer)
+    if (index.ndim != 1 or len(index) == 0 or not np.issubdtype(index.dtype, np.integer)
             or index[0] < 0 or index[-1] >= len(t) or np.any(np.diff(index) < 1)):
-        raise InputError("update_times needs finite increasing timestamps (F,) and strictly "
-                         "increasing frame indices (U,) within them")
+        raise InputError("update_times needs strictly increasing frame indices (U,) within "
+                         "the timestamps")
     lo, hi = t[np.maximum(index - 1, 0)], t[index]
     mid = np.where(index > 0, 0.5 * (lo + hi), hi)
     later = index > 0
@@ -165,9 +171,8 @@ def update_times(timestamps: np.ndarray, update_index: np.ndarray,
 def _clock_line(mid: np.ndarray) -> tuple[np.ndarray, float] | None:
     """The regular clock a + period * n fitted to the update intervals' midpoints `mid` (U,):
     (its time at each update's count n, the period); None where the spacing does not fit one.
-    Each fit's period
-    recounts the updates that changed nothing (a gap of several periods), so a long pause
-    counted from the first, frame-rounded period estimate is corrected."""
+    Each fit's period recounts the updates that changed nothing (a gap of several periods), so
+    a long pause counted from the first, frame-rounded period estimate is corrected."""
     period = float(np.median(np.diff(mid)))
     clock = None
     for _ in range(CLOCK_REFITS):
@@ -187,16 +192,15 @@ def interpolated_joints(timestamps: np.ndarray, joints: np.ndarray,
     """(F, J) every frame's joints interpolated in time between the readings' updates.
 
     Each reading is placed at its `update_times` time (`use_clock`: on a regular log clock
-    where one fits), the first frame's at t[0]; between them
-    PCHIP interpolates each joint (on rendered trajectories: 3.7 mm median camera error against
-    5.2 mm for linear interpolation, `benchmarks/held_readings.py`); after the last update the
-    last reading is held.
+    where one fits); between them PCHIP interpolates each joint (on rendered trajectories:
+    3.7 mm median camera error against 5.2 mm for linear interpolation,
+    `benchmarks/held_readings.py`); after the last update the last reading is held.
     """
     t, q = _check(timestamps, joints)
     index = updates.update_index
-    knots = update_times(t, index, use_clock)
     if len(index) < 2:
         return q.copy()
+    knots = update_times(t, index, use_clock)
     # shape-preserving cubic (no overshoot where the arm stops); linear through two readings
     curve = PchipInterpolator(knots, q[index], axis=0)
     out = curve(np.clip(t, knots[0], knots[-1]))
@@ -216,15 +220,17 @@ def sequence_updates(sequence: Sequence, settings: HeldReadingsSettings | None =
     return reading_updates(t, sequence.joints, settings)
 
 
-def with_interpolated_readings(sequence: Sequence, settings: HeldReadingsSettings | None = None
+def with_interpolated_readings(sequence: Sequence, settings: HeldReadingsSettings | None = None,
+                               use_clock: bool = True
                                ) -> tuple[Sequence, ReadingUpdates | None]:
-    """The sequence with held readings interpolated in time, and what was found
-    (`sequence_updates`); the sequence unchanged where its log is not held."""
+    """The sequence with held readings interpolated in time (`interpolated_joints`, `use_clock`
+    as there), and what was found (`sequence_updates`); the sequence unchanged where its log is
+    not held."""
     updates = sequence_updates(sequence, settings)
     if updates is None or not updates.held:
         return sequence, updates
     t = np.array([f.timestamp for f in sequence.frames])
-    q = interpolated_joints(t, sequence.joints, updates)
+    q = interpolated_joints(t, sequence.joints, updates, use_clock)
     frames = tuple(dataclasses.replace(f, joints=q[i]) for i, f in enumerate(sequence.frames))
     log.info("joint readings held between %d updates: interpolated in time",
              len(updates.update_index))

@@ -161,10 +161,10 @@ def carving_view(sequence: Sequence, robot: Robot, joints: np.ndarray, camera: C
                  T_cam_base: np.ndarray, guard: Observations | None
                  ) -> tuple[Sequence, np.ndarray, bool]:
     """What the carving looks from: the sequence at a fit's `joints` (image times) and
-    `camera`, and the fit's extrinsic aligned with the image edges (`dream.edges.
-    refine_with_edges`, guarded by the detections `guard` at the fit's keypoints) where that
-    alignment is kept: a keypoint fit can be centimetres off, and then the model's silhouette
-    misses the arm it should explain. Returns (sequence, T_cam_base, aligned)."""
+    `camera`, and the fit's extrinsic aligned with the image edges
+    (`dream.edges.refine_with_edges`, guarded by the detections `guard` at the fit's keypoints)
+    where that alignment is kept: a keypoint fit can be centimetres off, and then the model's
+    silhouette misses the arm it should explain. Returns (sequence, T_cam_base, aligned)."""
     from dream.edges import refine_with_edges
     from dream.pipeline import with_robot_joints
 

@@ -134,7 +134,7 @@ def test_a_simulated_held_log_holds_each_reading_for_its_frames():
 def test_bad_arguments_are_input_errors():
     with pytest.raises(InputError, match="strictly increasing frame indices"):
         update_times(np.arange(5.0), np.array([0, 3, 2]))
-    with pytest.raises(InputError, match="finite increasing timestamps"):
+    with pytest.raises(InputError, match="timestamps must be finite and in increasing order"):
         update_times(np.array([0.0, np.nan, 1.0]), np.array([0, 1]))
     with pytest.raises(InputError, match="min_repeat_fraction"):
         HeldReadingsSettings(min_repeat_fraction=1.5)
