@@ -86,7 +86,8 @@ def _print_diagnosis(doc: dict, out_dir: str) -> None:
     evidence = doc.get("image_evidence")
     if evidence:
         steps = ", ".join(f"{s['model']} {s['agreement']:.1%}" for s in evidence["steps"])
-        print(f"image evidence (robot outline on image edges): {steps}; supported by the "
+        print(f"image evidence (robot outline on image edges, extrinsic aligned to them): "
+              f"{steps}; supported by the "
               f"keypoints only: {', '.join(evidence['unsupported']) or 'none'}; links whose "
               f"outline disagrees: {', '.join(evidence['mismatched_links']) or 'none'}")
     truth = doc.get("truth")

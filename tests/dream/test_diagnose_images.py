@@ -54,7 +54,9 @@ def _fit(problem, T: np.ndarray, move_m: float | None = None) -> FitResult:
                      np.zeros(problem.uv.shape), 0.0, 0)
 
 
-def test_the_judge_objects_to_a_fit_that_moves_the_outline_off_the_edges(panda, tmp_path):
+def test_the_judge_scores_each_fit_at_its_own_and_at_its_aligned_extrinsic(panda, tmp_path):
+    """An extrinsic 2 cm off lowers the outline's agreement at that extrinsic (a veto), but
+    not once aligned to the edges."""
     T_true = image_dataset(panda, load_robot_meshes(panda), tmp_path)
     seq = read_sequence(tmp_path / "data")
     problem = problem_from(seq, panda, observations_from_labels(seq, panda))
@@ -62,10 +64,12 @@ def test_the_judge_objects_to_a_fit_that_moves_the_outline_off_the_edges(panda, 
     assert isinstance(judge, OutlineJudge)
     T_off = T_from_rotvec_t(np.zeros(3), np.array([OFF_M, 0.0, 0.0])) @ T_true
     true, off = _fit(problem, T_true), _fit(problem, T_off)
-    assert judge.score(true).agreement > judge.score(off).agreement
+    assert judge.score(true).agreement > judge.score(off).agreement + 0.05
+    assert judge.aligned_score(off).agreement == pytest.approx(
+        judge.aligned_score(true).agreement, abs=0.02)
+    assert judge.aligned_score(off) is judge.aligned_score(off)   # remembered per fit
     assert "contradict" in judge.veto(off, true)
-    assert judge.veto(true, off) is None
-    assert judge.veto(true, true) is None
+    assert judge.veto(true, off) is None and judge.veto(true, true) is None
 
 
 def test_a_camera_move_is_scored_with_each_frames_pose(panda, tmp_path):
@@ -97,3 +101,28 @@ def test_the_judge_draws_the_fits_own_links_and_camera(panda, tmp_path, effect, 
     assert judge.score(fit(0.0)).agreement == pytest.approx(judge.score(_fit(problem, T_true))
                                                             .agreement)
     assert judge.score(fit(value)).agreement < judge.score(fit(0.0)).agreement - 0.02
+
+
+def test_the_judge_refuses_a_link_length_that_no_extrinsic_makes_up_for(panda, tmp_path):
+    """The forearm 5 cm longer bends the drawn arm: aligning the extrinsic cannot hide it."""
+    T_true = image_dataset(panda, load_robot_meshes(panda), tmp_path)
+    seq = read_sequence(tmp_path / "data")
+    problem = problem_from(seq, panda, observations_from_labels(seq, panda))
+    judge = outline_judge(seq, problem)
+    params = tuple(p for p in candidate_params("link_length", problem)
+                   if p.name == "panda_joint5")
+    nan = np.full((7, 7), np.nan)
+
+    def fit(v: float) -> FitResult:
+        return FitResult(Model(problem, params, T_true), np.append(np.zeros(6), v), nan,
+                         np.zeros(problem.uv.shape), 0.0, 0)
+
+    assert (judge.aligned_score(fit(0.05)).agreement
+            < judge.aligned_score(fit(0.0)).agreement - 0.05)
+    assert "contradict" in judge.veto(fit(0.05), fit(0.0))
+    # a baseline whose extrinsic is off agrees less at its own extrinsic than the longer
+    # forearm at the true one, but not once each is aligned: still refused
+    off = _fit(problem, T_from_rotvec_t(np.zeros(3), np.array([OFF_M, 0.0, 0.0])) @ T_true)
+    assert judge.score(fit(0.05)).agreement > judge.score(off).agreement
+    assert "aligned to the edges" in judge.veto(fit(0.05), off)
+    assert judge.veto(fit(0.0), fit(0.05)) is None

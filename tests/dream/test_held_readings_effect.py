@@ -155,3 +155,18 @@ def test_an_effect_the_images_contradict_is_marked(monkeypatch):
     images.add_image_evidence(doc, None, [])
     assert doc["effects"][0]["image_support"] is False
     assert "only the keypoint detections support it" in doc["notes"][0]
+
+
+def test_held_readings_the_images_contradict_are_noted_as_read_from_the_log(monkeypatch):
+    """Held readings are seen in the log, not in the detections: the note says so."""
+    import dream.diagnosis.images as images
+
+    evidence = {"frames": 10, "steps": [{"model": "baseline", "agreement": 0.31},
+                                        {"model": "held_readings", "agreement": 0.29}],
+                "unsupported": ["held_readings"], "mismatched_links": []}
+    monkeypatch.setattr(images, "outline_evidence", lambda judge, steps: evidence)
+    doc = {"effects": [{"name": "held_readings"}], "verdict": ["held_readings"], "notes": []}
+    images.add_image_evidence(doc, None, [])
+    assert doc["effects"][0]["image_support"] is False
+    assert "runs of identical readings" in doc["notes"][0]
+    assert "keypoint detections" not in doc["notes"][0]
