@@ -78,7 +78,7 @@ class OutlineJudge:
     settings: EdgeSettings
     gray: np.ndarray
     background: np.ndarray | None
-    _aligned: dict = field(default_factory=dict, compare=False, repr=False)
+    _scores: dict = field(default_factory=dict, compare=False, repr=False)
 
     def _drawn(self, fit: FitResult) -> tuple[RobotMeshes, np.ndarray, np.ndarray, ScaleImages]:
         """The fit's meshes (its link lengths), their (n, V, 3) vertices at its joints at the
@@ -99,9 +99,8 @@ class OutlineJudge:
 
     def score(self, fit: FitResult) -> EdgeScore:
         """The outline's agreement at the fit's model: its link lengths, its joints at the
-        image times, its camera, and each frame's pose."""
-        meshes, P, T, images = self._drawn(fit)
-        return edge_score(meshes, P, T, images, self.settings, self.usable)
+        image times, its camera, and each frame's pose. Remembered per fit."""
+        return self._remembered(fit, "own", self._own)
 
     def aligned_score(self, fit: FitResult) -> EdgeScore:
         """`score` at the better of the fit's extrinsic and that extrinsic aligned to the image
@@ -109,17 +108,27 @@ class OutlineJudge:
         agreement the fit's robot, joints and camera can reach with the photos. A keypoint fit
         can be centimetres off; an effect is judged by what it does to the outline, not by the
         extrinsic it comes with. Remembered per fit."""
-        cached = self._aligned.get(id(fit))
-        if cached is not None and cached[0] is fit:
-            return cached[1]
+        return self._remembered(fit, "aligned", self._aligned_best)
+
+    def _remembered(self, fit: FitResult, kind: str, compute) -> EdgeScore:
+        """`compute(fit)`, once per fit and kind (the search and the report ask again)."""
+        cached = self._scores.get((id(fit), kind))
+        if cached is None or cached[0] is not fit:
+            cached = (fit, compute(fit))
+            self._scores[(id(fit), kind)] = cached
+        return cached[1]
+
+    def _own(self, fit: FitResult) -> EdgeScore:
         meshes, P, T, images = self._drawn(fit)
-        before = edge_score(meshes, P, T, images, self.settings, self.usable)
+        return edge_score(meshes, P, T, images, self.settings, self.usable)
+
+    def _aligned_best(self, fit: FitResult) -> EdgeScore:
+        before = self.score(fit)
+        meshes, P, T, images = self._drawn(fit)
         T1, _ = align_edges(P, meshes.faces, self.gray, images.camera, T, self.settings,
                             self.background, self.usable, meshes.vertex_link)
         after = edge_score(meshes, P, T1, images, self.settings, self.usable)
-        best = after if after.agreement > before.agreement else before
-        self._aligned[id(fit)] = (fit, best)
-        return best
+        return after if after.agreement > before.agreement else before
 
     def veto(self, candidate: FitResult, current: FitResult) -> str | None:
         """Why the images contradict adding an effect (`candidate`, fitted on top of
