@@ -6,7 +6,8 @@ renders 60 frames with a 0.30 x 0.22 x 0.01 m plate 0.14 m along the hand's z ax
 readings held for 0.2 s, then the same seed with no extension (null); `dream diagnose` reads
 each from its labels (`--use-labels`) or from a model's detections (`--model`). Prints the
 verdict, the box found (link, size, centre) and the camera position error against the rendered
-ground truth before and after the diagnosis's extension.
+ground truth before and after the diagnosis's extension; where a plate is not named, why not
+and the points each rigid group kept (diagnosis.json's `attached_search`).
 
 With `--polish`, each plate sequence is also calibrated from the same observations with the
 silhouette polish against its rendered masks (`dream calibrate --polish`), which show the plate:
@@ -98,7 +99,13 @@ def _row(seed: int, kind: str, doc: dict) -> str:
     before = truth.get("before", {}).get("translation_error_m", float("nan")) * 1e3
     after = truth.get("after", {}).get("translation_error_m", float("nan")) * 1e3
     verdict = ", ".join(doc["verdict"]) or "none"
-    return f"{seed:>4} {kind:>5}  {verdict:<36} {box:<42} {before:8.1f} {after:8.1f}"
+    row = f"{seed:>4} {kind:>5}  {verdict:<36} {box:<42} {before:8.1f} {after:8.1f}"
+    search = doc.get("attached_search") or {}
+    if kind == "plate" and not found and search:
+        counts = ", ".join(f"{k} {n}" for k, n in
+                           (search.get("carved_points_per_link") or {}).items())
+        row += f"\n      not named: {search['reason']}" + (f" ({counts})" if counts else "")
+    return row
 
 
 def run() -> None:

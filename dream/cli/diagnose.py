@@ -90,6 +90,9 @@ def _print_diagnosis(doc: dict, out_dir: str) -> None:
               f"{steps}; supported by the "
               f"keypoints only: {', '.join(evidence['unsupported']) or 'none'}; links whose "
               f"outline disagrees: {', '.join(evidence['mismatched_links']) or 'none'}")
+    search = doc.get("attached_search")
+    if search and not search.get("named"):
+        print(f"link_geometry: not named: {search['reason']}")
     truth = doc.get("truth")
     if truth:
         for label in ("before", "after"):

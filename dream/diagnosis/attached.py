@@ -18,7 +18,6 @@ Pure except for reading the sequence's images.
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 
 import cv2
@@ -32,8 +31,6 @@ from dream.robot.link_geometry import BOX_KIND, LinkGeometry
 from dream.sequence import Sequence
 from dream.settings_checks import check_fields
 from dream.silhouette import load_robot_meshes, render_silhouette
-
-log = logging.getLogger(__name__)
 
 MIN_DEPTH_M = 0.05   # grid points closer to the camera than this are not projected
 RIGID_TOLERANCE_M = 1e-6   # links whose relative pose varies less than this are one body
@@ -110,6 +107,41 @@ class AttachedFinding:
                 "frames": self.frames, "carved_points_per_link": dict(self.points_per_link)}
 
 
+@dataclass(frozen=True)
+class CarvingOutcome:
+    """What the carving looked at and kept, whether or not it names something.
+
+    Attributes:
+        frames: frames carved.
+        unexplained_share: share of the moving pixels the model leaves unexplained (None when
+            nothing moved).
+        points_per_link: grid points kept per rigid group, by the link that names it.
+        finding: the geometry named, or None.
+        reason: why nothing is named ("" when something is).
+    """
+
+    frames: int
+    unexplained_share: float | None
+    points_per_link: dict[str, int]
+    finding: AttachedFinding | None
+    reason: str
+
+    def note(self) -> str:
+        """The diagnosis note: the finding, or why `link_geometry` is not named."""
+        if self.finding is not None:
+            return self.finding.note()
+        counts = ", ".join(f"{k} {n}" for k, n in self.points_per_link.items())
+        return (f"link_geometry: not named: {self.reason}"
+                + (f" (points kept per link over {self.frames} frames: {counts})"
+                   if counts else ""))
+
+    def to_dict(self) -> dict:
+        return {"frames": self.frames, "unexplained_share": self.unexplained_share,
+                "carved_points_per_link": dict(self.points_per_link),
+                "named": None if self.finding is None else self.finding.geometry.link,
+                "reason": self.reason}
+
+
 def rigid_groups(robot: Robot, joints: np.ndarray, links: tuple[str, ...]
                  ) -> list[tuple[str, ...]]:
     """`links` grouped by a constant relative pose over the joint vectors (F, J), in order."""
@@ -170,8 +202,9 @@ def carve(robot: Robot, link: str, joints: np.ndarray, T_cam_base: np.ndarray, c
 
 def find_attached_geometry(sequence: Sequence, robot: Robot, joints: np.ndarray,
                            T_cam_base: np.ndarray, settings: AttachedSettings | None = None
-                           ) -> AttachedFinding | None:
-    """The geometry a moving link carries that the model lacks, or None (module doc).
+                           ) -> CarvingOutcome:
+    """What the carving finds a moving link carrying that the model lacks (module doc): the
+    geometry, or why nothing is named.
 
     Args:
         sequence: a fixed-camera sequence with images (motion masks need them).
@@ -189,28 +222,34 @@ def find_attached_geometry(sequence: Sequence, robot: Robot, joints: np.ndarray,
         robot.link_names, np.ptp(origins, axis=0).max(axis=1), strict=True)
         if travel > MotionSettings().static_link_m)
     if not moving_links:
-        return None
+        return CarvingOutcome(len(indices), None, {}, None, "no link moves over the frames")
     moving, unexplained, share = unexplained_motion(sequence, robot, joints, T_cam_base,
                                                     indices, settings)
     if share > settings.max_unexplained_share:
-        log.info("the model leaves %.0f%% of the moving pixels unexplained: too far off to look "
-                 "for attached geometry", 100 * share)
-        return None
+        return CarvingOutcome(len(indices), share, {}, None, (
+            f"the fitted model leaves {share:.0%} of the moving pixels unexplained (more than "
+            f"{settings.max_unexplained_share:.0%}): its pose or joints are too far off to tell "
+            "what the arm carries"))
     kept: list[tuple[str, np.ndarray]] = []
     for group in rigid_groups(robot, q, moving_links):
         link = _representative(robot, group)
         kept.append((link, carve(robot, link, q, T_cam_base, sequence.camera, moving,
                                  unexplained, settings)))
-    best = max(len(points) for _, points in kept)
+    counts = {k: int(len(p)) for k, p in kept}
+    best = max(counts.values())
     if best < settings.min_points:
-        return None
+        strongest = max(counts, key=counts.get)
+        return CarvingOutcome(len(indices), share, counts, None, (
+            f"the most points kept, {best} in the frame of {strongest}, are fewer than the "
+            f"{settings.min_points} that name a carried shape" if best else
+            "no point near a moving link falls on unexplained motion in enough frames"))
     link, points = [(k, p) for k, p in kept if len(p) >= settings.group_share * best][-1]
     low, high = np.percentile(points, [settings.trim_percentile,
                                        100 - settings.trim_percentile], axis=0)
     size = np.maximum(high - low, 0.0) + settings.voxel_m
     box = LinkGeometry(link, BOX_KIND, size_m=tuple(size), position_m=tuple((low + high) / 2))
-    return AttachedFinding(box, len(points), len(indices),
-                           {k: int(len(p)) for k, p in kept})
+    return CarvingOutcome(len(indices), share, counts,
+                          AttachedFinding(box, len(points), len(indices), counts), "")
 
 
 def _representative(robot: Robot, group: tuple[str, ...]) -> str:

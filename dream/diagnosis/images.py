@@ -234,8 +234,9 @@ def add_attached_geometry(doc: dict[str, Any], sequence: Sequence, fit: FitResul
                           obs: Observations | None = None) -> LinkGeometry | None:
     """The `link_geometry` box found at the final `fit` (its link lengths, joints at the image
     times and camera) by carving the images' unexplained motion (`dream.diagnosis.attached`)
-    from `carving_view`, named in the verdict and described in `image_findings`; None where
-    nothing is found, the frames lack images or the camera moved."""
+    from `carving_view`, named in the verdict and described in `image_findings`. What the
+    carving kept, found or not, goes to `attached_search`, and a note says why nothing was
+    named. None where nothing is found, the frames lack images or the camera moved."""
     from dream.diagnosis.attached import find_attached_geometry
 
     if any(f.image_path is None for f in sequence.frames) or fit.model.change_index is not None:
@@ -247,14 +248,22 @@ def add_attached_geometry(doc: dict[str, Any], sequence: Sequence, fit: FitResul
         seq, T_cam_base, aligned = carving_view(sequence, robot, joints,
                                                 extended_camera(problem.camera, ext),
                                                 fit.T_cam_base, guard)
-        found = find_attached_geometry(seq, robot, joints, T_cam_base)
+        outcome = find_attached_geometry(seq, robot, joints, T_cam_base)
     except InputError as exc:  # too few frames, an arm that hardly moves: nothing to carve
-        log.info("no attached geometry: %s", exc)
+        doc["attached_search"] = {"named": None, "reason": str(exc)}
+        doc["notes"].append(f"link_geometry: not looked for: {exc}")
         return None
+    doc["attached_search"] = {**outcome.to_dict(), "carved_at": _carved_at(aligned)}
+    doc["notes"].append(outcome.note())
+    found = outcome.finding
     if found is None:
+        log.info("%s", outcome.note())
         return None
     doc["verdict"].append("link_geometry")
     doc["image_findings"] = {"link_geometry": {found.geometry.link: {
-        **found.to_dict(), "carved_at": "edge-aligned pose" if aligned else "fit's pose"}}}
-    doc["notes"].append(found.note())
+        **found.to_dict(), "carved_at": _carved_at(aligned)}}}
     return found.geometry
+
+
+def _carved_at(aligned: bool) -> str:
+    return "edge-aligned pose" if aligned else "fit's pose"

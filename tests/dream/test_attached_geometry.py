@@ -3,19 +3,21 @@ links, the carving of unexplained motion, and `dream diagnose` naming a hidden p
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
 
 from dream.cli import main
-from dream.diagnosis.attached import AttachedSettings, carve, rigid_groups
+from dream.diagnosis.attached import AttachedSettings, carve, find_attached_geometry, rigid_groups
 from dream.extension import HeldReadings, ModelExtension, extension_yaml, read_extension
+from dream.io import read_sequence
 from dream.robot.link_geometry import BOX_KIND, LinkGeometry, with_link_geometry
 from dream.sample import random_joints
 from dream.silhouette import load_robot_meshes, render_silhouette
 from dream.transforms import look_at
-from tests.dream.test_edges import CAMERA, TARGET
+from tests.dream.test_edges import CAMERA, TARGET, image_dataset
 
 PLATE = LinkGeometry("panda_hand", BOX_KIND, size_m=(0.30, 0.22, 0.01),
                      position_m=(0.0, 0.0, 0.14))
@@ -49,6 +51,39 @@ def test_carving_recovers_a_plate_from_silhouettes(panda):
     assert len(none) == 0
 
 
+def test_carving_says_what_it_kept_and_why_nothing_is_named(panda, meshes, tmp_path):
+    """Ten images of a cluttered scene: with the URDF's own silhouettes nothing is kept; with a
+    plate at the hand the hand is named, and a bar set above every group's points, or a pose
+    that explains little, names nothing and says which rule stopped it."""
+    image_dataset(panda, meshes, tmp_path / "urdf")
+    seq = read_sequence(tmp_path / "urdf" / "data")
+    joints, T_true = np.stack([f.joints for f in seq.frames]), seq.T_cam_base_reference
+    outcome = find_attached_geometry(seq, panda, joints, T_true)
+    assert outcome.finding is None and outcome.to_dict()["named"] is None
+    assert set(outcome.points_per_link.values()) == {0} and outcome.unexplained_share < 0.05
+    assert outcome.note().startswith("link_geometry: not named: no point near a moving link")
+
+    image_dataset(panda, with_link_geometry(meshes, (PLATE,)), tmp_path / "plate")
+    seq = read_sequence(tmp_path / "plate" / "data")
+    settings = AttachedSettings(min_seen_frames=5, moving_share=0.6)  # the plate leaves the view
+    found = find_attached_geometry(seq, panda, joints, T_true, settings)
+    assert found.finding is not None and found.finding.geometry.link == "panda_hand"
+    counts = found.points_per_link
+    strongest = max(counts, key=counts.get)
+    assert counts["panda_hand"] > 0 and found.reason == ""
+    bar = counts[strongest] + 1
+    outcome = find_attached_geometry(seq, panda, joints, T_true,
+                                     dataclasses.replace(settings, min_points=bar))
+    assert outcome.finding is None and outcome.points_per_link == counts
+    assert outcome.reason == (f"the most points kept, {counts[strongest]} in the frame of "
+                              f"{strongest}, are fewer than the {bar} that name a carried shape")
+    far = T_true.copy()
+    far[:3, 3] += np.array([0.15, -0.1, 0.0])
+    outcome = find_attached_geometry(seq, panda, joints, far, settings)
+    assert outcome.finding is None and outcome.points_per_link == {}
+    assert "of the moving pixels unexplained" in outcome.reason
+
+
 @pytest.mark.slow
 def test_diagnose_names_a_hidden_plate_and_held_readings_in_rendered_images(tmp_path, capsys):
     hidden = tmp_path / "hidden.yaml"
@@ -75,5 +110,8 @@ def test_diagnose_names_a_hidden_plate_and_held_readings_in_rendered_images(tmp_
         0.5 * doc["truth"]["before"]["translation_error_m"]
     assert main(["diagnose", "--data", str(tmp_path / "null"), "--use-labels", "--out",
                  str(tmp_path / "r2")]) == 0
+    assert "link_geometry: not named: " in capsys.readouterr().out
     doc = json.loads((tmp_path / "r2" / "diagnosis.json").read_text())
     assert "link_geometry" not in doc["verdict"] and "image_findings" not in doc
+    assert doc["attached_search"]["named"] is None and doc["attached_search"]["reason"]
+    assert any(n.startswith("link_geometry: not named: ") for n in doc["notes"])
