@@ -99,13 +99,16 @@ def _row(seed: int, kind: str, doc: dict) -> str:
     before = truth.get("before", {}).get("translation_error_m", float("nan")) * 1e3
     after = truth.get("after", {}).get("translation_error_m", float("nan")) * 1e3
     verdict = ", ".join(doc["verdict"]) or "none"
-    row = f"{seed:>4} {kind:>5}  {verdict:<36} {box:<42} {before:8.1f} {after:8.1f}"
+    return f"{seed:>4} {kind:>5}  {verdict:<36} {box:<42} {before:8.1f} {after:8.1f}"
+
+
+def _not_named(doc: dict) -> str:
+    """Why a plate was not named (empty where it was): the carving's reason and counts."""
     search = doc.get("attached_search") or {}
-    if kind == "plate" and not found and search:
-        counts = ", ".join(f"{k} {n}" for k, n in
-                           (search.get("carved_points_per_link") or {}).items())
-        row += f"\n      not named: {search['reason']}" + (f" ({counts})" if counts else "")
-    return row
+    if not search or search.get("named"):
+        return ""
+    counts = ", ".join(f"{k} {n}" for k, n in (search.get("carved_points_per_link") or {}).items())
+    return f"\n      not named: {search['reason']}" + (f" ({counts})" if counts else "")
 
 
 def run() -> None:
@@ -137,7 +140,7 @@ def run() -> None:
                 row = _row(seed, kind, doc)
                 if args.polish and kind == "plate":
                     row += _polish_columns(data, work / f"r_{kind}{seed}", source)
-                print(row, flush=True)
+                print(row + (_not_named(doc) if kind == "plate" else ""), flush=True)
     n = len(args.seeds)
     print(f"link_geometry named: {named['plate']} of {n} plate sequences, {named['null']} of "
           f"{n} null sequences")

@@ -118,6 +118,34 @@ def effective_joints(joints: np.ndarray, times_s: np.ndarray | None,
     return interpolate_joints(t, q, np.asarray(times_s, dtype=float) + shift)
 
 
+def interpolated_frames(joints: np.ndarray, times_s: np.ndarray | None,
+                        time_offset_s: float | None, held: HeldReadings | None = None,
+                        joint_names: tuple[str, ...] = ()) -> np.ndarray:
+    """(F,) True where `effective_joints` places the frame between two readings; False where
+    it holds the first or the last reading because the image time (shifted by the time offset)
+    lies outside the log: after a held log's last update the joints lag the arm by up to one
+    update period. Everything is True where the readings are used as logged.
+
+        >>> t = np.arange(8) / 30
+        >>> q = np.repeat(np.arange(3.0), 3)[:8, None]      # updates at frames 0, 3, 6
+        >>> interpolated_frames(q, t, None, HeldReadings(0.1), ("j",)).tolist()
+        [True, True, True, True, True, True, False, False]
+    """
+    from dream.readings import reading_updates, update_times
+
+    joints = np.asarray(joints, dtype=float)
+    if (time_offset_s is None and held is None) or times_s is None:
+        return np.ones(len(joints), bool)
+    t = np.asarray(times_s, dtype=float)
+    last = t[-1]
+    for j in held.columns(tuple(joint_names)) if held is not None else ():
+        updates = reading_updates(t, joints[:, [j]])
+        if updates.held:
+            last = min(last, float(update_times(t, updates.update_index)[-1]))
+    query = t + (time_offset_s or 0.0) + (held.phase_s if held is not None else 0.0)
+    return (query >= t[0]) & (query <= last)
+
+
 def keypoint_points(robot: Robot, joints: np.ndarray, joint_offsets: np.ndarray | None,
                     keypoint_bias_m: Mapping[str, Any]) -> np.ndarray:
     """(F, K, 3) keypoints in the base frame: link origins, or biased points of the links."""

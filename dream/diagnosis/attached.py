@@ -25,6 +25,7 @@ import numpy as np
 
 from dream.camera import project
 from dream.edges.motion import MotionSettings, sequence_motion_masks
+from dream.errors import InputError
 from dream.polish.objective import evenly_spaced
 from dream.robot import Robot
 from dream.robot.link_geometry import BOX_KIND, LinkGeometry
@@ -201,8 +202,8 @@ def carve(robot: Robot, link: str, joints: np.ndarray, T_cam_base: np.ndarray, c
 
 
 def find_attached_geometry(sequence: Sequence, robot: Robot, joints: np.ndarray,
-                           T_cam_base: np.ndarray, settings: AttachedSettings | None = None
-                           ) -> CarvingOutcome:
+                           T_cam_base: np.ndarray, settings: AttachedSettings | None = None,
+                           usable: np.ndarray | None = None) -> CarvingOutcome:
     """What the carving finds a moving link carrying that the model lacks (module doc): the
     geometry, or why nothing is named.
 
@@ -210,12 +211,18 @@ def find_attached_geometry(sequence: Sequence, robot: Robot, joints: np.ndarray,
         sequence: a fixed-camera sequence with images (motion masks need them).
         robot: the robot; joints: (F, J) its joints at the image times (the fitted model's).
         T_cam_base: (4, 4) the fitted extrinsic.
+        usable: (F,) bool, the frames whose joints are known (default: all); the carving
+            keeps a point seen in almost every frame, so a few frames drawn at the wrong
+            joints (a held log's last reading past its last update) undo it.
 
     Raises:
         InputError: no images, too few frames, or an arm that hardly moves (motion masks).
     """
     settings = settings or AttachedSettings()
-    indices = evenly_spaced(np.arange(len(sequence)), settings.frames)
+    usable = np.ones(len(sequence), bool) if usable is None else np.asarray(usable, bool)
+    if usable.shape != (len(sequence),):
+        raise InputError(f"usable must be ({len(sequence)},) bool, got {usable.shape}")
+    indices = evenly_spaced(np.flatnonzero(usable), settings.frames)
     q = np.asarray(joints, dtype=float)[indices]
     origins = robot.link_poses(q, robot.link_names)[..., :3, 3]            # (n, L, 3)
     moving_links = tuple(name for name, travel in zip(

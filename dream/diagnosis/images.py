@@ -40,8 +40,10 @@ from dream.edges.score import EdgeScore, edge_score
 from dream.edges.search import ScaleImages, scale_images
 from dream.edges.settings import EdgeSettings
 from dream.errors import InputError
-from dream.extended import extended_camera, extended_robot, image_joints
+from dream.extended import extended_camera, extended_robot, image_joints, interpolated_frames
+from dream.extension import HeldReadings
 from dream.polish.objective import evenly_spaced
+from dream.readings import reading_updates, update_times
 from dream.robot import Robot
 from dream.robot.link_geometry import LinkGeometry
 from dream.sequence import Sequence
@@ -231,13 +233,16 @@ def carving_view(sequence: Sequence, robot: Robot, joints: np.ndarray, camera: C
 
 
 def add_attached_geometry(doc: dict[str, Any], sequence: Sequence, fit: FitResult,
-                          obs: Observations | None = None) -> LinkGeometry | None:
+                          obs: Observations | None = None, held: HeldReadings | None = None
+                          ) -> LinkGeometry | None:
     """The `link_geometry` box found at the final `fit` (its link lengths, joints at the image
     times and camera) by carving the images' unexplained motion (`dream.diagnosis.attached`)
-    from `carving_view`, named in the verdict and described in `image_findings`. What the
-    carving kept, found or not, goes to `attached_search`, and a note says why nothing was
-    named. None where nothing is found, the frames lack images or the camera moved."""
-    from dream.diagnosis.attached import find_attached_geometry
+    from `carving_view`, named in the verdict and described in `image_findings`. With `held`
+    readings (the fit's joints interpolated from the sequence's logged ones), the frames
+    nearest the log's updates are carved (`carving_frames`). What the carving kept,
+    found or not, goes to `attached_search`, and a note says why nothing was named. None
+    where nothing is found, the frames lack images or the camera moved."""
+    from dream.diagnosis.attached import AttachedSettings, find_attached_geometry
 
     if any(f.image_path is None for f in sequence.frames) or fit.model.change_index is not None:
         return None
@@ -248,7 +253,10 @@ def add_attached_geometry(doc: dict[str, Any], sequence: Sequence, fit: FitResul
         seq, T_cam_base, aligned = carving_view(sequence, robot, joints,
                                                 extended_camera(problem.camera, ext),
                                                 fit.T_cam_base, guard)
-        outcome = find_attached_geometry(seq, robot, joints, T_cam_base)
+        settings = AttachedSettings()
+        outcome = find_attached_geometry(seq, robot, joints, T_cam_base, settings, carving_frames(
+            sequence.joints, problem.times_s, ext.time_offset_s, held, robot.joint_names,
+            settings.frames))
     except InputError as exc:  # too few frames, an arm that hardly moves: nothing to carve
         doc["attached_search"] = {"named": None, "reason": str(exc)}
         doc["notes"].append(f"link_geometry: not looked for: {exc}")
@@ -263,6 +271,37 @@ def add_attached_geometry(doc: dict[str, Any], sequence: Sequence, fit: FitResul
     doc["image_findings"] = {"link_geometry": {found.geometry.link: {
         **found.to_dict(), "carved_at": _carved_at(aligned)}}}
     return found.geometry
+
+
+def carving_frames(logged: np.ndarray, times_s: np.ndarray | None, time_offset_s: float | None,
+                   held: HeldReadings | None, joint_names: tuple[str, ...], count: int
+                   ) -> np.ndarray:
+    """(F,) bool: the frames to carve (at least `count` where there are as many).
+
+    The carving keeps a point that falls on the arm's motion in almost every frame, so it
+    needs the joints right in each. Interpolated held readings are exact at the log's updates,
+    least sure midway between them, and unknown past the last update
+    (`interpolated_frames`). With `held` readings (`logged`: the readings as logged), the
+    frames nearest each update come first, then the next nearest, and so on over the
+    interpolated frames, until there are `count`; otherwise every frame."""
+    usable = interpolated_frames(logged, times_s, time_offset_s, held, joint_names)
+    if held is None or times_s is None:
+        return usable
+    t = np.asarray(times_s, dtype=float)
+    updates = reading_updates(t, logged)
+    if not updates.held:
+        return usable
+    shift = (time_offset_s or 0.0) + held.phase_s
+    gap = np.abs(t[:, None] + shift - update_times(t, updates.update_index)[None, :])
+    nearest, distance = gap.argmin(axis=1), gap.min(axis=1)
+    candidates = np.flatnonzero(usable)
+    order = candidates[np.lexsort((distance[candidates], nearest[candidates]))]
+    first = np.r_[True, nearest[order][1:] != nearest[order][:-1]]
+    rank = np.full(len(t), np.iinfo(int).max)
+    rank[order] = np.arange(len(order)) - np.maximum.accumulate(
+        np.where(first, np.arange(len(order)), 0))
+    tiers = np.sort(rank[order])
+    return rank <= tiers[min(count, len(tiers)) - 1] if len(tiers) else usable
 
 
 def _carved_at(aligned: bool) -> str:

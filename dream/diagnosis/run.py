@@ -319,7 +319,8 @@ def run_diagnosis(sequence: Sequence, robot: Robot, obs: Observations, report_di
     analysis = analyse(baseline_res)
     steps = _model_steps(diagnosis)
     add_image_evidence(doc, judge, steps)
-    found = add_attached_geometry(doc, sequence, steps[-1][1], obs)
+    found = add_attached_geometry(doc, sequence, steps[-1][1], obs,
+                                  diagnosis.extension.held_readings)
     if found is not None:
         diagnosis = dataclasses.replace(diagnosis, extension=diagnosis.extension.merged(
             ModelExtension(link_geometry=(found,))))

@@ -11,6 +11,7 @@ import pytest
 
 from dream.cli import main
 from dream.diagnosis.attached import AttachedSettings, carve, find_attached_geometry, rigid_groups
+from dream.errors import InputError
 from dream.extension import HeldReadings, ModelExtension, extension_yaml, read_extension
 from dream.io import read_sequence
 from dream.robot.link_geometry import BOX_KIND, LinkGeometry, with_link_geometry
@@ -62,6 +63,8 @@ def test_carving_says_what_it_kept_and_why_nothing_is_named(panda, meshes, tmp_p
     assert outcome.finding is None and outcome.to_dict()["named"] is None
     assert set(outcome.points_per_link.values()) == {0} and outcome.unexplained_share < 0.05
     assert outcome.note().startswith("link_geometry: not named: no point near a moving link")
+    with pytest.raises(InputError, match="usable must be"):
+        find_attached_geometry(seq, panda, joints, T_true, usable=np.ones(3, bool))
 
     image_dataset(panda, with_link_geometry(meshes, (PLATE,)), tmp_path / "plate")
     seq = read_sequence(tmp_path / "plate" / "data")

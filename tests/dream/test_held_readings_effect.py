@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from dream.cli import main
+from dream.diagnosis.images import carving_frames
 from dream.diagnosis.run import diagnose_sequence
 from dream.errors import InputError
-from dream.extended import effective_joints
+from dream.extended import effective_joints, interpolated_frames
 from dream.extension import (
     HeldReadings,
     ModelExtension,
@@ -22,7 +23,7 @@ from dream.extension import (
 from dream.inject import InjectionSettings, make_injected_sequence
 from dream.io import read_sequence, write_dream
 from dream.pipeline import observations_from_labels, robot_for
-from dream.readings import sequence_updates
+from dream.readings import held_update_times, reading_updates, sequence_updates
 
 FPS_PERIOD = 1 / 30
 
@@ -58,6 +59,37 @@ def test_inject_writes_a_held_log_and_interpolation_recovers_the_joints():
         InjectionSettings(num_frames=150, frame_period_s=FPS_PERIOD, pixel_noise_px=1.5, seed=1))
     true = np.stack([f.joints for f in nominal.frames])
     assert np.abs(corrected - true).mean() < 0.25 * np.abs(logged - true).mean()
+
+
+def test_frames_past_the_last_update_and_the_frames_nearest_the_updates():
+    """A 5 Hz log beside 30 Hz images, its updates half-way between frames (where the log's
+    clock puts them): frames past the last update are marked not interpolated (they hold a
+    stale reading), and the frames the carving takes, nearest the updates, carry less
+    interpolation error than the others, spread over the whole sequence."""
+    times = np.arange(150) * FPS_PERIOD
+    rates = np.array([[0.9, 1.4, 2.0]])                       # rad/s, one column per joint
+
+    def true(t):
+        return 0.5 * np.sin(rates * np.asarray(t)[:, None])
+
+    held = HeldReadings(0.2)
+    logged = true(held_update_times(times, held.period_s, FPS_PERIOD / 2))
+    names = ("a", "b", "c")
+    error = np.abs(effective_joints(logged, times, None, held, names) - true(times)).max(1)
+    inside = interpolated_frames(logged, times, None, held, names)
+    last_update = reading_updates(times, logged).update_index[-1]
+    assert not inside[last_update:].any() and inside[:last_update].all()
+    assert error[~inside].mean() > 10 * error[inside].mean()
+    late = interpolated_frames(logged, times, 0.1, None, names)   # readings 0.1 s late
+    assert late.sum() == len(times) - 3 and not late[-3:].any()
+    assert interpolated_frames(logged, times, None).all()
+
+    chosen = carving_frames(logged, times, None, held, names, 40)
+    assert chosen.sum() >= 40 and not (chosen & ~inside).any()
+    assert error[chosen].mean() < 0.6 * error[inside & ~chosen].mean()
+    index = np.flatnonzero(chosen)
+    assert index[0] < 0.1 * len(times) and index[-1] > 0.8 * len(times)
+    assert carving_frames(logged, times, None, None, names, 40).all()
 
 
 def _diagnosis(seq):
