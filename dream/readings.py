@@ -208,6 +208,23 @@ def interpolated_joints(timestamps: np.ndarray, joints: np.ndarray,
     return out
 
 
+def after_last_update(timestamps: np.ndarray, updates: ReadingUpdates,
+                      use_clock: bool = True) -> np.ndarray:
+    """(F,) True for the frames after a held log's last update (`update_times`, `use_clock` as
+    there): `interpolated_joints` holds the last reading there, which lags the arm by up to one
+    update period. All False where the log is not held.
+
+        >>> t = np.arange(8) / 30
+        >>> q = np.repeat(np.arange(3.0), 3)[:8, None]      # updates at frames 0, 3, 6
+        >>> after_last_update(t, reading_updates(t, q)).tolist()
+        [False, False, False, False, False, False, True, True]
+    """
+    t = _check_times(timestamps)
+    if not updates.held or len(updates.update_index) < 2:
+        return np.zeros(len(t), bool)
+    return t > update_times(t, updates.update_index, use_clock)[-1]
+
+
 def sequence_updates(sequence: Sequence, settings: HeldReadingsSettings | None = None
                      ) -> ReadingUpdates | None:
     """`reading_updates` of a sequence; None where its frames have no timestamps or are not
@@ -235,6 +252,25 @@ def with_interpolated_readings(sequence: Sequence, settings: HeldReadingsSetting
     log.info("joint readings held between %d updates: interpolated in time",
              len(updates.update_index))
     return dataclasses.replace(sequence, frames=frames), updates
+
+
+def without_frames_after_last_update(sequence: Sequence, updates: ReadingUpdates | None,
+                                     use_clock: bool = True) -> tuple[Sequence, tuple[str, ...]]:
+    """The sequence less the frames after its held log's last update (`after_last_update`),
+    whose joints are not known, and their names; unchanged where the log is not held."""
+    if updates is None or not updates.held:
+        return sequence, ()
+    t = np.array([f.timestamp for f in sequence.frames], dtype=float)
+    late = after_last_update(t, updates, use_clock)
+    if late.all():
+        raise InputError("every frame lies after the joint log's last update",
+                         sequence.source, "give a log with at least two updates")
+    names = tuple(f.name for f, drop in zip(sequence.frames, late, strict=True) if drop)
+    if names:
+        log.info("%d frames after the joint log's last update left out: %s", len(names),
+                 ", ".join(names))
+    return dataclasses.replace(sequence, frames=tuple(
+        f for f, drop in zip(sequence.frames, late, strict=True) if not drop)), names
 
 
 UPDATE_TIME_TOLERANCE = 1e-9   # of a period

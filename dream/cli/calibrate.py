@@ -242,6 +242,7 @@ def _apply_extension(request: CalibrateRequest, extension, seq, robot, obs, out:
     from dream.diagnosis.run import apply_extension_to_observations
     from dream.extended import extended_robot
 
+    frames = len(seq)
     try:
         seq, obs = apply_extension_to_observations(seq, robot, obs, extension)
         robot = extended_robot(robot, extension)
@@ -249,8 +250,10 @@ def _apply_extension(request: CalibrateRequest, extension, seq, robot, obs, out:
         if exc.path is not None:
             raise
         raise InputError(exc.problem, request.model_extension, exc.fix) from None
+    left = (f" ({frames - len(seq)} of {frames} frames left out: before the camera move or "
+            "outside the joint log's span)" if len(seq) < frames else "")
     print(f"model extension {request.model_extension}: "
-          f"{', '.join(extension.effects) or 'no effect'}", file=out)
+          f"{', '.join(extension.effects) or 'no effect'}{left}", file=out)
     return seq, robot, obs
 
 

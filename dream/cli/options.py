@@ -177,21 +177,35 @@ def _camera_text(values: tuple[float, ...]) -> str:
 def joint_readings(seq: Any, interpolate: bool, out: TextIO | None = None
                    ) -> tuple[Any, dict | None]:
     """(the sequence, RESULT.json's `joint_readings` or None without timestamps): with a held
-    joint log, the readings interpolated in time when `interpolate`, said on `out`."""
-    from dream.readings import sequence_updates, with_interpolated_readings
+    joint log and `interpolate`, the readings interpolated in time and the frames after the
+    log's last update left out (their joints are not known), said on `out`."""
+    from dream.readings import (
+        sequence_updates,
+        with_interpolated_readings,
+        without_frames_after_last_update,
+    )
 
     updates = sequence_updates(seq)
     if updates is None or not updates.held:
         return seq, None if updates is None else updates.to_dict(interpolated=False)
+    frames, late = len(seq), ()
     if interpolate:
         seq, _ = with_interpolated_readings(seq)
+        seq, late = without_frames_after_last_update(seq, updates)
     if out is not None:
         done = (f"interpolated in time between the updates (--joint-readings {AS_LOGGED} keeps "
                 "them)" if interpolate else "kept as logged")
-        print(f"joint readings: {len(updates.update_index)} updates in {len(seq)} frames, one "
+        print(f"joint readings: {len(updates.update_index)} updates in {frames} frames, one "
               f"every {updates.period_s:.3f} s ({updates.repeat_fraction:.0%} of the frames "
               f"repeat the previous reading): {done}", file=out)
-    return seq, updates.to_dict(interpolated=interpolate)
+        if late:
+            print(f"  {len(late)} frames after the log's last update left out (the last reading "
+                  f"lags the arm there by up to {updates.period_s:.3f} s): {', '.join(late)}",
+                  file=out)
+    doc = updates.to_dict(interpolated=interpolate)
+    if interpolate:
+        doc["frames_left_out"] = list(late)
+    return seq, doc
 
 
 def request_from(cls: type[Request], args: argparse.Namespace) -> Request:

@@ -3,8 +3,9 @@
 A joint log that updates slower than the camera repeats its last reading between updates (runs
 of identical readings while the images change). That is seen in the data itself, not fitted:
 the diagnosis names it `held_readings` (its period and the held joints), interpolates the
-readings in time between their updates (`dream.readings.interpolated_joints`, as `dream
-calibrate` does), and searches the catalog on the corrected readings. A constant lag of the
+readings in time between their updates (`dream.readings.interpolated_joints`), leaves out the
+keypoints of the frames after the last update (their joints are not known), as `dream
+calibrate` does, and searches the catalog on the corrected readings. A constant lag of the
 updates behind the images is then `time_offset` on top of it, so held readings are never
 reported as a time offset.
 
@@ -24,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from dream.diagnosis.fit import Problem
-from dream.extended import effective_joints
+from dream.extended import effective_joints, interpolated_frames
 from dream.extension import HeldReadings
 from dream.readings import reading_updates
 
@@ -44,10 +45,15 @@ def held_readings_in(problem: Problem) -> HeldReadings | None:
 
 
 def corrected_problem(problem: Problem, held: HeldReadings) -> Problem:
-    """The problem with the held readings interpolated in time between their updates."""
-    joints = effective_joints(problem.joints, problem.times_s, None, held,
-                              problem.robot.joint_names)
-    return dataclasses.replace(problem, joints=joints)
+    """The problem with the held readings interpolated in time between their updates, and the
+    keypoints of the frames after the log's last update unobserved: their joints are the last
+    reading, which lags the arm by up to one period (`dream.extended.interpolated_frames`)."""
+    names = problem.robot.joint_names
+    joints = effective_joints(problem.joints, problem.times_s, None, held, names)
+    known = interpolated_frames(problem.joints, problem.times_s, None, held, names)
+    uv = problem.uv.copy()
+    uv[~known] = np.nan
+    return dataclasses.replace(problem, joints=joints, uv=uv)
 
 
 def held_entry(problem: Problem, held: HeldReadings, logged_rmse_px: float,

@@ -147,15 +147,21 @@ class OutlineJudge:
         return None
 
 
-def outline_judge(sequence: Sequence, problem: Problem,
-                  settings: EdgeSettings | None = None) -> OutlineJudge | None:
+def outline_judge(sequence: Sequence, problem: Problem, settings: EdgeSettings | None = None,
+                  known: np.ndarray | None = None) -> OutlineJudge | None:
     """The `OutlineJudge` of a sequence whose every frame has an image (None otherwise, or
-    where the images show no edges near the outline)."""
+    where the images show no edges near the outline), scoring frames evenly spaced among
+    those whose joints are `known` ((F,) bool; default all: a held log's frames after its last
+    update hold a stale reading, which no effect can make agree with the image)."""
     if any(f.image_path is None for f in sequence.frames):
         return None
     settings = settings or EdgeSettings()
     meshes = load_robot_meshes(problem.robot, settings.max_triangles)
-    chosen = evenly_spaced(np.arange(len(sequence)), settings.max_search_frames)
+    known = np.ones(len(sequence), bool) if known is None else np.asarray(known, bool)
+    if known.shape != (len(sequence),) or not known.any():
+        raise InputError(f"known must be ({len(sequence)},) bool with a True, got "
+                         f"{known.shape}")
+    chosen = evenly_spaced(np.flatnonzero(known), settings.max_search_frames)
     try:
         gray, background = frames_and_background(sequence, chosen, settings, problem.camera)
         usable, background, _ = moving_vertices(meshes, problem.joints,

@@ -28,7 +28,7 @@ from dream.diagnosis.held import (
 from dream.diagnosis.remaining import remaining_misfit
 from dream.diagnosis.select import DiagnoseSettings, Diagnosis, Verdict, diagnose
 from dream.errors import InputError
-from dream.extended import extended_camera, extended_robot
+from dream.extended import extended_camera, extended_robot, interpolated_frames
 from dream.extension import ModelExtension, extension_yaml
 from dream.io.atomic import check_output_folder, dumps, staged_directory, write_bytes_atomic
 from dream.metrics import add_per_frame, pose_errors
@@ -310,7 +310,10 @@ def run_diagnosis(sequence: Sequence, robot: Robot, obs: Observations, report_di
 
     report_dir = check_output_folder(report_dir)  # before the analysis, not after it
     extension_path = report_dir / EXTENSION_FILE
-    judge = outline_judge(sequence, problem_from(sequence, robot, obs))
+    logged = problem_from(sequence, robot, obs)
+    held = held_readings_in(logged)
+    judge = outline_judge(sequence, logged, known=None if held is None else interpolated_frames(
+        logged.joints, logged.times_s, None, held, robot.joint_names))
     doc, diagnosis, problem = diagnose_sequence(sequence, robot, obs, settings, progress,
                                                 extension_path, judge)
     baseline_res = _residual_set(problem, diagnosis.baseline.fit, diagnosis.mask)
@@ -377,8 +380,10 @@ def apply_extension_to_observations(sequence: Sequence, robot: Robot, obs: Obser
     """`dream calibrate --model-extension`: the sequence with the corrected camera and the
     joints its images show (`dream.extended.image_joints`: timing effects and joint offsets,
     for the image refinements, which render `extended_robot`), and the observations with the
-    extended keypoint positions; with a camera move, only the frames from the move on (the
-    extrinsic reported is the camera's latest pose)."""
+    extended keypoint positions. Frames whose joints the timing effects cannot place between
+    two readings (`dream.extended.interpolated_frames`: after a held log's last update) are
+    left out, and with a camera move so are the frames before it (the extrinsic reported is
+    the camera's latest pose)."""
     from dream.extended import extended_points, frames_after_move, image_joints
     from dream.pipeline import with_robot_joints
 
@@ -388,15 +393,24 @@ def apply_extension_to_observations(sequence: Sequence, robot: Robot, obs: Obser
     obs = dataclasses.replace(obs, P_base=P_base)
     sequence = with_robot_joints(sequence, robot, image_joints(robot, joints, times, extension))
     sequence = dataclasses.replace(sequence, camera=extended_camera(sequence.camera, extension))
+    keep = interpolated_frames(joints, times, extension.time_offset_s, extension.held_readings,
+                               robot.joint_names)
+    if not keep.all():
+        log.info("%d frames whose joints lie outside the log left out: %s",
+                 int((~keep).sum()), ", ".join(n for n, k in zip(names, keep, strict=True)
+                                               if not k))
     if extension.camera_moved is not None:
-        keep = frames_after_move(names, extension)
-        if keep.sum() < 1:
-            raise InputError("no frame is left after the camera move")
-        sequence = dataclasses.replace(sequence, frames=tuple(
-            f for f, k in zip(sequence.frames, keep, strict=True) if k))
-        obs = Observations(obs.P_base[keep], obs.uv[keep], obs.confidence[keep],
-                           tuple(n for n, k in zip(names, keep, strict=True) if k),
-                           obs.keypoint_names)
+        keep &= frames_after_move(names, extension)
         log.info("camera moved at frame %s: solving from the %d frames after it",
                  extension.camera_moved.frame, int(keep.sum()))
+    if keep.sum() < 1:
+        raise InputError("no frame is left after the camera move and the joint log's span",
+                         fix="check the extension's camera_moved frame and time effects")
+    if keep.all():
+        return sequence, obs
+    sequence = dataclasses.replace(sequence, frames=tuple(
+        f for f, k in zip(sequence.frames, keep, strict=True) if k))
+    obs = Observations(obs.P_base[keep], obs.uv[keep], obs.confidence[keep],
+                       tuple(n for n, k in zip(names, keep, strict=True) if k),
+                       obs.keypoint_names)
     return sequence, obs

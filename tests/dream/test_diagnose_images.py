@@ -10,6 +10,7 @@ from dream.diagnosis.fit import Model, candidate_params
 from dream.diagnosis.fit.model import FitResult
 from dream.diagnosis.images import OutlineJudge, outline_judge
 from dream.diagnosis.run import diagnose_sequence, problem_from
+from dream.errors import InputError
 from dream.io import read_sequence
 from dream.pipeline import observations_from_labels
 from dream.silhouette import load_robot_meshes
@@ -70,6 +71,10 @@ def test_the_judge_scores_each_fit_at_its_own_and_at_its_aligned_extrinsic(panda
     assert judge.aligned_score(off) is judge.aligned_score(off)   # remembered per fit
     assert "contradict" in judge.veto(off, true)
     assert judge.veto(true, off) is None and judge.veto(true, true) is None
+    known = np.arange(len(seq)) < len(seq) - 2     # e.g. a held log's last update before them
+    assert outline_judge(seq, problem, known=known).chosen.max() < len(seq) - 2
+    with pytest.raises(InputError, match="known must be"):
+        outline_judge(seq, problem, known=known[1:])
 
 
 def test_a_camera_move_is_scored_with_each_frames_pose(panda, tmp_path):

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from dream.cli import main
+from dream.diagnosis.held import corrected_problem, held_readings_in
 from dream.diagnosis.images import carving_frames
-from dream.diagnosis.run import diagnose_sequence
+from dream.diagnosis.run import diagnose_sequence, problem_from
 from dream.errors import InputError
 from dream.extended import effective_joints, interpolated_frames
 from dream.extension import (
@@ -92,6 +93,18 @@ def test_frames_past_the_last_update_and_the_frames_nearest_the_updates():
     assert carving_frames(logged, times, None, None, names, 40).all()
 
 
+def test_the_diagnosis_fits_no_keypoint_of_a_frame_after_the_last_update():
+    seq = _injected(0.2)
+    robot = robot_for(seq, None, seq.keypoint_names)
+    problem = problem_from(seq, robot, observations_from_labels(seq, robot))
+    held = held_readings_in(problem)
+    corrected = corrected_problem(problem, held)
+    inside = interpolated_frames(problem.joints, problem.times_s, None, held, robot.joint_names)
+    assert 0 < (~inside).sum() <= round(0.2 / FPS_PERIOD)
+    assert not corrected.observed[~inside].any()
+    np.testing.assert_array_equal(corrected.uv[inside], problem.uv[inside])
+
+
 def _diagnosis(seq):
     robot = robot_for(seq, None, seq.keypoint_names)
     doc, _, _ = diagnose_sequence(seq, robot, observations_from_labels(seq, robot))
@@ -131,6 +144,14 @@ def test_calibrate_honours_a_held_readings_extension(tmp_path):
                      *extra]) == 0
         results[name] = np.array(json.loads(out.read_text())["T_cam_base"])
     assert np.allclose(results["extension"], results["interpolated"], atol=1e-9)
+    late = tmp_path / "late.yaml"   # the readings 0.1 s late: the last 3 frames are not known
+    late.write_text(extension_yaml(ModelExtension(time_offset_s=0.1, robot="panda")))
+    out = tmp_path / "late.json"
+    assert main(["calibrate", "--data", str(data), "--use-labels", "--out", str(out),
+                 "--model-extension", str(late)]) == 0
+    frames = [f["frame"] for f in json.loads(out.read_text())["per_frame"]]
+    kept = [f.name for f in seq.frames][:len(frames)]
+    assert frames == kept and len(seq) - len(frames) >= 3
     assert not np.allclose(results["logged"], results["interpolated"], atol=1e-4)
 
 

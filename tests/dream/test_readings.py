@@ -16,11 +16,13 @@ from dream.io import write_dream
 from dream.metrics import pose_errors
 from dream.readings import (
     HeldReadingsSettings,
+    after_last_update,
     held_log,
     interpolated_joints,
     reading_updates,
     update_times,
     with_interpolated_readings,
+    without_frames_after_last_update,
 )
 
 FRAME_PERIOD_S = 1.0 / 30.0
@@ -50,6 +52,18 @@ def test_linear_motion_sampled_between_frames_is_recovered_exactly():
     before_last = t <= t_sample[-1]
     np.testing.assert_allclose(q[before_last], (t[:, None] * speed)[before_last], atol=1e-12)
     np.testing.assert_array_equal(q[~before_last], q_logged[~before_last])  # the last is held
+    late = after_last_update(t, reading_updates(t, q_logged))
+    np.testing.assert_array_equal(late, ~before_last)   # exactly the frames it cannot know
+    assert late.sum() == HOLD_FRAMES
+
+
+def test_nothing_is_late_in_a_log_that_is_not_held():
+    t = np.arange(30) * FRAME_PERIOD_S
+    q = np.sin(t)[:, None]
+    assert not after_last_update(t, reading_updates(t, q)).any()
+    seq = make_injected_sequence(InjectionSettings(num_frames=12, frame_period_s=FRAME_PERIOD_S,
+                                                   seed=1))
+    assert without_frames_after_last_update(seq, None) == (seq, ())
 
 
 def _clock_log(period_s: float, phase_s: float, frames: int, skip: int, seed: int):
@@ -156,15 +170,20 @@ def test_calibrating_a_held_log_interpolates_it_and_says_so(tmp_path, capsys):
         assert main(["calibrate", "--data", str(tmp_path / "data"), "--use-labels",
                      "--joint-readings", mode, "--out", str(out)]) == 0
         doc = json.loads(out.read_text())
-        assert doc["joint_readings"] == {"held": True, "interpolated": mode == "interpolate",
-                                         "updates": 20, "repeat_fraction": pytest.approx(100 / 119),
-                                         "update_period_s": pytest.approx(0.2)}
+        expected = {"held": True, "interpolated": mode == "interpolate", "updates": 20,
+                    "repeat_fraction": pytest.approx(100 / 119),
+                    "update_period_s": pytest.approx(0.2)}
+        if mode == "interpolate":   # the last update shows at frame 114: 114-119 are stale
+            expected["frames_left_out"] = [f"{i:06d}" for i in range(114, 120)]
+            assert len(doc["per_frame"]) == 114
+        assert doc["joint_readings"] == expected
         t_err, _ = pose_errors(np.array(doc["T_cam_base"])[None],
                                seq.frames[0].T_cam_base_true[None])
         errors[mode] = t_err[0]
     printed = capsys.readouterr().out
     assert "joint readings: 20 updates in 120 frames, one every 0.200 s" in printed
     assert "interpolated in time" in printed and "kept as logged" in printed
+    assert "6 frames after the log's last update left out" in printed
     assert errors["interpolate"] < 0.3 * errors["as-logged"]
     assert errors["interpolate"] < 0.005
     metrics = tmp_path / "metrics.json"
