@@ -261,10 +261,7 @@ def without_frames_after_last_update(sequence: Sequence, updates: ReadingUpdates
     if updates is None or not updates.held:
         return sequence, ()
     t = np.array([f.timestamp for f in sequence.frames], dtype=float)
-    late = after_last_update(t, updates, use_clock)
-    if late.all():
-        raise InputError("every frame lies after the joint log's last update",
-                         sequence.source, "give a log with at least two updates")
+    late = after_last_update(t, updates, use_clock)   # never frame 0: it has the first reading
     names = tuple(f.name for f, drop in zip(sequence.frames, late, strict=True) if drop)
     if names:
         log.info("%d frames after the joint log's last update left out: %s", len(names),
