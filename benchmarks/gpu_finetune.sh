@@ -10,13 +10,16 @@
 #    SYNTH_CONFIG=FILE in the environment (e.g. configs/synth/real_world.yaml), half the frames
 #    and half the time go to that recipe instead (seed SEED + 1, DATA_DIR/train_<SEED+1>_<name>);
 # 2. measures the training speed in a 30-second probe run;
-# 3. trains from INIT_CKPT's weights (fresh optimiser, one-cycle schedule) on every DATA_DIR/train_*
+# 3. trains from INIT_CKPT's weights (a checkpoint or an exported .onnx; `none`: the recipe's own
+#    start, e.g. a pretrained encoder's ImageNet weights with model.encoder=efficientnet_lite0;
+#    fresh optimiser, one-cycle schedule) on every DATA_DIR/train_*
 #    folder with a step budget of TRAIN_S seconds at the measured speed, rounded up to whole
 #    epochs (benchmarks/train_curve.py, GPU, batch 64, lr 0.002), into OUT_DIR/run (which must
 #    not exist: a run folder with a checkpoint would be resumed instead);
 # 4. writes OUT_DIR/best.ckpt and OUT_DIR/last.ckpt without optimiser state (13 MB each: what
 #    `dream export` and `--set trainer.init_from=` need).
-# Extra KEY=VALUE arguments override the recipe (train_curve.py --set).
+# Extra KEY=VALUE arguments override the recipe (train_curve.py --set). `dream` runs as
+# `python -m dream.cli`, so a checkout on PYTHONPATH needs no installed console script.
 #
 # The bundled model's GPU stages ran it on an NVIDIA H100 with 16 CPU cores and MUJOCO_GL=egl;
 # the model card (dream/models/panda_cpu.md) gives the commands and figures. Without a GPU, add
@@ -30,6 +33,8 @@ fi
 init=$1 out=$2 data=$3 seed=$4 num=$5 render_s=$6 train_s=$7
 shift 7
 repo=$(cd "$(dirname "$0")/.." && pwd)
+init_from=$init
+if [ "$init" = none ]; then init_from=null; fi
 batch=64
 workers=$(nproc)
 loaders=$((workers > 2 ? workers - 1 : 1))
@@ -45,8 +50,8 @@ render() {  # SEED NUM SECONDS DIR [dream synth options...]: a render that fails
   shift 4
   echo "== render: up to $n frames, seed $seed, $workers processes, at most $seconds s ($*)"
   set +e
-  timeout "$seconds" dream synth --robot panda --num "$n" --workers "$workers" --seed "$seed" \
-    "$@" --out "$dir" | tr '\r' '\n' | tail -n 2
+  timeout "$seconds" python -m dream.cli synth --robot panda --num "$n" --workers "$workers" \
+    --seed "$seed" "$@" --out "$dir" | tr '\r' '\n' | tail -n 2
   local rc=${PIPESTATUS[0]}
   set -e
   if [ "$rc" -ne 0 ] && [ "$rc" -ne 124 ]; then  # 124: stopped by the time limit
@@ -62,8 +67,8 @@ if [ -n "${SYNTH_CONFIG:-}" ]; then
 else
   render "$seed" "$num" "$render_s" "$data/train_$seed" --set distractors.held_prob=0.5
 fi
-dream synth --robot panda --num 200 --workers "$workers" --seed 2000 --out "$data/heldout" \
-  | tr '\r' '\n' | tail -n 1
+python -m dream.cli synth --robot panda --num 200 --workers "$workers" --seed 2000 \
+  --out "$data/heldout" | tr '\r' '\n' | tail -n 1
 train_dirs=$(ls -d "$data"/train_* | paste -sd, -)
 first_train=${train_dirs%%,*}
 frames=$(find "$data" -path "$data/train_*/[0-9]*.json" | wc -l)
@@ -71,7 +76,7 @@ echo "== training frames: $frames in [$train_dirs]"
 
 common=(--set "data.train=[$train_dirs]" --set trainer.accelerator=gpu --set trainer.devices=1
         --set data.batch_size=$batch --set data.num_workers=$loaders --set optim.lr=0.002
-        --set "trainer.init_from=$init" --set trainer.checkpoint_every_n_steps=0
+        --set "trainer.init_from=$init_from" --set trainer.checkpoint_every_n_steps=0
         --set trainer.time_budget_minutes=null)  # its own probe sets the steps
 for kv in "$@"; do common+=(--set "$kv"); done
 
@@ -89,7 +94,7 @@ if [ -z "$rate" ]; then
     "$out/probe.log" >&2
   exit 1
 fi
-steps=$(python -c "print(int($rate * $train_s / $batch))")
+steps=$(python -c "print(max(1, int($rate * $train_s / $batch)))")
 echo "== train: $rate images/s -> $steps steps of $batch for $train_s s"
 python "$repo/benchmarks/train_curve.py" "$first_train" "$data/heldout" --out "$out/run" \
   --minutes "$(python -c "print(1.2 * $train_s / 60)")" --eval-every-s 60 "${common[@]}" \
