@@ -6,12 +6,16 @@ error) explains most of it. What is left over, frame after frame, is the arm's s
 motion, and anything the arm carries that the URDF does not describe: a tool, a gripper, a held
 board. Only the last moves rigidly with a link. So, for each rigid group of moving links (links
 whose relative pose stays the same over the frames), a grid of points fixed in the group's link
-frame is carved (space carving): a point is kept when it projects into moving pixels in almost
-every frame where it is in the image, and into unexplained pixels in a good share of them. The
-kept points of the most distal group that keeps about as many as the best group are the
-attached geometry; their trimmed bounding box in that link's frame becomes a `link_geometry`
-box (`dream.robot.link_geometry`). A single view cannot tell a plate's thickness along the
-line of sight, so the box is a visual hull: too thick, rarely too small.
+frame is carved (space carving): a point is kept when it projects into moving pixels in most
+frames where it is in the image, and into unexplained pixels in a good share of them. The most
+distal group that keeps about as many points as the best group carries the attached geometry;
+carved again with moving pixels asked for in almost every frame, its points' trimmed bounding
+box in that link's frame becomes a `link_geometry` box (`dream.robot.link_geometry`). The
+looser carving picks the link: the motion masks miss a carried object wherever it matches the
+scene behind it in colour or is seen edge-on (a thin plate), and the stricter one then keeps
+more of the swept object in the frame of a proximal link than in its own. The stricter one
+shapes the box, which the looser one thickens. A single view cannot tell a plate's thickness
+along the line of sight, so the box is a visual hull: too thick, rarely too small.
 
 Pure except for reading the sequence's images.
 """
@@ -47,9 +51,17 @@ class AttachedSettings:
         voxel_m, half_extent_m: the grid around each link origin: spacing and half size.
         dilate_px: the model silhouette grows by this (per 320 px of width) before it explains.
         min_seen_frames: a grid point must be in the image in at least this many frames.
-        moving_share: ... and in moving or model pixels in at least this share of them,
+        moving_share: ... and in moving or model pixels in at least this share of them, to
+            shape the box (its points, where they are at least `box_share` of those of
+            `link_moving_share`, else those),
+        link_moving_share: the share that carves the points which choose the link (on
+            rendered plate sequences a thin plate drops out of the motion masks in up to a
+            quarter of the frames),
         unexplained_share: ... and in unexplained pixels in at least this share.
         min_points: fewer kept points: nothing attached.
+        box_share: the stricter carving's points shape the box where they are at least this
+            share of the looser one's (the object is then in almost every motion mask; where
+            it drops out of some, the stricter carving keeps only a part of it).
         group_share: a more distal group wins when it keeps this share of the best group's
             points: a wrist joint that hardly moves makes the groups on both sides of it carve
             alike, and tools are attached at the distal end far more often.
@@ -68,9 +80,11 @@ class AttachedSettings:
     dilate_px: float = 3.0
     min_seen_frames: int = 10
     moving_share: float = 0.9
+    link_moving_share: float = 0.7
     unexplained_share: float = 0.3
     min_points: int = 20
     group_share: float = 0.4
+    box_share: float = 0.4
     trim_percentile: float = 5.0
     max_unexplained_share: float = 0.5
     background_arm_share: float = 0.5
@@ -78,10 +92,15 @@ class AttachedSettings:
     def __post_init__(self) -> None:
         check_fields(self, "attached geometry",
                      positive_ints=("frames", "min_seen_frames", "min_points"),
-                     positive=("voxel_m", "half_extent_m", "moving_share",
-                               "unexplained_share", "group_share", "max_unexplained_share",
+                     positive=("voxel_m", "half_extent_m", "moving_share", "link_moving_share",
+                               "unexplained_share", "group_share", "box_share",
+                               "max_unexplained_share",
                                "background_arm_share"),
                      non_negative=("dilate_px", "trim_percentile"))
+        if self.link_moving_share > self.moving_share:
+            raise InputError(f"attached geometry: link_moving_share ({self.link_moving_share}) "
+                             f"must not exceed moving_share ({self.moving_share}): the looser "
+                             "carving picks the link, the stricter one shapes the box")
 
 
 @dataclass(frozen=True)
@@ -179,8 +198,11 @@ def unexplained_motion(sequence: Sequence, robot: Robot, joints: np.ndarray,
 
 
 def carve(robot: Robot, link: str, joints: np.ndarray, T_cam_base: np.ndarray, camera,
-          moving: np.ndarray, unexplained: np.ndarray, settings: AttachedSettings) -> np.ndarray:
-    """(N, 3) the grid points in `link`'s frame kept by the carving (module doc)."""
+          moving: np.ndarray, unexplained: np.ndarray, settings: AttachedSettings,
+          moving_share: float | None = None) -> np.ndarray:
+    """(N, 3) the grid points in `link`'s frame kept by the carving (module doc), on moving
+    pixels in at least `moving_share` of the frames that see them (default: the settings')."""
+    moving_share = settings.moving_share if moving_share is None else moving_share
     axis = np.arange(-settings.half_extent_m, settings.half_extent_m + 1e-9, settings.voxel_m)
     grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
     T_base_link = robot.link_poses(joints, [link])[:, 0]
@@ -196,7 +218,7 @@ def carve(robot: Robot, link: str, joints: np.ndarray, T_cam_base: np.ndarray, c
         seen += ok
         on_moving[ok] += moving[f][v[ok], u[ok]]
         on_unexplained[ok] += unexplained[f][v[ok], u[ok]]
-    keep = ((seen >= settings.min_seen_frames) & (on_moving >= settings.moving_share * seen)
+    keep = ((seen >= settings.min_seen_frames) & (on_moving >= moving_share * seen)
             & (on_unexplained >= settings.unexplained_share * seen))
     return grid[keep]
 
@@ -241,7 +263,7 @@ def find_attached_geometry(sequence: Sequence, robot: Robot, joints: np.ndarray,
     for group in rigid_groups(robot, q, moving_links):
         link = _representative(robot, group)
         kept.append((link, carve(robot, link, q, T_cam_base, sequence.camera, moving,
-                                 unexplained, settings)))
+                                 unexplained, settings, settings.link_moving_share)))
     counts = {k: int(len(p)) for k, p in kept}
     best = max(counts.values())
     if best < settings.min_points:
@@ -251,6 +273,9 @@ def find_attached_geometry(sequence: Sequence, robot: Robot, joints: np.ndarray,
             f"{settings.min_points} that name a carried shape" if best else
             "no point near a moving link falls on unexplained motion in enough frames"))
     link, points = [(k, p) for k, p in kept if len(p) >= settings.group_share * best][-1]
+    strict = carve(robot, link, q, T_cam_base, sequence.camera, moving, unexplained, settings)
+    points = strict if len(strict) >= max(settings.box_share * len(points),
+                                          settings.min_points) else points
     low, high = np.percentile(points, [settings.trim_percentile,
                                        100 - settings.trim_percentile], axis=0)
     size = np.maximum(high - low, 0.0) + settings.voxel_m

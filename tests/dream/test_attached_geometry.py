@@ -52,6 +52,49 @@ def test_carving_recovers_a_plate_from_silhouettes(panda):
     assert len(none) == 0
 
 
+class _Sequence:
+    """What the carving reads of a sequence once its masks are given: its length and camera."""
+
+    def __init__(self, frames: int, camera):
+        self.frames, self.camera = frames, camera
+
+    def __len__(self) -> int:
+        return self.frames
+
+
+def test_the_looser_carving_picks_the_link_when_the_object_drops_out_of_some_masks(
+        panda, monkeypatch):
+    """A plate missing from the motion masks in a quarter of the frames (seen edge-on, or in
+    the background's colour): the strict carving alone keeps too little of it in the hand's
+    frame, the looser one names the hand, and the box still spans the plate."""
+    import dream.diagnosis.attached as attached
+
+    meshes = load_robot_meshes(panda)
+    q = random_joints(np.random.default_rng(1), panda, 16, 0.8)
+    T = look_at(TARGET + np.array([1.3, 0.5, 0.6]), TARGET)
+    true = with_link_geometry(meshes, (PLATE,))
+    model = np.stack([render_silhouette(meshes, qi, T, CAMERA) for qi in q])
+    moving = np.stack([render_silhouette(true, qi, T, CAMERA) for qi in q])
+    moving[::4] = model[::4]                          # the plate drops out of 4 of 16 masks
+    masks = (moving | model, moving & ~model, float((moving & ~model).sum() / moving.sum()))
+    monkeypatch.setattr(attached, "unexplained_motion", lambda *args: masks)
+    seq = _Sequence(len(q), CAMERA)
+
+    found = find_attached_geometry(seq, panda, q, T)
+    assert found.finding is not None and found.finding.geometry.link == "panda_hand"
+    size = np.array(found.finding.geometry.size_m)
+    assert np.all(np.abs(size[:2] - np.array(PLATE.size_m[:2])) < 0.06), size
+    settings = AttachedSettings()
+    loose = carve(panda, "panda_hand", q, T, CAMERA, *masks[:2], settings,
+                  settings.link_moving_share)
+    strict = carve(panda, "panda_hand", q, T, CAMERA, *masks[:2], settings)
+    assert found.finding.points == len(loose) > len(strict) / settings.box_share  # a part
+    extent = np.ptp(strict, axis=0)[:2] + settings.voxel_m
+    assert np.any(extent < np.array(PLATE.size_m[:2]) - 0.06), extent
+    with pytest.raises(InputError, match="must not exceed moving_share"):
+        AttachedSettings(moving_share=0.6, link_moving_share=0.7)
+
+
 def test_carving_says_what_it_kept_and_why_nothing_is_named(panda, meshes, tmp_path):
     """Ten images of a cluttered scene: with the URDF's own silhouettes nothing is kept; with a
     plate at the hand the hand is named, and a bar set above every group's points, or a pose
@@ -68,7 +111,8 @@ def test_carving_says_what_it_kept_and_why_nothing_is_named(panda, meshes, tmp_p
 
     image_dataset(panda, with_link_geometry(meshes, (PLATE,)), tmp_path / "plate")
     seq = read_sequence(tmp_path / "plate" / "data")
-    settings = AttachedSettings(min_seen_frames=5, moving_share=0.6)  # the plate leaves the view
+    settings = AttachedSettings(min_seen_frames=5, moving_share=0.6,  # the plate leaves
+                                link_moving_share=0.6)               # the view
     found = find_attached_geometry(seq, panda, joints, T_true, settings)
     assert found.finding is not None and found.finding.geometry.link == "panda_hand"
     counts = found.points_per_link
