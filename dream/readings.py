@@ -266,8 +266,7 @@ def without_frames_after_last_update(sequence: Sequence, updates: ReadingUpdates
     if names:
         log.info("%d frames after the joint log's last update left out: %s", len(names),
                  ", ".join(names))
-    return dataclasses.replace(sequence, frames=tuple(
-        f for f, drop in zip(sequence.frames, late, strict=True) if not drop)), names
+    return sequence.subset(~late), names
 
 
 UPDATE_TIME_TOLERANCE = 1e-9   # of a period

@@ -6,7 +6,7 @@ CLI consume only this. Arrays are stored read-only.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -157,6 +157,15 @@ class Sequence:
 
     def __len__(self) -> int:
         return len(self.frames)
+
+    def subset(self, keep: np.ndarray) -> Sequence:
+        """The sequence of the frames where `keep` ((F,) bool) is True, in their order."""
+        keep = np.asarray(keep)
+        if keep.dtype != bool or keep.shape != (len(self.frames),):
+            raise InputError(f"a frame subset must be ({len(self.frames)},) bool, got "
+                             f"{keep.dtype} {keep.shape}", self.source)
+        return replace(self, frames=tuple(f for f, k in zip(self.frames, keep, strict=True)
+                                          if k))
 
     @property
     def joints(self) -> np.ndarray:

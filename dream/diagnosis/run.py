@@ -408,8 +408,7 @@ def apply_extension_to_observations(sequence: Sequence, robot: Robot, obs: Obser
                          fix="check the extension's camera_moved frame and time effects")
     if keep.all():
         return sequence, obs
-    sequence = dataclasses.replace(sequence, frames=tuple(
-        f for f, k in zip(sequence.frames, keep, strict=True) if k))
+    sequence = sequence.subset(keep)
     obs = Observations(obs.P_base[keep], obs.uv[keep], obs.confidence[keep],
                        tuple(n for n, k in zip(names, keep, strict=True) if k),
                        obs.keypoint_names)

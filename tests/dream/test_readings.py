@@ -66,6 +66,19 @@ def test_nothing_is_late_in_a_log_that_is_not_held():
     assert without_frames_after_last_update(seq, None) == (seq, ())
 
 
+def test_a_frame_subset_keeps_the_chosen_frames_in_order():
+    seq = make_injected_sequence(InjectionSettings(num_frames=6, frame_period_s=FRAME_PERIOD_S,
+                                                   seed=1))
+    keep = np.array([True, False, True, True, False, False])
+    part = seq.subset(keep)
+    assert [f.name for f in part.frames] == [seq.frames[i].name for i in (0, 2, 3)]
+    assert part.camera == seq.camera and part.keypoint_names == seq.keypoint_names
+    with pytest.raises(InputError, match=r"must be \(6,\) bool"):
+        seq.subset(np.ones(5, bool))
+    with pytest.raises(InputError, match="bool"):
+        seq.subset(np.array([1, 0, 1, 1, 0, 0]))
+
+
 def _clock_log(period_s: float, phase_s: float, frames: int, skip: int, seed: int):
     """Frame times, the frames where a log sampled every `period_s` shows a new reading (`skip`
     updates left out: the arm stood still) and the true sample times of those updates."""
