@@ -33,15 +33,22 @@ def test_links_that_keep_their_relative_pose_form_one_group(panda):
     assert rigid_groups(panda, q, links) == [links]
 
 
-def test_carving_recovers_a_plate_from_silhouettes(panda):
-    """Frames whose moving pixels are the robot with a plate, explained by the URDF's: the
-    points kept in the hand's frame span the plate's extent (its thickness is a visual hull)."""
+def _plate_silhouettes(panda):
+    """16 random joint vectors seen from one camera: (q, T_cam_base, the silhouettes with the
+    plate at the hand, the URDF's silhouettes)."""
     meshes = load_robot_meshes(panda)
     q = random_joints(np.random.default_rng(1), panda, 16, 0.8)
     T = look_at(TARGET + np.array([1.3, 0.5, 0.6]), TARGET)
     true = with_link_geometry(meshes, (PLATE,))
     moving = np.stack([render_silhouette(true, qi, T, CAMERA) for qi in q])
     model = np.stack([render_silhouette(meshes, qi, T, CAMERA) for qi in q])
+    return q, T, moving, model
+
+
+def test_carving_recovers_a_plate_from_silhouettes(panda):
+    """Frames whose moving pixels are the robot with a plate, explained by the URDF's: the
+    points kept in the hand's frame span the plate's extent (its thickness is a visual hull)."""
+    q, T, moving, model = _plate_silhouettes(panda)
     settings = AttachedSettings()
     points = carve(panda, "panda_hand", q, T, CAMERA, moving | model, moving & ~model, settings)
     assert len(points) >= settings.min_points
@@ -69,12 +76,7 @@ def test_the_looser_carving_picks_the_link_when_the_object_drops_out_of_some_mas
     frame, the looser one names the hand, and the box still spans the plate."""
     import dream.diagnosis.attached as attached
 
-    meshes = load_robot_meshes(panda)
-    q = random_joints(np.random.default_rng(1), panda, 16, 0.8)
-    T = look_at(TARGET + np.array([1.3, 0.5, 0.6]), TARGET)
-    true = with_link_geometry(meshes, (PLATE,))
-    model = np.stack([render_silhouette(meshes, qi, T, CAMERA) for qi in q])
-    moving = np.stack([render_silhouette(true, qi, T, CAMERA) for qi in q])
+    q, T, moving, model = _plate_silhouettes(panda)
     moving[::4] = model[::4]                          # the plate drops out of 4 of 16 masks
     masks = (moving | model, moving & ~model, float((moving & ~model).sum() / moving.sum()))
     monkeypatch.setattr(attached, "unexplained_motion", lambda *args: masks)
