@@ -197,12 +197,39 @@ def unexplained_motion(sequence: Sequence, robot: Robot, joints: np.ndarray,
     return motion | model, unexplained, float(unexplained.sum() / max(int(motion.sum()), 1))
 
 
+@dataclass(frozen=True)
+class GridVotes:
+    """A link frame's grid points and, for each, the carved frames that see it and how many of
+    them put it on moving and on unexplained pixels: what the carving thresholds."""
+
+    grid: np.ndarray
+    seen: np.ndarray
+    on_moving: np.ndarray
+    on_unexplained: np.ndarray
+
+    def kept(self, settings: AttachedSettings, moving_share: float) -> np.ndarray:
+        """(N, 3) the points on moving pixels in at least `moving_share` of the frames that
+        see them (module doc)."""
+        keep = ((self.seen >= settings.min_seen_frames)
+                & (self.on_moving >= moving_share * self.seen)
+                & (self.on_unexplained >= settings.unexplained_share * self.seen))
+        return self.grid[keep]
+
+
 def carve(robot: Robot, link: str, joints: np.ndarray, T_cam_base: np.ndarray, camera,
           moving: np.ndarray, unexplained: np.ndarray, settings: AttachedSettings,
           moving_share: float | None = None) -> np.ndarray:
     """(N, 3) the grid points in `link`'s frame kept by the carving (module doc), on moving
     pixels in at least `moving_share` of the frames that see them (default: the settings')."""
-    moving_share = settings.moving_share if moving_share is None else moving_share
+    votes = grid_votes(robot, link, joints, T_cam_base, camera, moving, unexplained, settings)
+    return votes.kept(settings, settings.moving_share if moving_share is None else moving_share)
+
+
+def grid_votes(robot: Robot, link: str, joints: np.ndarray, T_cam_base: np.ndarray, camera,
+               moving: np.ndarray, unexplained: np.ndarray, settings: AttachedSettings
+               ) -> GridVotes:
+    """The votes of the frames `joints` (n, J) with masks `moving`, `unexplained` (n, H, W)
+    for the grid around `link`'s origin."""
     axis = np.arange(-settings.half_extent_m, settings.half_extent_m + 1e-9, settings.voxel_m)
     grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
     T_base_link = robot.link_poses(joints, [link])[:, 0]
@@ -218,9 +245,7 @@ def carve(robot: Robot, link: str, joints: np.ndarray, T_cam_base: np.ndarray, c
         seen += ok
         on_moving[ok] += moving[f][v[ok], u[ok]]
         on_unexplained[ok] += unexplained[f][v[ok], u[ok]]
-    keep = ((seen >= settings.min_seen_frames) & (on_moving >= moving_share * seen)
-            & (on_unexplained >= settings.unexplained_share * seen))
-    return grid[keep]
+    return GridVotes(grid, seen, on_moving, on_unexplained)
 
 
 def find_attached_geometry(sequence: Sequence, robot: Robot, joints: np.ndarray,
@@ -259,11 +284,10 @@ def find_attached_geometry(sequence: Sequence, robot: Robot, joints: np.ndarray,
             f"the fitted model leaves {share:.0%} of the moving pixels unexplained (more than "
             f"{settings.max_unexplained_share:.0%}): its pose or joints are too far off to tell "
             "what the arm carries"))
-    kept: list[tuple[str, np.ndarray]] = []
-    for group in rigid_groups(robot, q, moving_links):
-        link = _representative(robot, group)
-        kept.append((link, carve(robot, link, q, T_cam_base, sequence.camera, moving,
-                                 unexplained, settings, settings.link_moving_share)))
+    votes = {link: grid_votes(robot, link, q, T_cam_base, sequence.camera, moving, unexplained,
+                              settings)
+             for link in (_representative(robot, g) for g in rigid_groups(robot, q, moving_links))}
+    kept = [(link, v.kept(settings, settings.link_moving_share)) for link, v in votes.items()]
     counts = {k: int(len(p)) for k, p in kept}
     best = max(counts.values())
     if best < settings.min_points:
@@ -273,7 +297,7 @@ def find_attached_geometry(sequence: Sequence, robot: Robot, joints: np.ndarray,
             f"{settings.min_points} that name a carried shape" if best else
             "no point near a moving link falls on unexplained motion in enough frames"))
     link, points = [(k, p) for k, p in kept if len(p) >= settings.group_share * best][-1]
-    strict = carve(robot, link, q, T_cam_base, sequence.camera, moving, unexplained, settings)
+    strict = votes[link].kept(settings, settings.moving_share)
     points = strict if len(strict) >= max(settings.box_share * len(points),
                                           settings.min_points) else points
     low, high = np.percentile(points, [settings.trim_percentile,
