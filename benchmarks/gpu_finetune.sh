@@ -9,14 +9,15 @@
 #    held-out frames (seed 2000) for the curve; a render that fails stops the script. With
 #    SYNTH_CONFIG=FILE in the environment (e.g. configs/synth/real_world.yaml), half the frames
 #    and half the time go to that recipe instead (seed SEED + 1, DATA_DIR/train_<SEED+1>_<name>);
-# 2. measures the training speed in a 30-second probe run;
-# 3. trains from INIT_CKPT's weights (a checkpoint or an exported .onnx; `none`: the recipe's own
+# 2. trains from INIT_CKPT's weights (a checkpoint or an exported .onnx; `none`: the recipe's own
 #    start, e.g. a pretrained encoder's ImageNet weights with model.encoder=efficientnet_lite0;
-#    fresh optimiser, one-cycle schedule) on every DATA_DIR/train_*
-#    folder with a step budget of TRAIN_S seconds at the measured speed, rounded up to whole
-#    epochs (benchmarks/train_curve.py, GPU, batch 64, lr 0.002), into OUT_DIR/run (which must
-#    not exist: a run folder with a checkpoint would be resumed instead);
-# 4. writes OUT_DIR/best.ckpt and OUT_DIR/last.ckpt without optimiser state (13 MB each: what
+#    fresh optimiser, one-cycle schedule) on every DATA_DIR/train_* folder for TRAIN_S seconds
+#    of training (benchmarks/train_curve.py, GPU, batch 64, lr 0.002) into OUT_DIR/run (which
+#    must not exist: a run folder with a checkpoint would be resumed instead). The recipe's time
+#    budget plans the steps: its probe, then revisions from the rate measured during the run
+#    (train/budget.py), since the loaders of a GPU run reach full speed only after a minute or
+#    so, and a plan from the first seconds leaves much of the time unused;
+# 3. writes OUT_DIR/best.ckpt and OUT_DIR/last.ckpt without optimiser state (13 MB each: what
 #    `dream export` and `--set trainer.init_from=` need).
 # Extra KEY=VALUE arguments override the recipe (train_curve.py --set). `dream` runs as
 # `python -m dream.cli`, so a checkout on PYTHONPATH needs no installed console script.
@@ -74,31 +75,16 @@ first_train=${train_dirs%%,*}
 frames=$(find "$data" -path "$data/train_*/[0-9]*.json" | wc -l)
 echo "== training frames: $frames in [$train_dirs]"
 
+minutes=$(python -c "print($train_s / 60)")
 common=(--set "data.train=[$train_dirs]" --set trainer.accelerator=gpu --set trainer.devices=1
         --set data.batch_size=$batch --set data.num_workers=$loaders --set optim.lr=0.002
         --set "trainer.init_from=$init_from" --set trainer.checkpoint_every_n_steps=0
-        --set trainer.time_budget_minutes=null)  # its own probe sets the steps
+        --set trainer.time_budget_minutes="$minutes" --set trainer.max_steps=null)
 for kv in "$@"; do common+=(--set "$kv"); done
 
-echo "== probe: 30 s"
-rm -rf "$out/probe"
-probe_rc=0
-python "$repo/benchmarks/train_curve.py" "$first_train" "$data/heldout" \
-  --out "$out/probe" --minutes 0.5 --eval-every-s 100000 --eval-frames 8 "${common[@]}" \
-  --set trainer.max_steps=100000 > "$out/probe.log" 2>&1 || probe_rc=$?
-rate=$(python -c 'import json, sys; print(json.load(open(sys.argv[1]))["final"]["images_per_s"])' \
-  "$out/probe/curve.json" 2>/dev/null || true)
-rm -rf "$out/probe"
-if [ -z "$rate" ]; then
-  echo "gpu_finetune.sh: the probe (exit $probe_rc) wrote no speed (its curve.json); see" \
-    "$out/probe.log" >&2
-  exit 1
-fi
-steps=$(python -c "print(max(1, int($rate * $train_s / $batch)))")
-echo "== train: $rate images/s -> $steps steps of $batch for $train_s s"
+echo "== train: $train_s s of training"
 python "$repo/benchmarks/train_curve.py" "$first_train" "$data/heldout" --out "$out/run" \
-  --minutes "$(python -c "print(1.2 * $train_s / 60)")" --eval-every-s 60 "${common[@]}" \
-  --set trainer.max_steps="$steps"
+  --minutes "$(python -c "print(1.2 * $minutes)")" --eval-every-s 60 "${common[@]}"
 
 python - "$out" <<'EOF'
 import sys

@@ -6,6 +6,7 @@ import csv
 import math
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -104,6 +105,25 @@ def test_the_budget_clock_leaves_out_excluded_work_and_survives_a_checkpoint():
     now[0] = 140.0
     assert (resumed.spent_s(), resumed.deadline_s) == (35.0, 60.0)
 
+
+
+def _fake_trainer(step: int) -> SimpleNamespace:
+    strategy = SimpleNamespace(reduce_boolean_decision=lambda decision, all: decision)
+    return SimpleNamespace(global_step=step, should_stop=False, strategy=strategy,
+                           optimizers=[SimpleNamespace(param_groups=[{"lr": 1e-3}])])
+
+
+def test_a_new_run_whose_probe_spent_the_budget_still_trains_one_step():
+    stop = budget.BudgetStop(1, 60.0, spent_s=75.0, clock=lambda: 0.0)
+    fresh = _fake_trainer(0)
+    stop.on_train_start(fresh, None)
+    assert not fresh.should_stop                         # its one planned step is taken
+    fresh.global_step = 1
+    stop.on_train_batch_end(fresh, None, None, None, 0)
+    assert fresh.should_stop
+    resumed = _fake_trainer(40)                          # a resumed run that had spent it all
+    budget.BudgetStop(100, 60.0, spent_s=75.0, clock=lambda: 0.0).on_train_start(resumed, None)
+    assert resumed.should_stop
 
 
 def _planned_speed(steps_that_fit: int, budget_s: float):
