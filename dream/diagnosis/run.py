@@ -29,7 +29,7 @@ from dream.diagnosis.remaining import remaining_misfit
 from dream.diagnosis.select import DiagnoseSettings, Diagnosis, Verdict, diagnose
 from dream.errors import InputError
 from dream.extended import extended_camera, extended_robot, interpolated_frames
-from dream.extension import ModelExtension, extension_yaml
+from dream.extension import HeldReadings, ModelExtension, extension_yaml
 from dream.io.atomic import check_output_folder, dumps, staged_directory, write_bytes_atomic
 from dream.metrics import add_per_frame, pose_errors
 from dream.pipeline import joints_in_robot_order, truth_poses
@@ -258,11 +258,20 @@ def diagnose_sequence(sequence: Sequence, robot: Robot, obs: Observations,
     """The diagnosis of a sequence, in memory: (diagnosis.json document, Diagnosis, Problem).
     With a `judge` (`dream.diagnosis.images.OutlineJudge`), an effect the images contradict is
     not accepted."""
+    logged = problem_from(sequence, robot, obs)
+    return _diagnose_logged(sequence, obs, logged, held_readings_in(logged), settings, progress,
+                            extension_path, judge)
+
+
+def _diagnose_logged(sequence: Sequence, obs: Observations, logged: Problem,
+                     held: HeldReadings | None, settings: DiagnoseSettings | None, progress,
+                     extension_path: Path | None, judge
+                     ) -> tuple[dict[str, Any], Diagnosis, Problem]:
+    """`diagnose_sequence` on the problem of the readings as logged and the held readings
+    found in them."""
     camera = sequence.fixed_camera("diagnose a sequence recorded by one camera")
-    problem = problem_from(sequence, robot, obs)
     start = calibrate_all(obs, camera)
-    held = held_readings_in(problem)
-    logged = problem
+    problem = logged
     if held is not None:  # found in the data: the search runs on the interpolated readings
         problem = corrected_problem(problem, held)
     diagnosis = diagnose(problem, start.fit.T_cam_base, settings, progress,
@@ -314,8 +323,8 @@ def run_diagnosis(sequence: Sequence, robot: Robot, obs: Observations, report_di
     held = held_readings_in(logged)
     judge = outline_judge(sequence, logged, known=None if held is None else interpolated_frames(
         logged.joints, logged.times_s, None, held, robot.joint_names))
-    doc, diagnosis, problem = diagnose_sequence(sequence, robot, obs, settings, progress,
-                                                extension_path, judge)
+    doc, diagnosis, problem = _diagnose_logged(sequence, obs, logged, held, settings, progress,
+                                               extension_path, judge)
     baseline_res = _residual_set(problem, diagnosis.baseline.fit, diagnosis.mask)
     final_res = None if not diagnosis.accepted else _residual_set(problem, diagnosis.final.fit,
                                                                   diagnosis.mask)
