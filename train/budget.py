@@ -315,9 +315,10 @@ class BudgetStop(Callback):
         spent = self.spent_s()
         self._run_start = (trainer.global_step, spent)
         self._next_replan_s = spent + REPLAN_FRACTION * self.deadline_s
+        # a resumed run that had spent its budget stops; a new run whose probe took it all
+        # still trains its one planned step
         if spent >= self.deadline_s and trainer.global_step > 0:
-            trainer.should_stop = True   # a resumed run that had spent its budget; a new run
-            # whose probe took it all still trains its one planned step
+            trainer.should_stop = True
 
     def _replan(self, trainer: L.Trainer, pl_module: L.LightningModule, step: int,
                 spent: float) -> None:
