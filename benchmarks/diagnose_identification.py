@@ -14,6 +14,8 @@ diagnosis does), leaves residuals r; signal = sum(r^2) / noise^2, the expected c
 drop of the true model over the baseline (the noncentrality). Below a few tens no test at the
 diagnosis's false-alarm level can name the effect reliably; the table splits the rates there
 (held readings alone are read from the data, not from this signal, and are left out of it).
+It ends with a check of the stated sigmas: (estimate - truth) / sigma over every parameter of
+the named effects, which has unit spread where they are honest.
 
 A trial with held readings films at 30 frames/s (a joint log of 3-10 Hz against the camera)
 for as long as the others (`--frames` at 10 frames/s).
@@ -99,7 +101,19 @@ def run_trial(effects: tuple[str, ...], seed: int, frames: int) -> dict:
             "named": all(s.named for s in score["scores"]),
             "details": [f"{s.name}: {s.detail}" for s in score["scores"]],
             "extra": score["extra"], "seconds": seconds,
+            "z": [v for s in score["scores"] for v in s.z],
             "gain": doc["gain"], "truth": doc.get("truth")}
+
+
+def print_sigma_check(z: list[float]) -> None:
+    """Whether the stated sigmas are honest: the spread of (estimate - truth) / sigma over every
+    parameter of the effects named (unit and normal where they are)."""
+    if not z:
+        return
+    z = np.abs(np.asarray(z))
+    print(f"stated sigmas: {len(z)} parameters of named effects, RMS (estimate - truth) / sigma "
+          f"{np.sqrt(np.mean(z ** 2)):.2f} (honest: 1), beyond 2 sigma {np.mean(z > 2):.1%} "
+          f"(4.6 %), beyond 3 sigma {int(np.sum(z > 3))} ({len(z) * 0.0027:.1f} expected)")
 
 
 def trials(args: argparse.Namespace) -> list[tuple[tuple[str, ...], int]]:
@@ -175,6 +189,7 @@ def main() -> int:
         rs = [r for r in hidden if signal_class(r["signal"]) == label]
         print(f"{'hidden, ' + label:34s} {len(rs):6d} {'':6s} "
               f"{sum(r['identified'] for r in rs) / len(rs):10.0%}")
+    print_sigma_check([v for r in results for v in r["z"]])
     print(f"median diagnosis time {np.median([r['seconds'] for r in results]):.1f} s; "
           f"wall {time.perf_counter() - started:.0f} s")
     if args.json:

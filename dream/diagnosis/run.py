@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from dream.calibration import Observations, calibrate_all
-from dream.diagnosis.fit import FitResult, Problem
+from dream.diagnosis.fit import FitResult, Problem, undetermined_covariance
 from dream.diagnosis.held import (
     corrected_problem,
     fold_sampling_phase,
@@ -61,15 +61,18 @@ def problem_from(sequence: Sequence, robot: Robot, obs: Observations) -> Problem
                    frame_times(sequence), obs.uv_found, tuple(f.name for f in sequence.frames))
 
 
-def _params_with_sigma(fit: FitResult, effect: str) -> tuple[dict, dict]:
-    """(params, sigma) of one effect of a fit, in the extended_model.yaml vocabulary."""
+def _params_with_sigma(fit: FitResult, effect: str, undetermined: np.ndarray | None = None
+                       ) -> tuple[dict, dict]:
+    """(params, sigma) of one effect of a fit, in the extended_model.yaml vocabulary; the sigma
+    includes the `undetermined` covariance (`dream.diagnosis.fit.undetermined_covariance`)."""
     ext = fit.model.extension(fit.x)
     params = ext.effect_params(effect)
+    variance = np.diag(fit.covariance) + (0.0 if undetermined is None else np.diag(undetermined))
     sigma: dict[str, Any] = {}
     for i, p in enumerate(fit.model.params):
         if p.effect != effect:
             continue
-        s = float(fit.sigma[6 + i])
+        s = float(np.sqrt(variance[6 + i])) if variance[6 + i] > 0 else float("nan")
         if effect == "keypoint_bias":
             sigma.setdefault(p.group, [0.0, 0.0, 0.0])["xyz".index(p.name[-1])] = s
         elif effect == "intrinsics_error":  # relative parameters -> pixels
@@ -84,21 +87,33 @@ def _params_with_sigma(fit: FitResult, effect: str) -> tuple[dict, dict]:
     return params, sigma
 
 
-def _effect_entry(verdict: Verdict, final: FitResult, accepted: list[str]) -> dict[str, Any]:
+def _undetermined(evaluations, fit: FitResult, diagnosis: Diagnosis) -> np.ndarray:
+    """The covariance that the parameters the `evaluations` could not determine add to `fit`."""
+    held = tuple(p for ev in evaluations if ev is not None and ev.identifiability is not None
+                 for p in ev.identifiability.undetermined)
+    return undetermined_covariance(fit, held, diagnosis.mask, diagnosis.scale_px)
+
+
+def _effect_entry(verdict: Verdict, final: FitResult, accepted: list[str],
+                  final_undetermined: np.ndarray, diagnosis: Diagnosis) -> dict[str, Any]:
     entry: dict[str, Any] = {"name": verdict.name, "significant": verdict.significant,
                              "evidence": verdict.evidence, "round": verdict.round}
     ev = verdict.evaluation
     if ev is None:  # not testable, or nothing identifiable / significant to fit
         entry.update(params={}, heldout_rmse_px=None)
         return entry
-    fit = final if verdict.name in accepted else ev.fit
-    params, sigma = _params_with_sigma(fit, verdict.name)
+    if verdict.name in accepted:
+        fit, undetermined = final, final_undetermined
+    else:
+        fit, undetermined = ev.fit, _undetermined([ev], ev.fit, diagnosis)
+    params, sigma = _params_with_sigma(fit, verdict.name, undetermined)
     entry.update(params=params, sigma=sigma, heldout_rmse_px=ev.heldout_rmse_px,
                  p_value=verdict.p_value, bic_delta=verdict.bic_delta)
     if ev.identifiability is not None:
         entry["identifiability"] = {
             "identifiable": [p.name for p in ev.identifiability.kept],
             "not_identifiable": ev.identifiability.dropped,
+            "in_sigma": [p.name for p in ev.identifiability.undetermined],
             "pruned_as_zero": list(ev.pruned)}
     return entry
 
@@ -165,12 +180,17 @@ def diagnosis_document(sequence: Sequence, diagnosis: Diagnosis,
         return float(np.sqrt(np.mean(np.sum(r * r, axis=-1)))) if r.size else float("nan")
 
     verdicts = _last_verdicts(diagnosis.tested, diagnosis.accepted)
-    effects = [_effect_entry(v, final.fit, diagnosis.accepted) for v in verdicts]
+    final_undetermined = _undetermined([v.evaluation for v in verdicts
+                                        if v.name in diagnosis.accepted], final.fit, diagnosis)
+    effects = [_effect_entry(v, final.fit, diagnosis.accepted, final_undetermined, diagnosis)
+               for v in verdicts]
     alternative = _alternative_fits(diagnosis.tested, diagnosis.alternatives)
     for entry in effects:
         v = alternative.get(entry["name"])
         if v is not None:  # equally good as an accepted effect: its own fit, for the record
-            params, sigma = _params_with_sigma(v.evaluation.fit, v.name)
+            fit = v.evaluation.fit
+            params, sigma = _params_with_sigma(fit, v.name,
+                                               _undetermined([v.evaluation], fit, diagnosis))
             entry["alternative"] = {"params": params, "sigma": sigma,
                                     "heldout_rmse_px": v.evaluation.heldout_rmse_px,
                                     "evidence": v.evidence, "round": v.round}

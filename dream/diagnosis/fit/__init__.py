@@ -14,10 +14,16 @@ with `xi` the extrinsic's increment on a starting pose (the same convention as `
   and the residuals (`FitResult`).
 - `identify`: `identifiable_params` drops parameters the data cannot tell apart from the
   extrinsic (or from each other); `group_p_values` tests parameter groups against zero, so that
-  those that do not differ significantly can be pruned.
+  those that do not differ significantly can be pruned; `undetermined_covariance` adds to the
+  stated uncertainty what the parameters held at zero (dropped) may be.
 """
 
-from dream.diagnosis.fit.identify import Identifiability, group_p_values, identifiable_params
+from dream.diagnosis.fit.identify import (
+    Identifiability,
+    group_p_values,
+    identifiable_params,
+    undetermined_covariance,
+)
 from dream.diagnosis.fit.model import FitResult, Model, fit_model
 from dream.diagnosis.fit.problem import (
     POINT_EFFECTS,
@@ -31,4 +37,4 @@ from dream.diagnosis.fit.problem import (
 
 __all__ = ["POINT_EFFECTS", "VIEW_EFFECTS", "FitResult", "Identifiability", "Model", "Param",
            "Problem", "build_extension", "candidate_params", "fit_model", "group_p_values",
-           "identifiable_params", "offset_joints"]
+           "identifiable_params", "offset_joints", "undetermined_covariance"]

@@ -2,7 +2,13 @@
 
 `identifiable_params` drops parameters the data cannot tell apart from the extrinsic (or from
 each other); `group_p_values` tests each parameter group against zero (the selection prunes the
-groups that do not differ from it).
+groups that do not differ from it); `undetermined_covariance` is what a dropped parameter's
+unknown value adds to the uncertainty of the ones kept.
+
+A dropped parameter is held at zero, but the data cannot say that it is zero: where its image
+motion is nearly that of kept parameters (a camera that moved sideways looks like one that
+turned), the kept ones absorb its true value. Their stated sigma must include that, or a
+sideways move is reported as a turn several sigmas from the truth.
 """
 
 from __future__ import annotations
@@ -14,6 +20,7 @@ from scipy import stats
 
 from dream.diagnosis.fit.model import FitResult, Model
 from dream.diagnosis.fit.problem import Param, Problem
+from dream.optim.robust import huber_weight
 
 
 @dataclass(frozen=True)
@@ -24,11 +31,14 @@ class Identifiability:
         kept: identifiable parameters.
         dropped: parameter name -> reason.
         effect_px: parameter name -> RMS pixel change at its typical magnitude.
+        undetermined: the dropped parameters that move the keypoints (their image motion is
+            absorbed by the others): unknown, of about their typical magnitude.
     """
 
     kept: tuple[Param, ...]
     dropped: dict[str, str]
     effect_px: dict[str, float]
+    undetermined: tuple[Param, ...] = ()
 
 
 def identifiable_params(problem: Problem, base: FitResult, candidates: list[Param],
@@ -53,6 +63,7 @@ def identifiable_params(problem: Problem, base: FitResult, candidates: list[Para
     fixed = J[:, :n_fixed] * np.concatenate([np.full(6, 0.01), [p.typical for p in
                                                                base.model.params]])
     kept: list[Param] = []
+    undetermined: list[Param] = []
     kept_cols: list[np.ndarray] = []
     dropped: dict[str, str] = {}
     effect: dict[str, float] = {}
@@ -69,6 +80,7 @@ def identifiable_params(problem: Problem, base: FitResult, candidates: list[Para
             else fixed
         remaining = _orthogonal_fraction(col, basis)
         if remaining < collinearity_tol:
+            undetermined.append(p)
             if extrinsic_only < collinearity_tol:
                 dropped[p.name] = "absorbed by the extrinsic (same image motion as a camera move)"
             else:
@@ -77,7 +89,31 @@ def identifiable_params(problem: Problem, base: FitResult, candidates: list[Para
             continue
         kept.append(p)
         kept_cols.append(col[:, None])
-    return Identifiability(tuple(kept), dropped, effect)
+    return Identifiability(tuple(kept), dropped, effect, tuple(undetermined))
+
+
+def undetermined_covariance(fit: FitResult, undetermined: tuple[Param, ...], mask: np.ndarray,
+                            scale_px: float) -> np.ndarray:
+    """(6 + P, 6 + P) covariance that parameters held at zero add to `fit`'s estimates (module
+    doc), each of them unknown with its typical magnitude as standard deviation: B diag(typical^2)
+    B^T, where B = d x / d u is the linear response of the weighted least-squares estimate to
+    their values u. Zero without such parameters; NaN where the normal equations are singular.
+    """
+    n = fit.model.size
+    if not undetermined:
+        return np.zeros((n, n))
+    model = Model(fit.model.problem, fit.model.params + tuple(undetermined), fit.model.T0,
+                  fit.model.change_index)
+    use = np.asarray(mask, bool) & fit.model.problem.observed
+    J = model.jacobian(np.concatenate([fit.x, np.zeros(len(undetermined))]), use)
+    w = huber_weight(fit.residual[use].ravel(), scale_px)
+    J_fit, J_held = J[:, :n], J[:, n:]
+    try:
+        B = np.linalg.solve(J_fit.T @ (w[:, None] * J_fit), J_fit.T @ (w[:, None] * J_held))
+    except np.linalg.LinAlgError:
+        return np.full((n, n), np.nan)
+    typical = np.array([p.typical for p in undetermined])
+    return (B * typical ** 2) @ B.T
 
 
 def _orthogonal_fraction(col: np.ndarray, basis: np.ndarray) -> float:
