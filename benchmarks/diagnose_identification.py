@@ -37,6 +37,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from scipy import stats
 
 from dream.calibration import Observations  # noqa: F401  (imported for workers' warm-up)
 from dream.diagnosis.fit.model import Model, fit_model
@@ -110,10 +111,12 @@ def print_sigma_check(z: list[float]) -> None:
     parameter of the effects named (unit and normal where they are)."""
     if not z:
         return
-    z = np.abs(np.asarray(z))
-    print(f"stated sigmas: {len(z)} parameters of named effects, RMS (estimate - truth) / sigma "
-          f"{np.sqrt(np.mean(z ** 2)):.2f} (honest: 1), beyond 2 sigma {np.mean(z > 2):.1%} "
-          f"(4.6 %), beyond 3 sigma {int(np.sum(z > 3))} ({len(z) * 0.0027:.1f} expected)")
+    a = np.abs(np.asarray(z))
+    beyond2, beyond3 = 2 * stats.norm.sf(2.0), 2 * stats.norm.sf(3.0)   # two-sided, Gaussian
+    print(f"stated sigmas: {len(a)} parameters of named effects, RMS (estimate - truth) / sigma "
+          f"{np.sqrt(np.mean(a ** 2)):.2f} (honest: 1), beyond 2 sigma {np.mean(a > 2):.1%} "
+          f"({beyond2:.1%}), beyond 3 sigma {int(np.sum(a > 3))} "
+          f"({len(a) * beyond3:.1f} expected)")
 
 
 def trials(args: argparse.Namespace) -> list[tuple[tuple[str, ...], int]]:
