@@ -143,29 +143,58 @@ def update_times(timestamps: np.ndarray, update_index: np.ndarray,
         >>> np.round(update_times(t, np.array([0, 3, 6, 9])) * 30, 2).tolist()
         [0.0, 2.5, 5.5, 8.5]
     """
+    t, index, lo, hi = _update_intervals(timestamps, update_index)
+    mid = np.where(index > 0, 0.5 * (lo + hi), hi)
+    later = index > 0
+    fitted = log_clock(t, index) if use_clock else None
+    if fitted is None:
+        return mid
+    clock, period = fitted
+    out = mid.copy()
+    out[later] = np.clip(clock, np.nextafter(lo[later], np.inf), hi[later])  # (t[i-1], t[i]]
+    if index[0] == 0:  # the first frame's reading: the tick before the next update, <= t[0]
+        out[0] = min(t[0], out[later][0] - period)
+    return out
+
+
+def _update_intervals(timestamps: np.ndarray, update_index: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(t, index, lo, hi): each update was logged in (lo, hi] = (t[i-1], t[i]], i its frame."""
     t = _check_times(timestamps)
     index = np.asarray(update_index)
     if (index.ndim != 1 or len(index) == 0 or not np.issubdtype(index.dtype, np.integer)
             or index[0] < 0 or index[-1] >= len(t) or np.any(np.diff(index) < 1)):
         raise InputError("update_times needs strictly increasing frame indices (U,) within "
                          "the timestamps")
-    lo, hi = t[np.maximum(index - 1, 0)], t[index]
-    mid = np.where(index > 0, 0.5 * (lo + hi), hi)
+    return t, index, t[np.maximum(index - 1, 0)], t[index]
+
+
+def log_clock(timestamps: np.ndarray, update_index: np.ndarray
+              ) -> tuple[np.ndarray, float] | None:
+    """The regular clock of a log's updates after frame 0 (module doc, `update_times`): its
+    time at each of them and its period, s; None where fewer than `MIN_CLOCK_UPDATES` follow
+    frame 0 or no clock passes within `CLOCK_TOLERANCE_FRACTION` of a frame interval of every
+    update's interval. Its period is not rounded to frames: a 5.36 Hz log beside a 30 Hz
+    camera updates every 5 or 6 frames (0.2 s apart in the median), and its clock ticks every
+    0.1865 s.
+
+        >>> t = np.arange(300) / 30
+        >>> first = np.searchsorted(t, np.arange(0.05, 9.9, 0.1865))   # the frames showing each
+        >>> round(log_clock(t, np.concatenate([[0], first]))[1], 3)
+        0.186
+    """
+    t, index, lo, hi = _update_intervals(timestamps, update_index)
     later = index > 0
-    if not use_clock or later.sum() < MIN_CLOCK_UPDATES:
-        return mid
-    fitted = _clock_line(mid[later])
+    if later.sum() < MIN_CLOCK_UPDATES:
+        return None
+    fitted = _clock_line(0.5 * (lo[later] + hi[later]))
     if fitted is None:
-        return mid
+        return None
     clock, period = fitted
     miss = np.maximum(lo[later] - clock, clock - hi[later])
     if np.max(miss) > CLOCK_TOLERANCE_FRACTION * float(np.median(np.diff(t))):
-        return mid
-    out = mid.copy()
-    out[later] = np.clip(clock, np.nextafter(lo[later], np.inf), hi[later])  # (t[i-1], t[i]]
-    if index[0] == 0:  # the first frame's reading: the tick before the next update, <= t[0]
-        out[0] = min(t[0], out[later][0] - period)
-    return out
+        return None
+    return clock, period
 
 
 def _clock_line(mid: np.ndarray) -> tuple[np.ndarray, float] | None:

@@ -27,12 +27,13 @@ import numpy as np
 from dream.diagnosis.fit import Problem
 from dream.extended import effective_joints, interpolated_frames
 from dream.extension import HeldReadings
-from dream.readings import reading_updates
+from dream.readings import log_clock, reading_updates
 
 
 def held_readings_in(problem: Problem) -> HeldReadings | None:
     """The held readings the data shows (None without timestamps or runs of repeats):
-    the period between updates and the held joints (empty: all)."""
+    the period between updates (the log clock's, `dream.readings.log_clock`, where the updates
+    follow one: not rounded to frames) and the held joints (empty: all)."""
     if problem.times_s is None:
         return None
     updates = reading_updates(problem.times_s, problem.joints)
@@ -41,7 +42,9 @@ def held_readings_in(problem: Problem) -> HeldReadings | None:
             if reading_updates(problem.times_s, problem.joints[:, [j]]).held]
     if not held or updates.period_s is None:
         return None
-    return HeldReadings(updates.period_s, () if len(held) == len(names) else tuple(held))
+    clock = log_clock(problem.times_s, updates.update_index)
+    period = updates.period_s if clock is None else clock[1]
+    return HeldReadings(period, () if len(held) == len(names) else tuple(held))
 
 
 def corrected_problem(problem: Problem, held: HeldReadings) -> Problem:

@@ -105,6 +105,16 @@ def test_the_diagnosis_fits_no_keypoint_of_a_frame_after_the_last_update():
     np.testing.assert_array_equal(corrected.uv[inside], problem.uv[inside])
 
 
+def test_the_period_of_a_log_on_a_regular_clock_is_not_rounded_to_frames():
+    """A 5.36 Hz log beside a 30 Hz camera shows a new reading every 5 or 6 frames (0.2 s in
+    the median); its clock, which the updates follow, ticks every 0.1865 s."""
+    seq = _injected(0.1865)
+    robot = robot_for(seq, None, seq.keypoint_names)
+    problem = problem_from(seq, robot, observations_from_labels(seq, robot))
+    assert sequence_updates(seq).period_s == pytest.approx(0.2, abs=1e-9)
+    assert held_readings_in(problem).period_s == pytest.approx(0.1865, abs=0.002)
+
+
 def _diagnosis(seq):
     robot = robot_for(seq, None, seq.keypoint_names)
     doc, _, _ = diagnose_sequence(seq, robot, observations_from_labels(seq, robot))
