@@ -16,8 +16,9 @@ camera with the data's intrinsics. An extension corrects it where the real syste
 - `held_readings`: the joint log updates every `period_s` (slower than the camera) and repeats
   its last reading in between; the arm's state at an image is interpolated in time between the
   updates (`dream.readings.interpolated_joints`). `joints` names the held joints (empty: all);
-  `phase_s` (within half a frame interval) is when the updates were sampled relative to the
-  middle of the frame interval in which they first appear, as `time_offset` counts. With
+  `phase_s` is when the updates were sampled relative to where `dream.readings.update_times`
+  places them (on the log's clock, or the middle of the frame interval in which they first
+  appear), as `time_offset` counts. With
   `time_offset` as well, the updates also lag the images by its seconds.
 - `link_geometry`: the visible geometry of a link differs from the URDF (a tool, a gripper, a
   held board): a box attached to it, its visuals scaled, or its outline excluded from image

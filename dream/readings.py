@@ -197,6 +197,49 @@ def log_clock(timestamps: np.ndarray, update_index: np.ndarray
     return clock, period
 
 
+def clock_phase_range(timestamps: np.ndarray, update_index: np.ndarray
+                      ) -> tuple[float, float] | None:
+    """(lo, hi), s: the range of the mean time by which `update_times` places a log's updates
+    after their true instants, over every regular clock a + P n that passes through each
+    update's interval (a linear program in a and P, at the mean count n); None where no clock
+    is located or none passes through every interval (timing jitter). A clock whose updates
+    drift through the frame interval pins it to a few milliseconds; one whose period is a
+    whole number of frames leaves a whole frame interval (the placement at its middle).
+
+        >>> t = np.arange(300) / 30
+        >>> on_frames = np.arange(6, 300, 6)            # every 6 frames: 0.2 s, phase unknown
+        >>> lo, hi = clock_phase_range(t, np.concatenate([[0], on_frames]))
+        >>> round(lo * 30, 3), round(hi * 30, 3)
+        (-0.5, 0.5)
+        >>> drifting = np.searchsorted(t, np.arange(0.05, 9.9, 0.1865))
+        >>> lo, hi = clock_phase_range(t, np.concatenate([[0], drifting]))
+        >>> bool(hi - lo < 0.0025)                   # 2 ms, against 33 ms above
+        True
+    """
+    from scipy.optimize import linprog
+
+    fitted = log_clock(timestamps, update_index)
+    if fitted is None:
+        return None
+    clock, period = fitted
+    t, index, lo, hi = _update_intervals(timestamps, update_index)
+    later = index > 0
+    count = np.round((clock - clock[0]) / period)
+    rows = np.column_stack([np.ones_like(count), count])
+    bounds = [(None, None), (None, None)]
+    at_mean = np.array([1.0, count.mean()])
+    extremes = []
+    for sign in (1.0, -1.0):   # min and max of a + P mean(n) with lo < a + P n <= hi
+        res = linprog(sign * at_mean, A_ub=np.vstack([rows, -rows]),
+                      b_ub=np.concatenate([hi[later], -lo[later]]), bounds=bounds,
+                      method="highs")
+        if res.status != 0:
+            return None
+        extremes.append(sign * res.fun)
+    placed = float(clock[0] + period * count.mean())
+    return placed - extremes[1], placed - extremes[0]
+
+
 def _clock_line(mid: np.ndarray) -> tuple[np.ndarray, float] | None:
     """The regular clock a + period * n fitted to the update intervals' midpoints `mid` (U,):
     (its time at each update's count n, the period); None where the spacing does not fit one.

@@ -9,12 +9,13 @@ calibrate` does, and searches the catalog on the corrected readings. A constant 
 updates behind the images is then `time_offset` on top of it, so held readings are never
 reported as a time offset.
 
-When a log updates at a fixed rate against a camera at a fixed rate, the instants at which its
-updates are sampled keep about the same place within the frame interval in which they first
-appear: a lag within half a frame interval that the data cannot tell from a time offset. A
-fitted time offset that small is that sampling phase (`HeldReadings.phase_s`), not a time
-offset; a larger one is a time offset whose 1-sigma includes the phase's spread (a frame
-interval / sqrt(12), uniform over the interval).
+Each update is placed in the frame interval where it first appears (`update_times`): where the
+log's clock drifts through the frame interval, the intervals together pin the true instants to
+a few milliseconds; where its period is a whole number of frames, every update keeps the same
+unknown place in its interval, and the placement may be off by up to half a frame interval.
+Within the range the intervals allow (`sampling_phase_range`), a lag is that sampling phase
+(`HeldReadings.phase_s`), which the data cannot tell from a time offset; a fitted time offset
+outside it is a time offset whose 1-sigma includes the range's spread (its width / sqrt(12)).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import numpy as np
 from dream.diagnosis.fit import Problem
 from dream.extended import effective_joints, interpolated_frames
 from dream.extension import HeldReadings
-from dream.readings import log_clock, reading_updates
+from dream.readings import clock_phase_range, log_clock, reading_updates
 
 
 def held_readings_in(problem: Problem) -> HeldReadings | None:
@@ -79,24 +80,34 @@ def held_entry(problem: Problem, held: HeldReadings, logged_rmse_px: float,
             if len(updates.update_index) > 1 else None}
 
 
-def fold_sampling_phase(doc: dict[str, Any], held: HeldReadings, frame_interval_s: float
-                        ) -> HeldReadings:
-    """Move an accepted time offset within half a frame interval out of `doc`'s verdict and
-    into the held readings' phase (returned); widen a larger one's sigma by the phase's
-    spread (module doc)."""
+def sampling_phase_range(problem: Problem, frame_interval_s: float) -> tuple[float, float]:
+    """(lo, hi), s: the lags that the held log's sampling phase may cause (module doc):
+    `dream.readings.clock_phase_range` where the updates follow a clock through every
+    interval, else half a frame interval either way."""
+    updates = reading_updates(problem.times_s, problem.joints)
+    located = clock_phase_range(problem.times_s, updates.update_index)
+    return located if located is not None else (-frame_interval_s / 2, frame_interval_s / 2)
+
+
+def fold_sampling_phase(doc: dict[str, Any], held: HeldReadings,
+                        phase_range: tuple[float, float]) -> HeldReadings:
+    """Move an accepted time offset within the sampling phase's `phase_range` (s,
+    `sampling_phase_range`) out of `doc`'s verdict and into the held readings' phase
+    (returned); widen a lag outside it by the range's spread (module doc)."""
     entry = next((e for e in doc["effects"] if e["name"] == "time_offset"
                   and "time_offset" in doc["verdict"]), None)
     if entry is None:
         return held
     seconds = float(entry["params"]["seconds"])
-    if abs(seconds) <= frame_interval_s / 2:
+    lo, hi = phase_range
+    if lo <= seconds <= hi:
         doc["verdict"].remove("time_offset")
-        doc["notes"].append(f"a lag of {seconds * 1e3:.1f} ms, within half a frame interval "
-                            f"({frame_interval_s * 1e3:.1f} ms), is the held readings' sampling "
-                            "phase, not a time offset")
+        doc["notes"].append(f"a lag of {seconds * 1e3:.1f} ms, within the {lo * 1e3:.1f} to "
+                            f"{hi * 1e3:.1f} ms that the log's update times leave open, is the "
+                            "held readings' sampling phase, not a time offset")
         return dataclasses.replace(held, phase_s=seconds)
     sigma = entry.get("sigma") or {}
-    spread = frame_interval_s / np.sqrt(12.0)
+    spread = (hi - lo) / np.sqrt(12.0)
     sigma["seconds"] = float(np.hypot(sigma.get("seconds") or 0.0, spread))
     entry["sigma"] = sigma
     entry["evidence"] = (f"{entry.get('evidence', '')}; 1-sigma includes the held updates' "

@@ -25,6 +25,7 @@ from dream.diagnosis.held import (
     fold_sampling_phase,
     held_entry,
     held_readings_in,
+    sampling_phase_range,
 )
 from dream.diagnosis.select import DiagnoseSettings, Diagnosis, diagnose
 from dream.errors import InputError
@@ -138,7 +139,7 @@ def _diagnose_logged(sequence: Sequence, obs: Observations, logged: Problem,
         as_logged = diagnosis.baseline_as_logged
         interval = float(np.median(np.diff(logged.times_s)))
         doc["frame_interval_s"] = interval
-        folded = fold_sampling_phase(doc, held, interval)
+        folded = fold_sampling_phase(doc, held, sampling_phase_range(logged, interval))
         if folded is not held:  # the time offset became the held readings' phase
             ext = dataclasses.replace(diagnosis.extension, time_offset_s=None,
                                       held_readings=folded)

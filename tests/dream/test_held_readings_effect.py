@@ -139,6 +139,18 @@ def test_diagnosis_separates_held_readings_and_a_time_offset():
     assert abs(offset["params"]["seconds"] - 0.08) <= 3 * offset["sigma"]["seconds"]
 
 
+def test_a_small_lag_on_a_log_whose_clock_drifts_is_a_time_offset_not_the_phase():
+    """A 5.36 Hz log drifts through the 30 Hz frame interval, which pins its updates' instants
+    to a few milliseconds: a 12 ms lag is named as a time offset with a sigma of about a
+    millisecond. (On a log whose period is a whole number of frames the updates' place within
+    their interval is unknown, and a lag under half a frame interval is its sampling phase.)"""
+    doc = _diagnosis(_injected(0.1865, tau=0.012))
+    assert doc["verdict"] == ["held_readings", "time_offset"]
+    offset = next(e for e in doc["effects"] if e["name"] == "time_offset")
+    sigma = offset["sigma"]["seconds"]
+    assert sigma < 0.002 and abs(offset["params"]["seconds"] - 0.012) <= 3 * sigma
+
+
 def test_calibrate_honours_a_held_readings_extension(tmp_path):
     seq = _injected(0.2, seed=4)
     data = write_dream(seq, tmp_path / "data")
