@@ -222,9 +222,9 @@ def clock_phase_range(timestamps: np.ndarray, update_index: np.ndarray
     if fitted is None:
         return None
     clock, period = fitted
-    t, index, lo, hi = _update_intervals(timestamps, update_index)
+    _, index, lo, hi = _update_intervals(timestamps, update_index)
     later = index > 0
-    count = np.round((clock - clock[0]) / period)
+    count = np.round((clock - clock[0]) / period)   # the clock is clock[0] + period * count
     rows = np.column_stack([np.ones_like(count), count])
     bounds = [(None, None), (None, None)]
     at_mean = np.array([1.0, count.mean()])
@@ -236,7 +236,7 @@ def clock_phase_range(timestamps: np.ndarray, update_index: np.ndarray
         if res.status != 0:
             return None
         extremes.append(sign * res.fun)
-    placed = float(clock[0] + period * count.mean())
+    placed = float(clock.mean())   # the fitted clock at the mean count
     return placed - extremes[1], placed - extremes[0]
 
 
