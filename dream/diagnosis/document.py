@@ -31,12 +31,12 @@ def _params_with_sigma(fit: FitResult, effect: str, undetermined: np.ndarray | N
     includes the `undetermined` covariance (`dream.diagnosis.fit.undetermined_covariance`)."""
     ext = fit.model.extension(fit.x)
     params = ext.effect_params(effect)
-    variance = np.diag(fit.covariance) + (0.0 if undetermined is None else np.diag(undetermined))
+    sd = fit.sigma_with(undetermined)
     sigma: dict[str, Any] = {}
     for i, p in enumerate(fit.model.params):
         if p.effect != effect:
             continue
-        s = float(np.sqrt(variance[6 + i])) if variance[6 + i] > 0 else float("nan")
+        s = float(sd[6 + i])
         if effect == "keypoint_bias":
             sigma.setdefault(p.group, [0.0, 0.0, 0.0])["xyz".index(p.name[-1])] = s
         elif effect == "intrinsics_error":  # relative parameters -> pixels

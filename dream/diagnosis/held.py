@@ -14,8 +14,11 @@ log's clock drifts through the frame interval, the intervals together pin the tr
 a few milliseconds; where its period is a whole number of frames, every update keeps the same
 unknown place in its interval, and the placement may be off by up to half a frame interval.
 Within the range the intervals allow (`sampling_phase_range`), a lag is that sampling phase
-(`HeldReadings.phase_s`), which the data cannot tell from a time offset; a fitted time offset
-outside it is a time offset whose 1-sigma includes the range's spread (its width / sqrt(12)).
+(`HeldReadings.phase_s`), which the data cannot tell from a time offset. So is a fitted lag just
+outside it, where the part outside is not significant: its chi-square test against zero (with
+the fit's sigma) has a p-value above `group_alpha`, the test every parameter group of an
+effect must pass (`DiagnoseSettings`). A lag outside it by more is a time offset whose 1-sigma
+includes the range's spread (its width / sqrt(12)).
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import dataclasses
 from typing import Any
 
 import numpy as np
+from scipy import stats
 
 from dream.diagnosis.fit import Problem
 from dream.extended import effective_joints, interpolated_frames
@@ -90,26 +94,48 @@ def sampling_phase_range(problem: Problem, frame_interval_s: float) -> tuple[flo
 
 
 def fold_sampling_phase(doc: dict[str, Any], held: HeldReadings,
-                        phase_range: tuple[float, float]) -> HeldReadings:
-    """Move an accepted time offset within the sampling phase's `phase_range` (s,
-    `sampling_phase_range`) out of `doc`'s verdict and into the held readings' phase
-    (returned); widen a lag outside it by the range's spread (module doc)."""
+                        phase_range: tuple[float, float], group_alpha: float) -> HeldReadings:
+    """Move an accepted time offset that the sampling phase's `phase_range` (s,
+    `sampling_phase_range`) explains out of `doc`'s verdict and into the held readings' phase
+    (returned); widen a lag beyond it by the range's spread (module doc)."""
     entry = next((e for e in doc["effects"] if e["name"] == "time_offset"
                   and "time_offset" in doc["verdict"]), None)
     if entry is None:
         return held
     seconds = float(entry["params"]["seconds"])
-    lo, hi = phase_range
-    if lo <= seconds <= hi:
-        doc["verdict"].remove("time_offset")
-        doc["notes"].append(f"a lag of {seconds * 1e3:.1f} ms, within the {lo * 1e3:.1f} to "
-                            f"{hi * 1e3:.1f} ms that the log's update times leave open, is the "
-                            "held readings' sampling phase, not a time offset")
-        return dataclasses.replace(held, phase_s=seconds)
     sigma = entry.get("sigma") or {}
+    lo, hi = phase_range
+    p_outside = outside_p_value(seconds, phase_range, sigma.get("seconds"))
+    if p_outside > group_alpha:
+        doc["verdict"].remove("time_offset")
+        doc["notes"].append(f"a lag of {seconds * 1e3:.1f} ms, consistent with the "
+                            f"{lo * 1e3:.1f} to {hi * 1e3:.1f} ms that the log's update times "
+                            f"leave open (p = {p_outside:.2g} that it lies outside), is the held "
+                            "readings' sampling phase, not a time offset")
+        return dataclasses.replace(held, phase_s=seconds)
     spread = (hi - lo) / np.sqrt(12.0)
     sigma["seconds"] = float(np.hypot(sigma.get("seconds") or 0.0, spread))
     entry["sigma"] = sigma
     entry["evidence"] = (f"{entry.get('evidence', '')}; 1-sigma includes the held updates' "
                          f"unknown sampling phase ({spread * 1e3:.1f} ms)")
     return held
+
+
+def outside_p_value(seconds: float, phase_range: tuple[float, float],
+                    sigma_s: float | None) -> float:
+    """The two-sided p-value of the part of a fitted lag `seconds` outside `phase_range`
+    (s) against zero, with the fit's 1-sigma `sigma_s` (s): 1 inside the range; without a
+    finite positive sigma, 0 outside it.
+
+        >>> round(outside_p_value(-0.0173, (-1 / 60, 1 / 60), 0.0006), 2)   # 1.06 sigma out
+        0.29
+        >>> outside_p_value(-0.025, (-1 / 60, 1 / 60), 0.0006) < 1e-9
+        True
+    """
+    lo, hi = phase_range
+    outside = max(lo - seconds, seconds - hi, 0.0)
+    if outside == 0.0:
+        return 1.0
+    if sigma_s is None or not np.isfinite(sigma_s) or sigma_s <= 0.0:
+        return 0.0
+    return float(2.0 * stats.norm.sf(outside / sigma_s))

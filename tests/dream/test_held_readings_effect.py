@@ -3,13 +3,14 @@ offset alone), written to extended_model.yaml, honoured by calibrate and synth."
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
 
 from dream.cli import main
-from dream.diagnosis.held import corrected_problem, held_readings_in
+from dream.diagnosis.held import corrected_problem, fold_sampling_phase, held_readings_in
 from dream.diagnosis.images import carving_frames
 from dream.diagnosis.run import diagnose_sequence, problem_from
 from dream.errors import InputError
@@ -149,6 +150,48 @@ def test_a_small_lag_on_a_log_whose_clock_drifts_is_a_time_offset_not_the_phase(
     offset = next(e for e in doc["effects"] if e["name"] == "time_offset")
     sigma = offset["sigma"]["seconds"]
     assert sigma < 0.002 and abs(offset["params"]["seconds"] - 0.012) <= 3 * sigma
+
+
+def _sampled_at_frame_instants(hold_frames: int, seed: int):
+    """A log that updates every `hold_frames` frames, each reading the joints at a frame's
+    instant: the placement within the frame interval before it is half a frame early."""
+    spec = InjectionSettings(num_frames=150, frame_period_s=FPS_PERIOD, pixel_noise_px=1.5,
+                             seed=seed, motion="trajectory")
+    seq = make_injected_sequence(spec)
+    read = [seq.frames[hold_frames * (i // hold_frames)].joints for i in range(len(seq))]
+    frames = tuple(dataclasses.replace(f, joints=q) for f, q in zip(seq.frames, read, strict=True))
+    return dataclasses.replace(seq, frames=frames)
+
+
+def test_a_lag_at_the_edge_of_the_sampling_phase_is_not_a_time_offset():
+    """Updates read at frame instants on a 6-frame log lag their placement by half a frame
+    interval, the edge of what the phase can be; seed 8's fitted lag, -18.0 ms, lies 2.3 fit
+    sigmas beyond -16.7 ms, which is not significant: the phase, not a time offset."""
+    doc = _diagnosis(_sampled_at_frame_instants(6, seed=8))
+    assert doc["verdict"] == ["held_readings"]
+    phase = doc["effects"][0]["params"]["phase_s"]
+    assert phase == pytest.approx(-FPS_PERIOD / 2, abs=0.003)
+
+
+def _offset_doc(seconds: float, sigma_s: float) -> dict:
+    return {"verdict": ["time_offset"], "notes": [],
+            "effects": [{"name": "time_offset", "params": {"seconds": seconds},
+                         "sigma": {"seconds": sigma_s}, "evidence": "fit"}]}
+
+
+def test_the_sampling_phase_fold_tests_the_lag_outside_the_range_against_its_sigma():
+    half = FPS_PERIOD / 2
+    held = HeldReadings(0.2)
+    near = _offset_doc(-half - 0.0006, 0.0006)          # 1 sigma beyond the range
+    assert fold_sampling_phase(near, held, (-half, half), 1e-3).phase_s == -half - 0.0006
+    assert near["verdict"] == [] and "sampling phase" in near["notes"][0]
+    far = _offset_doc(-half - 0.003, 0.0006)            # 5 sigma beyond
+    assert fold_sampling_phase(far, held, (-half, half), 1e-3) is held
+    assert far["verdict"] == ["time_offset"]
+    assert far["effects"][0]["sigma"]["seconds"] == pytest.approx(
+        np.hypot(0.0006, FPS_PERIOD / np.sqrt(12)))
+    unknown = _offset_doc(-half - 0.0006, float("nan"))  # no sigma: the range alone
+    assert fold_sampling_phase(unknown, held, (-half, half), 1e-3) is held
 
 
 def test_calibrate_honours_a_held_readings_extension(tmp_path):

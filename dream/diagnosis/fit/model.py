@@ -124,7 +124,12 @@ class FitResult:
     @property
     def sigma(self) -> np.ndarray:
         """1-sigma of x; NaN where the covariance is singular or not positive."""
-        d = np.diag(self.covariance)
+        return self.sigma_with(None)
+
+    def sigma_with(self, added: np.ndarray | None) -> np.ndarray:
+        """1-sigma of x with the covariance `added` ((6 + P, 6 + P) or None) on top of the
+        fit's; NaN where the sum is singular or not positive."""
+        d = np.diag(self.covariance) + (0.0 if added is None else np.diag(added))
         return np.where(np.isfinite(d) & (d > 0), np.sqrt(np.abs(d)), np.nan)
 
     @property
