@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy import stats
 from scipy.interpolate import PchipInterpolator
 
 from dream.errors import InputError
@@ -197,14 +198,18 @@ def log_clock(timestamps: np.ndarray, update_index: np.ndarray
     return clock, period
 
 
-def clock_phase_range(timestamps: np.ndarray, update_index: np.ndarray
-                      ) -> tuple[float, float] | None:
+def clock_phase_range(timestamps: np.ndarray, update_index: np.ndarray,
+                      tail_probability: float | None = None) -> tuple[float, float] | None:
     """(lo, hi), s: the range of the mean time by which `update_times` places a log's updates
     after their true instants, over every regular clock a + P n that passes through each
     update's interval (a linear program in a and P, at the mean count n); None where no clock
-    is located or none passes through every interval (timing jitter). A clock whose updates
-    drift through the frame interval pins it to a few milliseconds; one whose period is a
-    whole number of frames leaves a whole frame interval (the placement at its middle).
+    is located or none passes through every interval. A clock whose updates drift through the
+    frame interval pins it to a few milliseconds; one whose period is a whole number of frames
+    leaves a whole frame interval (the placement at its middle). With a `tail_probability`,
+    each interval is first widened on both sides by the frame stamps' own scatter
+    (`stamp_jitter`) times the Gaussian quantile that every one of the 2U bounds holds but
+    with that probability (U updates): stamps that jitter by a millisecond otherwise give a
+    range that misses the true placement in a quarter of the logs.
 
         >>> t = np.arange(300) / 30
         >>> on_frames = np.arange(6, 300, 6)            # every 6 frames: 0.2 s, phase unknown
@@ -228,16 +233,41 @@ def clock_phase_range(timestamps: np.ndarray, update_index: np.ndarray
     rows = np.column_stack([np.ones_like(count), count])
     bounds = [(None, None), (None, None)]
     at_mean = np.array([1.0, count.mean()])
+    slack = 0.0
+    if tail_probability is not None:
+        slack = stamp_jitter(timestamps) * float(
+            stats.norm.isf(tail_probability / (2 * int(later.sum()))))
     extremes = []
     for sign in (1.0, -1.0):   # min and max of a + P mean(n) with lo < a + P n <= hi
         res = linprog(sign * at_mean, A_ub=np.vstack([rows, -rows]),
-                      b_ub=np.concatenate([hi[later], -lo[later]]), bounds=bounds,
-                      method="highs")
+                      b_ub=np.concatenate([hi[later] + slack, -lo[later] + slack]),
+                      bounds=bounds, method="highs")
         if res.status != 0:
             return None
         extremes.append(sign * res.fun)
     placed = float(clock.mean())   # the fitted clock at the mean count
     return placed - extremes[1], placed - extremes[0]
+
+
+def stamp_jitter(timestamps: np.ndarray) -> float:
+    """The scatter of frame timestamps about a regular frame clock, s: the standard deviation
+    of their residuals from the least-squares line against their frame count (a dropped frame
+    counted by the median interval); 0 with fewer than 3 frames.
+
+        >>> t = np.arange(300) / 30
+        >>> bool(stamp_jitter(t) < 1e-12)
+        True
+        >>> jittered = t + np.random.default_rng(0).normal(0.0, 0.001, 300)
+        >>> round(stamp_jitter(jittered) * 1e3, 1)
+        1.0
+    """
+    t = _check_times(timestamps)
+    if len(t) < 3:
+        return 0.0
+    steps = np.round(np.diff(t) / float(np.median(np.diff(t))))   # 2: a frame dropped
+    count = np.concatenate([[0.0], np.cumsum(steps)])
+    slope, intercept = np.polyfit(count, t, 1)
+    return float(np.std(t - (intercept + slope * count), ddof=2))
 
 
 def _clock_line(mid: np.ndarray) -> tuple[np.ndarray, float] | None:

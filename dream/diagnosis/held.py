@@ -11,8 +11,10 @@ reported as a time offset.
 
 Each update is placed in the frame interval where it first appears (`update_times`): where the
 log's clock drifts through the frame interval, the intervals together pin the true instants to
-a few milliseconds; where its period is a whole number of frames, every update keeps the same
-unknown place in its interval, and the placement may be off by up to half a frame interval.
+a few milliseconds (each interval widened by the frame stamps' own scatter, so that stamps
+that jitter do not pin it falsely); where its period is a whole number of frames, every update
+keeps the same unknown place in its interval, and the placement may be off by up to half a
+frame interval.
 Within the range the intervals allow (`sampling_phase_range`), a lag is that sampling phase
 (`HeldReadings.phase_s`), which the data cannot tell from a time offset. So is a fitted lag just
 outside it, where the part outside is not significant: its chi-square test against zero (with
@@ -84,12 +86,14 @@ def held_entry(problem: Problem, held: HeldReadings, logged_rmse_px: float,
             if len(updates.update_index) > 1 else None}
 
 
-def sampling_phase_range(problem: Problem, frame_interval_s: float) -> tuple[float, float]:
+def sampling_phase_range(problem: Problem, frame_interval_s: float,
+                         tail_probability: float) -> tuple[float, float]:
     """(lo, hi), s: the lags that the held log's sampling phase may cause (module doc):
     `dream.readings.clock_phase_range` where the updates follow a clock through every
-    interval, else half a frame interval either way."""
+    interval (each widened by the frame stamps' scatter, but with `tail_probability`), else
+    half a frame interval either way."""
     updates = reading_updates(problem.times_s, problem.joints)
-    located = clock_phase_range(problem.times_s, updates.update_index)
+    located = clock_phase_range(problem.times_s, updates.update_index, tail_probability)
     return located if located is not None else (-frame_interval_s / 2, frame_interval_s / 2)
 
 
