@@ -112,10 +112,11 @@ def fold_sampling_phase(doc: dict[str, Any], held: HeldReadings,
     p_outside = outside_p_value(seconds, phase_range, sigma.get("seconds"))
     if p_outside > group_alpha:
         doc["verdict"].remove("time_offset")
-        doc["notes"].append(f"a lag of {seconds * 1e3:.1f} ms, consistent with the "
-                            f"{lo * 1e3:.1f} to {hi * 1e3:.1f} ms that the log's update times "
-                            f"leave open (p = {p_outside:.2g} that it lies outside), is the held "
-                            "readings' sampling phase, not a time offset")
+        where = ("within" if p_outside == 1.0 else "not significantly beyond (the part "
+                 f"outside against zero: p = {p_outside:.2g})")
+        doc["notes"].append(f"a lag of {seconds * 1e3:.1f} ms, {where} the {lo * 1e3:.1f} to "
+                            f"{hi * 1e3:.1f} ms that the log's update times leave open, is the "
+                            "held readings' sampling phase, not a time offset")
         return dataclasses.replace(held, phase_s=seconds)
     spread = (hi - lo) / np.sqrt(12.0)
     sigma["seconds"] = float(np.hypot(sigma.get("seconds") or 0.0, spread))
