@@ -112,7 +112,7 @@ def fold_sampling_phase(doc: dict[str, Any], held: HeldReadings,
     p_outside = outside_p_value(seconds, phase_range, sigma.get("seconds"))
     if p_outside > group_alpha:
         doc["verdict"].remove("time_offset")
-        where = ("within" if p_outside == 1.0 else "not significantly beyond (the part "
+        where = ("within" if lo <= seconds <= hi else "not significantly beyond (the part "
                  f"outside against zero: p = {p_outside:.2g})")
         doc["notes"].append(f"a lag of {seconds * 1e3:.1f} ms, {where} the {lo * 1e3:.1f} to "
                             f"{hi * 1e3:.1f} ms that the log's update times leave open, is the "

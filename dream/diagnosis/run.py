@@ -139,9 +139,9 @@ def _diagnose_logged(sequence: Sequence, obs: Observations, logged: Problem,
         as_logged = diagnosis.baseline_as_logged
         interval = float(np.median(np.diff(logged.times_s)))
         doc["frame_interval_s"] = interval
-        alpha = (settings or DiagnoseSettings()).group_alpha
-        folded = fold_sampling_phase(doc, held, sampling_phase_range(logged, interval, alpha),
-                                     alpha)
+        group_alpha = (settings or DiagnoseSettings()).group_alpha
+        phase_range = sampling_phase_range(logged, interval, group_alpha)
+        folded = fold_sampling_phase(doc, held, phase_range, group_alpha)
         if folded is not held:  # the time offset became the held readings' phase
             ext = dataclasses.replace(diagnosis.extension, time_offset_s=None,
                                       held_readings=folded)
