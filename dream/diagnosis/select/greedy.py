@@ -24,7 +24,7 @@ from dream.diagnosis.fit.model import FitResult, Model, fit_model
 from dream.diagnosis.fit.problem import Problem
 from dream.diagnosis.select.crossval import Evaluation, evaluate
 from dream.diagnosis.select.plausible import first_implausible, implausible_effect
-from dream.diagnosis.select.prune import try_effect
+from dream.diagnosis.select.prune import prune_accepted, try_effect
 from dream.diagnosis.select.settings import DiagnoseSettings
 from dream.extended import distinct_readings
 from dream.extension import ModelExtension
@@ -225,7 +225,13 @@ def diagnose(problem: Problem, T_cam_base_init: np.ndarray,
                          f" this data cannot tell them apart")
         accepted.append(best.name)
         remaining.remove(best.name)
-        current, baseline, mask, note = refit_on_new_mask(problem, best.evaluation, baseline,
+        current, dropped = prune_accepted(best.evaluation, accepted, mask, scale, settings)
+        if dropped:
+            notes.append(f"with {best.name} accepted, these parameter groups no longer differ "
+                         f"from zero (p > {settings.group_alpha:g}) and were dropped: "
+                         f"{'; '.join(dropped)}")
+            say(notes[-1])
+        current, baseline, mask, note = refit_on_new_mask(problem, current, baseline,
                                                           mask, accepted, scale, settings)
         if note is not None:
             notes.append(note)

@@ -2,7 +2,9 @@
 parameter groups that differ from zero, and cross-validated.
 
 Groups are pruned by backward elimination (groups clearly null first, then the least
-significant one at a time), or chosen by forward selection for `FORWARD_EFFECTS`.
+significant one at a time), or chosen by forward selection for `FORWARD_EFFECTS`. Once a later
+effect is accepted, `prune_accepted` drops the groups of the accepted effects that it has made
+redundant.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from dream.diagnosis.fit.model import FitResult, Model, fit_model
 from dream.diagnosis.fit.problem import Param, Problem, candidate_params
 from dream.diagnosis.select.camera_move import best_change
 from dream.diagnosis.select.crossval import Evaluation, cross_validate
+from dream.diagnosis.select.plausible import first_implausible
 from dream.diagnosis.select.settings import DiagnoseSettings
 
 # Effects whose parameter groups are chosen by forward selection (`_forward_groups`): their
@@ -110,3 +113,54 @@ def _forward_groups(effect: str, base: FitResult, params: list[Param], problem: 
     if best_fit is None:
         return "no parameter group differs significantly from zero"
     return best_fit
+
+
+def prune_accepted(current: Evaluation, accepted: list[str], mask: np.ndarray, scale_px: float,
+                   settings: DiagnoseSettings) -> tuple[Evaluation, list[str]]:
+    """`current` without the parameter groups of its `accepted` effects that no longer differ
+    from zero, dropped one at a time (the least significant first), each effect keeping at
+    least one group; e.g. the wrist joint offsets that stood in for a hand keypoint's bias
+    until the bias itself was accepted. A drop after which an accepted effect would be fitted
+    beyond its plausible size is not taken, and ends the pruning. Returns (the refitted and
+    cross-validated model, or `current` itself when nothing is dropped; the dropped groups as
+    "effect: group")."""
+    fit = current.fit
+    dropped: list[str] = []
+    while True:
+        found = _least_significant(fit, accepted, settings.group_alpha)
+        if found is None:
+            break
+        effect, group = found
+        keep = [i for i, p in enumerate(fit.model.params)
+                if not (p.effect == effect and p.group == group)]
+        params = tuple(fit.model.params[i] for i in keep)
+        model = Model(fit.model.problem, params, fit.model.T0, fit.model.change_index)
+        smaller = fit_model(model, mask, scale_px,
+                            x0=np.concatenate([fit.x[:6], fit.x[6:][keep]]))
+        if first_implausible(smaller, tuple(accepted), settings.plausible) is not None:
+            break
+        fit = smaller
+        dropped.append(f"{effect}: {group}")
+    if not dropped:
+        return current, dropped
+    cost, sq, n = cross_validate(fit, mask, scale_px, settings,
+                                 rescan_change=fit.model.change_index is not None)
+    return Evaluation(current.name, fit, cost, sq, n, current.identifiability,
+                      current.pruned), dropped
+
+
+def _least_significant(fit: FitResult, effects: list[str],
+                       group_alpha: float) -> tuple[str, str] | None:
+    """(effect, group) of the droppable group with the largest p-value above `group_alpha`:
+    not an effect's last group, nor a group that another kept group enters after
+    (`AFTER_GROUP`); None when there is none."""
+    worst: tuple[float, str, str] | None = None
+    for effect in effects:
+        p_values = group_p_values(fit, effect)
+        if len(p_values) < 2:
+            continue
+        for group, p in p_values.items():
+            needed = any(AFTER_GROUP.get(g) == group for g in p_values)
+            if p > group_alpha and not needed and (worst is None or p > worst[0]):
+                worst = (p, effect, group)
+    return None if worst is None else worst[1:]
