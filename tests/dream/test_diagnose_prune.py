@@ -64,7 +64,7 @@ def test_groups_of_an_accepted_effect_that_a_later_one_explains_are_dropped(seed
     current, settings, problem = _fitted(truth, params + _bias("panda_hand"), seed)
     pruned, dropped = prune_accepted(current, ["joint_offset", "keypoint_bias"],
                                      problem.observed, SCALE_PX, settings)
-    assert sorted(dropped) == ["joint_offset: panda_joint5", "joint_offset: panda_joint6"]
+    assert sorted(dropped) == [("joint_offset", "panda_joint5"), ("joint_offset", "panda_joint6")]
     assert [p.group for p in pruned.fit.model.params] == ["panda_joint3"] + ["panda_hand"] * 3
     assert pruned.heldout_cost.shape == (problem.num_frames,)
     x = pruned.fit.x[6:]
@@ -79,7 +79,7 @@ def test_an_effect_keeps_its_last_group():
     current, settings, problem = _fitted(truth, _lens() + [_joint("panda_joint5")], seed=5)
     pruned, dropped = prune_accepted(current, ["lens_distortion", "joint_offset"],
                                      problem.observed, SCALE_PX, settings)
-    assert dropped == ["lens_distortion: k2"]
+    assert dropped == [("lens_distortion", "k2")]
     assert [p.group for p in pruned.fit.model.params] == ["k1", "panda_joint5"]
 
 
@@ -105,6 +105,9 @@ def test_the_diagnosis_reports_the_dropped_groups_and_recovers_both_effects():
     assert joints == {"panda_joint3"}
     (note,) = [n for n in doc["notes"] if "were dropped" in n]
     assert "joint_offset: panda_joint5" in note and "joint_offset: panda_joint6" in note
+    (entry,) = [e for e in doc["effects"] if e["name"] == "joint_offset"]
+    assert {"panda_joint5", "panda_joint6"} <= set(entry["identifiability"]["pruned_as_zero"])
+    assert set(entry["params"]) == {"panda_joint3"}
 
 
 def test_a_drop_that_leaves_an_effect_implausible_is_not_taken():

@@ -63,6 +63,7 @@ class Diagnosis:
     notes: list[str] = field(default_factory=list)
     alternatives: dict[str, list[str]] = field(default_factory=dict)
     baseline_as_logged: Evaluation | None = None   # with held readings: before interpolating
+    dropped_later: dict[str, list[str]] = field(default_factory=dict)  # prune_accepted's groups
 
 
 def _motion_rad_s(problem: Problem) -> float:
@@ -200,6 +201,7 @@ def diagnose(problem: Problem, T_cam_base_init: np.ndarray,
     tested: list[Verdict] = []
     notes: list[str] = []
     alternatives: dict[str, list[str]] = {}
+    dropped_later: dict[str, list[str]] = {}
     # held_readings is read from the data before the search (dream.diagnosis.held)
     remaining = [e for e in settings.effects if e != "held_readings"]
     for effect in list(remaining):
@@ -229,8 +231,10 @@ def diagnose(problem: Problem, T_cam_base_init: np.ndarray,
         if dropped:
             notes.append(f"with {best.name} accepted, these parameter groups no longer differ "
                          f"from zero (p > {settings.group_alpha:g}) and were dropped: "
-                         f"{'; '.join(dropped)}")
+                         f"{'; '.join(f'{e}: {g}' for e, g in dropped)}")
             say(notes[-1])
+            for effect, group in dropped:
+                dropped_later.setdefault(effect, []).append(group)
         current, baseline, mask, note = refit_on_new_mask(problem, current, baseline,
                                                           mask, accepted, scale, settings)
         if note is not None:
@@ -238,7 +242,8 @@ def diagnose(problem: Problem, T_cam_base_init: np.ndarray,
             say(note)
     extension = current.fit.model.extension(current.fit.x)
     return Diagnosis(baseline, current, accepted, tested, extension, mask, scale,
-                     time.perf_counter() - started, notes, alternatives)
+                     time.perf_counter() - started, notes, alternatives,
+                     dropped_later=dropped_later)
 
 
 def refit_on_new_mask(problem: Problem, current: Evaluation, baseline: Evaluation,

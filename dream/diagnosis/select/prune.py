@@ -116,16 +116,16 @@ def _forward_groups(effect: str, base: FitResult, params: list[Param], problem: 
 
 
 def prune_accepted(current: Evaluation, accepted: list[str], mask: np.ndarray, scale_px: float,
-                   settings: DiagnoseSettings) -> tuple[Evaluation, list[str]]:
+                   settings: DiagnoseSettings) -> tuple[Evaluation, list[tuple[str, str]]]:
     """`current` without the parameter groups of its `accepted` effects that no longer differ
     from zero, dropped one at a time (the least significant first), each effect keeping at
     least one group; e.g. the wrist joint offsets that stood in for a hand keypoint's bias
     until the bias itself was accepted. A drop after which an accepted effect would be fitted
     beyond its plausible size is not taken, and ends the pruning. Returns (the refitted and
     cross-validated model, or `current` itself when nothing is dropped; the dropped groups as
-    "effect: group")."""
+    (effect, group))."""
     fit = current.fit
-    dropped: list[str] = []
+    dropped: list[tuple[str, str]] = []
     while True:
         found = _least_significant(fit, accepted, settings.group_alpha)
         if found is None:
@@ -140,7 +140,7 @@ def prune_accepted(current: Evaluation, accepted: list[str], mask: np.ndarray, s
         if first_implausible(smaller, tuple(accepted), settings.plausible) is not None:
             break
         fit = smaller
-        dropped.append(f"{effect}: {group}")
+        dropped.append((effect, group))
     if not dropped:
         return current, dropped
     cost, sq, n = cross_validate(fit, mask, scale_px, settings,
