@@ -198,13 +198,7 @@ def model_steps(diagnosis: Diagnosis) -> list[tuple[str, FitResult]]:
         steps.append(("held_readings", diagnosis.baseline.fit))
     else:
         steps.append(("baseline", diagnosis.baseline.fit))
-    for name in diagnosis.accepted:
-        fits = [v.evaluation.fit for v in diagnosis.tested
-                if v.name == name and v.significant and v.evaluation is not None]
-        if fits:
-            steps.append((name, fits[-1]))
-    if diagnosis.accepted:
-        steps[-1] = (steps[-1][0], diagnosis.final.fit)
+    steps.extend(zip(diagnosis.accepted, diagnosis.step_fits, strict=True))
     return steps
 
 

@@ -16,7 +16,8 @@ import pytest
 from dream.diagnosis.fit import Model, Param, group_p_values
 from dream.diagnosis.run import diagnose_sequence, problem_from
 from dream.diagnosis.score import score_diagnosis
-from dream.diagnosis.select import DiagnoseSettings, evaluate, prune_accepted
+from dream.diagnosis.select import DiagnoseSettings, evaluate, first_implausible, prune_accepted
+from dream.diagnosis.select.prune import redundant_effects
 from dream.extension import ModelExtension
 from dream.inject import InjectionSettings, make_injected_sequence
 from dream.pipeline import observations_from_labels, robot_for, truth_poses
@@ -73,14 +74,18 @@ def test_groups_of_an_accepted_effect_that_a_later_one_explains_are_dropped(seed
 
 
 def test_an_effect_keeps_its_last_group():
-    """Pruning never removes an effect (that is the held-out test's verdict): a null joint
-    offset beside a lens keeps its one joint, while the lens's redundant k2 is dropped."""
+    """Pruning never removes an effect (that is the held-out test's verdict): of two null joint
+    offsets beside a lens one is dropped and the other kept, though it is zero too (and named
+    as redundant); the lens's redundant k2 is dropped."""
     truth = ModelExtension(distortion=(0.05, 0.0, 0.0, 0.0))
-    current, settings, problem = _fitted(truth, _lens() + [_joint("panda_joint5")], seed=5)
-    pruned, dropped = prune_accepted(current, ["lens_distortion", "joint_offset"],
-                                     problem.observed, SCALE_PX, settings)
-    assert dropped == [("lens_distortion", "k2")]
-    assert [p.group for p in pruned.fit.model.params] == ["k1", "panda_joint5"]
+    joints = [_joint("panda_joint5"), _joint("panda_joint6")]
+    current, settings, problem = _fitted(truth, _lens() + joints, seed=5)
+    effects = ["lens_distortion", "joint_offset"]
+    pruned, dropped = prune_accepted(current, effects, problem.observed, SCALE_PX, settings)
+    assert ("lens_distortion", "k2") in dropped and len(dropped) == 2
+    (p_kept,) = group_p_values(pruned.fit, "joint_offset").values()
+    assert p_kept > settings.group_alpha
+    assert redundant_effects(pruned.fit, effects, settings.group_alpha) == ["joint_offset"]
 
 
 def test_a_group_stays_while_a_group_that_enters_after_it_does():
@@ -108,17 +113,25 @@ def test_the_diagnosis_reports_the_dropped_groups_and_recovers_both_effects():
     (entry,) = [e for e in doc["effects"] if e["name"] == "joint_offset"]
     assert {"panda_joint5", "panda_joint6"} <= set(entry["identifiability"]["pruned_as_zero"])
     assert set(entry["params"]) == {"panda_joint3"}
+    # the report's steps: the model after each acceptance, the last one pruned
+    assert len(diagnosis.step_fits) == 2 and diagnosis.step_fits[-1] is diagnosis.final.fit
 
 
 def test_a_drop_that_leaves_an_effect_implausible_is_not_taken():
-    """With the keypoint-bias limit set below the hand's bias, no refit of the pair is
-    plausible, so nothing is dropped."""
+    """With the joint-offset limit between joint 3's estimate beside the redundant wrist joints
+    and its estimate without them, the drop that would cross it is refused and the result
+    stays plausible."""
     truth = ModelExtension(joint_offset_rad={"panda_joint3": JOINT3_OFFSET_RAD},
                            keypoint_bias_m={"panda_hand": HAND_BIAS_M})
     params = [_joint(j) for j in ("panda_joint3", "panda_joint5", "panda_joint6")]
-    current, settings, problem = _fitted(truth, params + _bias("panda_hand"), seed=3)
-    tight = dataclasses.replace(settings, plausible={
-        **settings.plausible, "keypoint_bias": float(np.abs(HAND_BIAS_M).max()) / 2})
-    pruned, dropped = prune_accepted(current, ["joint_offset", "keypoint_bias"],
-                                     problem.observed, SCALE_PX, tight)
-    assert dropped == [] and pruned is current
+    current, settings, problem = _fitted(truth, params + _bias("panda_hand"), seed=5)
+    effects = ["joint_offset", "keypoint_bias"]
+    full, _ = prune_accepted(current, effects, problem.observed, SCALE_PX, settings)
+    before, after = abs(current.fit.x[6]), abs(full.fit.x[6])
+    assert after > before   # precondition: the drops move joint 3 outwards
+    tight = dataclasses.replace(settings, plausible={**settings.plausible,
+                                                     "joint_offset": (before + after) / 2})
+    assert first_implausible(current.fit, tuple(effects), tight.plausible) is None
+    pruned, dropped = prune_accepted(current, effects, problem.observed, SCALE_PX, tight)
+    assert len(dropped) < 2
+    assert first_implausible(pruned.fit, tuple(effects), tight.plausible) is None

@@ -6,8 +6,9 @@ only when (1) the held-out cost per frame falls with a one-sided paired t-test p
 `alpha`, (2) the BIC falls by more than `bic_margin`, and (3) the held-out RMSE falls by at least
 `min_relative_gain`, with every fitted effect physically plausible, and (4) no `veto` from
 other evidence (the images: `dream.diagnosis.images.OutlineJudge.veto`). The most helpful
-significant effect is accepted and the search repeats on top of it; on data without an effect
-the verdict is empty.
+significant effect is accepted, the groups of the accepted effects that it has made redundant
+are dropped (`dream.diagnosis.select.prune.prune_accepted`), and the search repeats on top of
+the result; on data without an effect the verdict is empty.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from dream.diagnosis.fit.model import FitResult, Model, fit_model
 from dream.diagnosis.fit.problem import Problem
 from dream.diagnosis.select.crossval import Evaluation, evaluate
 from dream.diagnosis.select.plausible import first_implausible, implausible_effect
-from dream.diagnosis.select.prune import prune_accepted, try_effect
+from dream.diagnosis.select.prune import prune_accepted, redundant_effects, try_effect
 from dream.diagnosis.select.settings import DiagnoseSettings
 from dream.extended import distinct_readings
 from dream.extension import ModelExtension
@@ -64,6 +65,7 @@ class Diagnosis:
     alternatives: dict[str, list[str]] = field(default_factory=dict)
     baseline_as_logged: Evaluation | None = None   # with held readings: before interpolating
     dropped_later: dict[str, list[str]] = field(default_factory=dict)  # prune_accepted's groups
+    step_fits: list[FitResult] = field(default_factory=list)  # after each accepted effect
 
 
 def _motion_rad_s(problem: Problem) -> float:
@@ -202,6 +204,7 @@ def diagnose(problem: Problem, T_cam_base_init: np.ndarray,
     notes: list[str] = []
     alternatives: dict[str, list[str]] = {}
     dropped_later: dict[str, list[str]] = {}
+    step_fits: list[FitResult] = []
     # held_readings is read from the data before the search (dream.diagnosis.held)
     remaining = [e for e in settings.effects if e != "held_readings"]
     for effect in list(remaining):
@@ -240,10 +243,16 @@ def diagnose(problem: Problem, T_cam_base_init: np.ndarray,
         if note is not None:
             notes.append(note)
             say(note)
+        step_fits.append(current.fit)
+    for effect in redundant_effects(current.fit, accepted, settings.group_alpha):
+        notes.append(f"{effect} no longer differs from zero beside the effects accepted after "
+                     f"it (p > {settings.group_alpha:g}); it stays, as it was accepted on the "
+                     f"held-out frames, but the later effects may explain what it did")
+        say(notes[-1])
     extension = current.fit.model.extension(current.fit.x)
     return Diagnosis(baseline, current, accepted, tested, extension, mask, scale,
                      time.perf_counter() - started, notes, alternatives,
-                     dropped_later=dropped_later)
+                     dropped_later=dropped_later, step_fits=step_fits)
 
 
 def refit_on_new_mask(problem: Problem, current: Evaluation, baseline: Evaluation,

@@ -117,17 +117,18 @@ def _forward_groups(effect: str, base: FitResult, params: list[Param], problem: 
 
 def prune_accepted(current: Evaluation, accepted: list[str], mask: np.ndarray, scale_px: float,
                    settings: DiagnoseSettings) -> tuple[Evaluation, list[tuple[str, str]]]:
-    """`current` without the parameter groups of its `accepted` effects that no longer differ
-    from zero, dropped one at a time (the least significant first), each effect keeping at
-    least one group; e.g. the wrist joint offsets that stood in for a hand keypoint's bias
-    until the bias itself was accepted. A drop after which an accepted effect would be fitted
-    beyond its plausible size is not taken, and ends the pruning. Returns (the refitted and
-    cross-validated model, or `current` itself when nothing is dropped; the dropped groups as
-    (effect, group))."""
+    """`current` without the parameter groups of its `accepted` effects (the one just accepted
+    included) that no longer differ from zero, dropped one at a time (the least significant
+    first), each effect keeping at least one group; e.g. the wrist joint offsets that stood in
+    for a hand keypoint's bias until the bias itself was accepted. A drop after which an
+    accepted effect would be fitted beyond its plausible size is not taken (that group stays).
+    Returns (the refitted and cross-validated model, or `current` itself when nothing is
+    dropped; the dropped groups as (effect, group))."""
     fit = current.fit
     dropped: list[tuple[str, str]] = []
+    refused: set[tuple[str, str]] = set()
     while True:
-        found = _least_significant(fit, accepted, settings.group_alpha)
+        found = _least_significant(fit, accepted, settings.group_alpha, refused)
         if found is None:
             break
         effect, group = found
@@ -138,9 +139,10 @@ def prune_accepted(current: Evaluation, accepted: list[str], mask: np.ndarray, s
         smaller = fit_model(model, mask, scale_px,
                             x0=np.concatenate([fit.x[:6], fit.x[6:][keep]]))
         if first_implausible(smaller, tuple(accepted), settings.plausible) is not None:
-            break
+            refused.add(found)
+            continue
         fit = smaller
-        dropped.append((effect, group))
+        dropped.append(found)
     if not dropped:
         return current, dropped
     cost, sq, n = cross_validate(fit, mask, scale_px, settings,
@@ -149,11 +151,26 @@ def prune_accepted(current: Evaluation, accepted: list[str], mask: np.ndarray, s
                       current.pruned), dropped
 
 
-def _least_significant(fit: FitResult, effects: list[str],
-                       group_alpha: float) -> tuple[str, str] | None:
+def redundant_effects(fit: FitResult, accepted: list[str], group_alpha: float) -> list[str]:
+    """The `accepted` effects left with one parameter group that no longer differs from zero
+    (p > `group_alpha`): `prune_accepted` keeps it, since removing an effect is the held-out
+    test's verdict, but the report says so."""
+    out = []
+    for effect in accepted:
+        p_values = group_p_values(fit, effect)
+        if len(p_values) == 1 and next(iter(p_values.values())) > group_alpha:
+            out.append(effect)
+    return out
+
+
+def _least_significant(fit: FitResult, effects: list[str], group_alpha: float,
+                       refused: set[tuple[str, str]]) -> tuple[str, str] | None:
     """(effect, group) of the droppable group with the largest p-value above `group_alpha`:
     not an effect's last group, nor a group that another kept group enters after
-    (`AFTER_GROUP`); None when there is none."""
+    (`AFTER_GROUP`), nor one in `refused`; None when there is none, or when the fit's
+    covariance is not finite (its p-values say nothing)."""
+    if not np.all(np.isfinite(fit.covariance)):
+        return None
     worst: tuple[float, str, str] | None = None
     for effect in effects:
         p_values = group_p_values(fit, effect)
@@ -161,6 +178,7 @@ def _least_significant(fit: FitResult, effects: list[str],
             continue
         for group, p in p_values.items():
             needed = any(AFTER_GROUP.get(g) == group for g in p_values)
-            if p > group_alpha and not needed and (worst is None or p > worst[0]):
+            if (p > group_alpha and not needed and (effect, group) not in refused
+                    and (worst is None or p > worst[0])):
                 worst = (p, effect, group)
     return None if worst is None else worst[1:]
