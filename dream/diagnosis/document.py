@@ -78,8 +78,7 @@ def _effect_entry(verdict: Verdict, final: FitResult, accepted: list[str],
             "identifiable": [p.name for p in ev.identifiability.kept],
             "not_identifiable": ev.identifiability.dropped,
             "in_sigma": [p.name for p in ev.identifiability.undetermined],
-            "pruned_as_zero": list(ev.pruned) + (diagnosis.dropped_later.get(verdict.name, [])
-                                                 if verdict.name in accepted else [])}
+            "pruned_as_zero": list(ev.pruned) + diagnosis.dropped_later.get(verdict.name, [])}
     return entry
 
 

@@ -64,7 +64,7 @@ class Diagnosis:
     notes: list[str] = field(default_factory=list)
     alternatives: dict[str, list[str]] = field(default_factory=dict)
     baseline_as_logged: Evaluation | None = None   # with held readings: before interpolating
-    dropped_later: dict[str, list[str]] = field(default_factory=dict)  # prune_accepted's groups
+    dropped_later: dict[str, list[str]] = field(default_factory=dict)  # effect -> groups
     step_fits: list[FitResult] = field(default_factory=list)  # after each accepted effect
 
 
