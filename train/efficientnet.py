@@ -23,6 +23,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from dream.errors import InputError
+from train.depthwise import depthwise_conv2d
 
 BN_EPS = 1e-3                   # the TensorFlow models' batch-norm epsilon
 BN_MOMENTUM = 0.01
@@ -69,15 +70,23 @@ def _bn(channels: int) -> nn.BatchNorm2d:
 
 
 class SamePadConv(nn.Conv2d):
-    """A convolution with TensorFlow's "same" padding (asymmetric for stride 2)."""
+    """A convolution with TensorFlow's "same" padding (asymmetric for stride 2); depthwise ones
+    through `train.depthwise.depthwise_conv2d` (the faster backward under CPU autocast)."""
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        pads = []
+        pads = []                                  # F.pad's order: left, right, top, bottom
         for size, k, s in zip(x.shape[:-3:-1], self.kernel_size[::-1], self.stride[::-1],
                               strict=True):
             total = max((math.ceil(size / s) - 1) * s + k - size, 0)
             pads += [total // 2, total - total // 2]
-        return F.conv2d(F.pad(x, pads), self.weight, self.bias, self.stride, 0, self.dilation,
+        if pads[0::2] == pads[1::2]:               # symmetric: the convolution pads
+            padding = (pads[2], pads[0])
+        else:
+            x, padding = F.pad(x, pads), (0, 0)
+        if (self.groups == self.in_channels == self.out_channels and self.bias is None
+                and self.dilation == (1, 1)):
+            return depthwise_conv2d(x, self.weight, self.stride, padding)
+        return F.conv2d(x, self.weight, self.bias, self.stride, padding, self.dilation,
                         self.groups)
 
 
