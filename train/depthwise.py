@@ -7,7 +7,8 @@ EfficientNet-Lite0 encoder at 256x192, batch 16; `benchmarks/train_step.py`).
 `depthwise_conv2d` computes the forward in the autocast precision, as `F.conv2d` would, and each
 gradient (input, weight) in whichever of the autocast precision and float32 was faster when
 first timed for that layer's shapes, like cuDNN's benchmark mode. The gradients are the plain
-convolution's up to the precision chosen.
+convolution's up to the precision chosen; since the choice rests on timings, two runs with the
+same seed may differ in the last bits.
 
 Outside CPU low-precision autocast training (inference, ONNX export, float32, CUDA) it is
 `F.conv2d`, so the exported graph and the float32 path are unchanged.
