@@ -281,6 +281,15 @@ class Distractors:
     robot_prob: float = 0.0
     robot_name: str | None = None
     robot_distance_m: Range = (0.8, 2.0)
+    # Loose parts of that robot, unlabelled: in a frame without the whole robot, with
+    # `loose_prob`, its links from one of its last `loose_keypoints` keypoint links to the end of
+    # the chain (a hand, a wrist with its hand) in random joints and a random orientation,
+    # `loose_distance_m` from the base on the camera's side, `loose_height_m` above the floor, as a
+    # spare gripper or tool on a table.
+    loose_prob: float = 0.0
+    loose_keypoints: int = 3
+    loose_distance_m: Range = (0.4, 1.0)
+    loose_height_m: Range = (0.0, 0.5)
 
     def __post_init__(self) -> None:
         lo, hi = self.count
@@ -294,10 +303,17 @@ class Distractors:
         if not 1 <= lo <= hi:
             raise InputError("distractors.held_parts must be [low, high] with 1 <= low <= high")
         object.__setattr__(self, "held_parts", (int(lo), int(hi)))
-        object.__setattr__(self, "robot_distance_m",
-                           _range("distractors.robot_distance_m", self.robot_distance_m, 0.0))
+        for name in ("robot_distance_m", "loose_distance_m", "loose_height_m"):
+            object.__setattr__(self, name, _range(f"distractors.{name}", getattr(self, name),
+                                                  0.0))
+        if isinstance(self.loose_keypoints, bool) or not isinstance(self.loose_keypoints, int) \
+                or self.loose_keypoints < 1:
+            raise InputError(f"distractors.loose_keypoints must be a whole number >= 1, got "
+                             f"{self.loose_keypoints!r}",
+                             fix="set how many of the last keypoint links a loose part may "
+                                 "start at (e.g. 3)")
         for name in ("occluder_prob", "textured_prob", "held_prob", "held_board_prob",
-                     "held_textured_prob", "held_checker_prob", "robot_prob"):
+                     "held_textured_prob", "held_checker_prob", "robot_prob", "loose_prob"):
             _probability(f"distractors.{name}", getattr(self, name))
         for name in ("held_size_m", "held_offset_m"):
             lo, hi = getattr(self, name)

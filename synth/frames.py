@@ -69,9 +69,9 @@ def _primitive_size(kind: str, size: np.ndarray) -> tuple[np.ndarray, float, np.
 
 def other_robot_of(robot: Robot, config: SynthConfig) -> Robot | None:
     """The robot drawn as a distractor (`distractors.robot_name`; None: `robot` itself), or None
-    when the recipe never shows one."""
+    when the recipe never shows one, whole or in loose parts."""
     dc = config.distractors
-    if dc.robot_prob <= 0:
+    if dc.robot_prob <= 0 and dc.loose_prob <= 0:
         return None
     return robot if dc.robot_name is None else load_robot(dc.robot_name)
 

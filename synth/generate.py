@@ -164,7 +164,8 @@ def check_inputs(config: SynthConfig, robot) -> None:
             read_photo(path)
     if config.joints.log:
         load_joint_log(config.joints.log, robot)
-    if config.distractors.robot_prob > 0 and config.distractors.robot_name is not None:
+    dc = config.distractors
+    if max(dc.robot_prob, dc.loose_prob) > 0 and dc.robot_name is not None:
         load_robot(config.distractors.robot_name)   # an unknown name fails here
 
 
@@ -231,7 +232,9 @@ ADDED_CONFIG_KEYS = (("camera", "closeup_prob"), ("camera", "closeup_radius_m"),
                      ("appearance", "white_plastic_prob"), ("appearance", "metal_prob"),
                      ("appearance", "hide_hand_prob"), ("distractors", "held_parts"),
                      ("distractors", "held_checker_prob"), ("distractors", "robot_prob"),
-                     ("distractors", "robot_name"), ("distractors", "robot_distance_m"))
+                     ("distractors", "robot_name"), ("distractors", "robot_distance_m"),
+                     ("distractors", "loose_prob"), ("distractors", "loose_keypoints"),
+                     ("distractors", "loose_distance_m"), ("distractors", "loose_height_m"))
 
 
 def without_retired_keys(info: Any) -> Any:

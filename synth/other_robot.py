@@ -28,11 +28,13 @@ PARKED_Z_M = -100.0   # where the bodies wait while the other robot is not in th
 @dataclass(frozen=True)
 class OtherRobotDraw:
     """One draw of the other robot: base pose (4, 4), joints (J,) in its `joint_names` order,
-    and one flat colour (4,) for every part, or None for its real colours."""
+    one flat colour (4,) for every part (None: its real colours), and the links drawn (None:
+    all; loose parts name the end of a chain)."""
 
     T_base_other: np.ndarray
     joints: np.ndarray
     rgba: np.ndarray | None = None
+    links: tuple[str, ...] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,7 +80,10 @@ class OtherRobotGeoms:
             model.body_pos[self.body_ids] = [0.0, 0.0, PARKED_Z_M]
             return
         T_base_link = draw.T_base_other @ self.robot.link_poses(draw.joints, self.links)
-        for body, T in zip(self.body_ids, T_base_link, strict=True):
+        for link, body, T in zip(self.links, self.body_ids, T_base_link, strict=True):
+            if draw.links is not None and link not in draw.links:
+                model.body_pos[body] = [0.0, 0.0, PARKED_Z_M]
+                continue
             model.body_pos[body] = T[:3, 3]
             model.body_quat[body] = np.roll(quaternion_xyzw_from_R(T[:3, :3]), 1)
         model.geom_rgba[self.geom_ids] = self.real_rgba if draw.rgba is None else draw.rgba

@@ -6,7 +6,8 @@
   `appearance.metal_prob`);
 - the hand's visuals hidden, so that the flange carries only what the recipe attaches there
   (`appearance.hide_hand_prob`);
-- another robot in the scene, unlabelled (`distractors.robot_*`).
+- another robot in the scene, unlabelled (`distractors.robot_*`), or loose parts of it: the
+  end of its chain (a hand, a wrist) lying or standing near the arm (`distractors.loose_*`).
 
 Each draw comes from its own random stream, keyed by the seed (and the frame index in `random`
 mode; per sequence otherwise), so a recipe that leaves them at 0 renders what it rendered
@@ -21,7 +22,7 @@ import dataclasses
 import numpy as np
 
 from dream.robot import Robot
-from dream.transforms import invert_T, look_at
+from dream.transforms import R_from_quaternion_xyzw, invert_T, look_at
 from synth.config import SynthConfig
 from synth.other_robot import OtherRobotDraw
 
@@ -29,6 +30,7 @@ CLOSEUP_STREAM = 0xC105
 MATERIAL_STREAM = 0x3A7
 HIDE_HAND_STREAM = 0x41DE
 OTHER_ROBOT_STREAM = 0x07E2
+LOOSE_PARTS_STREAM = 0x1005E
 
 LIGHT_PART_VALUE = 0.5                 # a part this light (HSV value) turns white plastic
 WHITE_PLASTIC_VALUE = (0.85, 1.0)
@@ -40,6 +42,8 @@ METAL_SATURATION = (0.0, 0.08)
 METAL_SPECULAR = (0.6, 1.0)
 METAL_SHININESS = (0.1, 0.5)           # broad highlights, as on a brushed surface
 OTHER_ROBOT_AZIMUTH_SPREAD_RAD = 1.0   # around the direction from the camera through the base
+LOOSE_AZIMUTH_SPREAD_RAD = 1.0         # loose parts: around the direction from the base to the
+                                       # camera
 
 
 def stream(seed: int, key: int, index: int, mode: str) -> np.random.Generator:
@@ -115,6 +119,40 @@ def sample_other_robot(rng: np.random.Generator, config: SynthConfig, other: Rob
     return OtherRobotDraw(T, joints, rgba)
 
 
+def loose_links(other: Robot, start: str) -> tuple[str, ...]:
+    """`start` and every link below it in `other`'s tree."""
+    return tuple(link for link in other.link_names if other.tree.is_ancestor(start, link))
+
+
+def sample_loose_parts(rng: np.random.Generator, config: SynthConfig, other: Robot,
+                       T_cam_base: np.ndarray) -> OtherRobotDraw | None:
+    """With `distractors.loose_prob`, the links of `other` from one of its last
+    `loose_keypoints` keypoint links down, in random joints within its limits, turned at random,
+    their link origins centred `loose_distance_m` (horizontally) from the base towards the camera
+    (within +-`LOOSE_AZIMUTH_SPREAD_RAD`) and `loose_height_m` above the floor; colours as
+    `sample_other_robot`'s."""
+    dc = config.distractors
+    if rng.random() >= dc.loose_prob:
+        return None
+    starts = other.keypoint_names[-dc.loose_keypoints:]
+    links = loose_links(other, starts[int(rng.integers(len(starts)))])
+    joints = rng.uniform(other.joint_lower, other.joint_upper)
+    centre = other.link_poses(joints, links)[:, :3, 3].mean(axis=0)
+    camera = invert_T(T_cam_base)[:3, 3]
+    azimuth = np.arctan2(camera[1], camera[0]) + rng.uniform(-LOOSE_AZIMUTH_SPREAD_RAD,
+                                                             LOOSE_AZIMUTH_SPREAD_RAD)
+    distance, height = rng.uniform(*dc.loose_distance_m), rng.uniform(*dc.loose_height_m)
+    R = R_from_quaternion_xyzw(rng.normal(size=4))   # uniform over rotations
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = np.array([distance * np.cos(azimuth), distance * np.sin(azimuth), height]) - \
+        R @ centre
+    rgba = None
+    if rng.random() >= config.appearance.keep_real_colors_prob:
+        rgba = np.array([*rng.random(3), 1.0])
+    return OtherRobotDraw(T, joints, rgba, links)
+
+
 def with_realism(scene, seed: int, index: int, config: SynthConfig, robot: Robot,
                  aim_joints: np.ndarray, real_rgba: np.ndarray, other: Robot | None):
     """`scene` (a `synth.randomize.SceneDraw`) with this module's draws applied. `aim_joints`
@@ -134,7 +172,9 @@ def with_realism(scene, seed: int, index: int, config: SynthConfig, robot: Robot
         config.appearance.hide_hand_prob
     changes["hide_hand"] = bool(hide)
     if other is not None:
+        T_cam_base = changes.get("T_cam_base", scene.T_cam_base)
         changes["other_robot"] = sample_other_robot(
-            stream(seed, OTHER_ROBOT_STREAM, index, mode), config, other,
-            changes.get("T_cam_base", scene.T_cam_base))
+            stream(seed, OTHER_ROBOT_STREAM, index, mode), config, other, T_cam_base) or \
+            sample_loose_parts(stream(seed, LOOSE_PARTS_STREAM, index, mode), config, other,
+                               T_cam_base)
     return dataclasses.replace(scene, **changes)

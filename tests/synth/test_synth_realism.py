@@ -11,6 +11,7 @@ from dream.transforms import invert_T, transform_points
 from synth.config import config_from_dict
 from synth.randomize import HELD_PART_OVERLAP, sample_frame
 from synth.realism import (
+    LOOSE_AZIMUTH_SPREAD_RAD,
     METAL_SPECULAR,
     OTHER_ROBOT_AZIMUTH_SPREAD_RAD,
     WHITE_PLASTIC_SATURATION,
@@ -27,7 +28,7 @@ RGBA = np.array([[0.9, 0.9, 0.9, 1.0], [0.1, 0.1, 0.1, 1.0], [0.95, 0.95, 0.9, 1
 ALL_ON = {"camera": {"closeup_prob": 0.5}, "intrinsics": {"hfov_rad": [0.9, 1.75]},
           "appearance": {"white_plastic_prob": 0.3, "metal_prob": 0.3, "hide_hand_prob": 0.5},
           "distractors": {"held_prob": 1.0, "held_parts": [1, 3], "held_checker_prob": 0.5,
-                          "robot_prob": 0.5}}
+                          "robot_prob": 0.5, "loose_prob": 0.5}}
 
 
 def frame(seed, index, values, other=None):
@@ -116,3 +117,37 @@ def test_other_robot_stands_beyond_the_arm_in_its_own_joints():
     sequence = {**values, "sequence": {"mode": "fixed_camera"}}
     a, b = frame(6, 0, sequence, UR5), frame(6, 5, sequence, UR5)
     assert np.array_equal(a.scene.other_robot.joints, b.scene.other_robot.joints)
+
+
+def test_loose_parts_are_the_end_of_the_chain_beside_the_arm_on_the_camera_side():
+    values = {"distractors": {"loose_prob": 1.0, "loose_keypoints": 2,
+                              "loose_distance_m": [0.5, 0.7], "loose_height_m": [0.1, 0.3]}}
+    starts = set()
+    for i in range(30):
+        f = frame(8, i, values, PANDA)
+        loose = f.scene.other_robot
+        start = loose.links[0]
+        starts.add(start)
+        assert start in ("panda_link7", "panda_hand")
+        assert loose.links == tuple(k for k in PANDA.link_names
+                                    if PANDA.tree.is_ancestor(start, k))
+        T_base_link = loose.T_base_other @ PANDA.link_poses(loose.joints, loose.links)
+        centre = T_base_link[:, :3, 3].mean(axis=0)
+        assert 0.5 - 1e-9 <= np.linalg.norm(centre[:2]) <= 0.7 + 1e-9
+        assert 0.1 - 1e-9 <= centre[2] <= 0.3 + 1e-9
+        camera = invert_T(f.scene.T_cam_base)[:2, 3]
+        angle = np.arccos(np.dot(centre[:2], camera) / np.linalg.norm(centre[:2]) /
+                          np.linalg.norm(camera))
+        assert angle <= LOOSE_AZIMUTH_SPREAD_RAD + 1e-9
+        assert np.allclose(loose.T_base_other[:3, :3] @ loose.T_base_other[:3, :3].T, np.eye(3))
+    assert starts == {"panda_link7", "panda_hand"}
+
+
+def test_loose_parts_only_where_the_whole_robot_is_not_drawn():
+    both = {"distractors": {"robot_prob": 0.5, "loose_prob": 1.0}}
+    draws = [frame(10, i, both, PANDA).scene.other_robot for i in range(40)]
+    whole = [d for d in draws if d.links is None]
+    assert 8 <= len(whole) <= 32 and all(d is not None for d in draws)
+    alone = {"distractors": {"robot_prob": 0.5}}
+    assert [frame(10, i, alone, PANDA).scene.other_robot is None for i in range(40)] == \
+        [d.links is not None for d in draws]

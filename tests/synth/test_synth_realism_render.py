@@ -11,6 +11,7 @@ from dream.robot import load_robot
 from synth.config import config_from_dict
 from synth.contact_sheet import SHEET_COLUMNS, TILE_WIDTH_PX
 from synth.frames import FrameMaker, hand_geoms
+from synth.other_robot import PARKED_Z_M
 
 FIXED = {"width": 320, "height": 240, "fx": 300.0, "fy": 300.0, "cx": 159.5, "cy": 119.5}
 PLAIN = {"intrinsics": FIXED, "camera": {"radius_m": [1.2, 1.4]},
@@ -61,6 +62,22 @@ def test_other_robot_is_drawn_unlabelled_where_its_links_are():
         assert np.allclose(body_pos[other.body_ids], T_base_link[:, :3, 3], atol=1e-9)
         pixels = np.isin(ids, other.geom_ids)
         assert not rendered.link_ids[pixels].any()      # not labelled as the robot
+        seen += pixels.sum() > MIN_PIXELS
+    assert seen >= 3
+
+
+def test_loose_parts_are_drawn_unlabelled_and_the_rest_of_the_robot_parked():
+    maker, frames = _render({"distractors": {"count": [0, 0], "loose_prob": 1.0,
+                                             "loose_distance_m": [0.4, 0.6]}}, frames=6)
+    other = maker.other_geoms
+    seen = 0
+    for rendered, ids, p, body_pos in frames:
+        drawn = np.isin(other.links, p.scene.other_robot.links)
+        assert drawn.any() and not drawn.all()
+        assert np.all(body_pos[other.body_ids[~drawn], 2] == PARKED_Z_M)
+        assert np.all(body_pos[other.body_ids[drawn], 2] > PARKED_Z_M)
+        pixels = np.isin(ids, other.geom_ids)
+        assert not rendered.link_ids[pixels].any()
         seen += pixels.sum() > MIN_PIXELS
     assert seen >= 3
 
