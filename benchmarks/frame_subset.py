@@ -25,7 +25,7 @@ from dream.io.common import FRAME_DIGITS
 from dream.robot import load_robot
 from synth.config import config_from_dict
 from synth.frames import FrameMaker
-from synth.generate import SYNTH_INFO
+from synth.generate import SYNTH_INFO, done_indices
 
 SET_FILE_PREFIX = "_"   # a set's own files (`_synth.json`, `_camera_settings.json`)
 
@@ -38,8 +38,7 @@ DRAWS = {
 
 
 def frame_indices(folder: Path) -> list[int]:
-    return sorted(int(p.name[:FRAME_DIGITS])
-                  for p in folder.glob("[0-9]" * FRAME_DIGITS + ".json"))
+    return sorted(done_indices(folder))
 
 
 def frames_with(folder: Path, draw: str) -> list[int]:
@@ -57,20 +56,17 @@ def frames_with(folder: Path, draw: str) -> list[int]:
         maker.close()
 
 
-def link_frames(source: Path, indices: list[int], out: Path) -> int:
+def link_frames(source: Path, indices: list[int], out: Path) -> None:
     """`out` as links to the files of `indices` in `source` and the set's own files
     (`_synth.json`, `_camera_settings.json`)."""
     if out.exists():
         raise InputError("the output folder exists", out, "give a new folder")
     wanted = set(indices)
     out.mkdir(parents=True)
-    count = 0
     for path in sorted(source.iterdir()):
         if path.name.startswith(SET_FILE_PREFIX) or (path.name[:FRAME_DIGITS].isdigit()
                                        and int(path.name[:FRAME_DIGITS]) in wanted):
             (out / path.name).symlink_to(path.resolve())
-            count += 1
-    return count
 
 
 def main(argv: list[str] | None = None) -> int:

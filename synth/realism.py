@@ -22,7 +22,7 @@ import dataclasses
 import numpy as np
 
 from dream.robot import Robot
-from dream.transforms import R_from_quaternion_xyzw, invert_T, look_at
+from dream.transforms import R_from_quaternion_xyzw, invert_T, look_at, make_T
 from synth.config import SynthConfig
 from synth.other_robot import OtherRobotDraw
 
@@ -113,10 +113,15 @@ def sample_other_robot(rng: np.random.Generator, config: SynthConfig, other: Rob
                  [0.0, 0.0, 1.0]]
     T[:2, 3] = distance * np.array([np.cos(azimuth), np.sin(azimuth)])
     joints = rng.uniform(other.joint_lower, other.joint_upper)
-    rgba = None
-    if rng.random() >= config.appearance.keep_real_colors_prob:
-        rgba = np.array([*rng.random(3), 1.0])
-    return OtherRobotDraw(T, joints, rgba)
+    return OtherRobotDraw(T, joints, _other_robot_rgba(rng, config))
+
+
+def _other_robot_rgba(rng: np.random.Generator, config: SynthConfig) -> np.ndarray | None:
+    """The other robot's colour: None (its real colours) with
+    `appearance.keep_real_colors_prob`, else one random flat colour (4,)."""
+    if rng.random() < config.appearance.keep_real_colors_prob:
+        return None
+    return np.array([*rng.random(3), 1.0])
 
 
 def loose_links(other: Robot, start: str) -> tuple[str, ...]:
@@ -143,14 +148,9 @@ def sample_loose_parts(rng: np.random.Generator, config: SynthConfig, other: Rob
                                                              LOOSE_AZIMUTH_SPREAD_RAD)
     distance, height = rng.uniform(*dc.loose_distance_m), rng.uniform(*dc.loose_height_m)
     R = R_from_quaternion_xyzw(rng.normal(size=4))   # uniform over rotations
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = np.array([distance * np.cos(azimuth), distance * np.sin(azimuth), height]) - \
-        R @ centre
-    rgba = None
-    if rng.random() >= config.appearance.keep_real_colors_prob:
-        rgba = np.array([*rng.random(3), 1.0])
-    return OtherRobotDraw(T, joints, rgba, links)
+    place = np.array([distance * np.cos(azimuth), distance * np.sin(azimuth), height])
+    return OtherRobotDraw(make_T(R, place - R @ centre), joints, _other_robot_rgba(rng, config),
+                          links)
 
 
 def with_realism(scene, seed: int, index: int, config: SynthConfig, robot: Robot,

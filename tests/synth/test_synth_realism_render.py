@@ -33,6 +33,14 @@ def _render(values: dict, frames: int = 4, seed: int = 3):
         maker.close()
 
 
+def _shown_unlabelled(rendered, ids: np.ndarray, geom_ids: np.ndarray) -> bool:
+    """Whether more than MIN_PIXELS of `geom_ids` are drawn; none of them labelled as the
+    robot."""
+    pixels = np.isin(ids, geom_ids)
+    assert not rendered.link_ids[pixels].any()
+    return bool(pixels.sum() > MIN_PIXELS)
+
+
 def test_hidden_hand_leaves_the_mask_and_keeps_its_label():
     robot = load_robot("panda")
     hand = [robot.link_names.index(k) + 1 for k in
@@ -60,9 +68,7 @@ def test_other_robot_is_drawn_unlabelled_where_its_links_are():
         draw = p.scene.other_robot
         T_base_link = draw.T_base_other @ other.robot.link_poses(draw.joints, other.links)
         assert np.allclose(body_pos[other.body_ids], T_base_link[:, :3, 3], atol=1e-9)
-        pixels = np.isin(ids, other.geom_ids)
-        assert not rendered.link_ids[pixels].any()      # not labelled as the robot
-        seen += pixels.sum() > MIN_PIXELS
+        seen += _shown_unlabelled(rendered, ids, other.geom_ids)
     assert seen >= 3
 
 
@@ -76,9 +82,7 @@ def test_loose_parts_are_drawn_unlabelled_and_the_rest_of_the_robot_parked():
         assert drawn.any() and not drawn.all()
         assert np.all(body_pos[other.body_ids[~drawn], 2] == PARKED_Z_M)
         assert np.all(body_pos[other.body_ids[drawn], 2] > PARKED_Z_M)
-        pixels = np.isin(ids, other.geom_ids)
-        assert not rendered.link_ids[pixels].any()
-        seen += pixels.sum() > MIN_PIXELS
+        seen += _shown_unlabelled(rendered, ids, other.geom_ids)
     assert seen >= 3
 
 

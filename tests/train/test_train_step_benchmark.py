@@ -2,34 +2,28 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import pytest
+
+from tests.benchmark_scripts import load_benchmark
 
 torch = pytest.importorskip("torch")
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = REPO / "configs" / "train" / "tiny.yaml"
-
-
-def _bench():
-    spec = importlib.util.spec_from_file_location("train_step", REPO / "benchmarks"
-                                                  / "train_step.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+BENCH = load_benchmark("train_step")
 
 
 def test_forward_macs_counts_the_convolutions():
     net = torch.nn.Sequential(torch.nn.Conv2d(3, 4, 3, padding=1), torch.nn.ReLU(),
                               torch.nn.Conv2d(4, 2, 1))
-    assert _bench().forward_macs(net, 5, 6) == 5 * 6 * (4 * 3 * 9 + 2 * 4)
+    assert BENCH.forward_macs(net, 5, 6) == 5 * 6 * (4 * 3 * 9 + 2 * 4)
 
 
 def test_the_recipe_and_its_variants_are_timed(capsys):
-    code = _bench().main(["--config", str(TINY), "--variant", "model.skip=add",
-                          "--steps", "1", "--warmup", "0"])
+    code = BENCH.main(["--config", str(TINY), "--variant", "model.skip=add",
+                       "--steps", "1", "--warmup", "0"])
     out = capsys.readouterr().out
     assert code == 0
     rows = [line.split() for line in out.splitlines()[2:]]
@@ -38,6 +32,6 @@ def test_the_recipe_and_its_variants_are_timed(capsys):
 
 
 def test_a_bad_override_is_one_error_line(capsys):
-    assert _bench().main(["--config", str(TINY), "--variant", "model.skp=add"]) == 2
+    assert BENCH.main(["--config", str(TINY), "--variant", "model.skp=add"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "model.skp" in err
