@@ -14,9 +14,11 @@
   learning-rate schedule spans the time available. `BudgetStop` ends the run validated and
   checkpointed at the last planned step, or earlier at the deadline when the probe was
   optimistic. During the run the plan is revised from the measured rate (`BudgetStop`,
-  `revised_steps`). The resolved values are written to the run's config.yaml and checkpoints
-  (the checkpoints with the revised plan); a resumed run keeps its checkpoint's values (and
-  the time it had spent) instead of probing again.
+  `revised_steps`), and the learning-rate schedule re-plans the steps left from the rate it has
+  reached, never rising after its peak (`train.schedule`). The resolved values are written to
+  the run's config.yaml and checkpoints, with the revised plan and the steps trained (the
+  config.yaml when the run ends); a resumed run keeps its checkpoint's values (and the time it
+  had spent) instead of probing again.
 
 `choose_precision`, `steps_per_epoch` and `steps_for_budget` are pure; the rest asks torch and
 times Lightning.
@@ -281,8 +283,9 @@ class BudgetStop(Callback):
     its last step, from the rate measured in this run (`revised_steps`): shrunk whenever it no
     longer fits, grown when by more than `MIN_REPLAN_CHANGE`. A probe taken while the machine
     was busy, or a machine that slows down, no longer leaves most of the budget unused or the
-    schedule cut short. The trainer's
-    step and epoch limits and the module's schedule (`replan(steps)`) follow.
+    schedule cut short. The trainer's step and epoch limits and the module's schedule
+    (`replan(steps)`: the steps left re-planned from the learning rate reached, which never
+    rises after its peak, `train.schedule`) follow.
 
     Args:
         max_steps: the planned optimiser steps.

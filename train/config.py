@@ -271,10 +271,16 @@ class TrainerConfig:
             in what the probe left of the budget (at least one; within max_epochs and a
             max_steps given too). The last epoch may be partial: the run ends validated and
             checkpointed at that step, or at the deadline should the machine run slower than
-            the probe (`train.budget.BudgetStop`). Null: max_steps and max_epochs alone. The
-            run's config.yaml and checkpoints hold the resulting max_steps; a resumed run keeps
-            it, and the time already spent.
+            the probe (`train.budget.BudgetStop`). The plan follows the rate measured during
+            the run, the learning-rate schedule re-planned from the rate it has reached (never
+            rising after its peak; `train.schedule`). Null: max_steps and max_epochs alone.
+            The run's config.yaml (rewritten when the run ends) and checkpoints hold the
+            plan as last revised, with `steps_trained`; a resumed run keeps the plan, and the
+            time already spent.
         budget_probe_steps: timed steps of that probe.
+        steps_trained: recorded by the run, not read: the optimiser steps trained when its
+            checkpoint or config.yaml was written (config.yaml: when the run ended; null while
+            it runs). Under a time budget it can fall short of max_steps (the deadline).
         channels_last: keep the network and its input batches in NHWC memory order (faster
             oneDNN convolutions on CPU; checkpoints and ONNX files are unaffected).
     """
@@ -299,6 +305,7 @@ class TrainerConfig:
     channels_last: bool = False
     time_budget_minutes: float | None = None
     budget_probe_steps: int = 20
+    steps_trained: int | None = None
 
     def __post_init__(self) -> None:
         _require(self.precision in PRECISIONS, "trainer.precision",
@@ -323,6 +330,8 @@ class TrainerConfig:
             _require(self.time_budget_minutes > 0, "trainer.time_budget_minutes",
                      "must be > 0 or null")
         _require(self.budget_probe_steps >= 1, "trainer.budget_probe_steps", "must be >= 1")
+        if self.steps_trained is not None:
+            _require(self.steps_trained >= 0, "trainer.steps_trained", "must be >= 0 or null")
 
     @property
     def threads(self) -> int:

@@ -14,7 +14,6 @@ The checkpoint carries the resolved config (keypoint names, robot, preprocessing
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Any
 
 import lightning as L
@@ -25,25 +24,16 @@ from train.checkpoint import CHECKPOINT_KEY, checkpoint_payload
 from train.config import TrainConfig
 from train.metrics import KeypointErrors, keypoint_errors, summarize
 from train.model import build_model
+from train.schedule import LrSchedule, lr_factor  # noqa: F401  (lr_factor re-exported)
 
 TRAIN, VAL, TEST = "train", "val", "test"
 _FOCAL_EPS = 1e-4  # belief clamp before the logarithms of the focal loss
 
 
-def lr_factor(step: int, total_steps: int, schedule: str, warmup_fraction: float,
-              final_fraction: float) -> float:
-    """Learning rate / peak learning rate at optimiser step `step` of `total_steps`.
-
-    "onecycle": linear warm-up over `warmup_fraction` of the steps, then cosine down to
-    `final_fraction`; "cosine": the same without warm-up; "constant": 1.
-    """
-    if schedule == "constant":
-        return 1.0
-    warmup = int(warmup_fraction * total_steps) if schedule == "onecycle" else 0
-    if step < warmup:
-        return (step + 1) / warmup
-    progress = min(1.0, (step - warmup) / max(1, total_steps - warmup))
-    return final_fraction + (1 - final_fraction) * 0.5 * (1 + math.cos(math.pi * progress))
+def with_steps_trained(config: TrainConfig, steps: int | None) -> TrainConfig:
+    """`config` recording `steps` optimiser steps trained (`trainer.steps_trained`; None: not
+    recorded, the run has not ended)."""
+    return config.replace(trainer=dataclasses.replace(config.trainer, steps_trained=steps))
 
 
 def foreground_weight_at(step: int, total_steps: int, start: float, end: float | None) -> float:
@@ -91,6 +81,7 @@ class BeliefModule(L.LightningModule):
         self.config = config
         self.model = build_model(config.model)
         self._results: dict[str, list[KeypointErrors]] = {VAL: [], TEST: []}
+        self._lr_schedule: LrSchedule | None = None   # made with the optimiser
 
     def forward(self, image: torch.Tensor):
         return self.model(image)
@@ -175,19 +166,26 @@ class BeliefModule(L.LightningModule):
             (decay if param.ndim >= 2 else no_decay).append(param)
         optimizer = torch.optim.AdamW([{"params": decay, "weight_decay": optim.weight_decay},
                                        {"params": no_decay, "weight_decay": 0.0}], lr=optim.lr)
-        self._planned_steps = max(1, int(self.trainer.estimated_stepping_batches))
-        scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: lr_factor(
-            step, self._planned_steps, optim.schedule, optim.warmup_fraction,
-            optim.final_lr_fraction))
+        self._lr_schedule = LrSchedule(max(1, int(self.trainer.estimated_stepping_batches)),
+                                       optim.schedule, optim.warmup_fraction,
+                                       optim.final_lr_fraction)
+        scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, self._lr_schedule)
         return {"optimizer": optimizer,
                 "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
 
     def replan(self, total_steps: int) -> None:
-        """The run's step plan revised (`train.budget.BudgetStop`): the learning-rate schedule
-        spans `total_steps` from now on, and checkpoints record them."""
-        self._planned_steps = max(1, int(total_steps))
+        """The run's step plan revised at the current step (`train.budget.BudgetStop`): the
+        learning-rate schedule re-plans the steps from here to `total_steps` from the rate it
+        has reached (`train.schedule`: after the peak it never rises), and checkpoints record
+        the new plan."""
+        total_steps = max(1, int(total_steps))
+        if self._lr_schedule is not None:
+            self._lr_schedule.revise(self.global_step, total_steps)
         self.config = self.config.replace(trainer=dataclasses.replace(
-            self.config.trainer, max_steps=self._planned_steps))
+            self.config.trainer, max_steps=total_steps))
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        checkpoint[CHECKPOINT_KEY] = checkpoint_payload(self.config)
+        """The checkpoint records the config with the current step plan (`trainer.max_steps`,
+        as a time budget last revised it) and the steps trained so far."""
+        checkpoint[CHECKPOINT_KEY] = checkpoint_payload(
+            with_steps_trained(self.config, int(self.global_step)))

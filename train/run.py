@@ -1,10 +1,12 @@
 """One training run: data -> resolved config -> Lightning Trainer -> checkpoints and metrics.
 
-A run folder holds `config.yaml` (the resolved config), `last.ckpt` (refreshed every epoch, every
-`trainer.checkpoint_every_n_steps` steps and on an exception or Ctrl-C), `best.ckpt` (the best
-`trainer.monitor`) and `metrics.csv` (one row per epoch). Running again into a folder that has a
-`last.ckpt` resumes from it (epoch, optimiser and schedule), e.g. after a kill or with a larger
-`trainer.max_epochs`; the model, input and keypoints must be those of the checkpoint.
+A run folder holds `config.yaml` (the resolved config, written again when the run ends with the
+step plan as a time budget last revised it and the steps trained, `trainer.steps_trained`),
+`last.ckpt` (refreshed every epoch, every `trainer.checkpoint_every_n_steps` steps and on an
+exception or Ctrl-C), `best.ckpt` (the best `trainer.monitor`) and `metrics.csv` (one row per
+epoch). Running again into a folder that has a `last.ckpt` resumes from it (epoch, optimiser and
+schedule), e.g. after a kill or with a larger `trainer.max_epochs`; the model, input and
+keypoints must be those of the checkpoint.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ from train.data import (
     read_folders,
     resolve_from_data,
 )
-from train.module import BeliefModule
+from train.module import BeliefModule, with_steps_trained
 from train.onnx_init import (
     check_metadata,
     init_from_onnx,
@@ -69,7 +71,8 @@ _FALLBACK_MONITOR = "train/loss_epoch"  # when there is no validation data
 
 @dataclass(frozen=True)
 class TrainResult:
-    """Where a run wrote its outputs, and its last epoch's metrics."""
+    """Where a run wrote its outputs, its config as config.yaml records it at the end, and its
+    last epoch's metrics."""
 
     run_dir: Path
     last_checkpoint: Path
@@ -378,7 +381,7 @@ def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | 
         config = _as_started(config, saved)
     elif config.trainer.init_from is not None:
         _check_init_source(config)
-    config = resolve_precision(config)
+    config = with_steps_trained(resolve_precision(config), None)   # recorded when it ends
     train_set, val_set = make_datasets(config, train_sequences, val_sequences)
     check_image_files(train_set, val_set)
     train_loader = make_loader(train_set, config, shuffle=True)
@@ -411,6 +414,8 @@ def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | 
         if error is exc:
             raise
         raise error from None
+    config = with_steps_trained(module.config, trainer.global_step)   # the plan as revised
+    write_bytes_atomic(run_dir / CONFIG_FILE, dump_config(config).encode("utf-8"), durable=False)
     metrics = {k.removesuffix("_epoch"): _scalar(v) for k, v in trainer.callback_metrics.items()
                if not k.endswith("_step")}
     best_path = Path(best.best_model_path) if best.best_model_path else last_path

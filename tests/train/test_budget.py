@@ -15,6 +15,8 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("lightning")
 pytest.importorskip("albumentations")
 
+from lightning.pytorch.callbacks import Callback  # noqa: E402
+
 import train.run as train_run  # noqa: E402
 from dream.errors import InputError  # noqa: E402
 from tests.trainkit import make_drawn_dataset  # noqa: E402
@@ -25,6 +27,25 @@ from train.run import run_training  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = REPO / "configs" / "train" / "tiny.yaml"
+RATE_ROUNDING = 1e-12   # a warm-up revised mid-rise may recompute its rate this much lower
+
+
+class RateRecorder(Callback):
+    """The learning rate of every optimiser step after the first, read where `BudgetStop`
+    revises the plan (after the step's scheduler update)."""
+
+    def __init__(self) -> None:
+        self.rates: list[float] = []
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        self.rates.append(trainer.optimizers[0].param_groups[0]["lr"])
+
+
+def _rises_then_falls(rates: list[float]) -> bool:
+    """Whether `rates` never fall before their peak (but for rounding) nor rise after it."""
+    peak = int(np.argmax(rates))
+    rise, fall = np.diff(rates[:peak + 1]), np.diff(rates[peak:])
+    return bool(np.all(rise >= -RATE_ROUNDING * rates[peak]) and np.all(fall <= 0))
 
 
 @pytest.fixture(scope="module")
@@ -189,9 +210,12 @@ def test_a_run_slower_than_its_probe_stops_validated_at_the_deadline(drawn, tmp_
                       weights_only=False)["global_step"] == stopped
     assert _rows(tmp_path / "metrics.csv")[-1]["val/loss"] != ""
     assert "step plan was optimistic" in caplog.text
+    recorded = load_config(tmp_path / "config.yaml").trainer
+    assert (recorded.max_steps, recorded.steps_trained) == (400, stopped)
     # run again into the folder: the checkpoint's clock says the budget is spent, no more steps
     again = run_training(load_config(TINY, overrides), tmp_path)
     assert stops[-1].spent_s() >= 60.0 and again.config.trainer.max_steps == 400
+    assert again.config.trainer.steps_trained == stopped
     assert torch.load(again.last_checkpoint, map_location="cpu",
                       weights_only=False)["global_step"] == stopped
 
@@ -207,7 +231,7 @@ def test_the_step_plan_follows_the_measured_rate(drawn, tmp_path, monkeypatch, p
     deadline, with the learning rate at the end of its schedule, validated, the checkpoint
     recording the revised plan, which spends most of the budget."""
     overrides = [f"data.train=[{drawn}]", "trainer.time_budget_minutes=1",
-                 "trainer.max_epochs=200"]
+                 "trainer.max_epochs=200", "trainer.num_threads=1"]
     monkeypatch.setattr("train.run.measure_speed", _planned_speed(probed, 60.0))
     ticks = (tick_s * i for i in range(10**6))
     stops: list[budget.BudgetStop] = []
@@ -221,9 +245,11 @@ def test_the_step_plan_follows_the_measured_rate(drawn, tmp_path, monkeypatch, p
         return stop
 
     monkeypatch.setattr("train.run._budget_stop", fake_clock_stop)
-    run = run_training(load_config(TINY, overrides), tmp_path)
+    recorder = RateRecorder()
+    run = run_training(load_config(TINY, overrides), tmp_path, callbacks=[recorder])
     stop = stops[0]
     assert stop.revisions and stop.stopped_at_deadline is None
+    assert _rises_then_falls(recorder.rates), (stop.revisions, recorder.rates)
     final = stop.revisions[-1][1]
     assert (final < probed) == (tick_s >= 1.0), stop.revisions
     spent = stop.spent_s()      # (this reading and the last checkpoints' advance the clock too)
@@ -231,9 +257,52 @@ def test_the_step_plan_follows_the_measured_rate(drawn, tmp_path, monkeypatch, p
     ckpt = torch.load(run.last_checkpoint, map_location="cpu", weights_only=False)
     assert ckpt["global_step"] == final
     assert checkpoint_config(run.last_checkpoint).trainer.max_steps == final
+    recorded = load_config(tmp_path / "config.yaml").trainer
+    assert (recorded.max_steps, recorded.steps_trained) == (final, final)
     lr = ckpt["lr_schedulers"][0]["_last_lr"][0]
     assert lr <= 2 * run.config.optim.lr * run.config.optim.final_lr_fraction
     assert _rows(tmp_path / "metrics.csv")[-1]["val/loss"] != ""
+
+
+def test_config_yaml_records_the_plan_as_revised_and_the_steps_trained(drawn, tmp_path,
+                                                                      monkeypatch):
+    """A run whose plan grew, then shrank as the machine slowed down (a fake clock: 0.25 s a
+    reading, then 20 s), and whose deadline came before its last plan: config.yaml, written
+    again when the run ends, records that plan and the steps trained, as its last checkpoint
+    does; the learning rate never rose after its peak."""
+    overrides = [f"data.train=[{drawn}]", "trainer.time_budget_minutes=1",
+                 "trainer.max_epochs=200", "trainer.num_threads=1"]
+    monkeypatch.setattr("train.run.measure_speed", _planned_speed(40, 60.0))
+    slow_from = 45      # readings at 0.25 s, then 20 s each
+
+    def seconds(reading: int) -> float:
+        return 0.25 * min(reading, slow_from) + 20.0 * max(0, reading - slow_from)
+
+    readings = iter(range(10**6))
+    stops: list[budget.BudgetStop] = []
+    real_stop = train_run._budget_stop
+
+    def fake_clock_stop(config, speed, val_images, step_cap=None):
+        stop = real_stop(config, speed, val_images, step_cap)
+        stop.clock = lambda: seconds(next(readings))
+        stop._start = stop.clock()
+        stops.append(stop)
+        return stop
+
+    monkeypatch.setattr("train.run._budget_stop", fake_clock_stop)
+    recorder = RateRecorder()
+    run = run_training(load_config(TINY, overrides), tmp_path, callbacks=[recorder])
+    stop = stops[0]
+    trained = stop.stopped_at_deadline
+    assert trained is not None and trained < stop.max_steps
+    assert [new > 40 for _, new in stop.revisions][:1] == [True] and len(stop.revisions) > 1
+    recorded = load_config(tmp_path / "config.yaml")
+    assert (recorded.trainer.max_steps, recorded.trainer.steps_trained) == (stop.max_steps,
+                                                                           trained)
+    assert recorded == run.config == checkpoint_config(run.last_checkpoint)
+    assert torch.load(run.last_checkpoint, map_location="cpu",
+                      weights_only=True)["global_step"] == trained
+    assert _rises_then_falls(recorder.rates), (stop.revisions, recorder.rates)
 
 
 def test_revised_steps():
