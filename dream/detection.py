@@ -31,7 +31,7 @@ from dream.calibration import Observations
 from dream.errors import InputError, RobotError
 from dream.io import load_image
 from dream.peaks import PeakSettings, find_peaks_batch
-from dream.pipeline import joints_in_robot_order, robot_for
+from dream.pipeline import check_option_agrees, joints_in_robot_order, robot_for
 from dream.preprocess import InputTransform, Preprocess
 from dream.robot import Robot
 from dream.sequence import Sequence
@@ -136,10 +136,14 @@ def robot_for_model(robot: Robot, model: KeypointModel) -> Robot:
         raise _keypoint_mismatch(model, robot.name, str(exc)) from None
 
 
-def load_model_robot(sequence: Sequence, model: KeypointModel,
-                     robot: str | None = None) -> Robot:
+def load_model_robot(sequence: Sequence, model: KeypointModel, robot: str | None = None,
+                     option_keypoints: tuple[str, ...] | None = None) -> Robot:
     """The sequence's robot (or the named one: built-in name or URDF path) with the model's
-    keypoints; a keypoint that is not a link of it is one `InputError`."""
+    keypoints; a keypoint that is not a link of it is one `InputError`, and so are
+    `option_keypoints` (--keypoints) that name other links than the model's."""
+    if option_keypoints:
+        check_option_agrees(tuple(option_keypoints), tuple(model.keypoint_names),
+                            f"the model {_model_path(model) or ''}".rstrip())
     try:
         return robot_for(sequence, robot, tuple(model.keypoint_names))
     except RobotError as exc:

@@ -40,20 +40,28 @@ log = logging.getLogger(__name__)
 
 FIX_ROBOT_OPTION = ("give --robot a built-in robot (dream robots lists them) or the path of "
                     "a .urdf file")
+KEYPOINTS_OPTION = "--keypoints"
 
 
 def robot_for(sequence: Sequence, robot: str | None = None,
               keypoints: tuple[str, ...] | None = None, *,
               robot_from: str | Path | None = None,
-              keypoints_from: str | Path | None = None) -> Robot:
+              keypoints_from: str | Path | None = None,
+              option_keypoints: tuple[str, ...] | None = None) -> Robot:
     """The robot of a sequence (or the one named), with the given keypoints or its defaults.
 
     An unknown robot is an `InputError` naming where its name came from: `robot_from` (a file,
     e.g. RESULT.json), else the --robot option when `robot` is given, else the data
     (`sequence.source`). Keypoints that are not links of the robot are an `InputError` naming
     `keypoints_from` (e.g. the data, whose labels name them) when given; without it they stay a
-    `RobotError` for the caller to attribute (`dream.detection` names the model)."""
+    `RobotError` for the caller to attribute (`dream.detection` names the model).
+    `option_keypoints` (the links of --keypoints) are used where `keypoints` are not given;
+    where they are, --keypoints naming other links is an `InputError`."""
     name = robot or sequence.robot
+    if keypoints and option_keypoints:
+        check_option_agrees(option_keypoints, keypoints, str(keypoints_from or "the data"))
+    elif option_keypoints and is_robot_reference(name):
+        return robot_with_option_keypoints(name, tuple(option_keypoints))
     try:
         return load_robot(name, list(keypoints) if keypoints else None)
     except RobotError as exc:
@@ -75,6 +83,47 @@ def robot_for(sequence: Sequence, robot: str | None = None,
                              "the built-in ones), or pass --robot with the robot they belong "
                              "to") from None
         raise
+
+
+def check_option_agrees(option_keypoints: tuple[str, ...], keypoints: tuple[str, ...],
+                        whose: str) -> None:
+    """--keypoints must name the links that fix the keypoints already (`whose`: a model's, the
+    labels' or a result's): the same links in any order; otherwise one `InputError` line."""
+    if set(option_keypoints) != set(keypoints) or len(option_keypoints) != len(keypoints):
+        raise InputError(f"{KEYPOINTS_OPTION} {','.join(option_keypoints)} contradicts the "
+                         f"keypoints of {whose} ({', '.join(keypoints)})",
+                         fix=f"drop {KEYPOINTS_OPTION} (the keypoints come from {whose})")
+
+
+def robot_with_option_keypoints(name: str, keypoints: tuple[str, ...]) -> Robot:
+    """Robot `name` (built-in name or URDF path) with the links of --keypoints; a link the URDF
+    lacks is one `InputError` line naming it and the command that lists the links; keypoints
+    that coincide or stay on one line for every joint value are logged as warnings."""
+    from dream.robot import parse_urdf
+    from dream.robot.keypoint_choice import analyse_keypoints
+    from dream.robot.registry import urdf_path_of
+
+    fix = f"dream robots --urdf {name} lists its links and suggests keypoints"
+    try:
+        robot = load_robot(name, list(keypoints))
+    except RobotError as exc:
+        links = parse_urdf(urdf_path_of(name)).links
+        unknown = [k for k in keypoints if k not in links]
+        problem = (f"{KEYPOINTS_OPTION} names {', '.join(repr(k) for k in unknown)}, not "
+                   f"{'a link' if len(unknown) == 1 else 'links'} of robot {name!r}"
+                   if unknown else f"{KEYPOINTS_OPTION} {','.join(keypoints)}: {exc}")
+        raise InputError(problem, fix=fix) from None
+    advice = analyse_keypoints(robot.tree, robot.base_link, keypoints)
+    for group in advice.given_coincident:
+        log.warning("%s: %s coincide for every joint value and cannot be told apart; keep one",
+                    KEYPOINTS_OPTION, ", ".join(group))
+    line = advice.given_line
+    if line is not None:
+        log.warning("%s: the keypoints stay on one line %s; %s", KEYPOINTS_OPTION,
+                    "(the same for every joint value), so no number of frames fixes the "
+                    "camera's rotation about it" if line.fixed_line else "in every joint "
+                    "configuration, so no single frame fixes the camera", fix)
+    return robot
 
 
 def joints_in_robot_order(sequence: Sequence, robot: Robot) -> np.ndarray:

@@ -24,6 +24,7 @@ class SampleSettings:
     """How to draw a sample sequence. Metres, radians, pixels, seconds."""
 
     robot: str = "panda"
+    keypoints: tuple[str, ...] | None = None   # keypoint links (None: the built-in robot's)
     num_frames: int = 20
     pixel_noise_px: float = 1.0
     outlier_fraction: float = 0.0
@@ -41,6 +42,11 @@ class SampleSettings:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        if self.keypoints is not None:
+            if isinstance(self.keypoints, str) or not self.keypoints or not all(
+                    isinstance(k, str) and k for k in self.keypoints):
+                raise InputError(f"keypoints must be link names, got {self.keypoints!r}")
+            object.__setattr__(self, "keypoints", tuple(self.keypoints))
         if isinstance(self.num_frames, bool) or not isinstance(self.num_frames, (int, np.integer)) \
                 or self.num_frames < 1:
             raise InputError(f"num_frames must be a whole number >= 1, got {self.num_frames!r}")
@@ -88,7 +94,7 @@ def random_joints(rng: np.random.Generator, robot: Robot, n: int,
 def make_sample(spec: SampleSettings) -> Sequence:
     """A keypoint-only sequence with noisy labels and exact ground truth."""
     rng = np.random.default_rng(spec.seed)
-    robot = load_robot(spec.robot)
+    robot = load_robot(spec.robot, spec.keypoints)
     camera = spec.camera
     T_cam_base = random_camera_pose(rng, spec)
     joints = random_joints(rng, robot, spec.num_frames, spec.joint_range_fraction)

@@ -45,6 +45,7 @@ from dream.errors import InputError
 from dream.io import check_output_file
 from dream.io.fields import one_line, os_reason
 from dream.peaks import PeakSettings, peak_params_from_overrides
+from dream.robot.identity import robot_urdf_sha256
 from export.runner import INPUT_NAME, ModelMetadata, OnnxKeypointModel
 from train.checkpoint import load_checkpoint
 from train.config import TrainConfig
@@ -112,14 +113,16 @@ def config_sha256(config: TrainConfig) -> str:
 
 
 def metadata_for(config: TrainConfig, checkpoint: str | Path | None = None) -> ModelMetadata:
-    """The ONNX metadata of a checkpoint's resolved config."""
+    """The ONNX metadata of a checkpoint's resolved config, with the SHA-256 of its robot's URDF
+    where that URDF (a built-in robot's, or the path the config names) can be read here."""
     if not config.data.keypoints or not config.data.robot:
         raise InputError("the checkpoint's config names no keypoints or robot", checkpoint,
                          "export a checkpoint written by dream train")
     return ModelMetadata(robot=config.data.robot, keypoint_names=tuple(config.data.keypoints),
                          preprocess=config.input, output_stride=config.model.output_stride,
                          dream_version=__version__, config_sha256=config_sha256(config),
-                         belief_sigma=config.data.belief_sigma, peak_params=config.eval.peaks)
+                         belief_sigma=config.data.belief_sigma, peak_params=config.eval.peaks,
+                         urdf_sha256=robot_urdf_sha256(config.data.robot))
 
 
 @contextmanager

@@ -7,7 +7,8 @@ install runs it).
 
 The model file carries its own description as ONNX metadata (`ModelMetadata`, written by
 `dream export`): robot, keypoint names, input size, preprocessing, output stride, project
-version, config hash, belief sigma and the peak finder's defaults.
+version, config hash, belief sigma, the peak finder's defaults and the SHA-256 of the robot's
+URDF.
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ KEY_VERSION = "dream.version"
 KEY_CONFIG_HASH = "dream.config_sha256"
 KEY_BELIEF_SIGMA = "dream.belief_sigma"
 KEY_PEAK_PARAMS = "dream.peak_params"
+KEY_URDF_HASH = "dream.urdf_sha256"   # optional: models exported before it lack it
 REQUIRED_KEYS = (KEY_FORMAT, KEY_ROBOT, KEY_KEYPOINTS, KEY_INPUT_WIDTH, KEY_INPUT_HEIGHT,
                  KEY_PREPROCESS, KEY_STRIDE, KEY_VERSION, KEY_CONFIG_HASH, KEY_BELIEF_SIGMA)
 
@@ -78,6 +80,7 @@ class ModelMetadata:
         config_sha256: sha256 of the training config's canonical JSON.
         belief_sigma: Gaussian sigma of the training targets, map pixels.
         peak_params: the peak finder's constants of the training config, or None.
+        urdf_sha256: sha256 of the robot's URDF file at export, or None (unknown).
     """
 
     robot: str
@@ -88,6 +91,7 @@ class ModelMetadata:
     config_sha256: str
     belief_sigma: float
     peak_params: PeakSettings | None = None
+    urdf_sha256: str | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.robot, str) or not self.robot:
@@ -111,6 +115,9 @@ class ModelMetadata:
         object.__setattr__(self, "belief_sigma", sigma)
         if self.peak_params is not None and not isinstance(self.peak_params, PeakSettings):
             raise InputError("peak_params must be a dream.peaks.PeakSettings or None")
+        if self.urdf_sha256 is not None and (not isinstance(self.urdf_sha256, str)
+                                             or not _SHA256.fullmatch(self.urdf_sha256)):
+            raise InputError(f"URDF hash must be 64 hex digits, got {self.urdf_sha256!r}")
 
     def to_props(self) -> dict[str, str]:
         """metadata_props: string keys -> string values (numbers as text, lists as JSON)."""
@@ -128,6 +135,8 @@ class ModelMetadata:
         }
         if self.peak_params is not None:
             props[KEY_PEAK_PARAMS] = json.dumps(asdict(self.peak_params), sort_keys=True)
+        if self.urdf_sha256 is not None:
+            props[KEY_URDF_HASH] = self.urdf_sha256
         return props
 
     @classmethod
@@ -155,7 +164,7 @@ class ModelMetadata:
                 _field(props, KEY_INPUT_HEIGHT, int, path))
         try:
             meta = cls(props[KEY_ROBOT], tuple(names), preprocess, stride, props[KEY_VERSION],
-                       props[KEY_CONFIG_HASH], sigma, peak_params)
+                       props[KEY_CONFIG_HASH], sigma, peak_params, props.get(KEY_URDF_HASH))
         except InputError as exc:
             raise InputError(f"corrupt dream metadata: {exc.problem}", path, FIX) from None
         if size != (preprocess.input_width, preprocess.input_height):
@@ -311,6 +320,11 @@ class OnnxKeypointModel:
     @property
     def peak_params(self) -> PeakSettings | None:
         return self.metadata.peak_params
+
+    @property
+    def urdf_sha256(self) -> str | None:
+        """sha256 of the URDF the model was trained on, when its metadata carries it."""
+        return self.metadata.urdf_sha256
 
     def run(self, batch: np.ndarray) -> dict[str, np.ndarray]:
         """(N, 3, H, W) float32 normalised input (`Preprocess.apply`) -> {"belief": (N, K,

@@ -10,10 +10,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from dream.cli.options import (
+    KEYPOINTS_HELP,
     add_command,
     check_positive,
     check_seed,
     parse_intrinsics,
+    parse_keypoints,
     parse_numbers,
 )
 from dream.errors import InputError
@@ -58,6 +60,7 @@ class PlanRequest:
     table_z: str = "0"
     keep_out: tuple[str, ...] = ()
     model: str | None = None
+    keypoints: str | None = None
     noise_px: float = 1.0
     margin_px: float = 20.0
     max_cut: float = 0.2
@@ -126,13 +129,21 @@ def _prior(request: PlanRequest):
 
 
 def _robot(request: PlanRequest):
+    """The robot with the model's keypoints (--keypoints must name the same links), else those
+    of --keypoints, else its own."""
     from dream.detection import load_keypoint_model
+    from dream.pipeline import check_option_agrees, robot_with_option_keypoints
     from dream.robot import load_robot
 
-    robot = load_robot(request.robot)
+    keypoints = parse_keypoints(request.keypoints)
     if request.model is not None:
-        robot = robot.with_keypoints(load_keypoint_model(request.model).keypoint_names)
-    return robot
+        names = tuple(load_keypoint_model(request.model).keypoint_names)
+        if keypoints:
+            check_option_agrees(keypoints, names, f"the model {request.model}")
+        return load_robot(request.robot, names)
+    if keypoints:
+        return robot_with_option_keypoints(request.robot, keypoints)
+    return load_robot(request.robot)
 
 
 def _feasibility(request: PlanRequest):
@@ -240,6 +251,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "--keep-out=-1,... when the first number is negative; default: none)")
     p.add_argument("--model", metavar="MODEL.onnx", help="take the keypoints this detector "
                    "finds (default: the robot's own keypoints)")
+    p.add_argument("--keypoints", metavar="LINK,LINK,...", help=KEYPOINTS_HELP)
     p.add_argument("--noise-px", type=float, default=1.0, help="expected keypoint noise, px "
                    "1-sigma (default: %(default)s)")
     p.add_argument("--margin-px", type=float, default=20.0, help="keypoints at least this far "

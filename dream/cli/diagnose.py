@@ -58,7 +58,8 @@ def run_diagnose(request: DiagnoseRequest) -> dict:
                          f"record more than {settings.folds} frames (20 or more give a useful "
                          "diagnosis), or lower --folds")
     robot, obs, _ = observe(seq, request.robot, request.model, request.use_labels, sys.stdout,
-                            threads=request.threads, batch=request.batch)
+                            threads=request.threads, batch=request.batch,
+                            keypoints=request.keypoint_links)
     doc = run_diagnosis(seq, robot, obs, request.out, settings,
                         progress=lambda message: print(message, file=sys.stderr))
     _print_diagnosis(doc, request.out)

@@ -44,7 +44,8 @@ def run_eval(request: EvalRequest) -> dict:
     names = [k["name"] for f in doc["per_frame"][:1] for k in f.get("keypoints") or []]
     robot_from = request.result if not request.robot and doc.get("robot") else None
     robot = robot_for(seq, request.robot or doc.get("robot"), tuple(names) or None,
-                      robot_from=robot_from, keypoints_from=request.result)
+                      robot_from=robot_from, keypoints_from=request.result,
+                      option_keypoints=request.keypoint_links)
     metrics = evaluate(seq, robot, doc)
     write_json_atomic(request.out, metrics)
     _print_metrics(metrics)

@@ -14,24 +14,33 @@ log = logging.getLogger("dream")
 
 
 def observe(seq, robot: str | None, model: str | None, use_labels: bool, out: TextIO, *,
-            threads: int | None = None, batch: int | None = None, loaded_model: Any = None):
-    """Robot, observations and the loaded network (None with the labels)."""
+            threads: int | None = None, batch: int | None = None, loaded_model: Any = None,
+            keypoints: tuple[str, ...] | None = None):
+    """Robot, observations and the loaded network (None with the labels). `keypoints` (the
+    links of --keypoints) are used where neither the model nor the labels name keypoints; where
+    they do, naming other links is an `InputError`."""
     if model is not None:
         return detect(seq, robot, model, out, threads=threads, batch=batch,
-                      loaded_model=loaded_model)
-    from dream.pipeline import observations_from_labels, robot_for
+                      loaded_model=loaded_model, keypoints=keypoints)
+    from dream.pipeline import check_option_agrees, observations_from_labels, robot_for
     from dream.plausibility import check_robot_readings
 
-    keypoints = seq.keypoint_names if use_labels else None
-    robot_model = robot_for(seq, robot, keypoints, keypoints_from=seq.source)
+    labelled = tuple(seq.keypoint_names) if use_labels else ()
+    if labelled and keypoints:
+        check_option_agrees(keypoints, labelled, f"the labels of {seq.source}")
+    robot_model = robot_for(seq, robot, labelled or None, keypoints_from=seq.source,
+                            option_keypoints=keypoints)
     check_robot_readings(seq, robot_model)
     return robot_model, observations_from_labels(seq, robot_model), None
 
 
 def detect(seq, robot: str | None, model: str, out: TextIO, *, threads: int | None = None,
-           batch: int | None = None, loaded_model: Any = None):
+           batch: int | None = None, loaded_model: Any = None,
+           keypoints: tuple[str, ...] | None = None):
     """Robot, observations and the loaded network of `--model` (`loaded_model`: that network
-    already loaded), with a progress line on stderr every `PROGRESS_EVERY_FRAMES` frames."""
+    already loaded), with a progress line on stderr every `PROGRESS_EVERY_FRAMES` frames;
+    `keypoints` (--keypoints) must name the model's. A model trained on another robot (another
+    built-in, or a URDF of other content: `dream.robot.identity`) is a warning."""
     from dream.detection import (
         DEFAULT_BATCH_SIZE,
         PROGRESS_EVERY_FRAMES,
@@ -49,12 +58,16 @@ def detect(seq, robot: str | None, model: str, out: TextIO, *, threads: int | No
     network = loaded_model
     if network is None:
         network = load_keypoint_model(model, threads=threads)
-    robot_model = load_model_robot(seq, network, robot)
+    robot_model = load_model_robot(seq, network, robot, keypoints)
     check_robot_readings(seq, robot_model)
     trained_on = getattr(network, "robot", None)
-    if trained_on is not None and trained_on != robot_model.name:
-        log.warning("the model was trained on robot '%s', the data is of '%s'", trained_on,
-                    robot_model.name)
+    if trained_on:
+        from dream.robot.identity import TrainedRobot, robot_difference
+
+        difference = robot_difference(
+            TrainedRobot(trained_on, getattr(network, "urdf_sha256", None)), robot_model)
+        if difference is not None:
+            log.warning("%s", difference)
     every = PROGRESS_EVERY_FRAMES
 
     def progress(done: int, total: int) -> None:  # a line each time `every` is crossed

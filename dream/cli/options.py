@@ -18,6 +18,9 @@ INTRINSICS_HELP = ("fx,fy,cx,cy[,width,height] in pixels, for data without intri
                    "its own needs --override-intrinsics as well)")
 OVERRIDE_HELP = "let --intrinsics or --camera-info replace the data's own camera"
 ROBOT_HELP = "built-in robot name or URDF path (default: the data's)"
+KEYPOINTS_HELP = ("comma-separated keypoint links, which a user URDF needs (dream robots --urdf "
+                  "FILE suggests them; default: the model's, the labels' or the built-in "
+                  "robot's)")
 DATA_FILE_HELP = "dataset folder or .npz"
 INTERPOLATE, AS_LOGGED = "interpolate", "as-logged"
 JOINT_READINGS = (INTERPOLATE, AS_LOGGED)  # what --joint-readings does with a held joint log
@@ -106,13 +109,29 @@ def _parse_distortion(text: str) -> tuple[float, ...]:
     return values + (0.0,) * (5 - len(values))
 
 
+def parse_keypoints(text: str | None) -> tuple[str, ...] | None:
+    """The link names of `--keypoints a,b,c` (None when not given); an empty or repeated name
+    is one `InputError` line."""
+    if text is None:
+        return None
+    names = tuple(name.strip() for name in text.split(","))
+    fix = "give --keypoints LINK,LINK,... (dream robots --urdf FILE suggests them)"
+    if not all(names):
+        raise InputError(f"--keypoints '{text}' has an empty link name", fix=fix)
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise InputError(f"--keypoints '{text}' names {', '.join(repeated)} twice", fix=fix)
+    return names
+
+
 @dataclass(frozen=True, kw_only=True)
 class DataOptions:
-    """The options of the commands that read a dataset, besides `--data` itself: `--robot`,
-    the camera (`--intrinsics`, `--distortion`, `--camera-info`, `--override-intrinsics`) and a
-    ROS bag's topics. The commands' requests derive from it."""
+    """The options of the commands that read a dataset, besides `--data` itself: `--robot`
+    and its `--keypoints`, the camera (`--intrinsics`, `--distortion`, `--camera-info`,
+    `--override-intrinsics`) and a ROS bag's topics. The commands' requests derive from it."""
 
     robot: str | None = None
+    keypoints: str | None = None
     intrinsics: str | None = None
     override_intrinsics: bool = False
     camera_info: str | None = None
@@ -120,6 +139,11 @@ class DataOptions:
     image_topic: str | None = None
     joint_topic: str | None = None
     camera_info_topic: str | None = None
+
+    @property
+    def keypoint_links(self) -> tuple[str, ...] | None:
+        """The links of `--keypoints` (None when not given)."""
+        return parse_keypoints(self.keypoints)
 
     def topics(self):
         from dream.io.rosbag import BagTopics
@@ -224,11 +248,18 @@ def add_command(sub: argparse._SubParsersAction, name: str,
 
 
 def add_data_args(p: argparse.ArgumentParser, required: bool = True) -> None:
-    """`--data`, `--robot` and `--intrinsics`, of the commands that read a dataset."""
+    """`--data`, `--robot`, `--keypoints` and `--intrinsics`, of the commands that read a
+    dataset."""
     p.add_argument("--data", required=required, help="dataset folder (DREAM layout, "
                    "panda_teleop, franka_offline) or ManiUniCon .npz")
     p.add_argument("--robot", help=ROBOT_HELP)
+    add_keypoints_arg(p)
     add_intrinsics_args(p)
+
+
+def add_keypoints_arg(p: argparse.ArgumentParser) -> None:
+    """`--keypoints LINK,LINK,...`, the keypoint links of `--robot`."""
+    p.add_argument("--keypoints", metavar="LINK,LINK,...", help=KEYPOINTS_HELP)
 
 
 def add_intrinsics_args(p: argparse.ArgumentParser) -> None:

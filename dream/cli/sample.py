@@ -8,7 +8,14 @@ from pathlib import Path
 
 import numpy as np
 
-from dream.cli.options import add_command, check_positive, check_seed, request_from
+from dream.cli.options import (
+    add_command,
+    add_keypoints_arg,
+    check_positive,
+    check_seed,
+    parse_keypoints,
+    request_from,
+)
 from dream.errors import InputError
 
 
@@ -18,6 +25,7 @@ class SampleRequest:
 
     out: str
     robot: str = "panda"
+    keypoints: str | None = None
     num: int = 20
     noise_px: float = 1.0
     outliers: float = 0.0
@@ -39,9 +47,13 @@ class SampleRequest:
 def run_sample(request: SampleRequest) -> None:
     """The sample of `request` drawn and written to `request.out`."""
     from dream.io import write_dream
+    from dream.pipeline import robot_with_option_keypoints
     from dream.sample import SampleSettings, make_sample
 
-    spec = SampleSettings(robot=request.robot, num_frames=request.num,
+    keypoints = parse_keypoints(request.keypoints)
+    if keypoints:
+        robot_with_option_keypoints(request.robot, keypoints)   # the links checked, explained
+    spec = SampleSettings(robot=request.robot, keypoints=keypoints, num_frames=request.num,
                           pixel_noise_px=request.noise_px, outlier_fraction=request.outliers,
                           seed=request.seed)
     write_dream(make_sample(spec), Path(request.out), overwrite=request.overwrite)
@@ -59,6 +71,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="dataset folder to write (DREAM layout)")
     p.add_argument("--robot", default="panda",
                    help="built-in robot name or URDF path (default: %(default)s)")
+    add_keypoints_arg(p)
     p.add_argument("--num", type=int, default=20, help="frames (default: %(default)s)")
     p.add_argument("--noise-px", type=float, default=1.0,
                    help="Gaussian noise of the 2D labels, pixels (default: %(default)s)")

@@ -9,6 +9,8 @@ Keypoints are link origins. Principles used to choose them for each arm:
 - the flange / tool link is included, as it carries the wrist's position and orientation.
 The coincidences were checked on the URDFs themselves (forward kinematics at random joints)
 and every chosen origin lies within about 5 cm of the visual meshes at the zero pose.
+`dream.robot.keypoint_choice` applies these principles to any URDF (`dream robots --urdf FILE`)
+and suggests exactly the three sets below.
 """
 
 from __future__ import annotations
@@ -143,6 +145,25 @@ def is_robot_reference(name_or_urdf: str | Path) -> bool:
     return _looks_like_path(text) or Path(text).is_file()
 
 
+def urdf_path_of(name_or_urdf: str | Path) -> Path:
+    """The URDF file of a built-in robot's name or of a URDF path, as `load_robot` reads it.
+
+    Raises:
+        RobotError: neither a built-in name nor a URDF path.
+        InputError: a URDF path whose file does not exist.
+    """
+    text = str(name_or_urdf)
+    if isinstance(name_or_urdf, str) and text.strip().lower() in _REGISTRY:
+        return _REGISTRY[text.strip().lower()].urdf_path
+    if not is_robot_reference(name_or_urdf):
+        raise _unknown_robot(text)
+    path = Path(text).expanduser().resolve()
+    if not path.is_file():
+        raise InputError("URDF file not found", path,
+                         fix="give a built-in robot name or an existing .urdf file")
+    return path
+
+
 def load_robot(name_or_urdf: str | Path, keypoints: Sequence[str] | None = None,
                base_link: str | None = None) -> Robot:
     """A built-in robot by name, or a robot read from a user's URDF file.
@@ -161,13 +182,8 @@ def load_robot(name_or_urdf: str | Path, keypoints: Sequence[str] | None = None,
     text = str(name_or_urdf)
     if isinstance(name_or_urdf, str) and text.strip().lower() in _REGISTRY:
         return _load_builtin(text.strip().lower(), key, base_link)
-    if isinstance(name_or_urdf, Path) or _looks_like_path(text) or Path(text).is_file():
-        path = Path(text).expanduser().resolve()
-        if not path.is_file():
-            raise InputError("URDF file not found", path,
-                             fix="give a built-in robot name or an existing .urdf file")
-        return _load_user(path, path.stat().st_mtime_ns, key, base_link)
-    raise _unknown_robot(text)
+    path = urdf_path_of(name_or_urdf)
+    return _load_user(path, path.stat().st_mtime_ns, key, base_link)
 
 
 @functools.lru_cache(maxsize=64)
@@ -185,7 +201,8 @@ def _load_user(path: Path, mtime_ns: int, keypoints: tuple[str, ...] | None,
                base_link: str | None) -> Robot:
     tree = parse_urdf(path)
     if keypoints is None:
-        raise RobotError(f"a user URDF needs its keypoint links: pass keypoints, "
-                         f"link names chosen among {', '.join(tree.links)}")
+        raise RobotError(f"a user URDF needs its keypoint links: pass --keypoints LINK,LINK,... "
+                         f"(keypoints= in Python); dream robots --urdf {path} lists its "
+                         f"{len(tree.links)} links and suggests keypoints")
     return Robot(name=tree.name, urdf_path=path, base_link=base_link or tree.root,
                  keypoint_names=keypoints, tree=tree)

@@ -322,7 +322,8 @@ def test_with_keypoints_changes_joints() -> None:
 # ----- user URDFs and files --------------------------------------------------------------------
 
 def test_user_urdf(toy_urdf: Path) -> None:
-    with pytest.raises(RobotError, match="keypoint links.*upper"):
+    with pytest.raises(RobotError, match="keypoint links: pass --keypoints.*dream robots --urdf "
+                                         ".*toy.urdf lists its 6 links"):
         load_robot(str(toy_urdf))
     robot = load_robot(str(toy_urdf), keypoints=["base", "tip", "twin"])
     assert robot.name == "toy" and robot.base_link == "base"

@@ -1,0 +1,143 @@
+"""Keypoint links suggested for a URDF, and the warnings for origins that coincide or stay on
+one line (`dream.robot.keypoint_choice`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dream.errors import RobotError
+from dream.robot import builtin_robot, parse_urdf, robot_data_dir
+from dream.robot.keypoint_choice import (
+    COLLINEAR_TOL_M,
+    LinkOrigins,
+    analyse_keypoints,
+    arm_chain,
+    coincident_groups,
+    collinear_sets,
+    perpendicular_spread,
+    sample_link_origins,
+    stays_collinear,
+)
+
+KINOVA = "robots/kinova_description/robots/kinova.urdf"
+Z1 = "robots/z1_description/urdf/z1.urdf"
+
+# A 7-axis arm in the shape of a KUKA LBR Med 7: A1 turns about the base's vertical axis and
+# A2's origin lies on it, so lbr_link_0, lbr_link_1 and lbr_link_2 stay on that axis for every
+# joint value; lbr_link_2 -> 3 -> 4 (A3 rolls along the upper arm) stay on a line that moves.
+LBR_JOINTS = (  # name, parent, child, xyz, rpy
+    ("A1", "lbr_link_0", "lbr_link_1", "0 0 0.1475", "0 0 0"),
+    ("A2", "lbr_link_1", "lbr_link_2", "0 0 0.2025", "1.5708 0 3.14159"),
+    ("A3", "lbr_link_2", "lbr_link_3", "0 0.2045 0", "1.5708 0 3.14159"),
+    ("A4", "lbr_link_3", "lbr_link_4", "0 0 0.2155", "1.5708 0 0"),
+    ("A5", "lbr_link_4", "lbr_link_5", "0 0.1845 0", "-1.5708 3.14159 0"),
+    ("A6", "lbr_link_5", "lbr_link_6", "0 0 0.2155", "1.5708 0 0"),
+    ("A7", "lbr_link_6", "lbr_link_7", "0 0.081 0", "-1.5708 3.14159 0"),
+)
+
+
+def lbr_urdf(folder: Path) -> Path:
+    """The LBR-shaped URDF, with a flange (fixed, 4.5 cm out) and a camera mount on link 3."""
+    links = [f"lbr_link_{i}" for i in range(8)] + ["lbr_link_ee", "camera_mount"]
+    joints = [f"""<joint name="{n}" type="revolute"><parent link="{p}"/><child link="{c}"/>
+      <origin xyz="{xyz}" rpy="{rpy}"/><axis xyz="0 0 1"/>
+      <limit lower="-2.09" upper="2.09" effort="1" velocity="1"/></joint>"""
+              for n, p, c, xyz, rpy in LBR_JOINTS]
+    joints += ["""<joint name="flange" type="fixed"><parent link="lbr_link_7"/>
+      <child link="lbr_link_ee"/><origin xyz="0 0 0.045"/></joint>""",
+               """<joint name="mount" type="fixed"><parent link="lbr_link_3"/>
+      <child link="camera_mount"/><origin xyz="0.05 0 0.1"/></joint>"""]
+    path = folder / "med7.urdf"
+    path.write_text('<?xml version="1.0"?>\n<robot name="med7">\n'
+                    + "".join(f'  <link name="{n}"/>\n' for n in links)
+                    + "\n".join(joints) + "\n</robot>\n")
+    return path
+
+
+@pytest.mark.parametrize("name", ["panda", "ur5", "xarm7"])
+def test_builtin_keypoints_are_suggested(name: str) -> None:
+    """The rules reproduce every built-in set, DREAM's Panda set included."""
+    entry = builtin_robot(name)
+    advice = analyse_keypoints(parse_urdf(entry.urdf_path), entry.base_link)
+    assert advice.suggested == entry.keypoints
+    assert advice.suggested_collinear == ()
+
+
+def test_panda_coincident_origins_and_hand() -> None:
+    entry = builtin_robot("panda")
+    tree = parse_urdf(entry.urdf_path)
+    advice = analyse_keypoints(tree, entry.base_link)
+    assert advice.coincident == (("panda_link1", "panda_link2"), ("panda_link5", "panda_link6"),
+                                 ("panda_link8", "panda_hand"))
+    # the fingers branch off the hand: the arm ends there, its tcp (between them) is not taken
+    assert arm_chain(tree, "panda_link0")[-1] == "panda_hand"
+
+
+def test_kinova_and_z1_from_example_robot_data() -> None:
+    kinova = analyse_keypoints(parse_urdf(robot_data_dir() / KINOVA))
+    assert kinova.suggested == ("base",) + tuple(f"j2s6s200_link_{i}" for i in range(1, 7)) + (
+        "j2s6s200_end_effector",)                   # the named tool link, not the fingers
+    assert kinova.coincident == (("base", "j2s6s200_link_base"),)
+    z1 = analyse_keypoints(parse_urdf(robot_data_dir() / Z1))
+    assert z1.suggested == ("world", "link01", "link02", "link03", "link04", "link05", "link06",
+                            "gripperStator", "gripperMover")
+    # link01 and link02 lie on the base's vertical axis for every joint value
+    assert z1.suggested_collinear[0].links == ("world", "link01", "link02")
+    assert z1.suggested_collinear[0].fixed_line
+
+
+def test_links_on_the_base_axis_are_useless_alone(tmp_path: Path) -> None:
+    tree = parse_urdf(lbr_urdf(tmp_path))
+    advice = analyse_keypoints(tree, given=("lbr_link_0", "lbr_link_1", "lbr_link_2"))
+    assert advice.given_line is not None and advice.given_line.fixed_line
+    assert advice.suggested == tuple(f"lbr_link_{i}" for i in range(8)) + ("lbr_link_ee",)
+    first = advice.suggested_collinear[0]
+    assert first.links == ("lbr_link_0", "lbr_link_1", "lbr_link_2") and first.fixed_line
+    # the upper arm's three origins share a line that moves with the joints
+    moving = [s for s in advice.suggested_collinear if not s.fixed_line]
+    assert ("lbr_link_2", "lbr_link_3", "lbr_link_4") in [s.links for s in moving]
+    spread = analyse_keypoints(tree, given=("lbr_link_0", "lbr_link_2", "lbr_link_3",
+                                            "camera_mount"))
+    assert spread.given_line is None and spread.given_collinear == ()
+
+
+def test_coincident_given_keypoints_count_once(tmp_path: Path) -> None:
+    entry = builtin_robot("panda")
+    tree = parse_urdf(entry.urdf_path)
+    advice = analyse_keypoints(tree, "panda_link0", ("panda_link0", "panda_link1", "panda_link2",
+                                                     "panda_link4"))
+    assert advice.given_coincident == (("panda_link1", "panda_link2"),)
+    assert advice.given_line is None     # three distinct origins, not on one line
+    with pytest.raises(RobotError, match="unknown keypoint link 'gripper'"):
+        analyse_keypoints(tree, "panda_link0", ("gripper",))
+
+
+def test_perpendicular_spread_measures_the_distance_off_the_line() -> None:
+    line = np.array([[0.0, 0, 0], [0, 0, 1], [0, 0, 2]])
+    assert perpendicular_spread(line) < 1e-12
+    bent = line + np.array([[0, 0, 0], [0.03, 0, 0], [0, 0, 0]])
+    # best-fit line through the three points: the middle one 2/3 of 3 cm off it
+    assert perpendicular_spread(bent) == pytest.approx(0.02, rel=1e-3)
+    batch = np.stack([line, bent])
+    np.testing.assert_allclose(perpendicular_spread(batch), [0.0, 0.02], atol=1e-4)
+    assert stays_collinear(line[None]) and not stays_collinear(batch)
+    assert stays_collinear(bent[None], tol_m=0.03) and COLLINEAR_TOL_M < 0.02
+    with pytest.raises(RobotError, match="shape"):
+        perpendicular_spread(np.zeros((4, 2)))
+
+
+def test_sampling_is_seeded_and_shapes_are_checked() -> None:
+    tree = parse_urdf(builtin_robot("xarm7").urdf_path)
+    a = sample_link_origins(tree, "link_base", num_samples=8, seed=3)
+    b = sample_link_origins(tree, "link_base", num_samples=8, seed=3)
+    assert a.points.shape == (8, len(a.links), 3) and "world" not in a.links
+    np.testing.assert_array_equal(a.points, b.points)
+    assert coincident_groups(a, ["link1", "link2", "link3"]) == (("link1", "link2"),)
+    assert collinear_sets(a, ["link_base", "link1", "link2"]) == ()   # two distinct origins
+    with pytest.raises(RobotError, match="shape"):
+        LinkOrigins(("a", "b"), np.zeros((3, 1, 3)))
+    with pytest.raises(RobotError, match="no sampled origin"):
+        a.of(["world"])
