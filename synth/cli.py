@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import sys
 import time
@@ -11,6 +12,8 @@ from typing import TextIO
 
 PROGRESS_PERIOD_S = 1.0          # a terminal: the progress line is rewritten this often
 PIPED_PROGRESS_PERIOD_S = 10.0   # a file or pipe: one whole line this often
+
+log = logging.getLogger(__name__)
 
 
 class Progress:
@@ -58,6 +61,7 @@ class Progress:
 
 
 def cmd_synth(args: argparse.Namespace) -> int:
+    from synth.camera_note import fixed_camera_note
     from synth.config import load_config
     from synth.generate import CHUNK_FRAMES, SynthJob, generate, worker_count
 
@@ -67,8 +71,12 @@ def cmd_synth(args: argparse.Namespace) -> int:
         from dream.extension import read_extension
 
         extension = read_extension(args.model_extension)
+    config = load_config(args.config, args.set)
+    note = fixed_camera_note(config, args.config, args.set)
+    if note:
+        log.warning(note)
     job = SynthJob(robot=args.robot, out_dir=Path(args.out), num_frames=args.num,
-                   config=load_config(args.config, args.set), seed=args.seed, keypoints=keypoints,
+                   config=config, seed=args.seed, keypoints=keypoints,
                    workers=args.workers, extension=extension)
     if args.contact_sheet and not args.contact_sheet.lower().endswith(".png"):
         from dream.errors import InputError
