@@ -80,8 +80,9 @@ def polish_result(sequence: Sequence, robot: Robot, result: CalibrationResult,
     """The result aligned with the data's robot masks (`dream calibrate --polish`).
 
     Returns a `PolishResult` ("all" mode) or one per frame ("each" mode; None for a frame
-    that was not polished); a polish is kept only where it raises the silhouette IoU without
-    spoiling the keypoint fit (its `kept` attribute). `link_geometry` (a
+    that was not polished); a polish is kept where it raises the silhouette IoU on the frames
+    that agree (its `kept` attribute; a frame alone: without spoiling its keypoint fit), and a
+    kept pose's 1-sigma is its `jackknife` (`dream.refined_uncertainty`). `link_geometry` (a
     `dream.extension.ModelExtension`'s) corrects the rendered links: a tool the URDF lacks.
     """
     from dream.polish import check_polish_input, polish_calibration, polish_frames

@@ -1,4 +1,12 @@
-"""Drawing keypoints, skeletons and residuals on images (pure functions on arrays)."""
+"""Drawing keypoints, skeletons, the robot's outline and residuals on images (pure functions on
+arrays), and the overlay folders of `dream calibrate --overlays` and `dream overlay` (file
+edge).
+
+A result's overlays show the pose written to RESULT.json: the outline of the robot's URDF
+meshes rendered at that pose (cyan), its skeleton (yellow with red keypoints), the detections
+(green rings, grey where the keypoint fit rejected them) with their residuals to that skeleton
+(magenta), and, where an image refinement moved the pose away from the keypoint fit, the
+keypoint pose's skeleton faintly (grey); `summary.png` says which is which."""
 
 from __future__ import annotations
 
@@ -16,6 +24,10 @@ PROJECTED_RGB = (255, 60, 40)
 SKELETON_RGB = (255, 200, 0)
 RESIDUAL_RGB = (255, 0, 255)
 OUTLIER_RGB = (160, 160, 160)
+OUTLINE_RGB = (0, 230, 255)
+FAINT_RGB = (200, 200, 200)
+FAINT_OPACITY = 0.45       # the keypoint pose's skeleton, where a refinement moved the pose
+MOVED_PX = 0.5             # a refinement moved the pose when a keypoint moved this far
 _SHIFT = 4  # fixed-point bits for sub-pixel drawing
 _SCALE = 1 << _SHIFT
 
@@ -55,6 +67,52 @@ def draw_skeleton(image: np.ndarray, uv: np.ndarray, edges: tuple[tuple[int, int
         if _ok(p):
             cv2.circle(out, _pt(p), (2 * w + 1) * _SCALE, point_color, -1, cv2.LINE_AA, _SHIFT)
     return out
+
+
+def draw_outline(image: np.ndarray, silhouette: np.ndarray,
+                 color: tuple[int, int, int] = OUTLINE_RGB) -> np.ndarray:
+    """RGB image with the outline of a rendered silhouette (H, W) bool drawn over it."""
+    out = np.ascontiguousarray(np.asarray(image)).copy()
+    silhouette = np.asarray(silhouette, dtype=bool)
+    if out.ndim != 3 or out.shape[2] != 3 or out.dtype != np.uint8:
+        raise InputError(f"image must be (H, W, 3) uint8, got {out.shape} {out.dtype}")
+    if silhouette.shape != out.shape[:2]:
+        raise InputError(f"silhouette has shape {silhouette.shape}, expected {out.shape[:2]}")
+    contours, _ = cv2.findContours(silhouette.astype(np.uint8), cv2.RETR_LIST,
+                                   cv2.CHAIN_APPROX_NONE)
+    cv2.drawContours(out, contours, -1, color, line_width(out), cv2.LINE_8)
+    return out
+
+
+def draw_faint_skeleton(image: np.ndarray, uv: np.ndarray,
+                        edges: tuple[tuple[int, int], ...]) -> np.ndarray:
+    """RGB image with a skeleton drawn faintly (`FAINT_OPACITY`): a pose shown for comparison."""
+    drawn = draw_skeleton(image, uv, edges, FAINT_RGB, FAINT_RGB)
+    return cv2.addWeighted(drawn, FAINT_OPACITY, np.asarray(image), 1 - FAINT_OPACITY, 0.0)
+
+
+def with_legend(image: np.ndarray, lines: list[tuple[str, tuple[int, int, int]]]
+                ) -> np.ndarray:
+    """RGB image with a dark band below it holding one coloured line of text per entry, the
+    text scaled down where the longest line would not fit the width."""
+    image = np.asarray(image)
+    width = image.shape[1]
+    scale = LEGEND_SCALE
+    longest = max(cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0]
+                  for text, _ in lines)
+    scale *= min(1.0, (width - 2 * LEGEND_MARGIN_PX) / max(longest, 1))
+    step = max(1, int(round(LEGEND_LINE_PX * scale / LEGEND_SCALE)))
+    band = np.full((step * len(lines) + 2 * LEGEND_MARGIN_PX, width, 3), LEGEND_GRAY, np.uint8)
+    for n, (text, color) in enumerate(lines):
+        org = (LEGEND_MARGIN_PX, LEGEND_MARGIN_PX + step * (n + 1) - step // 4)
+        cv2.putText(band, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, color, 1, cv2.LINE_AA)
+    return np.concatenate([image, band], axis=0)
+
+
+LEGEND_SCALE = 0.5         # the legend's font scale where its lines fit the image's width
+LEGEND_LINE_PX = 20        # line spacing at `LEGEND_SCALE`
+LEGEND_MARGIN_PX = 6
+LEGEND_GRAY = 20
 
 
 def draw_observations(image: np.ndarray, uv_observed: np.ndarray, uv_projected: np.ndarray,
@@ -138,11 +196,39 @@ def check_limit(limit: int | None) -> None:
                          fix="give --limit 1 or more, or leave it out to draw every frame")
 
 
+class _Outliner:
+    """Renders the robot's outline (its URDF meshes) for the overlays; draws nothing, with one
+    log line, where the meshes cannot be loaded."""
+
+    def __init__(self, sequence, robot):
+        from dream.errors import DreamError
+        from dream.pipeline import joints_in_robot_order
+        from dream.silhouette import load_robot_meshes
+
+        self.joints = joints_in_robot_order(sequence, robot)
+        try:
+            self.meshes = load_robot_meshes(robot)
+        except DreamError as exc:
+            log.warning("overlays without the robot's outline: %s", exc)
+            self.meshes = None
+
+    def draw(self, image: np.ndarray, camera, i: int, T_cam_base: np.ndarray | None
+             ) -> np.ndarray:
+        """`image` with frame i's outline at `T_cam_base` (unchanged without a pose)."""
+        from dream.silhouette import render_silhouette
+
+        if self.meshes is None or T_cam_base is None:
+            return image
+        silhouette = render_silhouette(self.meshes, self.joints[i], T_cam_base, camera)
+        return draw_outline(image, silhouette)
+
+
 def write_skeleton_overlays(sequence, robot, T_cam_base: np.ndarray, out_dir,
                             limit: int | None = None) -> int:
-    """Keypoints and skeleton of every imaged frame (the first `limit` of them) projected with
-    `T_cam_base` (F, 4, 4); returns how many images were written. The folder is written
-    atomically (`dream.io.staged_directory`): on a failure nothing is left in it."""
+    """The robot's outline (URDF meshes), keypoints and skeleton of every imaged frame (the
+    first `limit` of them) projected with `T_cam_base` (F, 4, 4); returns how many images were
+    written. The folder is written atomically (`dream.io.staged_directory`): on a failure
+    nothing is left in it."""
     from dream.camera import project
     from dream.io.atomic import staged_directory
     from dream.pipeline import joints_in_robot_order
@@ -154,40 +240,89 @@ def write_skeleton_overlays(sequence, robot, T_cam_base: np.ndarray, out_dir,
         raise InputError("the data has no images to draw on", sequence.source)
     chosen = frames[:limit]
     P_base = robot.forward_kinematics(joints_in_robot_order(sequence, robot))
+    outliner = _Outliner(sequence, robot)
     with staged_directory(out_dir) as stage:
         for n, (i, frame) in enumerate(chosen):
-            uv = project(sequence.frame_camera(i), transform_points(T_cam_base[i], P_base[i]))
-            image = draw_skeleton(_frame_canvas(sequence, frame), uv, robot.skeleton_edges)
+            camera = sequence.frame_camera(i)
+            uv = project(camera, transform_points(T_cam_base[i], P_base[i]))
+            image = outliner.draw(_frame_canvas(sequence, frame), camera, i, T_cam_base[i])
+            image = draw_skeleton(image, uv, robot.skeleton_edges)
             _write_png(stage / f"{frame.name}.overlay.png", image)
             if (n + 1) % 50 == 0:
                 log.info("overlays: %d / %d", n + 1, len(chosen))
     return len(chosen)
 
 
-def write_result_overlays(sequence, robot, obs, result, out_dir) -> None:
-    """Per frame: observations with their detection confidence, the skeleton re-projected with
-    the solution and the residual vectors; plus `summary.png`, every residual of every frame
-    on one canvas, magnified. The folder is written atomically (`dream.io.staged_directory`):
-    on a failure (an unreadable image...) nothing is left in it."""
+def written_poses(doc: dict, frames: int) -> list[np.ndarray | None]:
+    """Each frame's pose written to a RESULT.json document: the one extrinsic of all frames,
+    or each frame's own (None where a frame has none)."""
+    if doc.get("frames_mode") == "all":
+        return [np.asarray(doc["T_cam_base"], dtype=float)] * frames
+    return [None if e.get("T_cam_base") is None else np.asarray(e["T_cam_base"], dtype=float)
+            for e in doc["per_frame"]]
+
+
+def _moved(camera, P_base: np.ndarray, T0: np.ndarray | None, T1: np.ndarray | None) -> bool:
+    """Whether the keypoints P_base (K, 3) project more than `MOVED_PX` apart at T0 and T1."""
+    from dream.camera import project
+    from dream.transforms import transform_points
+
+    if T0 is None or T1 is None:
+        return False
+    d = project(camera, transform_points(T0, P_base)) - project(camera,
+                                                                transform_points(T1, P_base))
+    return bool(np.nanmax(np.linalg.norm(d, axis=-1)) > MOVED_PX)
+
+
+def write_result_overlays(sequence, robot, obs, result, out_dir, doc: dict | None = None,
+                          refined_by: str | None = None) -> None:
+    """Per frame (module doc): the outline and skeleton at the pose written (`doc`, the
+    RESULT.json document; default the keypoint fit's), the detections with their confidence
+    and their residuals to it, and the keypoint pose faintly where `refined_by` (an image
+    refinement, in words) moved it; plus `summary.png`, every residual of every frame on one
+    canvas, magnified, under a legend of the poses drawn. The folder is written atomically
+    (`dream.io.staged_directory`): on a failure (an unreadable image...) nothing is left in
+    it."""
     from dream.camera import project
     from dream.io.atomic import staged_directory
     from dream.transforms import transform_points
 
     cam = sequence.camera
+    n = len(sequence.frames)
+    keypoint_poses = [result.T_cam_base_of_frame(i) for i in range(n)]
+    poses = keypoint_poses if doc is None else written_poses(doc, n)
+    outliner = _Outliner(sequence, robot)
     summary = blank_image(cam.width, cam.height)
+    moved_any = False
     with staged_directory(out_dir) as stage:
         for i, frame in enumerate(sequence.frames):
-            T = result.T_cam_base_of_frame(i)
+            camera, T = sequence.frame_camera(i), poses[i]
             uv_proj = np.full(obs.uv[i].shape, np.nan) if T is None else \
-                project(sequence.frame_camera(i), transform_points(T, obs.P_base[i]))
-            image = draw_skeleton(_frame_canvas(sequence, frame), uv_proj, robot.skeleton_edges)
+                project(camera, transform_points(T, obs.P_base[i]))
+            image = outliner.draw(_frame_canvas(sequence, frame), camera, i, T)
+            if _moved(camera, obs.P_base[i], keypoint_poses[i], T):
+                moved_any = True
+                image = draw_faint_skeleton(image, project(camera, transform_points(
+                    keypoint_poses[i], obs.P_base[i])), robot.skeleton_edges)
+            image = draw_skeleton(image, uv_proj, robot.skeleton_edges)
             image = draw_observations(image, obs.uv[i], uv_proj, result.inlier[i])
             image = draw_confidences(image, obs.uv[i], obs.confidence[i])
             _write_png(stage / f"{frame.name}.result.png", image)
             magnified = obs.uv[i] + RESIDUAL_MAGNIFICATION * (uv_proj - obs.uv[i])
             summary = draw_observations(summary, obs.uv[i], magnified, result.inlier[i])
-        text = (f"{result.mode}: RMSE {result.fit.rmse_px:.2f} px, {result.fit.num_inliers} "
-                f"keypoints; residuals x{RESIDUAL_MAGNIFICATION:g}")
-        cv2.putText(summary, text, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1,
-                    cv2.LINE_AA)
-        _write_png(stage / "summary.png", summary)
+        _write_png(stage / "summary.png", with_legend(summary, _legend(
+            result, refined_by if moved_any else None)))
+
+
+def _legend(result, refined_by: str | None) -> list[tuple[str, tuple[int, int, int]]]:
+    """The summary image's lines: which pose each colour shows."""
+    written = f"the pose written ({refined_by})" if refined_by else "the pose written (keypoints)"
+    lines = [(f"{result.mode} frames: keypoint fit RMSE {result.fit.rmse_px:.2f} px over "
+              f"{result.fit.num_inliers} keypoints", (255, 255, 255)),
+             (f"cyan outline, yellow skeleton: {written}", OUTLINE_RGB),
+             ("green rings: detections (grey: rejected by the keypoint fit)", OBSERVED_RGB),
+             (f"magenta: residuals to the pose written (x{RESIDUAL_MAGNIFICATION:g} above)",
+              RESIDUAL_RGB)]
+    if refined_by:
+        lines.append(("faint grey skeleton, per frame: the keypoint pose", FAINT_RGB))
+    return lines

@@ -13,6 +13,12 @@ error cannot show:
 - **duplicate frames**: frames with the same joint readings and the same detections count as
   independent evidence in the 1-sigma, which they are not.
 - **static arm**: frames whose keypoints hardly move add no geometry.
+- **frames' agreement** (`--frames each`): the reported frame is judged by its own kept
+  share and 1-sigma, and by how far the other frames' poses lie from it: with a fixed camera
+  they should agree within that 1-sigma.
+
+The condition is that of the pose written: where an image refinement was kept, its own 1-sigma
+(`dream.refined_uncertainty`), not the keypoint fit's.
 
 RESULT.json's `quality` object: `detections`, `kept`, `kept_share`, `verdict` and `warnings`
 (one sentence each, with what to do).
@@ -27,7 +33,7 @@ import numpy as np
 
 from dream.calibration import CalibrationResult, Observations
 from dream.errors import InputError
-from dream.transforms import skew
+from dream.transforms import invert_T, rotation_angle_between, skew
 
 # Below this share of the detections kept by the fit, the verdict is at least "check". With the
 # bundled model on rendered fixed-camera scenes (benchmarks/edge_align.py's seeds 100-119)
@@ -44,6 +50,8 @@ DEPTH_AXIS_COS = 0.8          # a direction this close to the optical axis count
 DUPLICATE_JOINTS_M = 1e-6     # keypoints this close in the base frame: the same readings
 DUPLICATE_UV_PX = 0.05        # detections this close (median): the same image again
 STATIC_MOTION_M = 0.01        # keypoints moving less than this across frames: a static arm
+MIN_AGREEMENT_FRAMES = 2      # other frames' poses below which a per-frame result's agreement
+                              # with them is not judged
 GOOD, CHECK, UNRELIABLE = "good", "check", "unreliable"
 LEVELS = (GOOD, CHECK, UNRELIABLE)
 
@@ -179,14 +187,64 @@ def quality_from(detections: int, kept: int, findings: list[Finding | None]) -> 
     return Quality(detections, kept, LEVELS[level], tuple(text for _, text in found))
 
 
+def frames_agreement_finding(T_reported: np.ndarray, T_frames: np.ndarray,
+                             min_frames: int = MIN_AGREEMENT_FRAMES) -> Finding | None:
+    """How the other frames' poses of a per-frame result (`--frames each`) agree with the
+    reported one (pure): the median camera-position distance and rotation angle between the
+    reported extrinsic T_reported (4, 4) and each other solved frame's T_frames (F, 4, 4; NaN
+    rows for frames without a pose). A fixed camera's frames should agree within the reported
+    1-sigma; where they lie centimetres apart the per-frame poses follow their detections'
+    errors, whichever of them is reported. None with fewer than `min_frames` other poses, or
+    when they agree within the 1-sigma limits.
+
+    >>> T = np.eye(4); T[2, 3] = 1.0
+    >>> far = T.copy(); far[0, 3] = 0.2
+    >>> frames_agreement_finding(T, np.stack([T, far, far, far]))[0]
+    'check'
+    >>> frames_agreement_finding(T, np.stack([T] * 4)) is None
+    True
+    """
+    T_frames = np.asarray(T_frames, dtype=float)
+    if T_frames.ndim != 3 or T_frames.shape[1:] != (4, 4):
+        raise InputError(f"frame poses have shape {T_frames.shape}, expected (F, 4, 4)")
+    solved = np.all(np.isfinite(T_frames.reshape(len(T_frames), -1)), axis=1)
+    others = [T for T in T_frames[solved] if not np.allclose(T, T_reported)]
+    if len(others) < min_frames:
+        return None
+    c0 = invert_T(T_reported)[:3, 3]
+    position = float(np.median([np.linalg.norm(invert_T(T)[:3, 3] - c0) for T in others]))
+    rotation = float(np.median([rotation_angle_between(T[:3, :3], T_reported[:3, :3])
+                                for T in others]))
+    if position <= POSITION_SIGMA_CHECK_M and rotation <= ROTATION_SIGMA_CHECK_RAD:
+        return None
+    # "check", not "unreliable": frames of a camera that moved disagree by design
+    return CHECK, (f"the other {len(others)} frames' poses lie a median {position * 1e3:.1f} mm "
+                   f"and {np.rad2deg(rotation):.2f} deg from the reported one: with a fixed "
+                   "camera they follow their detections' errors (use --frames all, which "
+                   "solves one pose from every frame); if the camera moved between frames, "
+                   "judge each frame by its own 1-sigma")
+
+
 def result_quality(result: CalibrationResult, obs: Observations,
-                   refined_by: str | None = None) -> Quality:
-    """The verdict on a calibration: its detections found and kept, and, for the one
-    extrinsic of all frames, its condition, duplicate frames and a static arm."""
+                   refined_by: str | None = None, covariance: np.ndarray | None = None,
+                   T_cam_base: np.ndarray | None = None,
+                   T_frames: np.ndarray | None = None) -> Quality:
+    """The verdict on a calibration: its detections found and kept, the condition of the pose
+    written (`T_cam_base` and its `covariance`: a kept image refinement's own; default the
+    keypoint fit's), and, for the one extrinsic of all frames, duplicate frames and a static
+    arm; for a per-frame result (`--frames each`), how the frames' poses `T_frames` (F, 4, 4,
+    NaN where none; default the keypoint fits') agree with the reported one."""
     found = obs.found
     detections, kept = int(found.sum()), int(np.sum(result.inlier & found))
+    covariance = result.covariance if covariance is None else np.asarray(covariance, float)
+    T = result.T_cam_base if T_cam_base is None else np.asarray(T_cam_base, float)
     findings = [kept_finding(detections, kept, refined_by)]
+    findings += condition_findings(covariance, T)
     if result.mode == "all":
-        findings += condition_findings(result.covariance, result.T_cam_base)
         findings += [duplicate_finding(obs), static_finding(obs)]
+    else:
+        if T_frames is None:
+            T_frames = np.stack([np.full((4, 4), np.nan) if (Ti := result.T_cam_base_of_frame(i))
+                                 is None else Ti for i in range(len(result.frames))])
+        findings.append(frames_agreement_finding(T, T_frames))
     return quality_from(detections, kept, findings)

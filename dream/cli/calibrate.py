@@ -16,7 +16,9 @@ from dream.cli.calibrate_report import (
     add_frame_edges,
     add_polish,
     add_quality,
+    pose_refined_by,
     print_summary,
+    print_truth_errors,
 )
 from dream.cli.observe import observe
 from dream.cli.options import (
@@ -140,16 +142,24 @@ def _check_refine(refine: str, frames: str, polish: bool, exclude_links: str | N
                          fix="choose one: --polish with masks, --refine edges without")
 
 
+POLISH = "polish"   # what `--refine auto` does on data with masks: the silhouette polish
+
+
 def refine_mode(request: CalibrateRequest, seq) -> str:
-    """What `--refine` does with this data: `auto` aligns edges (the one extrinsic of all
-    frames, or each frame's own pose) when every frame has an image and none a mask, and
-    --polish was not asked for."""
+    """What `--refine` does with this data: with --polish, the polish; `auto` polishes the
+    silhouettes against the data's masks when it has them (as --polish), and aligns edges (the
+    one extrinsic of all frames, or each frame's own pose) when every frame has an image and
+    none a mask."""
+    if request.polish:
+        return POLISH
     if request.refine != AUTO:
         return request.refine
     from dream.polish import has_masks
 
+    if has_masks(seq):
+        return POLISH
     images = all(f.image_path is not None for f in seq.frames)
-    return EDGES if (not request.polish and images and not has_masks(seq)) else NONE
+    return EDGES if images else NONE
 
 
 def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
@@ -170,19 +180,22 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     data_doc = data_record(seq, request.data)
     seq, readings_doc = joint_readings(seq, request.joint_readings == INTERPOLATE, out)
     refine = refine_mode(request, seq)
-    if request.exclude_links and refine == NONE:
+    if request.exclude_links and refine != EDGES:
         raise InputError("--exclude-links chooses the links of the edge alignment, and it does "
                          "not run here (--refine auto runs it on data with images and no "
                          "masks, without --polish)", request.data,
                          "add --refine edges, or drop --exclude-links")
-    if request.polish:
+    if refine == POLISH and not request.polish:
+        print("the data has robot masks: --refine auto polishes the silhouettes against them "
+              "(--refine none keeps the keypoint pose)", file=out)
+    if refine == POLISH:
         from dream.polish import check_polish_input
 
         check_polish_input(seq, request.frames,
                            network_masks=request.mask_head or request.motion_masks)
     robot, obs, model = observe(seq, request.robot, request.model, request.use_labels, out,
                                 threads=request.threads, batch=request.batch,
-                                loaded_model=request.loaded_model)
+                                loaded_model=request.loaded_model, keypoints=request.keypoint_links)
     if extension is not None:
         seq, robot, obs = _apply_extension(request, extension, seq, robot, obs, out)
     result = calibrate(seq, obs, request.frames, settings)
@@ -201,10 +214,10 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
         add = add_edges if request.frames == "all" else add_frame_edges
         doc = add(seq, robot, result, obs, doc, out, request.exclude_links,
                   () if extension is None else extension.link_geometry)
-    elif extension is not None and extension.link_geometry and not request.polish:
+    elif extension is not None and extension.link_geometry and refine != POLISH:
         print("note: the model extension's link_geometry changes only the image refinements "
               "(--refine edges, --polish), and neither runs here", file=out)
-    if request.polish:
+    if refine == POLISH:
         doc = add_polish(seq, robot, result, obs, model, doc, out, frames=request.frames,
                          mask_head=request.mask_head, motion_masks=request.motion_masks,
                          link_geometry=() if extension is None else extension.link_geometry)
@@ -212,13 +225,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     base_frame = request.base_frame or robot.base_link
     _write_calibration(request, seq, robot, obs, result, doc, paths, base_frame)
     print_summary(doc, out)
-    T_true = truth_poses(seq)
-    if request.frames == "all" and np.all(np.isfinite(T_true[0])):
-        from dream.metrics import pose_errors
-
-        t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true[0])
-        print(f"error vs ground truth: camera position {t_err * 1000:.2f} mm, rotation "
-              f"{np.rad2deg(r_err):.3f} deg", file=out)
+    print_truth_errors(doc, truth_poses(seq), out)
     ros_path, matrix_path, urdf_path, launch_path, handeye_path = paths
     print(f"wrote {request.out}, {ros_path} (ROS static_transform_publisher: x y z qx qy qz qw "
           f"{base_frame} {request.camera_frame}), {matrix_path} (T_base_cam), {urdf_path} (URDF "
@@ -299,7 +306,8 @@ def _write_calibration(request: CalibrateRequest, seq, robot, obs, result, doc: 
         if request.overlays:
             from dream.overlay import write_result_overlays
 
-            write_result_overlays(seq, robot, obs, result, Path(request.overlays))
+            write_result_overlays(seq, robot, obs, result, Path(request.overlays), doc=doc,
+                                  refined_by=pose_refined_by(doc))
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
@@ -322,16 +330,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--polish", action="store_true",
                    help="refine the extrinsic (with --frames each: every frame's own pose) by "
                         "aligning the robot's rendered silhouette with the data's masks (or, "
-                        "all frames with --mask-head, the --model's mask head); kept only when "
-                        "the IoU improves without spoiling the keypoint fit")
+                        "all frames with --mask-head or --motion-masks, masks made here); kept "
+                        "when the IoU improves on the frames that agree (masks made here: and "
+                        "the keypoint detections do not contradict it). --refine auto does "
+                        "this on data with masks")
     p.add_argument("--refine", choices=REFINE_CHOICES, default=AUTO,
                    help="edges: align the robot's outline (URDF meshes) with the images' edges "
                         "from the keypoint extrinsic, coarse to fine over all frames of the "
                         "fixed camera (with --frames each: each frame's own pose), no masks "
                         "needed; kept only when more of the outline "
                         "lies on edges and the keypoint detections do not contradict it. "
-                        "auto (default): edges when the data has images and no masks and "
-                        "--polish is not given")
+                        "auto (default): the silhouette polish (as --polish) when the data "
+                        "has robot masks, edges when it has images and no masks. none: the "
+                        "keypoint pose")
     p.add_argument("--exclude-links", metavar="LINK[,LINK...]",
                    help="--refine edges: links left out of the alignment (a tool or gripper "
                         "the URDF lacks; RESULT.json's edges.mismatched_links names suspects)")

@@ -1,6 +1,6 @@
 """What `dream calibrate` adds to its result and prints: the edge alignment of `--refine
-edges`, the silhouette polish of `--polish` and the summary of the extrinsic and its
-uncertainty."""
+edges`, the silhouette polish of `--polish`, the verdict, the summary of the extrinsic and its
+uncertainty, and its errors against the data's ground truth."""
 
 from __future__ import annotations
 
@@ -148,20 +148,33 @@ def _links(exclude_links: str | None) -> tuple[str, ...]:
 
 
 def add_quality(result, obs, doc: dict, out: TextIO) -> dict:
-    """The quality verdict (`dream.quality`): printed, with its reasons; RESULT.json's
-    `quality` object."""
+    """The quality verdict (`dream.quality`) on the pose written: printed, with its reasons;
+    RESULT.json's `quality` object."""
     from dream.quality import result_quality
 
-    refined_by = None
-    if doc.get("edges", {}).get("kept") and doc.get("frames_mode") == "all":
-        refined_by = "the edge alignment"
-    elif doc.get("polish", {}).get("kept") and doc.get("frames_mode") == "all":
-        refined_by = "the silhouette polish"
-    quality = result_quality(result, obs, refined_by)
+    refined_by = pose_refined_by(doc)
+    T_frames = np.stack([np.full((4, 4), np.nan) if e.get("T_cam_base") is None
+                         else np.asarray(e["T_cam_base"], dtype=float)
+                         for e in doc["per_frame"]])
+    quality = result_quality(result, obs, refined_by,
+                             covariance=np.asarray(doc["covariance_xi"], dtype=float),
+                             T_cam_base=np.asarray(doc["T_cam_base"], dtype=float),
+                             T_frames=T_frames if doc.get("frames_mode") == "each" else None)
     print(f"quality: {quality.verdict}", file=out)
     for warning in quality.warnings:
         print(f"  - {warning}", file=out)
     return quality.to_dict()
+
+
+def pose_refined_by(doc: dict) -> str | None:
+    """The image refinement whose pose was written, in words (None: the keypoint pose): all
+    frames' kept refinement, or the reported frame's (`--frames each`)."""
+    names = {"edges": "the edge alignment", "polish": "the silhouette polish"}
+    if doc.get("frames_mode") == "all":
+        return next((name for key, name in names.items() if doc.get(key, {}).get("kept")),
+                    None)
+    entry = next((e for e in doc["per_frame"] if e["frame"] == doc.get("reported_frame")), {})
+    return next((name for key, name in names.items() if entry.get(key, {}).get("kept")), None)
 
 
 def print_summary(doc: dict, out: TextIO) -> None:
@@ -179,7 +192,16 @@ def print_summary(doc: dict, out: TextIO) -> None:
     print(f"1-sigma translation (camera axes): {st[0] * 1e3:.2f}, {st[1] * 1e3:.2f}, "
           f"{st[2] * 1e3:.2f} mm; rotation: {sr[0]:.3f}, {sr[1]:.3f}, {sr[2]:.3f} deg", file=out)
     uncertainty = doc.get("uncertainty") or {}
-    if uncertainty.get("covariance_xi_keypoint_jackknife") is not None:
+    if uncertainty.get("jackknife_left_out"):
+        groups = uncertainty["jackknife_left_out"]
+        frames = sum(g.startswith("frames ") for g in groups)
+        print(f"  (1-sigma of the pose written: the spread of {uncertainty['refined_by']} "
+              f"repeated with each of {len(groups) - frames} links"
+              f"{f' and {frames} frame groups' if frames else ''} left out in turn)", file=out)
+    elif uncertainty.get("covariance_xi_keypoint_pose") is not None:
+        print("  (1-sigma of the keypoint pose: the refined pose had too few links for its "
+              "own)", file=out)
+    elif uncertainty.get("covariance_xi_keypoint_jackknife") is not None:
         from dream.result import camera_position_covariance
 
         fit_c = camera_position_covariance(np.asarray(doc["T_cam_base"]),
@@ -193,3 +215,32 @@ def print_summary(doc: dict, out: TextIO) -> None:
               f"for independent detection errors, plus the spread over {spread})", file=out)
     print(f"reprojection RMSE {doc['rmse_px']:.3f} px over {doc['keypoints_used']} keypoints "
           f"in {doc['frames_used']} frames ({doc['frames_mode']} mode)", file=out)
+
+
+def print_truth_errors(doc: dict, T_true: np.ndarray, out: TextIO) -> None:
+    """Where the data has ground truth (or a reference extrinsic): the written pose's error
+    against it and, with --frames each, the reported frame's and the median over the frames'
+    poses written."""
+    from dream.metrics import pose_errors
+
+    if doc["frames_mode"] == "all":
+        if np.all(np.isfinite(T_true[0])):
+            t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true[0])
+            print(f"error vs ground truth: camera position {t_err * 1000:.2f} mm, rotation "
+                  f"{np.rad2deg(r_err):.3f} deg", file=out)
+        return
+    names = [e["frame"] for e in doc["per_frame"]]
+    pairs = [(np.asarray(e["T_cam_base"], dtype=float), T)
+             for e, T in zip(doc["per_frame"], T_true, strict=True)
+             if e.get("T_cam_base") is not None and np.all(np.isfinite(T))]
+    if not pairs:
+        return
+    t_all, r_all = pose_errors(np.stack([p for p, _ in pairs]), np.stack([t for _, t in pairs]))
+    reported = names.index(doc["reported_frame"])
+    if np.all(np.isfinite(T_true[reported])):
+        t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true[reported])
+        print(f"error vs ground truth: reported frame {doc['reported_frame']}: camera "
+              f"position {t_err * 1000:.2f} mm, rotation {np.rad2deg(r_err):.3f} deg", file=out)
+    print(f"error vs ground truth over the {len(pairs)} frames with a pose: median camera "
+          f"position {np.median(t_all) * 1000:.2f} mm, rotation "
+          f"{np.rad2deg(np.median(r_all)):.3f} deg", file=out)

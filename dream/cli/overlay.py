@@ -1,4 +1,5 @@
-"""`dream overlay`: projected keypoints and skeleton drawn on the images of a dataset."""
+"""`dream overlay`: the robot's outline, projected keypoints and skeleton drawn on the images of
+a dataset, at its reference extrinsic or at the poses a RESULT.json wrote."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from dream.cli.options import (
     DataOptions,
     add_command,
     add_intrinsics_args,
+    add_keypoints_arg,
     read_data,
     request_from,
 )
@@ -45,10 +47,9 @@ def run_overlay(request: OverlayRequest) -> int:
 
     check_output_folder(request.out)  # before any reading or drawing
     seq = read_data(request)
-    robot = robot_for(seq, request.robot)
+    robot = robot_for(seq, request.robot, option_keypoints=request.keypoint_links)
     if request.extrinsic is not None:
-        T = read_result(request.extrinsic)["T_cam_base"]
-        poses = np.broadcast_to(T, (len(seq), 4, 4))
+        poses = _result_poses(read_result(request.extrinsic), seq)
     else:
         from dream.pipeline import truth_poses
 
@@ -59,6 +60,20 @@ def run_overlay(request: OverlayRequest) -> int:
     n = write_skeleton_overlays(seq, robot, poses, Path(request.out), limit=request.limit)
     print(f"wrote {n} overlay images to {request.out}")
     return n
+
+
+def _result_poses(doc: dict, seq) -> np.ndarray:
+    """(F, 4, 4) the pose a RESULT.json wrote for each frame of `seq`: its one extrinsic, or,
+    for a per-frame result (`--frames each`), each frame's own by name (the reported pose for
+    frames it does not list or did not solve)."""
+    T = np.asarray(doc["T_cam_base"], dtype=float)
+    poses = np.array(np.broadcast_to(T, (len(seq), 4, 4)))
+    if doc.get("frames_mode") == "each":
+        by_name = {e["frame"]: e.get("T_cam_base") for e in doc["per_frame"]}
+        for i, frame in enumerate(seq.frames):
+            if by_name.get(frame.name) is not None:
+                poses[i] = np.asarray(by_name[frame.name], dtype=float)
+    return poses
 
 
 def cmd_overlay(args: argparse.Namespace) -> int:
@@ -74,5 +89,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="folder for the overlay PNGs")
     p.add_argument("--extrinsic", help="RESULT.json to draw with (default: the data's reference)")
     p.add_argument("--robot", help=ROBOT_HELP)
+    add_keypoints_arg(p)
     add_intrinsics_args(p)
     p.add_argument("--limit", type=int, default=None, help="draw at most this many frames")

@@ -16,7 +16,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Sequence as SequenceOf
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -29,6 +29,12 @@ from dream.edges.settings import EdgeSettings
 from dream.errors import InputError
 from dream.polish.calibration import all_detections
 from dream.polish.objective import evenly_spaced
+from dream.refined_uncertainty import (
+    RefinementJackknife,
+    combined,
+    frame_groups,
+    group_jackknife,
+)
 from dream.robot import Robot
 from dream.robot.link_geometry import LinkGeometry, excluded_links, with_link_geometry
 from dream.sequence import Sequence
@@ -56,6 +62,7 @@ class EdgeResult:
         mismatched_links: links whose outline agrees less than `mismatch_ratio` x the whole
             outline's agreement at the kept pose.
         trace: rounds per scale, matched points. seconds: wall time.
+        jackknife: the jackknife of the kept pose (`edge_jackknife`), where computed.
     """
 
     T_before: np.ndarray
@@ -74,6 +81,7 @@ class EdgeResult:
     mismatched_links: tuple[str, ...]
     trace: EdgeTrace
     seconds: float
+    jackknife: RefinementJackknife | None = None
 
     @property
     def score_kept(self) -> EdgeScore:
@@ -205,8 +213,42 @@ def refine_with_edges(sequence: Sequence, robot: Robot, T_cam_base: np.ndarray,
     kept, reason = decide_edges(score0, score1, med0, med1, settings)
     log.info("edge alignment: %s", reason)
     T_after = T1 if kept else T0
+    jackknife = (edge_jackknife(meshes, P, gray, camera, T1, settings, background, usable,
+                                score1) if kept else None)
     return EdgeResult(T0, T1, T_after, kept, reason,
                       tuple(sequence.frames[i].name for i in chosen), score0, score1, med0,
                       med1, background is not None, tuple(exclude_links), static,
                       (score1 if kept else score0).mismatched(settings), trace,
-                      time.perf_counter() - start)
+                      time.perf_counter() - start, jackknife)
+
+
+JACKKNIFE_ROUNDS = 4   # rounds at the finest scale of each leave-one-link alignment
+
+
+def edge_jackknife(meshes: RobotMeshes, P: np.ndarray, gray: np.ndarray, camera,
+                   T_aligned: np.ndarray, settings: EdgeSettings,
+                   background: np.ndarray | None, usable: np.ndarray,
+                   score: EdgeScore) -> RefinementJackknife | None:
+    """The 1-sigma of an aligned pose (`dream.refined_uncertainty`): the alignment repeated
+    from `T_aligned` at the finest scale with each link's outline left out in turn, over the
+    links with at least `min_outline_points` outline points in `score` (the aligned pose's),
+    and, with several frames, each frame group left out in turn; P (F, V, 3) and gray
+    (F, H, W) of the frames aligned."""
+    links = tuple(a.link for a in score.links if a.points >= settings.min_outline_points)
+    fine = replace(settings, scale_widths_px=settings.scale_widths_px[-1:],
+                   rounds_per_scale=JACKKNIFE_ROUNDS)
+    groups = frame_groups(len(P))
+
+    def without_link(link: str) -> np.ndarray:
+        keep = usable & (meshes.vertex_link != meshes.links.index(link))
+        return align_edges(P, meshes.faces, gray, camera, T_aligned, fine, background, keep,
+                           meshes.vertex_link)[0]
+
+    def without_frames(name: str) -> np.ndarray:
+        keep = np.setdiff1d(np.arange(len(P)), groups[name])
+        return align_edges(P[keep], meshes.faces, gray[keep], camera, T_aligned, fine,
+                           background, usable, meshes.vertex_link)[0]
+
+    return combined(group_jackknife(T_aligned, links, without_link, "the edge alignment"),
+                    group_jackknife(T_aligned, tuple(groups), without_frames,
+                                    "the edge alignment"))

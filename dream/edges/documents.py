@@ -4,8 +4,8 @@ The `edges` object holds the verdict (kept, reason), the outline's agreement wit
 edges at both poses, per link at the kept pose, the links left out (by name, or static in the
 background model) and those named as not matching their model, the keypoint detections' median
 distance at both poses, both poses and the change between them. When kept, the document's pose
-fields are the aligned pose's (`dream.polish.documents.with_pose_fields`; the covariance stays
-the keypoint fit's). `--frames each`: each aligned frame's `per_frame` entry gets its own
+fields are the aligned pose's (`dream.polish.documents.with_pose_fields`), with its own 1-sigma
+(`dream.refined_uncertainty`). `--frames each`: each aligned frame's `per_frame` entry gets its own
 `edges` object, and the top-level `edges` object counts them.
 """
 
@@ -18,6 +18,7 @@ from dream.arrays import finite_or_none
 from dream.edges.calibration import EdgeResult
 from dream.edges.frames import FrameEdgeResult
 from dream.polish.documents import with_frame_refinements, with_pose_fields
+from dream.refined_uncertainty import with_refined_uncertainty
 
 
 def edges_to_dict(res: EdgeResult) -> dict[str, Any]:
@@ -56,6 +57,7 @@ def result_doc_with_edges(doc: dict[str, Any], res: EdgeResult,
     out["edges"] = edges_to_dict(res)
     if res.kept:
         with_pose_fields(out, res.T_after, rmse_after_px)
+        with_refined_uncertainty(out, res.jackknife)
     return out
 
 

@@ -17,13 +17,13 @@ import logging
 import time
 from collections.abc import Callable
 from collections.abc import Sequence as SequenceOf
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from dream.calibration import CalibrationResult, Observations
 from dream.edges.background import background_model, load_grey
-from dream.edges.calibration import moving_vertices, outline_meshes
+from dream.edges.calibration import edge_jackknife, moving_vertices, outline_meshes
 from dream.edges.refine import align_edges
 from dream.edges.score import edge_score
 from dream.edges.search import scale_images
@@ -33,6 +33,7 @@ from dream.pnp import PoseFit
 from dream.polish.calibration import inlier_keypoints
 from dream.polish.guard import fit_shrinkage
 from dream.polish.objective import evenly_spaced
+from dream.refined_uncertainty import RefinementJackknife
 from dream.robot import Robot
 from dream.robot.link_geometry import LinkGeometry
 from dream.sequence import Sequence
@@ -53,7 +54,8 @@ class FrameEdgeResult:
         agreement_before, agreement_after: share of its outline on an image edge (full
         resolution) at the two poses. median_before, median_after: median distance (px) of
         its inlier keypoints (NaN without). background: whether the background model was
-        used. seconds: wall time.
+        used. seconds: wall time. jackknife: the jackknife of the kept pose, where computed
+        (the reported frame's).
     """
 
     frame: str
@@ -68,6 +70,7 @@ class FrameEdgeResult:
     median_after: float
     background: bool
     seconds: float
+    jackknife: RefinementJackknife | None = None
 
 
 def background_explains(grey: np.ndarray, background: np.ndarray,
@@ -135,7 +138,7 @@ def refine_frames_with_edges(sequence: Sequence, robot: Robot, result: Calibrati
     out: list[FrameEdgeResult | None] = [None] * len(sequence)
     for done, i in enumerate(todo, start=1):
         out[i] = _align_frame(sequence, i, meshes, joints[i:i + 1], result, obs, settings,
-                              background, usable)
+                              background, usable, jackknife=i == result.reported_frame)
         if progress is not None and (done % PROGRESS_EVERY_ALIGNED == 0 or done == len(todo)):
             progress(done, len(todo))
     return tuple(out)
@@ -163,8 +166,10 @@ def _shared_background(sequence: Sequence, settings: EdgeSettings) -> np.ndarray
 
 def _align_frame(sequence: Sequence, i: int, meshes, joints: np.ndarray,
                  result: CalibrationResult, obs: Observations, settings: EdgeSettings,
-                 background: np.ndarray | None, usable: np.ndarray) -> FrameEdgeResult:
-    """Frame i aligned alone from its keypoint pose and judged (`decide_frame`)."""
+                 background: np.ndarray | None, usable: np.ndarray,
+                 jackknife: bool = False) -> FrameEdgeResult:
+    """Frame i aligned alone from its keypoint pose and judged (`decide_frame`); with
+    `jackknife`, a kept pose gets its jackknife (`edge_jackknife`)."""
     start = time.perf_counter()
     frame, camera = sequence.frames[i], sequence.frame_camera(i)
     T0 = np.asarray(result.frames[i].fit.T_cam_base, dtype=float)
@@ -187,6 +192,10 @@ def _align_frame(sequence: Sequence, i: int, meshes, joints: np.ndarray,
     med0, med1 = ((guard.median_px(camera, T0), guard.median_px(camera, T1)) if guard
                   else (float("nan"), float("nan")))
     kept, reason = decide_frame(score0.agreement, score1.agreement, med0, med1, n, settings)
-    return FrameEdgeResult(frame.name, T0, T1, T1 if kept else T0, kept, reason,
-                           score0.agreement, score1.agreement, med0, med1,
-                           background is not None, time.perf_counter() - start)
+    res = FrameEdgeResult(frame.name, T0, T1, T1 if kept else T0, kept, reason,
+                          score0.agreement, score1.agreement, med0, med1,
+                          background is not None, time.perf_counter() - start)
+    if kept and jackknife:
+        res = replace(res, jackknife=edge_jackknife(meshes, P, grey, camera, T1, settings,
+                                                    background, usable, score1))
+    return res

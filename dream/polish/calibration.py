@@ -6,7 +6,12 @@ anything is solved (a polish that was asked for is never skipped silently), unle
 model's mask head made rendered scenes worse, and its masks are too coarse for a frame alone;
 `check_polish_input`). All frames (`polish_calibration`): the frames with masks
 (`silhouette_inputs`) that agree with each other (`dream.polish.frames`) align the one
-extrinsic, guarded by the median distance of all the keypoint detections. `--frames each`
+extrinsic. The data's own masks decide alone where the silhouettes then overlap
+(`min_evidence_iou`; the keypoint detections' disagreement is reported, not a veto), searched
+from the keypoint pose and from the best single-frame poses (`mask_starts`); masks the tool
+predicts, and a polish that did not find the robot, are guarded by the median distance of all
+the keypoint detections (`dream.polish.guard`). A kept pose gets its own 1-sigma, the link
+jackknife of `polish_jackknife`. `--frames each`
 (`polish_frames`): every solved frame with a non-empty mask is polished alone, guarded by the
 median distance of its own inlier keypoints.
 """
@@ -26,7 +31,7 @@ from dream.errors import InputError
 from dream.pnp import PoseFit
 from dream.polish.guard import KeypointGuard, KeypointSet, decide
 from dream.polish.objective import evenly_spaced
-from dream.polish.refine import PolishResult, polish
+from dream.polish.refine import PolishResult, polish, polish_jackknife
 from dream.polish.settings import PolishSettings
 from dream.quality import MIN_KEPT_SHARE
 from dream.robot import Robot
@@ -156,11 +161,112 @@ def polish_calibration(sequence: Sequence, robot: Robot, result: CalibrationResu
                                leave_out_links)
     detections = all_detections(obs)
     inliers = inlier_keypoints(result, obs, slice(None))
+    camera = sequence.camera
+    res = None
     trusted = (detections is not None and inliers is not None
                and len(inliers.P_base) >= MIN_KEPT_SHARE * len(detections.P_base))
-    return polish(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
-                  result.fit.T_cam_base, detections, params, inputs.frame_names,
-                  guard=KeypointGuard.ALL_MEDIAN, inliers=inliers if trusted else None)
+    if predict_masks is None:          # the data's own masks: the detections do not veto
+        res = _polish_on_data_masks(inputs, camera, result, params, trusted)
+        if res.iou_after_mean >= params.min_evidence_iou or detections is None:
+            res = _with_detector_report(res, detections, inliers, camera)
+        else:
+            log.info("silhouette polish: mean IoU %.3f below %.2f, guarded by the keypoint "
+                     "detections", res.iou_after_mean, params.min_evidence_iou)
+            res = None
+    if res is None:
+        res = polish(inputs.meshes, inputs.joints, inputs.masks, camera, result.fit.T_cam_base,
+                     detections, params, inputs.frame_names, guard=KeypointGuard.ALL_MEDIAN,
+                     inliers=inliers if trusted else None)
+    if not res.kept:
+        return res
+    used = res.used
+    return replace(res, jackknife=polish_jackknife(inputs.meshes, inputs.joints[used],
+                                                   inputs.masks[used], camera, res.T_after,
+                                                   params))
+
+
+def _polish_on_data_masks(inputs: SilhouetteInputs, camera: CameraIntrinsics,
+                          result: CalibrationResult, params: PolishSettings,
+                          trusted_fit: bool) -> PolishResult:
+    """The all-frames polish against the data's own masks (no keypoint veto), from the
+    keypoint pose and, where that ends below `frame_restart_below_iou` and the keypoint fit is
+    not `trusted_fit` (it kept less than `MIN_KEPT_SHARE` of the detections: a biased few may
+    have pulled it far off), from the `mask_starts` single-frame poses whose silhouettes
+    overlap the masks best (`_ranked_frame_starts`); the polish with the highest IoU wins,
+    judged against the keypoint pose."""
+    def polish_from(T: np.ndarray) -> PolishResult:
+        return polish(inputs.meshes, inputs.joints, inputs.masks, camera, T, None, params,
+                      inputs.frame_names, guard=KeypointGuard.NONE)
+
+    first = polish_from(result.fit.T_cam_base)
+    if first.iou_after_mean >= params.frame_restart_below_iou or trusted_fit:
+        return first
+    best, best_start, seconds = first, "", first.seconds
+    for name, T_start in _ranked_frame_starts(inputs, camera, result, params):
+        candidate = polish_from(T_start)
+        seconds += candidate.seconds
+        if candidate.iou_after_mean > best.iou_after_mean:
+            best = candidate
+            best_start = name
+    if best is first:
+        return replace(first, seconds=seconds)
+    iou0 = float(first.iou_before[best.used].mean())
+    kept, reason = decide(iou0, best.iou_after_mean, float("nan"), float("nan"), 0, params,
+                          KeypointGuard.NONE)
+    return replace(best, T_before=first.T_before, T_after=best.T_polished if kept else
+                   first.T_before, iou_before=first.iou_before, kept=kept,
+                   reason=f"{reason}; searched from frame {best_start}'s own keypoint pose",
+                   start=f"frame {best_start}", seconds=seconds)
+
+
+def _ranked_frame_starts(inputs: SilhouetteInputs, camera: CameraIntrinsics,
+                         result: CalibrationResult, params: PolishSettings
+                         ) -> list[tuple[str, np.ndarray]]:
+    """The `mask_starts` single-frame keypoint poses (name, T) of `result.frames` whose
+    silhouettes overlap the masks most (mean IoU over `rank_frames` evenly spaced frames),
+    leaving out those equal to the all-frames pose."""
+    from dream.silhouette import render_points, silhouette_iou, vertices_in_base
+
+    starts = [(f.name, f.fit.T_cam_base) for f in result.frames if isinstance(f.fit, PoseFit)
+              and not np.allclose(f.fit.T_cam_base, result.fit.T_cam_base, atol=SAME_POSE)]
+    if not starts or params.mask_starts == 0:
+        return []
+    frames = evenly_spaced(np.flatnonzero(inputs.masks.reshape(len(inputs.masks), -1)
+                                          .any(axis=1)), params.rank_frames)
+    P = vertices_in_base(inputs.meshes, inputs.joints[frames])
+
+    def overlap(T: np.ndarray) -> float:
+        return float(np.mean([silhouette_iou(render_points(P[k], inputs.meshes.faces, T,
+                                                           camera), inputs.masks[i])
+                              for k, i in enumerate(frames)]))
+
+    ranked = sorted(starts, key=lambda start: -overlap(start[1]))
+    return ranked[:params.mask_starts]
+
+
+SAME_POSE = 1e-6   # starts this close (every matrix entry) to the all-frames pose are not new
+
+
+def _with_detector_report(res: PolishResult, detections: KeypointSet | None,
+                          inliers: KeypointSet | None, camera: CameraIntrinsics
+                          ) -> PolishResult:
+    """A polish decided by the data's masks alone, with the keypoint detections' median
+    distance and the fit's inlier RMSE at both poses, and, when kept, the detections'
+    disagreement named in its reason."""
+    if detections is None:
+        return res
+    T0, T1 = res.T_before, res.T_polished
+    median0, median1 = detections.median_px(camera, T0), detections.median_px(camera, T1)
+    rmse0, rmse1 = ((inliers.rmse_px(camera, T0), inliers.rmse_px(camera, T1))
+                    if inliers is not None else (float("nan"), float("nan")))
+    reason = res.reason
+    if res.kept:
+        reason += (f"; the {len(detections.P_base)} keypoint "
+                   f"detections lie a median {median1:.2f} px from the polished pose "
+                   f"({median0:.2f} px from the keypoint pose), the detector's disagreement "
+                   "with these images")
+    return replace(res, reason=reason, median_before=median0, median_after=median1,
+                   rmse_before=rmse0, rmse_after=rmse1)
 
 
 def all_detections(obs: Observations | None) -> KeypointSet | None:
@@ -210,9 +316,14 @@ def polish_frames(sequence: Sequence, robot: Robot, result: CalibrationResult,
         camera = sequence.frame_camera(i)
         mask = load_mask(frame, camera)
         if mask.any():
-            out[i] = _polish_frame(meshes, joints[i:i + 1], mask, camera,
-                                   solution.fit.T_cam_base, inlier_keypoints(result, obs, i),
-                                   params, frame.name, solution.leave_outs)
+            res = _polish_frame(meshes, joints[i:i + 1], mask, camera, solution.fit.T_cam_base,
+                                inlier_keypoints(result, obs, i), params, frame.name,
+                                solution.leave_outs)
+            if res.kept and i == result.reported_frame:    # the pose written gets its 1-sigma
+                res = replace(res, jackknife=polish_jackknife(meshes, joints[i:i + 1],
+                                                              mask[None], camera, res.T_after,
+                                                              params))
+            out[i] = res
         else:
             log.info("frame %s: empty robot mask, not polished", frame.name)
         if progress is not None and (done % PROGRESS_EVERY_POLISHED == 0 or done == len(todo)):

@@ -2,10 +2,11 @@
 
 All frames: RESULT.json gets a `polish` object (iou_before, iou_after: means; kept; reason;
 per-frame IoUs, keypoint RMSEs, both poses; `polish_to_dict`); when kept, its pose fields are
-the polished pose's (`result_doc_with_polish`). `--frames each`: each polished `per_frame`
-entry gets its own `polish` object (`frame_polish_to_dict`) and, when kept, the polished
-`T_cam_base`; the top-level `polish` object counts them (`frame_polish_summary`), and the
-top-level pose is the reported frame's polished one when that frame's polish was kept
+the polished pose's, with its own 1-sigma (`result_doc_with_polish`). `--frames each`: each
+polished `per_frame` entry gets its own `polish` object (`frame_polish_to_dict`) and, when
+kept, the polished `T_cam_base`; the top-level `polish` object counts them
+(`frame_polish_summary`), and the top-level pose is the reported frame's polished one, with
+its own 1-sigma, when that frame's polish was kept
 (`result_doc_with_frame_polishes`).
 """
 
@@ -20,6 +21,7 @@ import numpy as np
 from dream.arrays import finite_or_none
 from dream.errors import InputError
 from dream.polish.refine import PolishResult
+from dream.refined_uncertainty import with_refined_uncertainty
 from dream.transforms import invert_T, quaternion_xyzw_from_R
 
 
@@ -67,8 +69,8 @@ def _left_out(res: PolishResult) -> list[dict[str, Any]]:
 def with_pose_fields(doc: dict[str, Any], T: np.ndarray, rmse_px: float) -> None:
     """Set a RESULT.json document's pose fields (`T_cam_base`, `translation_m`,
     `quaternion_xyzw`, `T_base_cam`, `sigma_camera_position_base_m`) and, when finite,
-    `rmse_px` to those of the pose `T`, polished or aligned (the covariance stays the keypoint
-    fit's)."""
+    `rmse_px` to those of the pose `T`, polished or aligned (the covariance is still the
+    keypoint fit's: `dream.refined_uncertainty.with_refined_uncertainty` replaces it)."""
     from dream.result import camera_position_covariance
 
     doc["T_cam_base"] = T.tolist()
@@ -91,6 +93,7 @@ def result_doc_with_polish(doc: dict[str, Any], res: PolishResult,
     out["polish"] = polish_to_dict(res)
     if res.kept:
         with_pose_fields(out, res.T_after, rmse_px)
+        with_refined_uncertainty(out, res.jackknife)
     return out
 
 
@@ -163,6 +166,7 @@ def with_frame_refinements(doc: dict[str, Any], results: SequenceOf[Any | None],
                     entry["rmse_px"] = float(rmse)
                 if entry["frame"] == doc.get("reported_frame"):
                     with_pose_fields(out, res.T_after, rmse)
+                    with_refined_uncertainty(out, res.jackknife)
         per_frame.append(entry)
     out["per_frame"] = per_frame
     return out

@@ -22,6 +22,11 @@ before and after. The polished pose is kept only when the mean IoU grows by more
   of it, in RMS, for 4 keypoints), which the division gives back. The median still rises
   when the pose leaves most of the keypoints, as it does when silhouette and keypoints
   disagree.
+- "none" (a fixed camera, all frames, masks that come with the data): masks a person or a
+  segmentation made for these images are evidence of their own, so detections that disagree
+  with the polished pose do not veto it; their median distance is reported as the detector's
+  disagreement (`dream.polish.calibration`). Masks the tool made itself (the network's mask
+  head, motion masks) keep the "all-median" guard.
 Otherwise the keypoint pose is kept and the reason says why.
 """
 
@@ -84,7 +89,9 @@ class KeypointGuard:
     RMSE = "rmse"               # many frames of a fixed camera, the fit's inliers
     ALL_MEDIAN = "all-median"   # many frames of a fixed camera, every detection
     MEDIAN = "median"           # one frame alone
-    ALL = (RMSE, ALL_MEDIAN, MEDIAN)
+    NONE = "none"               # the data's own masks decide; the detections are only reported
+    VETOING = (RMSE, ALL_MEDIAN, MEDIAN)   # those whose keypoints can refuse a polish
+    ALL = (*VETOING, NONE)
 
 
 def fit_shrinkage(n_keypoints: int) -> float:
@@ -106,6 +113,8 @@ def decide(iou0: float, iou1: float, kp0: float, kp1: float, n_guard: int,
     if not gain > params.min_iou_gain:
         return False, (f"not kept: {ious} gains {gain:+.4f}, not more than "
                        f"{params.min_iou_gain:g}")
+    if guard == KeypointGuard.NONE:
+        return True, f"kept: {ious} on the data's masks"
     if n_guard == 0:
         return True, f"kept: {ious} (no keypoints to check)"
     if guard == KeypointGuard.RMSE:

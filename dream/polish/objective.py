@@ -92,19 +92,23 @@ def evenly_spaced(candidates: np.ndarray, n: int) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Contour:
-    """Contour points of one round: base-frame points, frame index, selection distance."""
+    """Contour points of one round: base-frame points, frame index, selection distance and
+    (where known) the mesh vertex each point is."""
 
     P_base: np.ndarray   # (N, 3)
     frame: np.ndarray    # (N,)
     s: np.ndarray        # (N,)
+    vertex: np.ndarray | None = None   # (N,)
 
 
 def select_contour(P_frames: np.ndarray, faces: np.ndarray, T: np.ndarray,
-                   camera: CameraIntrinsics, params: PolishSettings) -> Contour:
+                   camera: CameraIntrinsics, params: PolishSettings,
+                   usable: np.ndarray | None = None) -> Contour:
     """The contour points at T: of each frame's mesh vertices P_frames (F, V, 3), those that
     project within `contour_band_px` of the silhouette rendered at T (at most
-    `max_points_per_frame`, evenly spaced), with their signed distance there."""
-    points, frames, dists = [], [], []
+    `max_points_per_frame`, evenly spaced), with their signed distance there; `usable` (V,)
+    bool: only these vertices may be contour points (the whole mesh is still rendered)."""
+    points, frames, dists, vertices = [], [], [], []
     for f, P in enumerate(P_frames):
         rendered = render_points(P, faces, T, camera)
         if not rendered.any():
@@ -114,14 +118,18 @@ def select_contour(P_frames: np.ndarray, faces: np.ndarray, T: np.ndarray,
         s = np.full(len(P), np.inf)
         s[ok] = bilinear(signed_distance(rendered)[None], np.zeros(int(ok.sum()), np.int64),
                           uv[ok])
-        pick = np.flatnonzero(np.abs(s) <= params.contour_band_px)
+        near = np.abs(s) <= params.contour_band_px
+        pick = np.flatnonzero(near if usable is None else near & usable)
         pick = evenly_spaced(pick, params.max_points_per_frame)
         points.append(P[pick])
         frames.append(np.full(len(pick), f))
         dists.append(s[pick])
+        vertices.append(pick)
     if not points:
-        return Contour(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0))
-    return Contour(np.concatenate(points), np.concatenate(frames), np.concatenate(dists))
+        return Contour(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0),
+                       np.zeros(0, np.int64))
+    return Contour(np.concatenate(points), np.concatenate(frames), np.concatenate(dists),
+                   np.concatenate(vertices))
 
 
 class Objective:

@@ -7,7 +7,8 @@ projection Jacobian), a few steps on a fixed set of contour points
 (as in ICP), until the pose stops moving. Derivative-free searches (Nelder-Mead, Powell) on
 1 - IoU do not suit it: IoU is piecewise constant in the pose, and each of their hundreds of
 evaluations renders every frame. The search runs on at most `max_search_frames` frames
-(evenly spaced, non-empty masks) with masks shrunk to at most `search_width_px` pixels wide.
+(evenly spaced, non-empty masks) with masks shrunk to at most `search_width_px` pixels wide;
+a wider camera's search is finished by `fine_rounds` rounds at its own resolution.
 `polish` then scores both poses and keeps or refuses the polished one (`dream.polish.guard`).
 """
 
@@ -38,6 +39,13 @@ from dream.polish.objective import (
     signed_distance,
 )
 from dream.polish.settings import PolishSettings
+from dream.refined_uncertainty import (
+    RefinementJackknife,
+    combined,
+    frame_groups,
+    group_jackknife,
+    links_with_points,
+)
 from dream.silhouette import RobotMeshes, render_points, silhouette_iou, vertices_in_base
 from dream.transforms import invert_T, rotation_angle_between
 
@@ -72,6 +80,7 @@ class PolishResult:
         rounds: render / select / LM rounds of the first search (all frames);
             contour_points: in its last round.
         seconds: wall time of the polish.
+        jackknife: the jackknife of the kept pose (`polish_jackknife`), where computed.
     """
 
     T_before: np.ndarray
@@ -94,6 +103,7 @@ class PolishResult:
     rounds: int = 0
     contour_points: int = 0
     seconds: float = 0.0
+    jackknife: RefinementJackknife | None = None
 
     @property
     def used(self) -> np.ndarray:
@@ -171,12 +181,14 @@ def rms_motion_px(P_base: np.ndarray, T0: np.ndarray, T1: np.ndarray,
 
 def _refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
                  camera: CameraIntrinsics, T_cam_base: np.ndarray,
-                 params: PolishSettings) -> tuple[np.ndarray, int, int]:
+                 params: PolishSettings, usable: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, int, int]:
     """The silhouette optimum near `T_cam_base` (search resolution already applied).
 
     Args:
         P_frames: (F, V, 3) mesh vertices of each frame in the base frame, m.
         faces: (T, 3) triangles. masks: (F, H, W) observed masks at `camera`'s size.
+        usable: (V,) bool, the vertices that may be contour points (default all).
     Returns:
         (T (4, 4), rounds run, contour points of the last round).
     """
@@ -184,7 +196,7 @@ def _refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
     T = np.array(T_cam_base, dtype=float)
     rounds, points = 0, 0
     for rounds in range(1, params.outer_iterations + 1):
-        contour = select_contour(P_frames, faces, T, camera, params)
+        contour = select_contour(P_frames, faces, T, camera, params, usable)
         points = len(contour.s)
         if points < params.min_contour_points:
             log.info("silhouette polish: only %d contour points, stopping", points)
@@ -262,6 +274,11 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         T1, agreement = agreeing_frames(T1, candidates, search, search_alone, ious,
                                         params)
     used = agreement.used if agreement is not None else np.ones(F, bool)
+    if width < camera.width:          # finish at the camera's own resolution
+        fine = evenly_spaced(np.flatnonzero(used & np.isin(np.arange(F), non_empty)),
+                             params.max_search_frames)
+        T1 = _refine_pose(P_all[fine], meshes.faces, masks[fine], camera, T1,
+                          replace(params, outer_iterations=params.fine_rounds))[0]
     iou0, iou1 = ious(np.arange(F), T0), ious(np.arange(F), T1)
     if keypoints is not None:
         rmse0, rmse1 = keypoints.rmse_px(camera, T0), keypoints.rmse_px(camera, T1)
@@ -321,3 +338,42 @@ def _checked(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         raise InputError("every robot mask is empty; the silhouette polish needs masks that "
                          "show the robot")
     return q, masks, T0, names, non_empty
+
+
+JACKKNIFE_MIN_CONTOUR_POINTS = 20   # a link with fewer contour points does not shape the polish
+JACKKNIFE_ROUNDS = 5                # rounds of each leave-one-link polish from the optimum
+
+
+def polish_jackknife(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
+                     camera: CameraIntrinsics, T_polished: np.ndarray,
+                     params: PolishSettings | None = None) -> RefinementJackknife | None:
+    """The 1-sigma of a polished pose (`dream.refined_uncertainty`): the polish repeated from
+    `T_polished` with each link's contour points left out in turn, and, with several frames,
+    each frame group left out in turn; on the search frames and at the search resolution of
+    `polish`; joints (F, J) and masks (F, H, W) of the frames that decided it. Links with fewer
+    than `JACKKNIFE_MIN_CONTOUR_POINTS` contour points at `T_polished` are not groups."""
+    params = params or PolishSettings()
+    q, masks, T1, _, non_empty = _checked(meshes, joints, masks, camera, T_polished, None,
+                                          KeypointGuard.RMSE)
+    chosen = evenly_spaced(non_empty, params.max_search_frames)
+    width = min(camera.width, params.search_width_px)
+    height = max(1, int(round(camera.height * width / camera.width)))
+    small = scaled_camera(camera, width, height)
+    P = vertices_in_base(meshes, q[chosen])
+    small_masks = np.stack([shrink_mask(masks[i], width, height) for i in chosen])
+    contour = select_contour(P, meshes.faces, T1, small, params)
+    links = links_with_points(meshes.vertex_link, contour.vertex, meshes.links,
+                              JACKKNIFE_MIN_CONTOUR_POINTS)
+    short = replace(params, outer_iterations=JACKKNIFE_ROUNDS)
+    groups = frame_groups(len(chosen))
+
+    def without_link(link: str) -> np.ndarray:
+        usable = meshes.vertex_link != meshes.links.index(link)
+        return _refine_pose(P, meshes.faces, small_masks, small, T1, short, usable)[0]
+
+    def without_frames(name: str) -> np.ndarray:
+        keep = np.setdiff1d(np.arange(len(chosen)), groups[name])
+        return _refine_pose(P[keep], meshes.faces, small_masks[keep], small, T1, short)[0]
+
+    return combined(group_jackknife(T1, links, without_link, "the silhouette polish"),
+                    group_jackknife(T1, tuple(groups), without_frames, "the silhouette polish"))

@@ -18,6 +18,9 @@ class PolishSettings:
         max_eval_frames: frames whose IoU decides (`polish_calibration` loads at most this
             many masks; `polish` scores every frame it is given).
         search_width_px: masks and camera are shrunk to at most this width during the search.
+        fine_rounds: rounds at the camera's own resolution that finish a search run at a
+            smaller one (a camera wider than `search_width_px`): a search pixel of a 960 px
+            camera is 3 of its pixels, about 3 mm at a metre and a half.
         max_triangles: triangle budget of the robot's meshes (`dream.silhouette`).
         contour_band_px: a vertex is a contour point when it projects this close to the
             rendered outline (search resolution).
@@ -45,6 +48,17 @@ class PolishSettings:
             with it, 4 frames of that set are better and none worse.
         frame_restart_below_iou: a frame (`polish_frames`) whose polish is refused or ends
             below this IoU is polished again from each of its leave-one-keypoint-out poses.
+        min_evidence_iou: an all-frames polish against the data's own masks is decided by
+            them alone (no keypoint veto) only where its mean IoU over the frames that agree
+            reaches this; a polish that ends below it has not found the robot, and the keypoint
+            detections guard it as they guard predicted masks.
+        mask_starts, rank_frames: with the data's own masks, where the keypoint fit kept
+            less than half of the detections and the polish ended below
+            `frame_restart_below_iou`, the all-frames polish also starts from the
+            `mask_starts` single-frame keypoint poses whose silhouettes overlap the masks best
+            (IoU over `rank_frames` evenly spaced frames) and keeps the highest IoU: a biased
+            detector can pull the all-frames keypoint fit metres away, where one
+            frame's own pose may still lie in the polish's basin.
         min_frame_iou, max_frame_iou_loss, max_frame_iou_drop: an all-frames polish leaves out
             a frame whose own optimum reaches less IoU, that loses more IoU at the common pose
             than at its own, or whose IoU at the common pose lies more below the median of
@@ -68,6 +82,7 @@ class PolishSettings:
     max_search_frames: int = 10
     max_eval_frames: int = 40
     search_width_px: int = 320
+    fine_rounds: int = 5
     max_triangles: int = DEFAULT_MAX_TRIANGLES
     contour_band_px: float = 2.0
     huber_scale_px: float = 1.0
@@ -84,6 +99,9 @@ class PolishSettings:
     rmse_margin_px: float = 1.0
     frame_median_margin_px: float = 3.0
     frame_restart_below_iou: float = 0.95
+    min_evidence_iou: float = 0.7
+    mask_starts: int = 3
+    rank_frames: int = 4
     min_frame_iou: float = 0.7
     max_frame_iou_loss: float = 0.05
     max_frame_iou_drop: float = 0.15
@@ -97,6 +115,7 @@ class PolishSettings:
     def __post_init__(self) -> None:
         check_fields(self, "polish",
                      positive_ints=("max_search_frames", "max_eval_frames", "search_width_px",
+                                    "rank_frames", "fine_rounds",
                                     "max_triangles", "outer_iterations", "inner_iterations",
                                     "min_contour_points", "max_points_per_frame",
                                     "min_agreeing_frames", "frame_check_rounds",
@@ -104,10 +123,12 @@ class PolishSettings:
                      positive=("contour_band_px", "huber_scale_px", "max_residual_px",
                                "max_outside_residual_px", "initial_damping", "step_tolerance_px",
                                "max_rmse_factor", "max_median_factor"),
-                     non_negative=("min_iou_gain", "rmse_margin_px", "frame_median_margin_px",
+                     non_negative=("mask_starts", "min_iou_gain", "rmse_margin_px",
+                                   "frame_median_margin_px",
                                    "max_frame_iou_loss", "max_frame_iou_drop",
                                    "median_margin_px"))
-        for name in ("frame_restart_below_iou", "min_frame_iou", "min_agreeing_share"):
+        for name in ("frame_restart_below_iou", "min_frame_iou", "min_agreeing_share",
+                     "min_evidence_iou"):
             if not 0 <= getattr(self, name) <= 1:
                 raise InputError(f"{name} must lie in [0, 1], got {getattr(self, name)}")
         for name in ("max_rmse_factor", "max_median_factor"):

@@ -186,6 +186,12 @@ def test_calibrate_aligns_edges_by_default_without_masks(panda, meshes, tmp_path
     t_keypoints, _ = pose_errors(np.array(edges["T_cam_base_keypoints"]), T_true)
     t_edges, _ = pose_errors(np.array(doc["T_cam_base"]), T_true)
     assert t_edges < 0.002 and t_edges < t_keypoints
+    # the 1-sigma written is the aligned pose's own: its jackknife
+    unc = doc["uncertainty"]
+    assert unc["method"] == "jackknife of the edge alignment"
+    assert sum(g.startswith("frames ") for g in unc["jackknife_left_out"]) == 5
+    assert not np.allclose(doc["covariance_xi"], unc["covariance_xi_keypoint_pose"])
+    assert t_edges < 5 * np.linalg.norm(doc["sigma_camera_position_base_m"]) + 1e-3
 
 
 @pytest.mark.parametrize("extra, message", [

@@ -45,6 +45,10 @@ def test_calibrate_each_aligns_every_frame_by_default_without_masks(panda, meshe
     assert np.median(add1) < 0.5 * np.median(add0), (np.median(add0), np.median(add1))
     kept = np.array([f["edges"]["kept"] for f in doc["per_frame"]])
     assert np.allclose(after[~kept], before[~kept])
+    reported = [f for f in doc["per_frame"] if f["frame"] == doc["reported_frame"]][0]
+    if reported["edges"]["kept"]:     # the reported frame's 1-sigma is its aligned pose's
+        assert doc["uncertainty"]["method"] == "jackknife of the edge alignment"
+        assert not any(g.startswith("frames ") for g in doc["uncertainty"]["jackknife_left_out"])
 
 
 def test_background_is_used_only_when_it_explains_the_frames(panda, meshes):

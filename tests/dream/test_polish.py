@@ -183,7 +183,17 @@ def test_polish_keeps_a_correct_pose(panda, meshes):
     assert t < 2e-3 and r < np.deg2rad(0.1)
 
 
-@pytest.mark.parametrize("guard", KeypointGuard.ALL)
+def test_the_data_masks_decide_without_a_keypoint_veto(panda, meshes):
+    """The scene of the test below with the "none" guard (the data's own masks): the polish
+    moves to the masks' pose although the keypoints agree with another."""
+    rng, T_mask, joints, masks = scene(panda, meshes, seed=5)
+    T_keypoints = perturbed(T_mask, rng, GUARD_OFFSET_M, 0.0)
+    res = polish(meshes, joints, masks, CAMERA, T_keypoints, None, guard=KeypointGuard.NONE)
+    assert res.kept and "on the data's masks" in res.reason
+    assert pose_errors(res.T_after, T_mask)[0] < 0.2 * pose_errors(T_keypoints, T_mask)[0]
+
+
+@pytest.mark.parametrize("guard", KeypointGuard.VETOING)
 def test_polish_refuses_to_break_the_keypoint_fit(panda, meshes, guard):
     """Masks and keypoints that agree with two different poses: the keypoints win, for many
     frames (RMSE and all-median guards) and for one frame (median guard)."""

@@ -20,6 +20,7 @@ from dream.quality import (
     camera_position_covariance,
     condition_findings,
     duplicate_finding,
+    frames_agreement_finding,
     kept_finding,
     quality_from,
     static_finding,
@@ -155,3 +156,36 @@ def test_static_frames_are_named(tmp_path, capsys):
     assert quality["verdict"] == CHECK and "quality: check" in out
     assert any("add no geometry" in w for w in quality["warnings"])
     assert any("poorly constrained" in w for w in quality["warnings"])
+
+
+def test_a_per_frame_result_is_judged_by_its_own_sigma_and_the_frames_agreement(rng):
+    """`--frames each` on detections 20 px off: the reported frame's own 1-sigma and the
+    spread of the other frames' poses keep the verdict from `good`; on exact detections it is
+    `good`."""
+    from scenes import CAMERA, random_scene
+
+    from dream.calibration import calibrate_each
+    from dream.quality import result_quality
+
+    obs, _, _ = random_scene(rng, frames=8, noise_px=20.0)
+    noisy = result_quality(calibrate_each(obs, CAMERA), obs)
+    assert noisy.verdict != GOOD
+    assert any("frames' poses lie" in w for w in noisy.warnings)
+    assert any("1-sigma" in w for w in noisy.warnings)
+    exact, _, _ = random_scene(rng, frames=8)
+    assert result_quality(calibrate_each(exact, CAMERA), exact).verdict == GOOD
+
+
+def test_frames_agreement_finding_reads_the_poses_written():
+    T = look_at(np.array([1.5, 0.0, 1.0]), np.array([0.0, 0.0, 0.4]), 0.0)
+    near = T.copy()
+    near[0, 3] += 0.003
+    far = T.copy()
+    far[0, 3] += 0.08
+    nan = np.full((4, 4), np.nan)
+    assert frames_agreement_finding(T, np.stack([T, near, near, nan])) is None
+    level, text = frames_agreement_finding(T, np.stack([T, far, far, near, nan]))
+    assert level == CHECK and "the other 3 frames' poses lie a median 80.0 mm" in text
+    assert frames_agreement_finding(T, np.stack([T, far])) is None   # too few to judge
+    with pytest.raises(InputError, match="frame poses"):
+        frames_agreement_finding(T, np.zeros((3, 3, 3)))
