@@ -72,7 +72,7 @@ def evaluate(data: Path, result: Path, out: Path) -> dict:
 
 def heldout(model: Path, data: Path, work: Path, polish: bool) -> None:
     result = work / "heldout_each.json"
-    calibrate(data, model, result, "--frames", "each")
+    calibrate(data, model, result, "--frames", "each", "--refine", "none")
     m = evaluate(data, result, work / "heldout_each.metrics.json")
     print(f"1. synthetic held-out set {data} ({m['frames']} frames, random cameras), single "
           f"frame: ADD AUC {100 * m['add_auc']:.1f} (target >= 92), median ADD "
@@ -109,7 +109,7 @@ def scenes(model: Path, count: int, work: Path, held_object: bool, polish: bool,
         # one `dream calibrate` per scene: with --polish, RESULT.json's `polish` object keeps
         # the keypoint extrinsic (T_cam_base_keypoints) beside the polished one
         doc = calibrate(data, model, work / f"scene_{seed}.json",
-                        *(["--polish"] if polish else []),
+                        *(["--polish"] if polish else ["--refine", "none"]),
                         *(["--mask-head"] if polish and mask_head else []))
         T_keypoints = doc["polish"]["T_cam_base_keypoints"] if polish else doc["T_cam_base"]
         t_err, r_err = pose_errors(np.asarray(T_keypoints), T_true)
@@ -180,7 +180,7 @@ def panda_teleop(model: Path, data: Path, work: Path, polish: bool) -> None:
 
 def franka_offline(model: Path, data: Path, work: Path, polish: bool) -> None:
     full = work / "franka_all.json"
-    doc = calibrate(data, model, full, *(["--polish"] if polish else []),
+    doc = calibrate(data, model, full, *(["--polish"] if polish else ["--refine", "none"]),
                     "--overlays", work / "franka_overlays")
     if polish and "polish" in doc:
         p = doc["polish"]
@@ -199,7 +199,8 @@ def franka_offline(model: Path, data: Path, work: Path, polish: bool) -> None:
         folder = work / "l2o" / f"{drop[0]}_{drop[1]}"
         write_dream(sub, folder, overwrite=True)
         try:
-            d = calibrate(folder, model, folder / "r.json", *(["--polish"] if polish else []))
+            d = calibrate(folder, model, folder / "r.json",
+                          *(["--polish"] if polish else ["--refine", "none"]))
         except SystemExit:
             failures += 1
             continue
