@@ -40,14 +40,19 @@ def _ok(uv: np.ndarray) -> bool:
     return bool(np.all(np.isfinite(uv))) and bool(np.all(np.abs(uv) < 1e5))
 
 
-def _check(image: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _image_copy(image: np.ndarray) -> np.ndarray:
+    """A contiguous copy of an (H, W, 3) uint8 RGB image to draw on."""
     image = np.asarray(image)
     if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
         raise InputError(f"image must be (H, W, 3) uint8, got {image.shape} {image.dtype}")
+    return np.ascontiguousarray(image).copy()
+
+
+def _check(image: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     uv = np.asarray(uv, dtype=float)
     if uv.ndim != 2 or uv.shape[1] != 2:
         raise InputError(f"uv has shape {uv.shape}, expected (K, 2)")
-    return np.ascontiguousarray(image).copy(), uv
+    return _image_copy(image), uv
 
 
 def line_width(image: np.ndarray) -> int:
@@ -72,10 +77,8 @@ def draw_skeleton(image: np.ndarray, uv: np.ndarray, edges: tuple[tuple[int, int
 def draw_outline(image: np.ndarray, silhouette: np.ndarray,
                  color: tuple[int, int, int] = OUTLINE_RGB) -> np.ndarray:
     """RGB image with the outline of a rendered silhouette (H, W) bool drawn over it."""
-    out = np.ascontiguousarray(np.asarray(image)).copy()
+    out = _image_copy(image)
     silhouette = np.asarray(silhouette, dtype=bool)
-    if out.ndim != 3 or out.shape[2] != 3 or out.dtype != np.uint8:
-        raise InputError(f"image must be (H, W, 3) uint8, got {out.shape} {out.dtype}")
     if silhouette.shape != out.shape[:2]:
         raise InputError(f"silhouette has shape {silhouette.shape}, expected {out.shape[:2]}")
     contours, _ = cv2.findContours(silhouette.astype(np.uint8), cv2.RETR_LIST,
@@ -253,25 +256,9 @@ def write_skeleton_overlays(sequence, robot, T_cam_base: np.ndarray, out_dir,
     return len(chosen)
 
 
-def written_poses(doc: dict, frames: int) -> list[np.ndarray | None]:
-    """Each frame's pose written to a RESULT.json document: the one extrinsic of all frames,
-    or each frame's own (None where a frame has none)."""
-    if doc.get("frames_mode") == "all":
-        return [np.asarray(doc["T_cam_base"], dtype=float)] * frames
-    return [None if e.get("T_cam_base") is None else np.asarray(e["T_cam_base"], dtype=float)
-            for e in doc["per_frame"]]
-
-
-def _moved(camera, P_base: np.ndarray, T0: np.ndarray | None, T1: np.ndarray | None) -> bool:
-    """Whether the keypoints P_base (K, 3) project more than `MOVED_PX` apart at T0 and T1."""
-    from dream.camera import project
-    from dream.transforms import transform_points
-
-    if T0 is None or T1 is None:
-        return False
-    d = project(camera, transform_points(T0, P_base)) - project(camera,
-                                                                transform_points(T1, P_base))
-    return bool(np.nanmax(np.linalg.norm(d, axis=-1)) > MOVED_PX)
+def _pose_or_none(T: np.ndarray) -> np.ndarray | None:
+    """A written pose (4, 4), None where it is NaN (a frame without one)."""
+    return T if np.all(np.isfinite(T)) else None
 
 
 def write_result_overlays(sequence, robot, obs, result, out_dir, doc: dict | None = None,
@@ -288,9 +275,11 @@ def write_result_overlays(sequence, robot, obs, result, out_dir, doc: dict | Non
     from dream.transforms import transform_points
 
     cam = sequence.camera
+    from dream.result import written_poses
+
     n = len(sequence.frames)
     keypoint_poses = [result.T_cam_base_of_frame(i) for i in range(n)]
-    poses = keypoint_poses if doc is None else written_poses(doc, n)
+    poses = keypoint_poses if doc is None else [_pose_or_none(T) for T in written_poses(doc)]
     outliner = _Outliner(sequence, robot)
     summary = blank_image(cam.width, cam.height)
     moved_any = False
@@ -300,10 +289,12 @@ def write_result_overlays(sequence, robot, obs, result, out_dir, doc: dict | Non
             uv_proj = np.full(obs.uv[i].shape, np.nan) if T is None else \
                 project(camera, transform_points(T, obs.P_base[i]))
             image = outliner.draw(_frame_canvas(sequence, frame), camera, i, T)
-            if _moved(camera, obs.P_base[i], keypoint_poses[i], T):
-                moved_any = True
-                image = draw_faint_skeleton(image, project(camera, transform_points(
-                    keypoint_poses[i], obs.P_base[i])), robot.skeleton_edges)
+            if keypoint_poses[i] is not None and T is not None:
+                uv_keypoint_pose = project(camera, transform_points(keypoint_poses[i],
+                                                                    obs.P_base[i]))
+                if np.nanmax(np.linalg.norm(uv_keypoint_pose - uv_proj, axis=-1)) > MOVED_PX:
+                    moved_any = True
+                    image = draw_faint_skeleton(image, uv_keypoint_pose, robot.skeleton_edges)
             image = draw_skeleton(image, uv_proj, robot.skeleton_edges)
             image = draw_observations(image, obs.uv[i], uv_proj, result.inlier[i])
             image = draw_confidences(image, obs.uv[i], obs.confidence[i])

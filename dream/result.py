@@ -92,6 +92,18 @@ def result_to_dict(result: CalibrationResult, obs: Observations, *, robot: str) 
     }
 
 
+def written_poses(doc: dict[str, Any]) -> np.ndarray:
+    """(F, 4, 4) the pose a RESULT.json document wrote for each of its `per_frame` entries: the
+    one extrinsic of all frames, or each frame's own in "each" mode (NaN where it has none)."""
+    frames = doc["per_frame"]
+    out = np.array(np.broadcast_to(np.asarray(doc["T_cam_base"], dtype=float),
+                                   (len(frames), 4, 4)))
+    if doc.get("frames_mode", "all") == "each":
+        for i, entry in enumerate(frames):
+            out[i] = np.nan if entry.get("T_cam_base") is None else entry["T_cam_base"]
+    return out
+
+
 FIX_RESULT = ("give a RESULT.json written by dream calibrate (run it again if the file was "
               "edited or cut short)")
 FRAMES_MODES = ("all", "each")

@@ -151,15 +151,12 @@ def add_quality(result, obs, doc: dict, out: TextIO) -> dict:
     """The quality verdict (`dream.quality`) on the pose written: printed, with its reasons;
     RESULT.json's `quality` object."""
     from dream.quality import result_quality
+    from dream.result import written_poses
 
-    refined_by = pose_refined_by(doc)
-    T_frames = np.stack([np.full((4, 4), np.nan) if e.get("T_cam_base") is None
-                         else np.asarray(e["T_cam_base"], dtype=float)
-                         for e in doc["per_frame"]])
-    quality = result_quality(result, obs, refined_by,
+    quality = result_quality(result, obs, pose_refined_by(doc),
                              covariance=np.asarray(doc["covariance_xi"], dtype=float),
                              T_cam_base=np.asarray(doc["T_cam_base"], dtype=float),
-                             T_frames=T_frames if doc.get("frames_mode") == "each" else None)
+                             T_frames=written_poses(doc))
     print(f"quality: {quality.verdict}", file=out)
     for warning in quality.warnings:
         print(f"  - {warning}", file=out)
@@ -199,8 +196,8 @@ def print_summary(doc: dict, out: TextIO) -> None:
               f"repeated with each of {len(groups) - frames} links"
               f"{f' and {frames} frame groups' if frames else ''} left out in turn)", file=out)
     elif uncertainty.get("covariance_xi_keypoint_pose") is not None:
-        print("  (1-sigma of the keypoint pose: the refined pose had too few links for its "
-              "own)", file=out)
+        print("  (1-sigma of the keypoint pose: the refined pose had too few links and frames "
+              "for its own)", file=out)
     elif uncertainty.get("covariance_xi_keypoint_jackknife") is not None:
         from dream.result import camera_position_covariance
 
@@ -222,6 +219,7 @@ def print_truth_errors(doc: dict, T_true: np.ndarray, out: TextIO) -> None:
     against it and, with --frames each, the reported frame's and the median over the frames'
     poses written."""
     from dream.metrics import pose_errors
+    from dream.result import written_poses
 
     if doc["frames_mode"] == "all":
         if np.all(np.isfinite(T_true[0])):
@@ -229,18 +227,17 @@ def print_truth_errors(doc: dict, T_true: np.ndarray, out: TextIO) -> None:
             print(f"error vs ground truth: camera position {t_err * 1000:.2f} mm, rotation "
                   f"{np.rad2deg(r_err):.3f} deg", file=out)
         return
-    names = [e["frame"] for e in doc["per_frame"]]
-    pairs = [(np.asarray(e["T_cam_base"], dtype=float), T)
-             for e, T in zip(doc["per_frame"], T_true, strict=True)
-             if e.get("T_cam_base") is not None and np.all(np.isfinite(T))]
-    if not pairs:
+    T_written = written_poses(doc)
+    both = np.all(np.isfinite(T_written.reshape(len(T_written), -1)), axis=1) & np.all(
+        np.isfinite(T_true.reshape(len(T_true), -1)), axis=1)
+    if not both.any():
         return
-    t_all, r_all = pose_errors(np.stack([p for p, _ in pairs]), np.stack([t for _, t in pairs]))
-    reported = names.index(doc["reported_frame"])
+    t_all, r_all = pose_errors(T_written[both], T_true[both])
+    reported = [e["frame"] for e in doc["per_frame"]].index(doc["reported_frame"])
     if np.all(np.isfinite(T_true[reported])):
         t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true[reported])
         print(f"error vs ground truth: reported frame {doc['reported_frame']}: camera "
               f"position {t_err * 1000:.2f} mm, rotation {np.rad2deg(r_err):.3f} deg", file=out)
-    print(f"error vs ground truth over the {len(pairs)} frames with a pose: median camera "
+    print(f"error vs ground truth over the {int(both.sum())} frames with a pose: median camera "
           f"position {np.median(t_all) * 1000:.2f} mm, rotation "
           f"{np.rad2deg(np.median(r_all)):.3f} deg", file=out)

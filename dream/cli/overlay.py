@@ -66,13 +66,15 @@ def _result_poses(doc: dict, seq) -> np.ndarray:
     """(F, 4, 4) the pose a RESULT.json wrote for each frame of `seq`: its one extrinsic, or,
     for a per-frame result (`--frames each`), each frame's own by name (the reported pose for
     frames it does not list or did not solve)."""
-    T = np.asarray(doc["T_cam_base"], dtype=float)
-    poses = np.array(np.broadcast_to(T, (len(seq), 4, 4)))
-    if doc.get("frames_mode") == "each":
-        by_name = {e["frame"]: e.get("T_cam_base") for e in doc["per_frame"]}
-        for i, frame in enumerate(seq.frames):
-            if by_name.get(frame.name) is not None:
-                poses[i] = np.asarray(by_name[frame.name], dtype=float)
+    from dream.result import written_poses
+
+    poses = np.array(np.broadcast_to(doc["T_cam_base"], (len(seq), 4, 4)), dtype=float)
+    by_name = dict(zip((e["frame"] for e in doc["per_frame"]), written_poses(doc),
+                       strict=True))
+    for i, frame in enumerate(seq.frames):
+        T = by_name.get(frame.name)
+        if T is not None and np.all(np.isfinite(T)):
+            poses[i] = T
     return poses
 
 

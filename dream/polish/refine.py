@@ -179,6 +179,13 @@ def rms_motion_px(P_base: np.ndarray, T0: np.ndarray, T1: np.ndarray,
     return float(np.sqrt(np.mean(d2))) if np.all(np.isfinite(d2)) else float("inf")
 
 
+def search_camera(camera: CameraIntrinsics, params: PolishSettings) -> CameraIntrinsics:
+    """The camera of the pose search: `camera` shrunk to at most `search_width_px` wide."""
+    width = min(camera.width, params.search_width_px)
+    height = max(1, int(round(camera.height * width / camera.width)))
+    return scaled_camera(camera, width, height)
+
+
 def _refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
                  camera: CameraIntrinsics, T_cam_base: np.ndarray,
                  params: PolishSettings, usable: np.ndarray | None = None
@@ -245,9 +252,8 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
                                               frame_names, guard)
     F = len(q)
     P_all = vertices_in_base(meshes, q)                                    # (F, V, 3)
-    width = min(camera.width, params.search_width_px)
-    height = max(1, int(round(camera.height * width / camera.width)))
-    small = scaled_camera(camera, width, height)
+    small = search_camera(camera, params)
+    width, height = small.width, small.height
     small_masks = {int(i): shrink_mask(masks[i], width, height) for i in non_empty}
 
     def refine(frames: np.ndarray, T: np.ndarray, settings: PolishSettings
@@ -274,10 +280,10 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         T1, agreement = agreeing_frames(T1, candidates, search, search_alone, ious,
                                         params)
     used = agreement.used if agreement is not None else np.ones(F, bool)
+    used_search = evenly_spaced(np.flatnonzero(used & np.isin(np.arange(F), non_empty)),
+                                params.max_search_frames)
     if width < camera.width:          # finish at the camera's own resolution
-        fine = evenly_spaced(np.flatnonzero(used & np.isin(np.arange(F), non_empty)),
-                             params.max_search_frames)
-        T1 = _refine_pose(P_all[fine], meshes.faces, masks[fine], camera, T1,
+        T1 = _refine_pose(P_all[used_search], meshes.faces, masks[used_search], camera, T1,
                           replace(params, outer_iterations=params.fine_rounds))[0]
     iou0, iou1 = ious(np.arange(F), T0), ious(np.arange(F), T1)
     if keypoints is not None:
@@ -296,8 +302,6 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     if agreement is not None and not used.all():
         reason += f"; {int((~used).sum())} of {F} frames left out (they disagree with the rest)"
     log.info("silhouette polish: %s", reason)
-    used_search = evenly_spaced(np.flatnonzero(used & np.isin(np.arange(F), non_empty)),
-                                params.max_search_frames)
     return PolishResult(T_before=T0, T_polished=T1, T_after=T1 if kept else T0, frames=names,
                         iou_before=iou0, iou_after=iou1, kept=kept, reason=reason,
                         rmse_before=rmse0, rmse_after=rmse1, median_before=median0,
@@ -356,11 +360,9 @@ def polish_jackknife(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     q, masks, T1, _, non_empty = _checked(meshes, joints, masks, camera, T_polished, None,
                                           KeypointGuard.RMSE)
     chosen = evenly_spaced(non_empty, params.max_search_frames)
-    width = min(camera.width, params.search_width_px)
-    height = max(1, int(round(camera.height * width / camera.width)))
-    small = scaled_camera(camera, width, height)
+    small = search_camera(camera, params)
     P = vertices_in_base(meshes, q[chosen])
-    small_masks = np.stack([shrink_mask(masks[i], width, height) for i in chosen])
+    small_masks = np.stack([shrink_mask(masks[i], small.width, small.height) for i in chosen])
     contour = select_contour(P, meshes.faces, T1, small, params)
     links = links_with_points(meshes.vertex_link, contour.vertex, meshes.links,
                               JACKKNIFE_MIN_CONTOUR_POINTS)

@@ -220,6 +220,29 @@ def test_a_run_slower_than_its_probe_stops_validated_at_the_deadline(drawn, tmp_
                       weights_only=False)["global_step"] == stopped
 
 
+def _budget_overrides(drawn) -> list[str]:
+    """A one-minute budgeted run of the tiny recipe on `drawn`, one thread."""
+    return [f"data.train=[{drawn}]", "trainer.time_budget_minutes=1",
+            "trainer.max_epochs=200", "trainer.num_threads=1"]
+
+
+def _fake_clock_stops(monkeypatch, clock) -> list[budget.BudgetStop]:
+    """Make every `BudgetStop` of the next run read `clock()` instead of the wall clock; the
+    list fills with the stops made."""
+    stops: list[budget.BudgetStop] = []
+    real_stop = train_run._budget_stop
+
+    def fake_clock_stop(config, speed, val_images, step_cap=None):
+        stop = real_stop(config, speed, val_images, step_cap)
+        stop.clock = clock
+        stop._start = stop.clock()
+        stops.append(stop)
+        return stop
+
+    monkeypatch.setattr("train.run._budget_stop", fake_clock_stop)
+    return stops
+
+
 @pytest.mark.parametrize("probed, tick_s", [
     (400, 1.0),   # a probe about 8x optimistic: the plan shrinks, the deadline does not cut it
     (40, 0.25),   # a probe taken while the machine was busy: the plan grows to fill the budget
@@ -230,23 +253,12 @@ def test_the_step_plan_follows_the_measured_rate(drawn, tmp_path, monkeypatch, p
     the plan is revised from the measured rate, and the run ends at its plan, not at the
     deadline, with the learning rate at the end of its schedule, validated, the checkpoint
     recording the revised plan, which spends most of the budget."""
-    overrides = [f"data.train=[{drawn}]", "trainer.time_budget_minutes=1",
-                 "trainer.max_epochs=200", "trainer.num_threads=1"]
     monkeypatch.setattr("train.run.measure_speed", _planned_speed(probed, 60.0))
     ticks = (tick_s * i for i in range(10**6))
-    stops: list[budget.BudgetStop] = []
-    real_stop = train_run._budget_stop
-
-    def fake_clock_stop(config, speed, val_images, step_cap=None):
-        stop = real_stop(config, speed, val_images, step_cap)
-        stop.clock = lambda: float(next(ticks))
-        stop._start = stop.clock()
-        stops.append(stop)
-        return stop
-
-    monkeypatch.setattr("train.run._budget_stop", fake_clock_stop)
+    stops = _fake_clock_stops(monkeypatch, lambda: float(next(ticks)))
     recorder = RateRecorder()
-    run = run_training(load_config(TINY, overrides), tmp_path, callbacks=[recorder])
+    run = run_training(load_config(TINY, _budget_overrides(drawn)), tmp_path,
+                       callbacks=[recorder])
     stop = stops[0]
     assert stop.revisions and stop.stopped_at_deadline is None
     assert _rises_then_falls(recorder.rates), (stop.revisions, recorder.rates)
@@ -270,8 +282,6 @@ def test_config_yaml_records_the_plan_as_revised_and_the_steps_trained(drawn, tm
     reading, then 20 s), and whose deadline came before its last plan: config.yaml, written
     again when the run ends, records that plan and the steps trained, as its last checkpoint
     does; the learning rate never rose after its peak."""
-    overrides = [f"data.train=[{drawn}]", "trainer.time_budget_minutes=1",
-                 "trainer.max_epochs=200", "trainer.num_threads=1"]
     monkeypatch.setattr("train.run.measure_speed", _planned_speed(40, 60.0))
     slow_from = 45      # readings at 0.25 s, then 20 s each
 
@@ -279,19 +289,10 @@ def test_config_yaml_records_the_plan_as_revised_and_the_steps_trained(drawn, tm
         return 0.25 * min(reading, slow_from) + 20.0 * max(0, reading - slow_from)
 
     readings = iter(range(10**6))
-    stops: list[budget.BudgetStop] = []
-    real_stop = train_run._budget_stop
-
-    def fake_clock_stop(config, speed, val_images, step_cap=None):
-        stop = real_stop(config, speed, val_images, step_cap)
-        stop.clock = lambda: seconds(next(readings))
-        stop._start = stop.clock()
-        stops.append(stop)
-        return stop
-
-    monkeypatch.setattr("train.run._budget_stop", fake_clock_stop)
+    stops = _fake_clock_stops(monkeypatch, lambda: seconds(next(readings)))
     recorder = RateRecorder()
-    run = run_training(load_config(TINY, overrides), tmp_path, callbacks=[recorder])
+    run = run_training(load_config(TINY, _budget_overrides(drawn)), tmp_path,
+                       callbacks=[recorder])
     stop = stops[0]
     trained = stop.stopped_at_deadline
     assert trained is not None and trained < stop.max_steps
