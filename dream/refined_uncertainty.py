@@ -141,14 +141,26 @@ def links_with_points(vertex_link: np.ndarray, points_vertex: np.ndarray,
     return tuple(name for name, n in zip(link_names, counts, strict=True) if n >= min_points)
 
 
+def set_covariance(doc: dict[str, Any], covariance: np.ndarray) -> None:
+    """Set a RESULT.json document's `covariance_xi` and its 1-sigma fields (about the camera
+    axes, and of the camera position in the base frame) for the pose it holds."""
+    from dream.result import camera_position_covariance
+
+    cov = np.asarray(covariance, dtype=float)
+    T = np.asarray(doc["T_cam_base"], dtype=float)
+    doc["covariance_xi"] = cov.tolist()
+    doc["sigma_rotation_rad"] = np.sqrt(np.diag(cov)[:3]).tolist()
+    doc["sigma_translation_m"] = np.sqrt(np.diag(cov)[3:]).tolist()
+    doc["sigma_camera_position_base_m"] = np.sqrt(np.diag(
+        camera_position_covariance(T, cov))).tolist()
+
+
 def with_refined_uncertainty(doc: dict[str, Any],
                              jackknife: RefinementJackknife | None) -> None:
     """Set a RESULT.json document's covariance and 1-sigma fields to those of the refined pose
     it holds (`jackknife`), keeping the keypoint fit's as `covariance_xi_keypoint_pose`; with
     None (no jackknife estimable) `uncertainty.method` says that the 1-sigma is still the
     keypoint pose's."""
-    from dream.result import camera_position_covariance
-
     uncertainty = dict(doc.get("uncertainty") or {})
     uncertainty.setdefault("covariance_xi_keypoint_pose", doc.get("covariance_xi"))
     if jackknife is None:
@@ -156,13 +168,7 @@ def with_refined_uncertainty(doc: dict[str, Any],
                                  "refined pose had too few links and frames for its own)")
         doc["uncertainty"] = uncertainty
         return
-    cov = jackknife.covariance
-    T = np.asarray(doc["T_cam_base"], dtype=float)
-    doc["covariance_xi"] = cov.tolist()
-    doc["sigma_rotation_rad"] = np.sqrt(np.diag(cov)[:3]).tolist()
-    doc["sigma_translation_m"] = np.sqrt(np.diag(cov)[3:]).tolist()
-    doc["sigma_camera_position_base_m"] = np.sqrt(np.diag(
-        camera_position_covariance(T, cov))).tolist()
+    set_covariance(doc, jackknife.covariance)
     uncertainty["method"] = f"jackknife of {jackknife.refined_by}"
     uncertainty["refined_by"] = jackknife.refined_by
     uncertainty["jackknife_left_out"] = list(jackknife.left_out)

@@ -66,6 +66,9 @@ class CalibrateRequest(DataOptions):
     exclude_links: str | None = None
     base_frame: str | None = None
     camera_frame: str = CAMERA_OPTICAL_FRAME
+    camera_guess: str | None = None
+    look_at: str | None = None
+    guess_sigma: str | None = None
     loaded_model: Any = None
 
     def __post_init__(self) -> None:
@@ -77,6 +80,19 @@ class CalibrateRequest(DataOptions):
         self.solver_settings()  # checks --seed, --loss and --loss-scale-px
         _check_refine(self.refine, self.frames, self.polish, self.exclude_links)
         _check_frames(self.base_frame, self.camera_frame)
+        if (self.camera_guess or self.look_at or self.guess_sigma) and not self.searches:
+            raise InputError("--camera-guess, --look-at and --guess-sigma start the search "
+                             "without keypoints, and --model or --use-labels gives keypoints",
+                             fix="drop one of them")
+        if self.searches:
+            from dream.cli.calibrate_start import camera_guess
+
+            camera_guess(self.camera_guess, self.look_at, self.guess_sigma)
+
+    @property
+    def searches(self) -> bool:
+        """Whether the camera pose is searched from the robot's silhouettes (no keypoints)."""
+        return self.model is None and not self.use_labels and self.loaded_model is None
 
     def solver_settings(self) -> SolverSettings:
         """The solver's settings of `--loss`, `--loss-scale-px` and `--seed`."""
@@ -168,7 +184,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     no torch) -> RESULT.json, plus RESULT.ros.txt and RESULT.T_base_cam.txt for robot
     software (`dream.ros`). Every output location is checked before the work, and the files
     and the --overlays folder appear together or not at all."""
-    from dream.pipeline import calibrate, truth_poses
+    from dream.pipeline import calibrate
     from dream.provenance import data_record
     from dream.result import result_to_dict
 
@@ -180,6 +196,10 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     data_doc = data_record(seq, request.data)
     seq, readings_doc = joint_readings(seq, request.joint_readings == INTERPOLATE, out)
     refine = refine_mode(request, seq)
+    if request.searches:
+        from dream.cli.calibrate_start import run_search
+
+        return run_search(request, seq, data_doc, readings_doc, refine, paths, out)
     if request.exclude_links and refine != EDGES:
         raise InputError("--exclude-links chooses the links of the edge alignment, and it does "
                          "not run here (--refine auto runs it on data with images and no "
@@ -212,8 +232,9 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
                                              "distortion": seq.camera.distortion}}
     if refine == EDGES:
         add = add_edges if request.frames == "all" else add_frame_edges
-        doc = add(seq, robot, result, obs, doc, out, request.exclude_links,
-                  () if extension is None else extension.link_geometry)
+        doc = _refined_or_kept(request, lambda: add(
+            seq, robot, result, obs, doc, out, request.exclude_links,
+            () if extension is None else extension.link_geometry), doc, out)
     elif extension is not None and extension.link_geometry and refine != POLISH:
         print("note: the model extension's link_geometry changes only the image refinements "
               "(--refine edges, --polish), and neither runs here", file=out)
@@ -222,6 +243,31 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
                          mask_head=request.mask_head, motion_masks=request.motion_masks,
                          link_geometry=() if extension is None else extension.link_geometry)
     doc["quality"] = add_quality(result, obs, doc, out)
+    _finish(request, seq, robot, obs, result, doc, paths, out)
+    return doc
+
+
+def _refined_or_kept(request: CalibrateRequest, refine, doc: dict, out: TextIO) -> dict:
+    """`refine()`'s document; under `--refine auto`, an edge alignment that cannot run (no image
+    edges near the outline...) leaves `doc` as it was, with the reason in `doc["edges"]` and on
+    the console, instead of failing the command."""
+    if request.refine != AUTO:
+        return refine()
+    try:
+        return refine()
+    except InputError as exc:
+        reason = f"the edge alignment did not run: {exc.problem}"
+        print(f"{reason}; the pose before it is kept (--refine edges makes this an error)",
+              file=out)
+        return {**doc, "edges": {"mode": request.frames, "ran": False, "kept": False,
+                                 "reason": reason}}
+
+
+def _finish(request: CalibrateRequest, seq, robot, obs, result, doc: dict, paths,
+            out: TextIO) -> None:
+    """Write the files, print the summary and, where the data has them, the truth errors."""
+    from dream.pipeline import truth_poses
+
     base_frame = request.base_frame or robot.base_link
     _write_calibration(request, seq, robot, obs, result, doc, paths, base_frame)
     print_summary(doc, out)
@@ -231,7 +277,6 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
           f"{base_frame} {request.camera_frame}), {matrix_path} (T_base_cam), {urdf_path} (URDF "
           f"joint), {launch_path} (ROS 2 launch) and {handeye_path} (easy_handeye YAML)",
           file=out)
-    return doc
 
 
 def _read_extension(request: CalibrateRequest):
@@ -321,7 +366,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "solve T_cam_base from keypoints of many frames")
     add_data_args(p)
     add_model_source(p, "detect the keypoints with this network (dream export; runs with "
-                        "onnxruntime, no torch)")
+                        "onnxruntime, no torch). Without --model and --use-labels the camera "
+                        "pose is searched from the robot's silhouettes (fixed camera, the arm "
+                        "moving, or the data's robot masks)", required=False)
     p.add_argument("--out", required=True, help="RESULT.json to write")
     p.add_argument("--frames", choices=("all", "each"), default="all",
                    help="all: one extrinsic from every frame (fixed camera); each: per frame "
@@ -360,6 +407,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--camera-frame", metavar="NAME", default=CAMERA_OPTICAL_FRAME,
                    help="the camera's optical tf frame (x right, y down, z forward) in the "
                         "written snippets (default: %(default)s)")
+    p.add_argument("--camera-guess", metavar="X,Y,Z|RESULT.json",
+                   help="without keypoints: a rough camera position (metres, base frame; with "
+                        "--look-at) or a RESULT.json whose extrinsic is searched around "
+                        "(--guess-sigma); without it the search covers a shell around the robot")
+    p.add_argument("--look-at", metavar="X,Y,Z",
+                   help="with --camera-guess X,Y,Z: a point on the robot the camera looks at "
+                        "(metres, base frame)")
+    p.add_argument("--guess-sigma", metavar="METRES,DEGREES",
+                   help="how rough --camera-guess is, 1-sigma per axis (default 0.3,20)")
     p.add_argument("--loss", choices=("huber", "cauchy", "l2"), default="huber",
                    help="robust loss of the keypoint fit (default: %(default)s)")
     p.add_argument("--loss-scale-px", type=float, default=RobustLoss().scale_px,

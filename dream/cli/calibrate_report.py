@@ -108,8 +108,8 @@ def add_edges(seq, robot, result, obs, doc: dict, out: TextIO,
     moved_m, moved_rad = res.correction
     print(f"edge alignment ({len(res.frames)} frames, {res.seconds:.1f} s"
           f"{', background model' if res.background else ''}): {res.reason}; the aligned pose "
-          f"is {moved_m * 1e3:.1f} mm and {np.rad2deg(moved_rad):.2f} deg from the keypoint "
-          "pose", file=out)
+          f"is {moved_m * 1e3:.1f} mm and {np.rad2deg(moved_rad):.2f} deg from the pose "
+          "before it", file=out)
     if res.mismatched_links:
         print(f"  links whose outline disagrees with the images (a tool or gripper the URDF "
               f"lacks? --exclude-links): {', '.join(res.mismatched_links)}", file=out)
@@ -210,6 +210,10 @@ def print_summary(doc: dict, out: TextIO) -> None:
                   "misplaced keypoint")
         print(f"  (1-sigma = the fit's, {np.sqrt(np.trace(fit_c)) * 1e3:.2f} mm in position, "
               f"for independent detection errors, plus the spread over {spread})", file=out)
+    if doc.get("start") is not None:
+        print(f"no keypoints: the pose rests on the robot's silhouettes in "
+              f"{len(doc['start']['frames'])} frames ({doc['start']['evidence']})", file=out)
+        return
     print(f"reprojection RMSE {doc['rmse_px']:.3f} px over {doc['keypoints_used']} keypoints "
           f"in {doc['frames_used']} frames ({doc['frames_mode']} mode)", file=out)
 

@@ -281,9 +281,10 @@ def add_intrinsics_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--override-intrinsics", action="store_true", help=OVERRIDE_HELP)
 
 
-def add_model_source(p: argparse.ArgumentParser, model_help: str) -> None:
-    """`--model MODEL.onnx` or `--use-labels`, one of them required."""
-    source = p.add_mutually_exclusive_group(required=True)
+def add_model_source(p: argparse.ArgumentParser, model_help: str,
+                     required: bool = True) -> None:
+    """`--model MODEL.onnx` or `--use-labels`, one of them `required`."""
+    source = p.add_mutually_exclusive_group(required=required)
     source.add_argument("--model", metavar="MODEL.onnx", help=model_help)
     source.add_argument("--use-labels", action="store_true",
                         help="take 2D observations from the labels (projected_location)")

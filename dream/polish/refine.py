@@ -186,7 +186,7 @@ def search_camera(camera: CameraIntrinsics, params: PolishSettings) -> CameraInt
     return scaled_camera(camera, width, height)
 
 
-def _refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
+def refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
                  camera: CameraIntrinsics, T_cam_base: np.ndarray,
                  params: PolishSettings, usable: np.ndarray | None = None
                  ) -> tuple[np.ndarray, int, int]:
@@ -259,7 +259,7 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     def refine(frames: np.ndarray, T: np.ndarray, settings: PolishSettings
                ) -> tuple[np.ndarray, int, int]:
         chosen = evenly_spaced(frames, params.max_search_frames)
-        return _refine_pose(P_all[chosen], meshes.faces,
+        return refine_pose(P_all[chosen], meshes.faces,
                             np.stack([small_masks[i] for i in chosen]), small, T, settings)
 
     def search(frames: np.ndarray, T: np.ndarray) -> np.ndarray:
@@ -283,7 +283,7 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     used_search = evenly_spaced(np.flatnonzero(used & np.isin(np.arange(F), non_empty)),
                                 params.max_search_frames)
     if width < camera.width:          # finish at the camera's own resolution
-        T1 = _refine_pose(P_all[used_search], meshes.faces, masks[used_search], camera, T1,
+        T1 = refine_pose(P_all[used_search], meshes.faces, masks[used_search], camera, T1,
                           replace(params, outer_iterations=params.fine_rounds))[0]
     iou0, iou1 = ious(np.arange(F), T0), ious(np.arange(F), T1)
     if keypoints is not None:
@@ -371,11 +371,11 @@ def polish_jackknife(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
 
     def without_link(link: str) -> np.ndarray:
         usable = meshes.vertex_link != meshes.links.index(link)
-        return _refine_pose(P, meshes.faces, small_masks, small, T1, short, usable)[0]
+        return refine_pose(P, meshes.faces, small_masks, small, T1, short, usable)[0]
 
     def without_frames(name: str) -> np.ndarray:
         keep = np.setdiff1d(np.arange(len(chosen)), groups[name])
-        return _refine_pose(P[keep], meshes.faces, small_masks[keep], small, T1, short)[0]
+        return refine_pose(P[keep], meshes.faces, small_masks[keep], small, T1, short)[0]
 
     return combined(group_jackknife(T1, links, without_link, "the silhouette polish"),
                     group_jackknife(T1, tuple(groups), without_frames, "the silhouette polish"))

@@ -1,0 +1,177 @@
+"""Calibration without keypoints: `dream calibrate` with neither `--model` nor `--use-labels`,
+from a rough guess or by the automatic search, on rendered scenes and on real recordings.
+
+renders: fixed-camera scenes of each `--robots` arm with the `configs/synth/real_world.yaml`
+randomisation (clutter, a second robot, a tool or held object, close-ups), `--frames` frames
+each, seeds from `--first-seed`; the robot masks are deleted before calibrating, so only the
+images are read. Each scene is calibrated from a guess `--guess-m` / `--guess-deg` off the
+truth in a random direction (written as a RESULT.json holding only T_cam_base) and, with
+`--auto`, by the automatic search. Printed per scene: error, verdict, 1-sigma, time; then the
+share within `--right-mm` / `--right-deg`, the wrong results called `good`, the right ones
+called `good` or `check`, and how often the truth lies inside the written 95 % ellipsoid.
+
+real: a recording with a reference extrinsic (scored only), calibrated from `--guesses`
+guesses off it, and with `--auto` once by the automatic search.
+
+    python benchmarks/coarse_start.py renders [--robots panda,ur5,xarm7] [--scenes 3]
+        [--first-seed 1000] [--frames 30] [--auto]
+    python benchmarks/coarse_start.py real --data ../shared/realdata/panda_teleop [--guesses 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from dream.cli.calibrate import CalibrateRequest, run_calibrate
+from dream.errors import DreamError
+from dream.io import read_sequence
+from dream.metrics import pose_errors
+from dream.pipeline import truth_poses
+from dream.pnp import increment_between
+from dream.transforms import R_from_rotvec, invert_T
+
+CHI2_6DOF_95 = 12.592     # 95 % quantile of the chi-square distribution with 6 degrees of freedom
+REAL_WORLD = Path(__file__).resolve().parents[1] / "configs" / "synth" / "real_world.yaml"
+
+
+def render_scene(robot: str, out: Path, seed: int, frames: int) -> Path:
+    """A fixed-camera `real_world.yaml` scene of `robot`, its robot masks deleted."""
+    import yaml
+
+    from synth.config import config_from_dict
+    from synth.generate import SynthJob, generate
+
+    config = yaml.safe_load(REAL_WORLD.read_text())
+    config["sequence"] = {"mode": "fixed_camera"}
+    generate(SynthJob(robot=robot, out_dir=out, num_frames=frames,
+                      config=config_from_dict(config), seed=seed),
+             overwrite=True, on_progress=lambda done: None)
+    for mask in out.glob("*.seg.png"):
+        mask.unlink()
+    return out
+
+
+def guess_file(T_true: np.ndarray, offset_m: float, offset_rad: float,
+               rng: np.random.Generator, folder: Path) -> Path:
+    """A RESULT.json holding only a T_cam_base `offset_m` / `offset_rad` off `T_true` in a
+    random direction."""
+    T = invert_T(T_true)
+    direction, axis = rng.normal(size=3), rng.normal(size=3)
+    T[:3, 3] += offset_m * direction / np.linalg.norm(direction)
+    T[:3, :3] = T[:3, :3] @ R_from_rotvec(offset_rad * axis / np.linalg.norm(axis))
+    path = folder / f"guess_{rng.integers(1 << 30)}.json"
+    path.write_text(json.dumps({"T_cam_base": invert_T(T).tolist()}))
+    return path
+
+
+def calibrate(data: Path, out: Path, guess: Path | None) -> dict:
+    """One `dream calibrate` without keypoints: the document, its error, time and verdict."""
+    start = time.perf_counter()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        doc = run_calibrate(CalibrateRequest(data=str(data), out=str(out),
+                                             camera_guess=None if guess is None else str(guess)))
+    seconds = time.perf_counter() - start
+    T_true = truth_poses(read_sequence(data))[0]
+    T = np.asarray(doc["T_cam_base"])
+    t_err, r_err = pose_errors(T, T_true)
+    xi = increment_between(T, T_true)
+    inside = float(xi @ np.linalg.pinv(np.asarray(doc["covariance_xi"])) @ xi) <= CHI2_6DOF_95
+    sigma = float(np.linalg.norm(doc["sigma_camera_position_base_m"]))
+    return {"mm": t_err * 1e3, "deg": float(np.rad2deg(r_err)), "verdict":
+            doc["quality"]["verdict"], "sigma_mm": sigma * 1e3, "inside95": inside,
+            "seconds": seconds, "iou": doc["start"]["iou"]}
+
+
+def summary(rows: list[dict], right_mm: float, right_deg: float, label: str) -> None:
+    if not rows:
+        return
+    right = [r for r in rows if r["mm"] <= right_mm and r["deg"] <= right_deg]
+    wrong = [r for r in rows if r not in right]
+    far = [r for r in rows if r["mm"] > 50 or r["deg"] > 5]
+    print(f"{label}: {len(right)}/{len(rows)} within {right_mm:g} mm / {right_deg:g} deg; "
+          f"median {np.median([r['mm'] for r in rows]):.1f} mm; "
+          f"good among >5 cm/5 deg wrong: {sum(r['verdict'] == 'good' for r in far)}/{len(far)}; "
+          f"good among wrong: {sum(r['verdict'] == 'good' for r in wrong)}/{len(wrong)}; "
+          f"good or check among right: "
+          f"{sum(r['verdict'] != 'unreliable' for r in right)}/{len(right)}; "
+          f"truth in 95% ellipsoid: {sum(r['inside95'] for r in rows)}/{len(rows)}; "
+          f"median time {np.median([r['seconds'] for r in rows]):.0f} s")
+
+
+def run_renders(args: argparse.Namespace) -> None:
+    rng = np.random.default_rng(args.seed)
+    by_mode: dict[str, list[dict]] = {"guess": [], "auto": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        for robot in args.robots.split(","):
+            for seed in range(args.first_seed, args.first_seed + args.scenes):
+                data = render_scene(robot, tmp / f"{robot}_{seed}", seed, args.frames)
+                T_true = truth_poses(read_sequence(data))[0]
+                modes = [("guess", guess_file(T_true, args.guess_m, np.deg2rad(args.guess_deg),
+                                              rng, tmp))]
+                if args.auto:
+                    modes.append(("auto", None))
+                for mode, guess in modes:
+                    try:
+                        row = calibrate(data, tmp / f"{robot}_{seed}_{mode}.json", guess)
+                    except DreamError as exc:
+                        print(f"{robot} {seed} {mode}: failed: {exc}", flush=True)
+                        continue
+                    by_mode[mode].append(row)
+                    print(f"{robot} {seed} {mode}: {row['mm']:.1f} mm {row['deg']:.2f} deg, "
+                          f"{row['verdict']}, 1-sigma {row['sigma_mm']:.1f} mm, IoU "
+                          f"{row['iou']:.3f}, {row['seconds']:.0f} s", flush=True)
+    for mode, rows in by_mode.items():
+        summary(rows, args.right_mm, args.right_deg, mode)
+
+
+def run_real(args: argparse.Namespace) -> None:
+    rng = np.random.default_rng(args.seed)
+    data = Path(args.data)
+    T_true = truth_poses(read_sequence(data))[0]
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        guesses = [guess_file(T_true, args.guess_m, np.deg2rad(args.guess_deg), rng, tmp)
+                   for _ in range(args.guesses)] + ([None] if args.auto else [])
+        for k, guess in enumerate(guesses):
+            row = calibrate(data, tmp / f"r{k}.json", guess)
+            rows.append(row)
+            print(f"{'auto' if guess is None else f'guess {k}'}: {row['mm']:.1f} mm "
+                  f"{row['deg']:.2f} deg, {row['verdict']}, 1-sigma {row['sigma_mm']:.1f} mm, "
+                  f"IoU {row['iou']:.3f}, {row['seconds']:.0f} s", flush=True)
+    summary(rows, args.right_mm, args.right_deg, data.name)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="what", required=True)
+    for name in ("renders", "real"):
+        s = sub.add_parser(name)
+        s.add_argument("--guess-m", type=float, default=0.3)
+        s.add_argument("--guess-deg", type=float, default=20.0)
+        s.add_argument("--auto", action="store_true")
+        s.add_argument("--seed", type=int, default=0)
+        s.add_argument("--right-mm", type=float, default=10.0 if name == "renders" else 10.0)
+        s.add_argument("--right-deg", type=float, default=0.5 if name == "renders" else 1.0)
+    r = sub.choices["renders"]
+    r.add_argument("--robots", default="panda,ur5,xarm7")
+    r.add_argument("--scenes", type=int, default=3)
+    r.add_argument("--first-seed", type=int, default=1000)
+    r.add_argument("--frames", type=int, default=30)
+    sub.choices["real"].add_argument("--data", required=True)
+    sub.choices["real"].add_argument("--guesses", type=int, default=10)
+    args = p.parse_args()
+    (run_renders if args.what == "renders" else run_real)(args)
+
+
+if __name__ == "__main__":
+    main()

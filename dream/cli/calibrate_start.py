@@ -1,0 +1,221 @@
+"""`dream calibrate` without keypoints (neither `--model` nor `--use-labels`): the camera pose
+searched from the robot's silhouettes (`dream.coarse`), around `--camera-guess` or, without
+one, on a shell around the robot; then the image refinement of `--refine` from there, the
+verdict of `dream.coarse.verdict` and RESULT.json's `start` object."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import TextIO
+
+import numpy as np
+
+from dream.cli.options import parse_numbers
+from dream.errors import InputError
+
+FIX_GUESS = ("give --camera-guess X,Y,Z --look-at X,Y,Z (metres, base frame: where the camera "
+             "is and a point on the robot it looks at) or --camera-guess RESULT.json")
+FIX_SIGMA = "give --guess-sigma METRES,DEGREES, e.g. 0.3,20"
+
+
+def camera_guess(camera_guess: str | None, look_at: str | None, guess_sigma: str | None):
+    """The `CameraGuess` of the options (`T_cam_base` None: the automatic search)."""
+    from dream.coarse.calibration import CameraGuess
+    from dream.coarse.hypotheses import guess_pose
+    from dream.coarse.settings import SearchSettings
+
+    defaults = SearchSettings()
+    sigma_m, sigma_rad = defaults.guess_sigma_m, defaults.guess_sigma_rad
+    if guess_sigma is not None:
+        m, deg = parse_numbers(guess_sigma, (2,), "--guess-sigma", FIX_SIGMA)
+        sigma_m, sigma_rad = float(m), float(np.deg2rad(deg))
+        if not (sigma_m > 0 and sigma_rad > 0):
+            raise InputError(f"--guess-sigma {guess_sigma} must be positive", fix=FIX_SIGMA)
+    if camera_guess is None:
+        if look_at is not None:
+            raise InputError("--look-at goes with --camera-guess X,Y,Z", fix=FIX_GUESS)
+        return CameraGuess(None, sigma_m, sigma_rad, "automatic search around the robot")
+    if Path(camera_guess).suffix.lower() == ".json" or Path(camera_guess).is_file():
+        from dream.result import read_result
+
+        if look_at is not None:
+            raise InputError("--look-at goes with a camera position, not a result file",
+                             fix=FIX_GUESS)
+        doc = read_result(camera_guess)
+        return CameraGuess(np.asarray(doc["T_cam_base"], float), sigma_m, sigma_rad,
+                           f"around the extrinsic of {camera_guess}")
+    if look_at is None:
+        raise InputError("--camera-guess X,Y,Z needs --look-at X,Y,Z (a point on the robot the "
+                         "camera looks at)", fix=FIX_GUESS)
+    position = parse_numbers(camera_guess, (3,), "--camera-guess", FIX_GUESS)
+    target = parse_numbers(look_at, (3,), "--look-at", FIX_GUESS)
+    return CameraGuess(guess_pose(position, target), sigma_m, sigma_rad,
+                       f"around a camera at {list(position)} looking at {list(target)}")
+
+
+def robot_for_search(seq, request):
+    """The robot of the data or `--robot`; a user URDF without `--keypoints` gets the suggested
+    keypoint links (`dream robots --urdf`), which the search does not use."""
+    from dream.errors import RobotError
+    from dream.pipeline import robot_for
+    from dream.plausibility import check_robot_readings
+
+    keypoints = request.keypoint_links
+    try:
+        robot = robot_for(seq, request.robot, keypoints)
+    except RobotError:
+        from dream.robot.keypoint_choice import analyse_keypoints
+        from dream.robot.urdf import parse_urdf
+
+        name = request.robot or seq.robot
+        robot = robot_for(seq, request.robot, analyse_keypoints(parse_urdf(Path(name)))
+                          .suggested)
+    check_robot_readings(seq, robot)
+    return robot
+
+
+def start_without_detector(request, seq, out: TextIO):
+    """The search (module doc): robot, the stand-in result and observations at its pose, its
+    outcome and masks, and the guess."""
+    from dream.coarse.calibration import basin_covariance, coarse_start, stand_in_result
+
+    if request.frames != "all":
+        raise InputError("without keypoints, dream calibrate finds the one camera pose of a "
+                         "fixed camera (--frames all)", request.data,
+                         "use --frames all, or give --model for --frames each")
+    guess = camera_guess(request.camera_guess, request.look_at, request.guess_sigma)
+    robot = robot_for_search(seq, request)
+    print(f"no keypoints: searching the camera pose from the robot's silhouettes, "
+          f"{guess.description}", file=out)
+
+    def progress(line: str) -> None:
+        print(f"  search: {line}", file=sys.stderr)
+
+    outcome, inputs = coarse_start(seq, robot, guess, progress=progress)
+    result, obs = stand_in_result(seq, outcome.best.T_cam_base, basin_covariance(outcome))
+    print(f"search ({outcome.seconds:.1f} s, {inputs.source} of {len(inputs.frames)} frames): "
+          f"best IoU {outcome.best.iou:.3f}, best rival "
+          f"{'none' if outcome.rival is None else f'{outcome.rival.iou:.3f}'}, "
+          f"{outcome.basin_returned} of {outcome.basin_starts} restarts returned", file=out)
+    return robot, result, obs, outcome, inputs, guess
+
+
+def start_doc(outcome, inputs, guess, seq) -> dict:
+    """RESULT.json's `start` object: how the pose was searched and how clearly it won."""
+    from dream.coarse.search import pose_distance
+
+    rival = outcome.rival
+    distance = None if rival is None else pose_distance(rival.T_cam_base,
+                                                        outcome.best.T_cam_base)
+    return {"method": "silhouette search", "hypotheses": guess.description,
+            "hypotheses_scored": outcome.hypotheses, "evidence": inputs.source,
+            "frames": [seq.frames[int(i)].name for i in inputs.frames],
+            "left_out_links": list(inputs.left_out),
+            "T_cam_base": outcome.best.T_cam_base.tolist(), "iou": outcome.best.iou,
+            "rival_iou": None if rival is None else rival.iou,
+            "rival_distance_m": None if distance is None else distance[0],
+            "rival_angle_rad": None if distance is None else distance[1],
+            "gap": outcome.gap, "basin_returned": outcome.basin_returned,
+            "basin_starts": outcome.basin_starts,
+            "candidates": [{"source": c.source, "iou": c.iou, "coarse_iou": c.coarse_iou}
+                           for c in outcome.candidates],
+            "seconds": outcome.seconds}
+
+
+def with_cue_term(doc: dict, T_other: np.ndarray | None) -> tuple[dict, tuple[float, float]
+                                                                   | None]:
+    """Where the other image cue's optimum `T_other` (the edge alignment's, or the masks'
+    when the edges' was written) differs from the pose written, its covariance gains the
+    outer product of that difference (an error both frames and links share, which no
+    jackknife sees); returns the document and the difference (m, rad), None without one."""
+    from dream.coarse.search import pose_distance
+    from dream.pnp import increment_between
+    from dream.refined_uncertainty import set_covariance
+
+    T = np.asarray(doc["T_cam_base"])
+    if T_other is None or np.allclose(T, T_other):
+        return doc, None
+    delta = increment_between(T, np.asarray(T_other))
+    set_covariance(doc, np.asarray(doc["covariance_xi"]) + np.outer(delta, delta))
+    doc["uncertainty"]["cue_disagreement_xi"] = delta.tolist()
+    doc["uncertainty"]["method"] += " + the image cues' disagreement"
+    return doc, pose_distance(T, T_other)
+
+
+def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO) -> dict:
+    """The verdict on a pose found without keypoints: the search's findings, the cues', and the
+    condition of the pose written (`dream.quality`)."""
+    from dream.coarse.settings import SearchSettings
+    from dream.coarse.verdict import cues_finding, search_findings
+    from dream.quality import condition_findings, quality_from
+
+    s = doc["start"]
+    findings = search_findings(s["iou"], s["rival_iou"], s["rival_distance_m"],
+                               s["basin_returned"], s["basin_starts"], SearchSettings())
+    if cue_move is not None:
+        findings.append(cues_finding(*cue_move))
+    findings += condition_findings(np.asarray(doc["covariance_xi"]),
+                                   np.asarray(doc["T_cam_base"]))
+    quality = quality_from(0, 0, findings)
+    print(f"quality: {quality.verdict}", file=out)
+    for warning in quality.warnings:
+        print(f"  - {warning}", file=out)
+    return quality.to_dict()
+
+
+def run_search(request, seq, data_doc: dict, readings_doc: dict | None,
+                refine: str, paths, out: TextIO) -> dict:
+    """`dream calibrate` without keypoints (`dream.cli.calibrate_start`)."""
+    from dream.cli.calibrate import EDGES, POLISH, _finish
+    from dream.cli.calibrate_report import add_polish
+    from dream.result import result_to_dict
+
+    if request.model_extension:
+        raise InputError("--model-extension corrects a keypoint calibration, and no keypoints "
+                         "are used here", request.model_extension,
+                         "drop --model-extension, or give --model")
+    robot, result, obs, outcome, inputs, guess = start_without_detector(request, seq, out)
+    doc = result_to_dict(result, obs, robot=request.robot or seq.robot)
+    doc["rmse_px"] = None
+    doc["data"] = data_doc
+    doc["settings"] = {k: v for k, v in vars(request).items() if k != "loaded_model"}
+    if readings_doc is not None:
+        doc["joint_readings"] = readings_doc
+    doc["start"] = start_doc(outcome, inputs, guess, seq)
+    doc["uncertainty"]["method"] = ("spread of the search's restarts around the pose found "
+                                    "(the basin check)")
+    T_other = None
+    if refine == POLISH:
+        doc = add_polish(seq, robot, result, obs, None, doc, out, frames="all",
+                         mask_head=False)
+    elif refine == EDGES:
+        doc, T_other = _edges_after_search(request, seq, robot, result, obs, doc, out)
+    doc, cue_move = with_cue_term(doc, T_other)
+    doc["quality"] = search_quality(doc, cue_move, out)
+    _finish(request, seq, robot, obs, result, doc, paths, out)
+    return doc
+
+
+def _edges_after_search(request, seq, robot, result, obs, doc: dict,
+                        out: TextIO) -> tuple[dict, np.ndarray | None]:
+    """The edge alignment after the search: with `--refine edges` its pose is written (the
+    masks' optimum is the other cue); under `--refine auto` the masks' optimum is written and
+    the alignment is the cross-check whose disagreement enters the 1-sigma and the verdict
+    (on rendered scenes the edges of a small, glossy arm pull it centimetres off where the
+    masks do not). Returns the document and the other cue's pose."""
+    from dream.cli.calibrate import EDGES, _refined_or_kept
+    from dream.cli.calibrate_report import add_edges
+
+    start = np.asarray(doc["start"]["T_cam_base"])
+    aligned = _refined_or_kept(request, lambda: add_edges(
+        seq, robot, result, obs, doc, out, request.exclude_links), doc, out)
+    if request.refine == EDGES:
+        return aligned, start
+    edges = aligned["edges"]
+    if not edges.get("kept"):
+        return {**doc, "edges": edges}, None
+    T_edges = np.asarray(aligned["T_cam_base"])
+    print("  (--refine auto without keypoints writes the masks' optimum; the edge alignment "
+          "cross-checks it: --refine edges writes the alignment's)", file=out)
+    return {**doc, "edges": {**edges, "kept": False, "cross_check": True}}, T_edges

@@ -1,0 +1,202 @@
+"""The detector-free start of a fixed-camera calibration: the robot's masks of the recording
+(the data's own, or motion masks), camera hypotheses from a guess or a shell around the robot,
+the coarse search (`dream.coarse.search`), and a stand-in keypoint result at its pose so that
+the image refinements (`--refine`) and RESULT.json take it from there.
+
+With motion masks, the links that never move over the recording are left out of the model
+(they are in the background model, so not in the masks), and the search uses the frames whose
+masks show motion. The search's 1-sigma is the spread of its basin check's restarts around the
+winner: where they do not return, it is large and says so.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from dream.calibration import CalibrationResult, FrameSolution, Observations
+from dream.coarse.hypotheses import around, fibonacci_directions, shell
+from dream.coarse.search import SearchOutcome, search
+from dream.coarse.settings import SearchSettings
+from dream.edges.motion import held_links
+from dream.errors import InputError
+from dream.pnp import NoSolution, PoseFit, increment_between
+from dream.polish.objective import evenly_spaced
+from dream.polish.refine import search_camera
+from dream.polish.settings import PolishSettings
+from dream.robot import Robot
+from dream.sequence import Sequence
+from dream.silhouette import load_robot_meshes, static_links, vertices_in_base, without_links
+
+log = logging.getLogger(__name__)
+
+GUESS, SHELL, DETECTOR, REFINED = "guess", "shell", "detector", "refined"
+DATA_MASKS, MOTION_MASKS = "the data's masks", "motion masks"
+RESOLUTION_FRACTION = 0.5   # of the basin check's return limits: the search's 1-sigma floor
+MOTION_CANDIDATES = 3   # frames tried for motion masks per search frame (evenly spaced)
+
+
+@dataclass(frozen=True)
+class CameraGuess:
+    """A rough camera pose and how rough (1-sigma per axis); `T_cam_base` None asks for the
+    automatic search around the robot."""
+
+    T_cam_base: np.ndarray | None
+    sigma_m: float
+    sigma_rad: float
+    description: str
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.sigma_m) and self.sigma_m > 0 and np.isfinite(self.sigma_rad)
+                and self.sigma_rad > 0):
+            raise InputError(f"the guess's 1-sigma must be positive, got {self.sigma_m} m and "
+                             f"{self.sigma_rad} rad", fix="give --guess-sigma M,DEG, e.g. "
+                             "0.3,20")
+
+
+@dataclass(frozen=True)
+class SearchMasks:
+    """What the search compares: the meshes (without links the masks do not show), the chosen
+    frames' indices, joints (n, J) and masks (n, H, W), the masks' source, links left out."""
+
+    meshes: object
+    frames: np.ndarray
+    joints: np.ndarray
+    masks: np.ndarray
+    source: str
+    left_out: tuple[str, ...]
+
+
+def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> SearchMasks:
+    """The data's masks of up to `search_frames` frames (evenly spaced), or without them motion
+    masks of the frames that show motion (module doc).
+
+    Raises:
+        InputError: a camera that moves, frames without images, an arm that hardly moves.
+    """
+    from dream.edges.motion import (
+        MotionSettings,
+        check_motion,
+        motion_masks,
+        sequence_background,
+    )
+    from dream.io import load_image, load_mask
+    from dream.pipeline import joints_in_robot_order
+
+    camera = sequence.fixed_camera("search for one camera pose from the robot's silhouettes")
+    joints = joints_in_robot_order(sequence, robot)
+    meshes = load_robot_meshes(robot)
+    with_mask = np.flatnonzero([f.mask_path is not None for f in sequence.frames])
+    if len(with_mask):
+        chosen = evenly_spaced(with_mask, settings.search_frames)
+        masks = np.stack([load_mask(sequence.frames[i], camera) for i in chosen])
+        return SearchMasks(meshes, chosen, joints[chosen], masks, DATA_MASKS, ())
+    motion = MotionSettings()
+    background = sequence_background(sequence, motion)
+    tried = evenly_spaced(np.arange(len(sequence)), MOTION_CANDIDATES * settings.search_frames)
+    masks = np.stack([motion_masks(load_image(sequence.frames[int(i)], camera)[None],
+                                   background, motion)[0] for i in tried])
+    coverage = masks.reshape(len(masks), -1).mean(axis=1)
+    check_motion(coverage, motion, str(sequence.source))
+    moving = np.flatnonzero(coverage >= motion.min_area_fraction)
+    keep = evenly_spaced(moving, settings.search_frames)
+    static = static_links(meshes, joints, motion.static_link_m)
+    if set(static) >= set(meshes.links):
+        raise InputError("the arm does not move in these frames, so motion masks cannot show "
+                         "it", sequence.source, "record the arm moving, or give robot masks")
+    if static:
+        meshes = without_links(meshes, static)
+    return SearchMasks(meshes, tried[keep], joints[tried[keep]], masks[keep], MOTION_MASKS,
+                       static)
+
+
+def hypotheses_for(guess: CameraGuess, inputs: SearchMasks, settings: SearchSettings,
+                   detector_T: np.ndarray | None = None) -> tuple[dict[str, np.ndarray],
+                                                                  tuple[str, ...]]:
+    """The hypotheses of a guess (`around` it) or of the automatic search (a `shell` around
+    the robot's moving geometry, sized by it), plus a detector's pose; and the sources scored
+    only aimed at the robot."""
+    out: dict[str, np.ndarray] = {}
+    aimed_only: tuple[str, ...] = ()
+    rng = np.random.default_rng(settings.seed)
+    if guess.T_cam_base is not None:
+        out[GUESS] = around(guess.T_cam_base, guess.sigma_m, guess.sigma_rad,
+                            settings.guess_samples, rng)
+    else:
+        P = vertices_in_base(inputs.meshes, inputs.joints).reshape(-1, 3)
+        centre = P.mean(axis=0)
+        size = float(np.max(np.linalg.norm(P - centre, axis=1)))
+        out[SHELL] = shell(centre, size, fibonacci_directions(settings.shell_directions,
+                                                               settings.min_elevation_sin),
+                           settings.shell_distances, settings.shell_rolls)
+        aimed_only = (SHELL,)
+    if detector_T is not None:
+        out[DETECTOR] = np.asarray(detector_T, float)[None]
+    return out, aimed_only
+
+
+def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
+                 settings: SearchSettings | None = None, detector_T: np.ndarray | None = None,
+                 progress: Callable[[str], None] | None = None
+                 ) -> tuple[SearchOutcome, SearchMasks]:
+    """The coarse search of a fixed-camera `sequence` (module doc)."""
+    settings = settings or SearchSettings()
+    inputs = search_masks(sequence, robot, settings)
+    if progress is not None:
+        progress(f"{inputs.source} of {len(inputs.frames)} frames"
+                 + (f" (left out, never moving: {', '.join(inputs.left_out)})"
+                    if inputs.left_out else ""))
+    hypotheses, aimed_only = hypotheses_for(guess, inputs, settings, detector_T)
+    outcome = search(inputs.meshes, inputs.joints, inputs.masks, sequence.camera, hypotheses,
+                     settings, aimed_only=aimed_only, progress=progress)
+    if inputs.source != MOTION_MASKS:
+        return outcome, inputs
+    held = held_links(inputs.meshes, inputs.joints, outcome.best.T_cam_base,
+                      search_camera(sequence.camera, PolishSettings()), settings.held_share)
+    if not held:
+        return outcome, inputs
+    if progress is not None:
+        progress(f"left out, held by the background model at the best pose: {', '.join(held)};"
+                 " searching again from the best candidates")
+    inputs = replace(inputs, meshes=without_links(inputs.meshes, held),
+                     left_out=inputs.left_out + held)
+    again = search(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
+                   {REFINED: np.array([c.T_cam_base for c in outcome.candidates])}, settings,
+                   as_given_only=(REFINED,), progress=progress)
+    return replace(again, hypotheses=outcome.hypotheses,
+                   seconds=outcome.seconds + again.seconds), inputs
+
+
+def basin_covariance(outcome: SearchOutcome, settings: SearchSettings | None = None
+                     ) -> np.ndarray:
+    """(6, 6) the second moment of the basin check's end poses about the winner (xi of
+    `dream.pnp`), plus (`RESOLUTION_FRACTION` x the return limits)^2 on the diagonal: a
+    restart that ends within `basin_return_m` / `basin_return_rad` counts as returned, so the
+    check does not resolve the pose below that. The search's own 1-sigma."""
+    settings = settings or SearchSettings()
+    xi = np.array([increment_between(outcome.best.T_cam_base, T) for T in outcome.basin_ends])
+    if not len(xi):
+        raise InputError("the coarse search ran no basin check, so it has no 1-sigma",
+                         fix="set basin_starts above 0")
+    resolution = np.repeat([settings.basin_return_rad, settings.basin_return_m], 3) \
+        * RESOLUTION_FRACTION
+    return xi.T @ xi / len(xi) + np.diag(resolution ** 2)
+
+
+def stand_in_result(sequence: Sequence, T_cam_base: np.ndarray, covariance: np.ndarray
+                    ) -> tuple[CalibrationResult, Observations]:
+    """A keypoint-free "all" result at `T_cam_base` with `covariance`, and observations with
+    no keypoints, for the image refinements and RESULT.json."""
+    F = len(sequence)
+    names = tuple(f.name for f in sequence.frames)
+    obs = Observations(np.zeros((F, 0, 3)), np.zeros((F, 0, 2)), np.zeros((F, 0)), names, ())
+    fit = PoseFit(np.asarray(T_cam_base, float), np.zeros((0, 2)), np.zeros(0, bool),
+                  np.zeros(0), np.asarray(covariance, float), float("nan"), 0)
+    frames = tuple(FrameSolution(name, NoSolution("no keypoints: the camera pose was found "
+                                                  "from the robot's silhouettes"), 0)
+                   for name in names)
+    return CalibrationResult("all", fit, frames, np.zeros((F, 0, 2)), np.zeros((F, 0), bool)), \
+        obs

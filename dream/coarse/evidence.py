@@ -1,0 +1,132 @@
+"""What the images say about a camera pose without keypoints: the robot's masks, and how well
+the robot's surface, seen from a hypothesis, covers them (pure).
+
+The masks are the data's own robot masks, or motion masks of a fixed camera (the pixels that
+differ from the scene behind the arm, `dream.edges.motion`: what never moves is left out of
+both the masks and the model). The coarse score of a hypothesis is the mean over the frames of
+the IoU between the mask and the pixels hit by points sampled on the robot's surface
+(`surface_samples`, area-weighted, the same points in every frame), at a few dozen pixels of
+width: no rendering, thousands of hypotheses a second. Links cut by the image border cost the
+hypothesis nothing (they fall outside the image and the mask); a tool or a held object the
+model lacks, a second robot that moves, and shadows lower every hypothesis' IoU, not the
+ranking of the right one.
+
+    >>> from dream.camera import CameraIntrinsics
+    >>> camera = CameraIntrinsics(20.0, 20.0, 3.5, 3.5, 8, 8)
+    >>> points = np.array([[[0.0, 0.0, 1.0], [0.05, 0.0, 1.0]]])   # 1 frame, 2 points
+    >>> masks = np.zeros((1, 8, 8), bool); masks[0, 4, 4] = masks[0, 4, 5] = True
+    >>> T = np.eye(4); T[:3, 3] = [0.025, 0.025, 0.0]
+    >>> far = T.copy(); far[0, 3] = 0.1
+    >>> splat_iou(points, masks, camera, np.stack([far, T])).round(2).tolist()
+    [0.0, 1.0]
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dream.camera import CameraIntrinsics, project
+from dream.errors import InputError
+from dream.silhouette import MIN_DEPTH_M, RobotMeshes
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """The masks a search compares, at one scale.
+
+    Attributes:
+        camera: the camera at the masks' size. masks: (F, h, w) bool.
+        source: "the data's masks" or "motion masks".
+        frames: (F,) the frames' indices in the sequence.
+    """
+
+    camera: CameraIntrinsics
+    masks: np.ndarray
+    source: str
+    frames: np.ndarray
+
+    def __post_init__(self) -> None:
+        masks = np.asarray(self.masks, bool)
+        if masks.ndim != 3 or masks.shape[1:] != (self.camera.height, self.camera.width):
+            raise InputError(f"masks have shape {masks.shape}, expected (F, "
+                             f"{self.camera.height}, {self.camera.width})")
+        if len(self.frames) != len(masks):
+            raise InputError(f"{len(self.frames)} frame indices for {len(masks)} masks")
+        object.__setattr__(self, "masks", masks)
+
+    def centroid_uv(self) -> np.ndarray:
+        """(2,) the mean pixel of every mask pixel of every frame.
+
+        Raises:
+            InputError: every mask is empty.
+        """
+        f, v, u = np.nonzero(self.masks)
+        if not len(u):
+            raise InputError("every robot mask of the search is empty: the images do not show "
+                             "the robot moving", fix="check the images show the arm moving, "
+                             "or give a camera guess and a model")
+        return np.array([u.mean(), v.mean()])
+
+
+def surface_samples(meshes: RobotMeshes, usable: np.ndarray, count: int,
+                    rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """`count` points on the surface of the triangles whose vertices are all `usable` (V,),
+    area-weighted: (triangle indices (count,), barycentric weights (count, 3)).
+
+    Raises:
+        InputError: no usable triangle.
+    """
+    faces = meshes.faces[np.all(usable[meshes.faces], axis=1)]
+    if not len(faces):
+        raise InputError("no robot geometry is left to compare with the masks",
+                         fix="leave out fewer links")
+    v = meshes.vertices
+    # link-frame vertices: a triangle's area is the same in every pose (one link per triangle)
+    area = 0.5 * np.linalg.norm(np.cross(v[faces[:, 1]] - v[faces[:, 0]],
+                                         v[faces[:, 2]] - v[faces[:, 0]]), axis=1)
+    chosen = rng.choice(len(faces), size=count, p=area / area.sum())
+    a, b = rng.random(count), rng.random(count)
+    flip = a + b > 1
+    a[flip], b[flip] = 1 - a[flip], 1 - b[flip]
+    index = np.flatnonzero(np.all(usable[meshes.faces], axis=1))[chosen]
+    return index, np.stack([1 - a - b, a, b], axis=1)
+
+
+def points_of(P_frames: np.ndarray, faces: np.ndarray, triangles: np.ndarray,
+              weights: np.ndarray) -> np.ndarray:
+    """(F, S, 3) the surface samples (`surface_samples`) in each frame's pose, from the mesh
+    vertices P_frames (F, V, 3) in the base frame."""
+    corners = P_frames[:, faces[triangles]]                      # (F, S, 3, 3)
+    return np.einsum("fsck,sc->fsk", corners, weights)
+
+
+def splat_iou(points: np.ndarray, masks: np.ndarray, camera: CameraIntrinsics,
+              T_cam_base: np.ndarray) -> np.ndarray:
+    """(B,) the mean over frames of the IoU between each mask (F, h, w) and the pixels its
+    frame's surface points (F, S, 3, base frame) hit seen from each hypothesis (B, 4, 4)."""
+    points = np.asarray(points, float)
+    T = np.asarray(T_cam_base, float)
+    masks = np.asarray(masks, bool)
+    F, h, w = masks.shape
+    if points.ndim != 3 or points.shape[0] != F or points.shape[2] != 3:
+        raise InputError(f"points have shape {points.shape}, expected ({F}, S, 3)")
+    if T.ndim != 3 or T.shape[1:] != (4, 4):
+        raise InputError(f"hypotheses have shape {T.shape}, expected (B, 4, 4)")
+    B = len(T)
+    P_cam = np.einsum("bij,fsj->bfsi", T[:, :3, :3], points) + T[:, None, None, :3, 3]
+    P_cam[P_cam[..., 2] < MIN_DEPTH_M] = np.nan
+    uv = np.rint(project(camera, P_cam))
+    with np.errstate(invalid="ignore"):
+        ok = (uv[..., 0] >= 0) & (uv[..., 0] <= w - 1) & (uv[..., 1] >= 0) & (
+            uv[..., 1] <= h - 1)
+    cell = np.where(ok, np.nan_to_num(uv[..., 1]) * w + np.nan_to_num(uv[..., 0]), 0)
+    plane = (np.arange(B)[:, None, None] * F + np.arange(F)[None, :, None]) * (h * w)
+    hit = np.zeros(B * F * h * w, bool)
+    hit[(plane + cell.astype(np.int64))[ok]] = True
+    hit = hit.reshape(B, F, h * w)
+    flat = masks.reshape(1, F, h * w)
+    inter = np.count_nonzero(hit & flat, axis=2)
+    union = np.count_nonzero(hit, axis=2) + np.count_nonzero(flat, axis=2) - inter
+    return np.where(union > 0, inter / np.maximum(union, 1), 0.0).mean(axis=1)

@@ -1,0 +1,277 @@
+"""The coarse search: many camera hypotheses scored on the robot's masks, the best few refined,
+one chosen, and how clearly the images chose it (pure).
+
+1. Every hypothesis (around a guess, on a shell around the robot, a detector's pose) is aimed
+   at the robot (`dream.coarse.hypotheses.aim`) and scored by `splat_iou` at
+   `coarse_width_px`.
+2. The `local_starts` best, no two within `distinct_m` and `distinct_rad` of each other, are
+   refined by the silhouette polish's Levenberg-Marquardt (`dream.polish.refine.refine_pose`)
+   at each of `local_widths_px` but the finest in turn; the `fine_starts` best of those
+   (distinct again) at the finest too, and scored by the IoU of their rendered silhouettes
+   there.
+3. The highest IoU wins, refined at `finish_width_px` too. The verdict's evidence: the best
+   rival's IoU (a refined candidate farther than `rival_m` or `rival_rad` from the winner; the
+   gap says how much better the winner explains the images), and the basin check:
+   `basin_starts` refinements started `basin_m` and `basin_rad` from the winner in random
+   directions, and how many return within `basin_return_m` and `basin_return_rad`.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from dream.camera import CameraIntrinsics
+from dream.coarse.evidence import points_of, splat_iou, surface_samples
+from dream.coarse.hypotheses import aim
+from dream.coarse.settings import SearchSettings
+from dream.errors import InputError
+from dream.polish.objective import scaled_camera, shrink_mask
+from dream.polish.refine import refine_pose
+from dream.polish.settings import PolishSettings
+from dream.silhouette import RobotMeshes, render_points, silhouette_iou, vertices_in_base
+from dream.transforms import R_from_rotvec, invert_T, rotation_angle_between
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A refined hypothesis: its pose, where it came from, its coarse score and the mean IoU
+    of its rendered silhouettes after the local refinement."""
+
+    T_cam_base: np.ndarray
+    source: str
+    coarse_iou: float
+    iou: float
+
+
+@dataclass(frozen=True)
+class SearchOutcome:
+    """The search's winner and its evidence (module doc).
+
+    Attributes:
+        best: the winner. rival: the best candidate away from it (None: none refined).
+        candidates: every refined candidate, best first.
+        hypotheses: how many were scored, by source.
+        basin_returned, basin_starts: the basin check's restarts that returned, of how many.
+        basin_ends: (basin_starts, 4, 4) where the restarts ended.
+        seconds: wall time.
+    """
+
+    best: Candidate
+    rival: Candidate | None
+    candidates: tuple[Candidate, ...]
+    hypotheses: dict[str, int]
+    basin_returned: int
+    basin_starts: int
+    basin_ends: np.ndarray
+    seconds: float
+
+    @property
+    def gap(self) -> float:
+        """How much higher the winner's IoU is than the best rival's (its IoU without one)."""
+        return self.best.iou - (self.rival.iou if self.rival is not None else 0.0)
+
+
+def pose_distance(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
+    """(camera-centre distance m, rotation angle rad) between two T_cam_base."""
+    c_a, c_b = invert_T(T_a)[:3, 3], invert_T(T_b)[:3, 3]
+    return (float(np.linalg.norm(c_a - c_b)),
+            float(rotation_angle_between(T_a[:3, :3], T_b[:3, :3])))
+
+
+def distinct_best(T: np.ndarray, scores: np.ndarray, count: int, distinct_m: float,
+                  distinct_rad: float) -> list[int]:
+    """Indices of the `count` highest `scores`, skipping any within `distinct_m` and
+    `distinct_rad` of one already taken (greedy, best first).
+
+    >>> T = np.stack([np.eye(4)] * 3); T[2, 0, 3] = 1.0
+    >>> distinct_best(T, np.array([0.9, 0.8, 0.5]), 2, 0.1, 0.1)
+    [0, 2]
+    """
+    taken: list[int] = []
+    for i in np.argsort(-scores, kind="stable"):
+        if all(not _close(T[i], T[j], distinct_m, distinct_rad) for j in taken):
+            taken.append(int(i))
+            if len(taken) == count:
+                break
+    return taken
+
+
+def _close(T_a: np.ndarray, T_b: np.ndarray, limit_m: float, limit_rad: float) -> bool:
+    m, rad = pose_distance(T_a, T_b)
+    return m <= limit_m and rad <= limit_rad
+
+
+class _Scales:
+    """The masks at each local scale, and the rendered IoU of a pose at the finest."""
+
+    def __init__(self, P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
+                 camera: CameraIntrinsics, settings: SearchSettings, usable: np.ndarray | None):
+        self.P, self.faces, self.usable = P, meshes.faces, usable
+        self.levels = []
+        for width in dict.fromkeys(min(w, camera.width) for w in settings.local_widths_px):
+            height = max(1, int(round(camera.height * width / camera.width)))
+            small = scaled_camera(camera, width, height)
+            self.levels.append((small, np.stack([shrink_mask(m, width, height)
+                                                 for m in masks])))
+        self.params = replace(PolishSettings(), outer_iterations=settings.local_rounds)
+
+    def refine(self, T: np.ndarray, levels: slice = slice(None)) -> np.ndarray:
+        for camera, masks in self.levels[levels]:
+            T = refine_pose(self.P, self.faces, masks, camera, T, self.params, self.usable)[0]
+        return T
+
+    def iou_at(self, T: np.ndarray, level: int) -> float:
+        camera, masks = self.levels[level]
+        return float(np.mean([silhouette_iou(render_points(P, self.faces, T, camera), m)
+                              for P, m in zip(self.P, masks, strict=True)]))
+
+    def iou(self, T: np.ndarray) -> float:
+        return self.iou_at(T, -1)
+
+
+def coarse_scores(points: np.ndarray, masks: np.ndarray, camera: CameraIntrinsics,
+                  T: np.ndarray, batch: int) -> np.ndarray:
+    """(N,) `splat_iou` of hypotheses T (N, 4, 4), `batch` at a time."""
+    return np.concatenate([splat_iou(points, masks, camera, T[i:i + batch])
+                           for i in range(0, len(T), batch)]) if len(T) else np.zeros(0)
+
+
+def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
+           camera: CameraIntrinsics, hypotheses: dict[str, np.ndarray],
+           settings: SearchSettings | None = None, usable: np.ndarray | None = None,
+           aimed_only: tuple[str, ...] = (), as_given_only: tuple[str, ...] = (),
+           progress: Callable[[str], None] | None = None) -> SearchOutcome:
+    """The camera pose whose robot silhouettes best explain `masks` (module doc).
+
+    Args:
+        meshes: the robot's meshes (without links the masks do not show).
+        joints: (F, J) the frames' joints in `meshes.robot`'s order.
+        masks: (F, H, W) bool robot masks at `camera`'s size.
+        hypotheses: source name -> (n, 4, 4) T_cam_base; each is scored as given and aimed at
+            the robot, those of a source in `aimed_only` only aimed, those in
+            `as_given_only` only as given.
+        usable: (V,) bool, the vertices whose outline is matched (default all).
+        progress: called with one line per stage.
+    Raises:
+        InputError: shapes that disagree, no hypothesis, empty masks.
+    """
+    start = time.perf_counter()
+    settings = settings or SearchSettings()
+    say = progress or (lambda line: None)
+    masks = np.asarray(masks, bool)
+    q = np.asarray(joints, float)
+    if masks.ndim != 3 or masks.shape != (len(q), camera.height, camera.width):
+        raise InputError(f"masks have shape {masks.shape}, expected ({len(q)}, "
+                         f"{camera.height}, {camera.width})")
+    if not sum(len(T) for T in hypotheses.values()):
+        raise InputError("the coarse search was given no camera hypothesis")
+    rng = np.random.default_rng(settings.seed)
+    P = vertices_in_base(meshes, q)
+    width = min(settings.coarse_width_px, camera.width)
+    height = max(1, int(round(camera.height * width / camera.width)))
+    coarse_camera = scaled_camera(camera, width, height)
+    coarse = np.stack([shrink_mask(m, width, height) for m in masks])
+    if not coarse.any():
+        raise InputError("every robot mask of the search is empty at the coarse scale",
+                         fix="check the images show the robot moving")
+    tri, weights = surface_samples(meshes, np.ones(len(meshes.vertices), bool)
+                                   if usable is None else usable, settings.surface_points, rng)
+    points = points_of(P, meshes.faces, tri, weights)
+    f, v, u = np.nonzero(coarse)
+    centre = points.reshape(-1, 3).mean(axis=0)
+    T_all, sources = _aimed(hypotheses, centre, np.array([u.mean(), v.mean()]), coarse_camera,
+                            aimed_only, as_given_only)
+    scores = coarse_scores(points, coarse, coarse_camera, T_all, settings.batch)
+    say(f"scored {len(T_all)} camera hypotheses at {width} px (best coarse IoU "
+        f"{scores.max():.3f})")
+    scales = _Scales(P, meshes, masks, camera, settings, usable)
+    candidates = _refined(scales, T_all, scores, sources, settings)
+    candidates[0] = _finished(candidates[0], P, meshes, masks, camera, settings, usable, scales)
+    best = candidates[0]
+    rival = next((c for c in candidates[1:] if not _close(
+        c.T_cam_base, best.T_cam_base, settings.rival_m, settings.rival_rad)), None)
+    say(f"refined the {len(candidates)} best distinct hypotheses: best IoU {best.iou:.3f}"
+        f"{f', best rival {rival.iou:.3f}' if rival is not None else ''}")
+    ends = _basin_ends(scales, best.T_cam_base, settings, rng)
+    returned = sum(_close(T, best.T_cam_base, settings.basin_return_m,
+                          settings.basin_return_rad) for T in ends)
+    say(f"basin check: {returned} of {settings.basin_starts} restarts "
+        f"{settings.basin_m * 100:.0f} cm / {np.rad2deg(settings.basin_rad):.0f} deg away "
+        "returned")
+    counts = {name: len(T) * (1 if name in aimed_only + as_given_only else 2)
+              for name, T in hypotheses.items()}
+    return SearchOutcome(best, rival, tuple(candidates), counts, returned,
+                         settings.basin_starts, ends, time.perf_counter() - start)
+
+
+def _finished(best: Candidate, P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
+              camera: CameraIntrinsics, settings: SearchSettings, usable: np.ndarray | None,
+              scales: _Scales) -> Candidate:
+    """The winner refined at `finish_width_px` (capped at the camera's width) as well."""
+    finish = _Scales(P, meshes, masks, camera, replace(
+        settings, local_widths_px=(settings.finish_width_px,)), usable)
+    if finish.levels[-1][0].width <= scales.levels[-1][0].width:
+        return best
+    T = finish.refine(best.T_cam_base)
+    return replace(best, T_cam_base=T, iou=scales.iou(T))
+
+
+def _refined(scales: _Scales, T_all: np.ndarray, scores: np.ndarray, sources: list[str],
+             settings: SearchSettings) -> list[Candidate]:
+    """The `local_starts` best distinct hypotheses refined at every local scale but the
+    finest, and the `fine_starts` best of those (distinct again) at the finest; best first."""
+    first = []
+    for i in distinct_best(T_all, scores, settings.local_starts, settings.distinct_m,
+                           settings.distinct_rad):
+        T = scales.refine(T_all[i], slice(0, -1))
+        first.append((T, i, scales.iou_at(T, max(len(scales.levels) - 2, 0))))
+    T_first = np.array([T for T, _, _ in first])
+    out = []
+    for k in distinct_best(T_first, np.array([iou for _, _, iou in first]),
+                           settings.fine_starts, settings.distinct_m, settings.distinct_rad):
+        T, i, _ = first[k]
+        T = scales.refine(T, slice(-1, None))
+        out.append(Candidate(T, sources[i], float(scores[i]), scales.iou(T)))
+    return sorted(out, key=lambda c: -c.iou)
+
+
+def _aimed(hypotheses: dict[str, np.ndarray], centre: np.ndarray, uv: np.ndarray,
+           camera: CameraIntrinsics, aimed_only: tuple[str, ...],
+           as_given_only: tuple[str, ...]) -> tuple[np.ndarray, list[str]]:
+    """Every hypothesis as given (unless its source is in `aimed_only`) and aimed (unless in
+    `as_given_only`)."""
+    poses, sources = [], []
+    for name, T in hypotheses.items():
+        T = np.asarray(T, float).reshape(-1, 4, 4)
+        variants = (([] if name in as_given_only else [aim(T, centre, uv, camera)])
+                    + ([] if name in aimed_only else [T]))
+        for V in variants:
+            poses.append(V)
+            sources += [name] * len(V)
+    return np.concatenate(poses), sources
+
+
+def _basin_ends(scales: _Scales, T_best: np.ndarray, settings: SearchSettings,
+                rng: np.random.Generator) -> np.ndarray:
+    """(basin_starts, 4, 4) where refinements started `basin_m` / `basin_rad` from T_best in
+    random directions end."""
+    T_base_cam = invert_T(T_best)
+    ends = []
+    for _ in range(settings.basin_starts):
+        T = T_base_cam.copy()
+        T[:3, 3] += settings.basin_m * _unit(rng)
+        T[:3, :3] = T_base_cam[:3, :3] @ R_from_rotvec(settings.basin_rad * _unit(rng))
+        ends.append(scales.refine(invert_T(T)))
+    return np.array(ends).reshape(-1, 4, 4)
+
+
+def _unit(rng: np.random.Generator) -> np.ndarray:
+    v = rng.normal(size=3)
+    return v / np.linalg.norm(v)

@@ -1,0 +1,100 @@
+"""`SearchSettings`: every constant of the detector-free start (`dream.coarse`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dream.errors import InputError
+from dream.settings_checks import check_fields
+
+
+@dataclass(frozen=True)
+class SearchSettings:
+    """Every constant of the coarse search for a camera pose from the robot's silhouettes. Set
+    on rendered fixed-camera scenes (`benchmarks/coarse_start.py`, design seeds), never on a
+    real recording. Pixels are those of the scale they are used at.
+
+    Attributes:
+        guess_sigma_m, guess_sigma_rad: default 1-sigma of a rough guess, per axis (camera
+            centre in the base frame; rotation vector).
+        guess_samples: hypotheses drawn around a guess (each also aimed at the robot).
+        shell_directions: directions of the automatic search's cameras around the robot.
+        shell_distances: their distances from the robot's centre, in units of its size (the
+            largest distance of a mesh point from the base origin over the frames).
+        shell_rolls: rolls about the optical axis of each.
+        min_elevation_sin: shell cameras lie at least this high (sine of the elevation).
+        search_frames: frames whose masks the search compares (evenly spaced, with motion).
+        surface_points: points sampled on the robot's surface per frame for the coarse score.
+        coarse_width_px: mask width of the coarse score of every hypothesis.
+        batch: hypotheses scored at once.
+        local_starts: the best-scoring distinct hypotheses refined locally.
+        distinct_m, distinct_rad: hypotheses closer than both (camera centre, rotation) are one.
+        local_widths_px: mask widths of the local refinement's scales, coarsest first.
+        local_rounds: polish rounds per scale of the local refinement.
+        fine_starts: candidates refined at the finest local scale too.
+        finish_width_px: the winner is refined at this mask width too (at most the camera's).
+        held_share: motion masks: a link is left out when, in its median frame, this share of
+            its points lies where the robot is in most frames (`dream.edges.motion.held_links`).
+        rival_m, rival_rad: a rival is a refined candidate farther than either from the best.
+        min_found_iou: below this mean IoU the robot was not found in the images.
+        min_gap: the best candidate's IoU must exceed the best rival's by this.
+        basin_starts: restarts from around the best pose (the basin check).
+        basin_m, basin_rad: how far from the best pose the restarts start.
+        basin_return_m, basin_return_rad: a restart that ends this close has returned.
+        min_basin_share: at least this share of the restarts must return.
+        seed: seed of the random hypotheses and surface samples.
+    """
+
+    guess_sigma_m: float = 0.3
+    guess_sigma_rad: float = float(np.deg2rad(20.0))
+    guess_samples: int = 600
+    shell_directions: int = 160
+    shell_distances: tuple[float, ...] = (0.5, 0.75, 1.1, 1.6, 2.4, 3.5)
+    shell_rolls: int = 12
+    min_elevation_sin: float = -0.3
+    search_frames: int = 8
+    surface_points: int = 800
+    coarse_width_px: int = 64
+    batch: int = 256
+    local_starts: int = 16
+    distinct_m: float = 0.1
+    distinct_rad: float = float(np.deg2rad(8.0))
+    local_widths_px: tuple[int, ...] = (80, 160)
+    local_rounds: int = 12
+    fine_starts: int = 4
+    finish_width_px: int = 640
+    held_share: float = 0.5
+    rival_m: float = 0.05
+    rival_rad: float = float(np.deg2rad(5.0))
+    min_found_iou: float = 0.4
+    min_gap: float = 0.05
+    basin_starts: int = 4
+    basin_m: float = 0.05
+    basin_rad: float = float(np.deg2rad(3.0))
+    basin_return_m: float = 0.01
+    basin_return_rad: float = float(np.deg2rad(0.5))
+    min_basin_share: float = 0.75
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        check_fields(self, "coarse search",
+                     positive_ints=("guess_samples", "shell_directions", "shell_rolls",
+                                    "search_frames", "surface_points", "coarse_width_px",
+                                    "batch", "local_starts", "local_rounds", "fine_starts",
+                                    "finish_width_px"),
+                     positive=("guess_sigma_m", "guess_sigma_rad", "distinct_m", "distinct_rad",
+                               "rival_m", "rival_rad", "basin_m", "basin_rad",
+                               "basin_return_m", "basin_return_rad"),
+                     non_negative=("min_gap", "basin_starts", "min_found_iou",
+                                   "min_basin_share", "held_share"))
+        if not self.shell_distances or min(self.shell_distances) <= 0:
+            raise InputError("coarse search: shell_distances must be positive")
+        if not self.local_widths_px or min(self.local_widths_px) < 8:
+            raise InputError("coarse search: local_widths_px must be at least 8 px")
+        if not -1 <= self.min_elevation_sin <= 1:
+            raise InputError("coarse search: min_elevation_sin must lie in [-1, 1]")
+        for name in ("min_found_iou", "min_basin_share", "held_share"):
+            if getattr(self, name) > 1:
+                raise InputError(f"coarse search: {name} must not exceed 1")

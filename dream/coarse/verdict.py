@@ -1,0 +1,74 @@
+"""The verdict on a pose found without keypoints (pure): did the search find the robot, does
+the chosen pose explain the images clearly better than every other pose it reached, does a
+refinement started near it come back, and do the image cues agree.
+
+Each finding is (level, one sentence with what to do), as in `dream.quality`:
+
+- **found**: the mean IoU of the chosen pose's silhouettes with the masks is below
+  `min_found_iou`: the robot was not found (`unreliable`).
+- **gap**: a candidate farther than `rival_m` / `rival_rad` explains the masks within
+  `min_gap` of the chosen one's IoU: the images cannot tell the two apart (`unreliable`).
+- **basin**: fewer than `min_basin_share` of the restarts around the chosen pose return to it:
+  it is a ridge, not a clear optimum (`check`).
+- **cues**: the written pose (the edge alignment's) and the masks' optimum differ by more than
+  a centimetre or a degree: one cue is pulled by something the model lacks (`check`).
+
+    >>> from dream.coarse.settings import SearchSettings
+    >>> s = SearchSettings()
+    >>> [f[0] for f in search_findings(0.8, 0.78, 0.3, 4, 4, s)]
+    ['unreliable']
+    >>> search_findings(0.8, 0.5, 0.3, 4, 4, s)
+    []
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dream.coarse.settings import SearchSettings
+from dream.quality import (
+    CHECK,
+    POSITION_SIGMA_CHECK_M,
+    ROTATION_SIGMA_CHECK_RAD,
+    UNRELIABLE,
+    Finding,
+)
+
+
+def search_findings(best_iou: float, rival_iou: float | None, rival_distance_m: float | None,
+                    basin_returned: int, basin_starts: int,
+                    settings: SearchSettings) -> list[Finding]:
+    """The found, gap and basin findings (module doc)."""
+    out: list[Finding] = []
+    if best_iou < settings.min_found_iou:
+        out.append((UNRELIABLE, f"the robot's silhouettes at the pose found overlap the masks by "
+                    f"IoU {best_iou:.2f} only (below {settings.min_found_iou}): the robot was "
+                    "not found in the images; check the overlays, give a camera guess closer "
+                    "to the truth (--camera-guess, --look-at) or a keypoint model"))
+    if rival_iou is not None and best_iou - rival_iou < settings.min_gap:
+        out.append((UNRELIABLE, f"another camera pose {rival_distance_m * 100:.0f} cm away "
+                    f"explains the masks nearly as well (IoU {rival_iou:.3f} against "
+                    f"{best_iou:.3f}): the images cannot tell them apart; record the arm "
+                    "moving through more of the view, or give a closer camera guess"))
+    if basin_starts and basin_returned < settings.min_basin_share * basin_starts:
+        out.append((CHECK, f"only {basin_returned} of {basin_starts} refinements started "
+                    f"{settings.basin_m * 100:.0f} cm / {np.rad2deg(settings.basin_rad):.0f} "
+                    "deg from the pose found return to it: the images constrain it weakly; "
+                    "check the overlays"))
+    return out
+
+
+def cues_finding(distance_m: float, angle_rad: float) -> Finding | None:
+    """The cues finding (module doc): the edge alignment's pose against the masks' optimum.
+
+    >>> cues_finding(0.002, 0.001) is None
+    True
+    >>> cues_finding(0.03, 0.001)[0]
+    'check'
+    """
+    if distance_m <= POSITION_SIGMA_CHECK_M and angle_rad <= ROTATION_SIGMA_CHECK_RAD:
+        return None
+    return CHECK, (f"the edge alignment and the robot's masks disagree by {distance_m * 1e3:.1f} "
+                   f"mm and {np.rad2deg(angle_rad):.2f} deg: something the model lacks (a tool, "
+                   "a cable, a shadow) pulls one of them; the 1-sigma includes the disagreement; "
+                   "check the overlays, or leave the suspect links out (--exclude-links)")

@@ -1,0 +1,166 @@
+"""Calibration without keypoints (`dream.coarse`, `dream calibrate` without --model or
+--use-labels): the search from a rough guess on the project's own silhouettes over a cluttered
+scene (`tests/dream/test_edges.py`'s scenes), its verdict, and `--refine auto` keeping a
+result whose refinement cannot run."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from dream.cli import main
+from dream.coarse.evidence import points_of, splat_iou, surface_samples
+from dream.coarse.hypotheses import around, guess_pose
+from dream.coarse.search import pose_distance, search
+from dream.coarse.settings import SearchSettings
+from dream.coarse.verdict import search_findings
+from dream.metrics import pose_errors
+from dream.polish.objective import scaled_camera, shrink_mask
+from dream.silhouette import render_silhouette, vertices_in_base
+from dream.transforms import R_from_rotvec, invert_T
+from tests.dream.test_edges import CAMERA, TARGET, edge_scene, image_dataset
+
+GUESS_M, GUESS_RAD = 0.3, np.deg2rad(20.0)     # the rough guess's error
+SMALL = SearchSettings(guess_samples=200, local_starts=6, fine_starts=2, basin_starts=2)
+
+
+def off_by(T: np.ndarray, offset_m: float, offset_rad: float, seed: int) -> np.ndarray:
+    """T_cam_base with its camera moved `offset_m` and turned `offset_rad` (random axes)."""
+    rng = np.random.default_rng(seed)
+    T_base_cam = invert_T(T)
+    d, a = rng.normal(size=3), rng.normal(size=3)
+    T_base_cam[:3, 3] += offset_m * d / np.linalg.norm(d)
+    T_base_cam[:3, :3] = T_base_cam[:3, :3] @ R_from_rotvec(offset_rad * a / np.linalg.norm(a))
+    return invert_T(T_base_cam)
+
+
+def rendered_masks(panda, meshes, frames: int = 6):
+    T_true, joints, _, _ = edge_scene(panda, meshes, frames=frames)
+    masks = np.stack([render_silhouette(meshes, q, T_true, CAMERA) for q in joints])
+    return T_true, joints, masks
+
+
+def test_the_coarse_score_prefers_the_true_pose(panda, meshes):
+    T_true, joints, masks = rendered_masks(panda, meshes)
+    rng = np.random.default_rng(0)
+    tri, w = surface_samples(meshes, np.ones(len(meshes.vertices), bool), 1500, rng)
+    points = points_of(vertices_in_base(meshes, joints), meshes.faces, tri, w)
+    poses = np.stack([T_true] + [off_by(T_true, 0.05, 0.03, s) for s in range(5)])
+    width = SearchSettings().coarse_width_px          # the score is made for a coarse scale
+    height = round(CAMERA.height * width / CAMERA.width)
+    small = np.stack([shrink_mask(m, width, height) for m in masks])
+    scores = splat_iou(points, small, scaled_camera(CAMERA, width, height), poses)
+    assert scores[0] > 0.6 and np.all(scores[0] > scores[1:]), scores
+
+
+def test_search_finds_the_camera_from_a_guess_30_cm_and_20_deg_off(panda, meshes):
+    T_true, joints, masks = rendered_masks(panda, meshes)
+    for seed in (1, 2):
+        guess = off_by(T_true, GUESS_M, GUESS_RAD, seed)
+        outcome = search(meshes, joints, masks, CAMERA,
+                         {"guess": around(guess, GUESS_M, GUESS_RAD, SMALL.guess_samples,
+                                          np.random.default_rng(seed))}, SMALL)
+        m, rad = pose_distance(outcome.best.T_cam_base, T_true)
+        assert m < 0.005 and rad < np.deg2rad(0.3), (seed, m, np.rad2deg(rad))
+        assert outcome.best.iou > 0.9 and outcome.basin_returned == SMALL.basin_starts
+        distance = None if outcome.rival is None else pose_distance(
+            outcome.rival.T_cam_base, outcome.best.T_cam_base)[0]
+        rival = None if outcome.rival is None else outcome.rival.iou
+        assert search_findings(outcome.best.iou, rival, distance, outcome.basin_returned,
+                               outcome.basin_starts, SMALL) == []
+
+
+def test_masks_that_show_no_robot_give_an_unreliable_verdict(panda, meshes):
+    """Masks of something else (a box in every frame): the best pose explains them poorly,
+    and the verdict says the robot was not found."""
+    T_true, joints, masks = rendered_masks(panda, meshes)
+    box = np.zeros_like(masks)
+    box[:, 10:30, 10:150] = True
+    outcome = search(meshes, joints, box, CAMERA, {"guess": around(
+        T_true, GUESS_M, GUESS_RAD, 100, np.random.default_rng(0))}, SMALL)
+    rival = None if outcome.rival is None else outcome.rival.iou
+    distance = None if outcome.rival is None else pose_distance(
+        outcome.rival.T_cam_base, outcome.best.T_cam_base)[0]
+    levels = [level for level, _ in search_findings(
+        outcome.best.iou, rival, distance, outcome.basin_returned, outcome.basin_starts, SMALL)]
+    assert "unreliable" in levels
+
+
+def test_a_rival_as_good_as_the_best_is_unreliable():
+    findings = search_findings(0.8, 0.79, 0.4, 4, 4, SearchSettings())
+    assert [level for level, _ in findings] == ["unreliable"]
+    assert "40 cm away" in findings[0][1]
+    assert search_findings(0.8, 0.5, 0.4, 1, 4, SearchSettings())[0][0] == "check"
+
+
+def test_calibrate_without_keypoints_from_a_camera_guess(panda, meshes, tmp_path, capsys):
+    """Images only (no masks, no labels used): motion masks, the search from a guess 10 cm /
+    5 deg off, the edge alignment as cross-check; RESULT.json says how it was found. From a
+    guess 30 cm / 20 deg off the search may land elsewhere, and then it is not called good."""
+    T_true = image_dataset(panda, meshes, tmp_path)
+    for offset_m, offset_deg, must_land in ((0.1, 5.0, True), (GUESS_M, 20.0, False)):
+        position = invert_T(off_by(T_true, offset_m, np.deg2rad(offset_deg), 3))[:3, 3]
+        out = tmp_path / f"r{offset_m}.json"
+        code = main(["calibrate", "--data", str(tmp_path / "data"), "--out", str(out),
+                     "--camera-guess", ",".join(f"{v:.3f}" for v in position),
+                     "--look-at", ",".join(f"{v:.3f}" for v in TARGET + [0.05, -0.05, 0.0])])
+        printed, err = capsys.readouterr()
+        assert code == 0, err
+        assert "no keypoints: searching the camera pose" in printed and "search:" in err
+        doc = json.loads(out.read_text())
+        t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
+        wrong = t_err > 0.05 or r_err > np.deg2rad(5.0)
+        assert not (wrong and doc["quality"]["verdict"] == "good"), (t_err, doc["quality"])
+        if not must_land:
+            continue
+        assert t_err < 0.01 and r_err < np.deg2rad(0.5), (t_err, np.rad2deg(r_err))
+        start = doc["start"]
+        assert start["evidence"] == "motion masks" and "panda_link0" in start["left_out_links"]
+        assert start["iou"] > 0.8 and doc["keypoints_used"] == 0 and doc["rmse_px"] is None
+        assert doc["quality"]["verdict"] in ("good", "check")
+        sigma = np.linalg.norm(doc["sigma_camera_position_base_m"])
+        assert 0 < sigma < 0.05
+
+
+def test_refine_auto_keeps_the_keypoint_result_where_edges_cannot_run(panda, meshes, tmp_path,
+                                                                        capsys):
+    """Blank images: no edge near the outline. The default --refine auto writes the keypoint
+    result with the reason; an explicit --refine edges stays one clear error."""
+    image_dataset(panda, meshes, tmp_path, blank=True)
+    out = tmp_path / "r.json"
+    code = main(["calibrate", "--data", str(tmp_path / "data"), "--use-labels", "--out",
+                 str(out)])
+    printed, err = capsys.readouterr()
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    assert doc["edges"]["ran"] is False and "no image edges" in doc["edges"]["reason"]
+    assert "the edge alignment did not run" in printed
+    code = main(["calibrate", "--data", str(tmp_path / "data"), "--use-labels", "--refine",
+                 "edges", "--out", str(tmp_path / "e.json")])
+    _, err = capsys.readouterr()
+    assert code == 2 and "no image edges" in err and not (tmp_path / "e.json").exists()
+
+
+def test_guess_options_are_checked_before_any_work(tmp_path, capsys):
+    cases = [
+        (["--use-labels", "--camera-guess", "1,0,1", "--look-at", "0,0,0"], "drop one of them"),
+        (["--look-at", "0,0,0.4"], "--look-at goes with --camera-guess"),
+        (["--camera-guess", "1,0,1"], "needs --look-at"),
+        (["--camera-guess", "1,0", "--look-at", "0,0,0"], "--camera-guess"),
+        (["--camera-guess", "1,0,1", "--look-at", "1,0,1"], "coincide"),
+        (["--guess-sigma", "0.3"], "--guess-sigma"),
+    ]
+    for extra, message in cases:
+        code = main(["calibrate", "--data", str(tmp_path / "missing"), "--out",
+                     str(tmp_path / "r.json"), *extra])
+        _, err = capsys.readouterr()
+        assert code == 2 and message in err, (extra, err)
+
+
+def test_guess_pose_looks_at_the_target():
+    T = guess_pose(np.array([1.5, 0.5, 1.0]), TARGET)
+    P = T[:3, :3] @ TARGET + T[:3, 3]
+    assert np.allclose(P[:2], 0.0, atol=1e-9) and P[2] > 0
+    T_down = guess_pose(np.array([0.0, 0.0, 2.0]), np.zeros(3))
+    assert np.allclose(T_down[:3, :3] @ [0, 0, -1.0], [0, 0, 1.0])
