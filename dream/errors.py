@@ -35,6 +35,12 @@ class InputError(DreamError):
         super().__init__(_message(problem, self.path, fix))
 
 
+class CannotRefine(InputError):
+    """An image refinement cannot run on this data (no image edge near the robot's outline,
+    no solved frame with an image): `--refine auto` keeps the pose before it, an explicit
+    `--refine` reports it."""
+
+
 class RobotError(DreamError):
     """Unknown robot, unknown link or joint, or joint values that do not fit the robot."""
 

@@ -6,24 +6,24 @@ from __future__ import annotations
 import argparse
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, TextIO
-
-import numpy as np
 
 from dream.cli.calibrate_report import (
     add_edges,
     add_frame_edges,
     add_polish,
     add_quality,
-    pose_refined_by,
-    print_summary,
-    print_truth_errors,
 )
+from dream.cli.calibrate_write import check_outputs, finish, refined_or_kept
 from dream.cli.observe import observe
 from dream.cli.options import (
+    AUTO,
+    EDGES,
     INTERPOLATE,
     JOINT_READINGS,
+    NONE,
+    POLISH,
+    REFINE_CHOICES,
     DataOptions,
     add_command,
     add_data_args,
@@ -36,9 +36,6 @@ from dream.cli.options import (
 from dream.errors import InputError
 from dream.pnp import RobustLoss, SolverSettings
 from dream.ros import CAMERA_OPTICAL_FRAME
-
-AUTO, EDGES, NONE = "auto", "edges", "none"
-REFINE_CHOICES = (AUTO, EDGES, NONE)   # --refine: what refines the keypoint extrinsic
 
 
 @dataclass(frozen=True)
@@ -158,7 +155,6 @@ def _check_refine(refine: str, frames: str, polish: bool, exclude_links: str | N
                          fix="choose one: --polish with masks, --refine edges without")
 
 
-POLISH = "polish"   # what `--refine auto` does on data with masks: the silhouette polish
 
 
 def refine_mode(request: CalibrateRequest, seq) -> str:
@@ -190,7 +186,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
 
     out = out or sys.stdout
     settings = request.solver_settings()
-    paths = _check_outputs(request)
+    paths = check_outputs(request)
     extension = _read_extension(request)
     seq = read_data(request)
     data_doc = data_record(seq, request.data)
@@ -232,7 +228,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
                                              "distortion": seq.camera.distortion}}
     if refine == EDGES:
         add = add_edges if request.frames == "all" else add_frame_edges
-        doc = _refined_or_kept(request, lambda: add(
+        doc = refined_or_kept(request, lambda: add(
             seq, robot, result, obs, doc, out, request.exclude_links,
             () if extension is None else extension.link_geometry), doc, out)
     elif extension is not None and extension.link_geometry and refine != POLISH:
@@ -243,40 +239,8 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
                          mask_head=request.mask_head, motion_masks=request.motion_masks,
                          link_geometry=() if extension is None else extension.link_geometry)
     doc["quality"] = add_quality(result, obs, doc, out)
-    _finish(request, seq, robot, obs, result, doc, paths, out)
+    finish(request, seq, robot, obs, result, doc, paths, out)
     return doc
-
-
-def _refined_or_kept(request: CalibrateRequest, refine, doc: dict, out: TextIO) -> dict:
-    """`refine()`'s document; under `--refine auto`, an edge alignment that cannot run (no image
-    edges near the outline...) leaves `doc` as it was, with the reason in `doc["edges"]` and on
-    the console, instead of failing the command."""
-    if request.refine != AUTO:
-        return refine()
-    try:
-        return refine()
-    except InputError as exc:
-        reason = f"the edge alignment did not run: {exc.problem}"
-        print(f"{reason}; the pose before it is kept (--refine edges makes this an error)",
-              file=out)
-        return {**doc, "edges": {"mode": request.frames, "ran": False, "kept": False,
-                                 "reason": reason}}
-
-
-def _finish(request: CalibrateRequest, seq, robot, obs, result, doc: dict, paths,
-            out: TextIO) -> None:
-    """Write the files, print the summary and, where the data has them, the truth errors."""
-    from dream.pipeline import truth_poses
-
-    base_frame = request.base_frame or robot.base_link
-    _write_calibration(request, seq, robot, obs, result, doc, paths, base_frame)
-    print_summary(doc, out)
-    print_truth_errors(doc, truth_poses(seq), out)
-    ros_path, matrix_path, urdf_path, launch_path, handeye_path = paths
-    print(f"wrote {request.out}, {ros_path} (ROS static_transform_publisher: x y z qx qy qz qw "
-          f"{base_frame} {request.camera_frame}), {matrix_path} (T_base_cam), {urdf_path} (URDF "
-          f"joint), {launch_path} (ROS 2 launch) and {handeye_path} (easy_handeye YAML)",
-          file=out)
 
 
 def _read_extension(request: CalibrateRequest):
@@ -307,52 +271,6 @@ def _apply_extension(request: CalibrateRequest, extension, seq, robot, obs, out:
     print(f"model extension {request.model_extension}: "
           f"{', '.join(extension.effects) or 'no effect'}{left}", file=out)
     return seq, robot, obs
-
-
-def _check_outputs(request: CalibrateRequest) -> tuple[Path, ...]:
-    """Before any work: RESULT.json and the files written next to it (`dream.ros`) can be
-    written and the --overlays folder can be made; returns the paths of those files."""
-    from dream.io import check_output_file, check_output_folder
-    from dream.ros import output_paths, snippet_paths
-
-    check_output_file(request.out)
-    paths = output_paths(request.out) + snippet_paths(request.out)
-    for path in paths:
-        try:
-            check_output_file(path)
-        except InputError as exc:
-            raise InputError(f"{exc.problem} (dream calibrate --out {request.out} writes it)",
-                             exc.path, "remove it, or choose another --out") from None
-    if request.overlays:
-        check_output_folder(request.overlays)
-    return paths
-
-
-def _write_calibration(request: CalibrateRequest, seq, robot, obs, result, doc: dict,
-                       paths: tuple[Path, ...], base_frame: str) -> None:
-    """RESULT.json, its two text files and the --overlays folder, all or none: the files are
-    written, then the overlays drawn (`write_result_overlays` stages them in a temporary folder
-    and moves them into place); on a failure of either (an unreadable image...) the files are
-    put back as they were before the command."""
-    from dream.io import replacing_files
-    from dream.io.atomic import dumps
-    from dream.ros import handeye_text, launch_text, matrix_text, ros_text, urdf_text
-
-    T, camera = np.asarray(doc["T_cam_base"]), request.camera_frame
-    ros_path, matrix_path, urdf_path, launch_path, handeye_path = paths
-    texts = {Path(request.out): dumps(doc),
-             ros_path: ros_text(T, base_frame, camera, file_name=ros_path.name),
-             matrix_path: matrix_text(T, base_frame),
-             urdf_path: urdf_text(T, base_frame, camera),
-             launch_path: launch_text(T, base_frame, camera),
-             handeye_path: handeye_text(T, base_frame, camera)}
-    files = {path: text.encode("utf-8") for path, text in texts.items()}
-    with replacing_files(files):  # a failure puts the files back
-        if request.overlays:
-            from dream.overlay import write_result_overlays
-
-            write_result_overlays(seq, robot, obs, result, Path(request.overlays), doc=doc,
-                                  refined_by=pose_refined_by(doc))
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:

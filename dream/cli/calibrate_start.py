@@ -11,7 +11,7 @@ from typing import TextIO
 
 import numpy as np
 
-from dream.cli.options import parse_numbers
+from dream.cli.options import EDGES, POLISH, parse_numbers
 from dream.errors import InputError
 
 FIX_GUESS = ("give --camera-guess X,Y,Z --look-at X,Y,Z (metres, base frame: where the camera "
@@ -167,8 +167,8 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO)
 def run_search(request, seq, data_doc: dict, readings_doc: dict | None,
                 refine: str, paths, out: TextIO) -> dict:
     """`dream calibrate` without keypoints (`dream.cli.calibrate_start`)."""
-    from dream.cli.calibrate import EDGES, POLISH, _finish
     from dream.cli.calibrate_report import add_polish
+    from dream.cli.calibrate_write import finish
     from dream.result import result_to_dict
 
     if request.model_extension:
@@ -193,7 +193,7 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None,
         doc, T_other = _edges_after_search(request, seq, robot, result, obs, doc, out)
     doc, cue_move = with_cue_term(doc, T_other)
     doc["quality"] = search_quality(doc, cue_move, out)
-    _finish(request, seq, robot, obs, result, doc, paths, out)
+    finish(request, seq, robot, obs, result, doc, paths, out)
     return doc
 
 
@@ -204,11 +204,11 @@ def _edges_after_search(request, seq, robot, result, obs, doc: dict,
     the alignment is the cross-check whose disagreement enters the 1-sigma and the verdict
     (on rendered scenes the edges of a small, glossy arm pull it centimetres off where the
     masks do not). Returns the document and the other cue's pose."""
-    from dream.cli.calibrate import EDGES, _refined_or_kept
     from dream.cli.calibrate_report import add_edges
+    from dream.cli.calibrate_write import refined_or_kept
 
     start = np.asarray(doc["start"]["T_cam_base"])
-    aligned = _refined_or_kept(request, lambda: add_edges(
+    aligned = refined_or_kept(request, lambda: add_edges(
         seq, robot, result, obs, doc, out, request.exclude_links), doc, out)
     if request.refine == EDGES:
         return aligned, start

@@ -29,6 +29,10 @@ INTRINSICS_ATOL = 1e-9   # (distortion coefficients: this close to zero)
 
 Request = TypeVar("Request")
 
+AUTO, EDGES, NONE = "auto", "edges", "none"
+REFINE_CHOICES = (AUTO, EDGES, NONE)   # --refine of dream calibrate: what refines the pose
+POLISH = "polish"   # what `--refine auto` does on data with masks: the silhouette polish
+
 
 def parse_intrinsics(text: str | None) -> CameraIntrinsics | tuple[float, ...] | None:
     """'fx,fy,cx,cy' (size from the images) or 'fx,fy,cx,cy,width,height'; a bad value is an

@@ -4,8 +4,10 @@ the coarse search (`dream.coarse.search`), and a stand-in keypoint result at its
 the image refinements (`--refine`) and RESULT.json take it from there.
 
 With motion masks, the links that never move over the recording are left out of the model
-(they are in the background model, so not in the masks), and the search uses the frames whose
-masks show motion. The search's 1-sigma is the spread of its basin check's restarts around the
+(they are in the background model, so not in the masks), the pixels the robot covers in most
+frames at a hypothesis are not compared (`dream.coarse.evidence.held_pixels`: a shoulder
+turning in place stays in the background model), and the search uses the frames whose masks
+show motion. The search's 1-sigma is the spread of its basin check's restarts around the
 winner: where they do not return, it is large and says so.
 """
 
@@ -13,7 +15,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -21,19 +23,16 @@ from dream.calibration import CalibrationResult, FrameSolution, Observations
 from dream.coarse.hypotheses import around, fibonacci_directions, shell
 from dream.coarse.search import SearchOutcome, search
 from dream.coarse.settings import SearchSettings
-from dream.edges.motion import held_links
 from dream.errors import InputError
 from dream.pnp import NoSolution, PoseFit, increment_between
 from dream.polish.objective import evenly_spaced
-from dream.polish.refine import search_camera
-from dream.polish.settings import PolishSettings
 from dream.robot import Robot
 from dream.sequence import Sequence
 from dream.silhouette import load_robot_meshes, static_links, vertices_in_base, without_links
 
 log = logging.getLogger(__name__)
 
-GUESS, SHELL, DETECTOR, REFINED = "guess", "shell", "detector", "refined"
+GUESS, SHELL, DETECTOR = "guess", "shell", "detector"
 DATA_MASKS, MOTION_MASKS = "the data's masks", "motion masks"
 RESOLUTION_FRACTION = 0.5   # of the basin check's return limits: the search's 1-sigma floor
 MOTION_CANDIDATES = 3   # frames tried for motion masks per search frame (evenly spaced)
@@ -151,23 +150,9 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
                     if inputs.left_out else ""))
     hypotheses, aimed_only = hypotheses_for(guess, inputs, settings, detector_T)
     outcome = search(inputs.meshes, inputs.joints, inputs.masks, sequence.camera, hypotheses,
-                     settings, aimed_only=aimed_only, progress=progress)
-    if inputs.source != MOTION_MASKS:
-        return outcome, inputs
-    held = held_links(inputs.meshes, inputs.joints, outcome.best.T_cam_base,
-                      search_camera(sequence.camera, PolishSettings()), settings.held_share)
-    if not held:
-        return outcome, inputs
-    if progress is not None:
-        progress(f"left out, held by the background model at the best pose: {', '.join(held)};"
-                 " searching again from the best candidates")
-    inputs = replace(inputs, meshes=without_links(inputs.meshes, held),
-                     left_out=inputs.left_out + held)
-    again = search(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
-                   {REFINED: np.array([c.T_cam_base for c in outcome.candidates])}, settings,
-                   as_given_only=(REFINED,), progress=progress)
-    return replace(again, hypotheses=outcome.hypotheses,
-                   seconds=outcome.seconds + again.seconds), inputs
+                     settings, aimed_only=aimed_only, held=inputs.source == MOTION_MASKS,
+                     progress=progress)
+    return outcome, inputs
 
 
 def basin_covariance(outcome: SearchOutcome, settings: SearchSettings | None = None

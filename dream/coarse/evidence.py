@@ -31,6 +31,8 @@ from dream.camera import CameraIntrinsics, project
 from dream.errors import InputError
 from dream.silhouette import MIN_DEPTH_M, RobotMeshes
 
+MEDIAN_SHARE = 0.5   # a per-pixel median holds what covers a pixel in more than half the frames
+
 
 @dataclass(frozen=True)
 class Evidence:
@@ -102,10 +104,38 @@ def points_of(P_frames: np.ndarray, faces: np.ndarray, triangles: np.ndarray,
     return np.einsum("fsck,sc->fsk", corners, weights)
 
 
+def held_pixels(rendered: np.ndarray) -> np.ndarray:
+    """(..., h, w) the pixels a robot's silhouettes (..., F, h, w) cover in more than
+    `MEDIAN_SHARE` of the frames: a per-pixel median background model holds them, so motion
+    masks miss them (a shoulder turning in place, the links near the base).
+
+    >>> held_pixels(np.array([[[1, 0]], [[1, 0]], [[0, 1]]], bool)).tolist()
+    [[True, False]]
+    """
+    return np.asarray(rendered, bool).mean(axis=-3) > MEDIAN_SHARE
+
+
+def held_vertices(P_frames: np.ndarray, T_cam_base: np.ndarray, camera: CameraIntrinsics,
+                  held: np.ndarray) -> np.ndarray:
+    """(V,) the vertices P_frames (F, V, 3) that project into the `held` pixels (h, w) at
+    `camera`'s size in more than `MEDIAN_SHARE` of the frames, seen from T_cam_base."""
+    P_cam = P_frames @ T_cam_base[:3, :3].T + T_cam_base[:3, 3]
+    P_cam[P_cam[..., 2] < MIN_DEPTH_M] = np.nan
+    uv = np.rint(project(camera, P_cam))
+    h, w = held.shape
+    with np.errstate(invalid="ignore"):
+        inside = (uv[..., 0] >= 0) & (uv[..., 0] <= w - 1) & (uv[..., 1] >= 0) & (
+            uv[..., 1] <= h - 1)
+    u = np.where(inside, np.nan_to_num(uv[..., 0]), 0).astype(np.int64)
+    v = np.where(inside, np.nan_to_num(uv[..., 1]), 0).astype(np.int64)
+    return (inside & held[v, u]).mean(axis=0) > MEDIAN_SHARE
+
+
 def splat_iou(points: np.ndarray, masks: np.ndarray, camera: CameraIntrinsics,
-              T_cam_base: np.ndarray) -> np.ndarray:
+              T_cam_base: np.ndarray, held: bool = False) -> np.ndarray:
     """(B,) the mean over frames of the IoU between each mask (F, h, w) and the pixels its
-    frame's surface points (F, S, 3, base frame) hit seen from each hypothesis (B, 4, 4)."""
+    frame's surface points (F, S, 3, base frame) hit seen from each hypothesis (B, 4, 4);
+    with `held` (motion masks) without the pixels hit in most frames (`held_pixels`)."""
     points = np.asarray(points, float)
     T = np.asarray(T_cam_base, float)
     masks = np.asarray(masks, bool)
@@ -126,6 +156,8 @@ def splat_iou(points: np.ndarray, masks: np.ndarray, camera: CameraIntrinsics,
     hit = np.zeros(B * F * h * w, bool)
     hit[(plane + cell.astype(np.int64))[ok]] = True
     hit = hit.reshape(B, F, h * w)
+    if held:
+        hit &= ~held_pixels(hit[:, :, None, :])
     flat = masks.reshape(1, F, h * w)
     inter = np.count_nonzero(hit & flat, axis=2)
     union = np.count_nonzero(hit, axis=2) + np.count_nonzero(flat, axis=2) - inter

@@ -26,7 +26,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from dream.camera import CameraIntrinsics
-from dream.coarse.evidence import points_of, splat_iou, surface_samples
+from dream.coarse.evidence import (
+    held_pixels,
+    held_vertices,
+    points_of,
+    splat_iou,
+    surface_samples,
+)
 from dream.coarse.hypotheses import aim
 from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
@@ -109,11 +115,16 @@ def _close(T_a: np.ndarray, T_b: np.ndarray, limit_m: float, limit_rad: float) -
 
 
 class _Scales:
-    """The masks at each local scale, and the rendered IoU of a pose at the finest."""
+    """The masks at each local scale, and the rendered IoU of a pose at the finest. With
+    `held` (motion masks), the pixels the robot covers in more than half of the frames at a
+    pose are the background model's (`held_pixels`): the vertices that lie there
+    (`held_vertices`) give the refinement no contour points, and the pixels are taken out of
+    the silhouettes scored."""
 
     def __init__(self, P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
-                 camera: CameraIntrinsics, settings: SearchSettings, usable: np.ndarray | None):
-        self.P, self.faces, self.usable = P, meshes.faces, usable
+                 camera: CameraIntrinsics, settings: SearchSettings, usable: np.ndarray | None,
+                 held: bool = False):
+        self.P, self.faces, self.usable, self.held = P, meshes.faces, usable, held
         self.levels = []
         for width in dict.fromkeys(min(w, camera.width) for w in settings.local_widths_px):
             height = max(1, int(round(camera.height * width / camera.width)))
@@ -122,24 +133,34 @@ class _Scales:
                                                  for m in masks])))
         self.params = replace(PolishSettings(), outer_iterations=settings.local_rounds)
 
+    def _rendered(self, T: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
+        return np.stack([render_points(P, self.faces, T, camera) for P in self.P])
+
     def refine(self, T: np.ndarray, levels: slice = slice(None)) -> np.ndarray:
         for camera, masks in self.levels[levels]:
-            T = refine_pose(self.P, self.faces, masks, camera, T, self.params, self.usable)[0]
+            usable = self.usable
+            if self.held:
+                held = held_vertices(self.P, T, camera, held_pixels(self._rendered(T, camera)))
+                usable = ~held if usable is None else usable & ~held
+            T = refine_pose(self.P, self.faces, masks, camera, T, self.params, usable)[0]
         return T
 
     def iou_at(self, T: np.ndarray, level: int) -> float:
         camera, masks = self.levels[level]
-        return float(np.mean([silhouette_iou(render_points(P, self.faces, T, camera), m)
-                              for P, m in zip(self.P, masks, strict=True)]))
+        rendered = self._rendered(T, camera)
+        if self.held:
+            rendered &= ~held_pixels(rendered)[None]
+        return float(np.mean([silhouette_iou(r, m) for r, m in zip(rendered, masks,
+                                                                    strict=True)]))
 
     def iou(self, T: np.ndarray) -> float:
         return self.iou_at(T, -1)
 
 
 def coarse_scores(points: np.ndarray, masks: np.ndarray, camera: CameraIntrinsics,
-                  T: np.ndarray, batch: int) -> np.ndarray:
+                  T: np.ndarray, batch: int, held: bool = False) -> np.ndarray:
     """(N,) `splat_iou` of hypotheses T (N, 4, 4), `batch` at a time."""
-    return np.concatenate([splat_iou(points, masks, camera, T[i:i + batch])
+    return np.concatenate([splat_iou(points, masks, camera, T[i:i + batch], held)
                            for i in range(0, len(T), batch)]) if len(T) else np.zeros(0)
 
 
@@ -147,7 +168,7 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
            camera: CameraIntrinsics, hypotheses: dict[str, np.ndarray],
            settings: SearchSettings | None = None, usable: np.ndarray | None = None,
            aimed_only: tuple[str, ...] = (), as_given_only: tuple[str, ...] = (),
-           progress: Callable[[str], None] | None = None) -> SearchOutcome:
+           held: bool = False, progress: Callable[[str], None] | None = None) -> SearchOutcome:
     """The camera pose whose robot silhouettes best explain `masks` (module doc).
 
     Args:
@@ -158,6 +179,8 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
             the robot, those of a source in `aimed_only` only aimed, those in
             `as_given_only` only as given.
         usable: (V,) bool, the vertices whose outline is matched (default all).
+        held: the masks are motion masks, which miss what the robot covers in most frames
+            (`dream.coarse.evidence.held_pixels`).
         progress: called with one line per stage.
     Raises:
         InputError: shapes that disagree, no hypothesis, empty masks.
@@ -188,10 +211,10 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     centre = points.reshape(-1, 3).mean(axis=0)
     T_all, sources = _aimed(hypotheses, centre, np.array([u.mean(), v.mean()]), coarse_camera,
                             aimed_only, as_given_only)
-    scores = coarse_scores(points, coarse, coarse_camera, T_all, settings.batch)
+    scores = coarse_scores(points, coarse, coarse_camera, T_all, settings.batch, held)
     say(f"scored {len(T_all)} camera hypotheses at {width} px (best coarse IoU "
         f"{scores.max():.3f})")
-    scales = _Scales(P, meshes, masks, camera, settings, usable)
+    scales = _Scales(P, meshes, masks, camera, settings, usable, held)
     candidates = _refined(scales, T_all, scores, sources, settings)
     candidates[0] = _finished(candidates[0], P, meshes, masks, camera, settings, usable, scales)
     best = candidates[0]
@@ -216,7 +239,7 @@ def _finished(best: Candidate, P: np.ndarray, meshes: RobotMeshes, masks: np.nda
               scales: _Scales) -> Candidate:
     """The winner refined at `finish_width_px` (capped at the camera's width) as well."""
     finish = _Scales(P, meshes, masks, camera, replace(
-        settings, local_widths_px=(settings.finish_width_px,)), usable)
+        settings, local_widths_px=(settings.finish_width_px,)), usable, scales.held)
     if finish.levels[-1][0].width <= scales.levels[-1][0].width:
         return best
     T = finish.refine(best.T_cam_base)

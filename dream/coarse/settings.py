@@ -35,8 +35,6 @@ class SearchSettings:
         local_rounds: polish rounds per scale of the local refinement.
         fine_starts: candidates refined at the finest local scale too.
         finish_width_px: the winner is refined at this mask width too (at most the camera's).
-        held_share: motion masks: a link is left out when, in its median frame, this share of
-            its points lies where the robot is in most frames (`dream.edges.motion.held_links`).
         rival_m, rival_rad: a rival is a refined candidate farther than either from the best.
         min_found_iou: below this mean IoU the robot was not found in the images.
         min_gap: the best candidate's IoU must exceed the best rival's by this.
@@ -65,7 +63,6 @@ class SearchSettings:
     local_rounds: int = 12
     fine_starts: int = 4
     finish_width_px: int = 640
-    held_share: float = 0.5
     rival_m: float = 0.05
     rival_rad: float = float(np.deg2rad(5.0))
     min_found_iou: float = 0.4
@@ -88,13 +85,13 @@ class SearchSettings:
                                "rival_m", "rival_rad", "basin_m", "basin_rad",
                                "basin_return_m", "basin_return_rad"),
                      non_negative=("min_gap", "basin_starts", "min_found_iou",
-                                   "min_basin_share", "held_share"))
+                                   "min_basin_share"))
         if not self.shell_distances or min(self.shell_distances) <= 0:
             raise InputError("coarse search: shell_distances must be positive")
         if not self.local_widths_px or min(self.local_widths_px) < 8:
             raise InputError("coarse search: local_widths_px must be at least 8 px")
         if not -1 <= self.min_elevation_sin <= 1:
             raise InputError("coarse search: min_elevation_sin must lie in [-1, 1]")
-        for name in ("min_found_iou", "min_basin_share", "held_share"):
+        for name in ("min_found_iou", "min_basin_share"):
             if getattr(self, name) > 1:
                 raise InputError(f"coarse search: {name} must not exceed 1")

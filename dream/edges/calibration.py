@@ -26,7 +26,7 @@ from dream.edges.refine import EdgeTrace, align_edges
 from dream.edges.score import EdgeScore, edge_score
 from dream.edges.search import scale_images
 from dream.edges.settings import EdgeSettings
-from dream.errors import InputError
+from dream.errors import CannotRefine, InputError
 from dream.polish.calibration import all_detections
 from dream.polish.objective import evenly_spaced
 from dream.refined_uncertainty import (
@@ -200,7 +200,7 @@ def refine_with_edges(sequence: Sequence, robot: Robot, T_cam_base: np.ndarray,
     T0 = np.asarray(T_cam_base, dtype=float)
     score0 = edge_score(meshes, P, T0, full, settings, usable)
     if score0.points == 0 or score0.agreement * score0.points < settings.min_outline_points:
-        raise InputError(f"no image edges near the robot's outline at the keypoint pose "
+        raise CannotRefine(f"no image edges near the robot's outline at the start pose "
                          f"({score0.points} outline points, {score0.agreement:.0%} on an edge)",
                          sequence.source, "check the images show the robot and the camera "
                          "and joints belong to them, or use --refine none")

@@ -28,7 +28,7 @@ from dream.edges.refine import align_edges
 from dream.edges.score import edge_score
 from dream.edges.search import scale_images
 from dream.edges.settings import EdgeSettings
-from dream.errors import InputError
+from dream.errors import CannotRefine, InputError
 from dream.pnp import PoseFit
 from dream.polish.calibration import inlier_keypoints
 from dream.polish.guard import fit_shrinkage
@@ -129,7 +129,7 @@ def refine_frames_with_edges(sequence: Sequence, robot: Robot, result: Calibrati
                                                         strict=True))
             if isinstance(solution.fit, PoseFit) and frame.image_path is not None]
     if not todo:
-        raise InputError("--refine edges needs solved frames with images, and there are none",
+        raise CannotRefine("--refine edges needs solved frames with images, and there are none",
                          sequence.source, "add the images, or use --refine none")
     meshes, usable, _ = outline_meshes(robot, settings, exclude_links, link_geometry)
     joints = joints_in_robot_order(sequence, robot)

@@ -172,35 +172,3 @@ def sequence_motion_masks(sequence: Sequence, indices: np.ndarray, settings: Mot
     return masks
 
 
-
-def held_links(meshes, joints: np.ndarray, T_cam_base: np.ndarray, camera, min_share: float
-               ) -> tuple[str, ...]:
-    """Links a background model holds although they move, seen from `T_cam_base`: a link that
-    turns in place (a shoulder about its vertical axis) covers nearly the same pixels in most
-    frames, so the per-pixel median keeps it and the motion masks miss it. A link counts when,
-    in its median frame, at least `min_share` of its vertices project where the robot's
-    rendered silhouette lies in more than half of the frames (joints (F, J))."""
-    from dream.camera import project
-    from dream.silhouette import render_points, vertices_in_base
-
-    P = vertices_in_base(meshes, joints)                                   # (F, V, 3)
-    rendered = np.stack([render_points(p, meshes.faces, T_cam_base, camera) for p in P])
-    held_pixels = rendered.mean(axis=0) > 0.5
-    uv = np.rint(project(camera, P @ T_cam_base[:3, :3].T + T_cam_base[:3, 3]))
-    with np.errstate(invalid="ignore"):
-        inside = (uv[..., 0] >= 0) & (uv[..., 0] < camera.width) & (uv[..., 1] >= 0) & (
-            uv[..., 1] < camera.height)
-    u = np.where(inside, np.nan_to_num(uv[..., 0]), 0).astype(int)
-    v = np.where(inside, np.nan_to_num(uv[..., 1]), 0).astype(int)
-    on_held = inside & held_pixels[v, u]                                   # (F, V)
-    used = np.unique(meshes.faces)
-    out = []
-    for i, name in enumerate(meshes.links):
-        mine = np.intersect1d(np.flatnonzero(meshes.vertex_link == i), used)
-        seen = inside[:, mine].sum(axis=1)
-        if not len(mine) or not seen.any():
-            continue
-        share = on_held[:, mine].sum(axis=1) / np.maximum(seen, 1)
-        if np.median(share[seen > 0]) >= min_share:
-            out.append(name)
-    return tuple(out)

@@ -95,11 +95,11 @@ def test_a_rival_as_good_as_the_best_is_unreliable():
 
 
 def test_calibrate_without_keypoints_from_a_camera_guess(panda, meshes, tmp_path, capsys):
-    """Images only (no masks, no labels used): motion masks, the search from a guess 10 cm /
-    5 deg off, the edge alignment as cross-check; RESULT.json says how it was found. From a
-    guess 30 cm / 20 deg off the search may land elsewhere, and then it is not called good."""
+    """Images only (no masks, no labels used): motion masks, the search from guesses 10 cm /
+    5 deg and 30 cm / 20 deg off, the edge alignment as cross-check; RESULT.json says how it
+    was found."""
     T_true = image_dataset(panda, meshes, tmp_path)
-    for offset_m, offset_deg, must_land in ((0.1, 5.0, True), (GUESS_M, 20.0, False)):
+    for offset_m, offset_deg in ((0.1, 5.0), (GUESS_M, 20.0)):
         position = invert_T(off_by(T_true, offset_m, np.deg2rad(offset_deg), 3))[:3, 3]
         out = tmp_path / f"r{offset_m}.json"
         code = main(["calibrate", "--data", str(tmp_path / "data"), "--out", str(out),
@@ -110,10 +110,6 @@ def test_calibrate_without_keypoints_from_a_camera_guess(panda, meshes, tmp_path
         assert "no keypoints: searching the camera pose" in printed and "search:" in err
         doc = json.loads(out.read_text())
         t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
-        wrong = t_err > 0.05 or r_err > np.deg2rad(5.0)
-        assert not (wrong and doc["quality"]["verdict"] == "good"), (t_err, doc["quality"])
-        if not must_land:
-            continue
         assert t_err < 0.01 and r_err < np.deg2rad(0.5), (t_err, np.rad2deg(r_err))
         start = doc["start"]
         assert start["evidence"] == "motion masks" and "panda_link0" in start["left_out_links"]
