@@ -11,11 +11,15 @@ share within `--right-mm` / `--right-deg`, the wrong results called `good`, the 
 called `good` or `check`, and how often the truth lies inside the written 95 % ellipsoid.
 
 real: a recording with a reference extrinsic (scored only), calibrated from `--guesses`
-guesses off it, and with `--auto` once by the automatic search.
+guesses off it, and with `--auto` once by the automatic search. A recording without a reference
+(`franka_offline`) takes `--center RESULT.json` (a keypoint-started calibration): the guesses lie
+around its extrinsic, and each result is compared with it and by its polish's IoU over the
+frames that agree.
 
     python benchmarks/coarse_start.py renders [--robots panda,ur5,xarm7] [--scenes 3]
         [--first-seed 1000] [--frames 30] [--auto]
     python benchmarks/coarse_start.py real --data ../shared/realdata/panda_teleop [--guesses 10]
+    python benchmarks/coarse_start.py real --data ../shared/realdata/franka_offline --center R.json
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from dream.io import read_sequence
 from dream.metrics import pose_errors
 from dream.pipeline import truth_poses
 from dream.pnp import increment_between
+from dream.result import read_result
 from dream.transforms import R_from_rotvec, invert_T
 
 CHI2_6DOF_95 = 12.592     # 95 % quantile of the chi-square distribution with 6 degrees of freedom
@@ -72,14 +77,16 @@ def guess_file(T_true: np.ndarray, offset_m: float, offset_rad: float,
     return path
 
 
-def calibrate(data: Path, out: Path, guess: Path | None) -> dict:
-    """One `dream calibrate` without keypoints: the document, its error, time and verdict."""
+def calibrate(data: Path, out: Path, guess: Path | None,
+              T_true: np.ndarray | None = None) -> dict:
+    """One `dream calibrate` without keypoints: its error against `T_true` (default the data's
+    reference), time, verdict, 1-sigma and IoUs."""
     start = time.perf_counter()
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
         doc = run_calibrate(CalibrateRequest(data=str(data), out=str(out),
                                              camera_guess=None if guess is None else str(guess)))
     seconds = time.perf_counter() - start
-    T_true = truth_poses(read_sequence(data))[0]
+    T_true = truth_poses(read_sequence(data))[0] if T_true is None else T_true
     T = np.asarray(doc["T_cam_base"])
     t_err, r_err = pose_errors(T, T_true)
     xi = increment_between(T, T_true)
@@ -87,7 +94,8 @@ def calibrate(data: Path, out: Path, guess: Path | None) -> dict:
     sigma = float(np.linalg.norm(doc["sigma_camera_position_base_m"]))
     return {"mm": t_err * 1e3, "deg": float(np.rad2deg(r_err)), "verdict":
             doc["quality"]["verdict"], "sigma_mm": sigma * 1e3, "inside95": inside,
-            "seconds": seconds, "iou": doc["start"]["iou"]}
+            "seconds": seconds, "iou": doc["start"]["iou"],
+            "polish_iou": doc.get("polish", {}).get("iou_after")}
 
 
 def summary(rows: list[dict], right_mm: float, right_deg: float, label: str) -> None:
@@ -136,18 +144,22 @@ def run_renders(args: argparse.Namespace) -> None:
 def run_real(args: argparse.Namespace) -> None:
     rng = np.random.default_rng(args.seed)
     data = Path(args.data)
-    T_true = truth_poses(read_sequence(data))[0]
+    T_true = (np.asarray(read_result(args.center)["T_cam_base"]) if args.center else
+              truth_poses(read_sequence(data))[0])
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         guesses = [guess_file(T_true, args.guess_m, np.deg2rad(args.guess_deg), rng, tmp)
                    for _ in range(args.guesses)] + ([None] if args.auto else [])
         for k, guess in enumerate(guesses):
-            row = calibrate(data, tmp / f"r{k}.json", guess)
+            row = calibrate(data, tmp / f"r{k}.json", guess, T_true)
             rows.append(row)
+            polish = ("" if row["polish_iou"] is None else
+                      f", polish IoU {row['polish_iou']:.3f}")
             print(f"{'auto' if guess is None else f'guess {k}'}: {row['mm']:.1f} mm "
-                  f"{row['deg']:.2f} deg, {row['verdict']}, 1-sigma {row['sigma_mm']:.1f} mm, "
-                  f"IoU {row['iou']:.3f}, {row['seconds']:.0f} s", flush=True)
+                  f"{row['deg']:.2f} deg{' from the centre' if args.center else ''}, "
+                  f"{row['verdict']}, 1-sigma {row['sigma_mm']:.1f} mm, search IoU "
+                  f"{row['iou']:.3f}{polish}, {row['seconds']:.0f} s", flush=True)
     summary(rows, args.right_mm, args.right_deg, data.name)
 
 
@@ -169,6 +181,8 @@ def main() -> None:
     r.add_argument("--frames", type=int, default=30)
     sub.choices["real"].add_argument("--data", required=True)
     sub.choices["real"].add_argument("--guesses", type=int, default=10)
+    sub.choices["real"].add_argument("--center", help="RESULT.json: the guesses' centre and "
+                                     "the comparison, for data without a reference")
     args = p.parse_args()
     (run_renders if args.what == "renders" else run_real)(args)
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from dream.calibration import CalibrationResult, FrameSolution, Observations
 from dream.coarse.hypotheses import around, fibonacci_directions, shell
-from dream.coarse.search import SearchOutcome, search
+from dream.coarse.search import SearchOutcome, pose_distance, search
 from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
 from dream.pnp import NoSolution, PoseFit, increment_between
@@ -157,15 +157,21 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
 
 def basin_covariance(outcome: SearchOutcome, settings: SearchSettings | None = None
                      ) -> np.ndarray:
-    """(6, 6) the second moment of the basin check's end poses about the winner (xi of
-    `dream.pnp`), plus (`RESOLUTION_FRACTION` x the return limits)^2 on the diagonal: a
-    restart that ends within `basin_return_m` / `basin_return_rad` counts as returned, so the
-    check does not resolve the pose below that. The search's own 1-sigma."""
+    """(6, 6) the search's own 1-sigma: the second moment about the winner (xi of `dream.pnp`)
+    of the basin check's restarts that returned to it (of all of them where none did: then
+    the pose is not resolved), plus (`RESOLUTION_FRACTION` x the return limits)^2 on the
+    diagonal: a restart that ends within `basin_return_m` / `basin_return_rad` counts as
+    returned, so the check does not resolve the pose below that. The restarts that ended
+    elsewhere are the verdict's basin finding, not spread of this pose."""
     settings = settings or SearchSettings()
-    xi = np.array([increment_between(outcome.best.T_cam_base, T) for T in outcome.basin_ends])
-    if not len(xi):
+    T_best = outcome.best.T_cam_base
+    ends = outcome.basin_ends
+    if not len(ends):
         raise InputError("the coarse search ran no basin check, so it has no 1-sigma",
                          fix="set basin_starts above 0")
+    returned = [T for T in ends if pose_distance(T, T_best)[0] <= settings.basin_return_m
+                and pose_distance(T, T_best)[1] <= settings.basin_return_rad]
+    xi = np.array([increment_between(T_best, T) for T in (returned or ends)])
     resolution = np.repeat([settings.basin_return_rad, settings.basin_return_m], 3) \
         * RESOLUTION_FRACTION
     return xi.T @ xi / len(xi) + np.diag(resolution ** 2)

@@ -216,13 +216,19 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         f"{scores.max():.3f})")
     scales = _Scales(P, meshes, masks, camera, settings, usable, held)
     candidates = _refined(scales, T_all, scores, sources, settings)
-    candidates[0] = _finished(candidates[0], P, meshes, masks, camera, settings, usable, scales)
+    finish = _finish_scales(P, meshes, masks, camera, settings, usable, scales)
+
+    def finished(T: np.ndarray) -> np.ndarray:
+        return T if finish is None else finish.refine(T)
+
+    T_best = finished(candidates[0].T_cam_base)
+    candidates[0] = replace(candidates[0], T_cam_base=T_best, iou=scales.iou(T_best))
     best = candidates[0]
     rival = next((c for c in candidates[1:] if not _close(
         c.T_cam_base, best.T_cam_base, settings.rival_m, settings.rival_rad)), None)
     say(f"refined the {len(candidates)} best distinct hypotheses: best IoU {best.iou:.3f}"
         f"{f', best rival {rival.iou:.3f}' if rival is not None else ''}")
-    ends = _basin_ends(scales, best.T_cam_base, settings, rng)
+    ends = _basin_ends(lambda T: finished(scales.refine(T)), best.T_cam_base, settings, rng)
     returned = sum(_close(T, best.T_cam_base, settings.basin_return_m,
                           settings.basin_return_rad) for T in ends)
     say(f"basin check: {returned} of {settings.basin_starts} restarts "
@@ -234,16 +240,14 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
                          settings.basin_starts, ends, time.perf_counter() - start)
 
 
-def _finished(best: Candidate, P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
-              camera: CameraIntrinsics, settings: SearchSettings, usable: np.ndarray | None,
-              scales: _Scales) -> Candidate:
-    """The winner refined at `finish_width_px` (capped at the camera's width) as well."""
+def _finish_scales(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
+                   camera: CameraIntrinsics, settings: SearchSettings,
+                   usable: np.ndarray | None, scales: _Scales) -> _Scales | None:
+    """The scale `finish_width_px` (capped at the camera's width); None where it is not finer
+    than the local scales' finest."""
     finish = _Scales(P, meshes, masks, camera, replace(
         settings, local_widths_px=(settings.finish_width_px,)), usable, scales.held)
-    if finish.levels[-1][0].width <= scales.levels[-1][0].width:
-        return best
-    T = finish.refine(best.T_cam_base)
-    return replace(best, T_cam_base=T, iou=scales.iou(T))
+    return finish if finish.levels[-1][0].width > scales.levels[-1][0].width else None
 
 
 def _refined(scales: _Scales, T_all: np.ndarray, scores: np.ndarray, sources: list[str],
@@ -281,17 +285,17 @@ def _aimed(hypotheses: dict[str, np.ndarray], centre: np.ndarray, uv: np.ndarray
     return np.concatenate(poses), sources
 
 
-def _basin_ends(scales: _Scales, T_best: np.ndarray, settings: SearchSettings,
-                rng: np.random.Generator) -> np.ndarray:
-    """(basin_starts, 4, 4) where refinements started `basin_m` / `basin_rad` from T_best in
-    random directions end."""
+def _basin_ends(refine: Callable[[np.ndarray], np.ndarray], T_best: np.ndarray,
+                settings: SearchSettings, rng: np.random.Generator) -> np.ndarray:
+    """(basin_starts, 4, 4) where `refine` (the winner's own refinement) ends from starts
+    `basin_m` / `basin_rad` from T_best in random directions."""
     T_base_cam = invert_T(T_best)
     ends = []
     for _ in range(settings.basin_starts):
         T = T_base_cam.copy()
         T[:3, 3] += settings.basin_m * _unit(rng)
         T[:3, :3] = T_base_cam[:3, :3] @ R_from_rotvec(settings.basin_rad * _unit(rng))
-        ends.append(scales.refine(invert_T(T)))
+        ends.append(refine(invert_T(T)))
     return np.array(ends).reshape(-1, 4, 4)
 
 

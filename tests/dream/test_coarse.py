@@ -102,9 +102,11 @@ def test_calibrate_without_keypoints_from_a_camera_guess(panda, meshes, tmp_path
     for offset_m, offset_deg in ((0.1, 5.0), (GUESS_M, 20.0)):
         position = invert_T(off_by(T_true, offset_m, np.deg2rad(offset_deg), 3))[:3, 3]
         out = tmp_path / f"r{offset_m}.json"
+        overlays = tmp_path / f"overlays{offset_m}"
         code = main(["calibrate", "--data", str(tmp_path / "data"), "--out", str(out),
                      "--camera-guess", ",".join(f"{v:.3f}" for v in position),
-                     "--look-at", ",".join(f"{v:.3f}" for v in TARGET + [0.05, -0.05, 0.0])])
+                     "--look-at", ",".join(f"{v:.3f}" for v in TARGET + [0.05, -0.05, 0.0]),
+                     "--overlays", str(overlays)])
         printed, err = capsys.readouterr()
         assert code == 0, err
         assert "no keypoints: searching the camera pose" in printed and "search:" in err
@@ -115,6 +117,7 @@ def test_calibrate_without_keypoints_from_a_camera_guess(panda, meshes, tmp_path
         assert start["evidence"] == "motion masks" and "panda_link0" in start["left_out_links"]
         assert start["iou"] > 0.8 and doc["keypoints_used"] == 0 and doc["rmse_px"] is None
         assert doc["quality"]["verdict"] in ("good", "check")
+        assert (overlays / "summary.png").is_file() and len(list(overlays.glob("*.png"))) > 1
         sigma = np.linalg.norm(doc["sigma_camera_position_base_m"])
         assert 0 < sigma < 0.05
 
