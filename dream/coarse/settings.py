@@ -47,7 +47,7 @@ class SearchSettings:
 
     guess_sigma_m: float = 0.3
     guess_sigma_rad: float = float(np.deg2rad(20.0))
-    guess_samples: int = 600
+    guess_samples: int = 2000
     shell_directions: int = 160
     shell_distances: tuple[float, ...] = (0.5, 0.75, 1.1, 1.6, 2.4, 3.5)
     shell_rolls: int = 12
@@ -56,7 +56,7 @@ class SearchSettings:
     surface_points: int = 800
     coarse_width_px: int = 64
     batch: int = 256
-    local_starts: int = 16
+    local_starts: int = 48
     distinct_m: float = 0.1
     distinct_rad: float = float(np.deg2rad(8.0))
     local_widths_px: tuple[int, ...] = (80, 160)
