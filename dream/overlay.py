@@ -281,6 +281,8 @@ def write_result_overlays(sequence, robot, obs, result, out_dir, doc: dict | Non
     keypoint_poses = [result.T_cam_base_of_frame(i) for i in range(n)]
     poses = keypoint_poses if doc is None else [_pose_or_none(T) for T in written_poses(doc)]
     outliner = _Outliner(sequence, robot)
+    # a result found without keypoints (no observations): the outline alone
+    edges = robot.skeleton_edges if obs.uv.shape[1] == len(robot.keypoint_names) else ()
     summary = blank_image(cam.width, cam.height)
     moved_any = False
     with staged_directory(out_dir) as stage:
@@ -289,13 +291,13 @@ def write_result_overlays(sequence, robot, obs, result, out_dir, doc: dict | Non
             uv_proj = np.full(obs.uv[i].shape, np.nan) if T is None else \
                 project(camera, transform_points(T, obs.P_base[i]))
             image = outliner.draw(_frame_canvas(sequence, frame), camera, i, T)
-            if keypoint_poses[i] is not None and T is not None:
+            if keypoint_poses[i] is not None and T is not None and edges:
                 uv_keypoint_pose = project(camera, transform_points(keypoint_poses[i],
                                                                     obs.P_base[i]))
                 if np.nanmax(np.linalg.norm(uv_keypoint_pose - uv_proj, axis=-1)) > MOVED_PX:
                     moved_any = True
-                    image = draw_faint_skeleton(image, uv_keypoint_pose, robot.skeleton_edges)
-            image = draw_skeleton(image, uv_proj, robot.skeleton_edges)
+                    image = draw_faint_skeleton(image, uv_keypoint_pose, edges)
+            image = draw_skeleton(image, uv_proj, edges)
             image = draw_observations(image, obs.uv[i], uv_proj, result.inlier[i])
             image = draw_confidences(image, obs.uv[i], obs.confidence[i])
             _write_png(stage / f"{frame.name}.result.png", image)
