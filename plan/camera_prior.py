@@ -14,17 +14,15 @@ from pathlib import Path
 import numpy as np
 
 from dream.camera import CameraIntrinsics
+from dream.coarse.hypotheses import around, guess_pose
 from dream.errors import InputError
 from dream.io import fields
 from dream.result import FIX_RESULT, read_result
-from dream.transforms import R_from_rotvec, check_pose, invert_T, look_at
+from dream.transforms import check_pose, invert_T
 
 # a rough position guess: 1-sigma per axis when none is given
 DEFAULT_POSITION_SIGMA_M = 0.05
 DEFAULT_ROTATION_SIGMA_RAD = float(np.deg2rad(3.0))
-MIN_LOOK_DISTANCE_M = 0.05   # the look-at point must lie at least this far from the camera
-NEAR_VERTICAL_COS = 0.99     # a view this close to straight down (or up) takes base x as up
-BASE_X = np.array([1.0, 0.0, 0.0])
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,15 +62,8 @@ class CameraPrior:
         """(count, 4, 4) extrinsics drawn from the uncertainty; the first is the stated one."""
         if count < 1:
             raise InputError(f"need at least one camera sample, got {count}")
-        T_base_cam = invert_T(self.T_cam_base)
-        out = [self.T_cam_base]
-        for _ in range(count - 1):
-            T = T_base_cam.copy()
-            T[:3, :3] = T_base_cam[:3, :3] @ R_from_rotvec(
-                rng.normal(0.0, self.rotation_sigma_rad, 3))
-            T[:3, 3] += rng.normal(0.0, self.position_sigma_m, 3)
-            out.append(invert_T(T))
-        return np.array(out)
+        return around(self.T_cam_base, self.position_sigma_m, self.rotation_sigma_rad, count,
+                      rng)
 
 
 def prior_from_look_at(position_base_m: np.ndarray, target_base_m: np.ndarray,
@@ -83,13 +74,7 @@ def prior_from_look_at(position_base_m: np.ndarray, target_base_m: np.ndarray,
     level, or for a camera looking (nearly) straight down or up, the image up along base x."""
     position = np.asarray(position_base_m, float)
     target = np.asarray(target_base_m, float)
-    distance = np.linalg.norm(target - position)
-    if distance < MIN_LOOK_DISTANCE_M:
-        raise InputError(f"the camera at {position.tolist()} and the point it looks at "
-                         f"{target.tolist()} coincide",
-                         fix="give --look-at a point on the robot, metres in the base frame")
-    vertical = abs((target - position)[2]) / distance > NEAR_VERTICAL_COS
-    T = look_at(position, target, up_base=BASE_X) if vertical else look_at(position, target)
+    T = guess_pose(position, target)
     return CameraPrior(camera, T, position_sigma_m, rotation_sigma_rad,
                        f"position {position.tolist()} looking at {target.tolist()}")
 

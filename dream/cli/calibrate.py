@@ -14,7 +14,7 @@ from dream.cli.calibrate_report import (
     add_polish,
     add_quality,
 )
-from dream.cli.calibrate_write import check_outputs, finish, refined_or_kept
+from dream.cli.calibrate_write import check_outputs, finish, refined_or_kept, result_document
 from dream.cli.observe import observe
 from dream.cli.options import (
     AUTO,
@@ -155,8 +155,6 @@ def _check_refine(refine: str, frames: str, polish: bool, exclude_links: str | N
                          fix="choose one: --polish with masks, --refine edges without")
 
 
-
-
 def refine_mode(request: CalibrateRequest, seq) -> str:
     """What `--refine` does with this data: with --polish, the polish; `auto` polishes the
     silhouettes against the data's masks when it has them (as --polish), and aligns edges (the
@@ -182,7 +180,6 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     and the --overlays folder appear together or not at all."""
     from dream.pipeline import calibrate
     from dream.provenance import data_record
-    from dream.result import result_to_dict
 
     out = out or sys.stdout
     settings = request.solver_settings()
@@ -215,11 +212,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     if extension is not None:
         seq, robot, obs = _apply_extension(request, extension, seq, robot, obs, out)
     result = calibrate(seq, obs, request.frames, settings)
-    doc = result_to_dict(result, obs, robot=request.robot or seq.robot)
-    doc["data"] = data_doc
-    doc["settings"] = {k: v for k, v in vars(request).items() if k != "loaded_model"}
-    if readings_doc is not None:
-        doc["joint_readings"] = readings_doc
+    doc = result_document(request, seq, result, obs, data_doc, readings_doc)
     if extension is not None:
         doc["model_extension"] = {"file": str(request.model_extension),
                                   "effects": extension.to_dict()["effects"],

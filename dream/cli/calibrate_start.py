@@ -103,11 +103,11 @@ def start_without_detector(request, seq, out: TextIO):
 
 def start_doc(outcome, inputs, guess, seq) -> dict:
     """RESULT.json's `start` object: how the pose was searched and how clearly it won."""
-    from dream.coarse.search import pose_distance
+    from dream.metrics import pose_errors
 
     rival = outcome.rival
-    distance = None if rival is None else pose_distance(rival.T_cam_base,
-                                                        outcome.best.T_cam_base)
+    distance = None if rival is None else [float(v) for v in pose_errors(
+        rival.T_cam_base, outcome.best.T_cam_base)]
     return {"method": "silhouette search", "hypotheses": guess.description,
             "hypotheses_scored": outcome.hypotheses, "evidence": inputs.source,
             "frames": [seq.frames[int(i)].name for i in inputs.frames],
@@ -129,7 +129,7 @@ def with_cue_term(doc: dict, T_other: np.ndarray | None) -> tuple[dict, tuple[fl
     when the edges' was written) differs from the pose written, its covariance gains the
     outer product of that difference (an error both frames and links share, which no
     jackknife sees); returns the document and the difference (m, rad), None without one."""
-    from dream.coarse.search import pose_distance
+    from dream.metrics import pose_errors
     from dream.pnp import increment_between
     from dream.refined_uncertainty import set_covariance
 
@@ -140,7 +140,8 @@ def with_cue_term(doc: dict, T_other: np.ndarray | None) -> tuple[dict, tuple[fl
     set_covariance(doc, np.asarray(doc["covariance_xi"]) + np.outer(delta, delta))
     doc["uncertainty"]["cue_disagreement_xi"] = delta.tolist()
     doc["uncertainty"]["method"] += " + the image cues' disagreement"
-    return doc, pose_distance(T, T_other)
+    m, rad = pose_errors(T, T_other)
+    return doc, (float(m), float(rad))
 
 
 def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO) -> dict:
@@ -164,24 +165,19 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO)
     return quality.to_dict()
 
 
-def run_search(request, seq, data_doc: dict, readings_doc: dict | None,
-                refine: str, paths, out: TextIO) -> dict:
+def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: str, paths,
+               out: TextIO) -> dict:
     """`dream calibrate` without keypoints (`dream.cli.calibrate_start`)."""
     from dream.cli.calibrate_report import add_polish
-    from dream.cli.calibrate_write import finish
-    from dream.result import result_to_dict
+    from dream.cli.calibrate_write import finish, result_document
 
     if request.model_extension:
         raise InputError("--model-extension corrects a keypoint calibration, and no keypoints "
                          "are used here", request.model_extension,
                          "drop --model-extension, or give --model")
     robot, result, obs, outcome, inputs, guess = start_without_detector(request, seq, out)
-    doc = result_to_dict(result, obs, robot=request.robot or seq.robot)
+    doc = result_document(request, seq, result, obs, data_doc, readings_doc)
     doc["rmse_px"] = None
-    doc["data"] = data_doc
-    doc["settings"] = {k: v for k, v in vars(request).items() if k != "loaded_model"}
-    if readings_doc is not None:
-        doc["joint_readings"] = readings_doc
     doc["start"] = start_doc(outcome, inputs, guess, seq)
     doc["uncertainty"]["method"] = ("spread of the search's restarts around the pose found "
                                     "(the basin check)")

@@ -32,8 +32,21 @@ def refined_or_kept(request, refine, doc: dict, out: TextIO) -> dict:
                                  "reason": reason}}
 
 
-def finish(request, seq, robot, obs, result, doc: dict, paths,
-            out: TextIO) -> None:
+def result_document(request, seq, result, obs, data_doc: dict,
+                    readings_doc: dict | None) -> dict:
+    """RESULT.json's document of `result` (`dream.result.result_to_dict`) with the data's
+    record, the request's settings and, where the joint log was interpolated, how."""
+    from dream.result import result_to_dict
+
+    doc = result_to_dict(result, obs, robot=request.robot or seq.robot)
+    doc["data"] = data_doc
+    doc["settings"] = {k: v for k, v in vars(request).items() if k != "loaded_model"}
+    if readings_doc is not None:
+        doc["joint_readings"] = readings_doc
+    return doc
+
+
+def finish(request, seq, robot, obs, result, doc: dict, paths, out: TextIO) -> None:
     """Write the files, print the summary and, where the data has them, the truth errors."""
     from dream.pipeline import truth_poses
 

@@ -21,18 +21,24 @@ import numpy as np
 
 from dream.calibration import CalibrationResult, FrameSolution, Observations
 from dream.coarse.hypotheses import around, fibonacci_directions, shell
-from dream.coarse.search import SearchOutcome, pose_distance, search
+from dream.coarse.search import SearchOutcome, search, within
 from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
 from dream.pnp import NoSolution, PoseFit, increment_between
 from dream.polish.objective import evenly_spaced
 from dream.robot import Robot
 from dream.sequence import Sequence
-from dream.silhouette import load_robot_meshes, static_links, vertices_in_base, without_links
+from dream.silhouette import (
+    RobotMeshes,
+    load_robot_meshes,
+    static_links,
+    vertices_in_base,
+    without_links,
+)
 
 log = logging.getLogger(__name__)
 
-GUESS, SHELL, DETECTOR = "guess", "shell", "detector"
+GUESS, SHELL = "guess", "shell"
 DATA_MASKS, MOTION_MASKS = "the data's masks", "motion masks"
 RESOLUTION_FRACTION = 0.5   # of the basin check's return limits: the search's 1-sigma floor
 MOTION_CANDIDATES = 3   # frames tried for motion masks per search frame (evenly spaced)
@@ -61,7 +67,7 @@ class SearchMasks:
     """What the search compares: the meshes (without links the masks do not show), the chosen
     frames' indices, joints (n, J) and masks (n, H, W), the masks' source, links left out."""
 
-    meshes: object
+    meshes: RobotMeshes
     frames: np.ndarray
     joints: np.ndarray
     masks: np.ndarray
@@ -112,12 +118,11 @@ def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> 
                        static)
 
 
-def hypotheses_for(guess: CameraGuess, inputs: SearchMasks, settings: SearchSettings,
-                   detector_T: np.ndarray | None = None) -> tuple[dict[str, np.ndarray],
-                                                                  tuple[str, ...]]:
+def hypotheses_for(guess: CameraGuess, inputs: SearchMasks, settings: SearchSettings
+                   ) -> tuple[dict[str, np.ndarray], tuple[str, ...]]:
     """The hypotheses of a guess (`around` it) or of the automatic search (a `shell` around
-    the robot's moving geometry, sized by it), plus a detector's pose; and the sources scored
-    only aimed at the robot."""
+    the robot's moving geometry, sized by it), and the sources scored only aimed at the
+    robot."""
     out: dict[str, np.ndarray] = {}
     aimed_only: tuple[str, ...] = ()
     rng = np.random.default_rng(settings.seed)
@@ -132,13 +137,11 @@ def hypotheses_for(guess: CameraGuess, inputs: SearchMasks, settings: SearchSett
                                                                settings.min_elevation_sin),
                            settings.shell_distances, settings.shell_rolls)
         aimed_only = (SHELL,)
-    if detector_T is not None:
-        out[DETECTOR] = np.asarray(detector_T, float)[None]
     return out, aimed_only
 
 
 def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
-                 settings: SearchSettings | None = None, detector_T: np.ndarray | None = None,
+                 settings: SearchSettings | None = None,
                  progress: Callable[[str], None] | None = None
                  ) -> tuple[SearchOutcome, SearchMasks]:
     """The coarse search of a fixed-camera `sequence` (module doc)."""
@@ -148,7 +151,7 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
         progress(f"{inputs.source} of {len(inputs.frames)} frames"
                  + (f" (left out, never moving: {', '.join(inputs.left_out)})"
                     if inputs.left_out else ""))
-    hypotheses, aimed_only = hypotheses_for(guess, inputs, settings, detector_T)
+    hypotheses, aimed_only = hypotheses_for(guess, inputs, settings)
     outcome = search(inputs.meshes, inputs.joints, inputs.masks, sequence.camera, hypotheses,
                      settings, aimed_only=aimed_only, held=inputs.source == MOTION_MASKS,
                      progress=progress)
@@ -169,8 +172,8 @@ def basin_covariance(outcome: SearchOutcome, settings: SearchSettings | None = N
     if not len(ends):
         raise InputError("the coarse search ran no basin check, so it has no 1-sigma",
                          fix="set basin_starts above 0")
-    returned = [T for T in ends if pose_distance(T, T_best)[0] <= settings.basin_return_m
-                and pose_distance(T, T_best)[1] <= settings.basin_return_rad]
+    returned = [T for T in ends
+                if within(T, T_best, settings.basin_return_m, settings.basin_return_rad)]
     xi = np.array([increment_between(T_best, T) for T in (returned or ends)])
     resolution = np.repeat([settings.basin_return_rad, settings.basin_return_m], 3) \
         * RESOLUTION_FRACTION

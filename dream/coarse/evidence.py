@@ -115,19 +115,31 @@ def held_pixels(rendered: np.ndarray) -> np.ndarray:
     return np.asarray(rendered, bool).mean(axis=-3) > MEDIAN_SHARE
 
 
+def pixel_hits(P_cam: np.ndarray, camera: CameraIntrinsics
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The nearest pixel (u, v) of camera-frame points (..., 3) and whether it lies in
+    `camera`'s image; points behind the camera (or nearer it than `MIN_DEPTH_M`) or outside
+    get (0, 0) and False.
+
+    >>> camera = CameraIntrinsics(10.0, 10.0, 1.5, 1.5, 4, 4)
+    >>> [a.tolist() for a in pixel_hits(np.array([[0.1, 0.0, 1.0], [0.0, 0.0, -1.0]]), camera)]
+    [[2, 0], [2, 0], [True, False]]
+    """
+    P_cam = np.asarray(P_cam, dtype=float)
+    uv = np.rint(project(camera, P_cam))
+    with np.errstate(invalid="ignore"):
+        inside = (P_cam[..., 2] >= MIN_DEPTH_M) & (uv[..., 0] >= 0) & (
+            uv[..., 0] <= camera.width - 1) & (uv[..., 1] >= 0) & (uv[..., 1] <= camera.height - 1)
+    u = np.where(inside, np.nan_to_num(uv[..., 0]), 0).astype(np.int64)
+    v = np.where(inside, np.nan_to_num(uv[..., 1]), 0).astype(np.int64)
+    return u, v, inside
+
+
 def held_vertices(P_frames: np.ndarray, T_cam_base: np.ndarray, camera: CameraIntrinsics,
                   held: np.ndarray) -> np.ndarray:
     """(V,) the vertices P_frames (F, V, 3) that project into the `held` pixels (h, w) at
     `camera`'s size in more than `MEDIAN_SHARE` of the frames, seen from T_cam_base."""
-    P_cam = P_frames @ T_cam_base[:3, :3].T + T_cam_base[:3, 3]
-    P_cam[P_cam[..., 2] < MIN_DEPTH_M] = np.nan
-    uv = np.rint(project(camera, P_cam))
-    h, w = held.shape
-    with np.errstate(invalid="ignore"):
-        inside = (uv[..., 0] >= 0) & (uv[..., 0] <= w - 1) & (uv[..., 1] >= 0) & (
-            uv[..., 1] <= h - 1)
-    u = np.where(inside, np.nan_to_num(uv[..., 0]), 0).astype(np.int64)
-    v = np.where(inside, np.nan_to_num(uv[..., 1]), 0).astype(np.int64)
+    u, v, inside = pixel_hits(P_frames @ T_cam_base[:3, :3].T + T_cam_base[:3, 3], camera)
     return (inside & held[v, u]).mean(axis=0) > MEDIAN_SHARE
 
 
@@ -145,16 +157,11 @@ def splat_iou(points: np.ndarray, masks: np.ndarray, camera: CameraIntrinsics,
     if T.ndim != 3 or T.shape[1:] != (4, 4):
         raise InputError(f"hypotheses have shape {T.shape}, expected (B, 4, 4)")
     B = len(T)
-    P_cam = np.einsum("bij,fsj->bfsi", T[:, :3, :3], points) + T[:, None, None, :3, 3]
-    P_cam[P_cam[..., 2] < MIN_DEPTH_M] = np.nan
-    uv = np.rint(project(camera, P_cam))
-    with np.errstate(invalid="ignore"):
-        ok = (uv[..., 0] >= 0) & (uv[..., 0] <= w - 1) & (uv[..., 1] >= 0) & (
-            uv[..., 1] <= h - 1)
-    cell = np.where(ok, np.nan_to_num(uv[..., 1]) * w + np.nan_to_num(uv[..., 0]), 0)
+    u, v, ok = pixel_hits(np.einsum("bij,fsj->bfsi", T[:, :3, :3], points)
+                          + T[:, None, None, :3, 3], camera)
     plane = (np.arange(B)[:, None, None] * F + np.arange(F)[None, :, None]) * (h * w)
     hit = np.zeros(B * F * h * w, bool)
-    hit[(plane + cell.astype(np.int64))[ok]] = True
+    hit[(plane + v * w + u)[ok]] = True
     hit = hit.reshape(B, F, h * w)
     if held:
         hit &= ~held_pixels(hit[:, :, None, :])

@@ -1,7 +1,7 @@
 """The coarse search: many camera hypotheses scored on the robot's masks, the best few refined,
 one chosen, and how clearly the images chose it (pure).
 
-1. Every hypothesis (around a guess, on a shell around the robot, a detector's pose) is aimed
+1. Every hypothesis (around a guess, on a shell around the robot) is aimed
    at the robot (`dream.coarse.hypotheses.aim`) and scored by `splat_iou` at
    `coarse_width_px`.
 2. The `local_starts` best, no two within `distinct_m` and `distinct_rad` of each other, are
@@ -36,11 +36,12 @@ from dream.coarse.evidence import (
 from dream.coarse.hypotheses import aim
 from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
+from dream.metrics import pose_errors
 from dream.polish.objective import scaled_camera, shrink_mask
 from dream.polish.refine import refine_pose
 from dream.polish.settings import PolishSettings
 from dream.silhouette import RobotMeshes, render_points, silhouette_iou, vertices_in_base
-from dream.transforms import R_from_rotvec, invert_T, rotation_angle_between
+from dream.transforms import R_from_rotvec, invert_T
 
 log = logging.getLogger(__name__)
 
@@ -84,13 +85,6 @@ class SearchOutcome:
         return self.best.iou - (self.rival.iou if self.rival is not None else 0.0)
 
 
-def pose_distance(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
-    """(camera-centre distance m, rotation angle rad) between two T_cam_base."""
-    c_a, c_b = invert_T(T_a)[:3, 3], invert_T(T_b)[:3, 3]
-    return (float(np.linalg.norm(c_a - c_b)),
-            float(rotation_angle_between(T_a[:3, :3], T_b[:3, :3])))
-
-
 def distinct_best(T: np.ndarray, scores: np.ndarray, count: int, distinct_m: float,
                   distinct_rad: float) -> list[int]:
     """Indices of the `count` highest `scores`, skipping any within `distinct_m` and
@@ -102,16 +96,17 @@ def distinct_best(T: np.ndarray, scores: np.ndarray, count: int, distinct_m: flo
     """
     taken: list[int] = []
     for i in np.argsort(-scores, kind="stable"):
-        if all(not _close(T[i], T[j], distinct_m, distinct_rad) for j in taken):
+        if all(not within(T[i], T[j], distinct_m, distinct_rad) for j in taken):
             taken.append(int(i))
             if len(taken) == count:
                 break
     return taken
 
 
-def _close(T_a: np.ndarray, T_b: np.ndarray, limit_m: float, limit_rad: float) -> bool:
-    m, rad = pose_distance(T_a, T_b)
-    return m <= limit_m and rad <= limit_rad
+def within(T_a: np.ndarray, T_b: np.ndarray, limit_m: float, limit_rad: float) -> bool:
+    """Whether two T_cam_base lie within `limit_m` (camera centres) and `limit_rad`."""
+    m, rad = pose_errors(T_a, T_b)
+    return bool(m <= limit_m and rad <= limit_rad)
 
 
 class _Scales:
@@ -167,8 +162,8 @@ def coarse_scores(points: np.ndarray, masks: np.ndarray, camera: CameraIntrinsic
 def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
            camera: CameraIntrinsics, hypotheses: dict[str, np.ndarray],
            settings: SearchSettings | None = None, usable: np.ndarray | None = None,
-           aimed_only: tuple[str, ...] = (), as_given_only: tuple[str, ...] = (),
-           held: bool = False, progress: Callable[[str], None] | None = None) -> SearchOutcome:
+           aimed_only: tuple[str, ...] = (), held: bool = False,
+           progress: Callable[[str], None] | None = None) -> SearchOutcome:
     """The camera pose whose robot silhouettes best explain `masks` (module doc).
 
     Args:
@@ -176,8 +171,7 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         joints: (F, J) the frames' joints in `meshes.robot`'s order.
         masks: (F, H, W) bool robot masks at `camera`'s size.
         hypotheses: source name -> (n, 4, 4) T_cam_base; each is scored as given and aimed at
-            the robot, those of a source in `aimed_only` only aimed, those in
-            `as_given_only` only as given.
+            the robot, those of a source in `aimed_only` only aimed.
         usable: (V,) bool, the vertices whose outline is matched (default all).
         held: the masks are motion masks, which miss what the robot covers in most frames
             (`dream.coarse.evidence.held_pixels`).
@@ -210,7 +204,7 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     f, v, u = np.nonzero(coarse)
     centre = points.reshape(-1, 3).mean(axis=0)
     T_all, sources = _aimed(hypotheses, centre, np.array([u.mean(), v.mean()]), coarse_camera,
-                            aimed_only, as_given_only)
+                            aimed_only)
     scores = coarse_scores(points, coarse, coarse_camera, T_all, settings.batch, held)
     say(f"scored {len(T_all)} camera hypotheses at {width} px (best coarse IoU "
         f"{scores.max():.3f})")
@@ -224,17 +218,17 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     T_best = finished(candidates[0].T_cam_base)
     candidates[0] = replace(candidates[0], T_cam_base=T_best, iou=scales.iou(T_best))
     best = candidates[0]
-    rival = next((c for c in candidates[1:] if not _close(
+    rival = next((c for c in candidates[1:] if not within(
         c.T_cam_base, best.T_cam_base, settings.rival_m, settings.rival_rad)), None)
     say(f"refined the {len(candidates)} best distinct hypotheses: best IoU {best.iou:.3f}"
         f"{f', best rival {rival.iou:.3f}' if rival is not None else ''}")
     ends = _basin_ends(lambda T: finished(scales.refine(T)), best.T_cam_base, settings, rng)
-    returned = sum(_close(T, best.T_cam_base, settings.basin_return_m,
+    returned = sum(within(T, best.T_cam_base, settings.basin_return_m,
                           settings.basin_return_rad) for T in ends)
     say(f"basin check: {returned} of {settings.basin_starts} restarts "
         f"{settings.basin_m * 100:.0f} cm / {np.rad2deg(settings.basin_rad):.0f} deg away "
         "returned")
-    counts = {name: len(T) * (1 if name in aimed_only + as_given_only else 2)
+    counts = {name: len(T) * (1 if name in aimed_only else 2)
               for name, T in hypotheses.items()}
     return SearchOutcome(best, rival, tuple(candidates), counts, returned,
                          settings.basin_starts, ends, time.perf_counter() - start)
@@ -270,15 +264,13 @@ def _refined(scales: _Scales, T_all: np.ndarray, scores: np.ndarray, sources: li
 
 
 def _aimed(hypotheses: dict[str, np.ndarray], centre: np.ndarray, uv: np.ndarray,
-           camera: CameraIntrinsics, aimed_only: tuple[str, ...],
-           as_given_only: tuple[str, ...]) -> tuple[np.ndarray, list[str]]:
-    """Every hypothesis as given (unless its source is in `aimed_only`) and aimed (unless in
-    `as_given_only`)."""
+           camera: CameraIntrinsics, aimed_only: tuple[str, ...]
+           ) -> tuple[np.ndarray, list[str]]:
+    """Every hypothesis aimed and, unless its source is in `aimed_only`, as given."""
     poses, sources = [], []
     for name, T in hypotheses.items():
         T = np.asarray(T, float).reshape(-1, 4, 4)
-        variants = (([] if name in as_given_only else [aim(T, centre, uv, camera)])
-                    + ([] if name in aimed_only else [T]))
+        variants = [aim(T, centre, uv, camera)] + ([] if name in aimed_only else [T])
         for V in variants:
             poses.append(V)
             sources += [name] * len(V)

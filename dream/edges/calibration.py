@@ -201,9 +201,9 @@ def refine_with_edges(sequence: Sequence, robot: Robot, T_cam_base: np.ndarray,
     score0 = edge_score(meshes, P, T0, full, settings, usable)
     if score0.points == 0 or score0.agreement * score0.points < settings.min_outline_points:
         raise CannotRefine(f"no image edges near the robot's outline at the start pose "
-                         f"({score0.points} outline points, {score0.agreement:.0%} on an edge)",
-                         sequence.source, "check the images show the robot and the camera "
-                         "and joints belong to them, or use --refine none")
+                           f"({score0.points} outline points, {score0.agreement:.0%} on an "
+                           "edge)", sequence.source, "check the images show the robot and the "
+                           "camera and joints belong to them, or use --refine none")
     T1, trace = align_edges(P, meshes.faces, gray, camera, T0, settings, background, usable,
                            meshes.vertex_link)
     score1 = edge_score(meshes, P, T1, full, settings, usable)

@@ -129,8 +129,8 @@ def refine_frames_with_edges(sequence: Sequence, robot: Robot, result: Calibrati
                                                         strict=True))
             if isinstance(solution.fit, PoseFit) and frame.image_path is not None]
     if not todo:
-        raise CannotRefine("--refine edges needs solved frames with images, and there are none",
-                         sequence.source, "add the images, or use --refine none")
+        raise CannotRefine("--refine edges needs solved frames with images, and there are "
+                           "none", sequence.source, "add the images, or use --refine none")
     meshes, usable, _ = outline_meshes(robot, settings, exclude_links, link_geometry)
     joints = joints_in_robot_order(sequence, robot)
     usable, background, _ = moving_vertices(meshes, joints, usable,

@@ -170,5 +170,3 @@ def sequence_motion_masks(sequence: Sequence, indices: np.ndarray, settings: Mot
                                    background, settings)[0] for i in indices])
     check_motion(masks.reshape(len(masks), -1).mean(axis=1), settings, str(sequence.source))
     return masks
-
-

@@ -187,9 +187,9 @@ def search_camera(camera: CameraIntrinsics, params: PolishSettings) -> CameraInt
 
 
 def refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
-                 camera: CameraIntrinsics, T_cam_base: np.ndarray,
-                 params: PolishSettings, usable: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, int, int]:
+                camera: CameraIntrinsics, T_cam_base: np.ndarray,
+                params: PolishSettings, usable: np.ndarray | None = None
+                ) -> tuple[np.ndarray, int, int]:
     """The silhouette optimum near `T_cam_base` (search resolution already applied).
 
     Args:
@@ -260,7 +260,7 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
                ) -> tuple[np.ndarray, int, int]:
         chosen = evenly_spaced(frames, params.max_search_frames)
         return refine_pose(P_all[chosen], meshes.faces,
-                            np.stack([small_masks[i] for i in chosen]), small, T, settings)
+                           np.stack([small_masks[i] for i in chosen]), small, T, settings)
 
     def search(frames: np.ndarray, T: np.ndarray) -> np.ndarray:
         return refine(frames, T, params)[0]
@@ -284,7 +284,7 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
                                 params.max_search_frames)
     if width < camera.width:          # finish at the camera's own resolution
         T1 = refine_pose(P_all[used_search], meshes.faces, masks[used_search], camera, T1,
-                          replace(params, outer_iterations=params.fine_rounds))[0]
+                         replace(params, outer_iterations=params.fine_rounds))[0]
     iou0, iou1 = ious(np.arange(F), T0), ious(np.arange(F), T1)
     if keypoints is not None:
         rmse0, rmse1 = keypoints.rmse_px(camera, T0), keypoints.rmse_px(camera, T1)

@@ -12,7 +12,7 @@ import numpy as np
 from dream.cli import main
 from dream.coarse.evidence import points_of, splat_iou, surface_samples
 from dream.coarse.hypotheses import around, guess_pose
-from dream.coarse.search import pose_distance, search
+from dream.coarse.search import search
 from dream.coarse.settings import SearchSettings
 from dream.coarse.verdict import search_findings
 from dream.metrics import pose_errors
@@ -61,10 +61,10 @@ def test_search_finds_the_camera_from_a_guess_30_cm_and_20_deg_off(panda, meshes
         outcome = search(meshes, joints, masks, CAMERA,
                          {"guess": around(guess, GUESS_M, GUESS_RAD, SMALL.guess_samples,
                                           np.random.default_rng(seed))}, SMALL)
-        m, rad = pose_distance(outcome.best.T_cam_base, T_true)
+        m, rad = pose_errors(outcome.best.T_cam_base, T_true)
         assert m < 0.005 and rad < np.deg2rad(0.3), (seed, m, np.rad2deg(rad))
         assert outcome.best.iou > 0.9 and outcome.basin_returned == SMALL.basin_starts
-        distance = None if outcome.rival is None else pose_distance(
+        distance = None if outcome.rival is None else pose_errors(
             outcome.rival.T_cam_base, outcome.best.T_cam_base)[0]
         rival = None if outcome.rival is None else outcome.rival.iou
         assert search_findings(outcome.best.iou, rival, distance, outcome.basin_returned,
@@ -80,7 +80,7 @@ def test_masks_that_show_no_robot_give_an_unreliable_verdict(panda, meshes):
     outcome = search(meshes, joints, box, CAMERA, {"guess": around(
         T_true, GUESS_M, GUESS_RAD, 100, np.random.default_rng(0))}, SMALL)
     rival = None if outcome.rival is None else outcome.rival.iou
-    distance = None if outcome.rival is None else pose_distance(
+    distance = None if outcome.rival is None else pose_errors(
         outcome.rival.T_cam_base, outcome.best.T_cam_base)[0]
     levels = [level for level, _ in search_findings(
         outcome.best.iou, rival, distance, outcome.basin_returned, outcome.basin_starts, SMALL)]
