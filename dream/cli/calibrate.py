@@ -66,6 +66,9 @@ class CalibrateRequest(DataOptions):
     camera_guess: str | None = None
     look_at: str | None = None
     guess_sigma: str | None = None
+    mark: str | None = None
+    mark_link: str | None = None
+    mark_offset: str | None = None
     loaded_model: Any = None
 
     def __post_init__(self) -> None:
@@ -77,13 +80,15 @@ class CalibrateRequest(DataOptions):
         self.solver_settings()  # checks --seed, --loss and --loss-scale-px
         _check_refine(self.refine, self.frames, self.polish, self.exclude_links)
         _check_frames(self.base_frame, self.camera_frame)
-        if (self.camera_guess or self.look_at or self.guess_sigma) and not self.searches:
-            raise InputError("--camera-guess, --look-at and --guess-sigma start the search "
-                             "without keypoints, and --model or --use-labels gives keypoints",
-                             fix="drop one of them")
+        if (self.camera_guess or self.look_at or self.guess_sigma or self.mark) \
+                and not self.searches:
+            raise InputError("--camera-guess, --look-at, --guess-sigma and --mark start the "
+                             "search without keypoints, and --model or --use-labels gives "
+                             "keypoints", fix="drop one of them")
         if self.searches:
-            from dream.cli.calibrate_start import camera_guess
+            from dream.cli.calibrate_start import camera_guess, check_mark_options
 
+            check_mark_options(self)
             camera_guess(self.camera_guess, self.look_at, self.guess_sigma)
 
     @property
@@ -327,6 +332,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(metres, base frame)")
     p.add_argument("--guess-sigma", metavar="METRES,DEGREES",
                    help="how rough --camera-guess is, 1-sigma per axis (default 0.3,20)")
+    p.add_argument("--mark", metavar="MARKS.csv",
+                   help="without keypoints: one point on the end effector clicked in some "
+                        "frames (frame,u,v rows; dream mark writes them), tracked through the "
+                        "recording; its pose over time is the centre of the search")
+    p.add_argument("--mark-link", metavar="LINK",
+                   help="with --mark: the URDF link the marked point is fixed to")
+    p.add_argument("--mark-offset", metavar="X,Y,Z",
+                   help="with --mark: the point in --mark-link's frame, metres (default 0,0,0)")
     p.add_argument("--loss", choices=("huber", "cauchy", "l2"), default="huber",
                    help="robust loss of the keypoint fit (default: %(default)s)")
     p.add_argument("--loss-scale-px", type=float, default=RobustLoss().scale_px,

@@ -17,6 +17,36 @@ from dream.errors import InputError
 FIX_GUESS = ("give --camera-guess X,Y,Z --look-at X,Y,Z (metres, base frame: where the camera "
              "is and a point on the robot it looks at) or --camera-guess RESULT.json")
 FIX_SIGMA = "give --guess-sigma METRES,DEGREES, e.g. 0.3,20"
+FIX_MARK = ("give --mark MARKS.csv --mark-link LINK [--mark-offset X,Y,Z] (the clicked point, "
+            "metres in that link's frame)")
+
+
+def check_mark_options(request) -> None:
+    """`--mark` with its link, its offset's numbers, and not with a camera guess (before any
+    reading)."""
+    if request.mark is None:
+        if request.mark_link is not None or request.mark_offset is not None:
+            raise InputError("--mark-link and --mark-offset describe the point of --mark, and "
+                             "no --mark was given", fix=FIX_MARK)
+        return
+    if request.mark_link is None:
+        raise InputError("--mark needs --mark-link: the link the clicked point is fixed to",
+                         fix=FIX_MARK)
+    if request.camera_guess is not None or request.look_at is not None:
+        raise InputError("--mark and --camera-guess both say where to search", fix="give one")
+    if request.mark_offset is not None:
+        parse_numbers(request.mark_offset, (3,), "--mark-offset", FIX_MARK)
+
+
+def read_mark(request, seq, robot):
+    """The `Mark` of the options (its link checked against the robot)."""
+    from dream.coarse.mark import Mark, read_marks
+
+    robot.tree.check_link(request.mark_link)
+    offset = (np.zeros(3) if request.mark_offset is None else
+              np.array(parse_numbers(request.mark_offset, (3,), "--mark-offset", FIX_MARK)))
+    frames, uv = read_marks(request.mark, seq)
+    return Mark(request.mark_link, offset, frames, uv)
 
 
 def camera_guess(camera_guess: str | None, look_at: str | None, guess_sigma: str | None):
@@ -86,6 +116,16 @@ def start_without_detector(request, seq, out: TextIO):
                          "use --frames all, or give --model for --frames each")
     guess = camera_guess(request.camera_guess, request.look_at, request.guess_sigma)
     robot = robot_for_search(seq, request)
+    marked = None
+    if request.mark is not None:
+        from dream.coarse.calibration import mark_start
+
+        marked = mark_start(seq, robot, read_mark(request, seq, robot))
+        guess = marked.guess
+        print(f"mark: {marked.clicked} clicked and {len(marked.frames) - marked.clicked} "
+              f"tracked frames, pose over time RMSE {marked.fit.rmse_px:.1f} px; searching "
+              f"within {guess.sigma_m * 100:.0f} cm / {np.rad2deg(guess.sigma_rad):.0f} deg",
+              file=out)
     print(f"no keypoints: searching the camera pose from the robot's silhouettes, "
           f"{guess.description}", file=out)
 
@@ -98,10 +138,10 @@ def start_without_detector(request, seq, out: TextIO):
           f"best IoU {outcome.best.iou:.3f}, best rival "
           f"{'none' if outcome.rival is None else f'{outcome.rival.iou:.3f}'}, "
           f"{outcome.basin_returned} of {outcome.basin_starts} restarts returned", file=out)
-    return robot, result, obs, outcome, inputs, guess
+    return robot, result, obs, outcome, inputs, guess, marked
 
 
-def start_doc(outcome, inputs, guess, seq) -> dict:
+def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
     """RESULT.json's `start` object: how the pose was searched and how clearly it won."""
     from dream.metrics import pose_errors
 
@@ -120,7 +160,18 @@ def start_doc(outcome, inputs, guess, seq) -> dict:
             "basin_starts": outcome.basin_starts,
             "candidates": [{"source": c.source, "iou": c.iou, "coarse_iou": c.coarse_iou}
                            for c in outcome.candidates],
-            "seconds": outcome.seconds}
+            "seconds": outcome.seconds,
+            "mark": None if marked is None else mark_doc(marked, seq)}
+
+
+def mark_doc(marked, seq) -> dict:
+    """RESULT.json's `start.mark`: the mark's frames, its PnP pose and fit."""
+    return {"clicked_frames": marked.clicked,
+            "tracked_frames": len(marked.frames) - marked.clicked,
+            "frames": [seq.frames[int(i)].name for i in marked.frames],
+            "T_cam_base": marked.fit.T_cam_base.tolist(), "rmse_px": marked.fit.rmse_px,
+            "search_sigma_m": marked.guess.sigma_m,
+            "search_sigma_rad": marked.guess.sigma_rad}
 
 
 def with_cue_term(doc: dict, T_other: np.ndarray | None) -> tuple[dict, tuple[float, float]
@@ -144,11 +195,13 @@ def with_cue_term(doc: dict, T_other: np.ndarray | None) -> tuple[dict, tuple[fl
     return doc, (float(m), float(rad))
 
 
-def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO) -> dict:
-    """The verdict on a pose found without keypoints: the search's findings, the cues', and the
-    condition of the pose written (`dream.quality`)."""
+def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
+                   marked=None, camera=None) -> dict:
+    """The verdict on a pose found without keypoints: the search's findings, the cues', the
+    mark's clicks at the pose written (with `--mark`), and the condition of the pose written
+    (`dream.quality`)."""
     from dream.coarse.settings import SearchSettings
-    from dream.coarse.verdict import cues_finding, search_findings
+    from dream.coarse.verdict import cues_finding, mark_finding, search_findings
     from dream.quality import condition_findings, quality_from
 
     s = doc["start"]
@@ -156,6 +209,13 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO)
                                s["basin_returned"], s["basin_starts"], SearchSettings())
     if cue_move is not None:
         findings.append(cues_finding(*cue_move))
+    if marked is not None:
+        from dream.coarse.mark import MarkSettings, click_residuals
+
+        residuals = click_residuals(np.asarray(doc["T_cam_base"]), marked.mark,
+                                    marked.P_clicked_base, camera)
+        s["mark"]["click_residuals_px"] = residuals.tolist()
+        findings.append(mark_finding(residuals, MarkSettings().max_click_residual_px))
     findings += condition_findings(np.asarray(doc["covariance_xi"]),
                                    np.asarray(doc["T_cam_base"]))
     quality = quality_from(0, 0, findings)
@@ -175,10 +235,11 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
         raise InputError("--model-extension corrects a keypoint calibration, and no keypoints "
                          "are used here", request.model_extension,
                          "drop --model-extension, or give --model")
-    robot, result, obs, outcome, inputs, guess = start_without_detector(request, seq, out)
+    robot, result, obs, outcome, inputs, guess, marked = start_without_detector(request, seq,
+                                                                                out)
     doc = result_document(request, seq, result, obs, data_doc, readings_doc)
     doc["rmse_px"] = None
-    doc["start"] = start_doc(outcome, inputs, guess, seq)
+    doc["start"] = start_doc(outcome, inputs, guess, seq, marked)
     doc["uncertainty"]["method"] = ("spread of the search's restarts around the pose found "
                                     "(the basin check)")
     T_other = None
@@ -188,7 +249,7 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
     elif refine == EDGES:
         doc, T_other = _edges_after_search(request, seq, robot, result, obs, doc, out)
     doc, cue_move = with_cue_term(doc, T_other)
-    doc["quality"] = search_quality(doc, cue_move, out)
+    doc["quality"] = search_quality(doc, cue_move, out, marked, seq.camera)
     finish(request, seq, robot, obs, result, doc, paths, out)
     return doc
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from dream.calibration import CalibrationResult, FrameSolution, Observations
 from dream.coarse.hypotheses import around, fibonacci_directions, shell
+from dream.coarse.mark import Mark, MarkSettings, mark_points, mark_pose, mark_sigma, track_mark
 from dream.coarse.search import SearchOutcome, search, within
 from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
@@ -156,6 +157,52 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
                      settings, aimed_only=aimed_only, held=inputs.source == MOTION_MASKS,
                      progress=progress)
     return outcome, inputs
+
+
+@dataclass(frozen=True)
+class MarkStart:
+    """The mark's start: the mark, the guess around its pose, its PnP fit, the frames it is
+    known in (clicked and tracked, indices into the sequence), how many were clicked, and the
+    mark in the base frame at the clicked frames (to check the clicks at the pose found)."""
+
+    mark: Mark
+    guess: CameraGuess
+    fit: PoseFit
+    frames: np.ndarray
+    clicked: int
+    P_clicked_base: np.ndarray
+
+
+def mark_start(sequence: Sequence, robot: Robot, mark: Mark,
+               settings: SearchSettings | None = None,
+               mark_settings: MarkSettings | None = None) -> MarkStart:
+    """The mark tracked through the fixed camera's images and its PnP over time
+    (`dream.coarse.mark`), as a guess searched around within the PnP's own 1-sigma."""
+    import cv2
+
+    from dream.io import load_image
+    from dream.pipeline import joints_in_robot_order
+
+    settings = settings or SearchSettings()
+    mark_settings = mark_settings or MarkSettings()
+    camera = sequence.fixed_camera("find one camera pose from a tracked mark")
+    joints = joints_in_robot_order(sequence, robot)
+
+    def gray(i: int) -> np.ndarray | None:
+        frame = sequence.frames[i]
+        if frame.image_path is None:
+            return None
+        return cv2.cvtColor(load_image(frame, camera), cv2.COLOR_RGB2GRAY)
+
+    P_base = mark_points(robot, joints, mark.link, mark.offset_link_m)
+    frames, uv = track_mark(gray, mark.frames, mark.uv, P_base, mark_settings)
+    fit = mark_pose(P_base[frames], uv, camera)
+    sigma_m, sigma_rad = mark_sigma(fit, mark_settings, settings.guess_sigma_m,
+                                    settings.guess_sigma_rad)
+    guess = CameraGuess(fit.T_cam_base, sigma_m, sigma_rad,
+                        f"around the pose of the mark on {mark.link} ({len(mark.frames)} "
+                        f"clicked, {len(frames) - len(mark.frames)} tracked frames)")
+    return MarkStart(mark, guess, fit, frames, len(mark.frames), P_base[mark.frames])
 
 
 def basin_covariance(outcome: SearchOutcome, settings: SearchSettings | None = None

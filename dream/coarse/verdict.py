@@ -10,6 +10,9 @@ Each finding is (level, one sentence with what to do), as in `dream.quality`:
   `min_gap` of the chosen one's IoU: the images cannot tell the two apart (`unreliable`).
 - **basin**: fewer than `min_basin_share` of the restarts around the chosen pose return to it:
   it is a ridge, not a clear optimum (`check`).
+- **mark**: at the pose written, the mark's clicks lie farther than `max_click_residual_px`
+  (median) from where the mark projects: a click, the mark's link or offset, or the pose is
+  wrong (`check`).
 - **cues**: the written pose (the edge alignment's) and the masks' optimum differ by more than
   a centimetre or a degree: one cue is pulled by something the model lacks (`check`).
 
@@ -72,3 +75,19 @@ def cues_finding(distance_m: float, angle_rad: float) -> Finding | None:
                    f"mm and {np.rad2deg(angle_rad):.2f} deg: something the model lacks (a tool, "
                    "a cable, a shadow) pulls one of them; the 1-sigma includes the disagreement; "
                    "check the overlays, or leave the suspect links out (--exclude-links)")
+
+
+def mark_finding(click_residuals_px: np.ndarray, max_px: float) -> Finding | None:
+    """The mark finding (module doc) of the clicks' pixel distances at the pose written.
+
+    >>> mark_finding(np.array([1.0, 2.0, 3.0]), 10.0) is None
+    True
+    >>> mark_finding(np.array([12.0, 30.0, 3.0]), 10.0)[0]
+    'check'
+    """
+    median = float(np.median(click_residuals_px))
+    if median <= max_px:
+        return None
+    return CHECK, (f"the mark projects {median:.0f} px (median) from where it was clicked at the "
+                   "pose found: a click, --mark-link / --mark-offset or the pose is wrong; check "
+                   "the overlays and the marks")

@@ -1,0 +1,172 @@
+"""One mark on the end effector as a start (`dream.coarse.mark`, `dream calibrate --mark`): the
+marks file, the tracker on a moving dot, the PnP over time (random pose -> project -> solve ->
+compare), and the calibration from five noisy clicks."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from dream.camera import CameraIntrinsics, project
+from dream.cli import main
+from dream.coarse.mark import MarkSettings, mark_pose, mark_sigma, read_marks, track_mark
+from dream.errors import InputError
+from dream.io import read_sequence
+from dream.metrics import pose_errors
+from dream.transforms import look_at, transform_points
+from tests.dream.test_edges import image_dataset
+
+CLICK_NOISE_PX = 2.0
+MARK_LINK, MARK_OFFSET = "panda_hand", np.array([0.0, 0.0, 0.1])   # between the fingers
+
+
+def dot_images(path: np.ndarray, size: tuple[int, int] = (120, 160), seed: int = 0
+               ) -> list[np.ndarray]:
+    """Grey images of a textured background with a black-and-white dot at each (u, v)."""
+    rng = np.random.default_rng(seed)
+    background = cv2.GaussianBlur(rng.uniform(0, 255, size).astype(np.uint8), (0, 0), 3)
+    out = []
+    for u, v in path:
+        image = background.copy()
+        cv2.circle(image, (round(u * 16), round(v * 16)), 6 * 16, 0, -1, cv2.LINE_AA, 4)
+        cv2.circle(image, (round(u * 16), round(v * 16)), 3 * 16, 255, -1, cv2.LINE_AA, 4)
+        out.append(image)
+    return out
+
+
+def test_tracker_follows_a_moving_dot_between_clicks_and_stops_where_it_is_lost():
+    t = np.arange(30)
+    path = np.stack([40 + 2.5 * t, 60 + 10 * np.sin(t / 5)], axis=1)
+    images = dot_images(path)
+    images[25] = np.zeros_like(images[25])          # a lost frame (dropped, blank)
+    P_base = np.zeros((30, 3))                      # a dense recording: the mark barely moves
+    frames, uv = track_mark(lambda i: images[i], np.array([0, 12]), path[[0, 12]], P_base)
+    assert 0 in frames and 12 in frames and 24 in frames
+    assert 25 not in frames and 29 not in frames   # the track stops at the lost frame
+    error = np.linalg.norm(uv - path[frames], axis=1)
+    assert error.max() < 0.5, error
+    # a mark that jumps between frames (a sparse recording): only the clicks remain
+    jumps = np.arange(30)[:, None] * np.array([[0.1, 0.0, 0.0]])
+    frames, _ = track_mark(lambda i: images[i], np.array([0, 12]), path[[0, 12]], jumps)
+    assert frames.tolist() == [0, 12]
+
+
+def test_mark_pose_recovers_random_cameras_from_five_noisy_clicks():
+    camera = CameraIntrinsics(400.0, 400.0, 319.5, 239.5, 640, 480)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        T = look_at(rng.uniform([1.0, -1.0, 0.5], [1.8, 1.0, 1.5]), rng.uniform(-0.1, 0.1, 3)
+                    + [0.0, 0.0, 0.4], rng.uniform(-0.3, 0.3))
+        P = rng.uniform([-0.3, -0.5, 0.1], [0.6, 0.5, 0.8], (5, 3))
+        uv = project(camera, transform_points(T, P)) + rng.normal(0, CLICK_NOISE_PX, (5, 2))
+        fit = mark_pose(P, uv, camera)
+        m, rad = pose_errors(fit.T_cam_base, T)
+        sigma_m, sigma_rad = mark_sigma(fit, MarkSettings(), 0.3, np.deg2rad(20.0))
+        # the search around the mark's pose covers its error
+        assert m < 2 * sigma_m and rad < 2 * sigma_rad, (m, sigma_m, rad, sigma_rad)
+
+
+def test_mark_pose_needs_four_frames_off_one_line():
+    camera = CameraIntrinsics(400.0, 400.0, 319.5, 239.5, 640, 480)
+    T = look_at(np.array([1.5, 0.0, 1.0]), np.zeros(3))
+    with pytest.raises(InputError, match="at least 4"):
+        mark_pose(np.eye(3), project(camera, transform_points(T, np.eye(3))), camera)
+    line = np.linspace(0, 1, 6)[:, None] * np.array([[0.2, 0.1, 0.3]])
+    with pytest.raises(InputError, match="on one line|fixes no camera pose"):
+        mark_pose(line, project(camera, transform_points(T, line)), camera)
+
+
+def marks_file(folder, rows: list[str]):
+    path = folder / "marks.csv"
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def clicks(panda, seq, T_true: np.ndarray, offset: np.ndarray, folder, noise_px: float,
+           count: int = 5):
+    """A marks file of the point at `offset` in `MARK_LINK`'s frame, clicked with `noise_px`
+    in the first `count` frames that show it."""
+    joints = np.stack([f.joints for f in seq.frames])
+    T_link = panda.link_poses(joints, (MARK_LINK,))[:, 0]
+    uv = project(seq.camera, transform_points(T_true, T_link[:, :3, :3] @ offset
+                                              + T_link[:, :3, 3]))
+    uv = uv + np.random.default_rng(1).normal(0, noise_px, uv.shape)
+    chosen = np.flatnonzero(seq.camera.in_image(uv))[:count]
+    assert len(chosen) == count
+    return marks_file(folder, ["frame,u,v"] + [f"{seq.frames[i].name},{uv[i, 0]:.2f},"
+                                               f"{uv[i, 1]:.2f}" for i in chosen])
+
+
+def test_marks_file_errors_name_the_line_and_the_fix(panda, meshes, tmp_path):
+    image_dataset(panda, meshes, tmp_path)
+    seq = read_sequence(tmp_path / "data")
+    frames, uv = read_marks(marks_file(tmp_path, ["frame,u,v", "000003,10,20", "1,5.5,6"]),
+                            seq)
+    assert frames.tolist() == [1, 3] and uv.tolist() == [[5.5, 6.0], [10.0, 20.0]]
+    for rows, message in ((["f,u,v", "1,2,3"], "header"),
+                          (["frame,u,v", "999999,2,3"], "not in"),
+                          (["frame,u,v", "1,2"], "fields"),
+                          (["frame,u,v", "1,a,3"], "numbers"),
+                          (["frame,u,v", "1,2000,3"], "outside"),
+                          (["frame,u,v", "1,2,3", "000001,4,5"], "twice"),
+                          (["frame,u,v"], "no rows")):
+        with pytest.raises(InputError, match=message):
+            read_marks(marks_file(tmp_path, rows), seq)
+
+
+def test_calibrate_from_a_mark_clicked_in_five_frames(panda, meshes, tmp_path, capsys):
+    """Images only, a mark between the fingers clicked (2 px noise) in 5 of 10 frames of random
+    poses (too far apart to track): the search around the mark's pose lands on the camera, and
+    the clicks agree with it."""
+    T_true = image_dataset(panda, meshes, tmp_path)
+    seq = read_sequence(tmp_path / "data")
+    marks = clicks(panda, seq, T_true, MARK_OFFSET, tmp_path, CLICK_NOISE_PX)
+    out = tmp_path / "r.json"
+    code = main(["calibrate", "--data", str(tmp_path / "data"), "--out", str(out), "--mark",
+                 str(marks), "--mark-link", MARK_LINK, "--mark-offset", "0,0,0.1"])
+    printed, err = capsys.readouterr()
+    assert code == 0, err
+    assert "mark: 5 clicked and 0 tracked frames" in printed
+    doc = json.loads(out.read_text())
+    t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
+    assert t_err < 0.01 and r_err < np.deg2rad(0.5), (t_err, np.rad2deg(r_err))
+    mark = doc["start"]["mark"]
+    assert mark["clicked_frames"] == 5 and np.median(mark["click_residuals_px"]) < 5
+    assert "around the pose of the mark on panda_hand" in doc["start"]["hypotheses"]
+    assert doc["quality"]["verdict"] in ("good", "check")
+
+
+def test_a_wrong_mark_offset_is_a_finding(panda, meshes, tmp_path, capsys):
+    """Clicks of one point, --mark-offset of another 15 cm away: the verdict says so."""
+    T_true = image_dataset(panda, meshes, tmp_path)
+    seq = read_sequence(tmp_path / "data")
+    marks = clicks(panda, seq, T_true, np.zeros(3), tmp_path, 0.0)
+    out = tmp_path / "r.json"
+    code = main(["calibrate", "--data", str(tmp_path / "data"), "--out", str(out), "--mark",
+                 str(marks), "--mark-link", MARK_LINK, "--mark-offset", "0,0,0.15",
+                 "--refine", "none"])
+    _, err = capsys.readouterr()
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    warnings = " ".join(doc["quality"]["warnings"])
+    assert doc["quality"]["verdict"] != "good" and "from where it was clicked" in warnings
+
+
+def test_mark_options_are_checked_before_any_work(tmp_path, capsys):
+    cases = [
+        (["--mark", "m.csv"], "--mark-link"),
+        (["--mark-link", "panda_hand"], "no --mark was given"),
+        (["--mark", "m.csv", "--mark-link", "panda_hand", "--camera-guess", "1,0,1",
+          "--look-at", "0,0,0"], "both say where to search"),
+        (["--mark", "m.csv", "--mark-link", "panda_hand", "--mark-offset", "0,0"],
+         "--mark-offset"),
+        (["--use-labels", "--mark", "m.csv", "--mark-link", "panda_hand"], "drop one of them"),
+    ]
+    for extra, message in cases:
+        code = main(["calibrate", "--data", str(tmp_path / "missing"), "--out",
+                     str(tmp_path / "r.json"), *extra])
+        _, err = capsys.readouterr()
+        assert code == 2 and message in err, (extra, err)
