@@ -12,7 +12,18 @@ from collections.abc import Sequence
 from importlib.metadata import entry_points
 
 from dream import __version__
-from dream.cli import calibrate, demo, diagnose, eval, info, masks, overlay, robots, sample
+from dream.cli import (
+    calibrate,
+    demo,
+    diagnose,
+    eval,
+    info,
+    mark,
+    masks,
+    overlay,
+    robots,
+    sample,
+)
 from dream.errors import DreamError
 
 log = logging.getLogger("dream")
@@ -20,7 +31,7 @@ log = logging.getLogger("dream")
 DESCRIPTION = ("`dream` command line: thin wrappers around the library. Every failure is one "
                "line on stderr.")
 ENTRY_POINT_GROUP = "dream.commands"
-CORE_COMMANDS = (robots, info, overlay, masks, calibrate, diagnose, eval, sample,
+CORE_COMMANDS = (robots, info, overlay, masks, mark, calibrate, diagnose, eval, sample,
                  demo)  # help order
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
