@@ -5,21 +5,26 @@ renders: fixed-camera scenes of each `--robots` arm with the `configs/synth/real
 randomisation (clutter, a second robot, a tool or held object, close-ups), `--frames` frames
 each, seeds from `--first-seed`; the robot masks are deleted before calibrating, so only the
 images are read. Each scene is calibrated from a guess `--guess-m` / `--guess-deg` off the
-truth in a random direction (written as a RESULT.json holding only T_cam_base) and, with
-`--auto`, by the automatic search. Printed per scene: error, verdict, 1-sigma, time; then the
-share within `--right-mm` / `--right-deg`, the wrong results called `good`, the right ones
-called `good` or `check`, and how often the truth lies inside the written 95 % ellipsoid.
+truth in a random direction (written as a RESULT.json holding only T_cam_base), with
+`--auto` by the automatic search, and with `--mark-frames N` from a mark on the end effector
+(the last keypoint link's origin) clicked in N frames: its labels plus `--mark-noise-px`.
+Printed per scene: error, verdict, 1-sigma, time; then the share within `--right-mm` /
+`--right-deg`, the wrong results called `good`, the right ones called `good` or `check`, and
+how often the truth lies inside the written 95 % ellipsoid.
 
 real: a recording with a reference extrinsic (scored only), calibrated from `--guesses`
-guesses off it, and with `--auto` once by the automatic search. A recording without a reference
+guesses off it, with `--auto` once by the automatic search, with `--mark` once from marks
+clicked by eye (`dream mark`). A recording without a reference
 (`franka_offline`) takes `--center RESULT.json` (a keypoint-started calibration): the guesses lie
 around its extrinsic, and each result is compared with it and by its polish's IoU over the
 frames that agree.
 
     python benchmarks/coarse_start.py renders [--robots panda,ur5,xarm7] [--scenes 3]
-        [--first-seed 1000] [--frames 30] [--auto]
+        [--first-seed 1000] [--frames 30] [--auto] [--mark-frames 5 --mark-noise-px 2]
     python benchmarks/coarse_start.py real --data ../shared/realdata/panda_teleop [--guesses 10]
     python benchmarks/coarse_start.py real --data ../shared/realdata/franka_offline --center R.json
+    python benchmarks/coarse_start.py real --data ../shared/realdata/panda_teleop \
+        --mark MARKS.csv --mark-link panda_link8
 """
 
 from __future__ import annotations
@@ -77,14 +82,40 @@ def guess_file(T_true: np.ndarray, offset_m: float, offset_rad: float,
     return path
 
 
+def mark_file(data: Path, T_true: np.ndarray, count: int, noise_px: float,
+              rng: np.random.Generator, folder: Path) -> tuple[Path, str]:
+    """Marks of the robot's last keypoint link's origin (the end effector), projected with
+    `T_true` plus `noise_px` per axis, in `count` frames evenly spaced among those showing it."""
+    from dream.camera import project
+    from dream.pipeline import joints_in_robot_order, robot_for
+    from dream.transforms import transform_points
+
+    seq = read_sequence(data)
+    robot = robot_for(seq, None, None)
+    link = robot.keypoint_names[-1]
+    P = robot.link_poses(joints_in_robot_order(seq, robot), (link,))[:, 0, :3, 3]
+    uv = project(seq.camera, transform_points(T_true, P)) + rng.normal(0, noise_px, (len(P), 2))
+    seen = np.flatnonzero(seq.camera.in_image(uv))
+    chosen = seen[np.round(np.linspace(0, len(seen) - 1, count)).astype(int)]
+    path = folder / f"marks_{data.name}.csv"
+    path.write_text("frame,u,v\n" + "".join(f"{seq.frames[i].name},{uv[i, 0]:.2f},"
+                                             f"{uv[i, 1]:.2f}\n" for i in chosen))
+    return path, link
+
+
 def calibrate(data: Path, out: Path, guess: Path | None,
-              T_true: np.ndarray | None = None) -> dict:
-    """One `dream calibrate` without keypoints: its error against `T_true` (default the data's
-    reference), time, verdict, 1-sigma and IoUs."""
+              T_true: np.ndarray | None = None, mark: tuple[Path, str, str] | None = None
+              ) -> dict:
+    """One `dream calibrate` without keypoints (from `guess`, or from `mark`: the marks file,
+    its link and offset): its error against `T_true` (default the data's reference), time,
+    verdict, 1-sigma and IoUs."""
     start = time.perf_counter()
+    marks = {} if mark is None else {"mark": str(mark[0]), "mark_link": mark[1],
+                                     "mark_offset": mark[2]}
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
         doc = run_calibrate(CalibrateRequest(data=str(data), out=str(out),
-                                             camera_guess=None if guess is None else str(guess)))
+                                             camera_guess=None if guess is None else str(guess),
+                                             **marks))
     seconds = time.perf_counter() - start
     T_true = truth_poses(read_sequence(data))[0] if T_true is None else T_true
     T = np.asarray(doc["T_cam_base"])
@@ -95,7 +126,9 @@ def calibrate(data: Path, out: Path, guess: Path | None,
     return {"mm": t_err * 1e3, "deg": float(np.rad2deg(r_err)), "verdict":
             doc["quality"]["verdict"], "sigma_mm": sigma * 1e3, "inside95": inside,
             "seconds": seconds, "iou": doc["start"]["iou"],
-            "polish_iou": doc.get("polish", {}).get("iou_after")}
+            "polish_iou": doc.get("polish", {}).get("iou_after"),
+            "mark_mm": None if mark is None else pose_errors(
+                np.asarray(doc["start"]["mark"]["T_cam_base"]), T_true)[0] * 1e3}
 
 
 def summary(rows: list[dict], right_mm: float, right_deg: float, label: str) -> None:
@@ -116,27 +149,37 @@ def summary(rows: list[dict], right_mm: float, right_deg: float, label: str) -> 
 
 def run_renders(args: argparse.Namespace) -> None:
     rng = np.random.default_rng(args.seed)
-    by_mode: dict[str, list[dict]] = {"guess": [], "auto": []}
+    by_mode: dict[str, list[dict]] = {"guess": [], "auto": [], "mark": []}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         for robot in args.robots.split(","):
             for seed in range(args.first_seed, args.first_seed + args.scenes):
                 data = render_scene(robot, tmp / f"{robot}_{seed}", seed, args.frames)
                 T_true = truth_poses(read_sequence(data))[0]
-                modes = [("guess", guess_file(T_true, args.guess_m, np.deg2rad(args.guess_deg),
-                                              rng, tmp))]
+                modes = [] if args.skip_guess else [("guess", guess_file(
+                    T_true, args.guess_m, np.deg2rad(args.guess_deg), rng, tmp))]
                 if args.auto:
                     modes.append(("auto", None))
+                if args.mark_frames:
+                    modes.append(("mark", None))
                 for mode, guess in modes:
+                    mark = None
+                    if mode == "mark":
+                        path, link = mark_file(data, T_true, args.mark_frames,
+                                               args.mark_noise_px, rng, tmp)
+                        mark = (path, link, "0,0,0")
                     try:
-                        row = calibrate(data, tmp / f"{robot}_{seed}_{mode}.json", guess)
+                        row = calibrate(data, tmp / f"{robot}_{seed}_{mode}.json", guess,
+                                        mark=mark)
                     except DreamError as exc:
                         print(f"{robot} {seed} {mode}: failed: {exc}", flush=True)
                         continue
                     by_mode[mode].append(row)
                     print(f"{robot} {seed} {mode}: {row['mm']:.1f} mm {row['deg']:.2f} deg, "
                           f"{row['verdict']}, 1-sigma {row['sigma_mm']:.1f} mm, IoU "
-                          f"{row['iou']:.3f}, {row['seconds']:.0f} s", flush=True)
+                          f"{row['iou']:.3f}, {row['seconds']:.0f} s"
+                          + ("" if mark is None else f", the mark's own pose "
+                             f"{row['mark_mm']:.0f} mm off"), flush=True)
     for mode, rows in by_mode.items():
         summary(rows, args.right_mm, args.right_deg, mode)
 
@@ -151,12 +194,16 @@ def run_real(args: argparse.Namespace) -> None:
         tmp = Path(tmp)
         guesses = [guess_file(T_true, args.guess_m, np.deg2rad(args.guess_deg), rng, tmp)
                    for _ in range(args.guesses)] + ([None] if args.auto else [])
+        mark = None if args.mark is None else (args.mark, args.mark_link, args.mark_offset)
+        if mark is not None:
+            guesses = [None]
         for k, guess in enumerate(guesses):
-            row = calibrate(data, tmp / f"r{k}.json", guess, T_true)
+            row = calibrate(data, tmp / f"r{k}.json", guess, T_true, mark)
             rows.append(row)
             polish = ("" if row["polish_iou"] is None else
                       f", polish IoU {row['polish_iou']:.3f}")
-            print(f"{'auto' if guess is None else f'guess {k}'}: {row['mm']:.1f} mm "
+            label = "mark" if mark else "auto" if guess is None else f"guess {k}"
+            print(f"{label}: {row['mm']:.1f} mm "
                   f"{row['deg']:.2f} deg{' from the centre' if args.center else ''}, "
                   f"{row['verdict']}, 1-sigma {row['sigma_mm']:.1f} mm, search IoU "
                   f"{row['iou']:.3f}{polish}, {row['seconds']:.0f} s", flush=True)
@@ -179,8 +226,17 @@ def main() -> None:
     r.add_argument("--scenes", type=int, default=3)
     r.add_argument("--first-seed", type=int, default=1000)
     r.add_argument("--frames", type=int, default=30)
+    r.add_argument("--mark-frames", type=int, default=0, help="also calibrate from a mark on "
+                   "the end effector clicked in this many frames (labels plus noise)")
+    r.add_argument("--mark-noise-px", type=float, default=2.0)
+    r.add_argument("--skip-guess", action="store_true", help="not from a guess (only --auto, "
+                   "--mark-frames)")
     sub.choices["real"].add_argument("--data", required=True)
     sub.choices["real"].add_argument("--guesses", type=int, default=10)
+    sub.choices["real"].add_argument("--mark", help="MARKS.csv (clicked by eye): calibrate "
+                                     "once from it instead of from guesses")
+    sub.choices["real"].add_argument("--mark-link")
+    sub.choices["real"].add_argument("--mark-offset", default="0,0,0")
     sub.choices["real"].add_argument("--center", help="RESULT.json: the guesses' centre and "
                                      "the comparison, for data without a reference")
     args = p.parse_args()

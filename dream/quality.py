@@ -228,12 +228,14 @@ def frames_agreement_finding(T_reported: np.ndarray, T_frames: np.ndarray,
 def result_quality(result: CalibrationResult, obs: Observations,
                    refined_by: str | None = None, covariance: np.ndarray | None = None,
                    T_cam_base: np.ndarray | None = None,
-                   T_frames: np.ndarray | None = None) -> Quality:
+                   T_frames: np.ndarray | None = None,
+                   extra: tuple[Finding | None, ...] | list[Finding] = ()) -> Quality:
     """The verdict on a calibration: its detections found and kept, the condition of the pose
     written (`T_cam_base` and its `covariance`: a kept image refinement's own; default the
     keypoint fit's), and, for the one extrinsic of all frames, duplicate frames and a static
     arm; for a per-frame result (`--frames each`), how the frames' poses `T_frames` (F, 4, 4,
-    NaN where none; default the keypoint fits') agree with the reported one."""
+    NaN where none; default the keypoint fits') agree with the reported one; `extra`: more
+    findings (the silhouettes' cross-check of an edge alignment, `dream.coarse.verdict`)."""
     found = obs.found
     detections, kept = int(found.sum()), int(np.sum(result.inlier & found))
     covariance = result.covariance if covariance is None else np.asarray(covariance, float)
@@ -247,4 +249,4 @@ def result_quality(result: CalibrationResult, obs: Observations,
             T_frames = np.stack([np.full((4, 4), np.nan) if (Ti := result.T_cam_base_of_frame(i))
                                  is None else Ti for i in range(len(result.frames))])
         findings.append(frames_agreement_finding(T, T_frames))
-    return quality_from(detections, kept, findings)
+    return quality_from(detections, kept, findings + list(extra))

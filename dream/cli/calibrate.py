@@ -13,6 +13,7 @@ from dream.cli.calibrate_report import (
     add_frame_edges,
     add_polish,
     add_quality,
+    add_silhouette_check,
 )
 from dream.cli.calibrate_write import check_outputs, finish, refined_or_kept, result_document
 from dream.cli.observe import observe
@@ -224,11 +225,14 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
                                   "camera": {"fx": seq.camera.fx, "fy": seq.camera.fy,
                                              "cx": seq.camera.cx, "cy": seq.camera.cy,
                                              "distortion": seq.camera.distortion}}
+    checked: list = []
     if refine == EDGES:
         add = add_edges if request.frames == "all" else add_frame_edges
         doc = refined_or_kept(request, lambda: add(
             seq, robot, result, obs, doc, out, request.exclude_links,
             () if extension is None else extension.link_geometry), doc, out)
+        if request.frames == "all":
+            doc, checked = add_silhouette_check(seq, robot, result, doc, out)
     elif extension is not None and extension.link_geometry and refine != POLISH:
         print("note: the model extension's link_geometry changes only the image refinements "
               "(--refine edges, --polish), and neither runs here", file=out)
@@ -236,7 +240,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
         doc = add_polish(seq, robot, result, obs, model, doc, out, frames=request.frames,
                          mask_head=request.mask_head, motion_masks=request.motion_masks,
                          link_geometry=() if extension is None else extension.link_geometry)
-    doc["quality"] = add_quality(result, obs, doc, out)
+    doc["quality"] = add_quality(result, obs, doc, out, checked)
     finish(request, seq, robot, obs, result, doc, paths, out)
     return doc
 

@@ -147,16 +147,47 @@ def _links(exclude_links: str | None) -> tuple[str, ...]:
     return tuple(n.strip() for n in (exclude_links or "").split(",") if n.strip())
 
 
-def add_quality(result, obs, doc: dict, out: TextIO) -> dict:
-    """The quality verdict (`dream.quality`) on the pose written: printed, with its reasons;
-    RESULT.json's `quality` object."""
+def add_silhouette_check(seq, robot, result, doc: dict, out: TextIO) -> tuple[dict, list]:
+    """The silhouettes' cross-check of the pose written by `--refine edges` (or `auto`) for all
+    frames, the alignment's or, where it was not kept or could not run, the keypoints'
+    (`dream.coarse.crosscheck`): RESULT.json's `silhouette_check`, the covariance gains the
+    disagreement of the two cues (`with_cue_term`), and the verdict's findings on it. Where no
+    masks can be made it does not run, and says why."""
+    from dream.cli.calibrate_start import with_cue_term
+    from dream.coarse.crosscheck import silhouette_crosscheck
+    from dream.coarse.settings import SearchSettings
+    from dream.coarse.verdict import crosscheck_findings
+    from dream.errors import InputError
+
+    try:
+        check = silhouette_crosscheck(seq, robot, np.asarray(doc["T_cam_base"]),
+                                      result.fit.T_cam_base, progress=lambda line: print(
+                                          f"  silhouette check: {line}", file=sys.stderr))
+    except InputError as exc:
+        print(f"silhouette cross-check did not run: {exc.problem}", file=out)
+        return {**doc, "silhouette_check": {"ran": False, "reason": exc.problem}}, []
+    o = check.outcome
+    print(f"silhouette cross-check ({check.source} of {check.frames} frames, "
+          f"{o.seconds:.1f} s): their optimum lies {check.distance_m * 1e3:.1f} mm and "
+          f"{np.rad2deg(check.angle_rad):.2f} deg from the pose written (IoU "
+          f"{check.iou_written:.3f} there, {o.best.iou:.3f} at the optimum)", file=out)
+    doc, _ = with_cue_term({**doc, "silhouette_check": {"ran": True, **check.to_dict()}},
+                           o.best.T_cam_base)
+    return doc, crosscheck_findings(check.iou_written, o.best.iou, check.distance_m,
+                                    check.angle_rad, o.basin_returned, o.basin_starts,
+                                    check.source, SearchSettings())
+
+
+def add_quality(result, obs, doc: dict, out: TextIO, extra: list | tuple = ()) -> dict:
+    """The quality verdict (`dream.quality`) on the pose written, with the `extra` findings:
+    printed, with its reasons; RESULT.json's `quality` object."""
     from dream.quality import result_quality
     from dream.result import written_poses
 
     quality = result_quality(result, obs, pose_refined_by(doc),
                              covariance=np.asarray(doc["covariance_xi"], dtype=float),
                              T_cam_base=np.asarray(doc["T_cam_base"], dtype=float),
-                             T_frames=written_poses(doc))
+                             T_frames=written_poses(doc), extra=extra)
     print(f"quality: {quality.verdict}", file=out)
     for warning in quality.warnings:
         print(f"  - {warning}", file=out)

@@ -234,6 +234,18 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
                          settings.basin_starts, ends, time.perf_counter() - start)
 
 
+def pose_iou(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
+             camera: CameraIntrinsics, T_cam_base: np.ndarray,
+             settings: SearchSettings | None = None, held: bool = False) -> float:
+    """The mean IoU of the robot's silhouettes at `T_cam_base` with `masks`, at the search's
+    finest width (`finish_width_px`), as the search scores its winner."""
+    settings = settings or SearchSettings()
+    P = vertices_in_base(meshes, np.asarray(joints, float))
+    scales = _Scales(P, meshes, np.asarray(masks, bool), camera, replace(
+        settings, local_widths_px=(settings.finish_width_px,)), None, held)
+    return scales.iou(np.asarray(T_cam_base, float))
+
+
 def _finish_scales(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
                    camera: CameraIntrinsics, settings: SearchSettings,
                    usable: np.ndarray | None, scales: _Scales) -> _Scales | None:

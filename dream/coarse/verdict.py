@@ -13,6 +13,11 @@ Each finding is (level, one sentence with what to do), as in `dream.quality`:
 - **mark**: at the pose written, the mark's clicks lie farther than `max_click_residual_px`
   (median) from where the mark projects: a click, the mark's link or offset, or the pose is
   wrong (`check`).
+- **crosscheck** (a pose found another way: the keypoint fit and its edge alignment): the
+  local silhouette search from it (`dream.coarse.crosscheck`) ends more than `rival_m` /
+  `rival_rad` away (`unreliable`), or more than a centimetre or a degree (the cues finding,
+  `check`); its silhouettes overlap the masks below `min_found_iou` (the images cannot confirm
+  it: `check`); the basin finding as above.
 - **cues**: the written pose (the edge alignment's) and the masks' optimum differ by more than
   a centimetre or a degree: one cue is pulled by something the model lacks (`check`).
 
@@ -91,3 +96,33 @@ def mark_finding(click_residuals_px: np.ndarray, max_px: float) -> Finding | Non
     return CHECK, (f"the mark projects {median:.0f} px (median) from where it was clicked at the "
                    "pose found: a click, --mark-link / --mark-offset or the pose is wrong; check "
                    "the overlays and the marks")
+
+
+def crosscheck_findings(iou_written: float, iou_silhouettes: float, distance_m: float,
+                        angle_rad: float, basin_returned: int, basin_starts: int,
+                        evidence: str, settings: SearchSettings) -> list[Finding]:
+    """The crosscheck findings (module doc) of the silhouettes' optimum near a written pose.
+
+    >>> s = SearchSettings()
+    >>> [f[0] for f in crosscheck_findings(0.6, 0.7, 0.12, 0.02, 4, 4, "motion masks", s)]
+    ['unreliable']
+    >>> crosscheck_findings(0.7, 0.7, 0.004, 0.002, 4, 4, "motion masks", s)
+    []
+    """
+    if max(iou_written, iou_silhouettes) < settings.min_found_iou:
+        return [(CHECK, f"the robot's silhouettes at and near the pose written overlap the "
+                 f"{evidence} by IoU {max(iou_written, iou_silhouettes):.2f} only (below "
+                 f"{settings.min_found_iou}): the images cannot confirm the pose; check the "
+                 "overlays")]
+    out: list[Finding] = []
+    if distance_m > settings.rival_m or angle_rad > settings.rival_rad:
+        out.append((UNRELIABLE, f"the robot's silhouettes ({evidence}) put the camera "
+                    f"{distance_m * 100:.0f} cm and {np.rad2deg(angle_rad):.1f} deg from the "
+                    f"pose written (IoU {iou_silhouettes:.2f} there, {iou_written:.2f} at the "
+                    "pose written): the keypoints or the edge alignment were pulled away; "
+                    "check the overlays, or calibrate without keypoints from this result "
+                    "(--camera-guess RESULT.json)"))
+    else:
+        out.append(cues_finding(distance_m, angle_rad))
+    out += search_findings(iou_silhouettes, None, None, basin_returned, basin_starts, settings)
+    return [f for f in out if f is not None]

@@ -1,0 +1,69 @@
+"""The silhouettes' cross-check of a pose found another way (the keypoint fit and its edge
+alignment): the robot's masks of the recording (`dream.coarse.calibration.search_masks`: the
+data's, or motion masks), a local silhouette search started from that pose and from the
+keypoint pose, and what it found. The verdict on it is `dream.coarse.verdict.crosscheck_findings`:
+a written pose that the silhouettes move by more than a few centimetres is not `good`, however
+well the keypoints agree with it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from dream.coarse.calibration import MOTION_MASKS, search_masks
+from dream.coarse.search import SearchOutcome, pose_iou, search
+from dream.coarse.settings import SearchSettings
+from dream.metrics import pose_errors
+from dream.robot import Robot
+from dream.sequence import Sequence
+
+CROSSCHECK_STARTS = 4   # the given poses, as given and aimed at the robot's masks
+
+
+@dataclass(frozen=True)
+class Crosscheck:
+    """The silhouettes' optimum near a written pose: the search's outcome, the IoU of the
+    written pose's silhouettes, the distance (m, rad) from the written pose to the optimum, the
+    masks' source and how many frames."""
+
+    outcome: SearchOutcome
+    iou_written: float
+    distance_m: float
+    angle_rad: float
+    source: str
+    frames: int
+
+    def to_dict(self) -> dict:
+        o = self.outcome
+        return {"evidence": self.source, "frames": self.frames,
+                "T_cam_base_silhouettes": o.best.T_cam_base.tolist(),
+                "iou_written": self.iou_written, "iou_silhouettes": o.best.iou,
+                "distance_m": self.distance_m, "angle_rad": self.angle_rad,
+                "basin_returned": o.basin_returned, "basin_starts": o.basin_starts,
+                "seconds": o.seconds}
+
+
+def silhouette_crosscheck(sequence: Sequence, robot: Robot, T_written: np.ndarray,
+                          T_keypoints: np.ndarray, settings: SearchSettings | None = None,
+                          progress=None) -> Crosscheck:
+    """The local silhouette search from `T_written` and `T_keypoints` (module doc).
+
+    Raises:
+        InputError: no masks can be made (a moving camera, no images, an arm that hardly
+            moves).
+    """
+    settings = settings or SearchSettings()
+    inputs = search_masks(sequence, robot, settings)
+    held = inputs.source == MOTION_MASKS
+    local = replace(settings, local_starts=CROSSCHECK_STARTS,
+                    fine_starts=min(settings.fine_starts, CROSSCHECK_STARTS))
+    outcome = search(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
+                     {"written": np.asarray(T_written)[None],
+                      "keypoints": np.asarray(T_keypoints)[None]},
+                     local, held=held, progress=progress)
+    iou = pose_iou(inputs.meshes, inputs.joints, inputs.masks, sequence.camera, T_written,
+                   local, held)
+    m, rad = pose_errors(np.asarray(T_written), outcome.best.T_cam_base)
+    return Crosscheck(outcome, iou, float(m), float(rad), inputs.source, len(inputs.frames))
