@@ -7,7 +7,9 @@ each, seeds from `--first-seed`; the robot masks are deleted before calibrating,
 images are read. Each scene is calibrated from a guess `--guess-m` / `--guess-deg` off the
 truth in a random direction (written as a RESULT.json holding only T_cam_base), with
 `--auto` by the automatic search, and with `--mark-frames N` from a mark on the end effector
-(the last keypoint link's origin) clicked in N frames: its labels plus `--mark-noise-px`.
+(the last keypoint link's origin) clicked in N frames: its labels plus `--mark-noise-px`; with
+`--fooled` the keypoint path (`--use-labels`) from labels projected at a camera that far off,
+so that its refinements and their verdict are tested from a wrong start.
 Printed per scene: error, verdict, 1-sigma, time; then the share within `--right-mm` /
 `--right-deg`, the wrong results called `good`, the right ones called `good` or `check`, and
 how often the truth lies inside the written 95 % ellipsoid.
@@ -21,6 +23,7 @@ frames that agree.
 
     python benchmarks/coarse_start.py renders [--robots panda,ur5,xarm7] [--scenes 3]
         [--first-seed 1000] [--frames 30] [--auto] [--mark-frames 5 --mark-noise-px 2]
+        [--fooled] [--skip-guess]
     python benchmarks/coarse_start.py real --data ../shared/realdata/panda_teleop [--guesses 10]
     python benchmarks/coarse_start.py real --data ../shared/realdata/franka_offline --center R.json
     python benchmarks/coarse_start.py real --data ../shared/realdata/panda_teleop \
@@ -41,13 +44,14 @@ import numpy as np
 
 from dream.cli.calibrate import CalibrateRequest, run_calibrate
 from dream.errors import DreamError
-from dream.io import read_sequence
+from dream.io import read_sequence, write_dream
 from dream.metrics import pose_errors
 from dream.pipeline import truth_poses
 from dream.pnp import increment_between
 from dream.result import read_result
 from dream.transforms import R_from_rotvec, invert_T
 
+LABELS = Path("--use-labels")   # calibrate from the data's labels, not from a guess
 CHI2_6DOF_95 = 12.592     # 95 % quantile of the chi-square distribution with 6 degrees of freedom
 REAL_WORLD = Path(__file__).resolve().parents[1] / "configs" / "synth" / "real_world.yaml"
 
@@ -103,6 +107,24 @@ def mark_file(data: Path, T_true: np.ndarray, count: int, noise_px: float,
     return path, link
 
 
+def fooled_labels(data: Path, T_true: np.ndarray, offset_m: float, offset_rad: float,
+                  rng: np.random.Generator, out: Path) -> Path:
+    """A copy of `data` whose keypoint labels are the projections at a camera `offset_m` /
+    `offset_rad` off `T_true` (a detector fooled the same way in every frame)."""
+    import dataclasses
+
+    from dream.camera import project
+    from dream.pipeline import robot_for
+    from dream.transforms import transform_points
+
+    seq = read_sequence(data)
+    robot = robot_for(seq, None, None)
+    T_off = read_result(guess_file(T_true, offset_m, offset_rad, rng, out.parent))["T_cam_base"]
+    frames = tuple(dataclasses.replace(f, uv_labels=project(seq.camera, transform_points(
+        np.asarray(T_off), robot.forward_kinematics(f.joints)))) for f in seq.frames)
+    return write_dream(dataclasses.replace(seq, frames=frames), out)
+
+
 def calibrate(data: Path, out: Path, guess: Path | None,
               T_true: np.ndarray | None = None, mark: tuple[Path, str, str] | None = None
               ) -> dict:
@@ -112,6 +134,8 @@ def calibrate(data: Path, out: Path, guess: Path | None,
     start = time.perf_counter()
     marks = {} if mark is None else {"mark": str(mark[0]), "mark_link": mark[1],
                                      "mark_offset": mark[2]}
+    if guess == LABELS:
+        guess, marks = None, {"use_labels": True}
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
         doc = run_calibrate(CalibrateRequest(data=str(data), out=str(out),
                                              camera_guess=None if guess is None else str(guess),
@@ -125,8 +149,10 @@ def calibrate(data: Path, out: Path, guess: Path | None,
     sigma = float(np.linalg.norm(doc["sigma_camera_position_base_m"]))
     return {"mm": t_err * 1e3, "deg": float(np.rad2deg(r_err)), "verdict":
             doc["quality"]["verdict"], "sigma_mm": sigma * 1e3, "inside95": inside,
-            "seconds": seconds, "iou": doc["start"]["iou"],
+            "seconds": seconds,
             "polish_iou": doc.get("polish", {}).get("iou_after"),
+            "iou": (doc.get("start") or {}).get("iou", (doc.get("silhouette_check") or {}).get(
+                "iou_silhouettes", float("nan"))),
             "mark_mm": None if mark is None else pose_errors(
                 np.asarray(doc["start"]["mark"]["T_cam_base"]), T_true)[0] * 1e3}
 
@@ -149,7 +175,7 @@ def summary(rows: list[dict], right_mm: float, right_deg: float, label: str) -> 
 
 def run_renders(args: argparse.Namespace) -> None:
     rng = np.random.default_rng(args.seed)
-    by_mode: dict[str, list[dict]] = {"guess": [], "auto": [], "mark": []}
+    by_mode: dict[str, list[dict]] = {"guess": [], "auto": [], "mark": [], "fooled": []}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         for robot in args.robots.split(","):
@@ -162,15 +188,21 @@ def run_renders(args: argparse.Namespace) -> None:
                     modes.append(("auto", None))
                 if args.mark_frames:
                     modes.append(("mark", None))
+                if args.fooled:
+                    modes.append(("fooled", LABELS))
                 for mode, guess in modes:
-                    mark = None
+                    mark, source = None, data
+                    if mode == "fooled":
+                        source = fooled_labels(data, T_true, args.guess_m,
+                                               np.deg2rad(args.guess_deg), rng,
+                                               tmp / f"{robot}_{seed}_fooled")
                     if mode == "mark":
                         path, link = mark_file(data, T_true, args.mark_frames,
                                                args.mark_noise_px, rng, tmp)
                         mark = (path, link, "0,0,0")
                     try:
-                        row = calibrate(data, tmp / f"{robot}_{seed}_{mode}.json", guess,
-                                        mark=mark)
+                        row = calibrate(source, tmp / f"{robot}_{seed}_{mode}.json", guess,
+                                        T_true, mark=mark)
                     except DreamError as exc:
                         print(f"{robot} {seed} {mode}: failed: {exc}", flush=True)
                         continue
@@ -229,6 +261,9 @@ def main() -> None:
     r.add_argument("--mark-frames", type=int, default=0, help="also calibrate from a mark on "
                    "the end effector clicked in this many frames (labels plus noise)")
     r.add_argument("--mark-noise-px", type=float, default=2.0)
+    r.add_argument("--fooled", action="store_true", help="also the keypoint path from labels "
+                   "projected at a camera --guess-m / --guess-deg off (a fooled detector): "
+                   "the edge alignment and the silhouettes' cross-check from there")
     r.add_argument("--skip-guess", action="store_true", help="not from a guess (only --auto, "
                    "--mark-frames)")
     sub.choices["real"].add_argument("--data", required=True)

@@ -81,21 +81,26 @@ class CalibrateRequest(DataOptions):
         self.solver_settings()  # checks --seed, --loss and --loss-scale-px
         _check_refine(self.refine, self.frames, self.polish, self.exclude_links)
         _check_frames(self.base_frame, self.camera_frame)
-        if (self.camera_guess or self.look_at or self.guess_sigma or self.mark) \
-                and not self.searches:
-            raise InputError("--camera-guess, --look-at, --guess-sigma and --mark start the "
-                             "search without keypoints, and --model or --use-labels gives "
-                             "keypoints", fix="drop one of them")
         if self.searches:
-            from dream.cli.calibrate_start import camera_guess, check_mark_options
+            from dream.cli.calibrate_start import camera_guess, check_frames, check_mark_options
+
+            check_frames(self)
 
             check_mark_options(self)
             camera_guess(self.camera_guess, self.look_at, self.guess_sigma)
 
     @property
+    def keypoints_given(self) -> bool:
+        """Whether keypoints come from a network or the labels."""
+        return self.model is not None or self.use_labels or self.loaded_model is not None
+
+    @property
     def searches(self) -> bool:
-        """Whether the camera pose is searched from the robot's silhouettes (no keypoints)."""
-        return self.model is None and not self.use_labels and self.loaded_model is None
+        """Whether the camera pose is searched from the robot's silhouettes: without keypoints,
+        or with them and a camera guess or a mark (the keypoint pose then is one more
+        hypothesis)."""
+        return not self.keypoints_given or bool(self.camera_guess or self.look_at
+                                                or self.guess_sigma or self.mark)
 
     def solver_settings(self) -> SolverSettings:
         """The solver's settings of `--loss`, `--loss-scale-px` and `--seed`."""

@@ -1,11 +1,14 @@
-"""`dream calibrate` without keypoints (neither `--model` nor `--use-labels`): the camera pose
-searched from the robot's silhouettes (`dream.coarse`), around `--camera-guess` or, without
-one, on a shell around the robot; then the image refinement of `--refine` from there, the
-verdict of `dream.coarse.verdict` and RESULT.json's `start` object."""
+"""`dream calibrate` by the silhouette search: without keypoints (neither `--model` nor
+`--use-labels`), or with them and `--camera-guess` or `--mark` (the keypoint pose is then one
+more hypothesis). The camera pose is searched from the robot's silhouettes (`dream.coarse`),
+around `--camera-guess`, around the pose of a tracked `--mark` or, without either, on a shell
+around the robot; then the image refinement of `--refine` from there, the verdict of
+`dream.coarse.verdict` and RESULT.json's `start` object."""
 
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import TextIO
 
@@ -17,8 +20,18 @@ from dream.errors import InputError
 FIX_GUESS = ("give --camera-guess X,Y,Z --look-at X,Y,Z (metres, base frame: where the camera "
              "is and a point on the robot it looks at) or --camera-guess RESULT.json")
 FIX_SIGMA = "give --guess-sigma METRES,DEGREES, e.g. 0.3,20"
+KEYPOINTS = "keypoints"   # the search's hypothesis source of --model / --use-labels
 FIX_MARK = ("give --mark MARKS.csv --mark-link LINK [--mark-offset X,Y,Z] (the clicked point, "
             "metres in that link's frame)")
+
+
+def check_frames(request) -> None:
+    """The search finds one pose for all frames (before any reading)."""
+    if request.frames != "all":
+        raise InputError("the silhouette search finds the one camera pose of a fixed camera "
+                         "(--frames all)", request.data,
+                         "use --frames all, or give --model without --camera-guess or --mark "
+                         "for --frames each")
 
 
 def check_mark_options(request) -> None:
@@ -105,17 +118,37 @@ def robot_for_search(seq, request):
     return robot
 
 
+def keypoint_hypothesis(request, seq, out: TextIO) -> tuple:
+    """The robot and the keypoint pose of `--model` (or the labels) over all frames, as one
+    more source of the search's hypotheses ({} where the keypoints give no pose)."""
+    from dream.calibration import CalibrationError
+    from dream.cli.observe import observe
+    from dream.pipeline import calibrate
+
+    robot, obs, _ = observe(seq, request.robot, request.model, request.use_labels, out,
+                            threads=request.threads, batch=request.batch,
+                            loaded_model=request.loaded_model, keypoints=request.keypoint_links)
+    try:
+        T = calibrate(seq, obs, "all", request.solver_settings()).fit.T_cam_base
+    except (CalibrationError, InputError) as exc:
+        print(f"the keypoints give no pose ({exc}); the search goes on without them", file=out)
+        return robot, {}
+    print("the keypoint pose joins the search's hypotheses", file=out)
+    return robot, {KEYPOINTS: np.asarray(T)[None]}
+
+
 def start_without_detector(request, seq, out: TextIO):
     """The search (module doc): robot, the stand-in result and observations at its pose, its
     outcome and masks, and the guess."""
     from dream.coarse.calibration import basin_covariance, coarse_start, stand_in_result
 
-    if request.frames != "all":
-        raise InputError("without keypoints, dream calibrate finds the one camera pose of a "
-                         "fixed camera (--frames all)", request.data,
-                         "use --frames all, or give --model for --frames each")
+    check_frames(request)
     guess = camera_guess(request.camera_guess, request.look_at, request.guess_sigma)
-    robot = robot_for_search(seq, request)
+    robot, extra = robot_for_search(seq, request), {}
+    if request.keypoints_given:
+        robot, extra = keypoint_hypothesis(request, seq, out)
+        if extra:
+            guess = replace(guess, description=guess.description + "; the keypoint pose")
     marked = None
     if request.mark is not None:
         from dream.coarse.calibration import mark_start
@@ -126,13 +159,13 @@ def start_without_detector(request, seq, out: TextIO):
               f"tracked frames, pose over time RMSE {marked.fit.rmse_px:.1f} px; searching "
               f"within {guess.sigma_m * 100:.0f} cm / {np.rad2deg(guess.sigma_rad):.0f} deg",
               file=out)
-    print(f"no keypoints: searching the camera pose from the robot's silhouettes, "
+    print(f"searching the camera pose from the robot's silhouettes, "
           f"{guess.description}", file=out)
 
     def progress(line: str) -> None:
         print(f"  search: {line}", file=sys.stderr)
 
-    outcome, inputs = coarse_start(seq, robot, guess, progress=progress)
+    outcome, inputs = coarse_start(seq, robot, guess, progress=progress, extra=extra)
     result, obs = stand_in_result(seq, outcome.best.T_cam_base, basin_covariance(outcome))
     print(f"search ({outcome.seconds:.1f} s, {inputs.source} of {len(inputs.frames)} frames): "
           f"best IoU {outcome.best.iou:.3f}, best rival "
@@ -227,14 +260,15 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
 
 def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: str, paths,
                out: TextIO) -> dict:
-    """`dream calibrate` without keypoints (`dream.cli.calibrate_start`)."""
+    """`dream calibrate` by the silhouette search (`dream.cli.calibrate_start`)."""
     from dream.cli.calibrate_report import add_polish
     from dream.cli.calibrate_write import finish, result_document
 
     if request.model_extension:
-        raise InputError("--model-extension corrects a keypoint calibration, and no keypoints "
-                         "are used here", request.model_extension,
-                         "drop --model-extension, or give --model")
+        raise InputError("--model-extension corrects a keypoint calibration, not the "
+                         "silhouette search", request.model_extension,
+                         "drop --model-extension, or give --model without --camera-guess and "
+                         "--mark")
     robot, result, obs, outcome, inputs, guess, marked = start_without_detector(request, seq,
                                                                                 out)
     doc = result_document(request, seq, result, obs, data_doc, readings_doc)

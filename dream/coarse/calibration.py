@@ -143,9 +143,11 @@ def hypotheses_for(guess: CameraGuess, inputs: SearchMasks, settings: SearchSett
 
 def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
                  settings: SearchSettings | None = None,
-                 progress: Callable[[str], None] | None = None
+                 progress: Callable[[str], None] | None = None,
+                 extra: dict[str, np.ndarray] | None = None
                  ) -> tuple[SearchOutcome, SearchMasks]:
-    """The coarse search of a fixed-camera `sequence` (module doc)."""
+    """The coarse search of a fixed-camera `sequence` (module doc); `extra`: more hypotheses
+    by source (the keypoint pose of a detector), scored beside the guess's."""
     settings = settings or SearchSettings()
     inputs = search_masks(sequence, robot, settings)
     if progress is not None:
@@ -153,6 +155,7 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
                  + (f" (left out, never moving: {', '.join(inputs.left_out)})"
                     if inputs.left_out else ""))
     hypotheses, aimed_only = hypotheses_for(guess, inputs, settings)
+    hypotheses.update(extra or {})
     outcome = search(inputs.meshes, inputs.joints, inputs.masks, sequence.camera, hypotheses,
                      settings, aimed_only=aimed_only, held=inputs.source == MOTION_MASKS,
                      progress=progress)

@@ -163,7 +163,8 @@ def test_mark_options_are_checked_before_any_work(tmp_path, capsys):
           "--look-at", "0,0,0"], "both say where to search"),
         (["--mark", "m.csv", "--mark-link", "panda_hand", "--mark-offset", "0,0"],
          "--mark-offset"),
-        (["--use-labels", "--mark", "m.csv", "--mark-link", "panda_hand"], "drop one of them"),
+        (["--use-labels", "--frames", "each", "--mark", "m.csv", "--mark-link", "panda_hand"],
+         "--frames all"),
     ]
     for extra, message in cases:
         code = main(["calibrate", "--data", str(tmp_path / "missing"), "--out",
