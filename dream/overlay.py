@@ -227,11 +227,11 @@ class _Outliner:
 
 
 def write_skeleton_overlays(sequence, robot, T_cam_base: np.ndarray, out_dir,
-                            limit: int | None = None) -> int:
-    """The robot's outline (URDF meshes), keypoints and skeleton of every imaged frame (the
-    first `limit` of them) projected with `T_cam_base` (F, 4, 4); returns how many images were
-    written. The folder is written atomically (`dream.io.staged_directory`): on a failure
-    nothing is left in it."""
+                            limit: int | None = None, skeleton: bool = True) -> int:
+    """The robot's outline (URDF meshes), keypoints and skeleton (without `skeleton`: the
+    outline alone) of every imaged frame (the first `limit` of them) projected with
+    `T_cam_base` (F, 4, 4); returns how many images were written. The folder is written
+    atomically (`dream.io.staged_directory`): on a failure nothing is left in it."""
     from dream.camera import project
     from dream.io.atomic import staged_directory
     from dream.pipeline import joints_in_robot_order
@@ -249,7 +249,8 @@ def write_skeleton_overlays(sequence, robot, T_cam_base: np.ndarray, out_dir,
             camera = sequence.frame_camera(i)
             uv = project(camera, transform_points(T_cam_base[i], P_base[i]))
             image = outliner.draw(_frame_canvas(sequence, frame), camera, i, T_cam_base[i])
-            image = draw_skeleton(image, uv, robot.skeleton_edges)
+            if skeleton:
+                image = draw_skeleton(image, uv, robot.skeleton_edges)
             _write_png(stage / f"{frame.name}.overlay.png", image)
             if (n + 1) % 50 == 0:
                 log.info("overlays: %d / %d", n + 1, len(chosen))

@@ -42,12 +42,11 @@ def run_overlay(request: OverlayRequest) -> int:
     reference) into `request.out`; returns how many were written."""
     from dream.io import check_output_folder
     from dream.overlay import write_skeleton_overlays
-    from dream.pipeline import robot_for
     from dream.result import read_result
 
     check_output_folder(request.out)  # before any reading or drawing
     seq = read_data(request)
-    robot = robot_for(seq, request.robot, option_keypoints=request.keypoint_links)
+    robot, skeleton = _robot(seq, request)
     if request.extrinsic is not None:
         poses = _result_poses(read_result(request.extrinsic), seq)
     else:
@@ -57,9 +56,27 @@ def run_overlay(request: OverlayRequest) -> int:
             raise InputError("the data has no reference extrinsic", request.data,
                              "pass --extrinsic RESULT.json")
         poses = truth_poses(seq)
-    n = write_skeleton_overlays(seq, robot, poses, Path(request.out), limit=request.limit)
+    n = write_skeleton_overlays(seq, robot, poses, Path(request.out), limit=request.limit,
+                                skeleton=skeleton)
     print(f"wrote {n} overlay images to {request.out}")
     return n
+
+
+def _robot(seq, request: OverlayRequest):
+    """The robot to draw, and whether with its keypoints: a user URDF without `--keypoints`
+    is drawn as its outline alone (no keypoints are needed for it)."""
+    from dream.errors import RobotError
+    from dream.pipeline import robot_for
+
+    try:
+        return robot_for(seq, request.robot, option_keypoints=request.keypoint_links), True
+    except RobotError:
+        if request.keypoint_links is not None:
+            raise
+    from dream.cli.calibrate_start import robot_for_search
+
+    print("no --keypoints for this URDF: drawing the outline alone")
+    return robot_for_search(seq, request), False
 
 
 def _result_poses(doc: dict, seq) -> np.ndarray:

@@ -221,3 +221,21 @@ def test_the_keypoint_pose_competes_with_the_guess(panda, meshes, tmp_path, caps
     assert doc["start"]["hypotheses_scored"]["keypoints"] == 2   # as given and aimed
     t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
     assert t_err < 0.01 and r_err < np.deg2rad(0.5), (t_err, np.rad2deg(r_err))
+
+
+def test_overlays_of_a_user_urdf_need_no_keypoints(panda, meshes, tmp_path, capsys):
+    """A user URDF without --keypoints: the outline alone is drawn; naming links it lacks is
+    still an error."""
+    T_true = image_dataset(panda, meshes, tmp_path)
+    result = tmp_path / "r.json"
+    result.write_text(json.dumps({"T_cam_base": T_true.tolist(), "per_frame": []}))
+    urdf = str(panda.urdf_path)
+    code = main(["overlay", str(tmp_path / "data"), "--robot", urdf, "--extrinsic", str(result),
+                 "--out", str(tmp_path / "ov"), "--limit", "2"])
+    printed, err = capsys.readouterr()
+    assert code == 0, err
+    assert "outline alone" in printed and len(list((tmp_path / "ov").glob("*.png"))) == 2
+    code = main(["overlay", str(tmp_path / "data"), "--robot", urdf, "--keypoints", "nope,no",
+                 "--extrinsic", str(result), "--out", str(tmp_path / "ov2")])
+    _, err = capsys.readouterr()
+    assert code == 2 and "nope" in err
