@@ -137,18 +137,15 @@ def keypoint_hypothesis(request, seq, out: TextIO) -> tuple:
     return robot, {KEYPOINTS: np.asarray(T)[None]}
 
 
-def start_without_detector(request, seq, out: TextIO):
+def search_start(request, seq, out: TextIO):
     """The search (module doc): robot, the stand-in result and observations at its pose, its
     outcome and masks, and the guess."""
     from dream.coarse.calibration import basin_covariance, coarse_start, stand_in_result
 
     check_frames(request)
     guess = camera_guess(request.camera_guess, request.look_at, request.guess_sigma)
-    robot, extra = robot_for_search(seq, request), {}
-    if request.keypoints_given:
-        robot, extra = keypoint_hypothesis(request, seq, out)
-        if extra:
-            guess = replace(guess, description=guess.description + "; the keypoint pose")
+    robot, extra = (keypoint_hypothesis(request, seq, out) if request.keypoints_given
+                    else (robot_for_search(seq, request), {}))
     marked = None
     if request.mark is not None:
         from dream.coarse.calibration import mark_start
@@ -159,6 +156,8 @@ def start_without_detector(request, seq, out: TextIO):
               f"tracked frames, pose over time RMSE {marked.fit.rmse_px:.1f} px; searching "
               f"within {guess.sigma_m * 100:.0f} cm / {np.rad2deg(guess.sigma_rad):.0f} deg",
               file=out)
+    if extra:
+        guess = replace(guess, description=guess.description + "; the keypoint pose")
     print(f"searching the camera pose from the robot's silhouettes, "
           f"{guess.description}", file=out)
 
@@ -269,8 +268,7 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
                          "silhouette search", request.model_extension,
                          "drop --model-extension, or give --model without --camera-guess and "
                          "--mark")
-    robot, result, obs, outcome, inputs, guess, marked = start_without_detector(request, seq,
-                                                                                out)
+    robot, result, obs, outcome, inputs, guess, marked = search_start(request, seq, out)
     doc = result_document(request, seq, result, obs, data_doc, readings_doc)
     doc["rmse_px"] = None
     doc["start"] = start_doc(outcome, inputs, guess, seq, marked)
