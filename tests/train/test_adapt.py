@@ -1,0 +1,92 @@
+"""`dream adapt`: pseudo-labels from a calibrated result, the teacher refused where the verdict
+is `unreliable`, the held-out split, and a short fine-tune of the bundled model end to end
+(its ONNX file runs in `dream calibrate` unchanged)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from dream.camera import project
+from dream.cli import main
+from dream.io import read_sequence
+from dream.models import BUNDLED_MODEL
+from dream.transforms import transform_points
+from tests.dream.test_edges import image_dataset
+from train.adapt import holdout_range, pseudo_labels
+from train.adapt_report import keypoint_scores
+
+TINY = ["--renders", "8", "--set", "trainer.time_budget_minutes=null", "--set",
+        "trainer.max_steps=2", "--set", "trainer.max_epochs=1", "--set", "data.batch_size=4"]
+
+
+def calibrated(panda, meshes, folder):
+    """A rendered recording (no masks) and its `--use-labels` RESULT.json."""
+    T_true = image_dataset(panda, meshes, folder)
+    code = main(["calibrate", "--data", str(folder / "data"), "--use-labels", "--refine",
+                 "none", "--out", str(folder / "r.json")])
+    assert code == 0
+    return T_true
+
+
+def test_pseudo_labels_are_the_projections_at_the_extrinsic(panda, meshes, tmp_path):
+    T_true = image_dataset(panda, meshes, tmp_path)
+    seq = read_sequence(tmp_path / "data")
+    uv = pseudo_labels(seq, panda, T_true)
+    expected = project(seq.camera, transform_points(T_true, panda.forward_kinematics(
+        np.stack([f.joints for f in seq.frames]))))
+    inside = seq.camera.in_image(expected)
+    assert np.allclose(uv[inside], expected[inside]) and np.isnan(uv[~inside]).all()
+
+
+def test_holdout_frames_default_to_the_last_third_and_are_checked():
+    assert holdout_range(None, 275) == range(184, 275)
+    assert holdout_range("92:183", 275) == range(92, 183)
+    for text in ("183:92", "0:276", "a:b", "5"):
+        with pytest.raises(Exception, match="holdout-frames"):
+            holdout_range(text, 275)
+
+
+def test_keypoint_scores_count_a_missed_keypoint_as_wrong():
+    labels = np.array([[[10.0, 10.0], [np.nan, np.nan]], [[20.0, 20.0], [5.0, 5.0]]])
+    found = np.array([[[11.0, 10.0], [1.0, 1.0]], [[np.nan, np.nan], [5.0, 9.0]]])
+    s = keypoint_scores(found, labels, ("a", "b"))
+    assert s["keypoints"]["a"] == {"labelled": 2, "median_px": 1.0, "pck": 0.5}
+    assert s["keypoints"]["b"] == {"labelled": 1, "median_px": 4.0, "pck": 1.0}
+    assert s["found_share"] == pytest.approx(2 / 3)
+
+
+def test_an_unreliable_teacher_is_refused_in_one_line(panda, meshes, tmp_path, capsys):
+    calibrated(panda, meshes, tmp_path)
+    doc = json.loads((tmp_path / "r.json").read_text())
+    doc["quality"]["verdict"] = "unreliable"
+    (tmp_path / "bad.json").write_text(json.dumps(doc))
+    capsys.readouterr()
+    code = main(["adapt", "--data", str(tmp_path / "data"), "--result", str(tmp_path / "bad.json"),
+                 "--model", str(BUNDLED_MODEL), "--out", str(tmp_path / "a.onnx")])
+    err = capsys.readouterr().err
+    assert code == 2 and "cannot teach" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "a.onnx").exists()
+
+
+@pytest.mark.slow
+def test_adapt_writes_a_model_that_calibrate_runs_unchanged(panda, meshes, tmp_path, capsys):
+    calibrated(panda, meshes, tmp_path)
+    out = tmp_path / "adapted.onnx"
+    code = main(["adapt", "--data", str(tmp_path / "data"), "--result", str(tmp_path / "r.json"),
+                 "--model", str(BUNDLED_MODEL), "--out", str(out), "--holdout-frames", "6:10",
+                 *TINY])
+    printed, err = capsys.readouterr()
+    assert code == 0, err
+    assert "PCK@5" in printed and "each frame's keypoint extrinsic" in printed
+    card = out.with_suffix(".md").read_text()
+    assert "adapted to one recording" in card and "Frames 6-9 were held out" in card
+    assert not list(tmp_path.glob("dream-adapt-*"))          # the work folder is gone
+    code = main(["calibrate", "--data", str(tmp_path / "data"), "--model", str(out),
+                 "--refine", "none", "--out", str(tmp_path / "again.json")])
+    _, err = capsys.readouterr()
+    assert code == 0, err
+    doc = json.loads((tmp_path / "again.json").read_text())
+    assert doc["keypoints_used"] > 0

@@ -1,0 +1,236 @@
+"""`dream adapt`: teach a keypoint network the user's own scene from a calibrated recording.
+
+A fixed camera's calibrated extrinsic and the joint readings (as the calibration used them:
+interpolated where the log was held) label every frame for free: forward kinematics puts each
+keypoint in the base frame, the extrinsic projects it. Those pseudo-labels (keypoints outside
+the image left unlabelled) teach the network on the recording's own frames, mixed with renders
+of the same robot so it does not forget, starting from the given ONNX model's weights
+(`trainer.init_from`); the result is exported with the same interface and a model card.
+
+Frames held out of teaching (`--holdout-frames`, default the last third by time) are then
+detected by the model before and after adapting and scored against the same pseudo-labels:
+keypoint medians and PCK@5 px, the share found, and how far each frame's own keypoint
+extrinsic lies from the calibrated one. A result the calibration called `unreliable` teaches
+nothing (it is refused); the data's reference or labels are never read.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dream.errors import InputError
+from dream.sequence import Sequence
+
+log = logging.getLogger(__name__)
+
+HOLDOUT_SHARE = 3           # default: the last 1/3 of the frames by time are held out
+PCK_PX = 5.0                # PCK threshold of the report, pixels
+FINE_TUNE_LR = 5e-4         # a quarter of the recipe's: the network already works on renders
+UNRELIABLE = "unreliable"
+
+
+@dataclass(frozen=True)
+class AdaptRequest:
+    """What `dream adapt` does: the options of its command line."""
+
+    data: str
+    result: str
+    model: str
+    out: str
+    config: str = "configs/train/panda_cpu.yaml"
+    holdout_frames: str | None = None
+    minutes: float = 20.0
+    renders: int = 1000
+    seed: int = 0
+    overrides: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not (self.minutes > 0 and np.isfinite(self.minutes)):
+            raise InputError(f"--minutes {self.minutes} must be positive", fix="e.g. 20")
+        if self.renders < 0:
+            raise InputError(f"--renders {self.renders} must be >= 0", fix="e.g. 1000")
+        if Path(self.out).suffix.lower() != ".onnx":
+            raise InputError("the adapted model must be a .onnx file", self.out,
+                             "name it e.g. adapted.onnx")
+
+
+def holdout_range(text: str | None, count: int) -> range:
+    """The held-out frames of `--holdout-frames START:STOP` (indices, STOP excluded), default
+    the last third.
+
+    >>> holdout_range(None, 9), holdout_range("2:5", 9)
+    (range(6, 9), range(2, 5))
+    """
+    if text is None:
+        return range(count - count // HOLDOUT_SHARE, count)
+    try:
+        start, stop = (int(v) for v in text.split(":"))
+    except ValueError:
+        raise InputError(f"--holdout-frames {text!r} must be START:STOP", fix="e.g. 92:183"
+                         ) from None
+    if not 0 <= start < stop <= count:
+        raise InputError(f"--holdout-frames {text} lies outside the {count} frames",
+                         fix=f"give 0 <= START < STOP <= {count}")
+    return range(start, stop)
+
+
+def check_teacher(doc: dict, path: str) -> None:
+    """A result that may teach: all frames of a fixed camera, not `unreliable`."""
+    verdict = (doc.get("quality") or {}).get("verdict")
+    if verdict == UNRELIABLE:
+        raise InputError("is `unreliable` and cannot teach a network", path,
+                         "calibrate again (a camera guess, a mark, more arm motion) until the "
+                         "verdict is good or check")
+    if doc.get("frames_mode", "all") != "all":
+        raise InputError("is a per-frame result (--frames each); adapting needs the one "
+                         "extrinsic of a fixed camera", path, "calibrate with --frames all")
+
+
+def pseudo_labels(sequence: Sequence, robot, T_cam_base: np.ndarray) -> np.ndarray:
+    """(F, K, 2) each frame's keypoints projected at `T_cam_base` from its joint readings; NaN
+    where a keypoint falls outside the image or behind the camera."""
+    from dream.camera import project
+    from dream.pipeline import joints_in_robot_order
+    from dream.transforms import transform_points
+
+    P_base = robot.forward_kinematics(joints_in_robot_order(sequence, robot))
+    uv = project(sequence.camera, transform_points(np.asarray(T_cam_base), P_base))
+    inside = sequence.camera.in_image(uv) & np.all(np.isfinite(uv), axis=-1)
+    return np.where(inside[..., None], uv, np.nan)
+
+
+def teaching_set(sequence: Sequence, keypoints: tuple[str, ...], uv: np.ndarray,
+                 frames: np.ndarray, out: Path) -> Path:
+    """A DREAM-layout copy of `frames` with the pseudo-labels `uv` as their labels (and no
+    ground truth or masks), written to `out`."""
+    from dream.io import write_dream
+
+    chosen = tuple(dataclasses.replace(sequence.frames[int(i)], uv_labels=uv[int(i)],
+                                       P_cam_labels=None, T_cam_base_true=None, mask_path=None)
+                   for i in frames)
+    taught = dataclasses.replace(sequence, frames=chosen, keypoint_names=keypoints,
+                                 T_cam_base_reference=None)
+    return write_dream(taught, out)
+
+
+def render_mix(robot: str, keypoints: tuple[str, ...], count: int, out: Path,
+               seed: int) -> Path:
+    """`count` domain-randomised renders of `robot` (its keypoints named as the model's)."""
+    from synth.config import config_from_dict
+    from synth.generate import SynthJob, generate
+
+    generate(SynthJob(robot=robot, out_dir=out, num_frames=count, config=config_from_dict(None),
+                      seed=seed, keypoints=keypoints), on_progress=lambda done: None)
+    return out
+
+
+def teacher(request: AdaptRequest, out) -> tuple:
+    """The recording as the calibration used it (joint readings interpolated where it did),
+    the result's extrinsic, the model's robot and keypoints."""
+    from dream.cli.options import joint_readings
+    from dream.io import read_sequence
+    from dream.provenance import check_same_data
+    from dream.result import read_result
+    from export.runner import OnnxKeypointModel
+
+    doc = read_result(request.result)
+    check_teacher(doc, request.result)
+    seq = read_sequence(request.data)
+    check_same_data(doc, seq, request.data, request.result)
+    interpolated = bool((doc.get("joint_readings") or {}).get("interpolated"))
+    seq, _ = joint_readings(seq, interpolated, out)
+    model = OnnxKeypointModel(request.model)
+    return seq, np.asarray(doc["T_cam_base"], float), model, doc
+
+
+def training_config(request: AdaptRequest, folders: list[str], repeat: int):
+    """The recipe with the teaching folder (`repeat` times, to weigh the real frames as much
+    as the renders) and the renders as data, the model's weights as the start, the fine-tune
+    learning rate and the time budget."""
+    from train.config import load_config
+
+    if not Path(request.config).is_file():
+        raise InputError("the recipe the model was trained with is not here", request.config,
+                         "give --config RECIPE.yaml (the bundled model's is "
+                         "configs/train/panda_cpu.yaml of the repository)")
+    train = ",".join([folders[0]] * repeat + folders[1:])
+    return load_config(request.config, (
+        f"data.train=[{train}]", f"trainer.init_from={request.model}",
+        f"trainer.time_budget_minutes={request.minutes}", f"optim.lr={FINE_TUNE_LR}",
+        f"trainer.seed={request.seed}", "trainer.checkpoint_every_n_steps=0",
+        *request.overrides))
+
+
+def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None = None
+              ) -> dict:
+    """`dream adapt` (module doc): returns the held-out report before and after, also written
+    beside the model as its card (`ADAPTED.md`)."""
+    from dream.io import check_output_file
+    from dream.pipeline import robot_for
+    from export.onnx_export import export_model
+    from train.adapt_report import holdout_report, report_lines
+    from train.run import run_training
+
+    say = progress or (lambda line: None)
+    target = check_output_file(request.out, parents_made=True)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the folder ({exc.strerror})", target.parent,
+                         "choose a writable location") from None
+    seq, T, model, doc = teacher(request, out)
+    robot = robot_for(seq, None, tuple(model.keypoint_names))
+    held = holdout_range(request.holdout_frames, len(seq))
+    uv = pseudo_labels(seq, robot, T)
+    teach = np.array([i for i in range(len(seq)) if i not in held])
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="dream-adapt-", dir=target.parent) as work:
+        work = Path(work)
+        folders = [str(teaching_set(seq, robot.keypoint_names, uv, teach, work / "teach"))]
+        say(f"pseudo-labels of {len(teach)} frames (frames {held.start}-{held.stop - 1} held "
+            f"out); rendering {request.renders} frames of {robot.name} to mix in")
+        if request.renders:
+            folders.append(str(render_mix(seq.robot or robot.name, robot.keypoint_names,
+                                          request.renders, work / "renders", request.seed)))
+        repeat = max(1, round(request.renders / max(len(teach), 1)))
+        say(f"fine-tuning {request.model} for {request.minutes:g} minutes")
+        run = run_training(training_config(request, folders, repeat), work / "run")
+        export_model(run.best_checkpoint, target)
+    minutes = (time.perf_counter() - start) / 60
+    say("scoring the held-out frames before and after")
+    held_seq = dataclasses.replace(seq, frames=tuple(seq.frames[i] for i in held))
+    before = holdout_report(held_seq, robot, request.model, uv[list(held)], T)
+    after = holdout_report(held_seq, robot, str(target), uv[list(held)], T)
+    report = {"data": str(request.data), "result": str(request.result),
+              "model": str(request.model), "teaching_frames": len(teach),
+              "holdout": [held.start, held.stop], "renders": request.renders,
+              "minutes": minutes, "before": before, "after": after,
+              "lines": report_lines(before, after)}
+    write_card(target, report, doc)
+    return report
+
+
+def write_card(target: Path, report: dict, doc: dict) -> Path:
+    """The adapted model's card: what it was adapted on and the held-out figures."""
+    from dream.io.atomic import write_bytes_atomic
+
+    verdict = (doc.get("quality") or {}).get("verdict")
+    text = "\n".join([
+        f"# {target.name}: adapted to one recording",
+        "",
+        f"Fine-tuned from `{report['model']}` for {report['minutes']:.1f} minutes on "
+        f"{report['teaching_frames']} frames of `{report['data']}`, labelled by the calibrated "
+        f"extrinsic of `{report['result']}` (verdict `{verdict}`) and the joint readings, mixed "
+        f"with {report['renders']} renders of the robot. Frames {report['holdout'][0]}-"
+        f"{report['holdout'][1] - 1} were held out; on them, against the same labels "
+        "(before -> after):",
+        "", "```", *report["lines"], "```", ""])
+    return write_bytes_atomic(target.with_suffix(".md"), text.encode())
