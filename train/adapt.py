@@ -34,6 +34,8 @@ log = logging.getLogger(__name__)
 HOLDOUT_SHARE = 3           # default: the last 1/3 of the frames by time are held out
 PCK_PX = 5.0                # PCK threshold of the report, pixels
 FINE_TUNE_LR = 5e-4         # a quarter of the recipe's: the network already works on renders
+SCORING_MINUTES = 1.5       # kept from --minutes for the export and the held-out scoring
+MIN_TRAINING_MINUTES = 0.5
 UNRELIABLE = "unreliable"
 
 
@@ -151,10 +153,10 @@ def teacher(request: AdaptRequest, out) -> tuple:
     return seq, np.asarray(doc["T_cam_base"], float), model, doc
 
 
-def training_config(request: AdaptRequest, folders: list[str], repeat: int):
+def training_config(request: AdaptRequest, folders: list[str], repeat: int, minutes: float):
     """The recipe with the teaching folder (`repeat` times, to weigh the real frames as much
     as the renders) and the renders as data, the model's weights as the start, the fine-tune
-    learning rate and the time budget."""
+    learning rate and the training's time budget `minutes`."""
     from train.config import load_config
 
     if not Path(request.config).is_file():
@@ -164,9 +166,24 @@ def training_config(request: AdaptRequest, folders: list[str], repeat: int):
     train = ",".join([folders[0]] * repeat + folders[1:])
     return load_config(request.config, (
         f"data.train=[{train}]", f"trainer.init_from={request.model}",
-        f"trainer.time_budget_minutes={request.minutes}", f"optim.lr={FINE_TUNE_LR}",
+        f"trainer.time_budget_minutes={minutes}", f"optim.lr={FINE_TUNE_LR}",
         f"trainer.seed={request.seed}", "trainer.checkpoint_every_n_steps=0",
         *request.overrides))
+
+
+def training_minutes(total: float, spent_s: float) -> float:
+    """The training's share of the `--minutes` budget: what the labels and renders left,
+    less the export and scoring's.
+
+    >>> training_minutes(20.0, 60.0)
+    17.5
+    """
+    left = total - spent_s / 60 - SCORING_MINUTES
+    if left < MIN_TRAINING_MINUTES:
+        raise InputError(f"--minutes {total:g} leaves {left:.1f} minutes to train after the "
+                         f"labels and renders ({spent_s / 60:.1f} minutes)",
+                         fix="give more --minutes, or fewer --renders")
+    return left
 
 
 def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None = None
@@ -201,8 +218,9 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
             folders.append(str(render_mix(seq.robot or robot.name, robot.keypoint_names,
                                           request.renders, work / "renders", request.seed)))
         repeat = max(1, round(request.renders / max(len(teach), 1)))
-        say(f"fine-tuning {request.model} for {request.minutes:g} minutes")
-        run = run_training(training_config(request, folders, repeat), work / "run")
+        minutes = training_minutes(request.minutes, time.perf_counter() - start)
+        say(f"fine-tuning {request.model} for {minutes:.1f} minutes")
+        run = run_training(training_config(request, folders, repeat, minutes), work / "run")
         export_model(run.best_checkpoint, target)
     minutes = (time.perf_counter() - start) / 60
     say("scoring the held-out frames before and after")

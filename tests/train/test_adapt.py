@@ -90,3 +90,13 @@ def test_adapt_writes_a_model_that_calibrate_runs_unchanged(panda, meshes, tmp_p
     assert code == 0, err
     doc = json.loads((tmp_path / "again.json").read_text())
     assert doc["keypoints_used"] > 0
+
+
+def test_docstring_examples_run():
+    import doctest
+
+    import train.adapt
+    import train.adapt_report
+
+    for module in (train.adapt, train.adapt_report):
+        assert doctest.testmod(module).failed == 0
