@@ -51,7 +51,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--renders", type=int, default=1000,
                    help="renders of the robot mixed in so it does not forget (default: "
                         "%(default)s)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the renders and the training (default: %(default)s)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a recipe key, e.g. data.batch_size=8")
     p.set_defaults(func=cmd_adapt)
