@@ -186,9 +186,12 @@ def test_calibrate_aligns_edges_by_default_without_masks(panda, meshes, tmp_path
     t_keypoints, _ = pose_errors(np.array(edges["T_cam_base_keypoints"]), T_true)
     t_edges, _ = pose_errors(np.array(doc["T_cam_base"]), T_true)
     assert t_edges < 0.002 and t_edges < t_keypoints
-    # the 1-sigma written is the aligned pose's own: its jackknife
+    # the 1-sigma written is the aligned pose's own: its jackknife, plus the difference from
+    # the silhouettes' optimum (their cross-check)
     unc = doc["uncertainty"]
-    assert unc["method"] == "jackknife of the edge alignment"
+    assert unc["method"] == "jackknife of the edge alignment + the image cues' disagreement"
+    assert doc["silhouette_check"]["ran"] and doc["silhouette_check"]["distance_m"] < 0.005
+    assert len(unc["cue_disagreement_xi"]) == 6
     assert sum(g.startswith("frames ") for g in unc["jackknife_left_out"]) == 5
     assert not np.allclose(doc["covariance_xi"], unc["covariance_xi_keypoint_pose"])
     assert t_edges < 5 * np.linalg.norm(doc["sigma_camera_position_base_m"]) + 1e-3
