@@ -173,3 +173,22 @@ def with_refined_uncertainty(doc: dict[str, Any],
     uncertainty["refined_by"] = jackknife.refined_by
     uncertainty["jackknife_left_out"] = list(jackknife.left_out)
     doc["uncertainty"] = uncertainty
+
+
+def with_cue_term(doc: dict, T_other: np.ndarray | None) -> tuple[dict, tuple[float, float]
+                                                                   | None]:
+    """Where the other image cue's optimum `T_other` (the edge alignment's, or the masks'
+    when the edges' was written) differs from the pose written, its covariance gains the
+    outer product of that difference (an error both frames and links share, which no
+    jackknife sees); returns the document and the difference (m, rad), None without one."""
+    from dream.metrics import pose_errors
+
+    T = np.asarray(doc["T_cam_base"])
+    if T_other is None or np.allclose(T, T_other):
+        return doc, None
+    delta = increment_between(T, np.asarray(T_other))
+    set_covariance(doc, np.asarray(doc["covariance_xi"]) + np.outer(delta, delta))
+    doc["uncertainty"]["cue_disagreement_xi"] = delta.tolist()
+    doc["uncertainty"]["method"] += " + the image cues' disagreement"
+    m, rad = pose_errors(T, T_other)
+    return doc, (float(m), float(rad))

@@ -20,7 +20,7 @@ def keypoint_scores(uv_found: np.ndarray, uv_labels: np.ndarray, names: tuple[st
     >>> labels = np.zeros((2, 1, 2)); found = np.array([[[3.0, 4.0]], [[np.nan, np.nan]]])
     >>> s = keypoint_scores(found, labels, ("a",))
     >>> s["keypoints"]["a"]["median_px"], s["keypoints"]["a"]["pck"], s["found_share"]
-    (5.0, 0.0, 0.5)
+    (5.0, 0.5, 0.5)
     """
     if uv_found.shape != uv_labels.shape or uv_found.shape[1] != len(names):
         raise InputError(f"detections {uv_found.shape} and labels {uv_labels.shape} differ")

@@ -153,11 +153,11 @@ def add_silhouette_check(seq, robot, result, doc: dict, out: TextIO) -> tuple[di
     (`dream.coarse.crosscheck`): RESULT.json's `silhouette_check`, the covariance gains the
     disagreement of the two cues (`with_cue_term`), and the verdict's findings on it. Where no
     masks can be made it does not run, and says why."""
-    from dream.cli.calibrate_start import with_cue_term
     from dream.coarse.crosscheck import silhouette_crosscheck
     from dream.coarse.settings import SearchSettings
     from dream.coarse.verdict import crosscheck_findings
     from dream.errors import InputError
+    from dream.refined_uncertainty import with_cue_term
 
     try:
         check = silhouette_crosscheck(seq, robot, np.asarray(doc["T_cam_base"]),

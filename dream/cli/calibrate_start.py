@@ -206,27 +206,6 @@ def mark_doc(marked, seq) -> dict:
             "search_sigma_rad": marked.guess.sigma_rad}
 
 
-def with_cue_term(doc: dict, T_other: np.ndarray | None) -> tuple[dict, tuple[float, float]
-                                                                   | None]:
-    """Where the other image cue's optimum `T_other` (the edge alignment's, or the masks'
-    when the edges' was written) differs from the pose written, its covariance gains the
-    outer product of that difference (an error both frames and links share, which no
-    jackknife sees); returns the document and the difference (m, rad), None without one."""
-    from dream.metrics import pose_errors
-    from dream.pnp import increment_between
-    from dream.refined_uncertainty import set_covariance
-
-    T = np.asarray(doc["T_cam_base"])
-    if T_other is None or np.allclose(T, T_other):
-        return doc, None
-    delta = increment_between(T, np.asarray(T_other))
-    set_covariance(doc, np.asarray(doc["covariance_xi"]) + np.outer(delta, delta))
-    doc["uncertainty"]["cue_disagreement_xi"] = delta.tolist()
-    doc["uncertainty"]["method"] += " + the image cues' disagreement"
-    m, rad = pose_errors(T, T_other)
-    return doc, (float(m), float(rad))
-
-
 def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
                    marked=None, camera=None) -> dict:
     """The verdict on a pose found without keypoints: the search's findings, the cues', the
@@ -262,6 +241,7 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
     """`dream calibrate` by the silhouette search (`dream.cli.calibrate_start`)."""
     from dream.cli.calibrate_report import add_polish
     from dream.cli.calibrate_write import finish, result_document
+    from dream.refined_uncertainty import with_cue_term
 
     if request.model_extension:
         raise InputError("--model-extension corrects a keypoint calibration, not the "
