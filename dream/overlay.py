@@ -247,9 +247,9 @@ def write_skeleton_overlays(sequence, robot, T_cam_base: np.ndarray, out_dir,
     with staged_directory(out_dir) as stage:
         for n, (i, frame) in enumerate(chosen):
             camera = sequence.frame_camera(i)
-            uv = project(camera, transform_points(T_cam_base[i], P_base[i]))
             image = outliner.draw(_frame_canvas(sequence, frame), camera, i, T_cam_base[i])
             if skeleton:
+                uv = project(camera, transform_points(T_cam_base[i], P_base[i]))
                 image = draw_skeleton(image, uv, robot.skeleton_edges)
             _write_png(stage / f"{frame.name}.overlay.png", image)
             if (n + 1) % 50 == 0:

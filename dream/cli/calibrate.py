@@ -85,7 +85,6 @@ class CalibrateRequest(DataOptions):
             from dream.cli.calibrate_start import camera_guess, check_frames, check_mark_options
 
             check_frames(self)
-
             check_mark_options(self)
             camera_guess(self.camera_guess, self.look_at, self.guess_sigma)
 

@@ -142,7 +142,6 @@ def search_start(request, seq, out: TextIO):
     outcome and masks, and the guess."""
     from dream.coarse.calibration import basin_covariance, coarse_start, stand_in_result
 
-    check_frames(request)
     guess = camera_guess(request.camera_guess, request.look_at, request.guess_sigma)
     robot, extra = (keypoint_hypothesis(request, seq, out) if request.keypoints_given
                     else (robot_for_search(seq, request), {}))

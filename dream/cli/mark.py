@@ -51,7 +51,7 @@ def run_mark(request: MarkRequest, out: TextIO | None = None,
         frames, uv = read_marks(target, seq)
         marks = {names[int(i)]: (float(u), float(v)) for i, (u, v) in zip(frames, uv,
                                                                           strict=True)}
-    book = MarkBook(names, camera.width, camera.height, target, marks)
+    book = MarkBook(names, camera, target, marks)
 
     def image_png(i: int) -> bytes:
         return encode_png(load_image(seq.frames[i], camera), seq.frames[i].image_path)

@@ -127,7 +127,7 @@ def read_marks(path: str | Path, sequence: Sequence) -> tuple[np.ndarray, np.nda
         except ValueError:
             raise InputError(f"line {line}: u and v must be numbers, got {row[1:]}", path,
                              FIX_MARKS) from None
-        if not (-0.5 <= u <= cam.width - 0.5 and -0.5 <= v <= cam.height - 0.5):
+        if not cam.in_image(np.array([u, v])):
             raise InputError(f"line {line}: pixel ({u}, {v}) is outside the {cam.width}x"
                              f"{cam.height} image", path, "give pixels of the data's images")
         frames.append(index)

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import threading
 from collections.abc import Callable
 from http import HTTPStatus
@@ -24,6 +23,9 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib.resources import files
 from pathlib import Path
 
+import numpy as np
+
+from dream.camera import CameraIntrinsics
 from dream.coarse.mark import MARK_COLUMNS
 from dream.errors import InputError
 from dream.io.atomic import write_bytes_atomic
@@ -40,9 +42,9 @@ class MarkBook:
     """The clicks of one recording (frame name -> (u, v)), written to `out` as a CSV after
     every change (atomically: a killed server leaves the old file or the new one)."""
 
-    def __init__(self, names: list[str], width: int, height: int, out: Path,
+    def __init__(self, names: list[str], camera: CameraIntrinsics, out: Path,
                  marks: dict[str, tuple[float, float]] | None = None) -> None:
-        self.names, self.width, self.height, self.out = names, width, height, out
+        self.names, self.camera, self.out = names, camera, out
         self._marks: dict[str, tuple[float, float]] = dict(marks or {})
         self._lock = threading.Lock()
 
@@ -54,9 +56,9 @@ class MarkBook:
         """Record the click of frame `name` (pixels, origin at the top-left pixel's centre)."""
         if name not in self.names:
             raise InputError(f"no frame {name!r}")
-        if not (math.isfinite(u) and math.isfinite(v) and -0.5 <= u <= self.width - 0.5
-                and -0.5 <= v <= self.height - 0.5):
-            raise InputError(f"pixel ({u}, {v}) is outside the {self.width}x{self.height} image")
+        if not self.camera.in_image(np.array([u, v])):
+            raise InputError(f"pixel ({u}, {v}) is outside the {self.camera.width}x"
+                             f"{self.camera.height} image")
         with self._lock:
             self._marks[name] = (u, v)
             self._write()
@@ -108,8 +110,9 @@ class _Handler(BaseHTTPRequestHandler):
             self._send(HTTPStatus.OK, page_html(), "text/html; charset=utf-8")
         elif self.path == "/api/frames":
             book = self.book
-            self._json({"frames": book.names, "width": book.width, "height": book.height,
-                        "out": book.out.name, "marks": book.marks()})
+            self._json({"frames": book.names, "width": book.camera.width,
+                        "height": book.camera.height, "out": book.out.name,
+                        "marks": book.marks()})
         elif self.path.startswith(IMAGE_PREFIX) and self.path.endswith(IMAGE_SUFFIX):
             index = self.path[len(IMAGE_PREFIX):-len(IMAGE_SUFFIX)]
             if not index.isdigit() or int(index) >= len(self.book.names):
