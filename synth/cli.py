@@ -61,28 +61,9 @@ class Progress:
 
 
 def cmd_synth(args: argparse.Namespace) -> int:
-    from synth.camera_note import fixed_camera_note
-    from synth.config import load_config
-    from synth.generate import CHUNK_FRAMES, SynthJob, generate, worker_count
+    from synth.generate import CHUNK_FRAMES, generate, worker_count
 
-    keypoints = tuple(k for k in args.keypoints.split(",") if k) if args.keypoints else None
-    extension = None
-    if args.model_extension:
-        from dream.extension import read_extension
-
-        extension = read_extension(args.model_extension)
-    config = load_config(args.config, args.set)
-    note = fixed_camera_note(config, args.config, args.set)
-    if note:
-        log.warning(note)
-    job = SynthJob(robot=args.robot, out_dir=Path(args.out), num_frames=args.num,
-                   config=config, seed=args.seed, keypoints=keypoints,
-                   workers=args.workers, extension=extension)
-    if args.contact_sheet and not args.contact_sheet.lower().endswith(".png"):
-        from dream.errors import InputError
-
-        raise InputError("the contact sheet is written as PNG", args.contact_sheet,
-                         "give --contact-sheet a file name ending in .png")
+    job = job_from(args, args.workers)
     workers = worker_count(args.workers, args.num)
     if workers < args.workers:
         print(f"synth: {workers} rendering processes instead of --workers {args.workers} (no more "
@@ -94,18 +75,58 @@ def cmd_synth(args: argparse.Namespace) -> int:
                          on_start=progress.begin)
     finally:
         progress.close()
-    print(f"{args.out}: {stats['rendered']} frames rendered, {stats['skipped']} already there, "
-          f"{stats['frames_per_s']:.1f} frames/s")
-    if args.contact_sheet:
-        from synth.contact_sheet import write_contact_sheet
-
-        print(f"contact sheet: {write_contact_sheet(args.out, args.contact_sheet)}")
+    report_done(args, stats)
     return 0
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     help_ = "render a domain-randomised synthetic dataset (DREAM layout, with ground truth)"
     p = subparsers.add_parser("synth", help=help_, description=help_)
+    add_synth_args(p)
+    p.add_argument("--workers", type=int, default=1,
+                   help="parallel rendering processes, at most the cores (default: %(default)s)")
+    p.set_defaults(func=cmd_synth)
+
+
+def job_from(args: argparse.Namespace, workers: int):
+    """The `SynthJob` of the options of `add_synth_args`, the recipe checked (a note about a
+    fixed camera logged)."""
+    from synth.camera_note import fixed_camera_note
+    from synth.config import load_config
+    from synth.generate import SynthJob
+
+    keypoints = tuple(k for k in args.keypoints.split(",") if k) if args.keypoints else None
+    extension = None
+    if args.model_extension:
+        from dream.extension import read_extension
+
+        extension = read_extension(args.model_extension)
+    config = load_config(args.config, args.set)
+    note = fixed_camera_note(config, args.config, args.set)
+    if note:
+        log.warning(note)
+    if args.contact_sheet and not args.contact_sheet.lower().endswith(".png"):
+        from dream.errors import InputError
+
+        raise InputError("the contact sheet is written as PNG", args.contact_sheet,
+                         "give --contact-sheet a file name ending in .png")
+    return SynthJob(robot=args.robot, out_dir=Path(args.out), num_frames=args.num,
+                    config=config, seed=args.seed, keypoints=keypoints, workers=workers,
+                    extension=extension)
+
+
+def report_done(args: argparse.Namespace, stats: dict) -> None:
+    """The closing lines of a synth run (and the contact sheet, when asked for)."""
+    print(f"{args.out}: {stats['rendered']} frames rendered, {stats['skipped']} already there, "
+          f"{stats['frames_per_s']:.1f} frames/s")
+    if args.contact_sheet:
+        from synth.contact_sheet import write_contact_sheet
+
+        print(f"contact sheet: {write_contact_sheet(args.out, args.contact_sheet)}")
+
+
+def add_synth_args(p: argparse.ArgumentParser) -> None:
+    """The options of `dream synth` besides `--workers` (`dream batch synth` shares them)."""
     p.add_argument("--robot", required=True, help="built-in robot name or URDF path")
     p.add_argument("--keypoints", help="comma-separated link names (required for a URDF path)")
     p.add_argument("--num", type=int, required=True, help="number of frames")
@@ -113,8 +134,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--config", help="YAML recipe (default: configs/synth/default.yaml values)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a recipe key (repeatable), e.g. camera.radius_m=[1.0,1.5]")
-    p.add_argument("--workers", type=int, default=1,
-                   help="parallel rendering processes, at most the cores (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0,
                    help="random seed: each frame depends only on it and its index (default: "
                         "%(default)s)")
@@ -128,4 +147,3 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "keypoint labels (to judge a recipe by eye)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace a folder made with other settings")
-    p.set_defaults(func=cmd_synth)

@@ -304,7 +304,8 @@ def prepare_output(job: SynthJob, overwrite: bool) -> set[int]:
 _STATE: dict[str, Any] = {}
 
 
-def _worker_init(job: SynthJob) -> None:
+def worker_setup(job: SynthJob) -> None:
+    """A rendering process's scene, loaded once (`render_chunk` then renders with it)."""
     os.environ.setdefault("MUJOCO_GL", "egl")
     from synth.frames import FrameMaker
 
@@ -314,7 +315,7 @@ def _worker_init(job: SynthJob) -> None:
     _STATE["robot"] = robot
 
 
-def _worker_render(indices: list[int]) -> list[int]:
+def render_chunk(indices: list[int]) -> list[int]:
     """Render `indices`; encoding and writing run on a thread, overlapping the next render
     (both release the GIL). Returns once every frame of the chunk is on disk."""
     job: SynthJob = _STATE["job"]
@@ -332,7 +333,7 @@ def _worker_render(indices: list[int]) -> list[int]:
     return indices
 
 
-def _worker_close() -> None:
+def worker_close() -> None:
     writer = _STATE.pop("writer", None)
     if writer is not None:
         writer.shutdown(wait=True)
@@ -341,14 +342,19 @@ def _worker_close() -> None:
         maker.close()
 
 
-def _chunks(indices: list[int], size: int) -> Iterator[list[int]]:
+def chunks(indices: list[int], size: int = CHUNK_FRAMES) -> Iterator[list[int]]:
+    """`indices` in consecutive runs of `size` (what one worker renders at a time)."""
     for start in range(0, len(indices), size):
         yield indices[start:start + size]
 
 
+Runner = Callable[[list[int], Callable[[int], None]], None]
+
+
 def generate(job: SynthJob, overwrite: bool = False,
              on_progress: Callable[[int], None] | None = None,
-             on_start: Callable[[int, int], None] | None = None) -> dict[str, Any]:
+             on_start: Callable[[int, int], None] | None = None,
+             runner: Runner | None = None) -> dict[str, Any]:
     """Render the missing frames of `job`; returns counts and the rate.
 
     Everything that can be checked (robot, recipe inputs, camera, model extension, output
@@ -360,6 +366,9 @@ def generate(job: SynthJob, overwrite: bool = False,
         on_start: called once as `on_start(total, already)` (frames asked for, frames already
             complete) before rendering starts. The library prints nothing: `dream synth`'s
             progress line is `synth.cli.Progress`.
+        runner: renders the frames `runner(todo, on_progress)` elsewhere (`dream batch synth`:
+            `worker_setup` and `render_chunk` on an engine's workers); default: `job.workers`
+            processes on this machine.
     """
     robot = load_robot(job.robot, list(job.keypoints) if job.keypoints else None)
     check_inputs(job.config, robot)
@@ -381,12 +390,15 @@ def generate(job: SynthJob, overwrite: bool = False,
         if on_start is not None:
             on_start(job.num_frames, len(done))
         start = time.perf_counter()
-        workers = worker_count(job.workers, len(todo))
+        workers = worker_count(job.workers, len(todo)) if runner is None else job.workers
         if workers < job.workers:
             log.info("%d rendering processes instead of %d: %d frames to render, %d cores",
                      workers, job.workers, len(todo), os.cpu_count() or 1)
-        if todo:
-            _run(job, todo, on_progress or (lambda n: None), workers)
+        report = on_progress or (lambda n: None)
+        if todo and runner is not None:
+            runner(todo, report)
+        elif todo:
+            _run(job, todo, report, workers)
         seconds = time.perf_counter() - start
         finished = True
     finally:
@@ -408,18 +420,18 @@ def worker_count(asked: int, frames: int, cores: int | None = None) -> int:
 
 def _run(job: SynthJob, todo: list[int], report: Callable[[int], None], workers: int) -> None:
     if workers == 1:
-        _worker_init(job)
+        worker_setup(job)
         try:
-            for chunk in _chunks(todo, CHUNK_FRAMES):
-                report(len(_worker_render(chunk)))
+            for chunk in chunks(todo, CHUNK_FRAMES):
+                report(len(render_chunk(chunk)))
         finally:
-            _worker_close()
+            worker_close()
         return
     ctx = mp.get_context("spawn")
-    chunks: Iterable[list[int]] = _chunks(todo, CHUNK_FRAMES)
-    with ctx.Pool(workers, initializer=_worker_init, initargs=(job,)) as pool:
+    runs: Iterable[list[int]] = chunks(todo, CHUNK_FRAMES)
+    with ctx.Pool(workers, initializer=worker_setup, initargs=(job,)) as pool:
         try:
-            for chunk in pool.imap_unordered(_worker_render, chunks):
+            for chunk in pool.imap_unordered(render_chunk, runs):
                 report(len(chunk))
         except DreamError:
             pool.terminate()

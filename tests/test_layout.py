@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("dream", "synth", "train", "export", "plan")
+PACKAGES = ("dream", "synth", "train", "export", "plan", "batch")
 MAX_MODULE_LINES = 450
 
 # Development narration: ordinal work periods, issue numbers, lent hardware. pytest's fixture

@@ -289,15 +289,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = add_command(sub, "calibrate", cmd_calibrate,
                     "solve T_cam_base from keypoints of many frames")
     add_data_args(p)
+    p.add_argument("--out", required=True, help="RESULT.json to write")
+    p.add_argument("--overlays", help="folder for per-frame overlays and a summary image")
+    add_calibrate_args(p)
+
+
+def add_calibrate_args(p: argparse.ArgumentParser) -> None:
+    """The options of `dream calibrate` besides `--data`, `--out` and `--overlays` (which
+    `dream batch calibrate` gives other meanings)."""
     add_model_source(p, "detect the keypoints with this network (dream export; runs with "
                         "onnxruntime, no torch). Without --model and --use-labels the camera "
                         "pose is searched from the robot's silhouettes (fixed camera, the arm "
                         "moving, or the data's robot masks)", required=False)
-    p.add_argument("--out", required=True, help="RESULT.json to write")
     p.add_argument("--frames", choices=("all", "each"), default="all",
                    help="all: one extrinsic from every frame (fixed camera); each: per frame "
                         "(default: %(default)s)")
-    p.add_argument("--overlays", help="folder for per-frame overlays and a summary image")
     p.add_argument("--polish", action="store_true",
                    help="refine the extrinsic (with --frames each: every frame's own pose) by "
                         "aligning the robot's rendered silhouette with the data's masks (or, "

@@ -251,11 +251,14 @@ def add_command(sub: argparse._SubParsersAction, name: str,
     return p
 
 
-def add_data_args(p: argparse.ArgumentParser, required: bool = True) -> None:
+DATA_HELP = "dataset folder (DREAM layout, panda_teleop, franka_offline) or ManiUniCon .npz"
+
+
+def add_data_args(p: argparse.ArgumentParser, required: bool = True,
+                  data_help: str = DATA_HELP) -> None:
     """`--data`, `--robot`, `--keypoints` and `--intrinsics`, of the commands that read a
-    dataset."""
-    p.add_argument("--data", required=required, help="dataset folder (DREAM layout, "
-                   "panda_teleop, franka_offline) or ManiUniCon .npz")
+    dataset (`data_help`: what `--data` names, for a command that reads many)."""
+    p.add_argument("--data", required=required, help=data_help)
     p.add_argument("--robot", help=ROBOT_HELP)
     add_keypoints_arg(p)
     add_intrinsics_args(p)

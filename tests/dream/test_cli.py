@@ -234,9 +234,17 @@ def test_every_option_says_what_it_does_and_its_default():
 
     from dream.cli.app import build_parser
 
-    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
-    silent = []
-    for name, parser in sub.choices.items():
+    def commands(parser, prefix=""):
+        """(name, parser) of every command, those under a command's own commands included."""
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, child in action.choices.items():
+                    yield f"{prefix}{name}", child
+                    yield from commands(child, f"{prefix}{name} ")
+
+    silent, names = [], []
+    for name, parser in commands(build_parser()):
+        names.append(name)
         for action in parser._actions:
             if isinstance(action, argparse._HelpAction) or action.help == argparse.SUPPRESS:
                 continue
@@ -244,3 +252,4 @@ def test_every_option_says_what_it_does_and_its_default():
             if not action.help or (has_default and "default" not in action.help):
                 silent.append(f"{name} {'/'.join(action.option_strings) or action.dest}")
     assert not silent, silent
+    assert {"calibrate", "batch calibrate", "batch synth"} <= set(names)

@@ -1,0 +1,301 @@
+"""`dream batch calibrate`: one `dream calibrate` process per recording, started by the workers
+of an engine (`batch.engine`).
+
+Each recording gets its own folder under the output folder: RESULT.json and the files written
+beside it, `calibrate.log` (what `dream calibrate` prints) and `batch.json` (its row of the
+summary, the content hash of its inputs). The folder is written in a hidden temporary folder
+and renamed into place when complete, so a batch killed at any point leaves only whole folders.
+A re-run skips the recordings whose folder says `ok` with the same content hash and redoes the
+rest (failed, missing, or changed inputs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from batch.engine import WorkerLost
+from batch.recordings import (
+    folder_names,
+    input_hash,
+    list_recordings,
+    options_digest,
+    recording_digest,
+    recording_stat,
+)
+from batch.summary import FAILED, OK, failed_row, result_row, write_summary
+from dream.errors import InputError
+from dream.io import atomic_directory, is_temporary, write_json_atomic
+
+log = logging.getLogger(__name__)
+
+RESULT_NAME = "RESULT.json"
+LOG_NAME = "calibrate.log"
+RECORD_NAME = "batch.json"
+OVERLAYS_NAME = "overlays"
+SUMMARY_PERIOD_S = 5.0   # the summary of thousands of recordings is not rewritten per result
+ERROR_PREFIX = "dream calibrate: error: "
+ONE_THREAD = 1        # onnxruntime threads of a worker without --threads: one core each
+# the options that name files whose bytes a result depends on
+FILE_OPTIONS = ("model", "camera_guess", "mark", "model_extension", "camera_info", "robot")
+
+
+@dataclass(frozen=True)
+class CalibrateTask:
+    """One recording's calibration: what a worker is sent (paths and options, no data)."""
+
+    recording: str
+    name: str
+    out_dir: str
+    options: Mapping[str, Any] = field(default_factory=dict)
+    input_hash: str = ""
+    overlays: bool = False
+    recording_stat: str = ""
+    recording_digest: str = ""
+
+    def record(self, row: dict[str, Any]) -> dict[str, Any]:
+        """The recording folder's `batch.json`: the row and what says whether it is current."""
+        return {"input_hash": self.input_hash, "recording_stat": self.recording_stat,
+                "recording_digest": self.recording_digest, "row": row}
+
+
+def calibrate_one(task: CalibrateTask) -> dict[str, Any]:
+    """Run `dream calibrate` on one recording into its folder (worker side); returns its row
+    of the summary. The command runs in a process of its own, exactly as a user would run it,
+    so its result is the one of a single run (bit for bit: the solvers' floating-point sums
+    depend on the memory a long-lived process has seen). Any failure becomes the row's
+    one-line error, never an exception: one recording does not stop the others."""
+    start = time.perf_counter()
+    folder = Path(task.out_dir) / task.name
+    with atomic_directory(folder, overwrite=True) as tmp:
+        result_path = tmp / RESULT_NAME
+        command = calibrate_command(task, result_path, tmp / OVERLAYS_NAME)
+        with (tmp / LOG_NAME).open("w", encoding="utf-8") as log_file:
+            print("$ " + " ".join(command), file=log_file, flush=True)
+            run = subprocess.run(command, stdout=log_file, stderr=subprocess.PIPE, text=True,
+                                 check=False)
+            log_file.write(run.stderr)
+        seconds = time.perf_counter() - start
+        if run.returncode == 0:
+            doc = _with_final_paths(result_path, folder, task.overlays)
+            row = result_row(task.recording, task.name, doc, seconds)
+        else:
+            row = failed_row(task.recording, task.name, _error_line(run), seconds)
+        write_json_atomic(tmp / RECORD_NAME, task.record(row))
+    return row
+
+
+def _error_line(run: subprocess.CompletedProcess) -> str:
+    """The one-line error of a failed `dream calibrate` (a crash: its last line)."""
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    for line in lines:
+        if line.startswith(ERROR_PREFIX):
+            return line[len(ERROR_PREFIX):]
+    last = lines[-1] if lines else "no message"
+    return f"internal error (exit code {run.returncode}): {last}"
+
+
+def dream_command() -> list[str]:
+    """How this Python runs the `dream` program (its console script where installed)."""
+    script = Path(sys.executable).parent / "dream"
+    return [str(script)] if script.is_file() else [sys.executable, "-m", "dream.cli"]
+
+
+def calibrate_command(task: CalibrateTask, result: Path, overlays: Path) -> list[str]:
+    """The `dream calibrate` command line of a task."""
+    command = [*dream_command(), "calibrate", "--data", task.recording, "--out", str(result)]
+    if task.overlays:
+        command += ["--overlays", str(overlays)]
+    return command + calibrate_argv(task.options)
+
+
+def calibrate_argv(options: Mapping[str, Any]) -> list[str]:
+    """The command-line options of `dream calibrate` that give these request fields (those
+    at their default left out)."""
+    from dream.cli.calibrate import add_calibrate_args
+    from dream.cli.options import add_data_args
+
+    parser = argparse.ArgumentParser(add_help=False)
+    add_data_args(parser, required=False)
+    add_calibrate_args(parser)
+    argv: list[str] = []
+    for action in parser._actions:
+        if action.dest not in options or action.dest == "data":
+            continue
+        value = options[action.dest]
+        if value is None or value == action.default:
+            continue
+        flag = next(o for o in action.option_strings if o.startswith("--"))
+        if isinstance(action, argparse._StoreTrueAction):
+            argv.append(flag)
+        else:
+            argv += [flag, str(value)]
+    return argv
+
+
+def _with_final_paths(result_path: Path, folder: Path, overlays: bool) -> dict:
+    """RESULT.json, its settings naming the recording's folder, not the temporary it was
+    written in."""
+    doc = json.loads(result_path.read_text(encoding="utf-8"))
+    settings = dict(doc.get("settings", {}))
+    settings["out"] = str(folder / RESULT_NAME)
+    settings["overlays"] = str(folder / OVERLAYS_NAME) if overlays else None
+    doc = {**doc, "settings": settings}
+    write_json_atomic(result_path, doc)
+    return doc
+
+
+def read_record(folder: Path) -> dict | None:
+    """A recording folder's `batch.json` (None when missing or unreadable: redo it)."""
+    try:
+        record = json.loads((folder / RECORD_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return record if isinstance(record, dict) and isinstance(record.get("row"), dict) else None
+
+
+def option_files(options: Mapping[str, Any]) -> list[Path]:
+    """The files the options name (a model, a guess RESULT.json, marks, an extension...)."""
+    files = []
+    for name in FILE_OPTIONS:
+        value = options.get(name)
+        if isinstance(value, str) and Path(value).is_file():
+            files.append(Path(value))
+    return files
+
+
+def absolute_options(options: Mapping[str, Any]) -> dict[str, Any]:
+    """The options with the files they name made absolute (workers run elsewhere), and one
+    onnxruntime thread per worker unless --threads says otherwise."""
+    out = dict(options)
+    for name in FILE_OPTIONS:
+        value = out.get(name)
+        if isinstance(value, str) and Path(value).exists():
+            out[name] = str(Path(value).resolve())
+    if out.get("threads") is None:
+        out["threads"] = ONE_THREAD
+    return out
+
+
+def check_options(options: Mapping[str, Any], recording: Path) -> None:
+    """The calibrate options checked once, before any work (as `dream calibrate` checks its
+    own before reading the data)."""
+    from dream.cli.calibrate import CalibrateRequest
+
+    CalibrateRequest(**options, data=str(recording), out=RESULT_NAME)
+
+
+def remove_temporaries(out_dir: Path) -> int:
+    """Delete what a killed batch left half-written (hidden temporary folders); returns how
+    many."""
+    stale = [p for p in out_dir.iterdir() if is_temporary(p)] if out_dir.is_dir() else []
+    for path in stale:
+        if path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+    return len(stale)
+
+
+@dataclass(frozen=True)
+class BatchPlan:
+    """The tasks of a batch: those to run and the rows of those already done."""
+
+    tasks: tuple[CalibrateTask, ...]
+    todo: tuple[CalibrateTask, ...]
+    rows: dict[str, dict]
+
+
+def plan_batch(data: str, out_dir: Path, options: Mapping[str, Any],
+               overlays: bool) -> BatchPlan:
+    """Every recording of `data` as a task; those whose folder holds an `ok` row of the same
+    content hash are done already. A recording's content is read again only where its files'
+    sizes or modification times changed since its folder was written."""
+    out_resolved = out_dir.resolve()
+    recordings = [p for p in list_recordings(data)     # --data 'runs/*' --out runs/calib
+                  if p != out_resolved and out_resolved not in p.parents]
+    if not recordings:
+        raise InputError(f"--data '{data}' matches only the output folder", out_dir,
+                         "give --data the recordings and --out a folder outside them")
+    check_options(options, recordings[0])
+    options = absolute_options(options)
+    digest = options_digest({**options, "overlays": overlays}, option_files(options))
+    tasks, todo, rows = [], [], {}
+    for path, name in zip(recordings, folder_names(recordings), strict=True):
+        record = read_record(out_dir / name) or {}
+        stat = recording_stat(path)
+        content = (record["recording_digest"] if record.get("recording_stat") == stat
+                   and isinstance(record.get("recording_digest"), str)
+                   else recording_digest(path))
+        task = CalibrateTask(str(path), name, str(out_dir), options,
+                             input_hash(digest, content), overlays, stat, content)
+        tasks.append(task)
+        if record.get("input_hash") == task.input_hash and record["row"].get("status") == OK:
+            rows[name] = record["row"]
+        else:
+            todo.append(task)
+    return BatchPlan(tuple(tasks), tuple(todo), rows)
+
+
+def run_batch(plan: BatchPlan, out_dir: Path, engine,
+              on_result: Callable[[dict], None] | None = None) -> list[dict]:
+    """Run the plan's open tasks on `engine`; the summary is rewritten at most every
+    `SUMMARY_PERIOD_S` and at the end (each recording's `batch.json` is its record the moment
+    it finishes). Returns the rows in the order of the tasks."""
+    rows = dict(plan.rows)
+    written = time.monotonic()
+    for i, value in engine.run(calibrate_one, plan.todo):
+        task = plan.todo[i]
+        if isinstance(value, WorkerLost):
+            value = _lost_row(task, value)
+        rows[task.name] = value
+        if time.monotonic() - written >= SUMMARY_PERIOD_S:
+            write_summary(out_dir, [rows[t.name] for t in plan.tasks if t.name in rows])
+            written = time.monotonic()
+        if on_result is not None:
+            on_result(value)
+    ordered = [rows[t.name] for t in plan.tasks]
+    write_summary(out_dir, ordered)
+    return ordered
+
+
+def _lost_row(task: CalibrateTask, lost: WorkerLost) -> dict:
+    """The row (and folder record) of a recording whose worker died."""
+    row = failed_row(task.recording, task.name, lost.message, 0.0)
+    with atomic_directory(Path(task.out_dir) / task.name, overwrite=True) as tmp:
+        (tmp / LOG_NAME).write_text(f"error: {lost.message}\n", encoding="utf-8")
+        write_json_atomic(tmp / RECORD_NAME, task.record(row))
+    return row
+
+
+def prepare_out_dir(out: str) -> Path:
+    """The batch's output folder, created; leftovers of a killed batch removed."""
+    from dream.io import make_output_dir
+
+    out_dir = make_output_dir(out)
+    removed = remove_temporaries(out_dir)
+    if removed:
+        log.info("removed %d half-written folder(s) of an earlier batch", removed)
+    return out_dir
+
+
+def summary_counts(rows: list[dict]) -> tuple[int, int]:
+    """(ok, failed) rows."""
+    ok = sum(r.get("status") == OK for r in rows)
+    return ok, sum(r.get("status") == FAILED for r in rows)
+
+
+def refuse_file_out(out: str) -> None:
+    """`--out` must be a folder."""
+    if Path(out).is_file():
+        raise InputError("--out is a file; dream batch writes a folder", out,
+                         "give --out a folder")

@@ -1,0 +1,135 @@
+"""`dream batch calibrate` and `dream batch synth`: registered through the `dream.commands`
+entry point; imports nothing heavy (Ray only when `--engine ray` runs)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import fields
+
+EXIT_SOME_FAILED = 1     # the batch ran to its end and some recordings failed
+ENGINE_HELP = ("local: a process pool on this machine; ray: Ray (the cluster extra), a local "
+               "Ray started here or the cluster of --address / RAY_ADDRESS (default: "
+               "%(default)s)")
+# the request fields `dream batch calibrate` sets itself for each recording
+PER_RECORDING = ("data", "out", "overlays", "loaded_model")
+
+
+def _engine_settings(args: argparse.Namespace):
+    from batch.engine import EngineSettings
+
+    return EngineSettings(args.engine, args.workers, args.address)
+
+
+def _calibrate_options(args: argparse.Namespace) -> dict:
+    """The `dream calibrate` options of `args`, as the fields of its request."""
+    from dream.cli.calibrate import CalibrateRequest
+
+    names = {f.name for f in fields(CalibrateRequest)} - set(PER_RECORDING)
+    return {k: v for k, v in vars(args).items() if k in names}
+
+
+def cmd_batch_calibrate(args: argparse.Namespace) -> int:
+    from batch.calibrate import plan_batch, prepare_out_dir, run_batch, summary_counts
+    from batch.engine import make_engine
+    from batch.progress import BatchProgress
+    from batch.summary import FAILED, SUMMARY_CSV, SUMMARY_JSON
+
+    engine = make_engine(_engine_settings(args))
+    plan = plan_batch(args.data, _out_path(args.out), _calibrate_options(args), args.overlays)
+    try:
+        engine.start()                  # a cluster that cannot be joined writes nothing
+        out_dir = prepare_out_dir(args.out)
+        print(f"batch: {len(plan.tasks)} recordings, {len(plan.rows)} done already (same "
+              f"inputs), {len(plan.todo)} to run on the {engine.describe()}", file=sys.stderr)
+        progress = BatchProgress("batch", len(plan.tasks), len(plan.rows), engine.workers)
+        try:
+            rows = run_batch(plan, out_dir, engine, lambda row: progress.update(
+                failed=row["status"] == FAILED))
+        finally:
+            progress.close()
+    finally:
+        engine.close()
+    ok, failed = summary_counts(rows)
+    print(f"{out_dir}: {ok} calibrated, {failed} failed; {SUMMARY_CSV} and {SUMMARY_JSON} list "
+          "them, each recording's folder holds its RESULT.json and calibrate.log")
+    for row in rows:
+        if row["status"] == FAILED:
+            print(f"  {row['name']}: {row['error']}")
+    return EXIT_SOME_FAILED if failed else 0
+
+
+def _out_path(out: str):
+    from pathlib import Path
+
+    from batch.calibrate import refuse_file_out
+
+    refuse_file_out(out)
+    return Path(out)
+
+
+def cmd_batch_synth(args: argparse.Namespace) -> int:
+    from batch.engine import make_engine
+    from batch.progress import BatchProgress
+    from batch.synth import run_batch_synth
+    from synth.cli import job_from, report_done
+
+    engine = make_engine(_engine_settings(args))
+    job = job_from(args, engine.workers)
+    print(f"batch synth: rendering on the {engine.describe()}", file=sys.stderr)
+    progress: list[BatchProgress] = []
+
+    def begin(total: int, already: int) -> None:
+        progress.append(BatchProgress("batch synth", total, already, engine.workers,
+                                      unit="frames"))
+
+    try:
+        engine.start()
+        stats = run_batch_synth(job, engine, overwrite=args.overwrite,
+                                on_progress=lambda n: progress[0].update(n), on_start=begin)
+    finally:
+        for p in progress:
+            p.close()
+        engine.close()
+    report_done(args, stats)
+    return 0
+
+
+def _add_engine_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--engine", choices=("local", "ray"), default="local", help=ENGINE_HELP)
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes, one core each (onnxruntime on one thread unless "
+                        "--threads) (default: this machine's cores; with --address, the "
+                        "cluster's)")
+    p.add_argument("--address", metavar="ray://HOST:PORT",
+                   help="--engine ray: join this running Ray cluster (default: RAY_ADDRESS "
+                        "when set, else a local Ray is started here)")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """The `dream batch` parser and its two commands."""
+    from dream.cli.calibrate import add_calibrate_args
+    from dream.cli.options import add_data_args
+    from synth.cli import add_synth_args
+
+    help_ = "calibrate many recordings, or render one data set, on a process pool or Ray"
+    p = subparsers.add_parser("batch", help=help_, description=help_)
+    sub = p.add_subparsers(dest="batch_command", required=True,
+                           help="calibrate: many recordings; synth: one data set")
+    help_ = "one dream calibrate per recording, with a summary (resumable)"
+    c = sub.add_parser("calibrate", help=help_, description=help_)
+    add_data_args(c, data_help="the recordings: a glob pattern in quotes ('recordings/*', "
+                                 "'**' recurses) or a .txt file with one path per line")
+    c.add_argument("--out", required=True,
+                   help="output folder: one folder per recording, summary.csv and "
+                        "summary.json (a re-run skips what is done)")
+    c.add_argument("--overlays", action="store_true",
+                   help="draw each recording's overlays into its folder")
+    _add_engine_args(c)
+    add_calibrate_args(c)
+    c.set_defaults(func=cmd_batch_calibrate)
+    help_ = "dream synth's data set rendered in chunks on the workers (resumable)"
+    s = sub.add_parser("synth", help=help_, description=help_)
+    add_synth_args(s)
+    _add_engine_args(s)
+    s.set_defaults(func=cmd_batch_synth)

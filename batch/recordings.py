@@ -1,0 +1,135 @@
+"""The recordings of a batch: `--data` as a glob pattern or a list file, each recording's
+folder name under the output folder, and the content hash of everything a result depends on.
+
+>>> folder_names([Path("lab/a/ep1"), Path("lab/b/ep1"), Path("lab/b/ep2.npz")])
+['a-ep1', 'b-ep1', 'ep2']
+"""
+
+from __future__ import annotations
+
+import glob
+import hashlib
+import json
+import re
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from dream.errors import InputError
+
+LIST_SUFFIX = ".txt"              # --data LIST.txt: one recording per line
+COMMENT = "#"
+HASH_BLOCK_BYTES = 1 << 20
+UNSAFE_NAME_CHARS = re.compile(r"[^A-Za-z0-9._-]+")
+HASH_FORMAT = 1                   # bumped when what the hash covers changes
+FIX_DATA = ("give --data a glob pattern in quotes ('recordings/*') or a .txt file with one "
+            "recording per line")
+
+
+def list_recordings(data: str) -> list[Path]:
+    """The recordings of `--data`: the lines of a `.txt` list file (relative paths from the
+    list's folder; blank lines and `#` comments skipped) or the paths a glob pattern matches
+    (sorted; `**` recurses), each once. A listed recording that does not exist is not an
+    error here: it fails alone, as a recording that cannot be read does."""
+    if not data or not data.strip():
+        raise InputError("--data is empty", fix=FIX_DATA)
+    listed = Path(data)
+    if listed.suffix == LIST_SUFFIX and listed.is_file():
+        paths = _read_list(listed)
+    else:
+        paths = [Path(p) for p in sorted(glob.glob(data, recursive=True))]
+        if not paths:
+            raise InputError(f"--data '{data}' matches no recording", fix=FIX_DATA)
+    return list(dict.fromkeys(p.resolve() for p in paths))
+
+
+def _read_list(path: Path) -> list[Path]:
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read the list of recordings ({exc})", path, FIX_DATA) from None
+    entries = [line.strip() for line in lines]
+    paths = [path.parent / e for e in entries if e and not e.startswith(COMMENT)]
+    if not paths:
+        raise InputError("the list of recordings is empty", path, FIX_DATA)
+    return paths
+
+
+def folder_names(paths: list[Path]) -> list[str]:
+    """Each recording's folder name under the output folder: its own name (a file's without
+    its suffix), led by as many of its parent folders as set it apart from every other
+    recording's name of the same depth, joined by '-'."""
+    parts = [[_safe(p) for p in path.parts[:-1] if p != path.anchor]
+             + [_safe(path.stem if path.suffix and not path.is_dir() else path.name)]
+             for path in paths]
+    names = []
+    for i, own in enumerate(parts):
+        for depth in range(1, len(own) + 1):
+            name = "-".join(own[-depth:])
+            if all("-".join(other[-depth:]) != name for j, other in enumerate(parts) if j != i):
+                break
+        names.append(name)
+    if len(set(names)) < len(names):
+        return [f"{i:04d}-{name}" for i, name in enumerate(names)]
+    return names
+
+
+def _safe(name: str) -> str:
+    return UNSAFE_NAME_CHARS.sub("_", name).strip("._") or "recording"
+
+
+def _hash_file(digest, path: Path) -> None:
+    with path.open("rb") as f:
+        while block := f.read(HASH_BLOCK_BYTES):
+            digest.update(block)
+
+
+def _files(path: Path) -> Iterable[tuple[str, Path]]:
+    if path.is_file():
+        yield path.name, path
+        return
+    for file in sorted(p for p in path.rglob("*") if p.is_file()):
+        yield file.relative_to(path).as_posix(), file
+
+
+def options_digest(options: Mapping[str, Any], option_files: Iterable[Path] = ()) -> str:
+    """SHA-256 of the options and of the bytes of the files they name (a model, a guess, an
+    extension)."""
+    digest = hashlib.sha256(f"dream-batch {HASH_FORMAT}\n".encode())
+    digest.update(json.dumps(options, sort_keys=True, default=str).encode())
+    for file in option_files:
+        digest.update(f"\noption file {file.name}\n".encode())
+        _hash_file(digest, file)
+    return digest.hexdigest()
+
+
+def recording_stat(recording: Path) -> str:
+    """SHA-256 of the names, sizes and modification times of a recording's files: cheap, and
+    unchanged only while the files are (`recording_digest` is then not read again)."""
+    digest = hashlib.sha256()
+    try:
+        for name, file in _files(recording):
+            info = file.stat()
+            digest.update(f"{name}\0{info.st_size}\0{info.st_mtime_ns}\n".encode())
+    except OSError as exc:
+        return f"unreadable: {exc.strerror or exc}"
+    return digest.hexdigest()
+
+
+def recording_digest(recording: Path) -> str:
+    """SHA-256 of the names and bytes of a recording's files (a recording that cannot be read
+    gets a digest naming why: it fails alone when it runs)."""
+    digest = hashlib.sha256()
+    try:
+        for name, file in _files(recording):
+            digest.update(f"\nfile {name}\n".encode())
+            _hash_file(digest, file)
+    except OSError as exc:
+        return f"unreadable: {exc.strerror or exc}"
+    return digest.hexdigest()
+
+
+def input_hash(options: str, recording: str) -> str:
+    """The content hash of a result's inputs: the options' digest and the recording's. The
+    same hash means the result would be the same; any change means it is redone."""
+    return hashlib.sha256(f"{options}\n{recording}".encode()).hexdigest()

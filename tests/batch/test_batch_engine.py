@@ -1,0 +1,175 @@
+"""`batch.engine` and `batch.recordings`: both engines give every item's result once, an
+exception stops the run, a worker that dies is retried then reported; recordings are listed,
+named and hashed as the batch resumes them."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from batch.engine import (
+    MAX_ATTEMPTS,
+    EngineSettings,
+    LocalEngine,
+    RayEngine,
+    WorkerLost,
+    make_engine,
+)
+from batch.recordings import (
+    folder_names,
+    input_hash,
+    list_recordings,
+    options_digest,
+    recording_digest,
+    recording_stat,
+)
+from dream.errors import InputError
+
+DIE_ON = 3          # the item whose worker process dies (os._exit)
+FAIL_ON = 2         # the item whose function raises
+ITEM_S = 0.3
+
+
+def square_with_offset(x: int) -> tuple[int, int, str]:
+    """An item's value, the setup's offset and the worker's thread limit (long enough for
+    both workers to take items)."""
+    time.sleep(ITEM_S)
+    return x * x + int(os.environ.get("BATCH_TEST_OFFSET", "0")), os.getpid(), \
+        os.environ.get("OMP_NUM_THREADS", "")
+
+
+def set_offset(offset: int) -> None:
+    os.environ["BATCH_TEST_OFFSET"] = str(offset)
+
+
+def die_on_one(x: int) -> int:
+    if x == DIE_ON:
+        os._exit(3)
+    return x
+
+
+def fail_setup() -> None:
+    raise InputError("the scene cannot be loaded", fix="give a robot that exists")
+
+
+def fail_on_one(x: int) -> int:
+    if x == FAIL_ON:
+        raise InputError(f"item {x} is bad", fix="leave it out")
+    return x
+
+
+@pytest.fixture(scope="module")
+def ray_engine():
+    ray = pytest.importorskip("ray")
+    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # Ray's workers lack tests/
+    engine = RayEngine(workers=2)
+    yield engine
+    engine.close()
+
+
+def engines(ray_engine):
+    return [LocalEngine(workers=2), ray_engine]
+
+
+@pytest.mark.slow
+def test_both_engines_run_every_item_once_after_the_setup_on_one_thread(ray_engine):
+    items = list(range(7))
+    for engine in engines(ray_engine):
+        got = dict(engine.run(square_with_offset, items, setup=set_offset, setup_args=(10,)))
+        assert sorted(got) == items, engine.describe()
+        assert [got[i][0] for i in items] == [i * i + 10 for i in items]
+        assert len({pid for _, pid, _ in got.values()}) == 2       # two worker processes
+        assert {threads for _, _, threads in got.values()} == {"1"}
+        assert os.getpid() not in {pid for _, pid, _ in got.values()}
+
+
+@pytest.mark.slow
+def test_an_exception_stops_the_run_and_a_dead_worker_is_retried_then_reported(ray_engine):
+    for engine in engines(ray_engine):
+        with pytest.raises(InputError, match="item 2 is bad"):
+            dict(engine.run(fail_on_one, list(range(5))))
+        with pytest.raises(InputError, match="the scene cannot be loaded"):
+            dict(engine.run(square_with_offset, list(range(3)), setup=fail_setup))
+        got = dict(engine.run(die_on_one, list(range(6))))
+        assert sorted(got) == list(range(6)), engine.describe()
+        assert isinstance(got[DIE_ON], WorkerLost)
+        assert f"each of {MAX_ATTEMPTS} tries" in got[DIE_ON].message
+        assert all(got[i] == i for i in got if i != DIE_ON)
+
+
+def test_engine_settings_are_checked():
+    with pytest.raises(InputError, match="unknown --engine"):
+        EngineSettings("spark")
+    with pytest.raises(InputError, match="--workers must be 1 or more"):
+        EngineSettings(workers=0)
+    with pytest.raises(InputError, match="--address joins a Ray cluster"):
+        EngineSettings(address="ray://head:10001")
+    assert isinstance(make_engine(EngineSettings("local", 3)), LocalEngine)
+    assert make_engine(EngineSettings("local", 3)).workers == 3
+    ray = make_engine(EngineSettings("ray", 2, "ray://head:10001"))
+    assert isinstance(ray, RayEngine) and "ray://head:10001" in ray.describe()
+
+
+def test_the_core_and_the_local_engine_do_not_import_ray():
+    """Ray is an extra: `dream calibrate` and `dream batch --engine local` run without it."""
+    code = ("import sys; from dream.cli.app import build_parser; build_parser(); "
+            "import batch.calibrate, batch.engine, batch.synth, dream.cli.calibrate; "
+            "assert 'ray' not in sys.modules, 'ray imported'")
+    subprocess.run([sys.executable, "-c", code], check=True)
+    pyproject = (Path(__file__).resolve().parents[2] / "pyproject.toml").read_text()
+    dependencies = pyproject.split("[project.optional-dependencies]")[0]
+    assert "ray" not in dependencies.split("dependencies")[1].lower()
+    assert 'cluster = ["ray[client]' in pyproject
+
+
+def test_recordings_from_a_glob_or_a_list_file(tmp_path):
+    for name in ("a/ep1", "b/ep1", "b/ep2"):
+        (tmp_path / name).mkdir(parents=True)
+    (tmp_path / "b" / "ep3.npz").write_bytes(b"x")
+    found = list_recordings(str(tmp_path / "*" / "ep*"))
+    assert [p.relative_to(tmp_path).as_posix() for p in found] == \
+        ["a/ep1", "b/ep1", "b/ep2", "b/ep3.npz"]
+    assert folder_names(found) == ["a-ep1", "b-ep1", "ep2", "ep3"]
+    listing = tmp_path / "list.txt"
+    listing.write_text("# the lab's episodes\nb/ep2\n\na/ep1\nb/ep2\nmissing\n")
+    listed = list_recordings(str(listing))
+    assert [p.name for p in listed] == ["ep2", "ep1", "missing"]   # each once; missing fails alone
+    with pytest.raises(InputError, match="matches no recording"):
+        list_recordings(str(tmp_path / "nothing*"))
+    (tmp_path / "empty.txt").write_text("# nothing\n")
+    with pytest.raises(InputError, match="list of recordings is empty"):
+        list_recordings(str(tmp_path / "empty.txt"))
+
+
+def content_hash(rec: Path, options: dict, files: list[Path]) -> str:
+    return input_hash(options_digest(options, files), recording_digest(rec))
+
+
+def test_content_hash_changes_with_the_files_and_the_options_only(tmp_path):
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    (rec / "000000.json").write_text("{}")
+    model = tmp_path / "model.onnx"
+    model.write_bytes(b"weights")
+    base = content_hash(rec, {"seed": 0}, [model])
+    stat = recording_stat(rec)
+    assert content_hash(rec, {"seed": 0}, [model]) == base
+    assert recording_stat(rec) == stat
+    assert content_hash(rec, {"seed": 1}, [model]) != base
+    model.write_bytes(b"other weights")
+    assert content_hash(rec, {"seed": 0}, [model]) != base
+    model.write_bytes(b"weights")
+    (rec / "000000.json").write_text("{ }")
+    assert content_hash(rec, {"seed": 0}, [model]) != base
+    assert recording_stat(rec) != stat                  # the size changed
+    (rec / "000000.json").write_text("{}")
+    os.utime(rec / "000000.json", ns=(1, 1))
+    assert recording_stat(rec) != stat                  # the time changed, the content not
+    assert content_hash(rec, {"seed": 0}, [model]) == base
+    (rec / "000001.json").write_text("{}")
+    assert content_hash(rec, {"seed": 0}, [model]) != base
