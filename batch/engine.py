@@ -4,10 +4,11 @@ address). Both take the same module-level functions and give the same results.
 
 A worker first runs `setup(*setup_args)` once (a renderer's scene, say), then `fn(item)` for
 one item at a time. Each worker is one process that uses one core: numerical libraries are
-held to one thread (`WORKER_ENV`), so that N workers fill N cores and a result does not depend
-on how many threads its worker had. At most one item per worker is in flight, so a batch that
-is killed abandons at most `workers` items. An item whose worker process dies (a crash in a
-native library) is tried again, up to `MAX_ATTEMPTS` times, then reported as `WorkerLost`.
+held to one thread (`worker_env`), so that N workers fill N cores. At most one item per worker
+is in flight, so a batch that is killed abandons at most `workers` items. An item whose worker
+process dies (a crash in a native library) is reported as `WorkerLost`, the others are not: the
+local pool runs the items that were in flight when it broke again one at a time; a Ray actor's
+death names its item, which is tried `MAX_ATTEMPTS` times.
 """
 
 from __future__ import annotations
@@ -29,7 +30,9 @@ log = logging.getLogger(__name__)
 
 LOCAL, RAY = "local", "ray"
 ENGINES = (LOCAL, RAY)
-MAX_ATTEMPTS = 2          # tries of an item whose worker process died
+MAX_ATTEMPTS = 2          # tries of an item whose Ray worker died
+WORKER_DIED = ("its worker process died running it (a crash in a native library, or the "
+               "memory ran out)")
 # one thread per worker process; MuJoCo renders offscreen with Mesa's software EGL
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 CLUSTER_EXTRA = "pip install 'dream-calib[cluster]' (Ray)"
@@ -147,30 +150,32 @@ class LocalEngine:
             yield from self._run(fn, items, setup, setup_args)
 
     def _run(self, fn, items, setup, setup_args) -> Iterator[tuple[int, Any]]:
-        pending = deque((i, 0) for i in range(len(items)))
+        """When a worker dies, the pool breaks and every item in flight with it; those are
+        suspects, run again one at a time, so that only the item that kills its worker alone
+        is lost."""
+        pending, suspects = deque(range(len(items))), deque()
         pool = self._pool(setup, setup_args)
-        in_flight: dict[Future, tuple[int, int]] = {}
+        in_flight: dict[Future, tuple[int, bool]] = {}     # future -> (item, run alone)
         try:
-            while pending or in_flight:
-                while pending and len(in_flight) < self.workers:
-                    i, tries = pending.popleft()
-                    in_flight[pool.submit(_call, fn, items[i])] = (i, tries)
+            while pending or suspects or in_flight:
+                source, window = (suspects, 1) if suspects else (pending, self.workers)
+                while source and len(in_flight) < window:
+                    i = source.popleft()
+                    in_flight[pool.submit(_call, fn, items[i])] = (i, source is suspects)
                 done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
                 broken = False
                 for future in done:
-                    i, tries = in_flight.pop(future)
+                    i, alone = in_flight.pop(future)
                     try:
-                        value = future.result()
+                        yield i, future.result()
                     except BrokenProcessPool:
                         broken = True
-                        value = _lost_or_retry(i, tries + 1, pending)
-                    if value is not None:
-                        yield i, value
-                if broken:  # every item still in flight broke with the pool: try them again
-                    for i, tries in in_flight.values():
-                        lost = _lost_or_retry(i, tries + 1, pending)
-                        if lost is not None:
-                            yield i, lost
+                        if alone:
+                            yield i, WorkerLost(WORKER_DIED)
+                        else:
+                            suspects.append(i)
+                if broken:
+                    suspects.extend(i for i, _ in in_flight.values())
                     in_flight.clear()
                     pool.shutdown(wait=False, cancel_futures=True)
                     pool = self._pool(setup, setup_args)
@@ -184,8 +189,7 @@ def _lost_or_retry(index: int, tries: int, pending: deque) -> WorkerLost | None:
         log.warning("a worker process died; item %d is tried again", index)
         pending.append((index, tries))
         return None
-    return WorkerLost(f"its worker process died in each of {tries} tries (a crash in a native "
-                      "library, or the memory ran out)")
+    return WorkerLost(f"{WORKER_DIED} ({tries} tries)")
 
 
 class RayEngine:

@@ -7,8 +7,8 @@ throughput of 2 workers against 1.
 The recordings are fixed-camera `real_world.yaml` renders of panda, ur5 and xarm7 (10 frames,
 320x240, robot masks kept, no close-ups), their keypoint labels moved by `--label-noise-px` so
 that the calibration (`--use-labels`, the silhouette polish against the masks) has work to do.
-Three are broken on purpose: an image deleted, the joints written in degrees, a frame JSON cut
-in half.
+Three are broken on purpose: an image deleted (from a recording rewritten as images +
+joints.csv), the joints written in degrees, a frame JSON cut in half.
 It prints the figures of docs/benchmarks.md; the Ray runs need the `cluster` extra.
 """
 
@@ -31,7 +31,9 @@ REPO = Path(__file__).resolve().parents[1]
 REAL_WORLD = REPO / "configs" / "synth" / "real_world.yaml"
 ROBOTS = ("panda", "ur5", "xarm7")
 OPTIONS = ("--use-labels",)
-BROKEN = {"missing_image": 5, "degrees": 17, "truncated_json": 29}   # recording index
+# recording index of each fault; the missing image in a panda recording turned into images +
+# joints.csv (whose reader needs no --robot: panda is its default)
+BROKEN = {"missing_image": 6, "degrees": 17, "truncated_json": 29}
 FIRST_SEED = 7000
 IDENTICAL_TOL = 1e-9
 POLL_S = 0.5
@@ -78,7 +80,8 @@ def _break(path: Path, index: int, broken: dict[str, int]) -> None:
     frames = sorted(path.glob("[0-9]*.json"))
     middle = frames[len(frames) // 2]
     if index == broken["missing_image"]:
-        (path / f"{middle.name[:6]}.rgb.png").unlink()
+        _as_images_and_csv(path)
+        (path / "images" / f"{middle.name[:6]}.png").unlink()
     elif index == broken["degrees"]:
         for frame in frames:
             doc = json.loads(frame.read_text())
@@ -88,6 +91,27 @@ def _break(path: Path, index: int, broken: dict[str, int]) -> None:
     elif index == broken["truncated_json"]:
         text = middle.read_text()
         middle.write_text(text[:len(text) // 2])
+
+
+def _as_images_and_csv(path: Path) -> None:
+    """The recording rewritten as images + joints.csv + K.txt (docs/data_format.md), a layout
+    whose joint log names each image: the DREAM layout allows frames without one."""
+    camera = json.loads((path / "_camera_settings.json").read_text())["camera_settings"][0]
+    k = camera["intrinsic_settings"]
+    rows, names = [], None
+    (path / "images").mkdir()
+    for frame in sorted(path.glob("[0-9]*.json")):
+        joints = json.loads(frame.read_text())["sim_state"]["joints"]
+        names = [j["name"] for j in joints]
+        image = f"{frame.name[:6]}.png"
+        (path / f"{frame.name[:6]}.rgb.png").rename(path / "images" / image)
+        rows.append(",".join([f"images/{image}", *(repr(j["position"]) for j in joints)]))
+    for stale in path.glob("*.json"):
+        stale.unlink()
+    for stale in path.glob("*.seg.png"):
+        stale.unlink()
+    (path / "joints.csv").write_text("\n".join([",".join(["image", *names]), *rows]) + "\n")
+    (path / "K.txt").write_text(f"{k['fx']} 0 {k['cx']}\n0 {k['fy']} {k['cy']}\n0 0 1\n")
 
 
 def dream(*args: str) -> list[str]:

@@ -26,7 +26,8 @@ from tests.benchmark_scripts import load_benchmark
 
 BENCH = load_benchmark("batch_calibrate")
 BROKEN = {"missing_image": 3, "degrees": 4, "truncated_json": 5}
-FAULTS = {"rec003": "no image", "rec004": "degrees", "rec005": "rec005/000002.json"}
+FAULTS = {"rec003": 'image "000002.png" not found', "rec004": "degrees",
+          "rec005": "rec005/000002.json"}
 OPTIONS = ["--use-labels", "--refine", "none"]
 IDENTICAL = 1e-9
 KILL_DEADLINE_S = 120

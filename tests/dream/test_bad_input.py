@@ -249,19 +249,6 @@ def test_a_corrupt_image_leaves_no_overlays(imaged, tmp_path, capsys):
     assert (tmp_path / "old" / "000000.overlay.png").read_bytes() == b"old"
 
 
-def test_a_recording_with_one_image_missing_is_an_incomplete_copy(imaged, tmp_path, capsys):
-    data = copy_of(imaged, tmp_path / "data")
-    (data / "000002.rgb.png").unlink()
-    line = refused(["calibrate", "--data", data, "--use-labels", "--out", tmp_path / "r.json"],
-                   capsys)
-    assert "frame 000002 has no image (000002.rgb.png)" in line
-    assert "copy the missing images, or delete the JSON" in line
-    for png in data.glob("*.rgb.png"):      # no image at all: a labels-only set, as before
-        png.unlink()
-    assert main(["calibrate", "--data", str(data), "--use-labels", "--out",
-                 str(tmp_path / "r.json")]) == 0
-
-
 def test_calibrate_writes_its_files_and_overlays_all_or_none(imaged, afile, tmp_path, capsys):
     line = refused(["calibrate", "--data", imaged, "--use-labels", "--overlays",
                     tmp_path / "ovleft", "--out", afile / "r.json"], capsys)

@@ -159,7 +159,6 @@ def read_dream(path: str | Path, *, joint_names: SequenceOf[str] | None = None,
     listed = set(listing)
     stems = [p.name[: -len(JSON_SUFFIX)] for p in files]
     images = [_find_file(s, RGB_SUFFIXES, listed, folder) for s in stems]
-    _check_no_image_missing(stems, images, folder)
     masks = [_find_file(s, (MASK_SUFFIX,), listed, folder) for s in stems]
     settings = _camera(folder, listed, intrinsics, [p for p in images if p is not None])
     check_images_match((p for p in images + masks if p is not None), settings.camera)
@@ -187,17 +186,6 @@ def read_dream(path: str | Path, *, joint_names: SequenceOf[str] | None = None,
     _warn_if_centimetres(sequence)
     logger.info("read %d DREAM frames from %s", len(frames), folder)
     return sequence
-
-
-def _check_no_image_missing(stems: list[str], images: list[Path | None], folder: Path) -> None:
-    """A folder whose frames have images, but not all of them, is an incomplete copy: refused
-    (a frame silently without its image would change what the image refinements see)."""
-    missing = [stem for stem, image in zip(stems, images, strict=True) if image is None]
-    if missing and len(missing) < len(stems):
-        raise InputError(f"frame {missing[0]} has no image ({missing[0]}{RGB_SUFFIXES[0]}), "
-                         f"while {len(stems) - len(missing)} other frames have one "
-                         f"({len(missing)} without)", folder,
-                         "copy the missing images, or delete the JSON of the frames without one")
 
 
 def _warn_if_centimetres(sequence: Sequence) -> None:
