@@ -203,6 +203,7 @@ def main() -> None:
                         help="(default: %(default)s)")
     parser.add_argument("--engines", default="ray,local", help="(default: %(default)s)")
     parser.add_argument("--skip-throughput", action="store_true")
+    parser.add_argument("--only-throughput", action="store_true")
     args = parser.parse_args()
     recordings = make_recordings(args.work / "recordings", args.recordings, args.frames,
                                  args.label_noise_px)
@@ -213,7 +214,7 @@ def main() -> None:
           f"{sum('error' in s for s in single.values())} errors "
           f"({time.perf_counter() - start:.0f} s; made once, then reused)")
     engines = args.engines.split(",")
-    for engine in engines:
+    for engine in [] if args.only_throughput else engines:
         out = args.work / f"batch_{engine}"
         resumed = kill_and_resume(data, out, engine, len(recordings))
         check = compare(out, single)
