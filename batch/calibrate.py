@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import shutil
 import subprocess
 import sys
 import time
@@ -32,9 +31,9 @@ from batch.recordings import (
     recording_digest,
     recording_stat,
 )
-from batch.summary import FAILED, OK, failed_row, result_row, write_summary
+from batch.summary import OK, failed_row, result_row, write_summary
 from dream.errors import InputError
-from dream.io import atomic_directory, is_temporary, write_json_atomic
+from dream.io import atomic_directory, remove_temporaries, write_json_atomic
 
 log = logging.getLogger(__name__)
 
@@ -194,18 +193,6 @@ def check_options(options: Mapping[str, Any], recording: Path) -> None:
     CalibrateRequest(**options, data=str(recording), out=RESULT_NAME)
 
 
-def remove_temporaries(out_dir: Path) -> int:
-    """Delete what a killed batch left half-written (hidden temporary folders); returns how
-    many."""
-    stale = [p for p in out_dir.iterdir() if is_temporary(p)] if out_dir.is_dir() else []
-    for path in stale:
-        if path.is_dir():
-            shutil.rmtree(path, ignore_errors=True)
-        else:
-            path.unlink(missing_ok=True)
-    return len(stale)
-
-
 @dataclass(frozen=True)
 class BatchPlan:
     """The tasks of a batch: those to run and the rows of those already done."""
@@ -286,16 +273,3 @@ def prepare_out_dir(out: str) -> Path:
     if removed:
         log.info("removed %d half-written folder(s) of an earlier batch", removed)
     return out_dir
-
-
-def summary_counts(rows: list[dict]) -> tuple[int, int]:
-    """(ok, failed) rows."""
-    ok = sum(r.get("status") == OK for r in rows)
-    return ok, sum(r.get("status") == FAILED for r in rows)
-
-
-def refuse_file_out(out: str) -> None:
-    """`--out` must be a folder."""
-    if Path(out).is_file():
-        raise InputError("--out is a file; dream batch writes a folder", out,
-                         "give --out a folder")

@@ -30,10 +30,10 @@ def _calibrate_options(args: argparse.Namespace) -> dict:
 
 
 def cmd_batch_calibrate(args: argparse.Namespace) -> int:
-    from batch.calibrate import plan_batch, prepare_out_dir, run_batch, summary_counts
+    from batch.calibrate import plan_batch, prepare_out_dir, run_batch
     from batch.engine import make_engine
     from batch.progress import BatchProgress
-    from batch.summary import FAILED, SUMMARY_CSV, SUMMARY_JSON
+    from batch.summary import FAILED, SUMMARY_CSV, SUMMARY_JSON, summary_counts
 
     engine = make_engine(_engine_settings(args))
     plan = plan_batch(args.data, _out_path(args.out), _calibrate_options(args), args.overlays)
@@ -60,12 +60,10 @@ def cmd_batch_calibrate(args: argparse.Namespace) -> int:
 
 
 def _out_path(out: str):
-    from pathlib import Path
+    """`--out`, checked before any recording is read or hashed (a file there is refused)."""
+    from dream.io import check_output_folder
 
-    from batch.calibrate import refuse_file_out
-
-    refuse_file_out(out)
-    return Path(out)
+    return check_output_folder(out)
 
 
 def cmd_batch_synth(args: argparse.Namespace) -> int:

@@ -50,7 +50,8 @@ def worker_env() -> dict[str, str]:
 
 @dataclass(frozen=True)
 class WorkerLost:
-    """The outcome of an item whose worker process died `MAX_ATTEMPTS` times running it."""
+    """The outcome of an item whose worker process died running it (the local pool: running
+    it alone; Ray: `MAX_ATTEMPTS` times)."""
 
     message: str
 

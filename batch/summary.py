@@ -1,6 +1,6 @@
 """The summary of `dream batch calibrate`: one row per recording, in `summary.csv` (for a
-spreadsheet) and `summary.json` (the full extrinsic), both rewritten atomically after every
-finished recording.
+spreadsheet) and `summary.json` (the full extrinsic), both replaced atomically as the batch
+runs (`batch.calibrate.run_batch`: every few seconds and at the end).
 
 A row: `recording` (its path), `name` (its folder), `status` (`ok` or `failed`), `frames`
 (used), the camera in the robot base frame (`camera_x_m`... and its orientation `qx`... `qw`,
@@ -69,6 +69,12 @@ def write_summary(out_dir: Path, rows: list[dict[str, Any]]) -> None:
     for row in rows:
         writer.writerow({k: "" if row.get(k) is None else row.get(k) for k in COLUMNS})
     write_bytes_atomic(out_dir / SUMMARY_CSV, text.getvalue().encode("utf-8"))
-    ok = sum(r.get("status") == OK for r in rows)
+    ok, failed = summary_counts(rows)
     write_json_atomic(out_dir / SUMMARY_JSON, {"recordings": len(rows), "ok": ok,
-                                               "failed": len(rows) - ok, "rows": rows})
+                                               "failed": failed, "rows": rows})
+
+
+def summary_counts(rows: list[dict[str, Any]]) -> tuple[int, int]:
+    """(ok, failed) rows."""
+    ok = sum(r.get("status") == OK for r in rows)
+    return ok, sum(r.get("status") == FAILED for r in rows)

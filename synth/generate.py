@@ -28,7 +28,13 @@ from dream import __version__
 from dream.camera import CameraIntrinsics
 from dream.errors import DreamError, InputError
 from dream.extension import ModelExtension
-from dream.io import is_temporary, outermost_missing, write_bytes_atomic, write_json_atomic
+from dream.io import (
+    is_temporary,
+    outermost_missing,
+    remove_temporaries,
+    write_bytes_atomic,
+    write_json_atomic,
+)
 from dream.io.common import FRAME_DIGITS, frame_name
 from dream.io.dream_layout.camera_settings import camera_settings_json
 from dream.io.dream_layout.frame_record import frame_json
@@ -287,9 +293,7 @@ def prepare_output(job: SynthJob, overwrite: bool) -> set[int]:
             for p in out.iterdir():
                 if p.is_file():
                     p.unlink()
-        for p in out.iterdir():
-            if is_temporary(p):
-                p.unlink()
+        remove_temporaries(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

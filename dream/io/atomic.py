@@ -111,6 +111,19 @@ def is_temporary(path: Path) -> bool:
     return name.startswith(".") and any(f".{kind}-" in name for kind in TEMPORARY_KINDS)
 
 
+def remove_temporaries(folder: str | Path) -> int:
+    """Delete the leftover temporaries (files and folders, `is_temporary`) directly in
+    `folder`, which a killed writer left behind; returns how many."""
+    folder = Path(folder)
+    stale = [p for p in folder.iterdir() if is_temporary(p)] if folder.is_dir() else []
+    for path in stale:
+        if path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+    return len(stale)
+
+
 def _is_empty_dir(path: Path) -> bool:
     return path.is_dir() and not any(path.iterdir())
 
