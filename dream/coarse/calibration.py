@@ -7,7 +7,10 @@ With motion masks, the links that never move over the recording are left out of 
 (they are in the background model, so not in the masks), the pixels the robot covers in most
 frames at a hypothesis are not compared (`dream.coarse.evidence.held_pixels`: a shoulder
 turning in place stays in the background model), and the search uses the frames whose masks
-show motion. The search's 1-sigma is the spread of its basin check's restarts around the
+show motion. The hypotheses are scored on a few frames (`search_frames`); the winner is
+finished on up to `finish_frames` (on rendered scenes, one frame's mask error, a shadow or a
+link the colour of the floor, moves the optimum of 8 frames by 1-2 cm, of 30 by a few
+millimetres). The search's 1-sigma is the spread of its basin check's restarts around the
 winner: where they do not return, it is large and says so.
 """
 
@@ -66,7 +69,9 @@ class CameraGuess:
 @dataclass(frozen=True)
 class SearchMasks:
     """What the search compares: the meshes (without links the masks do not show), the chosen
-    frames' indices, joints (n, J) and masks (n, H, W), the masks' source, links left out."""
+    frames' indices, joints (n, J) and masks (n, H, W), the masks' source, links left out, and
+    the positions among the chosen of the frames the hypotheses are scored on (`search`; the
+    finishing refinement compares them all)."""
 
     meshes: RobotMeshes
     frames: np.ndarray
@@ -74,11 +79,13 @@ class SearchMasks:
     masks: np.ndarray
     source: str
     left_out: tuple[str, ...]
+    search: np.ndarray
 
 
 def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> SearchMasks:
-    """The data's masks of up to `search_frames` frames (evenly spaced), or without them motion
-    masks of the frames that show motion (module doc).
+    """The data's masks, or without them motion masks of the frames that show motion (module
+    doc): up to `search_frames` frames for the hypotheses and, with them, up to `finish_frames`
+    for the finish (each evenly spaced).
 
     Raises:
         InputError: a camera that moves, frames without images, an arm that hardly moves.
@@ -97,26 +104,42 @@ def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> 
     meshes = load_robot_meshes(robot)
     with_mask = np.flatnonzero([f.mask_path is not None for f in sequence.frames])
     if len(with_mask):
-        chosen = evenly_spaced(with_mask, settings.search_frames)
-        masks = np.stack([load_mask(sequence.frames[i], camera) for i in chosen])
-        return SearchMasks(meshes, chosen, joints[chosen], masks, DATA_MASKS, ())
+        frames, search = _frame_sets(with_mask, with_mask, settings)
+        masks = np.stack([load_mask(sequence.frames[i], camera) for i in frames])
+        return SearchMasks(meshes, frames, joints[frames], masks, DATA_MASKS, (), search)
     motion = MotionSettings()
     background = sequence_background(sequence, motion)
-    tried = evenly_spaced(np.arange(len(sequence)), MOTION_CANDIDATES * settings.search_frames)
+    everything = np.arange(len(sequence))
+    for_search = evenly_spaced(everything, MOTION_CANDIDATES * settings.search_frames)
+    tried = np.union1d(for_search, evenly_spaced(everything, settings.finish_frames))
     masks = np.stack([motion_masks(load_image(sequence.frames[int(i)], camera)[None],
                                    background, motion)[0] for i in tried])
     coverage = masks.reshape(len(masks), -1).mean(axis=1)
-    check_motion(coverage, motion, str(sequence.source))
-    moving = np.flatnonzero(coverage >= motion.min_area_fraction)
-    keep = evenly_spaced(moving, settings.search_frames)
+    check_motion(coverage[np.isin(tried, for_search)], motion, str(sequence.source))
+    moving = tried[coverage >= motion.min_area_fraction]
+    frames, search = _frame_sets(moving[np.isin(moving, for_search)], moving, settings)
     static = static_links(meshes, joints, motion.static_link_m)
     if set(static) >= set(meshes.links):
         raise InputError("the arm does not move in these frames, so motion masks cannot show "
                          "it", sequence.source, "record the arm moving, or give robot masks")
     if static:
         meshes = without_links(meshes, static)
-    return SearchMasks(meshes, tried[keep], joints[tried[keep]], masks[keep], MOTION_MASKS,
-                       static)
+    return SearchMasks(meshes, frames, joints[frames], masks[np.searchsorted(tried, frames)],
+                       MOTION_MASKS, static, search)
+
+
+def _frame_sets(for_search: np.ndarray, for_finish: np.ndarray, settings: SearchSettings
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(the frames, sorted; the positions among them of the search's): up to `search_frames`
+    of `for_search` and up to `finish_frames` of `for_finish`, each evenly spaced.
+
+    >>> [a.tolist() for a in _frame_sets(np.arange(0, 9, 2), np.arange(9),
+    ...                                  SearchSettings(search_frames=2, finish_frames=3))]
+    [[0, 4, 8], [0, 2]]
+    """
+    search = evenly_spaced(for_search, settings.search_frames)
+    frames = np.union1d(search, evenly_spaced(for_finish, settings.finish_frames))
+    return frames, np.searchsorted(frames, search)
 
 
 def hypotheses_for(guess: CameraGuess, inputs: SearchMasks, settings: SearchSettings
@@ -158,7 +181,7 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
     hypotheses.update(extra or {})
     outcome = search(inputs.meshes, inputs.joints, inputs.masks, sequence.camera, hypotheses,
                      settings, aimed_only=aimed_only, held=inputs.source == MOTION_MASKS,
-                     progress=progress)
+                     progress=progress, search_frames=inputs.search)
     return outcome, inputs
 
 

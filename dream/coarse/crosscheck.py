@@ -62,7 +62,7 @@ def silhouette_crosscheck(sequence: Sequence, robot: Robot, T_written: np.ndarra
     outcome = search(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
                      {"written": np.asarray(T_written)[None],
                       "keypoints": np.asarray(T_keypoints)[None]},
-                     local, held=held, progress=progress)
+                     local, held=held, progress=progress, search_frames=inputs.search)
     iou = pose_iou(inputs.meshes, inputs.joints, inputs.masks, sequence.camera, T_written,
                    local, held)
     m, rad = pose_errors(np.asarray(T_written), outcome.best.T_cam_base)

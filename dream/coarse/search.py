@@ -9,7 +9,8 @@ one chosen, and how clearly the images chose it (pure).
    at each of `local_widths_px` but the finest in turn; the `fine_starts` best of those
    (distinct again) at the finest too, and scored by the IoU of their rendered silhouettes
    there.
-3. The highest IoU wins, refined at `finish_width_px` too. The verdict's evidence: the best
+3. The highest IoU wins, refined at `finish_width_px` on every frame given (the hypotheses
+   and the local refinement compare only `search_frames` of them). The verdict's evidence: the best
    rival's IoU (a refined candidate farther than `rival_m` or `rival_rad` from the winner; the
    gap says how much better the winner explains the images), and the basin check:
    `basin_starts` refinements started `basin_m` and `basin_rad` from the winner in random
@@ -163,7 +164,8 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
            camera: CameraIntrinsics, hypotheses: dict[str, np.ndarray],
            settings: SearchSettings | None = None, usable: np.ndarray | None = None,
            aimed_only: tuple[str, ...] = (), held: bool = False,
-           progress: Callable[[str], None] | None = None) -> SearchOutcome:
+           progress: Callable[[str], None] | None = None,
+           search_frames: np.ndarray | None = None) -> SearchOutcome:
     """The camera pose whose robot silhouettes best explain `masks` (module doc).
 
     Args:
@@ -176,6 +178,8 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         held: the masks are motion masks, which miss what the robot covers in most frames
             (`dream.coarse.evidence.held_pixels`).
         progress: called with one line per stage.
+        search_frames: positions of the frames the hypotheses and the local refinement
+            compare (default all); the winner's finish and the basin check compare all.
     Raises:
         InputError: shapes that disagree, no hypothesis, empty masks.
     """
@@ -190,7 +194,11 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     if not sum(len(T) for T in hypotheses.values()):
         raise InputError("the coarse search was given no camera hypothesis")
     rng = np.random.default_rng(settings.seed)
-    P = vertices_in_base(meshes, q)
+    P_all = vertices_in_base(meshes, q)
+    sub = np.arange(len(q)) if search_frames is None else np.asarray(search_frames, int)
+    if not len(sub) or sub.min() < 0 or sub.max() >= len(q):
+        raise InputError(f"search_frames {sub.tolist()} do not index {len(q)} frames")
+    P, masks_all, masks = P_all[sub], masks, masks[sub]
     width = min(settings.coarse_width_px, camera.width)
     height = max(1, int(round(camera.height * width / camera.width)))
     coarse_camera = scaled_camera(camera, width, height)
@@ -210,7 +218,7 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         f"{scores.max():.3f})")
     scales = _Scales(P, meshes, masks, camera, settings, usable, held)
     candidates = _refined(scales, T_all, scores, sources, settings)
-    finish = _finish_scales(P, meshes, masks, camera, settings, usable, scales)
+    finish = _finish_scales(P_all, meshes, masks_all, camera, settings, usable, scales)
 
     def finished(T: np.ndarray) -> np.ndarray:
         return T if finish is None else finish.refine(T)
@@ -249,11 +257,12 @@ def pose_iou(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
 def _finish_scales(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
                    camera: CameraIntrinsics, settings: SearchSettings,
                    usable: np.ndarray | None, scales: _Scales) -> _Scales | None:
-    """The scale `finish_width_px` (capped at the camera's width); None where it is not finer
-    than the local scales' finest."""
+    """The scale `finish_width_px` (capped at the camera's width) on every frame; None where it
+    is neither finer than the local scales' finest nor on more frames."""
     finish = _Scales(P, meshes, masks, camera, replace(
         settings, local_widths_px=(settings.finish_width_px,)), usable, scales.held)
-    return finish if finish.levels[-1][0].width > scales.levels[-1][0].width else None
+    finer = finish.levels[-1][0].width > scales.levels[-1][0].width
+    return finish if finer or len(P) > len(scales.P) else None
 
 
 def _refined(scales: _Scales, T_all: np.ndarray, scores: np.ndarray, sources: list[str],

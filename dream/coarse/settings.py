@@ -25,7 +25,11 @@ class SearchSettings:
             largest distance of a mesh point from the base origin over the frames).
         shell_rolls: rolls about the optical axis of each.
         min_elevation_sin: shell cameras lie at least this high (sine of the elevation).
-        search_frames: frames whose masks the search compares (evenly spaced, with motion).
+        search_frames: frames whose masks the hypotheses and the local refinement compare
+            (evenly spaced, with motion).
+        finish_frames: frames whose masks the winner's finishing refinement (and the basin
+            check's) compares: more frames average out what one frame's mask gets wrong (a
+            shadow, a part the colour of the scene behind it).
         surface_points: points sampled on the robot's surface per frame for the coarse score.
         coarse_width_px: mask width of the coarse score of every hypothesis.
         batch: hypotheses scored at once.
@@ -53,6 +57,7 @@ class SearchSettings:
     shell_rolls: int = 12
     min_elevation_sin: float = -0.3
     search_frames: int = 8
+    finish_frames: int = 30
     surface_points: int = 800
     coarse_width_px: int = 64
     batch: int = 256
@@ -78,9 +83,9 @@ class SearchSettings:
     def __post_init__(self) -> None:
         check_fields(self, "coarse search",
                      positive_ints=("guess_samples", "shell_directions", "shell_rolls",
-                                    "search_frames", "surface_points", "coarse_width_px",
-                                    "batch", "local_starts", "local_rounds", "fine_starts",
-                                    "finish_width_px"),
+                                    "search_frames", "finish_frames", "surface_points",
+                                    "coarse_width_px", "batch", "local_starts", "local_rounds",
+                                    "fine_starts", "finish_width_px"),
                      positive=("guess_sigma_m", "guess_sigma_rad", "distinct_m", "distinct_rad",
                                "rival_m", "rival_rad", "basin_m", "basin_rad",
                                "basin_return_m", "basin_return_rad"),

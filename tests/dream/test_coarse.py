@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from dream.cli import main
 from dream.coarse.evidence import points_of, splat_iou, surface_samples
@@ -15,6 +16,7 @@ from dream.coarse.hypotheses import around, guess_pose
 from dream.coarse.search import search
 from dream.coarse.settings import SearchSettings
 from dream.coarse.verdict import search_findings
+from dream.errors import InputError
 from dream.metrics import pose_errors
 from dream.polish.objective import scaled_camera, shrink_mask
 from dream.silhouette import render_silhouette, vertices_in_base
@@ -69,6 +71,24 @@ def test_search_finds_the_camera_from_a_guess_30_cm_and_20_deg_off(panda, meshes
         rival = None if outcome.rival is None else outcome.rival.iou
         assert search_findings(outcome.best.iou, rival, distance, outcome.basin_returned,
                                outcome.basin_starts, SMALL) == []
+
+
+def test_the_hypotheses_compare_a_subset_and_the_finish_every_frame(panda, meshes):
+    """`search_frames` picks the frames the hypotheses are scored on; the winner's finish
+    compares every frame given, so masks of the other frames move the answer."""
+    T_true, joints, masks = rendered_masks(panda, meshes)
+    hypotheses = {"guess": around(off_by(T_true, GUESS_M, GUESS_RAD, 1), GUESS_M, GUESS_RAD,
+                                  SMALL.guess_samples, np.random.default_rng(1))}
+    subset = np.array([0, 2, 4])
+    outcome = search(meshes, joints, masks, CAMERA, hypotheses, SMALL, search_frames=subset)
+    m, rad = pose_errors(outcome.best.T_cam_base, T_true)
+    assert m < 0.005 and rad < np.deg2rad(0.3), (m, np.rad2deg(rad))
+    shifted = masks.copy()
+    shifted[[1, 3, 5]] = np.roll(masks[[1, 3, 5]], 6, axis=2)     # the other frames disagree
+    moved = search(meshes, joints, shifted, CAMERA, hypotheses, SMALL, search_frames=subset)
+    assert pose_errors(moved.best.T_cam_base, outcome.best.T_cam_base)[0] > 0.002
+    with pytest.raises(InputError, match="do not index"):
+        search(meshes, joints, masks, CAMERA, hypotheses, SMALL, search_frames=np.array([6]))
 
 
 def test_masks_that_show_no_robot_give_an_unreliable_verdict(panda, meshes):
