@@ -140,7 +140,7 @@ def keypoint_hypothesis(request, seq, out: TextIO) -> tuple:
 def search_start(request, seq, out: TextIO):
     """The search (module doc): robot, the stand-in result and observations at its pose, its
     outcome and masks, and the guess."""
-    from dream.coarse.calibration import basin_covariance, coarse_start, stand_in_result
+    from dream.coarse.calibration import coarse_start, search_covariance, stand_in_result
 
     guess = camera_guess(request.camera_guess, request.look_at, request.guess_sigma)
     robot, extra = (keypoint_hypothesis(request, seq, out) if request.keypoints_given
@@ -164,7 +164,7 @@ def search_start(request, seq, out: TextIO):
         print(f"  search: {line}", file=sys.stderr)
 
     outcome, inputs = coarse_start(seq, robot, guess, progress=progress, extra=extra)
-    result, obs = stand_in_result(seq, outcome.best.T_cam_base, basin_covariance(outcome))
+    result, obs = stand_in_result(seq, outcome.best.T_cam_base, search_covariance(outcome))
     print(f"search ({outcome.seconds:.1f} s, {inputs.source} of {len(inputs.frames)} frames): "
           f"best IoU {outcome.best.iou:.3f}, best rival "
           f"{'none' if outcome.rival is None else f'{outcome.rival.iou:.3f}'}, "
@@ -175,6 +175,7 @@ def search_start(request, seq, out: TextIO):
 def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
     """RESULT.json's `start` object: how the pose was searched and how clearly it won."""
     from dream.metrics import pose_errors
+    from dream.pnp import increment_between
 
     rival = outcome.rival
     distance = None if rival is None else [float(v) for v in pose_errors(
@@ -189,6 +190,11 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
             "rival_angle_rad": None if distance is None else distance[1],
             "gap": outcome.gap, "basin_returned": outcome.basin_returned,
             "basin_starts": outcome.basin_starts,
+            "basin_ends_xi": [increment_between(outcome.best.T_cam_base, T).tolist()
+                              for T in outcome.basin_ends],
+            "frames_jackknife_xi": outcome.frames_xi.tolist(),
+            "links_jackknife_xi": outcome.links_xi.tolist(),
+            "jackknife_links": list(outcome.jackknife_links),
             "candidates": [{"source": c.source, "iou": c.iou, "coarse_iou": c.coarse_iou}
                            for c in outcome.candidates],
             "seconds": outcome.seconds,
@@ -251,8 +257,11 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
     doc = result_document(request, seq, result, obs, data_doc, readings_doc)
     doc["rmse_px"] = None
     doc["start"] = start_doc(outcome, inputs, guess, seq, marked)
-    doc["uncertainty"]["method"] = ("spread of the search's restarts around the pose found "
-                                    "(the basin check)")
+    doc["uncertainty"]["method"] = (
+        f"jackknife of the search's finish over {len(outcome.frames_xi)} frame groups and "
+        f"{len(outcome.links_xi)} links + spread of its restarts around the pose found (the "
+        "basin check)" if len(outcome.frames_xi) or len(outcome.links_xi) else
+        "spread of the search's restarts around the pose found (the basin check)")
     T_other = None
     if refine == POLISH:
         doc = add_polish(seq, robot, result, obs, None, doc, out, frames="all",

@@ -58,7 +58,8 @@ def silhouette_crosscheck(sequence: Sequence, robot: Robot, T_written: np.ndarra
     inputs = search_masks(sequence, robot, settings)
     held = inputs.source == MOTION_MASKS
     local = replace(settings, local_starts=CROSSCHECK_STARTS,
-                    fine_starts=min(settings.fine_starts, CROSSCHECK_STARTS))
+                    fine_starts=min(settings.fine_starts, CROSSCHECK_STARTS),
+                    jackknife_groups=0)     # its pose is not written: no 1-sigma of its own
     outcome = search(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
                      {"written": np.asarray(T_written)[None],
                       "keypoints": np.asarray(T_keypoints)[None]},

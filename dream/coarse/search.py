@@ -15,6 +15,14 @@ one chosen, and how clearly the images chose it (pure).
    gap says how much better the winner explains the images), and the basin check:
    `basin_starts` refinements started `basin_m` and `basin_rad` from the winner in random
    directions, and how many return within `basin_return_m` and `basin_return_rad`.
+4. The winner's precision: its finish repeated from it with each of `jackknife_groups` groups
+   of frames left out in turn (every G-th frame, `dream.refined_uncertainty.frame_groups`),
+   and with each link in view left out in turn; the increments to those poses are the
+   jackknives of `dream.coarse.calibration`'s 1-sigma (not run where the winner's IoU is
+   below `min_found_iou`: the robot was not found, and the basin check's spread says so).
+   A mask error of one frame (a shadow) or of one link (a link the colour of the floor, a
+   tool the model lacks) moves the leave-out poses; one that every frame and link shares
+   does not.
 """
 
 from __future__ import annotations
@@ -26,7 +34,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from dream.camera import CameraIntrinsics
+from dream.camera import CameraIntrinsics, project
 from dream.coarse.evidence import (
     held_pixels,
     held_vertices,
@@ -38,11 +46,13 @@ from dream.coarse.hypotheses import aim
 from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
 from dream.metrics import pose_errors
+from dream.pnp import increment_between
 from dream.polish.objective import scaled_camera, shrink_mask
 from dream.polish.refine import refine_pose
 from dream.polish.settings import PolishSettings
+from dream.refined_uncertainty import MIN_GROUPS, frame_groups
 from dream.silhouette import RobotMeshes, render_points, silhouette_iou, vertices_in_base
-from dream.transforms import R_from_rotvec, invert_T
+from dream.transforms import R_from_rotvec, invert_T, transform_points
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +78,10 @@ class SearchOutcome:
         hypotheses: how many were scored, by source.
         basin_returned, basin_starts: the basin check's restarts that returned, of how many.
         basin_ends: (basin_starts, 4, 4) where the restarts ended.
+        frames_xi: (G, 6) the winner's finish with each frame group left out, as increments
+            from the winner (`dream.pnp.increment_between`); (0, 6) where it did not run.
+        links_xi: (L, 6) the same with each link in view left out; jackknife_links: those
+            links.
         seconds: wall time.
     """
 
@@ -78,6 +92,9 @@ class SearchOutcome:
     basin_returned: int
     basin_starts: int
     basin_ends: np.ndarray
+    frames_xi: np.ndarray
+    links_xi: np.ndarray
+    jackknife_links: tuple[str, ...]
     seconds: float
 
     @property
@@ -236,10 +253,17 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     say(f"basin check: {returned} of {settings.basin_starts} restarts "
         f"{settings.basin_m * 100:.0f} cm / {np.rad2deg(settings.basin_rad):.0f} deg away "
         "returned")
+    frames_xi, links_xi, links = _jackknife(P_all, meshes, masks_all, camera, settings, usable,
+                                            held, best.T_cam_base) \
+        if best.iou >= settings.min_found_iou else (np.zeros((0, 6)), np.zeros((0, 6)), ())
+    if len(frames_xi) or len(links_xi):
+        say(f"jackknife: the finish without each of {len(frames_xi)} frame groups and "
+            f"{len(links_xi)} links")
     counts = {name: len(T) * (1 if name in aimed_only else 2)
               for name, T in hypotheses.items()}
     return SearchOutcome(best, rival, tuple(candidates), counts, returned,
-                         settings.basin_starts, ends, time.perf_counter() - start)
+                         settings.basin_starts, ends, frames_xi, links_xi, links,
+                         time.perf_counter() - start)
 
 
 def pose_iou(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
@@ -263,6 +287,46 @@ def _finish_scales(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
         settings, local_widths_px=(settings.finish_width_px,)), usable, scales.held)
     finer = finish.levels[-1][0].width > scales.levels[-1][0].width
     return finish if finer or len(P) > len(scales.P) else None
+
+
+def _jackknife(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
+               camera: CameraIntrinsics, settings: SearchSettings, usable: np.ndarray | None,
+               held: bool, T_best: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    """The winner's finish at `finish_width_px`, from `T_best`, with each of the
+    `jackknife_groups` frame groups left out and with each link in view left out: (G, 6) and
+    (L, 6) increments from `T_best`, and the L links; (0, 6) where there are fewer than
+    `MIN_GROUPS` groups of a kind (or `jackknife_groups` is 0)."""
+    none = np.zeros((0, 6))
+    if not settings.jackknife_groups:
+        return none, none, ()
+    finish = replace(settings, local_widths_px=(settings.finish_width_px,))
+    usable = np.ones(len(meshes.vertices), bool) if usable is None else np.asarray(usable)
+
+    def refined(frames: np.ndarray, use: np.ndarray) -> np.ndarray:
+        scales = _Scales(P[frames], meshes, masks[frames], camera, finish, use, held)
+        return increment_between(T_best, scales.refine(T_best))
+
+    every = np.arange(len(P))
+    groups = frame_groups(len(P), settings.jackknife_groups)
+    frames_xi = np.array([refined(np.setdiff1d(every, members), usable)
+                          for members in groups.values()]) if len(groups) >= MIN_GROUPS \
+        else none
+    links = _links_in_view(P, meshes, usable, camera, T_best, settings.jackknife_link_points)
+    links_xi = np.array([refined(every, usable & (meshes.vertex_link != k))
+                         for k in links]) if len(links) >= MIN_GROUPS else none
+    return frames_xi, links_xi, tuple(meshes.links[k] for k in links) if len(links_xi) else ()
+
+
+def _links_in_view(P: np.ndarray, meshes: RobotMeshes, usable: np.ndarray,
+                   camera: CameraIntrinsics, T_cam_base: np.ndarray, min_points: int
+                   ) -> list[int]:
+    """The links with at least `min_points` usable vertex projections inside the image over
+    the frames at `T_cam_base` (the links whose outline can shape the pose)."""
+    uv = project(camera, transform_points(T_cam_base, P))          # (F, V, 2)
+    inside = camera.in_image(uv) & usable[None]
+    counts = np.bincount(np.broadcast_to(meshes.vertex_link, inside.shape)[inside],
+                         minlength=len(meshes.links))
+    return [k for k in range(len(meshes.links)) if counts[k] >= min_points]
 
 
 def _refined(scales: _Scales, T_all: np.ndarray, scores: np.ndarray, sources: list[str],

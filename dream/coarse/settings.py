@@ -46,6 +46,10 @@ class SearchSettings:
         basin_m, basin_rad: how far from the best pose the restarts start.
         basin_return_m, basin_return_rad: a restart that ends this close has returned.
         min_basin_share: at least this share of the restarts must return.
+        jackknife_groups: frame groups left out in turn from the winner's finish (its
+            1-sigma, with each link left out in turn too); 0 runs no jackknife.
+        jackknife_link_points: a link is left out in turn where at least this many of its
+            vertex projections over the frames lie inside the image.
         seed: seed of the random hypotheses and surface samples.
     """
 
@@ -78,6 +82,8 @@ class SearchSettings:
     basin_return_m: float = 0.01
     basin_return_rad: float = float(np.deg2rad(0.5))
     min_basin_share: float = 0.75
+    jackknife_groups: int = 5
+    jackknife_link_points: int = 50
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -85,12 +91,12 @@ class SearchSettings:
                      positive_ints=("guess_samples", "shell_directions", "shell_rolls",
                                     "search_frames", "finish_frames", "surface_points",
                                     "coarse_width_px", "batch", "local_starts", "local_rounds",
-                                    "fine_starts", "finish_width_px"),
+                                    "fine_starts", "finish_width_px", "jackknife_link_points"),
                      positive=("guess_sigma_m", "guess_sigma_rad", "distinct_m", "distinct_rad",
                                "rival_m", "rival_rad", "basin_m", "basin_rad",
                                "basin_return_m", "basin_return_rad"),
                      non_negative=("min_gap", "basin_starts", "min_found_iou",
-                                   "min_basin_share"))
+                                   "min_basin_share", "jackknife_groups"))
         if not self.shell_distances or min(self.shell_distances) <= 0:
             raise InputError("coarse search: shell_distances must be positive")
         if not self.local_widths_px or min(self.local_widths_px) < 8:

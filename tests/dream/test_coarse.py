@@ -6,11 +6,13 @@ result whose refinement cannot run."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from dream.cli import main
+from dream.coarse.calibration import search_covariance
 from dream.coarse.evidence import points_of, splat_iou, surface_samples
 from dream.coarse.hypotheses import around, guess_pose
 from dream.coarse.search import search
@@ -18,12 +20,14 @@ from dream.coarse.settings import SearchSettings
 from dream.coarse.verdict import search_findings
 from dream.errors import InputError
 from dream.metrics import pose_errors
+from dream.pnp import increment_between
 from dream.polish.objective import scaled_camera, shrink_mask
 from dream.silhouette import render_silhouette, vertices_in_base
 from dream.transforms import R_from_rotvec, invert_T
 from tests.dream.test_edges import CAMERA, TARGET, edge_scene, image_dataset
 
 GUESS_M, GUESS_RAD = 0.3, np.deg2rad(20.0)     # the rough guess's error
+CHI2_6DOF_95 = 12.592    # 95 % quantile of the chi-square distribution with 6 degrees of freedom
 SMALL = SearchSettings(guess_samples=200, local_starts=6, fine_starts=2, basin_starts=2)
 
 
@@ -89,6 +93,32 @@ def test_the_hypotheses_compare_a_subset_and_the_finish_every_frame(panda, meshe
     assert pose_errors(moved.best.T_cam_base, outcome.best.T_cam_base)[0] > 0.002
     with pytest.raises(InputError, match="do not index"):
         search(meshes, joints, masks, CAMERA, hypotheses, SMALL, search_frames=np.array([6]))
+
+
+def test_the_searchs_1_sigma_is_the_spread_over_frames_and_links_left_out(panda, meshes):
+    """The jackknives of the winner's finish over frames and links: clean masks give a
+    1-sigma of a fraction of a millimetre; one frame whose mask is shifted pulls the pose, and
+    the leave-out poses (the one without that frame among them) widen the 1-sigma to hold the
+    error."""
+    T_true, joints, masks = rendered_masks(panda, meshes)
+    hypotheses = {"guess": around(off_by(T_true, GUESS_M, GUESS_RAD, 1), GUESS_M, GUESS_RAD,
+                                  SMALL.guess_samples, np.random.default_rng(1))}
+    clean = search(meshes, joints, masks, CAMERA, hypotheses, SMALL)
+    assert clean.frames_xi.shape == (5, 6)       # 6 frames: groups {0, 5}, {1}, ..., {4}
+    assert len(clean.jackknife_links) >= 3 and clean.links_xi.shape == (
+        len(clean.jackknife_links), 6)
+    sigma_clean = np.sqrt(np.diag(search_covariance(clean, SMALL))[3:])
+    assert sigma_clean.max() < 0.001, sigma_clean
+    shifted = masks.copy()
+    shifted[1] = np.roll(masks[1], 12, axis=1)
+    pulled = search(meshes, joints, shifted, CAMERA, hypotheses, SMALL)
+    cov = search_covariance(pulled, SMALL)
+    xi = increment_between(pulled.best.T_cam_base, T_true)
+    assert pose_errors(pulled.best.T_cam_base, T_true)[0] > 0.001
+    assert np.sqrt(np.diag(cov)[3:]).max() > 2 * sigma_clean.max()
+    assert xi @ np.linalg.solve(cov, xi) < CHI2_6DOF_95
+    none = search(meshes, joints, masks, CAMERA, hypotheses, replace(SMALL, jackknife_groups=0))
+    assert none.frames_xi.shape == (0, 6)
 
 
 def test_masks_that_show_no_robot_give_an_unreliable_verdict(panda, meshes):
