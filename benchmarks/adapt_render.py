@@ -25,34 +25,22 @@ of the frames it never saw.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import dataclasses
-import io
 import json
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from adapt_teleop import run, subset  # a sibling script: `python benchmarks/...` finds it
 
 import dream
-from dream.cli import main as dream_cli
-from dream.io import read_sequence, write_dream
+from dream.io import read_sequence
 from dream.metrics import pose_errors
 
 REPO = Path(__file__).resolve().parents[1]
 REAL_WORLD = REPO / "configs" / "synth" / "real_world.yaml"
 RECIPE = REPO / "configs" / "train" / "panda_cpu.yaml"
 PCK_PX = 5.0
-
-
-def run(args: list) -> str:
-    """`dream ARGS`, its console output; a failure stops the benchmark with that output."""
-    with contextlib.redirect_stdout(io.StringIO()) as out:
-        code = dream_cli([str(a) for a in args])
-    if code != 0:
-        raise SystemExit(f"dream {args[0]} failed (exit {code}):\n{out.getvalue()}")
-    return out.getvalue()
 
 
 def timed(label: str, start: float) -> None:
@@ -82,12 +70,6 @@ def scene(robot: str, frames: int, seed: int, out: Path) -> Path:
     for mask in out.glob("*.seg.png"):
         mask.unlink()
     return out
-
-
-def subset(data: Path, frames: range, out: Path) -> Path:
-    seq = read_sequence(data)
-    return write_dream(dataclasses.replace(seq, frames=seq.frames[frames.start:frames.stop]),
-                       out, overwrite=True)
 
 
 def extrinsic_error(result: Path, seq) -> str:
@@ -164,8 +146,8 @@ def main() -> None:
         model = args.model or train_model(args.robot, args.train_frames, args.train_minutes,
                                           work)
         data = scene(args.robot, args.frames, args.seed, work / "scene")
-        taught = subset(data, range(0, args.teach), work / "teach")
-        held = subset(data, range(args.teach, args.frames), work / "held")
+        taught = subset(data, (0, args.teach), work / "teach")
+        held = subset(data, (args.teach, args.frames), work / "held")
         result = for_whole_scene(teacher(taught, args.robot, model, work))
         adapted, start = work / "adapted.onnx", time.perf_counter()
         run(["adapt", "--data", data, "--result", result, "--model", model, "--out", adapted,

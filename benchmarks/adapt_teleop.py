@@ -54,7 +54,8 @@ def run(args: list) -> None:
 
 def subset(data: Path, frames: tuple[int, int], out: Path) -> Path:
     seq = read_sequence(data)
-    return write_dream(dataclasses.replace(seq, frames=seq.frames[frames[0]:frames[1]]), out)
+    return write_dream(dataclasses.replace(seq, frames=seq.frames[frames[0]:frames[1]]), out,
+                       overwrite=True)
 
 
 def score(data: Path, model: Path, work: Path, label: str) -> str:

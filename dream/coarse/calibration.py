@@ -257,9 +257,9 @@ def search_covariance(outcome: SearchOutcome, settings: SearchSettings | None = 
     returned = [T for T in ends
                 if within(T, T_best, settings.basin_return_m, settings.basin_return_rad)]
     xi = np.array([increment_between(T_best, T) for T in (returned or ends)])
-    jackknives = [xi for xi in (outcome.frames_xi, outcome.links_xi) if len(xi) >= MIN_GROUPS]
+    jackknives = [xis for xis in (outcome.frames_xi, outcome.links_xi) if len(xis) >= MIN_GROUPS]
     if jackknives:
-        J = sum(jackknife_covariance(xi) for xi in jackknives)
+        J = sum(jackknife_covariance(xis) for xis in jackknives)
         precision = (1 - JACKKNIFE_SHRINKAGE) * J + JACKKNIFE_SHRINKAGE * np.diag(np.diag(J))
     else:
         precision = np.diag((np.repeat([settings.basin_return_rad, settings.basin_return_m], 3)
