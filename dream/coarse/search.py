@@ -6,9 +6,12 @@ one chosen, and how clearly the images chose it (pure).
    `coarse_width_px`.
 2. The `local_starts` best, no two within `distinct_m` and `distinct_rad` of each other, are
    refined by the silhouette polish's Levenberg-Marquardt (`dream.polish.refine.refine_pose`)
-   at each of `local_widths_px` but the finest in turn; the `fine_starts` best of those
-   (distinct again) at the finest too, and scored by the IoU of their rendered silhouettes
-   there.
+   at each of `local_widths_px` but the finest in turn (a round that lowers the IoU at its
+   scale by more than `round_iou_tolerance` is undone and ends that scale: the polish's
+   contour points are chosen again each round, and something the model lacks, a held object
+   as large as the hand, can drag them off the robot round after round); the `fine_starts`
+   best of those (distinct again) at the finest too, and scored by the IoU of their rendered
+   silhouettes there.
 3. The highest IoU wins, refined at `finish_width_px` on every frame given (the hypotheses
    and the local refinement compare only `search_frames` of them). The verdict's evidence: the best
    rival's IoU (a refined candidate farther than `rival_m` or `rival_rad` from the winner; the
@@ -145,17 +148,23 @@ class _Scales:
             self.levels.append((small, np.stack([shrink_mask(m, width, height)
                                                  for m in masks])))
         self.params = replace(PolishSettings(), outer_iterations=settings.local_rounds)
+        self.iou_tolerance = settings.round_iou_tolerance
 
     def _rendered(self, T: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
         return np.stack([render_points(P, self.faces, T, camera) for P in self.P])
 
     def refine(self, T: np.ndarray, levels: slice = slice(None)) -> np.ndarray:
-        for camera, masks in self.levels[levels]:
+        """The silhouette polish at each of `levels` in turn; a round that lowers the IoU at
+        its level by more than `round_iou_tolerance` is undone and ends that level
+        (`refine_pose`'s `keep`)."""
+        for level in range(len(self.levels))[levels]:
+            camera, masks = self.levels[level]
             usable = self.usable
             if self.held:
                 held = held_vertices(self.P, T, camera, held_pixels(self._rendered(T, camera)))
                 usable = ~held if usable is None else usable & ~held
-            T = refine_pose(self.P, self.faces, masks, camera, T, self.params, usable)[0]
+            T = refine_pose(self.P, self.faces, masks, camera, T, self.params, usable,
+                            _NoWorse(self, level, T, self.iou_tolerance))[0]
         return T
 
     def iou_at(self, T: np.ndarray, level: int) -> float:
@@ -168,6 +177,23 @@ class _Scales:
 
     def iou(self, T: np.ndarray) -> float:
         return self.iou_at(T, -1)
+
+
+class _NoWorse:
+    """`refine_pose`'s `keep` at one of `_Scales`' levels: a round's pose is kept where its
+    IoU there lies less than `tolerance` below the best so far (a sub-pixel step moves the IoU
+    up or down by whole pixels)."""
+
+    def __init__(self, scales: _Scales, level: int, T_start: np.ndarray, tolerance: float):
+        self.scales, self.level, self.tolerance = scales, level, tolerance
+        self.best = scales.iou_at(T_start, level)
+
+    def __call__(self, T: np.ndarray) -> bool:
+        iou = self.scales.iou_at(T, self.level)
+        if iou < self.best - self.tolerance:
+            return False
+        self.best = max(self.best, iou)
+        return True
 
 
 def coarse_scores(points: np.ndarray, masks: np.ndarray, camera: CameraIntrinsics,

@@ -37,6 +37,10 @@ class SearchSettings:
         distinct_m, distinct_rad: hypotheses closer than both (camera centre, rotation) are one.
         local_widths_px: mask widths of the local refinement's scales, coarsest first.
         local_rounds: polish rounds per scale of the local refinement.
+        round_iou_tolerance: a round of the silhouette polish in the search (local, finish,
+            basin check, jackknife) whose IoU at its scale falls more than this below the best
+            of the rounds before is undone, and ends that scale's polish (the IoU of a
+            sub-pixel step moves by whole pixels; a polish dragged off the robot loses tenths).
         fine_starts: candidates refined at the finest local scale too.
         finish_width_px: the winner is refined at this mask width too (at most the camera's).
         rival_m, rival_rad: a rival is a refined candidate farther than either from the best.
@@ -70,6 +74,7 @@ class SearchSettings:
     distinct_rad: float = float(np.deg2rad(8.0))
     local_widths_px: tuple[int, ...] = (80, 160)
     local_rounds: int = 12
+    round_iou_tolerance: float = 0.01
     fine_starts: int = 4
     finish_width_px: int = 640
     rival_m: float = 0.05
@@ -96,6 +101,7 @@ class SearchSettings:
                                "rival_m", "rival_rad", "basin_m", "basin_rad",
                                "basin_return_m", "basin_return_rad"),
                      non_negative=("min_gap", "basin_starts", "min_found_iou",
+                                   "round_iou_tolerance",
                                    "min_basin_share", "jackknife_groups"))
         if not self.shell_distances or min(self.shell_distances) <= 0:
             raise InputError("coarse search: shell_distances must be positive")

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from collections.abc import Sequence as SequenceOf
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -188,7 +189,8 @@ def search_camera(camera: CameraIntrinsics, params: PolishSettings) -> CameraInt
 
 def refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
                 camera: CameraIntrinsics, T_cam_base: np.ndarray,
-                params: PolishSettings, usable: np.ndarray | None = None
+                params: PolishSettings, usable: np.ndarray | None = None,
+                keep: Callable[[np.ndarray], bool] | None = None
                 ) -> tuple[np.ndarray, int, int]:
     """The silhouette optimum near `T_cam_base` (search resolution already applied).
 
@@ -196,6 +198,10 @@ def refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
         P_frames: (F, V, 3) mesh vertices of each frame in the base frame, m.
         faces: (T, 3) triangles. masks: (F, H, W) observed masks at `camera`'s size.
         usable: (V,) bool, the vertices that may be contour points (default all).
+        keep: called with each round's pose; where it says False the round is undone and the
+            refinement stops (the contour points are chosen again each round, so a round may
+            lower its own cost and still move the outline off the masks: a held object as
+            large as the hand drags the contour inside it outwards, round after round).
     Returns:
         (T (4, 4), rounds run, contour points of the last round).
     """
@@ -209,6 +215,9 @@ def refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
             log.info("silhouette polish: only %d contour points, stopping", points)
             break
         T_new = _lm_steps(objective, contour, T, params)
+        if keep is not None and not keep(T_new):
+            log.debug("silhouette polish round %d refused by its check, stopping", rounds)
+            break
         moved = rms_motion_px(contour.P_base, T, T_new, camera)
         T = T_new
         log.debug("silhouette polish round %d: %d points, moved %.3g px", rounds, points, moved)

@@ -11,23 +11,27 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from dream.camera import project
 from dream.cli import main
 from dream.coarse.calibration import search_covariance
 from dream.coarse.evidence import points_of, splat_iou, surface_samples
 from dream.coarse.hypotheses import around, guess_pose
-from dream.coarse.search import search
+from dream.coarse.search import pose_iou, search
 from dream.coarse.settings import SearchSettings
 from dream.coarse.verdict import search_findings
 from dream.errors import InputError
 from dream.metrics import pose_errors
 from dream.pnp import increment_between
 from dream.polish.objective import scaled_camera, shrink_mask
+from dream.polish.refine import refine_pose
+from dream.polish.settings import PolishSettings
 from dream.silhouette import render_silhouette, vertices_in_base
 from dream.transforms import R_from_rotvec, invert_T
 from tests.dream.test_edges import CAMERA, TARGET, edge_scene, image_dataset
 
 GUESS_M, GUESS_RAD = 0.3, np.deg2rad(20.0)     # the rough guess's error
 CHI2_6DOF_95 = 12.592    # 95 % quantile of the chi-square distribution with 6 degrees of freedom
+HELD_RADIUS_PX = 35     # a held object's disk at the hand: larger than the hand in view
 SMALL = SearchSettings(guess_samples=200, local_starts=6, fine_starts=2, basin_starts=2)
 
 
@@ -119,6 +123,47 @@ def test_the_searchs_1_sigma_is_the_spread_over_frames_and_links_left_out(panda,
     assert xi @ np.linalg.solve(cov, xi) < CHI2_6DOF_95
     none = search(meshes, joints, masks, CAMERA, hypotheses, replace(SMALL, jackknife_groups=0))
     assert none.frames_xi.shape == (0, 6)
+
+
+def test_the_searchs_refinement_never_lowers_the_iou(panda, meshes):
+    """A held object the model lacks, as large as the hand (a disk at the hand in every mask),
+    drags the contour points inside it outwards round after round: the polish alone, from
+    4 cm off, ends metres away with less IoU than it started with. The search undoes a round
+    that lowers the IoU, so its winner explains the masks about as well as its start or
+    better."""
+    T_true, joints, masks = rendered_masks(panda, meshes)
+    hand = panda.link_poses(joints, ("panda_hand",))[:, 0, :3, 3]
+    uv = project(CAMERA, hand @ T_true[:3, :3].T + T_true[:3, 3])
+    rows, cols = np.mgrid[:CAMERA.height, :CAMERA.width]
+    held = masks | (np.hypot(cols - uv[:, :1, None], rows - uv[:, 1:, None]) <= HELD_RADIUS_PX)
+    settings = replace(SMALL, basin_starts=0, jackknife_groups=0)
+    for seed in (0, 1):
+        T_start = off_by(T_true, 0.04, np.deg2rad(3.0), seed)
+        P = vertices_in_base(meshes, joints)
+        alone = T_start
+        for width in settings.local_widths_px:
+            small = scaled_camera(CAMERA, width, round(CAMERA.height * width / CAMERA.width))
+            alone = refine_pose(P, meshes.faces, np.stack([shrink_mask(
+                m, small.width, small.height) for m in held]), small, alone,
+                PolishSettings())[0]
+        before = pose_iou(meshes, joints, held, CAMERA, T_start, settings)
+        assert pose_iou(meshes, joints, held, CAMERA, alone, settings) < before
+        outcome = search(meshes, joints, held, CAMERA, {"guess": T_start[None]}, settings,
+                         aimed_only=("guess",))
+        assert pose_iou(meshes, joints, held, CAMERA, outcome.best.T_cam_base,
+                        settings) > before - settings.round_iou_tolerance, seed
+
+
+def test_a_refused_round_leaves_the_pose_as_it_was(panda, meshes):
+    T_true, joints, masks = rendered_masks(panda, meshes)
+    T_start = off_by(T_true, 0.02, np.deg2rad(1.0), 0)
+    P = vertices_in_base(meshes, joints)
+    T, rounds, _ = refine_pose(P, meshes.faces, masks, CAMERA, T_start, PolishSettings(),
+                               keep=lambda T: False)
+    assert rounds == 1 and np.array_equal(T, T_start)
+    T, _, _ = refine_pose(P, meshes.faces, masks, CAMERA, T_start, PolishSettings(),
+                          keep=lambda T: True)
+    assert pose_errors(T, T_true)[0] < pose_errors(T_start, T_true)[0]
 
 
 def test_masks_that_show_no_robot_give_an_unreliable_verdict(panda, meshes):
