@@ -11,8 +11,8 @@ of the frames it never saw.
    `--teach` frames; where it fails or is `unreliable`, the automatic search without the model
    (`dream adapt` refuses an unreliable teacher). Its error against the truth is printed; the
    labels are never given to it.
-4. `dream adapt` of the whole scene with that extrinsic, `--holdout-frames TEACH:FRAMES`, for
-   `--minutes`.
+4. `dream adapt` of the whole scene with that extrinsic (a result of some of a recording's
+   frames teaches all of them), `--holdout-frames TEACH:FRAMES`, for `--minutes`.
 5. On a copy holding the last frames, for the trained and the adapted model: the detections
    against the renderer's labels (PCK@5 px of the keypoints in view, the median error, the
    share found) and the all-frames keypoint extrinsic against the truth.
@@ -96,17 +96,6 @@ def teacher(data: Path, robot: str, model: Path, work: Path) -> Path:
     return out
 
 
-def for_whole_scene(result: Path) -> Path:
-    """The teacher without its record of the data it was made from: the camera is fixed, so
-    the extrinsic of the first frames labels the whole scene, whose last frames `dream adapt`
-    holds out (it refuses a result of other data)."""
-    doc = json.loads(result.read_text())
-    doc.pop("data", None)
-    out = result.with_name("teacher_whole_scene.json")
-    out.write_text(json.dumps(doc))
-    return out
-
-
 def score(data: Path, robot: str, model: Path, work: Path, label: str) -> str:
     seq = read_sequence(data)
     obs = dream.detect(seq, dream.load_robot(robot), dream.load_keypoint_model(model))
@@ -148,7 +137,7 @@ def main() -> None:
         data = scene(args.robot, args.frames, args.seed, work / "scene")
         taught = subset(data, (0, args.teach), work / "teach")
         held = subset(data, (args.teach, args.frames), work / "held")
-        result = for_whole_scene(teacher(taught, args.robot, model, work))
+        result = teacher(taught, args.robot, model, work)
         adapted, start = work / "adapted.onnx", time.perf_counter()
         run(["adapt", "--data", data, "--result", result, "--model", model, "--out", adapted,
              "--holdout-frames", f"{args.teach}:{args.frames}", "--minutes", args.minutes,

@@ -15,6 +15,7 @@ result scored against other data would give confident, meaningless metrics.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from pathlib import Path
 from typing import Any
@@ -69,15 +70,33 @@ def data_record(seq, data: str) -> dict[str, Any]:
             "camera": camera_record(seq.camera)}
 
 
-def check_same_data(result: dict[str, Any], seq, data: str, result_path: str | Path) -> None:
+def check_same_data(result: dict[str, Any], seq, data: str, result_path: str | Path,
+                    part_ok: bool = False) -> None:
     """Refuse to score a result made from other data than `seq` (`--data`). Results written
-    before the record existed carry none and pass."""
+    before the record existed carry none and pass. With `part_ok`, a result made from some of
+    `seq`'s frames passes too (`made_from_part`: a fixed camera calibrated on the first
+    frames of a recording labels all of them)."""
     record = result.get("data")
     if not isinstance(record, dict) or "content_sha256" not in record:
         return
     if record["content_sha256"] == content_hash(seq):
         return
+    if part_ok and made_from_part(record, seq):
+        return
     raise InputError(f"was calibrated from other data ({record.get('path')}, "
                      f"{record.get('num_frames')} frames) than --data {data} "
                      f"({len(seq.frames)} frames, other content)", result_path,
                      "give --data the dataset the result was made from, or calibrate this one")
+
+
+def made_from_part(record: dict[str, Any], seq) -> bool:
+    """Whether a result's data record (`data_record`) names frames of `seq` whose content, in
+    the record's order, hashes as the record says: the result was made from those frames (a
+    copy of them, anywhere on disk)."""
+    names = record.get("frames")
+    by_name = {frame.name: frame for frame in seq.frames}
+    if not isinstance(names, list) or not names or not all(
+            isinstance(n, str) and n in by_name for n in names):
+        return False
+    part = dataclasses.replace(seq, frames=tuple(by_name[n] for n in names))
+    return content_hash(part) == record["content_sha256"]

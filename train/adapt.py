@@ -146,7 +146,7 @@ def teacher(request: AdaptRequest, out) -> tuple:
     doc = read_result(request.result)
     check_teacher(doc, request.result)
     seq = read_sequence(request.data)
-    check_same_data(doc, seq, request.data, request.result)
+    check_same_data(doc, seq, request.data, request.result, part_ok=True)
     interpolated = bool((doc.get("joint_readings") or {}).get("interpolated"))
     seq, _ = joint_readings(seq, interpolated, out)
     model = OnnxKeypointModel(request.model)
@@ -204,6 +204,10 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
         raise InputError(f"cannot create the folder ({exc.strerror})", target.parent,
                          "choose a writable location") from None
     seq, T, model, doc = teacher(request, out)
+    made_from = (doc.get("data") or {}).get("num_frames", len(seq))
+    if made_from != len(seq):
+        say(f"the result was calibrated on {made_from} of the recording's {len(seq)} frames; "
+            "its extrinsic labels them all (a fixed camera)")
     robot = robot_for(seq, None, tuple(model.keypoint_names))
     held = holdout_range(request.holdout_frames, len(seq))
     uv = pseudo_labels(seq, robot, T)

@@ -4,6 +4,7 @@ is `unreliable`, the held-out split, and a short fine-tune of the bundled model 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -11,8 +12,10 @@ import pytest
 
 from dream.camera import project
 from dream.cli import main
-from dream.io import read_sequence
+from dream.errors import InputError
+from dream.io import read_sequence, write_dream
 from dream.models import BUNDLED_MODEL
+from dream.provenance import check_same_data
 from dream.transforms import transform_points
 from tests.dream.test_edges import image_dataset
 from train.adapt import holdout_range, pseudo_labels
@@ -69,6 +72,24 @@ def test_an_unreliable_teacher_is_refused_in_one_line(panda, meshes, tmp_path, c
     err = capsys.readouterr().err
     assert code == 2 and "cannot teach" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "a.onnx").exists()
+
+
+def test_a_teacher_calibrated_on_part_of_the_recording_is_accepted(panda, meshes, tmp_path):
+    """A fixed camera calibrated on the first frames (a copy of them) labels the whole
+    recording; a result of other content is still refused."""
+    calibrated(panda, meshes, tmp_path)
+    seq = read_sequence(tmp_path / "data")
+    write_dream(dataclasses.replace(seq, frames=seq.frames[:6]), tmp_path / "part")
+    assert main(["calibrate", "--data", str(tmp_path / "part"), "--use-labels", "--refine",
+                 "none", "--out", str(tmp_path / "part.json")]) == 0
+    doc = json.loads((tmp_path / "part.json").read_text())
+    check_same_data(doc, seq, "data", "part.json", part_ok=True)
+    with pytest.raises(InputError, match="other data"):
+        check_same_data(doc, seq, "data", "part.json")
+    moved = dataclasses.replace(seq.frames[0], joints=seq.frames[0].joints + 0.1)
+    changed = dataclasses.replace(seq, frames=(moved, *seq.frames[1:]))
+    with pytest.raises(InputError, match="other data"):
+        check_same_data(doc, changed, "data", "part.json", part_ok=True)
 
 
 @pytest.mark.slow
