@@ -168,12 +168,15 @@ class _Scales:
         return T
 
     def iou_at(self, T: np.ndarray, level: int) -> float:
-        camera, masks = self.levels[level]
-        rendered = self._rendered(T, camera)
+        return self.iou_of(self._rendered(T, self.levels[level][0]), level)
+
+    def iou_of(self, rendered: np.ndarray, level: int) -> float:
+        """The mean IoU of silhouettes (F, h, w) rendered at `level`'s camera with its masks
+        (without the pixels held in most frames, with `held`)."""
         if self.held:
-            rendered &= ~held_pixels(rendered)[None]
-        return float(np.mean([silhouette_iou(r, m) for r, m in zip(rendered, masks,
-                                                                    strict=True)]))
+            rendered = rendered & ~held_pixels(rendered)[None]
+        return float(np.mean([silhouette_iou(r, m) for r, m in zip(
+            rendered, self.levels[level][1], strict=True)]))
 
     def iou(self, T: np.ndarray) -> float:
         return self.iou_at(T, -1)
@@ -188,8 +191,8 @@ class _NoWorse:
         self.scales, self.level, self.tolerance = scales, level, tolerance
         self.best = scales.iou_at(T_start, level)
 
-    def __call__(self, T: np.ndarray) -> bool:
-        iou = self.scales.iou_at(T, self.level)
+    def __call__(self, T: np.ndarray, silhouettes: np.ndarray) -> bool:
+        iou = self.scales.iou_of(silhouettes, self.level)
         if iou < self.best - self.tolerance:
             return False
         self.best = max(self.best, iou)

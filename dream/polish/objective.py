@@ -103,14 +103,16 @@ class Contour:
 
 def select_contour(P_frames: np.ndarray, faces: np.ndarray, T: np.ndarray,
                    camera: CameraIntrinsics, params: PolishSettings,
-                   usable: np.ndarray | None = None) -> Contour:
+                   usable: np.ndarray | None = None,
+                   silhouettes: np.ndarray | None = None) -> Contour:
     """The contour points at T: of each frame's mesh vertices P_frames (F, V, 3), those that
     project within `contour_band_px` of the silhouette rendered at T (at most
     `max_points_per_frame`, evenly spaced), with their signed distance there; `usable` (V,)
-    bool: only these vertices may be contour points (the whole mesh is still rendered)."""
+    bool: only these vertices may be contour points (the whole mesh is still rendered);
+    `silhouettes` (F, H, W): the frames' silhouettes at T where already rendered."""
     points, frames, dists, vertices = [], [], [], []
     for f, P in enumerate(P_frames):
-        rendered = render_points(P, faces, T, camera)
+        rendered = render_points(P, faces, T, camera) if silhouettes is None else silhouettes[f]
         if not rendered.any():
             continue
         uv = project(camera, P @ T[:3, :3].T + T[:3, 3])

@@ -190,7 +190,7 @@ def search_camera(camera: CameraIntrinsics, params: PolishSettings) -> CameraInt
 def refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
                 camera: CameraIntrinsics, T_cam_base: np.ndarray,
                 params: PolishSettings, usable: np.ndarray | None = None,
-                keep: Callable[[np.ndarray], bool] | None = None
+                keep: Callable[[np.ndarray, np.ndarray], bool] | None = None
                 ) -> tuple[np.ndarray, int, int]:
     """The silhouette optimum near `T_cam_base` (search resolution already applied).
 
@@ -198,31 +198,41 @@ def refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
         P_frames: (F, V, 3) mesh vertices of each frame in the base frame, m.
         faces: (T, 3) triangles. masks: (F, H, W) observed masks at `camera`'s size.
         usable: (V,) bool, the vertices that may be contour points (default all).
-        keep: called with each round's pose; where it says False the round is undone and the
-            refinement stops (the contour points are chosen again each round, so a round may
-            lower its own cost and still move the outline off the masks: a held object as
-            large as the hand drags the contour inside it outwards, round after round).
+        keep: called with each round's pose and the frames' silhouettes there (F, H, W, the
+            renders the next round selects its contour points from); where it says False the
+            round is undone and the refinement stops (the contour points are chosen again
+            each round, so a round may lower its own cost and still move the outline off the
+            masks: a held object as large as the hand drags the contour inside it outwards,
+            round after round).
     Returns:
         (T (4, 4), rounds run, contour points of the last round).
     """
     objective = Objective(np.stack([signed_distance(m) for m in masks]), camera, params)
-    T = np.array(T_cam_base, dtype=float)
+    T = kept = np.array(T_cam_base, dtype=float)
     rounds, points = 0, 0
     for rounds in range(1, params.outer_iterations + 1):
-        contour = select_contour(P_frames, faces, T, camera, params, usable)
+        silhouettes = np.stack([render_points(P, faces, T, camera) for P in P_frames])
+        if keep is not None and T is not kept:
+            if not keep(T, silhouettes):
+                log.debug("silhouette polish round %d refused by its check", rounds - 1)
+                T, rounds = kept, rounds - 1
+                break
+            kept = T
+        contour = select_contour(P_frames, faces, T, camera, params, usable, silhouettes)
         points = len(contour.s)
         if points < params.min_contour_points:
             log.info("silhouette polish: only %d contour points, stopping", points)
             break
         T_new = _lm_steps(objective, contour, T, params)
-        if keep is not None and not keep(T_new):
-            log.debug("silhouette polish round %d refused by its check, stopping", rounds)
-            break
         moved = rms_motion_px(contour.P_base, T, T_new, camera)
         T = T_new
         log.debug("silhouette polish round %d: %d points, moved %.3g px", rounds, points, moved)
         if moved < params.step_tolerance_px:
             break
+    if keep is not None and T is not kept and not keep(T, np.stack(
+            [render_points(P, faces, T, camera) for P in P_frames])):
+        log.debug("silhouette polish round %d refused by its check", rounds)
+        T = kept
     return T, rounds, points
 
 

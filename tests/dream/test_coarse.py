@@ -159,10 +159,10 @@ def test_a_refused_round_leaves_the_pose_as_it_was(panda, meshes):
     T_start = off_by(T_true, 0.02, np.deg2rad(1.0), 0)
     P = vertices_in_base(meshes, joints)
     T, rounds, _ = refine_pose(P, meshes.faces, masks, CAMERA, T_start, PolishSettings(),
-                               keep=lambda T: False)
+                               keep=lambda T, silhouettes: False)
     assert rounds == 1 and np.array_equal(T, T_start)
     T, _, _ = refine_pose(P, meshes.faces, masks, CAMERA, T_start, PolishSettings(),
-                          keep=lambda T: True)
+                          keep=lambda T, silhouettes: True)
     assert pose_errors(T, T_true)[0] < pose_errors(T_start, T_true)[0]
 
 
