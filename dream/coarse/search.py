@@ -13,9 +13,10 @@ one chosen, and how clearly the images chose it (pure).
    best of those (distinct again) at the finest too, and scored by the IoU of their rendered
    silhouettes there.
 3. The highest IoU wins, refined at `finish_width_px` on every frame given (the hypotheses
-   and the local refinement compare only `search_frames` of them). The verdict's evidence: the best
-   rival's IoU (a refined candidate farther than `rival_m` or `rival_rad` from the winner; the
-   gap says how much better the winner explains the images), and the basin check:
+   and the local refinement compare only `search_frames` of them). The verdict's evidence: the
+   best rival's IoU (a refined candidate that, finished as the winner is, stays farther than
+   `rival_m` or `rival_rad` from it; the gap says how much better the winner explains the
+   images; a rival that explains them better wins instead), and the basin check:
    `basin_starts` refinements started `basin_m` and `basin_rad` from the winner in random
    directions, and how many return within `basin_return_m` and `basin_return_rad`.
 4. The winner's precision: its finish repeated from it with each of `jackknife_groups` groups
@@ -269,11 +270,11 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     def finished(T: np.ndarray) -> np.ndarray:
         return T if finish is None else finish.refine(T)
 
-    T_best = finished(candidates[0].T_cam_base)
-    candidates[0] = replace(candidates[0], T_cam_base=T_best, iou=scales.iou(T_best))
-    best = candidates[0]
-    rival = next((c for c in candidates[1:] if not within(
-        c.T_cam_base, best.T_cam_base, settings.rival_m, settings.rival_rad)), None)
+    def finished_candidate(c: Candidate) -> Candidate:
+        T = finished(c.T_cam_base)
+        return replace(c, T_cam_base=T, iou=scales.iou(T))
+
+    candidates, best, rival = _winner_and_rival(candidates, finished_candidate, settings)
     say(f"refined the {len(candidates)} best distinct hypotheses: best IoU {best.iou:.3f}"
         f"{f', best rival {rival.iou:.3f}' if rival is not None else ''}")
     ends = _basin_ends(lambda T: finished(scales.refine(T)), best.T_cam_base, settings, rng)
@@ -293,6 +294,29 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     return SearchOutcome(best, rival, tuple(candidates), counts, returned,
                          settings.basin_starts, ends, frames_xi, links_xi, links,
                          time.perf_counter() - start)
+
+
+def _winner_and_rival(candidates: list[Candidate], finished: Callable[[Candidate], Candidate],
+                      settings: SearchSettings
+                      ) -> tuple[list[Candidate], Candidate, Candidate | None]:
+    """The candidates (best first) with the winner and its rival finished: the best candidate,
+    and the best other one that, finished too, stays farther than `rival_m` or `rival_rad`
+    from it (a candidate whose local refinement stopped short of the winner's optimum, its
+    round check refusing a step, is no rival); a rival that explains the masks better once
+    finished wins instead."""
+    out = list(candidates)
+    out[0] = best = finished(out[0])
+    for i in range(1, len(out)):
+        if within(out[i].T_cam_base, best.T_cam_base, settings.rival_m, settings.rival_rad):
+            continue
+        out[i] = rival = finished(out[i])
+        if within(rival.T_cam_base, best.T_cam_base, settings.rival_m, settings.rival_rad):
+            continue
+        if rival.iou > best.iou:
+            out[0], out[i] = rival, best
+            return out, rival, best
+        return out, best, rival
+    return out, best, None
 
 
 def pose_iou(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
