@@ -21,6 +21,7 @@ Public API:
     vertices_in_base(meshes, joints) -> (..., V, 3)
     rasterize_triangles(uv_triangles, height, width) -> bool (H, W)
     render_points(P_base, faces, T_cam_base, camera) -> bool (H, W)
+    render_frames(P_frames, faces, T_cam_base, camera) -> bool (F, H, W)
     render_silhouette(meshes, joints, T_cam_base, camera) -> bool (H, W)
     silhouette_iou(a, b) -> float
 """
@@ -359,6 +360,12 @@ def render_points(P_base: np.ndarray, faces: np.ndarray, T_cam_base: np.ndarray,
     P_cam[P_cam[:, 2] < MIN_DEPTH_M] = np.nan   # behind: projects to NaN, triangle skipped
     uv = project(camera, P_cam)
     return rasterize_triangles(uv[np.asarray(faces)], camera.height, camera.width)
+
+
+def render_frames(P_frames: np.ndarray, faces: np.ndarray, T_cam_base: np.ndarray,
+                  camera: CameraIntrinsics) -> np.ndarray:
+    """(F, H, W) bool: `render_points` of each frame's vertices P_frames (F, V, 3)."""
+    return np.stack([render_points(P, faces, T_cam_base, camera) for P in P_frames])
 
 
 def render_silhouette(robot_meshes: RobotMeshes, joints: np.ndarray, T_cam_base: np.ndarray,

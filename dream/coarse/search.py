@@ -55,7 +55,7 @@ from dream.polish.objective import scaled_camera, shrink_mask
 from dream.polish.refine import refine_pose
 from dream.polish.settings import PolishSettings
 from dream.refined_uncertainty import MIN_GROUPS, frame_groups
-from dream.silhouette import RobotMeshes, render_points, silhouette_iou, vertices_in_base
+from dream.silhouette import RobotMeshes, render_frames, silhouette_iou, vertices_in_base
 from dream.transforms import R_from_rotvec, invert_T, transform_points
 
 log = logging.getLogger(__name__)
@@ -152,7 +152,7 @@ class _Scales:
         self.iou_tolerance = settings.round_iou_tolerance
 
     def _rendered(self, T: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
-        return np.stack([render_points(P, self.faces, T, camera) for P in self.P])
+        return render_frames(self.P, self.faces, T, camera)
 
     def refine(self, T: np.ndarray, levels: slice = slice(None)) -> np.ndarray:
         """The silhouette polish at each of `levels` in turn; a round that lowers the IoU at
@@ -160,12 +160,13 @@ class _Scales:
         (`refine_pose`'s `keep`)."""
         for level in range(len(self.levels))[levels]:
             camera, masks = self.levels[level]
+            rendered = self._rendered(T, camera)
             usable = self.usable
             if self.held:
-                held = held_vertices(self.P, T, camera, held_pixels(self._rendered(T, camera)))
+                held = held_vertices(self.P, T, camera, held_pixels(rendered))
                 usable = ~held if usable is None else usable & ~held
-            T = refine_pose(self.P, self.faces, masks, camera, T, self.params, usable,
-                            _NoWorse(self, level, T, self.iou_tolerance))[0]
+            T = refine_pose(self.P, self.faces, masks, camera, T, self.params, usable, _NoWorse(
+                self, level, self.iou_of(rendered, level), self.iou_tolerance))[0]
         return T
 
     def iou_at(self, T: np.ndarray, level: int) -> float:
@@ -188,9 +189,9 @@ class _NoWorse:
     IoU there lies less than `tolerance` below the best so far (a sub-pixel step moves the IoU
     up or down by whole pixels)."""
 
-    def __init__(self, scales: _Scales, level: int, T_start: np.ndarray, tolerance: float):
+    def __init__(self, scales: _Scales, level: int, start_iou: float, tolerance: float):
         self.scales, self.level, self.tolerance = scales, level, tolerance
-        self.best = scales.iou_at(T_start, level)
+        self.best = start_iou
 
     def __call__(self, T: np.ndarray, silhouettes: np.ndarray) -> bool:
         iou = self.scales.iou_of(silhouettes, self.level)

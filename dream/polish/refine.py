@@ -47,7 +47,13 @@ from dream.refined_uncertainty import (
     group_jackknife,
     links_with_points,
 )
-from dream.silhouette import RobotMeshes, render_points, silhouette_iou, vertices_in_base
+from dream.silhouette import (
+    RobotMeshes,
+    render_frames,
+    render_points,
+    silhouette_iou,
+    vertices_in_base,
+)
 from dream.transforms import invert_T, rotation_angle_between
 
 log = logging.getLogger(__name__)
@@ -211,7 +217,7 @@ def refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
     T = kept = np.array(T_cam_base, dtype=float)
     rounds, points = 0, 0
     for rounds in range(1, params.outer_iterations + 1):
-        silhouettes = np.stack([render_points(P, faces, T, camera) for P in P_frames])
+        silhouettes = render_frames(P_frames, faces, T, camera)
         if keep is not None and T is not kept:
             if not keep(T, silhouettes):
                 log.debug("silhouette polish round %d refused by its check", rounds - 1)
@@ -229,8 +235,8 @@ def refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
         log.debug("silhouette polish round %d: %d points, moved %.3g px", rounds, points, moved)
         if moved < params.step_tolerance_px:
             break
-    if keep is not None and T is not kept and not keep(T, np.stack(
-            [render_points(P, faces, T, camera) for P in P_frames])):
+    if keep is not None and T is not kept and not keep(T, render_frames(P_frames, faces, T,
+                                                                          camera)):
         log.debug("silhouette polish round %d refused by its check", rounds)
         T = kept
     return T, rounds, points
