@@ -44,6 +44,19 @@ def test_motion_masks_find_the_moving_robot_and_drop_speckle(panda, meshes):
     assert np.median(outside) < 0.12
 
 
+def test_a_faint_part_joins_the_mask_only_where_it_touches_a_clear_one():
+    background = np.full((60, 80, 3), 100, np.uint8)
+    frame = background.copy()
+    frame[10:30, 10:30] = 160        # differs clearly (0.24)
+    frame[30:50, 10:30] = 115        # faintly (0.06), touching the clear part: an arm's link
+    frame[10:50, 55:75] = 115        # faintly, alone: a soft shadow, a change of light
+    settings = MotionSettings()
+    mask = motion_masks(frame[None], background, settings)[0]
+    assert mask[10:50, 10:30].all() and not mask[:, 45:].any()
+    without = motion_masks(frame[None], background, MotionSettings(weak_threshold=0.1))[0]
+    assert without[10:30, 10:30].all() and not without[31:, :].any()
+
+
 def test_background_needs_frames_and_a_moving_arm():
     settings = MotionSettings()
     with pytest.raises(InputError, match="too few for a background model"):
@@ -53,6 +66,8 @@ def test_background_needs_frames_and_a_moving_arm():
     check_motion(np.full(10, 0.1), settings, "data")
     with pytest.raises(InputError, match="threshold"):
         MotionSettings(threshold=0.0)
+    with pytest.raises(InputError, match="weak_threshold 0.2 must not exceed"):
+        MotionSettings(weak_threshold=0.2)
 
 
 def test_dream_masks_writes_one_mask_per_frame(panda, meshes, tmp_path, capsys):
