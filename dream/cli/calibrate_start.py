@@ -184,6 +184,7 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
             "hypotheses_scored": outcome.hypotheses, "evidence": inputs.source,
             "frames": [seq.frames[int(i)].name for i in inputs.frames],
             "left_out_links": list(inputs.left_out),
+            "carried": carried_doc(inputs.carried),
             "T_cam_base": outcome.best.T_cam_base.tolist(), "iou": outcome.best.iou,
             "rival_iou": None if rival is None else rival.iou,
             "rival_distance_m": None if distance is None else distance[0],
@@ -199,6 +200,20 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
                            for c in outcome.candidates],
             "seconds": outcome.seconds,
             "mark": None if marked is None else mark_doc(marked, seq)}
+
+
+def carried_doc(carving) -> dict | None:
+    """RESULT.json's `start.carried`: what the carving at the search's winner (default
+    settings) found the arm carrying, and whether its hull joined the model, or why nothing;
+    None where it did not run."""
+    from dream.coarse.settings import SearchSettings
+
+    if carving is None:
+        return None
+    finding = carving.finding
+    return {**carving.to_dict(),
+            "joined_to_model": finding is not None and SearchSettings().join_carried,
+            "box_around_hull": None if finding is None else finding.geometry.to_params()}
 
 
 def mark_doc(marked, seq) -> dict:
@@ -217,7 +232,7 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
     mark's clicks at the pose written (with `--mark`), and the condition of the pose written
     (`dream.quality`)."""
     from dream.coarse.settings import SearchSettings
-    from dream.coarse.verdict import cues_finding, mark_finding, search_findings
+    from dream.coarse.verdict import carried_finding, cues_finding, mark_finding, search_findings
     from dream.quality import condition_findings, quality_from
 
     s = doc["start"]
@@ -225,6 +240,10 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
                                s["basin_returned"], s["basin_starts"], SearchSettings())
     if cue_move is not None:
         findings.append(cues_finding(*cue_move))
+    carried = s.get("carried") or {}
+    if carried.get("named"):
+        findings.append(carried_finding(carried["named"],
+                                        carried["box_around_hull"]["size_m"]))
     if marked is not None:
         from dream.coarse.mark import MarkSettings, click_residuals
 

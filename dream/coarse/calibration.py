@@ -10,24 +10,29 @@ turning in place stays in the background model), and the search uses the frames 
 show motion. The hypotheses are scored on a few frames (`search_frames`); the winner is
 finished on up to `finish_frames` (on rendered scenes, one frame's mask error, a shadow or a
 link the colour of the floor, moves the optimum of 8 frames by 1-2 cm, of 30 by a few
-millimetres). The search's 1-sigma is the spread of its finish over frame groups and links
-left out (jackknives) and of its basin check's restarts around the winner: where they do not
-return, it is large and says so.
+millimetres). What the arm carries that the URDF lacks (a tool, a held object) is carved at
+the winner (`dream.coarse.carried`) and reported; with `join_carried` it is joined to the
+model and the search runs again from there. The search's 1-sigma is the spread of its finish
+over frame groups and links left out (jackknives) and of its basin check's restarts around
+the winner: where they do not return, it is large and says so.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from dream.calibration import CalibrationResult, FrameSolution, Observations
+from dream.camera import CameraIntrinsics
+from dream.coarse.carried import carried_geometry, with_hull
 from dream.coarse.hypotheses import around, fibonacci_directions, shell
 from dream.coarse.mark import Mark, MarkSettings, mark_points, mark_pose, mark_sigma, track_mark
 from dream.coarse.search import SearchOutcome, search, within
 from dream.coarse.settings import SearchSettings
+from dream.diagnosis.attached import AttachedSettings, CarvingOutcome
 from dream.errors import InputError
 from dream.pnp import NoSolution, PoseFit, increment_between
 from dream.polish.objective import evenly_spaced
@@ -44,7 +49,7 @@ from dream.silhouette import (
 
 log = logging.getLogger(__name__)
 
-GUESS, SHELL = "guess", "shell"
+GUESS, SHELL, CARRIED = "guess", "shell", "carried"
 DATA_MASKS, MOTION_MASKS = "the data's masks", "motion masks"
 RESOLUTION_FRACTION = 0.5   # of the basin check's return limits: its 1-sigma without a jackknife
 JACKKNIFE_SHRINKAGE = 0.25  # of the search's jackknife covariance towards its diagonal (set
@@ -75,7 +80,8 @@ class SearchMasks:
     """What the search compares: the meshes (without links the masks do not show), the chosen
     frames' indices, joints (n, J) and masks (n, H, W), the masks' source, links left out, and
     the positions among the chosen of the frames the hypotheses are scored on (`search`; the
-    finishing refinement compares them all)."""
+    finishing refinement compares them all), and what the carving at the first winner found
+    the arm carrying (`carried`; None where it did not run; `dream.coarse.carried`)."""
 
     meshes: RobotMeshes
     frames: np.ndarray
@@ -84,6 +90,7 @@ class SearchMasks:
     source: str
     left_out: tuple[str, ...]
     search: np.ndarray
+    carried: CarvingOutcome | None = None
 
 
 def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> SearchMasks:
@@ -186,7 +193,41 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
     outcome = search(inputs.meshes, inputs.joints, inputs.masks, sequence.camera, hypotheses,
                      settings, aimed_only=aimed_only, held=inputs.source == MOTION_MASKS,
                      progress=progress, search_frames=inputs.search)
-    return outcome, inputs
+    if not settings.find_carried or outcome.best.iou < settings.min_found_iou:
+        return outcome, inputs
+    return with_carried(sequence.camera, inputs, outcome, settings, progress)
+
+
+def with_carried(camera: CameraIntrinsics, inputs: SearchMasks, outcome: SearchOutcome,
+                 settings: SearchSettings, progress: Callable[[str], None] | None = None
+                 ) -> tuple[SearchOutcome, SearchMasks]:
+    """The carving at the winner (`dream.coarse.carried`) in the inputs; where it finds
+    something and `settings.join_carried`, the search again from the winner and its rival with
+    the carved hull joined to the model, and the inputs with it."""
+    say = progress or (lambda line: None)
+    attached = AttachedSettings()
+    carving = carried_geometry(inputs.meshes, inputs.joints, inputs.masks, camera,
+                               outcome.best.T_cam_base, attached)
+    if carving.finding is None:
+        say(f"nothing carried found: {carving.reason}")
+        return outcome, replace(inputs, carried=carving)
+    box = carving.finding.geometry
+    say(f"something the URDF lacks moves with {box.link} (about "
+        f"{' x '.join(f'{100 * s:.0f}' for s in box.size_m)} cm, {carving.finding.points} "
+        "carved points)" + (": searching again with its hull joined to the model"
+                            if settings.join_carried else ""))
+    if not settings.join_carried:
+        return outcome, replace(inputs, carried=carving)
+    meshes = with_hull(inputs.meshes, carving.finding.geometry.link,
+                       carving.finding.points_link, attached.voxel_m)
+    starts = [outcome.best.T_cam_base] + ([] if outcome.rival is None
+                                          else [outcome.rival.T_cam_base])
+    again = search(meshes, inputs.joints, inputs.masks, camera, {CARRIED: np.stack(starts)},
+                   settings, held=inputs.source == MOTION_MASKS, progress=progress,
+                   search_frames=inputs.search)
+    return (replace(again, hypotheses={**outcome.hypotheses, **again.hypotheses},
+                    seconds=outcome.seconds + again.seconds),
+            replace(inputs, meshes=meshes, carried=carving))
 
 
 @dataclass(frozen=True)

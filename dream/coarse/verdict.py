@@ -20,6 +20,9 @@ Each finding is (level, one sentence with what to do), as in `dream.quality`:
   it: `check`); the basin finding as above.
 - **cues**: the written pose (the edge alignment's) and the masks' optimum differ by more than
   a centimetre or a degree: one cue is pulled by something the model lacks (`check`).
+- **carried**: the carving at the pose found names something a link carries that the URDF
+  lacks (`dream.coarse.carried`): its outline pulls the silhouettes (`check`; on the rendered
+  benchmark scenes every search that landed more than 1 cm off had one).
 
     >>> from dream.coarse.settings import SearchSettings
     >>> s = SearchSettings()
@@ -80,6 +83,18 @@ def cues_finding(distance_m: float, angle_rad: float) -> Finding | None:
                    f"mm and {np.rad2deg(angle_rad):.2f} deg: something the model lacks (a tool, "
                    "a cable, a shadow) pulls one of them; the 1-sigma includes the disagreement; "
                    "check the overlays, or leave the suspect links out (--exclude-links)")
+
+
+def carried_finding(link: str, size_m) -> Finding:
+    """The carried finding (module doc) of something carved at `link`, about `size_m` (3,).
+
+    >>> carried_finding("panda_hand", (0.2, 0.1, 0.1))[0]
+    'check'
+    """
+    size = " x ".join(f"{100 * s:.0f}" for s in size_m)
+    return CHECK, (f"something the URDF lacks moves with {link} (about {size} cm, carved from "
+                   "the masks): its outline pulls the robot's silhouettes, so the pose may be "
+                   "off by a centimetre or more; check the overlays, or record without it")
 
 
 def mark_finding(click_residuals_px: np.ndarray, max_px: float) -> Finding | None:

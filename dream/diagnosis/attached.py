@@ -22,7 +22,7 @@ Pure except for reading the sequence's images.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -105,12 +105,15 @@ class AttachedSettings:
 
 @dataclass(frozen=True)
 class AttachedFinding:
-    """The geometry found, the link it moves with, and the evidence."""
+    """The geometry found, the link it moves with, and the evidence: the carved points that
+    shaped it (`points_link` (N, 3), in the link's frame)."""
 
     geometry: LinkGeometry
     points: int
     frames: int
     points_per_link: dict[str, int]
+    points_link: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False,
+                                    compare=False)
 
     def note(self) -> str:
         """The diagnosis note that names the finding."""
@@ -183,13 +186,21 @@ def unexplained_motion(sequence: Sequence, robot: Robot, joints: np.ndarray,
                        settings: AttachedSettings) -> tuple[np.ndarray, np.ndarray, float]:
     """(moving or model, unexplained) (n, H, W) bool masks of the frames `indices`, and the
     share of the moving pixels left unexplained."""
-    camera = sequence.camera
     motion = sequence_motion_masks(sequence, indices, MotionSettings())
-    meshes = load_robot_meshes(robot)
+    return unexplained_pixels(load_robot_meshes(robot), np.asarray(joints)[indices], motion,
+                              T_cam_base, sequence.camera, settings)
+
+
+def unexplained_pixels(meshes, joints: np.ndarray, motion: np.ndarray, T_cam_base: np.ndarray,
+                       camera, settings: AttachedSettings
+                       ) -> tuple[np.ndarray, np.ndarray, float]:
+    """(moving or model, unexplained) (n, H, W) bool masks of the frames at `joints` (n, J)
+    whose motion masks are `motion` (n, H, W), and the share of the moving pixels the model's
+    silhouettes (`meshes` at `T_cam_base`, dilated by `dilate_px`) leave unexplained."""
     radius = max(1, int(round(settings.dilate_px * camera.width / WIDTH_REFERENCE_PX)))
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
-    model = np.stack([cv2.dilate(render_silhouette(meshes, joints[i], T_cam_base, camera)
-                                 .astype(np.uint8), disk) > 0 for i in indices])
+    model = np.stack([cv2.dilate(render_silhouette(meshes, q, T_cam_base, camera)
+                                 .astype(np.uint8), disk) > 0 for q in joints])
     # where the arm stays, the median background holds the arm itself, and the frames in which
     # it has moved away "move" there: ghosts, no evidence of anything carried
     ghost = model.mean(axis=0) >= settings.background_arm_share
@@ -271,20 +282,40 @@ def find_attached_geometry(sequence: Sequence, robot: Robot, joints: np.ndarray,
         raise InputError(f"usable must be ({len(sequence)},) bool, got {usable.shape}")
     indices = evenly_spaced(np.flatnonzero(usable), settings.frames)
     q = np.asarray(joints, dtype=float)[indices]
-    origins = robot.link_poses(q, robot.link_names)[..., :3, 3]            # (n, L, 3)
-    moving_links = tuple(name for name, travel in zip(
-        robot.link_names, np.ptp(origins, axis=0).max(axis=1), strict=True)
-        if travel > MotionSettings().static_link_m)
+    moving_links = _moving_links(robot, q)
     if not moving_links:
         return CarvingOutcome(len(indices), None, {}, None, "no link moves over the frames")
     moving, unexplained, share = unexplained_motion(sequence, robot, joints, T_cam_base,
                                                     indices, settings)
+    return carve_masks(robot, q, T_cam_base, sequence.camera, moving, unexplained, share,
+                       settings)
+
+
+def _moving_links(robot: Robot, q: np.ndarray) -> tuple[str, ...]:
+    """The links whose origins travel more than the motion masks' `static_link_m` over the
+    joint vectors `q` (n, J)."""
+    origins = robot.link_poses(q, robot.link_names)[..., :3, 3]            # (n, L, 3)
+    return tuple(name for name, travel in zip(
+        robot.link_names, np.ptp(origins, axis=0).max(axis=1), strict=True)
+        if travel > MotionSettings().static_link_m)
+
+
+def carve_masks(robot: Robot, q: np.ndarray, T_cam_base: np.ndarray, camera,
+                moving: np.ndarray, unexplained: np.ndarray, share: float,
+                settings: AttachedSettings | None = None) -> CarvingOutcome:
+    """`find_attached_geometry` on masks already made (pure): the frames' joints `q` (n, J),
+    their (moving or model, unexplained) masks (n, H, W) and the unexplained share
+    (`unexplained_pixels`)."""
+    settings = settings or AttachedSettings()
+    moving_links = _moving_links(robot, q)
+    if not moving_links:
+        return CarvingOutcome(len(q), None, {}, None, "no link moves over the frames")
     if share > settings.max_unexplained_share:
-        return CarvingOutcome(len(indices), share, {}, None, (
+        return CarvingOutcome(len(q), share, {}, None, (
             f"the fitted model leaves {share:.0%} of the moving pixels unexplained (more than "
             f"{settings.max_unexplained_share:.0%}): its pose or joints are too far off to tell "
             "what the arm carries"))
-    votes = {link: grid_votes(robot, link, q, T_cam_base, sequence.camera, moving, unexplained,
+    votes = {link: grid_votes(robot, link, q, T_cam_base, camera, moving, unexplained,
                               settings)
              for link in (_representative(robot, g) for g in rigid_groups(robot, q, moving_links))}
     kept = [(link, v.kept(settings, settings.link_moving_share)) for link, v in votes.items()]
@@ -292,7 +323,7 @@ def find_attached_geometry(sequence: Sequence, robot: Robot, joints: np.ndarray,
     best = max(counts.values())
     if best < settings.min_points:
         strongest = max(counts, key=counts.get)
-        return CarvingOutcome(len(indices), share, counts, None, (
+        return CarvingOutcome(len(q), share, counts, None, (
             f"the most points kept, {best} in the frame of {strongest}, are fewer than the "
             f"{settings.min_points} that name a carried shape" if best else
             "no point near a moving link falls on unexplained motion in enough frames"))
@@ -304,8 +335,8 @@ def find_attached_geometry(sequence: Sequence, robot: Robot, joints: np.ndarray,
                                        100 - settings.trim_percentile], axis=0)
     size = np.maximum(high - low, 0.0) + settings.voxel_m
     box = LinkGeometry(link, BOX_KIND, size_m=tuple(size), position_m=tuple((low + high) / 2))
-    return CarvingOutcome(len(indices), share, counts,
-                          AttachedFinding(box, len(points), len(indices), counts), "")
+    return CarvingOutcome(len(q), share, counts,
+                          AttachedFinding(box, len(points), len(q), counts, points), "")
 
 
 def _representative(robot: Robot, group: tuple[str, ...]) -> str:
