@@ -174,6 +174,7 @@ def search_start(request, seq, out: TextIO):
 
 def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
     """RESULT.json's `start` object: how the pose was searched and how clearly it won."""
+    from dream.coarse.calibration import CARRIED
     from dream.metrics import pose_errors
     from dream.pnp import increment_between
 
@@ -184,7 +185,7 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
             "hypotheses_scored": outcome.hypotheses, "evidence": inputs.source,
             "frames": [seq.frames[int(i)].name for i in inputs.frames],
             "left_out_links": list(inputs.left_out),
-            "carried": carried_doc(inputs.carried),
+            "carried": carried_doc(inputs.carried, CARRIED in outcome.hypotheses),
             "T_cam_base": outcome.best.T_cam_base.tolist(), "iou": outcome.best.iou,
             "rival_iou": None if rival is None else rival.iou,
             "rival_distance_m": None if distance is None else distance[0],
@@ -202,17 +203,14 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
             "mark": None if marked is None else mark_doc(marked, seq)}
 
 
-def carried_doc(carving) -> dict | None:
-    """RESULT.json's `start.carried`: what the carving at the search's winner (default
-    settings) found the arm carrying, and whether its hull joined the model, or why nothing;
-    None where it did not run."""
-    from dream.coarse.settings import SearchSettings
-
+def carried_doc(carving, joined: bool) -> dict | None:
+    """RESULT.json's `start.carried`: what the carving at the search's winner found the arm
+    carrying, whether its hull `joined` the model (the search ran again with it), or why
+    nothing; None where it did not run."""
     if carving is None:
         return None
     finding = carving.finding
-    return {**carving.to_dict(),
-            "joined_to_model": finding is not None and SearchSettings().join_carried,
+    return {**carving.to_dict(), "joined_to_model": joined,
             "box_around_hull": None if finding is None else finding.geometry.to_params()}
 
 
