@@ -203,14 +203,14 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
             "mark": None if marked is None else mark_doc(marked, seq)}
 
 
-def carried_doc(carving, joined: bool) -> dict | None:
+def carried_doc(carving, left_out: bool) -> dict | None:
     """RESULT.json's `start.carried`: what the carving at the search's winner found the arm
-    carrying, whether its hull `joined` the model (the search ran again with it), or why
+    carrying, whether its pixels were `left_out` (the search ran again without them), or why
     nothing; None where it did not run."""
     if carving is None:
         return None
     finding = carving.finding
-    return {**carving.to_dict(), "joined_to_model": joined,
+    return {**carving.to_dict(), "left_out_of_search": left_out,
             "box_around_hull": None if finding is None else finding.geometry.to_params()}
 
 

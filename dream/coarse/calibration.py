@@ -11,8 +11,8 @@ show motion. The hypotheses are scored on a few frames (`search_frames`); the wi
 finished on up to `finish_frames` (on rendered scenes, one frame's mask error, a shadow or a
 link the colour of the floor, moves the optimum of 8 frames by 1-2 cm, of 30 by a few
 millimetres). What the arm carries that the URDF lacks (a tool, a held object) is carved at
-the winner (`dream.coarse.carried`) and reported; with `join_carried` it is joined to the
-model and the search runs again from there. The search's 1-sigma is the spread of its finish
+the winner (`dream.coarse.carried`), reported, and its pixels left out of the search run
+again from there. The search's 1-sigma is the spread of its finish
 over frame groups and links left out (jackknives) and of its basin check's restarts around
 the winner: where they do not return, it is large and says so.
 """
@@ -27,7 +27,7 @@ import numpy as np
 
 from dream.calibration import CalibrationResult, FrameSolution, Observations
 from dream.camera import CameraIntrinsics
-from dream.coarse.carried import carried_geometry, with_hull
+from dream.coarse.carried import carried_geometry, carried_region
 from dream.coarse.hypotheses import around, fibonacci_directions, shell
 from dream.coarse.mark import Mark, MarkSettings, mark_points, mark_pose, mark_sigma, track_mark
 from dream.coarse.search import SearchOutcome, search, within
@@ -202,32 +202,33 @@ def with_carried(camera: CameraIntrinsics, inputs: SearchMasks, outcome: SearchO
                  settings: SearchSettings, progress: Callable[[str], None] | None = None
                  ) -> tuple[SearchOutcome, SearchMasks]:
     """The carving at the winner (`dream.coarse.carried`) in the inputs; where it finds
-    something and `settings.join_carried`, the search again from the winner and its rival with
-    the carved hull joined to the model, and the inputs with it."""
+    something and `settings.leave_out_carried`, the search again from the winner and its rival
+    without the carved hull's pixels (`CarriedRegion`)."""
     say = progress or (lambda line: None)
     attached = AttachedSettings()
     carving = carried_geometry(inputs.meshes, inputs.joints, inputs.masks, camera,
                                outcome.best.T_cam_base, attached)
+    inputs = replace(inputs, carried=carving)
     if carving.finding is None:
         say(f"nothing carried found: {carving.reason}")
-        return outcome, replace(inputs, carried=carving)
-    box = carving.finding.geometry
-    say(f"something the URDF lacks moves with {box.link} (about "
-        f"{' x '.join(f'{100 * s:.0f}' for s in box.size_m)} cm, {carving.finding.points} "
-        "carved points)" + (": searching again with its hull joined to the model"
-                            if settings.join_carried else ""))
-    if not settings.join_carried:
-        return outcome, replace(inputs, carried=carving)
-    meshes = with_hull(inputs.meshes, carving.finding.geometry.link,
-                       carving.finding.points_link, attached.voxel_m)
+        return outcome, inputs
+    link, points = carving.finding.geometry.link, carving.finding.points_link
+    say(f"something the URDF lacks moves with {link} (about "
+        f"{' x '.join(f'{100 * s:.0f}' for s in carving.finding.geometry.size_m)} cm, "
+        f"{carving.finding.points} carved points)"
+        + (": searching again without its pixels" if settings.leave_out_carried else ""))
+    if not settings.leave_out_carried:
+        return outcome, inputs
+    region = carried_region(inputs.meshes.robot, inputs.joints, link, points, attached.voxel_m,
+                            settings.carried_margin_px)
     starts = [outcome.best.T_cam_base] + ([] if outcome.rival is None
                                           else [outcome.rival.T_cam_base])
-    again = search(meshes, inputs.joints, inputs.masks, camera, {CARRIED: np.stack(starts)},
-                   settings, held=inputs.source == MOTION_MASKS, progress=progress,
-                   search_frames=inputs.search)
-    return (replace(again, hypotheses={**outcome.hypotheses, **again.hypotheses},
-                    seconds=outcome.seconds + again.seconds),
-            replace(inputs, meshes=meshes, carried=carving))
+    searched = search(inputs.meshes, inputs.joints, inputs.masks, camera,
+                      {CARRIED: np.stack(starts)}, settings,
+                      held=inputs.source == MOTION_MASKS, progress=progress,
+                      search_frames=inputs.search, region=region)
+    return (replace(searched, hypotheses={**outcome.hypotheses, **searched.hypotheses},
+                    seconds=outcome.seconds + searched.seconds), inputs)
 
 
 @dataclass(frozen=True)

@@ -143,6 +143,21 @@ def held_vertices(P_frames: np.ndarray, T_cam_base: np.ndarray, camera: CameraIn
     return (inside & held[v, u]).mean(axis=0) > MEDIAN_SHARE
 
 
+def region_vertices(P_frames: np.ndarray, T_cam_base: np.ndarray, camera: CameraIntrinsics,
+                    region: np.ndarray) -> np.ndarray:
+    """(F, V) whether each frame's vertex P_frames (F, V, 3) projects into that frame's
+    `region` pixels (F, h, w) at `camera`'s size, seen from T_cam_base.
+
+    >>> camera = CameraIntrinsics(10.0, 10.0, 1.5, 1.5, 4, 4)
+    >>> region = np.zeros((2, 4, 4), bool); region[1, 1:3, 1:3] = True
+    >>> region_vertices(np.zeros((2, 1, 3)) + [0.0, 0.0, 1.0], np.eye(4), camera,
+    ...                 region).tolist()
+    [[False], [True]]
+    """
+    u, v, inside = pixel_hits(P_frames @ T_cam_base[:3, :3].T + T_cam_base[:3, 3], camera)
+    return inside & region[np.arange(len(region))[:, None], v, u]
+
+
 def splat_iou(points: np.ndarray, masks: np.ndarray, camera: CameraIntrinsics,
               T_cam_base: np.ndarray, held: bool = False) -> np.ndarray:
     """(B,) the mean over frames of the IoU between each mask (F, h, w) and the pixels its

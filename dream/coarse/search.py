@@ -39,10 +39,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from dream.camera import CameraIntrinsics, project
+from dream.coarse.carried import CarriedRegion
 from dream.coarse.evidence import (
     held_pixels,
     held_vertices,
     points_of,
+    region_vertices,
     splat_iou,
     surface_samples,
 )
@@ -136,12 +138,15 @@ class _Scales:
     `held` (motion masks), the pixels the robot covers in more than half of the frames at a
     pose are the background model's (`held_pixels`): the vertices that lie there
     (`held_vertices`) give the refinement no contour points, and the pixels are taken out of
-    the silhouettes scored."""
+    the silhouettes scored. With `region` (what the arm carries), its pixels at a pose are
+    taken out of both the silhouettes and the masks scored, and the vertices that project
+    there in a frame are no contour points of that frame."""
 
     def __init__(self, P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
                  camera: CameraIntrinsics, settings: SearchSettings, usable: np.ndarray | None,
-                 held: bool = False):
+                 held: bool = False, region: CarriedRegion | None = None):
         self.P, self.faces, self.usable, self.held = P, meshes.faces, usable, held
+        self.region = region
         self.levels = []
         for width in dict.fromkeys(min(w, camera.width) for w in settings.local_widths_px):
             height = max(1, int(round(camera.height * width / camera.width)))
@@ -165,20 +170,28 @@ class _Scales:
             if self.held:
                 held = held_vertices(self.P, T, camera, held_pixels(rendered))
                 usable = ~held if usable is None else usable & ~held
+            if self.region is not None:
+                out = ~region_vertices(self.P, T, camera, self.region.pixels(T, camera))
+                usable = out if usable is None else usable & out
             T = refine_pose(self.P, self.faces, masks, camera, T, self.params, usable, _NoWorse(
-                self, level, self.iou_of(rendered, level), self.iou_tolerance))[0]
+                self, level, self.iou_of(rendered, level, T), self.iou_tolerance))[0]
         return T
 
     def iou_at(self, T: np.ndarray, level: int) -> float:
-        return self.iou_of(self._rendered(T, self.levels[level][0]), level)
+        return self.iou_of(self._rendered(T, self.levels[level][0]), level, T)
 
-    def iou_of(self, rendered: np.ndarray, level: int) -> float:
-        """The mean IoU of silhouettes (F, h, w) rendered at `level`'s camera with its masks
-        (without the pixels held in most frames, with `held`)."""
+    def iou_of(self, rendered: np.ndarray, level: int, T: np.ndarray) -> float:
+        """The mean IoU of silhouettes (F, h, w) rendered at `level`'s camera from `T` with
+        its masks (without the pixels held in most frames, with `held`; without the carried
+        region's, with `region`)."""
+        camera, masks = self.levels[level]
         if self.held:
             rendered = rendered & ~held_pixels(rendered)[None]
-        return float(np.mean([silhouette_iou(r, m) for r, m in zip(
-            rendered, self.levels[level][1], strict=True)]))
+        if self.region is not None:
+            kept = ~self.region.pixels(T, camera)
+            rendered, masks = rendered & kept, masks & kept
+        return float(np.mean([silhouette_iou(r, m) for r, m in zip(rendered, masks,
+                                                                   strict=True)]))
 
     def iou(self, T: np.ndarray) -> float:
         return self.iou_at(T, -1)
@@ -194,7 +207,7 @@ class _NoWorse:
         self.best = start_iou
 
     def __call__(self, T: np.ndarray, silhouettes: np.ndarray) -> bool:
-        iou = self.scales.iou_of(silhouettes, self.level)
+        iou = self.scales.iou_of(silhouettes, self.level, T)
         if iou < self.best - self.tolerance:
             return False
         self.best = max(self.best, iou)
@@ -213,7 +226,8 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
            settings: SearchSettings | None = None, usable: np.ndarray | None = None,
            aimed_only: tuple[str, ...] = (), held: bool = False,
            progress: Callable[[str], None] | None = None,
-           search_frames: np.ndarray | None = None) -> SearchOutcome:
+           search_frames: np.ndarray | None = None,
+           region: CarriedRegion | None = None) -> SearchOutcome:
     """The camera pose whose robot silhouettes best explain `masks` (module doc).
 
     Args:
@@ -228,6 +242,8 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         progress: called with one line per stage.
         search_frames: positions of the frames the hypotheses and the local refinement
             compare (default all); the winner's finish and the basin check compare all.
+        region: what the arm carries, in every frame: its pixels are not compared after the
+            coarse score (`_Scales`).
     Raises:
         InputError: shapes that disagree, no hypothesis, empty masks.
     """
@@ -264,9 +280,10 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     scores = coarse_scores(points, coarse, coarse_camera, T_all, settings.batch, held)
     say(f"scored {len(T_all)} camera hypotheses at {width} px (best coarse IoU "
         f"{scores.max():.3f})")
-    scales = _Scales(P, meshes, masks, camera, settings, usable, held)
+    scales = _Scales(P, meshes, masks, camera, settings, usable, held,
+                     None if region is None else region.frames(sub))
     candidates = _refined(scales, T_all, scores, sources, settings)
-    finish = _finish_scales(P_all, meshes, masks_all, camera, settings, usable, scales)
+    finish = _finish_scales(P_all, meshes, masks_all, camera, settings, usable, scales, region)
 
     def finished(T: np.ndarray) -> np.ndarray:
         return T if finish is None else finish.refine(T)
@@ -285,7 +302,7 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         f"{settings.basin_m * 100:.0f} cm / {np.rad2deg(settings.basin_rad):.0f} deg away "
         "returned")
     frames_xi, links_xi, links = _jackknife(P_all, meshes, masks_all, camera, settings, usable,
-                                            held, best.T_cam_base) \
+                                            held, best.T_cam_base, region) \
         if best.iou >= settings.min_found_iou else (np.zeros((0, 6)), np.zeros((0, 6)), ())
     if len(frames_xi) or len(links_xi):
         say(f"jackknife: the finish without each of {len(frames_xi)} frame groups and "
@@ -334,18 +351,20 @@ def pose_iou(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
 
 def _finish_scales(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
                    camera: CameraIntrinsics, settings: SearchSettings,
-                   usable: np.ndarray | None, scales: _Scales) -> _Scales | None:
+                   usable: np.ndarray | None, scales: _Scales,
+                   region: CarriedRegion | None = None) -> _Scales | None:
     """The scale `finish_width_px` (capped at the camera's width) on every frame; None where it
     is neither finer than the local scales' finest nor on more frames."""
     finish = _Scales(P, meshes, masks, camera, replace(
-        settings, local_widths_px=(settings.finish_width_px,)), usable, scales.held)
+        settings, local_widths_px=(settings.finish_width_px,)), usable, scales.held, region)
     finer = finish.levels[-1][0].width > scales.levels[-1][0].width
     return finish if finer or len(P) > len(scales.P) else None
 
 
 def _jackknife(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
                camera: CameraIntrinsics, settings: SearchSettings, usable: np.ndarray | None,
-               held: bool, T_best: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+               held: bool, T_best: np.ndarray, region: CarriedRegion | None = None
+               ) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
     """The winner's finish at `finish_width_px`, from `T_best`, with each of the
     `jackknife_groups` frame groups left out and with each link in view left out: (G, 6) and
     (L, 6) increments from `T_best`, and the L links; (0, 6) where there are fewer than
@@ -357,7 +376,8 @@ def _jackknife(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
     usable = np.ones(len(meshes.vertices), bool) if usable is None else np.asarray(usable)
 
     def refined(frames: np.ndarray, use: np.ndarray) -> np.ndarray:
-        scales = _Scales(P[frames], meshes, masks[frames], camera, finish, use, held)
+        scales = _Scales(P[frames], meshes, masks[frames], camera, finish, use, held,
+                         None if region is None else region.frames(frames))
         return increment_between(T_best, scales.refine(T_best))
 
     every = np.arange(len(P))

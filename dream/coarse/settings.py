@@ -57,11 +57,10 @@ class SearchSettings:
         seed: seed of the random hypotheses and surface samples.
         find_carried: carve what the arm carries that the model lacks at the winner
             (`dream.coarse.carried`): reported, and the verdict's carried finding.
-        join_carried: where something is carved, search again from the winner and its rival
-            with its hull joined to the model. Off: on rendered scenes it brought the worst
-            poses nearer (44 -> 12 mm, 27 -> 25 mm, 22 -> 15 mm) but none within 1 cm, and
-            moved a right one (8.7 mm) to 14.6 mm: the carved visual hull is larger than the
-            object.
+        leave_out_carried: where something is carved, search again from the winner and its
+            rival without the pixels of its carved hull (`dream.coarse.carried.CarriedRegion`).
+        carried_margin_px: the carved hull's pixels are widened by this many pixels of the
+            scale compared.
     """
 
     guess_sigma_m: float = 0.3
@@ -98,7 +97,8 @@ class SearchSettings:
     jackknife_link_points: int = 50
     seed: int = 0
     find_carried: bool = True
-    join_carried: bool = False
+    leave_out_carried: bool = True
+    carried_margin_px: int = 2
 
     def __post_init__(self) -> None:
         check_fields(self, "coarse search",
@@ -109,7 +109,7 @@ class SearchSettings:
                      positive=("guess_sigma_m", "guess_sigma_rad", "distinct_m", "distinct_rad",
                                "rival_m", "rival_rad", "basin_m", "basin_rad",
                                "basin_return_m", "basin_return_rad"),
-                     non_negative=("min_gap", "basin_starts", "min_found_iou",
+                     non_negative=("min_gap", "basin_starts", "min_found_iou", "carried_margin_px",
                                    "round_iou_tolerance",
                                    "min_basin_share", "jackknife_groups"))
         if not self.shell_distances or min(self.shell_distances) <= 0:

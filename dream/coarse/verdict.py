@@ -21,7 +21,8 @@ Each finding is (level, one sentence with what to do), as in `dream.quality`:
 - **cues**: the written pose (the edge alignment's) and the masks' optimum differ by more than
   a centimetre or a degree: one cue is pulled by something the model lacks (`check`).
 - **carried**: the carving at the pose found names something a link carries that the URDF
-  lacks (`dream.coarse.carried`): its outline pulls the silhouettes (`check`; on the rendered
+  lacks (`dream.coarse.carried`): the search leaves its pixels out, but it hides part of the
+  arm and its carving is only as good as the pose it was carved at (`check`; on the rendered
   benchmark scenes every search that landed more than 1 cm off had one).
 
     >>> from dream.coarse.settings import SearchSettings
@@ -93,8 +94,9 @@ def carried_finding(link: str, size_m) -> Finding:
     """
     size = " x ".join(f"{100 * s:.0f}" for s in size_m)
     return CHECK, (f"something the URDF lacks moves with {link} (about {size} cm, carved from "
-                   "the masks): its outline pulls the robot's silhouettes, so the pose may be "
-                   "off by a centimetre or more; check the overlays, or record without it")
+                   "the masks): the search left its pixels out, but it hides part of the arm, "
+                   "so the pose may be off by a centimetre or more; check the overlays, or "
+                   "record without it")
 
 
 def mark_finding(click_residuals_px: np.ndarray, max_px: float) -> Finding | None:

@@ -108,7 +108,8 @@ def select_contour(P_frames: np.ndarray, faces: np.ndarray, T: np.ndarray,
     """The contour points at T: of each frame's mesh vertices P_frames (F, V, 3), those that
     project within `contour_band_px` of the silhouette rendered at T (at most
     `max_points_per_frame`, evenly spaced), with their signed distance there; `usable` (V,)
-    bool: only these vertices may be contour points (the whole mesh is still rendered);
+    or per frame (F, V) bool: only these vertices may be contour points (the whole mesh is
+    still rendered);
     `silhouettes` (F, H, W): the frames' silhouettes at T where already rendered."""
     points, frames, dists, vertices = [], [], [], []
     for f, P in enumerate(P_frames):
@@ -121,7 +122,8 @@ def select_contour(P_frames: np.ndarray, faces: np.ndarray, T: np.ndarray,
         s[ok] = bilinear(signed_distance(rendered)[None], np.zeros(int(ok.sum()), np.int64),
                           uv[ok])
         near = np.abs(s) <= params.contour_band_px
-        pick = np.flatnonzero(near if usable is None else near & usable)
+        pick = np.flatnonzero(near if usable is None else
+                              near & (usable if usable.ndim == 1 else usable[f]))
         pick = evenly_spaced(pick, params.max_points_per_frame)
         points.append(P[pick])
         frames.append(np.full(len(pick), f))

@@ -203,7 +203,8 @@ def refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
     Args:
         P_frames: (F, V, 3) mesh vertices of each frame in the base frame, m.
         faces: (T, 3) triangles. masks: (F, H, W) observed masks at `camera`'s size.
-        usable: (V,) bool, the vertices that may be contour points (default all).
+        usable: (V,) or per frame (F, V) bool, the vertices that may be contour points
+            (default all).
         keep: called with each round's pose and the frames' silhouettes there (F, H, W, the
             renders the next round selects its contour points from); where it says False the
             round is undone and the refinement stops (the contour points are chosen again
