@@ -41,23 +41,19 @@ import numpy as np
 from dream.camera import CameraIntrinsics, project
 from dream.coarse.carried import CarriedRegion
 from dream.coarse.evidence import (
-    held_pixels,
-    held_vertices,
     points_of,
-    region_vertices,
     splat_iou,
     surface_samples,
 )
 from dream.coarse.hypotheses import aim
+from dream.coarse.scales import Scales
 from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
 from dream.metrics import pose_errors
 from dream.pnp import increment_between
 from dream.polish.objective import scaled_camera, shrink_mask
-from dream.polish.refine import refine_pose
-from dream.polish.settings import PolishSettings
 from dream.refined_uncertainty import MIN_GROUPS, frame_groups
-from dream.silhouette import RobotMeshes, render_frames, silhouette_iou, vertices_in_base
+from dream.silhouette import RobotMeshes, vertices_in_base
 from dream.transforms import R_from_rotvec, invert_T, transform_points
 
 log = logging.getLogger(__name__)
@@ -133,87 +129,6 @@ def within(T_a: np.ndarray, T_b: np.ndarray, limit_m: float, limit_rad: float) -
     return bool(m <= limit_m and rad <= limit_rad)
 
 
-class _Scales:
-    """The masks at each local scale, and the rendered IoU of a pose at the finest. With
-    `held` (motion masks), the pixels the robot covers in more than half of the frames at a
-    pose are the background model's (`held_pixels`): the vertices that lie there
-    (`held_vertices`) give the refinement no contour points, and the pixels are taken out of
-    the silhouettes scored. With `region` (what the arm carries), its pixels at a pose are
-    taken out of both the silhouettes and the masks scored, and the vertices that project
-    there in a frame are no contour points of that frame."""
-
-    def __init__(self, P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
-                 camera: CameraIntrinsics, settings: SearchSettings, usable: np.ndarray | None,
-                 held: bool = False, region: CarriedRegion | None = None):
-        self.P, self.faces, self.usable, self.held = P, meshes.faces, usable, held
-        self.region = region
-        self.levels = []
-        for width in dict.fromkeys(min(w, camera.width) for w in settings.local_widths_px):
-            height = max(1, int(round(camera.height * width / camera.width)))
-            small = scaled_camera(camera, width, height)
-            self.levels.append((small, np.stack([shrink_mask(m, width, height)
-                                                 for m in masks])))
-        self.params = replace(PolishSettings(), outer_iterations=settings.local_rounds)
-        self.iou_tolerance = settings.round_iou_tolerance
-
-    def _rendered(self, T: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
-        return render_frames(self.P, self.faces, T, camera)
-
-    def refine(self, T: np.ndarray, levels: slice = slice(None)) -> np.ndarray:
-        """The silhouette polish at each of `levels` in turn; a round that lowers the IoU at
-        its level by more than `round_iou_tolerance` is undone and ends that level
-        (`refine_pose`'s `keep`)."""
-        for level in range(len(self.levels))[levels]:
-            camera, masks = self.levels[level]
-            rendered = self._rendered(T, camera)
-            usable = self.usable
-            if self.held:
-                held = held_vertices(self.P, T, camera, held_pixels(rendered))
-                usable = ~held if usable is None else usable & ~held
-            if self.region is not None:
-                out = ~region_vertices(self.P, T, camera, self.region.pixels(T, camera))
-                usable = out if usable is None else usable & out
-            T = refine_pose(self.P, self.faces, masks, camera, T, self.params, usable, _NoWorse(
-                self, level, self.iou_of(rendered, level, T), self.iou_tolerance))[0]
-        return T
-
-    def iou_at(self, T: np.ndarray, level: int) -> float:
-        return self.iou_of(self._rendered(T, self.levels[level][0]), level, T)
-
-    def iou_of(self, rendered: np.ndarray, level: int, T: np.ndarray) -> float:
-        """The mean IoU of silhouettes (F, h, w) rendered at `level`'s camera from `T` with
-        its masks (without the pixels held in most frames, with `held`; without the carried
-        region's, with `region`)."""
-        camera, masks = self.levels[level]
-        if self.held:
-            rendered = rendered & ~held_pixels(rendered)[None]
-        if self.region is not None:
-            kept = ~self.region.pixels(T, camera)
-            rendered, masks = rendered & kept, masks & kept
-        return float(np.mean([silhouette_iou(r, m) for r, m in zip(rendered, masks,
-                                                                   strict=True)]))
-
-    def iou(self, T: np.ndarray) -> float:
-        return self.iou_at(T, -1)
-
-
-class _NoWorse:
-    """`refine_pose`'s `keep` at one of `_Scales`' levels: a round's pose is kept where its
-    IoU there lies less than `tolerance` below the best so far (a sub-pixel step moves the IoU
-    up or down by whole pixels)."""
-
-    def __init__(self, scales: _Scales, level: int, start_iou: float, tolerance: float):
-        self.scales, self.level, self.tolerance = scales, level, tolerance
-        self.best = start_iou
-
-    def __call__(self, T: np.ndarray, silhouettes: np.ndarray) -> bool:
-        iou = self.scales.iou_of(silhouettes, self.level, T)
-        if iou < self.best - self.tolerance:
-            return False
-        self.best = max(self.best, iou)
-        return True
-
-
 def coarse_scores(points: np.ndarray, masks: np.ndarray, camera: CameraIntrinsics,
                   T: np.ndarray, batch: int, held: bool = False) -> np.ndarray:
     """(N,) `splat_iou` of hypotheses T (N, 4, 4), `batch` at a time."""
@@ -243,7 +158,7 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         search_frames: positions of the frames the hypotheses and the local refinement
             compare (default all); the winner's finish and the basin check compare all.
         region: what the arm carries, in every frame: its pixels are not compared after the
-            coarse score (`_Scales`).
+            coarse score (`Scales`).
     Raises:
         InputError: shapes that disagree, no hypothesis, empty masks.
     """
@@ -280,7 +195,7 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     scores = coarse_scores(points, coarse, coarse_camera, T_all, settings.batch, held)
     say(f"scored {len(T_all)} camera hypotheses at {width} px (best coarse IoU "
         f"{scores.max():.3f})")
-    scales = _Scales(P, meshes, masks, camera, settings, usable, held,
+    scales = Scales(P, meshes, masks, camera, settings, usable, held,
                      None if region is None else region.frames(sub))
     candidates = _refined(scales, T_all, scores, sources, settings)
     finish = _finish_scales(P_all, meshes, masks_all, camera, settings, usable, scales, region)
@@ -344,18 +259,18 @@ def pose_iou(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     finest width (`finish_width_px`), as the search scores its winner."""
     settings = settings or SearchSettings()
     P = vertices_in_base(meshes, np.asarray(joints, float))
-    scales = _Scales(P, meshes, np.asarray(masks, bool), camera, replace(
+    scales = Scales(P, meshes, np.asarray(masks, bool), camera, replace(
         settings, local_widths_px=(settings.finish_width_px,)), None, held)
     return scales.iou(np.asarray(T_cam_base, float))
 
 
 def _finish_scales(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
                    camera: CameraIntrinsics, settings: SearchSettings,
-                   usable: np.ndarray | None, scales: _Scales,
-                   region: CarriedRegion | None = None) -> _Scales | None:
+                   usable: np.ndarray | None, scales: Scales,
+                   region: CarriedRegion | None = None) -> Scales | None:
     """The scale `finish_width_px` (capped at the camera's width) on every frame; None where it
     is neither finer than the local scales' finest nor on more frames."""
-    finish = _Scales(P, meshes, masks, camera, replace(
+    finish = Scales(P, meshes, masks, camera, replace(
         settings, local_widths_px=(settings.finish_width_px,)), usable, scales.held, region)
     finer = finish.levels[-1][0].width > scales.levels[-1][0].width
     return finish if finer or len(P) > len(scales.P) else None
@@ -376,7 +291,7 @@ def _jackknife(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
     usable = np.ones(len(meshes.vertices), bool) if usable is None else np.asarray(usable)
 
     def refined(frames: np.ndarray, use: np.ndarray) -> np.ndarray:
-        scales = _Scales(P[frames], meshes, masks[frames], camera, finish, use, held,
+        scales = Scales(P[frames], meshes, masks[frames], camera, finish, use, held,
                          None if region is None else region.frames(frames))
         return increment_between(T_best, scales.refine(T_best))
 
@@ -403,7 +318,7 @@ def _links_in_view(P: np.ndarray, meshes: RobotMeshes, usable: np.ndarray,
     return [k for k in range(len(meshes.links)) if counts[k] >= min_points]
 
 
-def _refined(scales: _Scales, T_all: np.ndarray, scores: np.ndarray, sources: list[str],
+def _refined(scales: Scales, T_all: np.ndarray, scores: np.ndarray, sources: list[str],
              settings: SearchSettings) -> list[Candidate]:
     """The `local_starts` best distinct hypotheses refined at every local scale but the
     finest, and the `fine_starts` best of those (distinct again) at the finest; best first."""

@@ -1,0 +1,99 @@
+"""The masks of the coarse search at each of its scales, and its silhouette polish there: the
+rendered IoU of a pose and the polish's refinement with its round check (pure;
+`dream.coarse.search`)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from dream.camera import CameraIntrinsics
+from dream.coarse.carried import CarriedRegion
+from dream.coarse.evidence import held_pixels, held_vertices, region_vertices
+from dream.coarse.settings import SearchSettings
+from dream.polish.objective import scaled_camera, shrink_mask
+from dream.polish.refine import refine_pose
+from dream.polish.settings import PolishSettings
+from dream.silhouette import RobotMeshes, render_frames, silhouette_iou
+
+
+class Scales:
+    """The masks at each local scale, and the rendered IoU of a pose at the finest. With
+    `held` (motion masks), the pixels the robot covers in more than half of the frames at a
+    pose are the background model's (`held_pixels`): the vertices that lie there
+    (`held_vertices`) give the refinement no contour points, and the pixels are taken out of
+    the silhouettes scored. With `region` (what the arm carries), its pixels at a pose are
+    taken out of both the silhouettes and the masks scored, and the vertices that project
+    there in a frame are no contour points of that frame."""
+
+    def __init__(self, P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
+                 camera: CameraIntrinsics, settings: SearchSettings, usable: np.ndarray | None,
+                 held: bool = False, region: CarriedRegion | None = None):
+        self.P, self.faces, self.usable, self.held = P, meshes.faces, usable, held
+        self.region = region
+        self.levels = []
+        for width in dict.fromkeys(min(w, camera.width) for w in settings.local_widths_px):
+            height = max(1, int(round(camera.height * width / camera.width)))
+            small = scaled_camera(camera, width, height)
+            self.levels.append((small, np.stack([shrink_mask(m, width, height)
+                                                 for m in masks])))
+        self.params = replace(PolishSettings(), outer_iterations=settings.local_rounds)
+        self.iou_tolerance = settings.round_iou_tolerance
+
+    def _rendered(self, T: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
+        return render_frames(self.P, self.faces, T, camera)
+
+    def refine(self, T: np.ndarray, levels: slice = slice(None)) -> np.ndarray:
+        """The silhouette polish at each of `levels` in turn; a round that lowers the IoU at
+        its level by more than `round_iou_tolerance` is undone and ends that level
+        (`refine_pose`'s `keep`)."""
+        for level in range(len(self.levels))[levels]:
+            camera, masks = self.levels[level]
+            rendered = self._rendered(T, camera)
+            usable = self.usable
+            if self.held:
+                held = held_vertices(self.P, T, camera, held_pixels(rendered))
+                usable = ~held if usable is None else usable & ~held
+            if self.region is not None:
+                out = ~region_vertices(self.P, T, camera, self.region.pixels(T, camera))
+                usable = out if usable is None else usable & out
+            T = refine_pose(self.P, self.faces, masks, camera, T, self.params, usable, NoWorse(
+                self, level, self.iou_of(rendered, level, T), self.iou_tolerance))[0]
+        return T
+
+    def iou_at(self, T: np.ndarray, level: int) -> float:
+        return self.iou_of(self._rendered(T, self.levels[level][0]), level, T)
+
+    def iou_of(self, rendered: np.ndarray, level: int, T: np.ndarray) -> float:
+        """The mean IoU of silhouettes (F, h, w) rendered at `level`'s camera from `T` with
+        its masks (without the pixels held in most frames, with `held`; without the carried
+        region's, with `region`)."""
+        camera, masks = self.levels[level]
+        if self.held:
+            rendered = rendered & ~held_pixels(rendered)[None]
+        if self.region is not None:
+            kept = ~self.region.pixels(T, camera)
+            rendered, masks = rendered & kept, masks & kept
+        return float(np.mean([silhouette_iou(r, m) for r, m in zip(rendered, masks,
+                                                                   strict=True)]))
+
+    def iou(self, T: np.ndarray) -> float:
+        return self.iou_at(T, -1)
+
+
+class NoWorse:
+    """`refine_pose`'s `keep` at one of `Scales`' levels: a round's pose is kept where its
+    IoU there lies less than `tolerance` below the best so far (a sub-pixel step moves the IoU
+    up or down by whole pixels)."""
+
+    def __init__(self, scales: Scales, level: int, start_iou: float, tolerance: float):
+        self.scales, self.level, self.tolerance = scales, level, tolerance
+        self.best = start_iou
+
+    def __call__(self, T: np.ndarray, silhouettes: np.ndarray) -> bool:
+        iou = self.scales.iou_of(silhouettes, self.level, T)
+        if iou < self.best - self.tolerance:
+            return False
+        self.best = max(self.best, iou)
+        return True
