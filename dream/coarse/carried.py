@@ -26,9 +26,8 @@ as the object did.
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -120,7 +119,7 @@ class CarriedRegion:
 
     def frames(self, index: np.ndarray) -> CarriedRegion:
         """The region of the frames `index` only."""
-        return dataclasses.replace(self, P_frames=self.P_frames[np.asarray(index, int)])
+        return replace(self, P_frames=self.P_frames[np.asarray(index, int)])
 
     def pixels(self, T_cam_base: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
         """(F, H, W) bool at `camera`'s size: the hull seen from `T_cam_base`, widened."""

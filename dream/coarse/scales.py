@@ -55,25 +55,27 @@ class Scales:
             if self.held:
                 held = held_vertices(self.P, T, camera, held_pixels(rendered))
                 usable = ~held if usable is None else usable & ~held
-            if self.region is not None:
-                out = ~region_vertices(self.P, T, camera, self.region.pixels(T, camera))
+            ignored = None if self.region is None else self.region.pixels(T, camera)
+            if ignored is not None:
+                out = ~region_vertices(self.P, T, camera, ignored)
                 usable = out if usable is None else usable & out
             T = refine_pose(self.P, self.faces, masks, camera, T, self.params, usable, NoWorse(
-                self, level, self.iou_of(rendered, level, T), self.iou_tolerance))[0]
+                self, level, self.iou_of(rendered, level, T, ignored), self.iou_tolerance))[0]
         return T
 
     def iou_at(self, T: np.ndarray, level: int) -> float:
         return self.iou_of(self._rendered(T, self.levels[level][0]), level, T)
 
-    def iou_of(self, rendered: np.ndarray, level: int, T: np.ndarray) -> float:
+    def iou_of(self, rendered: np.ndarray, level: int, T: np.ndarray,
+               ignored: np.ndarray | None = None) -> float:
         """The mean IoU of silhouettes (F, h, w) rendered at `level`'s camera from `T` with
         its masks (without the pixels held in most frames, with `held`; without the carried
-        region's, with `region`)."""
+        region's, with `region`: `ignored`, where its pixels at `T` are already rendered)."""
         camera, masks = self.levels[level]
         if self.held:
             rendered = rendered & ~held_pixels(rendered)[None]
         if self.region is not None:
-            kept = ~self.region.pixels(T, camera)
+            kept = ~(self.region.pixels(T, camera) if ignored is None else ignored)
             rendered, masks = rendered & kept, masks & kept
         return float(np.mean([silhouette_iou(r, m) for r, m in zip(rendered, masks,
                                                                    strict=True)]))
