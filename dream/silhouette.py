@@ -12,14 +12,14 @@ filled by an exact pixel-centre rule: a pixel is robot when its centre (u, v int
 docs/data_format.md) lies inside or on the edge of a projected triangle, as a GPU rasteriser
 samples it. (OpenCV's
 `fillPoly` rounds the vertices and draws the edges, which grows every outline by about half a
-pixel; a silhouette fit would turn that into a depth bias, so the fill is done here in numpy,
-vectorised over triangles grouped by the size of their bounding box.) Triangles with a vertex
-closer than `MIN_DEPTH_M` to the camera plane, or behind it, are skipped.
+pixel; a silhouette fit would turn that into a depth bias, so the fill is done in numpy by
+`dream.rasterize`.) Triangles with a vertex closer than `MIN_DEPTH_M` to the camera plane, or
+behind it, are skipped. `render_frames` renders the frames in parallel (`dream.threads`).
 
 Public API:
     load_robot_meshes(robot, max_triangles) -> RobotMeshes
     vertices_in_base(meshes, joints) -> (..., V, 3)
-    rasterize_triangles(uv_triangles, height, width) -> bool (H, W)
+    rasterize_triangles(uv_triangles, height, width) -> bool (H, W)   (from dream.rasterize)
     render_points(P_base, faces, T_cam_base, camera) -> bool (H, W)
     render_frames(P_frames, faces, T_cam_base, camera) -> bool (F, H, W)
     render_silhouette(meshes, joints, T_cam_base, camera) -> bool (H, W)
@@ -39,8 +39,10 @@ import numpy as np
 from dream.arrays import read_only
 from dream.camera import CameraIntrinsics, project
 from dream.errors import InputError, RobotError
+from dream.rasterize import rasterize_corners, rasterize_triangles  # noqa: F401 (public API)
 from dream.robot import Robot
 from dream.robot.visuals import BOX, CYLINDER, MESH, LinkVisual, load_mesh_parts, read_link_visuals
+from dream.threads import map_frames
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +52,6 @@ CLUSTER_ROUNDS = 12             # grid-size adjustments when decimating to the b
 CLUSTER_MARGIN = 1.05           # grow the grid this much more than the estimate asks
 CYLINDER_SECTIONS = 32          # tessellation of URDF cylinders
 SPHERE_SUBDIVISIONS = 2         # icosphere subdivisions of URDF spheres
-MAX_BLOCK_PIXELS = 4_000_000    # candidate pixels tested at once by the rasteriser
 
 
 
@@ -294,59 +295,6 @@ def without_links(meshes: RobotMeshes, links: tuple[str, ...]) -> RobotMeshes:
     return dataclasses.replace(meshes, faces=faces)
 
 
-def _pow2_ceil(n: np.ndarray) -> np.ndarray:
-    return np.left_shift(1, np.ceil(np.log2(np.maximum(n, 1))).astype(np.int64))
-
-
-def rasterize_triangles(uv_triangles: np.ndarray, height: int, width: int) -> np.ndarray:
-    """Pixels whose centre lies inside (or on the edge of) at least one triangle.
-
-    Args:
-        uv_triangles: (T, 3, 2) triangle corners in pixels (docs/data_format.md#conventions);
-            rows with a non-finite corner are skipped.
-        height, width: image size in pixels.
-    Returns:
-        (height, width) bool.
-    """
-    tri = np.asarray(uv_triangles, dtype=float)
-    if tri.ndim != 3 or tri.shape[1:] != (3, 2):
-        raise InputError(f"uv_triangles has shape {tri.shape}, expected (T, 3, 2)")
-    if int(height) != height or int(width) != width or height < 1 or width < 1:
-        raise InputError(f"image size must be positive integers, got {width}x{height}")
-    height, width = int(height), int(width)
-    mask = np.zeros(height * width, dtype=bool)
-    tri = tri[np.all(np.isfinite(tri), axis=(1, 2))]
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-    lo = np.ceil(np.clip(tri.min(axis=1), -1.0, [width, height])).astype(np.int64)
-    hi = np.floor(np.clip(tri.max(axis=1), -1.0, [width, height])).astype(np.int64)
-    lo = np.maximum(lo, 0)
-    hi = np.minimum(hi, [width - 1, height - 1])
-    size = hi - lo + 1
-    ok = (area2 != 0) & np.all(size > 0, axis=1)
-    tri, area2, lo, size = tri[ok], area2[ok], lo[ok], size[ok]
-    sign = np.sign(area2)
-    edges = [(tri[:, 0], tri[:, 1]), (tri[:, 1], tri[:, 2]), (tri[:, 2], tri[:, 0])]
-    box = _pow2_ceil(size)                                           # (T, 2) block sizes
-    keys = box[:, 0] * (2 * max(width, height) + 1) + box[:, 1]
-    for key in np.unique(keys):
-        members = np.flatnonzero(keys == key)
-        bw, bh = (int(x) for x in box[members[0]])
-        ox, oy = (g.reshape(-1) for g in np.meshgrid(np.arange(bw), np.arange(bh)))
-        step = max(1, MAX_BLOCK_PIXELS // (bw * bh))
-        for start in range(0, len(members), step):
-            idx = members[start:start + step]
-            px = lo[idx, 0, None] + ox
-            py = lo[idx, 1, None] + oy
-            inside = (ox < size[idx, 0, None]) & (oy < size[idx, 1, None])
-            for p0, p1 in edges:
-                e = ((p1[idx, 0, None] - p0[idx, 0, None]) * (py - p0[idx, 1, None])
-                     - (p1[idx, 1, None] - p0[idx, 1, None]) * (px - p0[idx, 0, None]))
-                inside &= sign[idx, None] * e >= 0
-            mask[(py * width + px)[inside]] = True
-    return mask.reshape(height, width)
-
-
 def render_points(P_base: np.ndarray, faces: np.ndarray, T_cam_base: np.ndarray,
                   camera: CameraIntrinsics) -> np.ndarray:
     """The silhouette (H, W) bool of triangles `faces` (T, 3) over base-frame vertices (V, 3)."""
@@ -359,13 +307,19 @@ def render_points(P_base: np.ndarray, faces: np.ndarray, T_cam_base: np.ndarray,
     P_cam = P_base @ T[:3, :3].T + T[:3, 3]
     P_cam[P_cam[:, 2] < MIN_DEPTH_M] = np.nan   # behind: projects to NaN, triangle skipped
     uv = project(camera, P_cam)
-    return rasterize_triangles(uv[np.asarray(faces)], camera.height, camera.width)
+    corners = np.asarray(faces).T                                       # (3, T)
+    return rasterize_corners(uv[:, 0][corners], uv[:, 1][corners], camera.height,
+                             camera.width)
 
 
 def render_frames(P_frames: np.ndarray, faces: np.ndarray, T_cam_base: np.ndarray,
                   camera: CameraIntrinsics) -> np.ndarray:
-    """(F, H, W) bool: `render_points` of each frame's vertices P_frames (F, V, 3)."""
-    return np.stack([render_points(P, faces, T_cam_base, camera) for P in P_frames])
+    """(F, H, W) bool: `render_points` of each frame's vertices P_frames (F, V, 3), the
+    frames rendered in parallel (`dream.threads`)."""
+    rendered = map_frames(lambda P: render_points(P, faces, T_cam_base, camera), P_frames)
+    if not rendered:
+        return np.zeros((0, camera.height, camera.width), dtype=bool)
+    return np.stack(rendered)
 
 
 def render_silhouette(robot_meshes: RobotMeshes, joints: np.ndarray, T_cam_base: np.ndarray,

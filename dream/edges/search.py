@@ -40,6 +40,7 @@ from dream.edges.settings import EdgeSettings
 from dream.errors import InputError
 from dream.polish.objective import bilinear, evenly_spaced, scaled_camera, signed_distance
 from dream.silhouette import render_points
+from dream.threads import map_frames
 
 TINY_GRADIENT = 1e-12   # a normal is undefined where the distance field is flatter than this
 SUBPIXEL_LIMIT = 0.5    # a parabola's vertex is kept within half a sample of its peak
@@ -110,7 +111,7 @@ def select_outline(P_frames: np.ndarray, faces: np.ndarray, T: np.ndarray,
     """The outline points at T of each frame's mesh vertices P_frames (F, V, 3) (module doc),
     at most `max_points_per_frame` per frame, away from the image border; only vertices
     `usable` (V,) bool when given (every triangle still hides what lies behind it)."""
-    parts = [_frame_outline(P, faces, T, camera, usable, settings) for P in P_frames]
+    parts = map_frames(lambda P: _frame_outline(P, faces, T, camera, usable, settings), P_frames)
     vertex = np.concatenate([p[0] for p in parts])
     frame = np.concatenate([np.full(len(p[0]), f, np.int64) for f, p in enumerate(parts)])
     return Outline(P_base=P_frames[frame, vertex], frame=frame, vertex=vertex,

@@ -225,7 +225,7 @@ def _ranked_frame_starts(inputs: SilhouetteInputs, camera: CameraIntrinsics,
     """The `mask_starts` single-frame keypoint poses (name, T) of `result.frames` whose
     silhouettes overlap the masks most (mean IoU over `rank_frames` evenly spaced frames),
     leaving out those equal to the all-frames pose."""
-    from dream.silhouette import render_points, silhouette_iou, vertices_in_base
+    from dream.silhouette import render_frames, silhouette_iou, vertices_in_base
 
     starts = [(f.name, f.fit.T_cam_base) for f in result.frames if isinstance(f.fit, PoseFit)
               and not np.allclose(f.fit.T_cam_base, result.fit.T_cam_base, atol=SAME_POSE)]
@@ -236,9 +236,9 @@ def _ranked_frame_starts(inputs: SilhouetteInputs, camera: CameraIntrinsics,
     P = vertices_in_base(inputs.meshes, inputs.joints[frames])
 
     def overlap(T: np.ndarray) -> float:
-        return float(np.mean([silhouette_iou(render_points(P[k], inputs.meshes.faces, T,
-                                                           camera), inputs.masks[i])
-                              for k, i in enumerate(frames)]))
+        rendered = render_frames(P, inputs.meshes.faces, T, camera)
+        return float(np.mean([silhouette_iou(r, inputs.masks[i])
+                              for r, i in zip(rendered, frames, strict=True)]))
 
     ranked = sorted(starts, key=lambda start: -overlap(start[1]))
     return ranked[:params.mask_starts]

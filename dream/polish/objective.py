@@ -36,6 +36,7 @@ from dream.optim.robust import huber_rho, huber_weight
 from dream.pnp import linearise
 from dream.polish.settings import PolishSettings
 from dream.silhouette import render_points
+from dream.threads import map_frames
 
 EDGE_OFFSET_PX = 0.5        # a boundary pixel's centre lies half a pixel from the outline
 COVERED_FRACTION = 0.5      # a shrunk mask's pixel is robot when this much of it was robot
@@ -110,12 +111,14 @@ def select_contour(P_frames: np.ndarray, faces: np.ndarray, T: np.ndarray,
     `max_points_per_frame`, evenly spaced), with their signed distance there; `usable` (V,)
     or per frame (F, V) bool: only these vertices may be contour points (the whole mesh is
     still rendered);
-    `silhouettes` (F, H, W): the frames' silhouettes at T where already rendered."""
-    points, frames, dists, vertices = [], [], [], []
-    for f, P in enumerate(P_frames):
+    `silhouettes` (F, H, W): the frames' silhouettes at T where already rendered. The frames
+    run in parallel (`dream.threads`)."""
+
+    def frame_contour(f: int) -> tuple[np.ndarray, np.ndarray] | None:
+        P = P_frames[f]
         rendered = render_points(P, faces, T, camera) if silhouettes is None else silhouettes[f]
         if not rendered.any():
-            continue
+            return None
         uv = project(camera, P @ T[:3, :3].T + T[:3, 3])
         ok = np.all(np.isfinite(uv), axis=1) & camera.in_image(uv)
         s = np.full(len(P), np.inf)
@@ -125,9 +128,16 @@ def select_contour(P_frames: np.ndarray, faces: np.ndarray, T: np.ndarray,
         pick = np.flatnonzero(near if usable is None else
                               near & (usable if usable.ndim == 1 else usable[f]))
         pick = evenly_spaced(pick, params.max_points_per_frame)
-        points.append(P[pick])
+        return pick, s[pick]
+
+    points, frames, dists, vertices = [], [], [], []
+    for f, found in enumerate(map_frames(frame_contour, range(len(P_frames)))):
+        if found is None:
+            continue
+        pick, s = found
+        points.append(P_frames[f][pick])
         frames.append(np.full(len(pick), f))
-        dists.append(s[pick])
+        dists.append(s)
         vertices.append(pick)
     if not points:
         return Contour(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0),

@@ -50,7 +50,6 @@ from dream.refined_uncertainty import (
 from dream.silhouette import (
     RobotMeshes,
     render_frames,
-    render_points,
     silhouette_iou,
     vertices_in_base,
 )
@@ -296,8 +295,9 @@ def polish(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         return refine(np.array([frame]), T, alone)[0]
 
     def ious(frames: np.ndarray, T: np.ndarray) -> np.ndarray:
-        return np.array([silhouette_iou(render_points(P_all[i], meshes.faces, T, camera),
-                                        masks[i]) for i in frames])
+        rendered = render_frames(P_all[frames], meshes.faces, T, camera)
+        return np.array([silhouette_iou(r, masks[i])
+                         for r, i in zip(rendered, frames, strict=True)])
 
     T1, rounds, points = refine(non_empty, T0, params)
     agreement = None

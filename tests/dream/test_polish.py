@@ -112,6 +112,28 @@ def test_rasteriser_fills_exactly_the_pixel_centres_inside():
     assert not rasterize_triangles(np.full((2, 3, 2), np.nan), 10, 10).any()
 
 
+def _brute_force_fill(tri: np.ndarray, height: int, width: int) -> np.ndarray:
+    v, u = np.mgrid[0:height, 0:width]
+    expected = np.zeros((height, width), bool)
+    for a, b, c in tri[np.all(np.isfinite(tri), axis=(1, 2))]:
+        e = [(q[0] - p[0]) * (v - p[1]) - (q[1] - p[1]) * (u - p[0])
+             for p, q in ((a, b), (b, c), (c, a))]
+        expected |= np.all([x >= 0 for x in e], 0) | np.all([x <= 0 for x in e], 0)
+    return expected
+
+
+@pytest.mark.parametrize(("block", "small"), [(4_000_000, 64), (50, 64), (1, 1), (7, 10_000)])
+def test_rasteriser_is_exact_for_any_split_into_chunks(monkeypatch, block, small):
+    import dream.rasterize as rasterize
+    monkeypatch.setattr(rasterize, "MAX_BLOCK_PIXELS", block)
+    monkeypatch.setattr(rasterize, "SMALL_BOX_PIXELS", small)
+    rng = np.random.default_rng(3)
+    corner = rng.uniform(-10, 60, (80, 1, 2))
+    tri = corner + rng.normal(size=(80, 3, 2)) * rng.choice([0.5, 3.0, 30.0], (80, 1, 1))
+    tri[:4, 0, 0] = [np.nan, np.inf, -np.inf, np.nan]
+    assert np.array_equal(rasterize_triangles(tri, 40, 50), _brute_force_fill(tri, 40, 50))
+
+
 def test_silhouette_covers_the_keypoints(panda, meshes):
     rng = np.random.default_rng(1)
     inside = []
