@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from dream.errors import InputError
+from dream.threads import THREADS_ENV
 
 log = logging.getLogger(__name__)
 
@@ -34,7 +35,7 @@ MAX_ATTEMPTS = 2          # tries of an item whose Ray worker died
 WORKER_DIED = ("its worker process died running it (a crash in a native library, or the "
                "memory ran out)")
 # one thread per worker process; MuJoCo renders offscreen with Mesa's software EGL
-THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", THREADS_ENV)
 CLUSTER_EXTRA = "pip install 'dream-calib[cluster]' (Ray)"
 JOIN_FIX = ("check that `ray start --head` runs there and this machine reaches its port; with "
             "Ray's token authentication set RAY_AUTH_MODE=token and give this machine the "

@@ -35,11 +35,11 @@ ITEM_S = 0.3
 
 
 def square_with_offset(x: int) -> tuple[int, int, str]:
-    """An item's value, the setup's offset and the worker's thread limit (long enough for
-    both workers to take items)."""
+    """An item's value, the setup's offset and the worker's thread limits (OpenMP, ours; long
+    enough for both workers to take items)."""
     time.sleep(ITEM_S)
     return x * x + int(os.environ.get("BATCH_TEST_OFFSET", "0")), os.getpid(), \
-        os.environ.get("OMP_NUM_THREADS", "")
+        os.environ.get("OMP_NUM_THREADS", "") + "," + os.environ.get("DREAM_THREADS", "")
 
 
 def set_offset(offset: int) -> None:
@@ -83,7 +83,7 @@ def test_both_engines_run_every_item_once_after_the_setup_on_one_thread(ray_engi
         assert sorted(got) == items, engine.describe()
         assert [got[i][0] for i in items] == [i * i + 10 for i in items]
         assert len({pid for _, pid, _ in got.values()}) == 2       # two worker processes
-        assert {threads for _, _, threads in got.values()} == {"1"}
+        assert {threads for _, _, threads in got.values()} == {"1,1"}
         assert os.getpid() not in {pid for _, pid, _ in got.values()}
 
 
