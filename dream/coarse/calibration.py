@@ -30,7 +30,7 @@ from dream.camera import CameraIntrinsics
 from dream.coarse.carried import carried_geometry, carried_region
 from dream.coarse.hypotheses import around, fibonacci_directions, shell
 from dream.coarse.mark import Mark, MarkSettings, mark_points, mark_pose, mark_sigma, track_mark
-from dream.coarse.search import SearchOutcome, search, within
+from dream.coarse.search import SearchOutcome, Winner, find_winner, search, within
 from dream.coarse.settings import SearchSettings
 from dream.diagnosis.attached import AttachedSettings, CarvingOutcome
 from dream.errors import InputError
@@ -190,45 +190,47 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
                     if inputs.left_out else ""))
     hypotheses, aimed_only = hypotheses_for(guess, inputs, settings)
     hypotheses.update(extra or {})
-    outcome = search(inputs.meshes, inputs.joints, inputs.masks, sequence.camera, hypotheses,
-                     settings, aimed_only=aimed_only, held=inputs.source == MOTION_MASKS,
-                     progress=progress, search_frames=inputs.search)
-    if not settings.find_carried or outcome.best.iou < settings.min_found_iou:
-        return outcome, inputs
-    return with_carried(sequence.camera, inputs, outcome, settings, progress)
+    winner = find_winner(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
+                         hypotheses, settings, aimed_only=aimed_only,
+                         held=inputs.source == MOTION_MASKS, progress=progress,
+                         search_frames=inputs.search)
+    if not settings.find_carried or winner.best.iou < settings.min_found_iou:
+        return winner.checked(), inputs
+    return with_carried(sequence.camera, inputs, winner, settings, progress)
 
 
-def with_carried(camera: CameraIntrinsics, inputs: SearchMasks, outcome: SearchOutcome,
+def with_carried(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
                  settings: SearchSettings, progress: Callable[[str], None] | None = None
                  ) -> tuple[SearchOutcome, SearchMasks]:
     """The carving at the winner (`dream.coarse.carried`) in the inputs; where it finds
     something and `settings.leave_out_carried`, the search again from the winner and its rival
-    without the carved hull's pixels (`CarriedRegion`)."""
+    without the carved hull's pixels (`CarriedRegion`), whose checks stand for the first
+    winner's (those are not run); otherwise the first winner checked."""
     say = progress or (lambda line: None)
     attached = AttachedSettings()
     carving = carried_geometry(inputs.meshes, inputs.joints, inputs.masks, camera,
-                               outcome.best.T_cam_base, attached)
+                               winner.best.T_cam_base, attached)
     inputs = replace(inputs, carried=carving)
     if carving.finding is None:
         say(f"nothing carried found: {carving.reason}")
-        return outcome, inputs
+        return winner.checked(), inputs
     link, points = carving.finding.geometry.link, carving.finding.points_link
     say(f"something the URDF lacks moves with {link} (about "
         f"{' x '.join(f'{100 * s:.0f}' for s in carving.finding.geometry.size_m)} cm, "
         f"{carving.finding.points} carved points)"
         + (": searching again without its pixels" if settings.leave_out_carried else ""))
     if not settings.leave_out_carried:
-        return outcome, inputs
+        return winner.checked(), inputs
     region = carried_region(inputs.meshes.robot, inputs.joints, link, points, attached.voxel_m,
                             settings.carried_margin_px)
-    starts = [outcome.best.T_cam_base] + ([] if outcome.rival is None
-                                          else [outcome.rival.T_cam_base])
+    starts = [winner.best.T_cam_base] + ([] if winner.rival is None
+                                         else [winner.rival.T_cam_base])
     searched = search(inputs.meshes, inputs.joints, inputs.masks, camera,
                       {CARRIED: np.stack(starts)}, settings,
                       held=inputs.source == MOTION_MASKS, progress=progress,
                       search_frames=inputs.search, region=region)
-    return (replace(searched, hypotheses={**outcome.hypotheses, **searched.hypotheses},
-                    seconds=outcome.seconds + searched.seconds), inputs)
+    return (replace(searched, hypotheses={**winner.hypotheses, **searched.hypotheses},
+                    seconds=winner.seconds + searched.seconds), inputs)
 
 
 @dataclass(frozen=True)

@@ -143,7 +143,43 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
            progress: Callable[[str], None] | None = None,
            search_frames: np.ndarray | None = None,
            region: CarriedRegion | None = None) -> SearchOutcome:
-    """The camera pose whose robot silhouettes best explain `masks` (module doc).
+    """The camera pose whose robot silhouettes best explain `masks` (module doc): `find_winner`
+    with the same arguments, then its checks (`Winner.checked`)."""
+    return find_winner(meshes, joints, masks, camera, hypotheses, settings, usable, aimed_only,
+                       held, progress, search_frames, region).checked()
+
+
+@dataclass(frozen=True)
+class Winner:
+    """A search's winner before its checks (steps 1-3 of the module doc): the fields of
+    `SearchOutcome` known by then, and `checked()` to run the basin check and the jackknife
+    (step 4). Where the winner is searched again (without what it carries), its checks need
+    not run."""
+
+    best: Candidate
+    rival: Candidate | None
+    candidates: tuple[Candidate, ...]
+    hypotheses: dict[str, int]
+    seconds: float
+    run_checks: Callable[[], tuple[np.ndarray, int, np.ndarray, np.ndarray, tuple[str, ...]]]
+
+    def checked(self) -> SearchOutcome:
+        """The whole outcome: the winner with its basin check and jackknife."""
+        start = time.perf_counter()
+        ends, returned, frames_xi, links_xi, links = self.run_checks()
+        return SearchOutcome(self.best, self.rival, self.candidates, self.hypotheses, returned,
+                             len(ends), ends, frames_xi, links_xi, links,
+                             self.seconds + time.perf_counter() - start)
+
+
+def find_winner(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
+                camera: CameraIntrinsics, hypotheses: dict[str, np.ndarray],
+                settings: SearchSettings | None = None, usable: np.ndarray | None = None,
+                aimed_only: tuple[str, ...] = (), held: bool = False,
+                progress: Callable[[str], None] | None = None,
+                search_frames: np.ndarray | None = None,
+                region: CarriedRegion | None = None) -> Winner:
+    """The search's winner and rival (steps 1-3 of the module doc), its checks still to run.
 
     Args:
         meshes: the robot's meshes (without links the masks do not show).
@@ -210,23 +246,28 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     candidates, best, rival = _winner_and_rival(candidates, finished_candidate, settings)
     say(f"refined the {len(candidates)} best distinct hypotheses: best IoU {best.iou:.3f}"
         f"{f', best rival {rival.iou:.3f}' if rival is not None else ''}")
-    ends = _basin_ends(lambda T: finished(scales.refine(T)), best.T_cam_base, settings, rng)
-    returned = sum(within(T, best.T_cam_base, settings.basin_return_m,
-                          settings.basin_return_rad) for T in ends)
-    say(f"basin check: {returned} of {settings.basin_starts} restarts "
-        f"{settings.basin_m * 100:.0f} cm / {np.rad2deg(settings.basin_rad):.0f} deg away "
-        "returned")
-    frames_xi, links_xi, links = _jackknife(P_all, meshes, masks_all, camera, settings, usable,
-                                            held, best.T_cam_base, region) \
-        if best.iou >= settings.min_found_iou else (np.zeros((0, 6)), np.zeros((0, 6)), ())
-    if len(frames_xi) or len(links_xi):
-        say(f"jackknife: the finish without each of {len(frames_xi)} frame groups and "
-            f"{len(links_xi)} links")
     counts = {name: len(T) * (1 if name in aimed_only else 2)
               for name, T in hypotheses.items()}
-    return SearchOutcome(best, rival, tuple(candidates), counts, returned,
-                         settings.basin_starts, ends, frames_xi, links_xi, links,
-                         time.perf_counter() - start)
+
+    def run_checks() -> tuple[np.ndarray, int, np.ndarray, np.ndarray, tuple[str, ...]]:
+        ends = _basin_ends(lambda T: finished(scales.refine(T)), best.T_cam_base, settings,
+                           rng)
+        returned = sum(within(T, best.T_cam_base, settings.basin_return_m,
+                              settings.basin_return_rad) for T in ends)
+        say(f"basin check: {returned} of {settings.basin_starts} restarts "
+            f"{settings.basin_m * 100:.0f} cm / {np.rad2deg(settings.basin_rad):.0f} deg away "
+            "returned")
+        frames_xi, links_xi, links = _jackknife(
+            P_all, meshes, masks_all, camera, settings, usable, held, best.T_cam_base,
+            region) if best.iou >= settings.min_found_iou \
+            else (np.zeros((0, 6)), np.zeros((0, 6)), ())
+        if len(frames_xi) or len(links_xi):
+            say(f"jackknife: the finish without each of {len(frames_xi)} frame groups and "
+                f"{len(links_xi)} links")
+        return ends, returned, frames_xi, links_xi, links
+
+    return Winner(best, rival, tuple(candidates), counts, time.perf_counter() - start,
+                  run_checks)
 
 
 def _winner_and_rival(candidates: list[Candidate], finished: Callable[[Candidate], Candidate],

@@ -12,7 +12,7 @@ import pytest
 from dream.coarse.calibration import DATA_MASKS, SearchMasks, with_carried
 from dream.coarse.carried import CarriedRegion, carried_geometry, carried_region, voxel_hull
 from dream.coarse.evidence import region_vertices
-from dream.coarse.search import search
+from dream.coarse.search import find_winner
 from dream.coarse.settings import SearchSettings
 from dream.coarse.verdict import carried_finding
 from dream.errors import InputError
@@ -102,16 +102,22 @@ def test_the_carried_block_is_left_out_and_searched_again_or_only_reported(scene
     start = off_by(T, 0.04, np.deg2rad(3.0), 0)
     inputs = SearchMasks(meshes, np.arange(FRAMES), q, held, DATA_MASKS, (),
                          np.arange(0, FRAMES, 2))
-    first = search(meshes, q, held, CAMERA, {"guess": start[None]}, SETTINGS,
-                   search_frames=inputs.search)
+    first = find_winner(meshes, q, held, CAMERA, {"guess": start[None]}, SETTINGS,
+                        search_frames=inputs.search)
     reported, inputs_reported = with_carried(CAMERA, inputs, first,
                                              replace(SETTINGS, leave_out_carried=False))
-    assert reported is first and inputs_reported.meshes is meshes
+    assert reported.best is first.best and inputs_reported.meshes is meshes
+    assert reported.basin_starts == SETTINGS.basin_starts == len(reported.basin_ends)
     assert inputs_reported.carried.finding.geometry.link in ("panda_link7", "panda_link8",
                                                              "panda_hand")
     assert carried_finding(inputs_reported.carried.finding.geometry.link,
                            inputs_reported.carried.finding.geometry.size_m)[0] == "check"
-    left_out, inputs_left = with_carried(CAMERA, inputs, first, SETTINGS)
+
+    def not_needed() -> None:
+        raise AssertionError("the first winner's checks ran although it was searched again")
+
+    left_out, inputs_left = with_carried(CAMERA, inputs, replace(first, run_checks=not_needed),
+                                         SETTINGS)
     assert inputs_left.meshes is meshes and inputs_left.carried.finding is not None
     assert left_out.hypotheses["carried"] >= 2 and "guess" in left_out.hypotheses
     assert left_out.best.iou > first.best.iou + 0.05, (first.best.iou, left_out.best.iou)
