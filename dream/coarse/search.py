@@ -27,6 +27,10 @@ one chosen, and how clearly the images chose it (pure).
    A mask error of one frame (a shadow) or of one link (a link the colour of the floor, a
    tool the model lacks) moves the leave-out poses; one that every frame and link shares
    does not.
+
+`search` runs all four steps; `find_winner` stops after step 3 and `Winner.checked` runs step
+4, so a caller that searches again from the winner (`dream.coarse.calibration.with_carried`)
+spends nothing on checks it would discard.
 """
 
 from __future__ import annotations

@@ -103,7 +103,7 @@ def decide_edges(before: EdgeScore, after: EdgeScore, median_before: float,
     agreement = (f"outline on the image edges {before.agreement:.1%} -> {after.agreement:.1%}"
                  f" of {after.points} points")
     if not gain > settings.min_agreement_gain:
-        return False, f"kept the keypoint pose: {agreement}, no gain"
+        return False, f"kept the pose it started from: {agreement}, no gain"
     if np.isfinite(median_before):
         limit = max(settings.max_keypoint_factor * median_before,
                     median_before + settings.keypoint_margin_px)
