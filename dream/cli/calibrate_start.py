@@ -295,9 +295,10 @@ def _edges_after_search(request, seq, robot, result, obs, doc: dict,
                         out: TextIO) -> tuple[dict, np.ndarray | None]:
     """The edge alignment after the search: with `--refine edges` its pose is written (the
     masks' optimum is the other cue); under `--refine auto` the masks' optimum is written and
-    the alignment is the cross-check whose disagreement enters the 1-sigma and the verdict
-    (on rendered scenes the edges of a small, glossy arm pull it centimetres off where the
-    masks do not). Returns the document and the other cue's pose."""
+    the alignment's own optimum is the cross-check whose disagreement enters the 1-sigma and
+    the verdict (on rendered scenes the edges of a small, glossy arm pull it centimetres off
+    where the masks do not), whether or not it gained agreement (`edge_cross_check`). Returns
+    the document and the other cue's pose."""
     from dream.cli.calibrate_report import add_edges
     from dream.cli.calibrate_write import refined_or_kept
 
@@ -306,10 +307,28 @@ def _edges_after_search(request, seq, robot, result, obs, doc: dict,
         seq, robot, result, obs, doc, out, request.exclude_links), doc, out)
     if request.refine == EDGES:
         return aligned, start
-    edges = aligned["edges"]
-    if not edges.get("kept"):
-        return {**doc, "edges": edges}, None
-    T_edges = np.asarray(aligned["T_cam_base"])
-    print("  (--refine auto without keypoints writes the masks' optimum; the edge alignment "
-          "cross-checks it: --refine edges writes the alignment's)", file=out)
-    return {**doc, "edges": {**edges, "kept": False, "cross_check": True}}, T_edges
+    edges, T_edges = edge_cross_check(aligned["edges"])
+    if T_edges is not None:
+        print("  (--refine auto without keypoints writes the masks' optimum; the edge "
+              "alignment's optimum cross-checks it: --refine edges writes the alignment's)",
+              file=out)
+    return {**doc, "edges": edges}, T_edges
+
+
+def edge_cross_check(edges: dict) -> tuple[dict, np.ndarray | None]:
+    """An edge alignment's RESULT.json object as the search's cross-check, and its own
+    optimum: where it ran, the aligned pose whether or not its keep rule kept it (an
+    agreement gain a few tenths of a per cent either side of zero must not switch the
+    disagreement in and out of the 1-sigma), never written (`kept` false); None where it did
+    not run.
+
+    >>> edge_cross_check({"ran": False, "kept": False})
+    ({'ran': False, 'kept': False}, None)
+    >>> edges, T = edge_cross_check({"kept": False, "T_cam_base_aligned": np.eye(4).tolist()})
+    >>> edges["cross_check"], T.shape
+    (True, (4, 4))
+    """
+    if edges.get("T_cam_base_aligned") is None:
+        return edges, None
+    return ({**edges, "kept": False, "cross_check": True},
+            np.asarray(edges["T_cam_base_aligned"], float))

@@ -158,6 +158,25 @@ def region_vertices(P_frames: np.ndarray, T_cam_base: np.ndarray, camera: Camera
     return inside & region[np.arange(len(region))[:, None], v, u]
 
 
+def hypothesis_hits(points: np.ndarray, T: np.ndarray, camera: CameraIntrinsics
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`pixel_hits` of points (F, S, 3, base frame) seen from each hypothesis T (B, 4, 4):
+    (B, F, S) each; the camera-frame coordinates one at a time (a third of the memory of an
+    (B, F, S, 3) array, and without `project`'s stacking where the camera has no distortion)."""
+    R, t = T[:, :3, :3, None, None], T[:, :3, 3, None, None]
+    x, y, z = points[..., 0], points[..., 1], points[..., 2]
+    X, Y, Z = (R[:, i, 0] * x + R[:, i, 1] * y + R[:, i, 2] * z + t[:, i] for i in range(3))
+    if camera.distortion is not None:
+        return pixel_hits(np.stack([X, Y, Z], axis=-1), camera)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.rint(camera.fx * (X / Z) + camera.cx)
+        v = np.rint(camera.fy * (Y / Z) + camera.cy)
+        inside = (Z >= MIN_DEPTH_M) & (u >= 0) & (u <= camera.width - 1) & (v >= 0) & (
+            v <= camera.height - 1)
+    return (np.where(inside, u, 0).astype(np.int64), np.where(inside, v, 0).astype(np.int64),
+            inside)
+
+
 def splat_iou(points: np.ndarray, masks: np.ndarray, camera: CameraIntrinsics,
               T_cam_base: np.ndarray, held: bool = False) -> np.ndarray:
     """(B,) the mean over frames of the IoU between each mask (F, h, w) and the pixels its
@@ -172,8 +191,7 @@ def splat_iou(points: np.ndarray, masks: np.ndarray, camera: CameraIntrinsics,
     if T.ndim != 3 or T.shape[1:] != (4, 4):
         raise InputError(f"hypotheses have shape {T.shape}, expected (B, 4, 4)")
     B = len(T)
-    u, v, ok = pixel_hits(np.einsum("bij,fsj->bfsi", T[:, :3, :3], points)
-                          + T[:, None, None, :3, 3], camera)
+    u, v, ok = hypothesis_hits(points, T, camera)
     plane = (np.arange(B)[:, None, None] * F + np.arange(F)[None, :, None]) * (h * w)
     hit = np.zeros(B * F * h * w, bool)
     hit[(plane + v * w + u)[ok]] = True

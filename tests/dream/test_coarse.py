@@ -14,7 +14,13 @@ import pytest
 from dream.camera import project
 from dream.cli import main
 from dream.coarse.calibration import search_covariance
-from dream.coarse.evidence import points_of, splat_iou, surface_samples
+from dream.coarse.evidence import (
+    hypothesis_hits,
+    pixel_hits,
+    points_of,
+    splat_iou,
+    surface_samples,
+)
 from dream.coarse.hypotheses import around, guess_pose
 from dream.coarse.search import pose_iou, search
 from dream.coarse.settings import SearchSettings
@@ -62,6 +68,22 @@ def test_the_coarse_score_prefers_the_true_pose(panda, meshes):
     small = np.stack([shrink_mask(m, width, height) for m in masks])
     scores = splat_iou(points, small, scaled_camera(CAMERA, width, height), poses)
     assert scores[0] > 0.6 and np.all(scores[0] > scores[1:]), scores
+
+
+@pytest.mark.parametrize("distortion", [None, (0.1, -0.05, 0.001, 0.002, 0.0)])
+def test_the_coarse_scores_hits_are_those_of_the_general_projection(distortion):
+    """The coarse score's projection of every hypothesis at once is `pixel_hits` of the
+    camera-frame points, bit for bit, with and without distortion, points behind the camera
+    and outside the image included."""
+    rng = np.random.default_rng(3)
+    camera = replace(scaled_camera(CAMERA, 64, 48), distortion=distortion)
+    points = rng.normal(0.0, 0.6, (3, 500, 3)) + TARGET
+    T = around(guess_pose(np.array([1.2, 0.4, 0.8]), TARGET), 0.6, 0.6, 40, rng)
+    P_cam = np.einsum("bij,fsj->bfsi", T[:, :3, :3], points) + T[:, None, None, :3, 3]
+    expected = pixel_hits(P_cam, camera)
+    assert 0 < expected[2].mean() < 1
+    for got, want in zip(hypothesis_hits(points, T, camera), expected, strict=True):
+        assert np.array_equal(got, want)
 
 
 def test_search_finds_the_camera_from_a_guess_30_cm_and_20_deg_off(panda, meshes):
@@ -214,6 +236,11 @@ def test_calibrate_without_keypoints_from_a_camera_guess(panda, meshes, tmp_path
         assert start["evidence"] == "motion masks" and "panda_link0" in start["left_out_links"]
         assert start["iou"] > 0.8 and doc["keypoints_used"] == 0 and doc["rmse_px"] is None
         assert doc["quality"]["verdict"] in ("good", "check")
+        edges = doc["edges"]
+        assert edges["cross_check"] and not edges["kept"]
+        written = increment_between(np.asarray(doc["T_cam_base"]),
+                                    np.asarray(edges["T_cam_base_aligned"]))
+        assert np.allclose(doc["uncertainty"].get("cue_disagreement_xi", np.zeros(6)), written)
         assert (overlays / "summary.png").is_file() and len(list(overlays.glob("*.png"))) > 1
         sigma = np.linalg.norm(doc["sigma_camera_position_base_m"])
         assert 0 < sigma < 0.05
