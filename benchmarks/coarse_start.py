@@ -90,7 +90,8 @@ def guess_file(T_true: np.ndarray, offset_m: float, offset_rad: float,
 def mark_file(data: Path, T_true: np.ndarray, count: int, noise_px: float,
               rng: np.random.Generator, folder: Path) -> tuple[Path, str]:
     """Marks of the robot's last keypoint link's origin (the end effector), projected with
-    `T_true` plus `noise_px` per axis, in `count` frames evenly spaced among those showing it."""
+    `T_true` plus `noise_px` per axis, in `count` frames evenly spaced among those showing it
+    (all of them where fewer show it)."""
     from dream.camera import project
     from dream.pipeline import joints_in_robot_order, robot_for
     from dream.transforms import transform_points
@@ -101,7 +102,7 @@ def mark_file(data: Path, T_true: np.ndarray, count: int, noise_px: float,
     P = robot.link_poses(joints_in_robot_order(seq, robot), (link,))[:, 0, :3, 3]
     uv = project(seq.camera, transform_points(T_true, P)) + rng.normal(0, noise_px, (len(P), 2))
     seen = np.flatnonzero(seq.camera.in_image(uv))
-    chosen = seen[np.round(np.linspace(0, len(seen) - 1, count)).astype(int)]
+    chosen = seen[np.unique(np.round(np.linspace(0, len(seen) - 1, count)).astype(int))]
     path = folder / f"marks_{data.name}.csv"
     path.write_text("frame,u,v\n" + "".join(f"{seq.frames[i].name},{uv[i, 0]:.2f},"
                                              f"{uv[i, 1]:.2f}\n" for i in chosen))
