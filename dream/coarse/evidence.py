@@ -127,12 +127,17 @@ def pixel_hits(P_cam: np.ndarray, camera: CameraIntrinsics
     """
     P_cam = np.asarray(P_cam, dtype=float)
     uv = np.rint(project(camera, P_cam))
+    return _hits(uv[..., 0], uv[..., 1], P_cam[..., 2], camera)
+
+
+def _hits(u: np.ndarray, v: np.ndarray, z: np.ndarray, camera: CameraIntrinsics
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`pixel_hits` of rounded pixels u, v (...) of points at depth z (...)."""
     with np.errstate(invalid="ignore"):
-        inside = (P_cam[..., 2] >= MIN_DEPTH_M) & (uv[..., 0] >= 0) & (
-            uv[..., 0] <= camera.width - 1) & (uv[..., 1] >= 0) & (uv[..., 1] <= camera.height - 1)
-    u = np.where(inside, np.nan_to_num(uv[..., 0]), 0).astype(np.int64)
-    v = np.where(inside, np.nan_to_num(uv[..., 1]), 0).astype(np.int64)
-    return u, v, inside
+        inside = (z >= MIN_DEPTH_M) & (u >= 0) & (u <= camera.width - 1) & (v >= 0) & (
+            v <= camera.height - 1)
+    return (np.where(inside, u, 0).astype(np.int64), np.where(inside, v, 0).astype(np.int64),
+            inside)
 
 
 def held_vertices(P_frames: np.ndarray, T_cam_base: np.ndarray, camera: CameraIntrinsics,
@@ -171,10 +176,7 @@ def hypothesis_hits(points: np.ndarray, T: np.ndarray, camera: CameraIntrinsics
     with np.errstate(divide="ignore", invalid="ignore"):
         u = np.rint(camera.fx * (X / Z) + camera.cx)
         v = np.rint(camera.fy * (Y / Z) + camera.cy)
-        inside = (Z >= MIN_DEPTH_M) & (u >= 0) & (u <= camera.width - 1) & (v >= 0) & (
-            v <= camera.height - 1)
-    return (np.where(inside, u, 0).astype(np.int64), np.where(inside, v, 0).astype(np.int64),
-            inside)
+    return _hits(u, v, Z, camera)
 
 
 def splat_iou(points: np.ndarray, masks: np.ndarray, camera: CameraIntrinsics,
