@@ -14,7 +14,7 @@ from typing import TextIO
 
 import numpy as np
 
-from dream.cli.options import EDGES, POLISH, parse_numbers
+from dream.cli.options import AUTO, EDGES, POLISH, parse_numbers
 from dream.errors import InputError
 
 FIX_GUESS = ("give --camera-guess X,Y,Z --look-at X,Y,Z (metres, base frame: where the camera "
@@ -160,16 +160,17 @@ def search_start(request, seq, out: TextIO):
     print(f"searching the camera pose from the robot's silhouettes, "
           f"{guess.description}", file=out)
 
-    def progress(line: str) -> None:
-        print(f"  search: {line}", file=sys.stderr)
-
-    outcome, inputs = coarse_start(seq, robot, guess, progress=progress, extra=extra)
+    outcome, inputs = coarse_start(seq, robot, guess, progress=_progress, extra=extra)
     result, obs = stand_in_result(seq, outcome.best.T_cam_base, search_covariance(outcome))
     print(f"search ({outcome.seconds:.1f} s, {inputs.source} of {len(inputs.frames)} frames): "
           f"best IoU {outcome.best.iou:.3f}, best rival "
           f"{'none' if outcome.rival is None else f'{outcome.rival.iou:.3f}'}, "
           f"{outcome.basin_returned} of {outcome.basin_starts} restarts returned", file=out)
     return robot, result, obs, outcome, inputs, guess, marked
+
+
+def _progress(line: str) -> None:
+    print(f"  search: {line}", file=sys.stderr)
 
 
 def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
@@ -199,7 +200,7 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
             "jackknife_links": list(outcome.jackknife_links),
             "candidates": [{"source": c.source, "iou": c.iou, "coarse_iou": c.coarse_iou}
                            for c in outcome.candidates],
-            "seconds": outcome.seconds,
+            "seconds": outcome.seconds, "challenge": None,
             "mark": None if marked is None else mark_doc(marked, seq)}
 
 
@@ -262,7 +263,7 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
                out: TextIO) -> dict:
     """`dream calibrate` by the silhouette search (`dream.cli.calibrate_start`)."""
     from dream.cli.calibrate_report import add_polish
-    from dream.cli.calibrate_write import finish, result_document
+    from dream.cli.calibrate_write import finish
     from dream.refined_uncertainty import with_cue_term
 
     if request.model_extension:
@@ -271,6 +272,30 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
                          "drop --model-extension, or give --model without --camera-guess and "
                          "--mark")
     robot, result, obs, outcome, inputs, guess, marked = search_start(request, seq, out)
+    found = (seq, outcome, inputs, guess, marked)
+    doc = search_document(request, data_doc, readings_doc, result, obs, found)
+    T_other = None
+    if refine == POLISH:
+        doc = add_polish(seq, robot, result, obs, None, doc, out, frames="all",
+                         mask_head=False)
+    elif refine == EDGES:
+        doc, T_other = _edges_after_search(request, seq, robot, result, obs, doc, out)
+        if request.refine == AUTO and T_other is not None:
+            result, obs, doc = _challenged(request, data_doc, readings_doc, found, T_other,
+                                           (result, obs, doc), out)
+    doc, cue_move = with_cue_term(doc, T_other)
+    doc["quality"] = search_quality(doc, cue_move, out, marked, seq.camera)
+    finish(request, seq, robot, obs, result, doc, paths, out)
+    return doc
+
+
+def search_document(request, data_doc: dict, readings_doc: dict | None, result, obs,
+                    found: tuple) -> dict:
+    """RESULT.json's document of the search's stand-in `result`, with its `start` object;
+    `found`: the sequence, the search's outcome, its masks, the guess and the mark."""
+    from dream.cli.calibrate_write import result_document
+
+    seq, outcome, inputs, guess, marked = found
     doc = result_document(request, seq, result, obs, data_doc, readings_doc)
     doc["rmse_px"] = None
     doc["start"] = start_doc(outcome, inputs, guess, seq, marked)
@@ -279,16 +304,33 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
         f"{len(outcome.links_xi)} links + spread of its restarts around the pose found (the "
         "basin check)" if len(outcome.frames_xi) or len(outcome.links_xi) else
         "spread of the search's restarts around the pose found (the basin check)")
-    T_other = None
-    if refine == POLISH:
-        doc = add_polish(seq, robot, result, obs, None, doc, out, frames="all",
-                         mask_head=False)
-    elif refine == EDGES:
-        doc, T_other = _edges_after_search(request, seq, robot, result, obs, doc, out)
-    doc, cue_move = with_cue_term(doc, T_other)
-    doc["quality"] = search_quality(doc, cue_move, out, marked, seq.camera)
-    finish(request, seq, robot, obs, result, doc, paths, out)
     return doc
+
+
+def _challenged(request, data_doc: dict, readings_doc: dict | None, found: tuple,
+                T_edges: np.ndarray, written: tuple, out: TextIO) -> tuple:
+    """The edge alignment's optimum against the search's winner on the masks
+    (`dream.coarse.challenge`): where it wins, the stand-in result, observations and document
+    of the search run again from it (the alignment's object kept), else `written` (the
+    result, observations and document as they were); RESULT.json's `start.challenge` says
+    what happened."""
+    from dream.coarse.calibration import search_covariance, stand_in_result
+    from dream.coarse.challenge import challenged
+
+    seq, outcome, inputs, guess, marked = found
+    result, obs, doc = written
+    outcome, challenge = challenged(seq.camera, inputs, outcome, T_edges, "the edge alignment",
+                                    progress=_progress)
+    if challenge is not None and challenge.won:
+        print(f"the edge alignment's optimum, finished on the masks, explains them better (IoU "
+              f"{challenge.iou_winner:.3f} -> {challenge.iou_challenger:.3f}): the search "
+              f"from it won, best IoU {outcome.best.iou:.3f}", file=out)
+        result, obs = stand_in_result(seq, outcome.best.T_cam_base, search_covariance(outcome))
+        doc = {**search_document(request, data_doc, readings_doc, result, obs,
+                                 (seq, outcome, inputs, guess, marked)), "edges": doc["edges"]}
+    doc["start"]["challenge"] = None if challenge is None else challenge.to_dict()
+    doc["start"]["seconds"] = outcome.seconds
+    return result, obs, doc
 
 
 def _edges_after_search(request, seq, robot, result, obs, doc: dict,

@@ -27,7 +27,7 @@ import numpy as np
 
 from dream.calibration import CalibrationResult, FrameSolution, Observations
 from dream.camera import CameraIntrinsics
-from dream.coarse.carried import carried_geometry, carried_region
+from dream.coarse.carried import CarriedRegion, carried_geometry, carried_region
 from dream.coarse.hypotheses import around, fibonacci_directions, shell
 from dream.coarse.mark import Mark, MarkSettings, mark_points, mark_pose, mark_sigma, track_mark
 from dream.coarse.search import SearchOutcome, Winner, find_winner, search, within
@@ -81,7 +81,8 @@ class SearchMasks:
     frames' indices, joints (n, J) and masks (n, H, W), the masks' source, links left out, and
     the positions among the chosen of the frames the hypotheses are scored on (`search`; the
     finishing refinement compares them all), and what the carving at the first winner found
-    the arm carrying (`carried`; None where it did not run; `dream.coarse.carried`)."""
+    the arm carrying (`carried`; None where it did not run; `dream.coarse.carried`) and the
+    pixels of it left out of the search (`region`; None where none are)."""
 
     meshes: RobotMeshes
     frames: np.ndarray
@@ -91,6 +92,7 @@ class SearchMasks:
     left_out: tuple[str, ...]
     search: np.ndarray
     carried: CarvingOutcome | None = None
+    region: CarriedRegion | None = None
 
 
 def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> SearchMasks:
@@ -223,6 +225,7 @@ def with_carried(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
         return winner.checked(), inputs
     region = carried_region(inputs.meshes.robot, inputs.joints, link, points, attached.voxel_m,
                             settings.carried_margin_px)
+    inputs = replace(inputs, region=region)
     starts = [winner.best.T_cam_base] + ([] if winner.rival is None
                                          else [winner.rival.T_cam_base])
     searched = search(inputs.meshes, inputs.joints, inputs.masks, camera,

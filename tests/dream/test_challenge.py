@@ -1,0 +1,53 @@
+"""Another cue's optimum against the search's winner on the masks (`dream.coarse.challenge`):
+a right pose wins over a wrong winner, a wrong one loses to a right winner, and a pose next to
+the winner is not a challenge."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from dream.coarse.calibration import DATA_MASKS, SearchMasks
+from dream.coarse.challenge import Challenge, challenged
+from dream.coarse.search import Candidate, SearchOutcome, pose_iou
+from dream.metrics import pose_errors
+from tests.dream.test_coarse import SMALL, off_by, rendered_masks
+from tests.dream.test_edges import CAMERA
+
+WRONG_M, WRONG_RAD = 0.15, np.deg2rad(8.0)     # a winner in the wrong basin
+
+
+def outcome_at(T: np.ndarray, iou: float) -> SearchOutcome:
+    """A search's outcome whose winner is `T` (its checks left empty)."""
+    none = np.zeros((0, 6))
+    return SearchOutcome(Candidate(T, "guess", iou, iou), None, (Candidate(T, "guess", iou, iou),),
+                         {"guess": 1}, 0, 0, np.zeros((0, 4, 4)), none, none, (), 1.0)
+
+
+def test_a_right_optimum_wins_over_a_wrong_winner_and_a_wrong_one_loses(panda, meshes):
+    T_true, joints, masks = rendered_masks(panda, meshes)
+    inputs = SearchMasks(meshes, np.arange(len(joints)), joints, masks, DATA_MASKS, (),
+                         np.arange(len(joints)))
+    settings = replace(SMALL, basin_starts=1)
+    T_wrong = off_by(T_true, WRONG_M, WRONG_RAD, 0)
+    iou_wrong = pose_iou(meshes, joints, masks, CAMERA, T_wrong, settings)
+    lines: list[str] = []
+    outcome, challenge = challenged(CAMERA, inputs, outcome_at(T_wrong, iou_wrong),
+                                    off_by(T_true, 0.01, np.deg2rad(0.5), 1), "the edge alignment",
+                                    settings,
+                                    lines.append)
+    assert isinstance(challenge, Challenge) and challenge.won
+    assert challenge.iou_challenger > 0.9 > challenge.iou_winner
+    assert challenge.distance_m > 0.1 and "the edge alignment's optimum" in lines[0]
+    m, rad = pose_errors(outcome.best.T_cam_base, T_true)
+    assert m < 0.005 and rad < np.deg2rad(0.3), (m, np.rad2deg(rad))
+    assert outcome.basin_starts == 1 and len(outcome.frames_xi) and "guess" in outcome.hypotheses
+
+    right = outcome_at(T_true, 1.0)
+    kept, lost = challenged(CAMERA, inputs, right, T_wrong, "the edge alignment", settings)
+    assert lost is not None and not lost.won and lost.iou_challenger < lost.iou_winner
+    assert kept.best is right.best
+    near, none = challenged(CAMERA, inputs, right, off_by(T_true, 0.002, 0.001, 2),
+                            "the edge alignment", settings)
+    assert none is None and near is right
