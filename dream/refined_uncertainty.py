@@ -175,15 +175,17 @@ def with_refined_uncertainty(doc: dict[str, Any],
     doc["uncertainty"] = uncertainty
 
 
-def with_cue_term(doc: dict, T_other: np.ndarray | None) -> tuple[dict, tuple[float, float]
-                                                                   | None]:
+def with_cue_term(doc: dict, T_other: np.ndarray | None, T_own: np.ndarray | None = None
+                  ) -> tuple[dict, tuple[float, float] | None]:
     """Where the other image cue's optimum `T_other` (the edge alignment's, or the masks'
-    when the edges' was written) differs from the pose written, its covariance gains the
-    outer product of that difference (an error both frames and links share, which no
-    jackknife sees); returns the document and the difference (m, rad), None without one."""
+    when the edges' was written) differs from the written cue's own optimum `T_own` (default
+    the pose written; the masks' optimum where the pose written lies between the two), the
+    covariance of the pose written gains the outer product of that difference (an error both
+    frames and links share, which no jackknife sees); returns the document and the difference
+    (m, rad), None without one."""
     from dream.metrics import pose_errors
 
-    T = np.asarray(doc["T_cam_base"])
+    T = np.asarray(doc["T_cam_base"]) if T_own is None else np.asarray(T_own)
     if T_other is None or np.allclose(T, T_other):
         return doc, None
     delta = increment_between(T, np.asarray(T_other))

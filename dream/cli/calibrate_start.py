@@ -274,16 +274,16 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
     robot, result, obs, outcome, inputs, guess, marked = search_start(request, seq, out)
     found = (seq, outcome, inputs, guess, marked)
     doc = search_document(request, data_doc, readings_doc, result, obs, found)
-    T_other = None
+    T_other = T_own = None
     if refine == POLISH:
         doc = add_polish(seq, robot, result, obs, None, doc, out, frames="all",
                          mask_head=False)
     elif refine == EDGES:
         doc, T_other = _edges_after_search(request, seq, robot, result, obs, doc, out)
         if request.refine == AUTO and T_other is not None:
-            result, obs, doc = _challenged(request, data_doc, readings_doc, found, T_other,
-                                           (result, obs, doc), out)
-    doc, cue_move = with_cue_term(doc, T_other)
+            result, obs, doc, T_own = _challenged(request, data_doc, readings_doc, found,
+                                                  T_other, (result, obs, doc), out)
+    doc, cue_move = with_cue_term(doc, T_other, T_own)
     doc["quality"] = search_quality(doc, cue_move, out, marked, seq.camera)
     finish(request, seq, robot, obs, result, doc, paths, out)
     return doc
@@ -309,11 +309,12 @@ def search_document(request, data_doc: dict, readings_doc: dict | None, result, 
 
 def _challenged(request, data_doc: dict, readings_doc: dict | None, found: tuple,
                 T_edges: np.ndarray, written: tuple, out: TextIO) -> tuple:
-    """The edge alignment's optimum against the search's winner on the masks
-    (`dream.coarse.challenge`): where it wins, the stand-in result, observations and document
-    of the search run again from it (the alignment's object kept), else `written` (the
-    result, observations and document as they were); RESULT.json's `start.challenge` says
-    what happened."""
+    """The edge alignment's optimum against the search's winner on the masks, and the pose
+    between the two that the masks choose (`dream.coarse.challenge`): the stand-in result,
+    observations and document of that pose (of the search run again where the alignment's
+    optimum won; the alignment's object kept), else `written` (the result, observations and
+    document as they were); and the masks' own optimum (the search's winner), None where it
+    is the pose written. RESULT.json's `start.challenge` says what happened."""
     from dream.coarse.calibration import search_covariance, stand_in_result
     from dream.coarse.challenge import challenged
 
@@ -321,16 +322,24 @@ def _challenged(request, data_doc: dict, readings_doc: dict | None, found: tuple
     result, obs, doc = written
     outcome, challenge = challenged(seq.camera, inputs, outcome, T_edges, "the edge alignment",
                                     progress=_progress)
-    if challenge is not None and challenge.won:
+    if challenge is None:
+        doc["start"]["challenge"] = None
+        return result, obs, doc, None
+    if challenge.won:
         print(f"the edge alignment's optimum, finished on the masks, explains them better (IoU "
               f"{challenge.iou_winner:.3f} -> {challenge.iou_challenger:.3f}): the search "
               f"from it won, best IoU {outcome.best.iou:.3f}", file=out)
-        result, obs = stand_in_result(seq, outcome.best.T_cam_base, search_covariance(outcome))
+    if challenge.share > 0:
+        print(f"the masks put the pose {challenge.share:.0%} of the way from their optimum to "
+              f"the edge alignment's (IoU {challenge.iou_between:.3f})", file=out)
+    if challenge.won or challenge.share > 0:
+        result, obs = stand_in_result(seq, challenge.T_cam_base_between,
+                                      search_covariance(outcome))
         doc = {**search_document(request, data_doc, readings_doc, result, obs,
                                  (seq, outcome, inputs, guess, marked)), "edges": doc["edges"]}
-    doc["start"]["challenge"] = None if challenge is None else challenge.to_dict()
+    doc["start"]["challenge"] = challenge.to_dict()
     doc["start"]["seconds"] = outcome.seconds
-    return result, obs, doc
+    return result, obs, doc, outcome.best.T_cam_base if challenge.share > 0 else None
 
 
 def _edges_after_search(request, seq, robot, result, obs, doc: dict,

@@ -1,6 +1,6 @@
 """Another cue's optimum against the search's winner on the masks (`dream.coarse.challenge`):
-a right pose wins over a wrong winner, a wrong one loses to a right winner, and a pose next to
-the winner is not a challenge."""
+a right pose wins over a wrong winner, a wrong one loses to a right winner, a pose next to
+the winner is not a challenge, and the masks choose the pose written between the two."""
 
 from __future__ import annotations
 
@@ -9,9 +9,10 @@ from dataclasses import replace
 import numpy as np
 
 from dream.coarse.calibration import DATA_MASKS, SearchMasks
-from dream.coarse.challenge import Challenge, challenged
+from dream.coarse.challenge import Challenge, between, challenged
 from dream.coarse.search import Candidate, SearchOutcome, pose_iou
 from dream.metrics import pose_errors
+from dream.transforms import make_T
 from tests.dream.test_coarse import SMALL, off_by, rendered_masks
 from tests.dream.test_edges import CAMERA
 
@@ -43,6 +44,7 @@ def test_a_right_optimum_wins_over_a_wrong_winner_and_a_wrong_one_loses(panda, m
     m, rad = pose_errors(outcome.best.T_cam_base, T_true)
     assert m < 0.005 and rad < np.deg2rad(0.3), (m, np.rad2deg(rad))
     assert outcome.basin_starts == 1 and len(outcome.frames_xi) and "guess" in outcome.hypotheses
+    assert pose_errors(challenge.T_cam_base_between, T_true)[0] < 0.01
 
     right = outcome_at(T_true, 1.0)
     kept, lost = challenged(CAMERA, inputs, right, T_wrong, "the edge alignment", settings)
@@ -51,3 +53,23 @@ def test_a_right_optimum_wins_over_a_wrong_winner_and_a_wrong_one_loses(panda, m
     near, none = challenged(CAMERA, inputs, right, off_by(T_true, 0.002, 0.001, 2),
                             "the edge alignment", settings)
     assert none is None and near is right
+
+
+class PeakAt:
+    """A stand-in for `Scales` whose IoU peaks where the camera's x translation is `peak_m`."""
+
+    def __init__(self, peak_m: float):
+        self.peak_m = peak_m
+
+    def iou(self, T: np.ndarray) -> float:
+        return 1.0 - abs(float(T[0, 3]) - self.peak_m)
+
+
+def test_the_masks_choose_the_pose_between_the_two_optima():
+    T_a, T_b = np.eye(4), make_T(np.eye(3), np.array([0.1, 0.0, 0.0]))
+    share, T, iou = between(PeakAt(0.03), T_a, T_b)
+    assert np.isclose(share, 0.3) and np.allclose(T[:3, 3], [0.03, 0, 0]) and np.isclose(iou, 1.0)
+    assert between(PeakAt(-0.05), T_a, T_b)[0] == 0.0       # never beyond the two ends
+    assert between(PeakAt(0.5), T_a, T_b)[0] == 1.0
+    flat = between(PeakAt(0.0), T_a, T_a)
+    assert flat[0] == 0.0 and np.allclose(flat[1], T_a)     # equals: the winner

@@ -238,9 +238,10 @@ def test_calibrate_without_keypoints_from_a_camera_guess(panda, meshes, tmp_path
         assert doc["quality"]["verdict"] in ("good", "check")
         edges = doc["edges"]
         assert edges["cross_check"] and not edges["kept"]
-        written = increment_between(np.asarray(doc["T_cam_base"]),
-                                    np.asarray(edges["T_cam_base_aligned"]))
-        assert np.allclose(doc["uncertainty"].get("cue_disagreement_xi", np.zeros(6)), written)
+        cues = increment_between(np.asarray(start["T_cam_base"]),
+                                 np.asarray(edges["T_cam_base_aligned"]))
+        assert np.allclose(doc["uncertainty"].get("cue_disagreement_xi", np.zeros(6)), cues)
+        assert "challenge" in start
         assert (overlays / "summary.png").is_file() and len(list(overlays.glob("*.png"))) > 1
         sigma = np.linalg.norm(doc["sigma_camera_position_base_m"])
         assert 0 < sigma < 0.05
