@@ -7,9 +7,10 @@ close-up, a shell camera 20 cm and 15 deg off the nearest), the alignment starte
 search's wrong winner, 0.3-0.8 m off, ended within 2 mm of the truth. So its optimum competes
 with the winner on the masks' own evidence: finished as the winner was (`finish_width_px`, every
 frame, what the arm carries left out) it explains the masks better or it does not. Where it
-does, the search runs again from it, the winner and the rival (`dream.coarse.search.search`,
-its checks included) and that outcome replaces the first; where the two poses lie within the
-basin check's return limits of each other, there is nothing to decide.
+does and its finish ended outside the basin check's return limits around the winner, the
+search runs again from it, the winner and the rival (`dream.coarse.search.search`, its checks
+included), and that outcome replaces the first where its winner lies outside them too; where
+the two optima lie within those limits of each other, there is nothing to decide.
 
 Then the masks choose the pose written between the two optima: the IoU at poses evenly spaced
 on the segment from the winner to the other cue's optimum (`between`). The polish's contour
@@ -93,7 +94,8 @@ def challenged(camera: CameraIntrinsics, inputs: SearchMasks, outcome: SearchOut
     m, rad = pose_errors(T_other, T_best)
     say(f"{source}'s optimum, {m * 100:.1f} cm and {np.rad2deg(rad):.1f} deg from the winner, "
         f"finished on the masks: IoU {iou_other:.3f} against the winner's {iou_best:.3f}")
-    won = iou_other > iou_best
+    won = iou_other > iou_best and not within(T_finished, T_best, settings.basin_return_m,
+                                              settings.basin_return_rad)
     if won:
         say("searching again from it, the winner and its rival")
         starts = [T_finished, T_best] + ([] if outcome.rival is None
