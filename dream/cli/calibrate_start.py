@@ -323,7 +323,6 @@ def _challenged(request, data_doc: dict, readings_doc: dict | None, found: tuple
     outcome, challenge = challenged(seq.camera, inputs, outcome, T_edges, "the edge alignment",
                                     progress=_progress)
     if challenge is None:
-        doc["start"]["challenge"] = None
         return result, obs, doc, None
     if challenge.won:
         print(f"the edge alignment's optimum, finished on the masks, explains them better (IoU "

@@ -35,7 +35,7 @@ import numpy as np
 from dream.camera import CameraIntrinsics
 from dream.coarse.calibration import MOTION_MASKS, SearchMasks
 from dream.coarse.scales import Scales
-from dream.coarse.search import SearchOutcome, search, within
+from dream.coarse.search import SearchOutcome, finish_scale, search, within
 from dream.coarse.settings import SearchSettings
 from dream.metrics import pose_errors
 from dream.pnp import apply_increment, increment_between
@@ -86,9 +86,8 @@ def challenged(camera: CameraIntrinsics, inputs: SearchMasks, outcome: SearchOut
         return outcome, None
     start = time.perf_counter()
     held = inputs.source == MOTION_MASKS
-    finish = Scales(vertices_in_base(inputs.meshes, inputs.joints), inputs.meshes, inputs.masks,
-                    camera, replace(settings, local_widths_px=(settings.finish_width_px,)),
-                    None, held, inputs.region)
+    finish = finish_scale(vertices_in_base(inputs.meshes, inputs.joints), inputs.meshes,
+                          inputs.masks, camera, settings, held=held, region=inputs.region)
     T_finished = finish.refine(T_other)
     iou_best, iou_other = finish.iou(T_best), finish.iou(T_finished)
     m, rad = pose_errors(T_other, T_best)

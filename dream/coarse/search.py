@@ -297,15 +297,24 @@ def _winner_and_rival(candidates: list[Candidate], finished: Callable[[Candidate
     return out, best, None
 
 
+def finish_scale(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
+                 camera: CameraIntrinsics, settings: SearchSettings,
+                 usable: np.ndarray | None = None, held: bool = False,
+                 region: CarriedRegion | None = None) -> Scales:
+    """The one scale the winner is finished and scored at: `finish_width_px` (capped at the
+    camera's width) on the frames of `P` (F, V, 3) and `masks` (F, H, W)."""
+    return Scales(P, meshes, masks, camera, replace(
+        settings, local_widths_px=(settings.finish_width_px,)), usable, held, region)
+
+
 def pose_iou(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
              camera: CameraIntrinsics, T_cam_base: np.ndarray,
              settings: SearchSettings | None = None, held: bool = False) -> float:
     """The mean IoU of the robot's silhouettes at `T_cam_base` with `masks`, at the search's
     finest width (`finish_width_px`), as the search scores its winner."""
-    settings = settings or SearchSettings()
     P = vertices_in_base(meshes, np.asarray(joints, float))
-    scales = Scales(P, meshes, np.asarray(masks, bool), camera, replace(
-        settings, local_widths_px=(settings.finish_width_px,)), None, held)
+    scales = finish_scale(P, meshes, np.asarray(masks, bool), camera,
+                          settings or SearchSettings(), held=held)
     return scales.iou(np.asarray(T_cam_base, float))
 
 
@@ -313,10 +322,9 @@ def _finish_scales(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
                    camera: CameraIntrinsics, settings: SearchSettings,
                    usable: np.ndarray | None, scales: Scales,
                    region: CarriedRegion | None = None) -> Scales | None:
-    """The scale `finish_width_px` (capped at the camera's width) on every frame; None where it
-    is neither finer than the local scales' finest nor on more frames."""
-    finish = Scales(P, meshes, masks, camera, replace(
-        settings, local_widths_px=(settings.finish_width_px,)), usable, scales.held, region)
+    """`finish_scale` on every frame; None where it is neither finer than the local scales'
+    finest nor on more frames."""
+    finish = finish_scale(P, meshes, masks, camera, settings, usable, scales.held, region)
     finer = finish.levels[-1][0].width > scales.levels[-1][0].width
     return finish if finer or len(P) > len(scales.P) else None
 
@@ -332,12 +340,11 @@ def _jackknife(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
     none = np.zeros((0, 6))
     if not settings.jackknife_groups:
         return none, none, ()
-    finish = replace(settings, local_widths_px=(settings.finish_width_px,))
     usable = np.ones(len(meshes.vertices), bool) if usable is None else np.asarray(usable)
 
     def refined(frames: np.ndarray, use: np.ndarray) -> np.ndarray:
-        scales = Scales(P[frames], meshes, masks[frames], camera, finish, use, held,
-                         None if region is None else region.frames(frames))
+        scales = finish_scale(P[frames], meshes, masks[frames], camera, settings, use, held,
+                              None if region is None else region.frames(frames))
         return increment_between(T_best, scales.refine(T_best))
 
     every = np.arange(len(P))
