@@ -1,7 +1,8 @@
 """Per-frame work spread over the machine's cores.
 
-Rendering a frame's silhouette, its distance transform and the sampling of it are numpy and
-OpenCV loops that release the GIL, so independent frames run in parallel in threads.
+Rendering a frame's silhouette (a compiled loop, `dream.rasterize`), its distance transform
+and the sampling of it are numpy, numba and OpenCV loops that release the GIL, so independent
+frames run in parallel in threads.
 `map_frames` returns the same list, in the same order, as a plain loop; work started from a
 worker thread runs in that thread (no nested pools, no deadlock).
 
