@@ -175,35 +175,22 @@ def with_refined_uncertainty(doc: dict[str, Any],
     doc["uncertainty"] = uncertainty
 
 
-def cue_covariance(T_own: np.ndarray, T_other: np.ndarray | None) -> np.ndarray:
-    """(6, 6) the outer product of the increment from one image cue's optimum `T_own` to the
-    other's, `T_other` (zeros without the other): an error both frames and links share, which
-    no jackknife sees.
-
-    >>> T = np.eye(4); T[0, 3] = 0.01
-    >>> float(cue_covariance(np.eye(4), T)[3, 3]), float(cue_covariance(T, None).sum())
-    (0.0001, 0.0)
-    """
-    if T_other is None:
-        return np.zeros((6, 6))
-    delta = increment_between(np.asarray(T_own), np.asarray(T_other))
-    return np.outer(delta, delta)
-
-
 def with_cue_term(doc: dict, T_other: np.ndarray | None, T_own: np.ndarray | None = None
                   ) -> tuple[dict, tuple[float, float] | None]:
     """Where the other image cue's optimum `T_other` (the edge alignment's, or the masks'
     when the edges' was written) differs from the written cue's own optimum `T_own` (default
-    the pose written; the masks' optimum where the pose written moved from it), the
-    covariance of the pose written gains `cue_covariance`; returns the document and the
-    difference (m, rad), None without one."""
+    the pose written; the masks' optimum where the pose written lies between the two), the
+    covariance of the pose written gains the outer product of that difference (an error both
+    frames and links share, which no jackknife sees); returns the document and the difference
+    (m, rad), None without one."""
     from dream.metrics import pose_errors
 
     T = np.asarray(doc["T_cam_base"]) if T_own is None else np.asarray(T_own)
     if T_other is None or np.allclose(T, T_other):
         return doc, None
-    set_covariance(doc, np.asarray(doc["covariance_xi"]) + cue_covariance(T, T_other))
-    doc["uncertainty"]["cue_disagreement_xi"] = increment_between(T, T_other).tolist()
+    delta = increment_between(T, np.asarray(T_other))
+    set_covariance(doc, np.asarray(doc["covariance_xi"]) + np.outer(delta, delta))
+    doc["uncertainty"]["cue_disagreement_xi"] = delta.tolist()
     doc["uncertainty"]["method"] += " + the image cues' disagreement"
     m, rad = pose_errors(T, T_other)
     return doc, (float(m), float(rad))

@@ -200,7 +200,7 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
             "jackknife_links": list(outcome.jackknife_links),
             "candidates": [{"source": c.source, "iou": c.iou, "coarse_iou": c.coarse_iou}
                            for c in outcome.candidates],
-            "seconds": outcome.seconds, "challenge": None, "ascent": None,
+            "seconds": outcome.seconds, "challenge": None,
             "mark": None if marked is None else mark_doc(marked, seq)}
 
 
@@ -280,14 +280,9 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
                          mask_head=False)
     elif refine == EDGES:
         doc, T_other = _edges_after_search(request, seq, robot, result, obs, doc, out)
-        if request.refine == AUTO:
-            written = (result, obs, doc)
-            if T_other is not None:
-                found, written = _challenged(request, data_doc, readings_doc, found, T_other,
-                                             written, out)
-            result, obs, doc = _ascended(request, data_doc, readings_doc, found, T_other,
-                                         written, out)
-            T_own = found[1].best.T_cam_base
+        if request.refine == AUTO and T_other is not None:
+            result, obs, doc, T_own = _challenged(request, data_doc, readings_doc, found,
+                                                  T_other, (result, obs, doc), out)
     doc, cue_move = with_cue_term(doc, T_other, T_own)
     doc["quality"] = search_quality(doc, cue_move, out, marked, seq.camera)
     finish(request, seq, robot, obs, result, doc, paths, out)
@@ -313,22 +308,22 @@ def search_document(request, data_doc: dict, readings_doc: dict | None, result, 
 
 
 def _challenged(request, data_doc: dict, readings_doc: dict | None, found: tuple,
-                T_edges: np.ndarray, written: tuple, out: TextIO) -> tuple[tuple, tuple]:
+                T_edges: np.ndarray, written: tuple, out: TextIO) -> tuple:
     """The edge alignment's optimum against the search's winner on the masks, and the pose
-    between the two that the masks choose (`dream.coarse.challenge`): `found` with the
-    search's outcome run again where the alignment's optimum won, and the stand-in result,
-    observations and document of the pose chosen (the alignment's object kept), else
-    `written` (the result, observations and document as they were). RESULT.json's
-    `start.challenge` says what happened."""
+    between the two that the masks choose (`dream.coarse.challenge`): the stand-in result,
+    observations and document of that pose (of the search run again where the alignment's
+    optimum won; the alignment's object kept), else `written` (the result, observations and
+    document as they were); and the masks' own optimum (the search's winner), None where it
+    is the pose written. RESULT.json's `start.challenge` says what happened."""
+    from dream.coarse.calibration import search_covariance, stand_in_result
     from dream.coarse.challenge import challenged
 
     seq, outcome, inputs, guess, marked = found
     result, obs, doc = written
     outcome, challenge = challenged(seq.camera, inputs, outcome, T_edges, "the edge alignment",
                                     progress=_progress)
-    found = (seq, outcome, inputs, guess, marked)
     if challenge is None:
-        return found, written
+        return result, obs, doc, None
     if challenge.won:
         print(f"the edge alignment's optimum, finished on the masks, explains them better (IoU "
               f"{challenge.iou_winner:.3f} -> {challenge.iou_challenger:.3f}): the search "
@@ -337,56 +332,13 @@ def _challenged(request, data_doc: dict, readings_doc: dict | None, found: tuple
         print(f"the masks put the pose {challenge.share:.0%} of the way from their optimum to "
               f"the edge alignment's (IoU {challenge.iou_between:.3f})", file=out)
     if challenge.won or challenge.share > 0:
-        result, obs, doc = _rewritten(request, data_doc, readings_doc, found,
-                                      challenge.T_cam_base_between, doc)
+        result, obs = stand_in_result(seq, challenge.T_cam_base_between,
+                                      search_covariance(outcome))
+        doc = {**search_document(request, data_doc, readings_doc, result, obs,
+                                 (seq, outcome, inputs, guess, marked)), "edges": doc["edges"]}
     doc["start"]["challenge"] = challenge.to_dict()
     doc["start"]["seconds"] = outcome.seconds
-    return found, (result, obs, doc)
-
-
-def _ascended(request, data_doc: dict, readings_doc: dict | None, found: tuple,
-              T_edges: np.ndarray | None, written: tuple, out: TextIO) -> tuple:
-    """The masks' IoU climbed from the pose written along the principal axes of its
-    covariance (the search's, with the cues' disagreement where the edge alignment ran:
-    `dream.coarse.ascent`): the stand-in result, observations and document of the pose it
-    ended at, else `written`. RESULT.json's `start.ascent` says what happened."""
-    from dream.coarse.ascent import ascended
-    from dream.coarse.calibration import search_covariance
-    from dream.refined_uncertainty import cue_covariance
-
-    seq, outcome, inputs, _, _ = found
-    result, obs, doc = written
-    covariance = search_covariance(outcome) + cue_covariance(outcome.best.T_cam_base, T_edges)
-    ascent = ascended(seq.camera, inputs, np.asarray(doc["T_cam_base"]), covariance,
-                      progress=_progress)
-    if not ascent.kept:
-        print(f"the masks' IoU still rose at the edge of the pose's 95 % ellipsoid "
-              f"({ascent.iou_before:.4f} -> {ascent.iou_after:.4f}, {ascent.mahalanobis:.1f} "
-              "sigma): something in the masks the robot model does not explain pulls it, so "
-              "the pose stays where the climb started", file=out)
-    elif ascent.iou_after > ascent.iou_before:
-        print(f"the masks' IoU climbed along the pose's 1-sigma axes, {ascent.iou_before:.4f} "
-              f"-> {ascent.iou_after:.4f}: the pose moved {ascent.moved_m * 1e3:.1f} mm and "
-              f"{np.rad2deg(ascent.moved_rad):.2f} deg", file=out)
-        result, obs, doc = _rewritten(request, data_doc, readings_doc, found,
-                                      ascent.T_cam_base, doc)
-    doc["start"]["ascent"] = ascent.to_dict()
-    return result, obs, doc
-
-
-def _rewritten(request, data_doc: dict, readings_doc: dict | None, found: tuple,
-               T_cam_base: np.ndarray, doc: dict) -> tuple:
-    """The stand-in result, observations and document of the search's `found` at another
-    pose, with `doc`'s edge alignment and what the search's start already said about it."""
-    from dream.coarse.calibration import search_covariance, stand_in_result
-
-    seq, outcome = found[:2]
-    result, obs = stand_in_result(seq, T_cam_base, search_covariance(outcome))
-    new = {**search_document(request, data_doc, readings_doc, result, obs, found),
-           "edges": doc["edges"]}
-    for key in ("challenge", "ascent"):
-        new["start"][key] = doc["start"].get(key)
-    return result, obs, new
+    return result, obs, doc, outcome.best.T_cam_base if challenge.share > 0 else None
 
 
 def _edges_after_search(request, seq, robot, result, obs, doc: dict,

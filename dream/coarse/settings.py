@@ -63,12 +63,6 @@ class SearchSettings:
             others with something carved stayed within 1 cm).
         carried_margin_px: the carved hull's pixels are widened by this many pixels of the
             scale compared (0, 5 and 10 were no better on all four scenes of a held ball).
-        ascent_steps_sigma: steps of the IoU's climb along the pose's principal axes
-            (`dream.coarse.ascent`), in units of each axis's 1-sigma, largest first.
-        ascent_max_chi2: the climb stays inside this ellipsoid of the covariance around its
-            start, the one the 1-sigma claims holds the truth (12.59: chi-square of six axes
-            at 95 %); where the IoU still rises through its wall, the climb is not kept.
-        ascent_max_evaluations: the climb scores at most this many poses.
     """
 
     guess_sigma_m: float = 0.3
@@ -107,27 +101,21 @@ class SearchSettings:
     find_carried: bool = True
     leave_out_carried: bool = True
     carried_margin_px: int = 2
-    ascent_steps_sigma: tuple[float, ...] = (2.0, 1.0, 0.5, 0.25)
-    ascent_max_chi2: float = 12.59
-    ascent_max_evaluations: int = 200
 
     def __post_init__(self) -> None:
         check_fields(self, "coarse search",
                      positive_ints=("guess_samples", "shell_directions", "shell_rolls",
                                     "search_frames", "finish_frames", "surface_points",
                                     "coarse_width_px", "batch", "local_starts", "local_rounds",
-                                    "fine_starts", "finish_width_px", "jackknife_link_points",
-                                    "ascent_max_evaluations"),
+                                    "fine_starts", "finish_width_px", "jackknife_link_points"),
                      positive=("guess_sigma_m", "guess_sigma_rad", "distinct_m", "distinct_rad",
                                "rival_m", "rival_rad", "basin_m", "basin_rad",
-                               "basin_return_m", "basin_return_rad", "ascent_max_chi2"),
+                               "basin_return_m", "basin_return_rad"),
                      non_negative=("min_gap", "basin_starts", "min_found_iou", "carried_margin_px",
                                    "round_iou_tolerance",
                                    "min_basin_share", "jackknife_groups"))
         if not self.shell_distances or min(self.shell_distances) <= 0:
             raise InputError("coarse search: shell_distances must be positive")
-        if not self.ascent_steps_sigma or min(self.ascent_steps_sigma) <= 0:
-            raise InputError("coarse search: ascent_steps_sigma must be positive")
         if not self.local_widths_px or min(self.local_widths_px) < 8:
             raise InputError("coarse search: local_widths_px must be at least 8 px")
         if not -1 <= self.min_elevation_sin <= 1:

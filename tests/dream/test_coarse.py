@@ -242,11 +242,6 @@ def test_calibrate_without_keypoints_from_a_camera_guess(panda, meshes, tmp_path
                                  np.asarray(edges["T_cam_base_aligned"]))
         assert np.allclose(doc["uncertainty"].get("cue_disagreement_xi", np.zeros(6)), cues)
         assert "challenge" in start
-        ascent = start["ascent"]
-        assert ascent["iou_after"] >= ascent["iou_before"] and ascent["evaluations"] > 1
-        if not (start["challenge"] or {}).get("share_towards_other"):    # climbed from the winner
-            moved = pose_errors(np.asarray(doc["T_cam_base"]), np.asarray(start["T_cam_base"]))
-            assert np.isclose(moved[0], ascent["moved_m"], atol=1e-9)
         assert (overlays / "summary.png").is_file() and len(list(overlays.glob("*.png"))) > 1
         sigma = np.linalg.norm(doc["sigma_camera_position_base_m"])
         assert 0 < sigma < 0.05
