@@ -20,7 +20,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 DOCTEST_MODULES = ("dream.api", "dream.arrays", "dream.readings", "dream.optim.lm",
                    "dream.optim.robust", "dream.edges.search", "dream.edges.background",
-                   "dream.settings_checks", "dream.polish.frames",
+                   "dream.settings_checks", "dream.polish.frames", "dream.polish.objective",
                    "dream.quality", "dream.edges.motion", "dream.edges.frames",
                    "dream.edges.refine", "dream.refined_uncertainty",
                    "dream.coarse.hypotheses", "dream.coarse.evidence", "dream.coarse.search",

@@ -132,6 +132,22 @@ def test_rasteriser_matches_the_edge_functions_for_tiny_to_huge_triangles(seed):
     assert np.array_equal(rasterize_triangles(tri, 40, 50), _brute_force_fill(tri, 40, 50))
 
 
+@pytest.mark.parametrize(("height", "width"), [(60, 80), (120, 160), (240, 320)])
+def test_signed_distance_is_the_exact_distance_and_the_same_every_call(height, width):
+    from scipy.ndimage import distance_transform_edt
+
+    rng = np.random.default_rng(width)
+    mask = np.zeros((height, width), np.uint8)
+    cv2.circle(mask, (width // 2, height // 2), height // 4, 1, -1)
+    mask[rng.random((height, width)) < 0.02] = 1        # speckle: many short distances
+    inside = mask > 0
+    exact = np.where(inside, 0.5 - distance_transform_edt(inside),
+                     distance_transform_edt(~inside) - 0.5)
+    first = signed_distance(mask)
+    assert first.dtype == np.float64 and np.array_equal(first, exact)
+    assert all(np.array_equal(signed_distance(mask), first) for _ in range(8))
+
+
 def test_silhouette_covers_the_keypoints(panda, meshes):
     rng = np.random.default_rng(1)
     inside = []
