@@ -4,7 +4,9 @@ robot, each aimed so that the robot's centre lands where the images show it (pur
 A rotation of the camera about its own centre moves the whole image, so a hypothesis is first
 chosen by where the camera is and how it is rolled, then turned (`aim`) so that the robot's
 centre in the base frame projects onto the centre of the robot's pixels in the images. What
-is left for the score to decide is the camera position and roll.
+is left for the score to decide is the camera position and roll. Where a hypothesis sees part
+of the robot outside the image (a close-up), the images' pixels centre on the part in view, so
+`aim_in_view` turns it further until the centre of that part lands there.
 
     >>> from dream.camera import CameraIntrinsics
     >>> camera = CameraIntrinsics(100.0, 100.0, 31.5, 23.5, 64, 48)
@@ -19,13 +21,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from dream.camera import CameraIntrinsics, pixels_to_normalized
+from dream.camera import CameraIntrinsics, pixels_to_normalized, project
 from dream.errors import InputError
+from dream.silhouette import MIN_DEPTH_M
 from dream.transforms import R_from_rotvec, invert_T, look_at
 
 BASE_X = np.array([1.0, 0.0, 0.0])
 NEAR_VERTICAL_COS = 0.99      # a camera looking this close to straight up or down
 MIN_LOOK_DISTANCE_M = 0.05    # the look-at point must lie at least this far from the camera
+AIM_IN_VIEW_ROUNDS = 3        # turns of `aim_in_view`: each moves the part in view by less
+AIM_IN_VIEW_BATCH = 256       # hypotheses projected at once by `aim_in_view`
+AIM_IN_VIEW_POINTS = 1000     # at most about this many of the robot's points centre a view
 
 
 def guess_pose(position_base_m: np.ndarray, target_base_m: np.ndarray,
@@ -109,6 +115,91 @@ def aim(T_cam_base: np.ndarray, centre_base_m: np.ndarray, uv_target: np.ndarray
         T[i, :3, :3] = R @ T[i, :3, :3]
         T[i, :3, 3] = R @ T[i, :3, 3]
     return T
+
+
+def aim_in_view(T_cam_base: np.ndarray, points_base_m: np.ndarray, centre_base_m: np.ndarray,
+                uv_target: np.ndarray, camera: CameraIntrinsics,
+                rounds: int = AIM_IN_VIEW_ROUNDS) -> np.ndarray:
+    """(n, 4, 4) hypotheses aimed by `aim` (n, 4, 4) turned further, `rounds` times, by as
+    much as the centre of the robot's points (..., 3, base frame) that each sees inside the
+    image lies off `uv_target` (2,): the images' pixels centre on the part of the robot in
+    view, which is not all of it where the image border cuts it (a close-up). A hypothesis
+    that sees none of the points is returned as given.
+
+    >>> camera = CameraIntrinsics(100.0, 100.0, 31.5, 23.5, 64, 48)
+    >>> z = np.linspace(0.0, 1.0, 101)                 # a robot 1 m tall, seen from 1 m
+    >>> points, centre = np.stack([0 * z, 0 * z, z], axis=1), np.array([0.0, 0.0, 0.5])
+    >>> target = np.array([31.5, 35.0])                # the images' pixels centre low
+    >>> T = aim(guess_pose(np.array([1.0, 0.0, 0.2]), 0 * centre)[None], centre, target, camera)
+    >>> from dream.camera import project
+    >>> def seen(T):
+    ...     v = project(camera, points @ T[0, :3, :3].T + T[0, :3, 3])[:, 1]
+    ...     inside = (v >= -0.5) & (v <= 47.5)
+    ...     return round(float(v[inside].mean()), 1), bool(not inside.all())
+    >>> seen(T)                                        # the top cut off, the rest centred high
+    (21.8, True)
+    >>> seen(aim_in_view(T, points, centre, target, camera))
+    (33.0, True)
+    """
+    T = np.array(T_cam_base, dtype=float)
+    P = np.asarray(points_base_m, float).reshape(-1, 3)
+    P = P[::max(1, len(P) // AIM_IN_VIEW_POINTS)]
+    centre = np.asarray(centre_base_m, float)
+    target = np.asarray(uv_target, float)
+    for _ in range(rounds):
+        for i in range(0, len(T), AIM_IN_VIEW_BATCH):
+            batch = T[i:i + AIM_IN_VIEW_BATCH]     # a view: turning it turns T
+            seen, some = _in_view_centre(batch, P, camera)
+            C = np.einsum("nij,j->ni", batch[:, :3, :3], centre) + batch[:, :3, 3]
+            some &= C[:, 2] >= MIN_DEPTH_M
+            uv = _pixels(camera, C[some, 0], C[some, 1], C[some, 2])
+            batch[some] = _turned(batch[some], C[some], uv + target - seen[some], camera)
+    return T
+
+
+def _in_view_centre(T: np.ndarray, P: np.ndarray, camera: CameraIntrinsics
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 2) the centre of the pixels of the points P (m, 3) that hypotheses T (n, 4, 4) see
+    inside the image (NaN where none), and (n,) whether they see any."""
+    R, t = T[:, :3, :3, None], T[:, :3, 3, None]
+    X, Y, Z = (R[:, i, 0] * P[:, 0] + R[:, i, 1] * P[:, 1] + R[:, i, 2] * P[:, 2] + t[:, i]
+               for i in range(3))
+    front = Z >= MIN_DEPTH_M
+    uv = _pixels(camera, X, Y, np.where(front, Z, 1.0))
+    u, v = uv[..., 0], uv[..., 1]
+    inside = front & (u >= -0.5) & (u <= camera.width - 0.5) & (v >= -0.5) & (
+        v <= camera.height - 0.5)
+    count = inside.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        seen = np.stack([(u * inside).sum(axis=1), (v * inside).sum(axis=1)], axis=1) \
+            / count[:, None]
+    return seen, count > 0
+
+
+def _turned(T: np.ndarray, C_cam: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics
+            ) -> np.ndarray:
+    """Hypotheses T (n, 4, 4) turned about their camera centres, each the least, so that a
+    point in front of it at C_cam (n, 3) projects onto uv (n, 2)."""
+    b = np.concatenate([pixels_to_normalized(camera, uv), np.ones((len(uv), 1))], axis=1)
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    a = C_cam / np.linalg.norm(C_cam, axis=1, keepdims=True)
+    axis = np.cross(a, b)
+    s = np.linalg.norm(axis, axis=1, keepdims=True)
+    angle = np.arctan2(s, np.sum(a * b, axis=1, keepdims=True))
+    R = R_from_rotvec(np.where(s > 0, axis / np.where(s > 0, s, 1.0) * angle, 0.0))
+    out = T.copy()
+    out[:, :3, :3] = R @ T[:, :3, :3]
+    out[:, :3, 3] = np.einsum("nij,nj->ni", R, T[:, :3, 3])
+    return out
+
+
+def _pixels(camera: CameraIntrinsics, X: np.ndarray, Y: np.ndarray, Z: np.ndarray
+            ) -> np.ndarray:
+    """(..., 2) pixels of camera-frame coordinates X, Y, Z (...) in front of the camera; one
+    coordinate array at a time where the camera has no distortion."""
+    if camera.distortion is not None:
+        return project(camera, np.stack([X, Y, Z], axis=-1))
+    return np.stack([camera.fx * X / Z + camera.cx, camera.fy * Y / Z + camera.cy], axis=-1)
 
 
 def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -49,7 +49,7 @@ from dream.coarse.evidence import (
     splat_iou,
     surface_samples,
 )
-from dream.coarse.hypotheses import aim
+from dream.coarse.hypotheses import aim, aim_in_view
 from dream.coarse.scales import Scales
 from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
@@ -230,8 +230,8 @@ def find_winner(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     points = points_of(P, meshes.faces, tri, weights)
     f, v, u = np.nonzero(coarse)
     centre = points.reshape(-1, 3).mean(axis=0)
-    T_all, sources = _aimed(hypotheses, centre, np.array([u.mean(), v.mean()]), coarse_camera,
-                            aimed_only)
+    T_all, sources = _aimed(hypotheses, points, centre, np.array([u.mean(), v.mean()]),
+                            coarse_camera, aimed_only)
     scores = coarse_scores(points, coarse, coarse_camera, T_all, settings.batch, held)
     say(f"scored {len(T_all)} camera hypotheses at {width} px (best coarse IoU "
         f"{scores.max():.3f})")
@@ -389,14 +389,18 @@ def _refined(scales: Scales, T_all: np.ndarray, scores: np.ndarray, sources: lis
     return sorted(out, key=lambda c: -c.iou)
 
 
-def _aimed(hypotheses: dict[str, np.ndarray], centre: np.ndarray, uv: np.ndarray,
-           camera: CameraIntrinsics, aimed_only: tuple[str, ...]
+def _aimed(hypotheses: dict[str, np.ndarray], points: np.ndarray, centre: np.ndarray,
+           uv: np.ndarray, camera: CameraIntrinsics, aimed_only: tuple[str, ...]
            ) -> tuple[np.ndarray, list[str]]:
-    """Every hypothesis aimed and, unless its source is in `aimed_only`, as given."""
+    """Every hypothesis aimed and, unless its source is in `aimed_only`, as given; one only
+    aimed has no other view to fall back on where the border cuts the robot, so it is aimed at
+    the part in view (`aim_in_view` of the surface `points`)."""
     poses, sources = [], []
     for name, T in hypotheses.items():
         T = np.asarray(T, float).reshape(-1, 4, 4)
-        variants = [aim(T, centre, uv, camera)] + ([] if name in aimed_only else [T])
+        aimed = aim(T, centre, uv, camera)
+        variants = [aim_in_view(aimed, points, centre, uv, camera)] if name in aimed_only \
+            else [aimed, T]
         for V in variants:
             poses.append(V)
             sources += [name] * len(V)

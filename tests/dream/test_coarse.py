@@ -21,7 +21,14 @@ from dream.coarse.evidence import (
     splat_iou,
     surface_samples,
 )
-from dream.coarse.hypotheses import around, guess_pose
+from dream.coarse.hypotheses import (
+    aim,
+    aim_in_view,
+    around,
+    fibonacci_directions,
+    guess_pose,
+    shell,
+)
 from dream.coarse.search import pose_iou, search
 from dream.coarse.settings import SearchSettings
 from dream.coarse.verdict import search_findings
@@ -289,6 +296,47 @@ def test_guess_pose_looks_at_the_target():
     assert np.allclose(P[:2], 0.0, atol=1e-9) and P[2] > 0
     T_down = guess_pose(np.array([0.0, 0.0, 2.0]), np.zeros(3))
     assert np.allclose(T_down[:3, :3] @ [0, 0, -1.0], [0, 0, 1.0])
+
+
+def in_view_centres(T: np.ndarray, points: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 2) the mean pixel of the points each hypothesis sees inside the image, (n,) how
+    many of those in front of it it does not see there."""
+    centres, cut = [], []
+    for T_i in T:
+        P_cam = points @ T_i[:3, :3].T + T_i[:3, 3]
+        front = P_cam[:, 2] > 1e-3
+        uv = project(camera, P_cam[front])
+        inside = np.all((uv >= -0.5) & (uv <= [camera.width - 0.5, camera.height - 0.5]), axis=1)
+        centres.append(uv[inside].mean(axis=0) if inside.any() else np.full(2, np.nan))
+        cut.append(int((~inside).sum()))
+    return np.array(centres), np.array(cut)
+
+
+@pytest.mark.parametrize("distortion", [None, (0.1, -0.05, 0.001, 0.002, 0.0)])
+def test_hypotheses_aimed_in_view_centre_the_part_the_image_shows(distortion):
+    """Cameras on a shell around a robot-sized cloud, from close (the border cuts it) to far:
+    `aim` puts the cloud's centre on the target pixel, `aim_in_view` the centre of the part
+    each camera sees there, without moving any camera centre; one that sees none of it is
+    left as it was."""
+    rng = np.random.default_rng(5)
+    camera = replace(scaled_camera(CAMERA, 64, 48), distortion=distortion)
+    points = rng.uniform([-0.1, -0.1, 0.0], [0.1, 0.1, 1.0], (2000, 3))
+    centre, target = points.mean(axis=0), np.array([40.0, 30.0])
+    T = aim(shell(centre, 0.6, fibonacci_directions(20, 0.0), (0.8, 3.0), 2), centre, target,
+            camera)
+    T_in = aim_in_view(T, points, centre, target, camera)
+    assert np.allclose(invert_T(T_in)[:, :3, 3], invert_T(T)[:, :3, 3], atol=1e-12)
+    before, cut = in_view_centres(T, points, camera)
+    after, _ = in_view_centres(T_in, points, camera)
+    gap_before = np.linalg.norm(before - target, axis=1)
+    gap_after = np.linalg.norm(after - target, axis=1)
+    whole = cut == 0
+    assert whole.sum() >= 10 and (~whole).sum() >= 10, cut
+    assert np.all(gap_after[whole] < 0.25), gap_after[whole]
+    assert np.median(gap_before[~whole]) > 3.0, gap_before[~whole]
+    assert np.median(gap_after[~whole]) < 0.5 * np.median(gap_before[~whole]), gap_after
+    away = guess_pose(np.array([0.0, 3.0, 0.5]), np.array([0.0, 6.0, 0.5]))[None]
+    assert np.array_equal(aim_in_view(away, points, centre, target, camera), away)
 
 
 def test_silhouettes_guard_the_keypoint_path(panda, meshes, tmp_path, capsys):
