@@ -155,6 +155,27 @@ def transform_points(T_a_b: np.ndarray, P_b: np.ndarray) -> np.ndarray:
     return np.einsum("...ij,...j->...i", T_a_b[..., :3, :3], P_b) + T_a_b[..., :3, 3]
 
 
+def camera_coordinates(points: np.ndarray, T: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """X, Y, Z, each (B, ...), of base-frame points (..., 3) in each of the cameras
+    T (B, 4, 4): one coordinate array at a time, a third of the memory of a (B, ..., 3) array.
+
+    >>> T = np.stack([np.eye(4), np.eye(4)]); T[1, :3, 3] = [0.0, 0.0, 1.0]
+    >>> [c.tolist() for c in camera_coordinates(np.array([[1.0, 2.0, 3.0]]), T)]
+    [[[1.0], [1.0]], [[2.0], [2.0]], [[3.0], [4.0]]]
+    """
+    points, T = np.asarray(points), np.asarray(T)
+    if points.ndim < 1 or points.shape[-1] != 3 or T.ndim != 3 or T.shape[1:] != (4, 4):
+        raise InputError(f"points {points.shape} and T {T.shape} must be (..., 3) and "
+                         "(B, 4, 4)")
+    extra = (None,) * (points.ndim - 1)
+    R = T[(slice(None), slice(0, 3), slice(0, 3), *extra)]
+    t = T[(slice(None), slice(0, 3), 3, *extra)]
+    x, y, z = points[..., 0], points[..., 1], points[..., 2]
+    X, Y, Z = (R[:, i, 0] * x + R[:, i, 1] * y + R[:, i, 2] * z + t[:, i] for i in range(3))
+    return X, Y, Z
+
+
 def is_rigid(T: np.ndarray, atol: float = 1e-6) -> bool:
     """True when T is a finite 4x4 homogeneous transform with an orthonormal, det +1 rotation."""
     T = np.asarray(T, dtype=float)

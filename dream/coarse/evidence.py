@@ -30,6 +30,7 @@ import numpy as np
 from dream.camera import CameraIntrinsics, project
 from dream.errors import InputError
 from dream.silhouette import MIN_DEPTH_M, RobotMeshes
+from dream.transforms import camera_coordinates
 
 MEDIAN_SHARE = 0.5   # a per-pixel median holds what covers a pixel in more than half the frames
 
@@ -166,11 +167,9 @@ def region_vertices(P_frames: np.ndarray, T_cam_base: np.ndarray, camera: Camera
 def hypothesis_hits(points: np.ndarray, T: np.ndarray, camera: CameraIntrinsics
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`pixel_hits` of points (F, S, 3, base frame) seen from each hypothesis T (B, 4, 4):
-    (B, F, S) each; the camera-frame coordinates one at a time (a third of the memory of an
-    (B, F, S, 3) array, and without `project`'s stacking where the camera has no distortion)."""
-    R, t = T[:, :3, :3, None, None], T[:, :3, 3, None, None]
-    x, y, z = points[..., 0], points[..., 1], points[..., 2]
-    X, Y, Z = (R[:, i, 0] * x + R[:, i, 1] * y + R[:, i, 2] * z + t[:, i] for i in range(3))
+    (B, F, S) each; the camera-frame coordinates one at a time (`camera_coordinates`, and
+    without `project`'s stacking where the camera has no distortion)."""
+    X, Y, Z = camera_coordinates(points, T)
     if camera.distortion is not None:
         return pixel_hits(np.stack([X, Y, Z], axis=-1), camera)
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -24,7 +24,7 @@ import numpy as np
 from dream.camera import CameraIntrinsics, pixels_to_normalized, project
 from dream.errors import InputError
 from dream.silhouette import MIN_DEPTH_M
-from dream.transforms import R_from_rotvec, invert_T, look_at
+from dream.transforms import R_from_rotvec, camera_coordinates, invert_T, look_at
 
 BASE_X = np.array([1.0, 0.0, 0.0])
 NEAR_VERTICAL_COS = 0.99      # a camera looking this close to straight up or down
@@ -161,9 +161,7 @@ def _in_view_centre(T: np.ndarray, P: np.ndarray, camera: CameraIntrinsics
                     ) -> tuple[np.ndarray, np.ndarray]:
     """(n, 2) the centre of the pixels of the points P (m, 3) that hypotheses T (n, 4, 4) see
     inside the image (NaN where none), and (n,) whether they see any."""
-    R, t = T[:, :3, :3, None], T[:, :3, 3, None]
-    X, Y, Z = (R[:, i, 0] * P[:, 0] + R[:, i, 1] * P[:, 1] + R[:, i, 2] * P[:, 2] + t[:, i]
-               for i in range(3))
+    X, Y, Z = camera_coordinates(P, T)
     front = Z >= MIN_DEPTH_M
     uv = _pixels(camera, X, Y, np.where(front, Z, 1.0))
     u, v = uv[..., 0], uv[..., 1]

@@ -12,6 +12,7 @@ from dream.errors import InputError
 from dream.transforms import (
     R_from_quaternion_xyzw,
     T_from_rotvec_t,
+    camera_coordinates,
     check_pose,
     compose,
     invert_T,
@@ -91,6 +92,18 @@ def test_pose_round_trips(rng):
         assert np.allclose(compose(T, invert_T(T)), np.eye(4))
         P = rng.normal(size=(5, 3))
         assert np.allclose(transform_points(invert_T(T), transform_points(T, P)), P)
+
+
+def test_camera_coordinates_are_each_cameras_transformed_points(rng):
+    T = np.stack([T_from_rotvec_t(rng.normal(size=3), rng.normal(size=3)) for _ in range(4)])
+    P = rng.normal(size=(3, 6, 3))
+    X, Y, Z = camera_coordinates(P, T)
+    assert X.shape == (4, 3, 6)
+    for b in range(4):
+        np.testing.assert_allclose(np.stack([X[b], Y[b], Z[b]], -1), transform_points(T[b], P),
+                                   atol=1e-12)
+    with pytest.raises(InputError, match=r"must be \(\.\.\., 3\) and \(B, 4, 4\)"):
+        camera_coordinates(P, T[0])
 
 
 def test_quaternion_convention_is_xyzw():
