@@ -12,14 +12,15 @@ of the frames it never saw.
    (`dream adapt` refuses an unreliable teacher). Its error against the truth is printed; the
    labels are never given to it.
 4. `dream adapt` of the whole scene with that extrinsic (a result of some of a recording's
-   frames teaches all of them), `--holdout-frames TEACH:FRAMES`, for `--minutes`.
+   frames teaches all of them), `--holdout-frames TEACH:FRAMES`, for `--minutes`, with
+   `--scene-renders` renders in the recording's own scene.
 5. On a copy holding the last frames, for the trained and the adapted model: the detections
    against the renderer's labels (PCK@5 px of the keypoints in view, the median error, the
    share found) and the all-frames keypoint extrinsic against the truth.
 
     python benchmarks/adapt_render.py [--robot xarm7] [--train-minutes 45] [--minutes 10]
         [--model M.onnx] [--train-frames 4000] [--frames 90] [--teach 60] [--seed 1000]
-        [--work DIR]
+        [--scene-renders 1000] [--work DIR]
 """
 
 from __future__ import annotations
@@ -127,6 +128,8 @@ def main() -> None:
     p.add_argument("--teach", type=int, default=60)
     p.add_argument("--seed", type=int, default=1000)
     p.add_argument("--minutes", type=float, default=10.0, help="dream adapt's budget")
+    p.add_argument("--scene-renders", type=int, default=1000,
+                   help="dream adapt's renders in the recording's own scene (0: none)")
     p.add_argument("--work", type=Path, help="keep the files here (default: a temporary folder)")
     args = p.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
@@ -141,7 +144,7 @@ def main() -> None:
         adapted, start = work / "adapted.onnx", time.perf_counter()
         run(["adapt", "--data", data, "--result", result, "--model", model, "--out", adapted,
              "--holdout-frames", f"{args.teach}:{args.frames}", "--minutes", args.minutes,
-             "--config", RECIPE])
+             "--config", RECIPE, "--scene-renders", args.scene_renders])
         timed("dream adapt", start)
         for label, m in (("trained", model), ("adapted", adapted)):
             line = score(held, args.robot, m, work, label)

@@ -3,7 +3,7 @@
 1. The teacher: the default `dream calibrate` of all frames with the bundled model (the edge
    alignment; never the reference), or `--result` where it was made already.
 2. `dream adapt` of the bundled model with `--holdout-frames 92:183` (frames 0-91 and 183-274
-   teach) for `--minutes`.
+   teach) for `--minutes`, with `--scene-renders` renders in the recording's own scene.
 3. On copies of the recording holding only frames 92-182 (never seen in adapting) and only
    183-274 (taught, the hand close to the camera), for the bundled and the adapted model:
    each frame alone, keypoints only (`--frames each --refine none`), `dream eval` against the
@@ -14,7 +14,7 @@
 The reference is read only to score. Prints the figures and the time of each step.
 
     python benchmarks/adapt_teleop.py [--realdata ../shared/realdata] [--minutes 20]
-        [--result TEACHER.json] [--work DIR]
+        [--result TEACHER.json] [--scene-renders 1000] [--work DIR]
 """
 
 from __future__ import annotations
@@ -94,6 +94,8 @@ def main() -> None:
     p.add_argument("--realdata", type=Path, default=REPO.parent / "shared" / "realdata")
     p.add_argument("--minutes", type=float, default=20.0)
     p.add_argument("--result", type=Path, help="the teacher RESULT.json (default: made here)")
+    p.add_argument("--scene-renders", type=int, default=1000,
+                   help="dream adapt's renders in the recording's own scene (0: none)")
     p.add_argument("--work", type=Path, help="keep the files here (default: a temporary folder)")
     args = p.parse_args()
     data = args.realdata / "panda_teleop"
@@ -108,7 +110,8 @@ def main() -> None:
         adapted, start = work / "adapted.onnx", time.perf_counter()
         run(["adapt", "--data", data, "--result", teacher, "--model", BUNDLED_MODEL, "--out",
              adapted, "--holdout-frames", f"{HOLDOUT[0]}:{HOLDOUT[1]}", "--minutes",
-             args.minutes, "--config", REPO / "configs" / "train" / "panda_cpu.yaml"])
+             args.minutes, "--config", REPO / "configs" / "train" / "panda_cpu.yaml",
+             "--scene-renders", args.scene_renders])
         print(f"dream adapt: {(time.perf_counter() - start) / 60:.1f} minutes in all")
         print(adapted.with_suffix(".md").read_text())
         for frames in (HOLDOUT, TAUGHT_CLOSE):

@@ -15,6 +15,7 @@ import numpy as np
 
 from dream.errors import InputError
 from dream.recipe import load_recipe, plain, recipe_from_dict
+from dream.transforms import is_rigid
 from synth.scene_settings import MAX_IMAGE_SIZE_PX, MAX_LIGHTS
 
 Range = tuple[float, float]
@@ -62,6 +63,21 @@ def _image_side(name: str, value: Any) -> int:
     return int(value)
 
 
+def _rigid(name: str, value) -> tuple[tuple[float, ...], ...]:
+    """A 4x4 rigid transform given as rows, as a tuple of 4 tuples of floats."""
+    fix = f"give {name} as 4 rows of 4 numbers: a rotation, a translation in metres"
+    try:
+        T = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        T = np.zeros(0)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise InputError(f"{name} must be a finite 4x4 matrix, got {value!r}", fix=fix)
+    if not is_rigid(T):
+        raise InputError(f"{name} is not a rigid transform (its rotation must be orthonormal "
+                         "with determinant 1, its last row 0 0 0 1)", fix=fix)
+    return tuple(tuple(float(v) for v in row) for row in T)
+
+
 def _probability(name: str, value: float) -> float:
     if not 0.0 <= float(value) <= 1.0:
         raise InputError(f"{name} is a probability in [0, 1], got {value}")
@@ -82,6 +98,9 @@ class CameraShell:
     # aimed at it, so that links leave the frame (as when the flange fills a real view).
     closeup_prob: float = 0.0
     closeup_radius_m: Range = (0.3, 0.8)
+    # One camera pose for every frame instead of the shell (4x4 rows, the base frame into the
+    # camera frame), e.g. a calibrated camera whose own scene the renders show.
+    T_cam_base: tuple[tuple[float, ...], ...] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "radius_m", _range("camera.radius_m", self.radius_m, 1e-3))
@@ -100,6 +119,12 @@ class CameraShell:
         object.__setattr__(self, "target_m", tuple(_finite(f"camera.target_m[{i}]", v, fix)
                                                    for i, v in enumerate(self.target_m)))
         _non_negative("camera.target_jitter_m", self.target_jitter_m)
+        if self.T_cam_base is not None:
+            object.__setattr__(self, "T_cam_base", _rigid("camera.T_cam_base", self.T_cam_base))
+            if self.closeup_prob > 0:
+                raise InputError("camera.T_cam_base fixes the camera, so camera.closeup_prob "
+                                 f"{self.closeup_prob} cannot move it to a close-up",
+                                 fix="set camera.closeup_prob: 0")
 
 
 @dataclass(frozen=True)
@@ -231,7 +256,9 @@ class Appearance:
 
 @dataclass(frozen=True)
 class Background:
-    """Procedural backgrounds (weights per kind) and, when `photos` is a folder, photos."""
+    """Procedural backgrounds (weights per kind) and, when `photos` is a folder, photos; or,
+    when `plate` is an image of the camera's size, that image as it is behind every frame (the
+    user's scene without the robot, seen from `camera.T_cam_base`)."""
 
     kinds: dict[str, float] = field(default_factory=lambda: {
         "noise": 1.0, "checkers": 1.0, "stripes": 1.0, "gradient": 1.0, "shapes": 1.0,
@@ -239,6 +266,7 @@ class Background:
     photos: str | None = None
     floor_prob: float = 0.5
     texture_size: int = 64
+    plate: str | None = None
 
     def __post_init__(self) -> None:
         known = {"noise", "checkers", "stripes", "gradient", "shapes", "photo"}
@@ -256,6 +284,10 @@ class Background:
             raise InputError("background.kinds.photo > 0 needs background.photos (a folder of "
                              "photos)", fix="set background.photos: DIR or kinds.photo: 0")
         _probability("background.floor_prob", self.floor_prob)
+        if self.plate is not None and self.floor_prob > 0:
+            raise InputError(f"background.plate shows the scene's own floor, so "
+                             f"background.floor_prob {self.floor_prob} would draw another over it",
+                             fix="set background.floor_prob: 0")
 
 
 @dataclass(frozen=True)

@@ -40,7 +40,7 @@ from synth.rendered import RenderedFrame
 from synth.scene import RobotScene, build_scene
 from synth.scene_settings import MAX_LIGHTS, SceneSettings
 from synth.scene_spec import ROBOT_GROUP
-from synth.textures import calibration_board, list_photos, random_texture
+from synth.textures import calibration_board, list_photos, random_texture, read_plate
 
 log = logging.getLogger(__name__)
 
@@ -117,6 +117,7 @@ class FrameMaker:
         self.renderer = SceneRenderer(self.scene, self.nominal_camera)
         self.joint_log = load_joint_log(config.joints.log, robot) if config.joints.log else None
         self.photos = list_photos(config.background.photos) if config.background.photos else ()
+        self.plate = None if config.background.plate is None else read_plate(config)
         model = self.scene.model
         self.default_rgba = self.scene.default_geom_rgba[self.scene.robot_geom_ids].copy()
         self.distractor_set = set(self.scene.distractor_geom_ids.tolist())
@@ -273,8 +274,9 @@ class FrameMaker:
         rgb = out.rgb.copy()
         background = out.geom_ids == BACKGROUND_GEOM
         if background.any():
-            bg = random_texture(np.random.default_rng(p.scene.background_seed), camera.height,
-                                camera.width, self.config.background.kinds, self.photos)
+            bg = self.plate if self.plate is not None else random_texture(
+                np.random.default_rng(p.scene.background_seed), camera.height, camera.width,
+                self.config.background.kinds, self.photos)
             rgb[background] = bg[background]
         P_cam = true_keypoints_cam(self.true_robot, q_true, p.scene.T_cam_base, self.extension)
         hits = keypoint_ray_hits(self.scene, self.renderer.data, P_cam, p.scene.T_cam_base,

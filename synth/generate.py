@@ -161,13 +161,16 @@ def done_indices(out_dir: Path) -> set[int]:
 
 def check_inputs(config: SynthConfig, robot) -> None:
     """Fail before anything is written when the recipe names a missing photo folder, a photo
-    that cannot be read, an unreadable joint log or an unknown other robot."""
+    that cannot be read, a plate not of the camera's size, an unreadable joint log or an
+    unknown other robot."""
     from synth.randomize import load_joint_log
-    from synth.textures import list_photos, read_photo
+    from synth.textures import list_photos, read_photo, read_plate
 
     if config.background.photos:
         for path in list_photos(config.background.photos):
             read_photo(path)
+    if config.background.plate is not None:
+        read_plate(config)
     if config.joints.log:
         load_joint_log(config.joints.log, robot)
     dc = config.distractors
@@ -240,7 +243,8 @@ ADDED_CONFIG_KEYS = (("camera", "closeup_prob"), ("camera", "closeup_radius_m"),
                      ("distractors", "held_checker_prob"), ("distractors", "robot_prob"),
                      ("distractors", "robot_name"), ("distractors", "robot_distance_m"),
                      ("distractors", "loose_prob"), ("distractors", "loose_keypoints"),
-                     ("distractors", "loose_distance_m"), ("distractors", "loose_height_m"))
+                     ("distractors", "loose_distance_m"), ("distractors", "loose_height_m"),
+                     ("camera", "T_cam_base"), ("background", "plate"))
 
 
 def without_retired_keys(info: Any) -> Any:

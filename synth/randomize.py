@@ -116,8 +116,11 @@ def sample_intrinsics(rng: np.random.Generator, config: SynthConfig) -> CameraIn
 
 
 def sample_camera_pose(rng: np.random.Generator, config: SynthConfig) -> np.ndarray:
-    """T_cam_base on the configured shell, aimed near the target."""
+    """T_cam_base on the configured shell, aimed near the target; `camera.T_cam_base` where
+    it fixes the camera."""
     s = config.camera
+    if s.T_cam_base is not None:
+        return np.array(s.T_cam_base)
     radius = rng.uniform(*s.radius_m)
     azimuth = rng.uniform(*s.azimuth_rad)
     elevation = rng.uniform(*s.elevation_rad)

@@ -152,6 +152,22 @@ def read_photo(path: Path) -> np.ndarray:
     return bgr
 
 
+def read_plate(config) -> np.ndarray:
+    """The recipe's `background.plate` as (H, W, 3) uint8 RGB; an `InputError` naming it when
+    it is missing, unreadable or not of the images' size (`intrinsics.width`, `height`)."""
+    plate = Path(config.background.plate)
+    if not plate.is_file():
+        raise InputError("background plate not found", plate,
+                         "give an image of the camera's size or set background.plate to null")
+    bgr = read_photo(plate)
+    size = (config.intrinsics.width, config.intrinsics.height)
+    if bgr.shape[1::-1] != size:
+        raise InputError(f"the background plate is {bgr.shape[1]}x{bgr.shape[0]} pixels, the "
+                         f"images {size[0]}x{size[1]}", plate,
+                         "set intrinsics.width and intrinsics.height to the plate's size")
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
 def photo(rng: np.random.Generator, h: int, w: int, photos: tuple[Path, ...]) -> np.ndarray:
     """A random crop of a random photo, resized to (h, w)."""
     path = photos[int(rng.integers(len(photos)))]

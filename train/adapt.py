@@ -4,8 +4,10 @@ A fixed camera's calibrated extrinsic and the joint readings (as the calibration
 interpolated where the log was held) label every frame for free: forward kinematics puts each
 keypoint in the base frame, the extrinsic projects it. Those pseudo-labels (keypoints outside
 the image left unlabelled) teach the network on the recording's own frames, mixed with renders
-of the same robot so it does not forget, starting from the given ONNX model's weights
-(`trainer.init_from`); the result is exported with the same interface and a model card.
+of the same robot so it does not forget and with renders of the robot in the recording's own
+scene (`train.scene_mix`: its camera at the calibrated extrinsic, its background, random joint
+configurations), starting from the given ONNX model's weights (`trainer.init_from`); the result
+is exported with the same interface and a model card.
 
 Frames held out of teaching (`--holdout-frames`, default the last third by time) are then
 detected by the model before and after adapting and scored against the same pseudo-labels:
@@ -51,14 +53,17 @@ class AdaptRequest:
     holdout_frames: str | None = None
     minutes: float = 20.0
     renders: int = 1000
+    scene_renders: int = 1000
     seed: int = 0
     overrides: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if not (self.minutes > 0 and np.isfinite(self.minutes)):
             raise InputError(f"--minutes {self.minutes} must be positive", fix="e.g. 20")
-        if self.renders < 0:
-            raise InputError(f"--renders {self.renders} must be >= 0", fix="e.g. 1000")
+        for flag, count in (("--renders", self.renders), ("--scene-renders",
+                                                           self.scene_renders)):
+            if count < 0:
+                raise InputError(f"{flag} {count} must be >= 0", fix="e.g. 1000 (0: none)")
         if Path(self.out).suffix.lower() != ".onnx":
             raise InputError("the adapted model must be a .onnx file", self.out,
                              "name it e.g. adapted.onnx")
@@ -135,8 +140,9 @@ def render_mix(robot: str, keypoints: tuple[str, ...], count: int, out: Path,
 
 
 def teacher(request: AdaptRequest, out) -> tuple:
-    """The recording as the calibration used it (joint readings interpolated where it did),
-    the result's extrinsic, the model's robot and keypoints."""
+    """The recording as the calibration used it (joint readings interpolated where it did, the
+    frames after a held log's last update left out), the result's extrinsic, the model, the
+    result's document and the recording's own frame count."""
     from dream.cli.options import joint_readings
     from dream.io import read_sequence
     from dream.provenance import check_same_data
@@ -147,10 +153,11 @@ def teacher(request: AdaptRequest, out) -> tuple:
     check_teacher(doc, request.result)
     seq = read_sequence(request.data)
     check_same_data(doc, seq, request.data, request.result, part_ok=True)
+    recorded = len(seq)
     interpolated = bool((doc.get("joint_readings") or {}).get("interpolated"))
     seq, _ = joint_readings(seq, interpolated, out)
     model = OnnxKeypointModel(request.model)
-    return seq, np.asarray(doc["T_cam_base"], float), model, doc
+    return seq, np.asarray(doc["T_cam_base"], float), model, doc, recorded
 
 
 def training_config(request: AdaptRequest, folders: list[str], repeat: int, minutes: float):
@@ -195,6 +202,7 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
     from export.onnx_export import export_model
     from train.adapt_report import holdout_report, report_lines
     from train.run import run_training
+    from train.scene_mix import render_scene_mix
 
     say = progress or (lambda line: None)
     target = check_output_file(request.out, parents_made=True)
@@ -203,10 +211,10 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
     except OSError as exc:
         raise InputError(f"cannot create the folder ({exc.strerror})", target.parent,
                          "choose a writable location") from None
-    seq, T, model, doc = teacher(request, out)
-    made_from = (doc.get("data") or {}).get("num_frames", len(seq))
-    if made_from != len(seq):
-        say(f"the result was calibrated on {made_from} of the recording's {len(seq)} frames; "
+    seq, T, model, doc, recorded = teacher(request, out)
+    made_from = (doc.get("data") or {}).get("num_frames", recorded)
+    if made_from != recorded:
+        say(f"the result was calibrated on {made_from} of the recording's {recorded} frames; "
             "its extrinsic labels them all (a fixed camera)")
     robot = robot_for(seq, None, tuple(model.keypoint_names))
     held = holdout_range(request.holdout_frames, len(seq))
@@ -221,7 +229,14 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
         if request.renders:
             folders.append(str(render_mix(seq.robot or robot.name, robot.keypoint_names,
                                           request.renders, work / "renders", request.seed)))
-        repeat = max(1, round(request.renders / max(len(teach), 1)))
+        if request.scene_renders:
+            say(f"rendering {request.scene_renders} frames of {robot.name} in the recording's "
+                "own scene (its camera at the result's extrinsic, its background)")
+            folders.append(str(render_scene_mix(seq, robot, seq.robot or robot.name, T, teach,
+                                                request.scene_renders, work / "scene",
+                                                request.seed)))
+        # the real frames weigh as much as the renders of both kinds together
+        repeat = max(1, round((request.renders + request.scene_renders) / max(len(teach), 1)))
         minutes = training_minutes(request.minutes, time.perf_counter() - start)
         say(f"fine-tuning {request.model} for {minutes:.1f} minutes")
         run = run_training(training_config(request, folders, repeat, minutes), work / "run")
@@ -234,6 +249,7 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
     report = {"data": str(request.data), "result": str(request.result),
               "model": str(request.model), "teaching_frames": len(teach),
               "holdout": [held.start, held.stop], "renders": request.renders,
+              "scene_renders": request.scene_renders,
               "minutes": minutes, "before": before, "after": after,
               "lines": report_lines(before, after)}
     write_card(target, report, doc)
@@ -251,7 +267,9 @@ def write_card(target: Path, report: dict, doc: dict) -> Path:
         f"Fine-tuned from `{report['model']}` for {report['minutes']:.1f} minutes on "
         f"{report['teaching_frames']} frames of `{report['data']}`, labelled by the calibrated "
         f"extrinsic of `{report['result']}` (verdict `{verdict}`) and the joint readings, mixed "
-        f"with {report['renders']} renders of the robot. Frames {report['holdout'][0]}-"
+        f"with {report['renders']} renders of the robot and {report['scene_renders']} of it in "
+        "the recording's scene (its camera, its background). Frames "
+        f"{report['holdout'][0]}-"
         f"{report['holdout'][1] - 1} were held out; on them, against the same labels "
         "(before -> after):",
         "", "```", *report["lines"], "```", ""])

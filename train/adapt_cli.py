@@ -17,7 +17,8 @@ def cmd_adapt(args: argparse.Namespace) -> int:
 
     request = AdaptRequest(data=args.data, result=args.result, model=args.model, out=args.out,
                            config=args.config, holdout_frames=args.holdout_frames,
-                           minutes=args.minutes, renders=args.renders, seed=args.seed,
+                           minutes=args.minutes, renders=args.renders,
+                           scene_renders=args.scene_renders, seed=args.seed,
                            overrides=tuple(args.set or ()))
     logging.getLogger("train").setLevel(logging.INFO)
     from train.adapt import run_adapt
@@ -51,6 +52,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--renders", type=int, default=1000,
                    help="renders of the robot mixed in so it does not forget (default: "
                         "%(default)s)")
+    p.add_argument("--scene-renders", type=int, default=1000,
+                   help="renders of the robot in random poses in the recording's own scene (its "
+                        "camera at the result's extrinsic, its background) (default: "
+                        "%(default)s; 0: none)")
     p.add_argument("--seed", type=int, default=0,
                    help="seed of the renders and the training (default: %(default)s)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",

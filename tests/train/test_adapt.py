@@ -5,6 +5,7 @@ is `unreliable`, the held-out split, and a short fine-tune of the bundled model 
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
 
 import numpy as np
@@ -13,16 +14,19 @@ import pytest
 from dream.camera import project
 from dream.cli import main
 from dream.errors import InputError
+from dream.extension import HeldReadings, ModelExtension
+from dream.inject import InjectionSettings, make_injected_sequence
 from dream.io import read_sequence, write_dream
 from dream.models import BUNDLED_MODEL
 from dream.provenance import check_same_data
 from dream.transforms import transform_points
 from tests.dream.test_edges import image_dataset
-from train.adapt import holdout_range, pseudo_labels
+from train.adapt import AdaptRequest, holdout_range, pseudo_labels, teacher
 from train.adapt_report import keypoint_scores
 
-TINY = ["--renders", "8", "--set", "trainer.time_budget_minutes=null", "--set",
-        "trainer.max_steps=2", "--set", "trainer.max_epochs=1", "--set", "data.batch_size=4"]
+TINY = ["--renders", "8", "--scene-renders", "6", "--set",
+        "trainer.time_budget_minutes=null", "--set", "trainer.max_steps=2", "--set",
+        "trainer.max_epochs=1", "--set", "data.batch_size=4"]
 
 
 def calibrated(panda, meshes, folder):
@@ -92,6 +96,22 @@ def test_a_teacher_calibrated_on_part_of_the_recording_is_accepted(panda, meshes
         check_same_data(doc, changed, "data", "part.json", part_ok=True)
 
 
+def test_frames_a_held_log_leaves_out_still_count_as_the_recordings(tmp_path):
+    """Interpolating a held joint log leaves out the frames after its last update; the result
+    was still calibrated on the whole recording, not on more frames than it has."""
+    seq = make_injected_sequence(
+        InjectionSettings(num_frames=40, frame_period_s=1 / 30, pixel_noise_px=1.0, seed=3),
+        ModelExtension(held_readings=HeldReadings(0.2)))
+    write_dream(seq, tmp_path / "data")
+    assert main(["calibrate", "--data", str(tmp_path / "data"), "--use-labels", "--refine",
+                 "none", "--out", str(tmp_path / "r.json")]) == 0
+    request = AdaptRequest(data=str(tmp_path / "data"), result=str(tmp_path / "r.json"),
+                           model=str(BUNDLED_MODEL), out=str(tmp_path / "a.onnx"))
+    taught, _, _, doc, recorded = teacher(request, io.StringIO())
+    assert recorded == doc["data"]["num_frames"] == 40
+    assert 30 < len(taught) < recorded
+
+
 @pytest.mark.slow
 def test_adapt_writes_a_model_that_calibrate_runs_unchanged(panda, meshes, tmp_path, capsys):
     calibrated(panda, meshes, tmp_path)
@@ -104,6 +124,7 @@ def test_adapt_writes_a_model_that_calibrate_runs_unchanged(panda, meshes, tmp_p
     assert "PCK@5" in printed and "each frame's keypoint extrinsic" in printed
     card = out.with_suffix(".md").read_text()
     assert "adapted to one recording" in card and "Frames 6-9 were held out" in card
+    assert "and 6 of it in the recording's scene" in card
     assert not list(tmp_path.glob("dream-adapt-*"))          # the work folder is gone
     code = main(["calibrate", "--data", str(tmp_path / "data"), "--model", str(out),
                  "--refine", "none", "--out", str(tmp_path / "again.json")])
