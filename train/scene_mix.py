@@ -71,6 +71,7 @@ def robot_coverage(sequence: Sequence, robot, T_cam_base: np.ndarray, frames: np
                    margin_px: float = PLATE_MARGIN_PX) -> np.ndarray:
     """(F, H, W) bool: the robot's silhouette in each of `frames` at `T_cam_base`, from its
     joint readings, widened by `margin_px`."""
+    from dream.edges.motion import disk
     from dream.pipeline import joints_in_robot_order
     from dream.silhouette import load_robot_meshes, render_frames, vertices_in_base
 
@@ -78,11 +79,10 @@ def robot_coverage(sequence: Sequence, robot, T_cam_base: np.ndarray, frames: np
     meshes = load_robot_meshes(robot)
     joints = joints_in_robot_order(sequence, robot)[np.asarray(frames, int)]
     rendered = render_frames(vertices_in_base(meshes, joints), meshes.faces, T_cam_base, camera)
-    r = int(round(margin_px))
-    if r < 1:
+    kernel = disk(margin_px)
+    if kernel is None:
         return rendered
-    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
-    return np.stack([cv2.dilate(m.astype(np.uint8), disk) > 0 for m in rendered])
+    return np.stack([cv2.dilate(m.astype(np.uint8), kernel) > 0 for m in rendered])
 
 
 def plate_frames(frames: np.ndarray, most: int = PLATE_FRAMES) -> np.ndarray:
@@ -110,13 +110,12 @@ def recording_plate(sequence: Sequence, robot, T_cam_base: np.ndarray, frames: n
 def scene_recipe(sequence: Sequence, T_cam_base: np.ndarray, plate_path: Path) -> dict:
     """The synth recipe (over the defaults) of renders from the recording's camera at
     `T_cam_base` with the plate behind the robot: no shell, no close-ups, no floor."""
+    from dream.provenance import camera_record
+
     camera = sequence.fixed_camera("render the recording's own scene")
     return {
         "camera": {"T_cam_base": np.asarray(T_cam_base, float).tolist(), "closeup_prob": 0.0},
-        "intrinsics": {"width": camera.width, "height": camera.height, "fx": camera.fx,
-                       "fy": camera.fy, "cx": camera.cx, "cy": camera.cy,
-                       "distortion": None if camera.distortion is None
-                       else list(camera.distortion)},
+        "intrinsics": camera_record(camera),
         "background": {"plate": str(plate_path), "floor_prob": 0.0},
     }
 

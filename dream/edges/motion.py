@@ -97,7 +97,8 @@ def background_rgb(frames: np.ndarray, settings: MotionSettings) -> np.ndarray:
     return np.median(frames, axis=0).astype(np.uint8)
 
 
-def _disk(radius: float) -> np.ndarray | None:
+def disk(radius: float) -> np.ndarray | None:
+    """An elliptic structuring element of `radius` pixels (rounded); None below one pixel."""
     r = int(round(radius))
     return None if r < 1 else cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
 
@@ -112,7 +113,7 @@ def motion_masks(frames: np.ndarray, background: np.ndarray, settings: MotionSet
                          f"{np.shape(background)}, expected (F, H, W, 3) and (H, W, 3)")
     F, H, W, _ = frames.shape
     per_width = W / 320.0
-    opening, closing = _disk(settings.open_px * per_width), _disk(settings.close_px * per_width)
+    opening, closing = disk(settings.open_px * per_width), disk(settings.close_px * per_width)
     min_area = settings.min_area_fraction * H * W
     out = np.zeros((F, H, W), bool)
     for f in range(F):
