@@ -20,7 +20,7 @@ of the frames it never saw.
 
     python benchmarks/adapt_render.py [--robot xarm7] [--train-minutes 45] [--minutes 10]
         [--model M.onnx] [--train-frames 4000] [--frames 90] [--teach 60] [--seed 1000]
-        [--scene-renders 1000] [--work DIR]
+        [--scene-renders 1000] [--adapt-seed 0] [--work DIR]
 """
 
 from __future__ import annotations
@@ -130,6 +130,8 @@ def main() -> None:
     p.add_argument("--minutes", type=float, default=10.0, help="dream adapt's budget")
     p.add_argument("--scene-renders", type=int, default=1000,
                    help="dream adapt's renders in the recording's own scene (0: none)")
+    p.add_argument("--adapt-seed", type=int, default=0,
+                   help="dream adapt's --seed (its renders and training order)")
     p.add_argument("--work", type=Path, help="keep the files here (default: a temporary folder)")
     args = p.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
@@ -144,7 +146,8 @@ def main() -> None:
         adapted, start = work / "adapted.onnx", time.perf_counter()
         run(["adapt", "--data", data, "--result", result, "--model", model, "--out", adapted,
              "--holdout-frames", f"{args.teach}:{args.frames}", "--minutes", args.minutes,
-             "--config", RECIPE, "--scene-renders", args.scene_renders])
+             "--config", RECIPE, "--scene-renders", args.scene_renders, "--seed",
+             args.adapt_seed])
         timed("dream adapt", start)
         for label, m in (("trained", model), ("adapted", adapted)):
             line = score(held, args.robot, m, work, label)
