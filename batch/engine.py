@@ -8,7 +8,8 @@ held to one thread (`worker_env`), so that N workers fill N cores. At most one i
 is in flight, so a batch that is killed abandons at most `workers` items. An item whose worker
 process dies (a crash in a native library) is reported as `WorkerLost`, the others are not: the
 local pool runs the items that were in flight when it broke again one at a time; a Ray actor's
-death names its item, which is tried `MAX_ATTEMPTS` times.
+death names its item, which is tried `MAX_ATTEMPTS` times. A local worker whose batch is killed
+finishes the item it runs and exits (`batch.parent_watch`); Ray's actors die with their driver.
 """
 
 from __future__ import annotations
@@ -20,10 +21,11 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from typing import Any
 
+from batch.parent_watch import ParentWatch, watch_parent
 from dream.errors import InputError
 from dream.threads import THREADS_ENV
 
@@ -96,7 +98,12 @@ def _init_worker(setup: Callable[..., None] | None, setup_args: tuple) -> Except
     return None
 
 
-def _init_local_worker(setup: Callable[..., None] | None, setup_args: tuple) -> None:
+_WATCH: list[ParentWatch] = []       # a local worker's watch of its batch process
+
+
+def _init_local_worker(setup: Callable[..., None] | None, setup_args: tuple,
+                       batch_pid: int) -> None:
+    _WATCH.append(watch_parent(batch_pid))
     failed = _init_worker(setup, setup_args)
     if failed is not None:
         _SETUP_FAILED.append(failed)
@@ -105,7 +112,8 @@ def _init_local_worker(setup: Callable[..., None] | None, setup_args: tuple) -> 
 def _call(fn: Callable[[Any], Any], item: Any) -> Any:
     if _SETUP_FAILED:
         raise _SETUP_FAILED[0]
-    return fn(item)
+    with _WATCH[0].item() if _WATCH else nullcontext():
+        return fn(item)
 
 
 @contextmanager
@@ -140,7 +148,8 @@ class LocalEngine:
 
     def _pool(self, setup, setup_args) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"),
-                                   initializer=_init_local_worker, initargs=(setup, setup_args))
+                                   initializer=_init_local_worker,
+                                   initargs=(setup, setup_args, os.getpid()))
 
     def run(self, fn: Callable[[Any], Any], items: Sequence[Any],
             setup: Callable[..., None] | None = None, setup_args: tuple = ()

@@ -176,6 +176,21 @@ def _wait_for_orphans(out: Path) -> None:
         time.sleep(POLL_S)
 
 
+def _left_behind() -> list[int]:
+    """Processes started under this test (its PYTEST_CURRENT_TEST in their environment), other
+    than this one, that still run: on Linux, a killed batch's workers."""
+    mine = f"PYTEST_CURRENT_TEST={os.environ['PYTEST_CURRENT_TEST']}".encode()
+    pids = []
+    for proc in Path("/proc").glob("[0-9]*"):
+        try:
+            if int(proc.name) != os.getpid() and mine in (proc / "environ").read_bytes().split(
+                    b"\0") and "\nState:\tZ" not in (proc / "status").read_text():
+                pids.append(int(proc.name))
+        except OSError:                         # gone meanwhile, or not ours to read
+            continue
+    return pids
+
+
 def _finished_folders(out: Path) -> list[Path]:
     return [p for p in out.glob("rec*") if p.is_dir()] if out.is_dir() else []
 
@@ -187,6 +202,7 @@ def test_a_killed_batch_loses_nothing_finished_and_resumes(recordings, single, t
     if engine == "ray":
         pytest.importorskip("ray")
     out = tmp_path / "batch"
+    before = set(_left_behind())                # left by an earlier run of this test
     proc = subprocess.Popen(_command(recordings, out, engine), stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + KILL_DEADLINE_S
@@ -195,6 +211,11 @@ def test_a_killed_batch_loses_nothing_finished_and_resumes(recordings, single, t
     os.kill(proc.pid, signal.SIGKILL)           # the driver only, as `kill -9 PID` does
     proc.wait()
     _wait_for_orphans(out)
+    if engine == "local" and sys.platform.startswith("linux"):  # none waits for work for ever
+        deadline = time.monotonic() + ORPHAN_WAIT_S
+        while set(_left_behind()) - before and time.monotonic() < deadline:
+            time.sleep(POLL_S)
+        assert not set(_left_behind()) - before
     finished = _finished_folders(out)
     assert 1 <= len(finished) < 6, finished
     for folder in finished:                     # each whole: its record written last
