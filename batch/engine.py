@@ -21,7 +21,7 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import contextmanager, nullcontext
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -98,7 +98,7 @@ def _init_worker(setup: Callable[..., None] | None, setup_args: tuple) -> Except
     return None
 
 
-_WATCH: list[ParentWatch] = []       # a local worker's watch of its batch process
+_WATCH: list[ParentWatch] = []       # a local worker's watch of its batch (set up first)
 
 
 def _init_local_worker(setup: Callable[..., None] | None, setup_args: tuple,
@@ -112,7 +112,7 @@ def _init_local_worker(setup: Callable[..., None] | None, setup_args: tuple,
 def _call(fn: Callable[[Any], Any], item: Any) -> Any:
     if _SETUP_FAILED:
         raise _SETUP_FAILED[0]
-    with _WATCH[0].item() if _WATCH else nullcontext():
+    with _WATCH[0].item():
         return fn(item)
 
 

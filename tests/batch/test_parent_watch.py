@@ -54,7 +54,7 @@ def test_a_busy_worker_finishes_its_item_first(fails):
 
 
 CHILD = """
-import os, sys, time
+import sys, time
 from batch.parent_watch import watch_parent
 watch_parent(int(sys.argv[1]), poll_s=0.05)
 time.sleep(600)
