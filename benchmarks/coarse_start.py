@@ -1,15 +1,17 @@
 """Calibration without keypoints: `dream calibrate` with neither `--model` nor `--use-labels`,
 from a rough guess or by the automatic search, on rendered scenes and on real recordings.
 
-renders: fixed-camera scenes of each `--robots` arm with the `configs/synth/real_world.yaml`
-randomisation (clutter, a second robot, a tool or held object, close-ups), `--frames` frames
-each, seeds from `--first-seed`; the robot masks are deleted before calibrating, so only the
-images are read. Each scene is calibrated from a guess `--guess-m` / `--guess-deg` off the
-truth in a random direction (written as a RESULT.json holding only T_cam_base), with
-`--auto` by the automatic search, and with `--mark-frames N` from a mark on the end effector
-(the last keypoint link's origin) clicked in N frames: its labels plus `--mark-noise-px`; with
-`--fooled` the keypoint path (`--use-labels`) from labels projected at a camera that far off,
-so that its refinements and their verdict are tested from a wrong start.
+renders: fixed-camera scenes of each `--robots` arm (a built-in name, or a URDF such as
+example-robot-data's, rendered with its suggested keypoints) with the
+`configs/synth/real_world.yaml` randomisation (clutter, a second robot, a tool or held object,
+close-ups; `--set` overrides its keys, `--scale-to-robot` sizes its distances to the arm),
+`--frames` frames each, seeds from `--first-seed`; the robot masks are deleted before
+calibrating, so only the images are read. Each scene is calibrated from a guess `--guess-m` /
+`--guess-deg` off the truth in a random direction (written as a RESULT.json holding only
+T_cam_base), with `--auto` by the automatic search, and with `--mark-frames N` from a mark on
+the end effector (the last keypoint link's origin) clicked in N frames: its labels plus
+`--mark-noise-px`; with `--fooled` the keypoint path (`--use-labels`) from labels projected at
+a camera that far off, so that its refinements and their verdict are tested from a wrong start.
 Printed per scene: error, verdict, 1-sigma, time; then the share within `--right-mm` /
 `--right-deg`, the wrong results called `good`, the right ones called `good` or `check`, and
 how often the truth lies inside the written 95 % ellipsoid (each scene's chi-square of the
@@ -24,7 +26,8 @@ frames that agree.
 
     python benchmarks/coarse_start.py renders [--robots panda,ur5,xarm7] [--scenes 3]
         [--first-seed 1000] [--frames 30] [--auto] [--mark-frames 5 --mark-noise-px 2]
-        [--fooled] [--skip-guess] [--work DIR]
+        [--fooled] [--skip-guess] [--only panda_1003,xarm7_1010] [--work DIR]
+        [--robots URDF,... --scale-to-robot] [--set intrinsics.width=960 ...]
     python benchmarks/coarse_start.py real --data ../shared/realdata/panda_teleop [--guesses 10]
     python benchmarks/coarse_start.py real --data ../shared/realdata/franka_offline --center R.json
     python benchmarks/coarse_start.py real --data ../shared/realdata/panda_teleop \
@@ -55,19 +58,61 @@ from dream.transforms import R_from_rotvec, invert_T
 LABELS = Path("--use-labels")   # calibrate from the data's labels, not from a guess
 CHI2_6DOF_95 = 12.592     # 95 % quantile of the chi-square distribution with 6 degrees of freedom
 REAL_WORLD = Path(__file__).resolve().parents[1] / "configs" / "synth" / "real_world.yaml"
+SIZE_SAMPLES = 500        # joint vectors drawn for a robot's size
+SIZE_REFERENCE = "panda"  # the randomisation's distances and sizes were set for this robot
+SCALED_KEYS = (("camera", "radius_m"), ("camera", "target_m"), ("camera", "target_jitter_m"),
+               ("camera", "closeup_radius_m"), ("distractors", "size_m"),
+               ("distractors", "distance_m"), ("distractors", "held_size_m"),
+               ("distractors", "held_offset_m"), ("distractors", "robot_distance_m"),
+               ("distractors", "loose_distance_m"), ("distractors", "loose_height_m"))
 
 
-def render_scene(robot: str, out: Path, seed: int, frames: int) -> Path:
-    """A fixed-camera `real_world.yaml` scene of `robot`, its robot masks deleted."""
-    import yaml
+def robot_keypoints(robot: str) -> tuple[str, ...] | None:
+    """None for a built-in robot; the suggested keypoints of a URDF (the renders' labels need
+    some; calibrating without keypoints never reads them)."""
+    from dream.robot import builtin_robots, parse_urdf
+    from dream.robot.keypoint_choice import analyse_keypoints
 
-    from synth.config import config_from_dict
+    if robot.strip().lower() in {entry.name for entry in builtin_robots()}:
+        return None
+    return analyse_keypoints(parse_urdf(Path(robot))).suggested
+
+
+def robot_size(robot: str) -> float:
+    """The robot's size (m): the median over random joint vectors of the largest extent of its
+    keypoints (Panda 0.68, SO-101 0.28)."""
+    from dream.robot import load_robot
+
+    model = load_robot(robot, robot_keypoints(robot))
+    P = model.forward_kinematics(model.sample_joints(np.random.default_rng(0), (SIZE_SAMPLES,)))
+    return float(np.median(np.ptp(P, axis=1).max(axis=-1)))
+
+
+def randomisation(robot: str, scale_to_robot: bool, overrides: tuple[str, ...] = ()):
+    """`real_world.yaml` for fixed-camera scenes with `overrides` (`KEY=VALUE`, as `dream synth
+    --set`); with `scale_to_robot` its distances and sizes (`SCALED_KEYS`) times the robot's
+    size over the Panda's, for which they were set."""
+    from synth.config import config_from_dict, load_config
+
+    config = load_config(REAL_WORLD, ("sequence.mode=fixed_camera", *overrides))
+    if not scale_to_robot:
+        return config
+    full = config.to_dict()
+    factor = robot_size(robot) / robot_size(SIZE_REFERENCE)
+    for section, key in SCALED_KEYS:
+        full[section][key] = (np.asarray(full[section][key], float) * factor).tolist()
+    return config_from_dict(full)
+
+
+def render_scene(robot: str, out: Path, seed: int, frames: int,
+                 scale_to_robot: bool = False, overrides: tuple[str, ...] = ()) -> Path:
+    """A fixed-camera `real_world.yaml` scene of `robot` (a built-in name or a URDF), its robot
+    masks deleted."""
     from synth.generate import SynthJob, generate
 
-    config = yaml.safe_load(REAL_WORLD.read_text())
-    config["sequence"] = {"mode": "fixed_camera"}
     generate(SynthJob(robot=robot, out_dir=out, num_frames=frames,
-                      config=config_from_dict(config), seed=seed),
+                      config=randomisation(robot, scale_to_robot, overrides), seed=seed,
+                      keypoints=robot_keypoints(robot)),
              overwrite=True, on_progress=lambda done: None)
     for mask in out.glob("*.seg.png"):
         mask.unlink()
@@ -181,8 +226,10 @@ def run_renders(args: argparse.Namespace) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = args.work or Path(tmp)
         for robot in args.robots.split(","):
+            name = Path(robot).stem
             for seed in range(args.first_seed, args.first_seed + args.scenes):
-                data = render_scene(robot, tmp / f"{robot}_{seed}", seed, args.frames)
+                data = render_scene(robot, tmp / f"{name}_{seed}", seed, args.frames,
+                                    args.scale_to_robot, tuple(args.set))
                 T_true = truth_poses(read_sequence(data))[0]
                 modes = [] if args.skip_guess else [("guess", guess_file(
                     T_true, args.guess_m, np.deg2rad(args.guess_deg), rng, tmp))]
@@ -197,19 +244,21 @@ def run_renders(args: argparse.Namespace) -> None:
                     if mode == "fooled":
                         source = fooled_labels(data, T_true, args.guess_m,
                                                np.deg2rad(args.guess_deg), rng,
-                                               tmp / f"{robot}_{seed}_fooled")
+                                               tmp / f"{name}_{seed}_fooled")
                     if mode == "mark":
                         path, link = mark_file(data, T_true, args.mark_frames,
                                                args.mark_noise_px, rng, tmp)
                         mark = (path, link, "0,0,0")
+                    if args.only and f"{name}_{seed}" not in args.only.split(","):
+                        continue    # its guesses and marks drawn all the same
                     try:
-                        row = calibrate(source, tmp / f"{robot}_{seed}_{mode}.json", guess,
+                        row = calibrate(source, tmp / f"{name}_{seed}_{mode}.json", guess,
                                         T_true, mark=mark)
                     except DreamError as exc:
-                        print(f"{robot} {seed} {mode}: failed: {exc}", flush=True)
+                        print(f"{name} {seed} {mode}: failed: {exc}", flush=True)
                         continue
                     by_mode[mode].append(row)
-                    print(f"{robot} {seed} {mode}: {row['mm']:.1f} mm {row['deg']:.2f} deg, "
+                    print(f"{name} {seed} {mode}: {row['mm']:.1f} mm {row['deg']:.2f} deg, "
                           f"{row['verdict']}, 1-sigma {row['sigma_mm']:.1f} mm (truth at "
                           f"chi2 {row['chi2']:.1f}), IoU {row['iou']:.3f}, "
                           f"{row['seconds']:.0f} s"
@@ -258,7 +307,14 @@ def main() -> None:
         s.add_argument("--right-mm", type=float, default=10.0 if name == "renders" else 10.0)
         s.add_argument("--right-deg", type=float, default=0.5 if name == "renders" else 1.0)
     r = sub.choices["renders"]
-    r.add_argument("--robots", default="panda,ur5,xarm7")
+    r.add_argument("--robots", default="panda,ur5,xarm7", help="built-in names or URDF files "
+                   "(their keypoints suggested, `dream robots --urdf`)")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a randomisation key (repeatable), e.g. "
+                   "intrinsics.width=960 distractors.robot_prob=1")
+    r.add_argument("--scale-to-robot", action="store_true", help="the randomisation's "
+                   "distances and sizes times the robot's size over the Panda's (a small arm "
+                   "seen from as near as a user would put the camera)")
     r.add_argument("--scenes", type=int, default=3)
     r.add_argument("--first-seed", type=int, default=1000)
     r.add_argument("--frames", type=int, default=30)
@@ -270,6 +326,9 @@ def main() -> None:
     r.add_argument("--fooled", action="store_true", help="also the keypoint path from labels "
                    "projected at a camera --guess-m / --guess-deg off (a fooled detector): "
                    "the edge alignment and the silhouettes' cross-check from there")
+    r.add_argument("--only", help="calibrate only these scenes (ROBOT_SEED,...), the others "
+                   "rendered and their guesses and marks drawn as in a whole run, so that "
+                   "each listed scene gets the same guess as there")
     r.add_argument("--skip-guess", action="store_true", help="not from a guess (only --auto, "
                    "--mark-frames)")
     sub.choices["real"].add_argument("--data", required=True)

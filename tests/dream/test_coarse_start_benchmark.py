@@ -1,0 +1,53 @@
+"""`benchmarks/coarse_start.py`'s scenes of arms that are not built in: a URDF from
+example-robot-data rendered with its suggested keypoints, and the randomisation scaled to the
+robot's size."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dream.io import read_sequence
+from dream.robot import robot_data_dir
+from tests.benchmark_scripts import load_benchmark
+
+SO101 = "robots/so_arm_description/urdf/so101.urdf"     # a small arm (about 0.4 of a Panda)
+
+
+@pytest.fixture(scope="module")
+def bench():
+    return load_benchmark("coarse_start")
+
+
+def test_a_built_in_robot_keeps_the_randomisation_as_written(bench):
+    assert bench.robot_keypoints("panda") is None
+    assert bench.randomisation("panda", True) == bench.randomisation("panda", False)
+
+
+def test_a_small_arms_scenes_are_seen_from_nearer(bench):
+    so101 = str(robot_data_dir() / SO101)
+    assert bench.robot_keypoints(so101)
+    factor = bench.robot_size(so101) / bench.robot_size("panda")
+    assert 0.3 < factor < 0.5
+    as_written = bench.randomisation(so101, False).to_dict()
+    scaled = bench.randomisation(so101, True).to_dict()
+    for section, key in bench.SCALED_KEYS:
+        np.testing.assert_allclose(scaled[section][key],
+                                   np.asarray(as_written[section][key]) * factor)
+    assert scaled["intrinsics"] == as_written["intrinsics"]
+
+
+def test_a_urdf_scene_renders_without_masks(bench, tmp_path):
+    data = bench.render_scene(str(robot_data_dir() / SO101), tmp_path / "so101", 7, 2, True)
+    sequence = read_sequence(data)
+    assert len(sequence) == 2 and not list(data.glob("*.seg.png"))
+    assert sequence.frames[0].uv_labels.shape[0] == len(bench.robot_keypoints(
+        str(robot_data_dir() / SO101)))
+
+
+def test_randomisation_overrides_apply_before_the_scaling(bench):
+    so101 = str(robot_data_dir() / SO101)
+    config = bench.randomisation(so101, True, ("intrinsics.width=960", "camera.radius_m=[1, 2]"))
+    assert config.intrinsics.width == 960
+    factor = bench.robot_size(so101) / bench.robot_size("panda")
+    np.testing.assert_allclose(config.camera.radius_m, np.array([1.0, 2.0]) * factor)
