@@ -175,7 +175,7 @@ def add_silhouette_check(seq, robot, result, doc: dict, out: TextIO) -> tuple[di
                            o.best.T_cam_base)
     return doc, crosscheck_findings(check.iou_written, o.best.iou, check.distance_m,
                                     check.angle_rad, o.basin_returned, o.basin_starts,
-                                    check.source, SearchSettings())
+                                    check.source, SearchSettings(), o.basin_m)
 
 
 def add_quality(result, obs, doc: dict, out: TextIO, extra: list | tuple = ()) -> dict:

@@ -192,7 +192,8 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
             "rival_distance_m": None if distance is None else distance[0],
             "rival_angle_rad": None if distance is None else distance[1],
             "gap": outcome.gap, "basin_returned": outcome.basin_returned,
-            "basin_starts": outcome.basin_starts,
+            "basin_starts": outcome.basin_starts, "basin_m": outcome.basin_m,
+            "basin_return_m": outcome.basin_return_m,
             "basin_ends_xi": [increment_between(outcome.best.T_cam_base, T).tolist()
                               for T in outcome.basin_ends],
             "frames_jackknife_xi": outcome.frames_xi.tolist(),
@@ -236,7 +237,8 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
 
     s = doc["start"]
     findings = search_findings(s["iou"], s["rival_iou"], s["rival_distance_m"],
-                               s["basin_returned"], s["basin_starts"], SearchSettings())
+                               s["basin_returned"], s["basin_starts"], SearchSettings(),
+                               s.get("basin_m"))
     if cue_move is not None:
         findings.append(cues_finding(*cue_move))
     carried = s.get("carried") or {}

@@ -292,7 +292,8 @@ def search_covariance(outcome: SearchOutcome, settings: SearchSettings | None = 
     of the basin check's restarts that returned to it (of all of them where none did: then the
     pose is not resolved). Without a jackknife (too few frames and links),
     (`RESOLUTION_FRACTION` x the return limits)^2 stands in for it on the diagonal: a restart
-    that ends within `basin_return_m` / `basin_return_rad` counts as returned, so the check
+    that ends within the outcome's `basin_return_m` / `basin_return_rad` counts as returned
+    (`SearchSettings.basin_lengths`), so the check
     alone does not resolve the pose below that. The restarts that ended elsewhere are the
     verdict's basin finding, not spread of this pose."""
     settings = settings or SearchSettings()
@@ -302,14 +303,14 @@ def search_covariance(outcome: SearchOutcome, settings: SearchSettings | None = 
         raise InputError("the coarse search ran no basin check, so it has no 1-sigma",
                          fix="set basin_starts above 0")
     returned = [T for T in ends
-                if within(T, T_best, settings.basin_return_m, settings.basin_return_rad)]
+                if within(T, T_best, outcome.basin_return_m, settings.basin_return_rad)]
     xi = np.array([increment_between(T_best, T) for T in (returned or ends)])
     jackknives = [xis for xis in (outcome.frames_xi, outcome.links_xi) if len(xis) >= MIN_GROUPS]
     if jackknives:
         J = sum(jackknife_covariance(xis) for xis in jackknives)
         precision = (1 - JACKKNIFE_SHRINKAGE) * J + JACKKNIFE_SHRINKAGE * np.diag(np.diag(J))
     else:
-        precision = np.diag((np.repeat([settings.basin_return_rad, settings.basin_return_m], 3)
+        precision = np.diag((np.repeat([settings.basin_return_rad, outcome.basin_return_m], 3)
                              * RESOLUTION_FRACTION) ** 2)
     return xi.T @ xi / len(xi) + precision
 

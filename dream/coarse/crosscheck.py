@@ -42,6 +42,7 @@ class Crosscheck:
                 "iou_written": self.iou_written, "iou_silhouettes": o.best.iou,
                 "distance_m": self.distance_m, "angle_rad": self.angle_rad,
                 "basin_returned": o.basin_returned, "basin_starts": o.basin_starts,
+                "basin_m": o.basin_m, "basin_return_m": o.basin_return_m,
                 "seconds": o.seconds}
 
 

@@ -211,3 +211,13 @@ def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         axis = np.cross(a, other)
         return R_from_rotvec(np.pi * axis / np.linalg.norm(axis))
     return R_from_rotvec(axis / s * np.arctan2(s, c))
+
+
+def camera_distance(T_cam_base: np.ndarray, P_base: np.ndarray) -> float:
+    """The distance (m) from the camera's centre to the base-frame point `P_base` (3,).
+
+    >>> T = np.eye(4); T[2, 3] = 2.0
+    >>> camera_distance(T, np.zeros(3))
+    2.0
+    """
+    return float(np.linalg.norm(invert_T(T_cam_base)[:3, 3] - np.asarray(P_base, float)))

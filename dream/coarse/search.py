@@ -18,7 +18,8 @@ one chosen, and how clearly the images chose it (pure).
    `rival_m` or `rival_rad` from it; the gap says how much better the winner explains the
    images; a rival that explains them better wins instead), and the basin check:
    `basin_starts` refinements started `basin_m` and `basin_rad` from the winner in random
-   directions, and how many return within `basin_return_m` and `basin_return_rad`.
+   directions, and how many return within `basin_return_m` and `basin_return_rad` (both
+   lengths scaled down for a camera nearer the robot than `basin_reference_m`).
 4. The winner's precision: its finish repeated from it with each of `jackknife_groups` groups
    of frames left out in turn (every G-th frame, `dream.refined_uncertainty.frame_groups`),
    and with each link in view left out in turn; the increments to those poses are the
@@ -49,7 +50,7 @@ from dream.coarse.evidence import (
     splat_iou,
     surface_samples,
 )
-from dream.coarse.hypotheses import aim, aim_in_view
+from dream.coarse.hypotheses import aim, aim_in_view, camera_distance
 from dream.coarse.scales import Scales
 from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
@@ -89,6 +90,8 @@ class SearchOutcome:
         links_xi: (L, 6) the same with each link in view left out; jackknife_links: those
             links.
         seconds: wall time.
+        basin_m, basin_return_m: how far the restarts started and within what they counted
+            as returned (`SearchSettings.basin_lengths` at the winner's camera distance).
     """
 
     best: Candidate
@@ -102,6 +105,8 @@ class SearchOutcome:
     links_xi: np.ndarray
     jackknife_links: tuple[str, ...]
     seconds: float
+    basin_m: float = SearchSettings.basin_m
+    basin_return_m: float = SearchSettings.basin_return_m
 
     @property
     def gap(self) -> float:
@@ -154,6 +159,20 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
 
 
 @dataclass(frozen=True)
+class Checks:
+    """Step 4 of the module doc: the basin check and the jackknives (`SearchOutcome`'s fields
+    of the same names)."""
+
+    basin_ends: np.ndarray
+    basin_returned: int
+    frames_xi: np.ndarray
+    links_xi: np.ndarray
+    jackknife_links: tuple[str, ...]
+    basin_m: float
+    basin_return_m: float
+
+
+@dataclass(frozen=True)
 class Winner:
     """A search's winner before its checks (steps 1-3 of the module doc): the fields of
     `SearchOutcome` known by then, and `checked()` to run the basin check and the jackknife
@@ -165,15 +184,17 @@ class Winner:
     candidates: tuple[Candidate, ...]
     hypotheses: dict[str, int]
     seconds: float
-    run_checks: Callable[[], tuple[np.ndarray, int, np.ndarray, np.ndarray, tuple[str, ...]]]
+    run_checks: Callable[[], Checks]
 
     def checked(self) -> SearchOutcome:
         """The whole outcome: the winner with its basin check and jackknife."""
         start = time.perf_counter()
-        ends, returned, frames_xi, links_xi, links = self.run_checks()
-        return SearchOutcome(self.best, self.rival, self.candidates, self.hypotheses, returned,
-                             len(ends), ends, frames_xi, links_xi, links,
-                             self.seconds + time.perf_counter() - start)
+        c = self.run_checks()
+        return SearchOutcome(self.best, self.rival, self.candidates, self.hypotheses,
+                             c.basin_returned, len(c.basin_ends), c.basin_ends, c.frames_xi,
+                             c.links_xi, c.jackknife_links,
+                             self.seconds + time.perf_counter() - start, c.basin_m,
+                             c.basin_return_m)
 
 
 def find_winner(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
@@ -253,13 +274,14 @@ def find_winner(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     counts = {name: len(T) * (1 if name in aimed_only else 2)
               for name, T in hypotheses.items()}
 
-    def run_checks() -> tuple[np.ndarray, int, np.ndarray, np.ndarray, tuple[str, ...]]:
+    def run_checks() -> Checks:
+        start_m, return_m = settings.basin_lengths(camera_distance(best.T_cam_base, centre))
         ends = _basin_ends(lambda T: finished(scales.refine(T)), best.T_cam_base, settings,
-                           rng)
-        returned = sum(within(T, best.T_cam_base, settings.basin_return_m,
-                              settings.basin_return_rad) for T in ends)
+                           rng, start_m)
+        returned = sum(within(T, best.T_cam_base, return_m, settings.basin_return_rad)
+                       for T in ends)
         say(f"basin check: {returned} of {settings.basin_starts} restarts "
-            f"{settings.basin_m * 100:.0f} cm / {np.rad2deg(settings.basin_rad):.0f} deg away "
+            f"{start_m * 100:.1f} cm / {np.rad2deg(settings.basin_rad):.0f} deg away "
             "returned")
         frames_xi, links_xi, links = _jackknife(
             P_all, meshes, masks_all, camera, settings, usable, held, best.T_cam_base,
@@ -268,7 +290,7 @@ def find_winner(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         if len(frames_xi) or len(links_xi):
             say(f"jackknife: the finish without each of {len(frames_xi)} frame groups and "
                 f"{len(links_xi)} links")
-        return ends, returned, frames_xi, links_xi, links
+        return Checks(ends, returned, frames_xi, links_xi, links, start_m, return_m)
 
     return Winner(best, rival, tuple(candidates), counts, time.perf_counter() - start,
                   run_checks)
@@ -408,14 +430,15 @@ def _aimed(hypotheses: dict[str, np.ndarray], points: np.ndarray, centre: np.nda
 
 
 def _basin_ends(refine: Callable[[np.ndarray], np.ndarray], T_best: np.ndarray,
-                settings: SearchSettings, rng: np.random.Generator) -> np.ndarray:
+                settings: SearchSettings, rng: np.random.Generator, start_m: float
+                ) -> np.ndarray:
     """(basin_starts, 4, 4) where `refine` (the winner's own refinement) ends from starts
-    `basin_m` / `basin_rad` from T_best in random directions."""
+    `start_m` / `basin_rad` from T_best in random directions."""
     T_base_cam = invert_T(T_best)
     ends = []
     for _ in range(settings.basin_starts):
         T = T_base_cam.copy()
-        T[:3, 3] += settings.basin_m * _unit(rng)
+        T[:3, 3] += start_m * _unit(rng)
         T[:3, :3] = T_base_cam[:3, :3] @ R_from_rotvec(settings.basin_rad * _unit(rng))
         ends.append(refine(invert_T(T)))
     return np.array(ends).reshape(-1, 4, 4)

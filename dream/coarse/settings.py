@@ -49,6 +49,11 @@ class SearchSettings:
         basin_starts: restarts from around the best pose (the basin check).
         basin_m, basin_rad: how far from the best pose the restarts start.
         basin_return_m, basin_return_rad: a restart that ends this close has returned.
+        basin_reference_m: `basin_m` and `basin_return_m` hold for a camera this far from the
+            robot's centre or farther; a nearer one scales both by its distance over this
+            (`basin_lengths`), so that the restarts move the robot as far across the image
+            (the rendered scenes' shell cameras start 1 m out; a camera 0.3 m from a small
+            arm moved by 5 cm started 0 of 4 restarts inside the basin of a pose 0.6 mm off).
         min_basin_share: at least this share of the restarts must return.
         jackknife_groups: frame groups left out in turn from the winner's finish (its
             1-sigma, with each link left out in turn too); 0 runs no jackknife.
@@ -94,6 +99,7 @@ class SearchSettings:
     basin_rad: float = float(np.deg2rad(3.0))
     basin_return_m: float = 0.01
     basin_return_rad: float = float(np.deg2rad(0.5))
+    basin_reference_m: float = 1.0
     min_basin_share: float = 0.75
     jackknife_groups: int = 5
     jackknife_link_points: int = 50
@@ -110,7 +116,7 @@ class SearchSettings:
                                     "fine_starts", "finish_width_px", "jackknife_link_points"),
                      positive=("guess_sigma_m", "guess_sigma_rad", "distinct_m", "distinct_rad",
                                "rival_m", "rival_rad", "basin_m", "basin_rad",
-                               "basin_return_m", "basin_return_rad"),
+                               "basin_return_m", "basin_return_rad", "basin_reference_m"),
                      non_negative=("min_gap", "basin_starts", "min_found_iou", "carried_margin_px",
                                    "round_iou_tolerance",
                                    "min_basin_share", "jackknife_groups"))
@@ -123,3 +129,19 @@ class SearchSettings:
         for name in ("min_found_iou", "min_basin_share"):
             if getattr(self, name) > 1:
                 raise InputError(f"coarse search: {name} must not exceed 1")
+
+    def basin_lengths(self, distance_m: float) -> tuple[float, float]:
+        """(start, return) distances of the basin check for a camera `distance_m` from the
+        robot's centre: `basin_m` and `basin_return_m`, scaled down where the camera is
+        nearer than `basin_reference_m`.
+
+        >>> SearchSettings().basin_lengths(2.0)
+        (0.05, 0.01)
+        >>> [round(v, 4) for v in SearchSettings().basin_lengths(0.5)]
+        [0.025, 0.005]
+        """
+        if not np.isfinite(distance_m) or distance_m <= 0:
+            raise InputError(f"coarse search: a camera distance must be positive, got "
+                             f"{distance_m}")
+        scale = min(1.0, distance_m / self.basin_reference_m)
+        return self.basin_m * scale, self.basin_return_m * scale

@@ -8,8 +8,9 @@ Each finding is (level, one sentence with what to do), as in `dream.quality`:
   `min_found_iou`: the robot was not found (`unreliable`).
 - **gap**: a candidate farther than `rival_m` / `rival_rad` explains the masks within
   `min_gap` of the chosen one's IoU: the images cannot tell the two apart (`unreliable`).
-- **basin**: fewer than `min_basin_share` of the restarts around the chosen pose return to it:
-  it is a ridge, not a clear optimum (`check`).
+- **basin**: fewer than `min_basin_share` of the restarts around the chosen pose return to it
+  (started and counted at `SearchSettings.basin_lengths` of the camera's distance): it is a
+  ridge, not a clear optimum (`check`).
 - **mark**: at the pose written, the mark's clicks lie farther than `max_click_residual_px`
   (median) from where the mark projects: a click, the mark's link or offset, or the pose is
   wrong (`check`).
@@ -49,8 +50,9 @@ from dream.quality import (
 
 def search_findings(best_iou: float, rival_iou: float | None, rival_distance_m: float | None,
                     basin_returned: int, basin_starts: int,
-                    settings: SearchSettings) -> list[Finding]:
-    """The found, gap and basin findings (module doc)."""
+                    settings: SearchSettings, basin_m: float | None = None) -> list[Finding]:
+    """The found, gap and basin findings (module doc); `basin_m`: how far the restarts
+    started (default `settings.basin_m`; `SearchOutcome.basin_m`)."""
     out: list[Finding] = []
     if best_iou < settings.min_found_iou:
         out.append((UNRELIABLE, f"the robot's silhouettes at the pose found overlap the masks by "
@@ -64,7 +66,8 @@ def search_findings(best_iou: float, rival_iou: float | None, rival_distance_m: 
                     "moving through more of the view, or give a closer camera guess"))
     if basin_starts and basin_returned < settings.min_basin_share * basin_starts:
         out.append((CHECK, f"only {basin_returned} of {basin_starts} refinements started "
-                    f"{settings.basin_m * 100:.0f} cm / {np.rad2deg(settings.basin_rad):.0f} "
+                    f"{(settings.basin_m if basin_m is None else basin_m) * 100:.1f} cm / "
+                    f"{np.rad2deg(settings.basin_rad):.0f} "
                     "deg from the pose found return to it: the images constrain it weakly; "
                     "check the overlays"))
     return out
@@ -117,8 +120,10 @@ def mark_finding(click_residuals_px: np.ndarray, max_px: float) -> Finding | Non
 
 def crosscheck_findings(iou_written: float, iou_silhouettes: float, distance_m: float,
                         angle_rad: float, basin_returned: int, basin_starts: int,
-                        evidence: str, settings: SearchSettings) -> list[Finding]:
-    """The crosscheck findings (module doc) of the silhouettes' optimum near a written pose.
+                        evidence: str, settings: SearchSettings,
+                        basin_m: float | None = None) -> list[Finding]:
+    """The crosscheck findings (module doc) of the silhouettes' optimum near a written pose
+    (`basin_m` as in `search_findings`).
 
     >>> s = SearchSettings()
     >>> [f[0] for f in crosscheck_findings(0.6, 0.7, 0.12, 0.02, 4, 4, "motion masks", s)]
@@ -141,5 +146,6 @@ def crosscheck_findings(iou_written: float, iou_silhouettes: float, distance_m: 
                     "(--camera-guess RESULT.json)"))
     else:
         out.append(cues_finding(distance_m, angle_rad))
-    out += search_findings(iou_silhouettes, None, None, basin_returned, basin_starts, settings)
+    out += search_findings(iou_silhouettes, None, None, basin_returned, basin_starts, settings,
+                           basin_m)
     return [f for f in out if f is not None]

@@ -31,7 +31,8 @@ class EdgeSettings:
         motion_threshold: a pixel differs from the background by at least this (grey level).
         background_frames: frames whose per-pixel median is the background model (evenly
             spaced).
-        min_background_frames: fewer frames give no background model.
+        min_background_frames: fewer frames give no background model (as the motion masks'
+            `MotionSettings.min_background_frames`).
         huber_scale_px: Huber scale of the edge residuals.
         max_residual_px: residuals beyond this get no weight.
         contour_band_px: a mesh vertex is an outline point when it projects this close to the
@@ -77,7 +78,7 @@ class EdgeSettings:
     side_probe_px: float = 2.0
     motion_threshold: float = 0.05
     background_frames: int = 60
-    min_background_frames: int = 8
+    min_background_frames: int = 5
     huber_scale_px: float = 1.0
     max_residual_px: float = 6.0
     contour_band_px: float = 1.0

@@ -25,6 +25,7 @@ from dream.coarse.hypotheses import (
     aim,
     aim_in_view,
     around,
+    camera_distance,
     fibonacci_directions,
     guess_pose,
     shell,
@@ -103,11 +104,35 @@ def test_search_finds_the_camera_from_a_guess_30_cm_and_20_deg_off(panda, meshes
         m, rad = pose_errors(outcome.best.T_cam_base, T_true)
         assert m < 0.005 and rad < np.deg2rad(0.3), (seed, m, np.rad2deg(rad))
         assert outcome.best.iou > 0.9 and outcome.basin_returned == SMALL.basin_starts
+        assert (outcome.basin_m, outcome.basin_return_m) == (SMALL.basin_m, SMALL.basin_return_m)
         distance = None if outcome.rival is None else pose_errors(
             outcome.rival.T_cam_base, outcome.best.T_cam_base)[0]
         rival = None if outcome.rival is None else outcome.rival.iou
         assert search_findings(outcome.best.iou, rival, distance, outcome.basin_returned,
                                outcome.basin_starts, SMALL) == []
+
+
+def test_the_basin_check_scales_with_the_cameras_distance(panda, meshes):
+    """A camera nearer the robot than `basin_reference_m` starts the restarts and counts them
+    back in proportion to its distance (here the reference put at 3 m, the camera 1.5 m from
+    the robot): the same moves across the image as the reference's, and the search's 1-sigma
+    floor follows."""
+    T_true, joints, masks = rendered_masks(panda, meshes)
+    settings = replace(SMALL, basin_reference_m=3.0)
+    outcome = search(meshes, joints, masks, CAMERA,
+                     {"guess": around(off_by(T_true, GUESS_M, GUESS_RAD, 1), GUESS_M, GUESS_RAD,
+                                      SMALL.guess_samples, np.random.default_rng(1))}, settings)
+    scale = camera_distance(outcome.best.T_cam_base,
+                            vertices_in_base(meshes, joints).reshape(-1, 3).mean(axis=0)) / 3.0
+    assert 0.3 < scale < 0.7
+    assert outcome.basin_m == pytest.approx(SMALL.basin_m * scale, rel=0.1)
+    assert outcome.basin_return_m / outcome.basin_m == pytest.approx(
+        SMALL.basin_return_m / SMALL.basin_m)
+    assert outcome.basin_returned == SMALL.basin_starts
+    ends_m = [pose_errors(T, outcome.best.T_cam_base)[0] for T in outcome.basin_ends]
+    assert max(ends_m) <= outcome.basin_return_m
+    with pytest.raises(InputError, match="camera distance"):
+        settings.basin_lengths(0.0)
 
 
 def test_the_hypotheses_compare_a_subset_and_the_finish_every_frame(panda, meshes):
@@ -252,6 +277,24 @@ def test_calibrate_without_keypoints_from_a_camera_guess(panda, meshes, tmp_path
         assert (overlays / "summary.png").is_file() and len(list(overlays.glob("*.png"))) > 1
         sigma = np.linalg.norm(doc["sigma_camera_position_base_m"])
         assert 0 < sigma < 0.05
+
+
+def test_a_recording_of_seven_frames_calibrates_without_keypoints(panda, meshes, tmp_path,
+                                                                   capsys):
+    """Seven photos of a fixed camera are enough for the background model (its median holds
+    the scene wherever the arm covers a pixel in at most three of them): the motion masks and
+    the search from a guess 10 cm / 5 deg off find the camera."""
+    T_true = image_dataset(panda, meshes, tmp_path, frames=7)
+    position = invert_T(off_by(T_true, 0.1, np.deg2rad(5.0), 3))[:3, 3]
+    out = tmp_path / "r.json"
+    code = main(["calibrate", "--data", str(tmp_path / "data"), "--out", str(out),
+                 "--camera-guess", ",".join(f"{v:.3f}" for v in position),
+                 "--look-at", ",".join(f"{v:.3f}" for v in TARGET)])
+    assert code == 0, capsys.readouterr().err
+    doc = json.loads(out.read_text())
+    t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
+    assert t_err < 0.01 and r_err < np.deg2rad(0.5), (t_err, np.rad2deg(r_err))
+    assert doc["start"]["evidence"] == "motion masks" and len(doc["start"]["frames"]) == 7
 
 
 def test_refine_auto_keeps_the_keypoint_result_where_edges_cannot_run(panda, meshes, tmp_path,

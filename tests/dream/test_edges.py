@@ -147,9 +147,10 @@ def test_settings_refuse_nonsense():
 
 # ----- a sequence and the command line ---------------------------------------------------------
 
-def image_dataset(panda, meshes, folder: Path, blank: bool = False) -> np.ndarray:
+def image_dataset(panda, meshes, folder: Path, blank: bool = False,
+                  frames: int = NUM_FRAMES) -> np.ndarray:
     """A DREAM-layout folder with RGB images (no masks) and noisy labels; returns the pose."""
-    T_true, joints, images, _ = edge_scene(panda, meshes)
+    T_true, joints, images, _ = edge_scene(panda, meshes, frames=frames)
     rng = np.random.default_rng(2)
     uv = project(CAMERA, transform_points(T_true, panda.forward_kinematics(joints)))
     uv = uv + rng.normal(0.0, 2.0, uv.shape)
