@@ -90,8 +90,9 @@ def robot_size(robot: str) -> float:
 
 def randomisation(robot: str, scale_to_robot: bool, overrides: tuple[str, ...] = ()):
     """`real_world.yaml` for fixed-camera scenes with `overrides` (`KEY=VALUE`, as `dream synth
-    --set`); with `scale_to_robot` its distances and sizes (`SCALED_KEYS`) times the robot's
-    size over the Panda's, for which they were set."""
+    --set`); with `scale_to_robot` the camera's and the distractors' distances and sizes
+    (`SCALED_KEYS`; the lights stay where they are) times the robot's size over the Panda's,
+    for which they were set."""
     from synth.config import config_from_dict, load_config
 
     config = load_config(REAL_WORLD, ("sequence.mode=fixed_camera", *overrides))
@@ -313,8 +314,8 @@ def main() -> None:
                    help="override a randomisation key (repeatable), e.g. "
                    "intrinsics.width=960 distractors.robot_prob=1")
     r.add_argument("--scale-to-robot", action="store_true", help="the randomisation's "
-                   "distances and sizes times the robot's size over the Panda's (a small arm "
-                   "seen from as near as a user would put the camera)")
+                   "camera and distractor distances and sizes times the robot's size over "
+                   "the Panda's (a small arm seen from as near as a user would put the camera)")
     r.add_argument("--scenes", type=int, default=3)
     r.add_argument("--first-seed", type=int, default=1000)
     r.add_argument("--frames", type=int, default=30)

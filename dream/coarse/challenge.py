@@ -10,7 +10,10 @@ frame, what the arm carries left out) it explains the masks better or it does no
 does and its finish ended outside the basin check's return limits around the winner, the
 search runs again from it, the winner and the rival (`dream.coarse.search.search`, its checks
 included), and that outcome replaces the first where its winner lies outside them too; where
-the two optima lie within those limits of each other, there is nothing to decide.
+the two optima lie within those limits of each other, there is nothing to decide. These are
+`SearchSettings.basin_return_m` / `basin_return_rad` as set, not scaled for a near camera as
+the basin check's own count is (`SearchSettings.basin_lengths`): the challenge decides the pose
+written, and its figures on the rendered scenes were measured with these.
 
 Then the masks choose the pose written between the two optima: the IoU at poses evenly spaced
 on the segment from the winner to the other cue's optimum (`between`). The polish's contour

@@ -216,8 +216,8 @@ def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def camera_distance(T_cam_base: np.ndarray, P_base: np.ndarray) -> float:
     """The distance (m) from the camera's centre to the base-frame point `P_base` (3,).
 
-    >>> T = np.eye(4); T[2, 3] = 2.0
-    >>> camera_distance(T, np.zeros(3))
-    2.0
+    >>> T = look_at(np.array([3.0, 0.0, 1.0]), np.zeros(3))   # the camera at (3, 0, 1)
+    >>> round(camera_distance(T, np.array([0.0, 4.0, 1.0])), 6)
+    5.0
     """
     return float(np.linalg.norm(invert_T(T_cam_base)[:3, 3] - np.asarray(P_base, float)))

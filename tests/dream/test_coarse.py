@@ -122,8 +122,10 @@ def test_the_basin_check_scales_with_the_cameras_distance(panda, meshes):
     outcome = search(meshes, joints, masks, CAMERA,
                      {"guess": around(off_by(T_true, GUESS_M, GUESS_RAD, 1), GUESS_M, GUESS_RAD,
                                       SMALL.guess_samples, np.random.default_rng(1))}, settings)
-    scale = camera_distance(outcome.best.T_cam_base,
-                            vertices_in_base(meshes, joints).reshape(-1, 3).mean(axis=0)) / 3.0
+    T = outcome.best.T_cam_base
+    camera_centre = -T[:3, :3].T @ T[:3, 3]
+    scale = np.linalg.norm(camera_centre - vertices_in_base(meshes, joints).reshape(-1, 3).mean(
+        axis=0)) / 3.0
     assert 0.3 < scale < 0.7
     assert outcome.basin_m == pytest.approx(SMALL.basin_m * scale, rel=0.1)
     assert outcome.basin_return_m / outcome.basin_m == pytest.approx(
@@ -133,6 +135,16 @@ def test_the_basin_check_scales_with_the_cameras_distance(panda, meshes):
     assert max(ends_m) <= outcome.basin_return_m
     with pytest.raises(InputError, match="camera distance"):
         settings.basin_lengths(0.0)
+    message = search_findings(0.8, None, None, 0, 4, settings, outcome.basin_m)[0][1]
+    assert f"{outcome.basin_m * 100:.1f} cm" in message
+
+
+def test_camera_distance_is_measured_from_the_camera_centre():
+    T = off_by(guess_pose(np.array([1.2, 0.4, 0.8]), TARGET), 0.0, 0.3, 4)
+    P = np.array([0.2, -0.3, 0.5])
+    assert camera_distance(T, P) == pytest.approx(np.linalg.norm(
+        -T[:3, :3].T @ T[:3, 3] - P))
+    assert camera_distance(T, TARGET) == pytest.approx(np.linalg.norm([1.2, 0.4, 0.8] - TARGET))
 
 
 def test_the_hypotheses_compare_a_subset_and_the_finish_every_frame(panda, meshes):

@@ -19,9 +19,10 @@ def bench():
     return load_benchmark("coarse_start")
 
 
-def test_a_built_in_robot_keeps_the_randomisation_as_written(bench):
-    assert bench.robot_keypoints("panda") is None
+def test_the_reference_robot_keeps_the_randomisation_and_others_scale(bench):
+    assert bench.robot_keypoints("panda") is None and bench.robot_keypoints("ur5") is None
     assert bench.randomisation("panda", True) == bench.randomisation("panda", False)
+    assert bench.randomisation("ur5", True) != bench.randomisation("ur5", False)
 
 
 def test_a_small_arms_scenes_are_seen_from_nearer(bench):
