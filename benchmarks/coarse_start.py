@@ -143,7 +143,7 @@ def mark_file(data: Path, T_true: np.ndarray, count: int, noise_px: float,
     from dream.transforms import transform_points
 
     seq = read_sequence(data)
-    robot = robot_for(seq, None, None)
+    robot = robot_for(seq, None, tuple(seq.keypoint_names) or None)
     link = robot.keypoint_names[-1]
     P = robot.link_poses(joints_in_robot_order(seq, robot), (link,))[:, 0, :3, 3]
     uv = project(seq.camera, transform_points(T_true, P)) + rng.normal(0, noise_px, (len(P), 2))
@@ -166,7 +166,7 @@ def fooled_labels(data: Path, T_true: np.ndarray, offset_m: float, offset_rad: f
     from dream.transforms import transform_points
 
     seq = read_sequence(data)
-    robot = robot_for(seq, None, None)
+    robot = robot_for(seq, None, tuple(seq.keypoint_names) or None)
     T_off = read_result(guess_file(T_true, offset_m, offset_rad, rng, out.parent))["T_cam_base"]
     frames = tuple(dataclasses.replace(f, uv_labels=project(seq.camera, transform_points(
         np.asarray(T_off), robot.forward_kinematics(f.joints)))) for f in seq.frames)

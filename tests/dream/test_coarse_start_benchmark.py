@@ -38,12 +38,15 @@ def test_a_small_arms_scenes_are_seen_from_nearer(bench):
     assert scaled["intrinsics"] == as_written["intrinsics"]
 
 
-def test_a_urdf_scene_renders_without_masks(bench, tmp_path):
+def test_a_urdf_scene_renders_without_masks_and_takes_marks(bench, tmp_path):
+    keypoints = bench.robot_keypoints(str(robot_data_dir() / SO101))
     data = bench.render_scene(str(robot_data_dir() / SO101), tmp_path / "so101", 7, 2, True)
     sequence = read_sequence(data)
     assert len(sequence) == 2 and not list(data.glob("*.seg.png"))
-    assert sequence.frames[0].uv_labels.shape[0] == len(bench.robot_keypoints(
-        str(robot_data_dir() / SO101)))
+    assert sequence.frames[0].uv_labels.shape[0] == len(keypoints)
+    T_true = sequence.frames[0].T_cam_base_true
+    marks, link = bench.mark_file(data, T_true, 5, 0.0, np.random.default_rng(0), tmp_path)
+    assert link == keypoints[-1] and marks.read_text().startswith("frame,u,v\n")
 
 
 def test_randomisation_overrides_apply_before_the_scaling(bench):
