@@ -238,7 +238,7 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
     s = doc["start"]
     findings = search_findings(s["iou"], s["rival_iou"], s["rival_distance_m"],
                                s["basin_returned"], s["basin_starts"], SearchSettings(),
-                               s.get("basin_m"))
+                               s["basin_m"])
     if cue_move is not None:
         findings.append(cues_finding(*cue_move))
     carried = s.get("carried") or {}

@@ -13,7 +13,7 @@ import pytest
 
 from dream.camera import project
 from dream.cli import main
-from dream.coarse.calibration import search_covariance
+from dream.coarse.calibration import RESOLUTION_FRACTION, search_covariance
 from dream.coarse.evidence import (
     hypothesis_hits,
     pixel_hits,
@@ -133,6 +133,10 @@ def test_the_basin_check_scales_with_the_cameras_distance(panda, meshes):
     assert outcome.basin_returned == SMALL.basin_starts
     ends_m = [pose_errors(T, outcome.best.T_cam_base)[0] for T in outcome.basin_ends]
     assert max(ends_m) <= outcome.basin_return_m
+    without_jackknives = replace(outcome, frames_xi=np.zeros((0, 6)), links_xi=np.zeros((0, 6)))
+    xi = np.array([increment_between(T, end) for end in outcome.basin_ends])
+    floor = np.diag(search_covariance(without_jackknives, settings) - xi.T @ xi / len(xi))
+    np.testing.assert_allclose(floor[3:], (RESOLUTION_FRACTION * outcome.basin_return_m) ** 2)
     with pytest.raises(InputError, match="camera distance"):
         settings.basin_lengths(0.0)
     message = search_findings(0.8, None, None, 0, 4, settings, outcome.basin_m)[0][1]
