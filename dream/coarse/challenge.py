@@ -37,8 +37,8 @@ import numpy as np
 
 from dream.camera import CameraIntrinsics
 from dream.coarse.calibration import MOTION_MASKS, SearchMasks
-from dream.coarse.scales import Scales
-from dream.coarse.search import SearchOutcome, finish_scale, search, within
+from dream.coarse.scales import Scales, finish_scale
+from dream.coarse.search import SearchOutcome, search, within
 from dream.coarse.settings import SearchSettings
 from dream.metrics import pose_errors
 from dream.pnp import apply_increment, increment_between

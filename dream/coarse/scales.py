@@ -1,6 +1,6 @@
 """The masks of the coarse search at each of its scales, and its silhouette polish there: the
-rendered IoU of a pose and the polish's refinement with its round check (pure;
-`dream.coarse.search`)."""
+rendered IoU of a pose and the polish's refinement with its round check; `finish_scale`, the one
+scale its winner is finished at (pure; `dream.coarse.search`)."""
 
 from __future__ import annotations
 
@@ -99,3 +99,13 @@ class NoWorse:
             return False
         self.best = max(self.best, iou)
         return True
+
+
+def finish_scale(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
+                 camera: CameraIntrinsics, settings: SearchSettings,
+                 usable: np.ndarray | None = None, held: bool = False,
+                 region: CarriedRegion | None = None) -> Scales:
+    """The one scale the winner is finished and scored at: `finish_width_px` (capped at the
+    camera's width) on the frames of `P` (F, V, 3) and `masks` (F, H, W)."""
+    return Scales(P, meshes, masks, camera, replace(
+        settings, local_widths_px=(settings.finish_width_px,)), usable, held, region)

@@ -30,8 +30,8 @@ one chosen, and how clearly the images chose it (pure).
    does not.
 
 `search` runs all four steps; `find_winner` stops after step 3 and `Winner.checked` runs step
-4, so a caller that searches again from the winner (`dream.coarse.calibration.with_carried`)
-spends nothing on checks it would discard.
+4 (`dream.coarse.checks`), so a caller that searches again from the winner
+(`dream.coarse.calibration.with_carried`) spends nothing on checks it would discard.
 """
 
 from __future__ import annotations
@@ -43,23 +43,21 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from dream.camera import CameraIntrinsics, project
+from dream.camera import CameraIntrinsics
 from dream.coarse.carried import CarriedRegion
+from dream.coarse.checks import Checks, basin_ends, jackknife
 from dream.coarse.evidence import (
     points_of,
     splat_iou,
     surface_samples,
 )
 from dream.coarse.hypotheses import aim, aim_in_view, camera_distance
-from dream.coarse.scales import Scales
+from dream.coarse.scales import Scales, finish_scale
 from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
 from dream.metrics import pose_errors
-from dream.pnp import increment_between
 from dream.polish.objective import scaled_camera, shrink_mask
-from dream.refined_uncertainty import MIN_GROUPS, frame_groups
 from dream.silhouette import RobotMeshes, vertices_in_base
-from dream.transforms import R_from_rotvec, invert_T, transform_points
 
 log = logging.getLogger(__name__)
 
@@ -156,20 +154,6 @@ def search(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     with the same arguments, then its checks (`Winner.checked`)."""
     return find_winner(meshes, joints, masks, camera, hypotheses, settings, usable, aimed_only,
                        held, progress, search_frames, region).checked()
-
-
-@dataclass(frozen=True)
-class Checks:
-    """Step 4 of the module doc: the basin check and the jackknives (`SearchOutcome`'s fields
-    of the same names)."""
-
-    basin_ends: np.ndarray
-    basin_returned: int
-    frames_xi: np.ndarray
-    links_xi: np.ndarray
-    jackknife_links: tuple[str, ...]
-    basin_m: float
-    basin_return_m: float
 
 
 @dataclass(frozen=True)
@@ -276,14 +260,14 @@ def find_winner(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
 
     def run_checks() -> Checks:
         start_m, return_m = settings.basin_lengths(camera_distance(best.T_cam_base, centre))
-        ends = _basin_ends(lambda T: finished(scales.refine(T)), best.T_cam_base, settings,
+        ends = basin_ends(lambda T: finished(scales.refine(T)), best.T_cam_base, settings,
                            rng, start_m)
         returned = sum(within(T, best.T_cam_base, return_m, settings.basin_return_rad)
                        for T in ends)
         say(f"basin check: {returned} of {settings.basin_starts} restarts "
             f"{start_m * 100:.1f} cm / {np.rad2deg(settings.basin_rad):.0f} deg away "
             "returned")
-        frames_xi, links_xi, links = _jackknife(
+        frames_xi, links_xi, links = jackknife(
             P_all, meshes, masks_all, camera, settings, usable, held, best.T_cam_base,
             region) if best.iou >= settings.min_found_iou \
             else (np.zeros((0, 6)), np.zeros((0, 6)), ())
@@ -319,16 +303,6 @@ def _winner_and_rival(candidates: list[Candidate], finished: Callable[[Candidate
     return out, best, None
 
 
-def finish_scale(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
-                 camera: CameraIntrinsics, settings: SearchSettings,
-                 usable: np.ndarray | None = None, held: bool = False,
-                 region: CarriedRegion | None = None) -> Scales:
-    """The one scale the winner is finished and scored at: `finish_width_px` (capped at the
-    camera's width) on the frames of `P` (F, V, 3) and `masks` (F, H, W)."""
-    return Scales(P, meshes, masks, camera, replace(
-        settings, local_widths_px=(settings.finish_width_px,)), usable, held, region)
-
-
 def pose_iou(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
              camera: CameraIntrinsics, T_cam_base: np.ndarray,
              settings: SearchSettings | None = None, held: bool = False) -> float:
@@ -349,47 +323,6 @@ def _finish_scales(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
     finish = finish_scale(P, meshes, masks, camera, settings, usable, scales.held, region)
     finer = finish.levels[-1][0].width > scales.levels[-1][0].width
     return finish if finer or len(P) > len(scales.P) else None
-
-
-def _jackknife(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
-               camera: CameraIntrinsics, settings: SearchSettings, usable: np.ndarray | None,
-               held: bool, T_best: np.ndarray, region: CarriedRegion | None = None
-               ) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
-    """The winner's finish at `finish_width_px`, from `T_best`, with each of the
-    `jackknife_groups` frame groups left out and with each link in view left out: (G, 6) and
-    (L, 6) increments from `T_best`, and the L links; (0, 6) where there are fewer than
-    `MIN_GROUPS` groups of a kind (or `jackknife_groups` is 0)."""
-    none = np.zeros((0, 6))
-    if not settings.jackknife_groups:
-        return none, none, ()
-    usable = np.ones(len(meshes.vertices), bool) if usable is None else np.asarray(usable)
-
-    def refined(frames: np.ndarray, use: np.ndarray) -> np.ndarray:
-        scales = finish_scale(P[frames], meshes, masks[frames], camera, settings, use, held,
-                              None if region is None else region.frames(frames))
-        return increment_between(T_best, scales.refine(T_best))
-
-    every = np.arange(len(P))
-    groups = frame_groups(len(P), settings.jackknife_groups)
-    frames_xi = np.array([refined(np.setdiff1d(every, members), usable)
-                          for members in groups.values()]) if len(groups) >= MIN_GROUPS \
-        else none
-    links = _links_in_view(P, meshes, usable, camera, T_best, settings.jackknife_link_points)
-    links_xi = np.array([refined(every, usable & (meshes.vertex_link != k))
-                         for k in links]) if len(links) >= MIN_GROUPS else none
-    return frames_xi, links_xi, tuple(meshes.links[k] for k in links) if len(links_xi) else ()
-
-
-def _links_in_view(P: np.ndarray, meshes: RobotMeshes, usable: np.ndarray,
-                   camera: CameraIntrinsics, T_cam_base: np.ndarray, min_points: int
-                   ) -> list[int]:
-    """The links with at least `min_points` usable vertex projections inside the image over
-    the frames at `T_cam_base` (the links whose outline can shape the pose)."""
-    uv = project(camera, transform_points(T_cam_base, P))          # (F, V, 2)
-    inside = camera.in_image(uv) & usable[None]
-    counts = np.bincount(np.broadcast_to(meshes.vertex_link, inside.shape)[inside],
-                         minlength=len(meshes.links))
-    return [k for k in range(len(meshes.links)) if counts[k] >= min_points]
 
 
 def _refined(scales: Scales, T_all: np.ndarray, scores: np.ndarray, sources: list[str],
@@ -427,23 +360,3 @@ def _aimed(hypotheses: dict[str, np.ndarray], points: np.ndarray, centre: np.nda
             poses.append(V)
             sources += [name] * len(V)
     return np.concatenate(poses), sources
-
-
-def _basin_ends(refine: Callable[[np.ndarray], np.ndarray], T_best: np.ndarray,
-                settings: SearchSettings, rng: np.random.Generator, start_m: float
-                ) -> np.ndarray:
-    """(basin_starts, 4, 4) where `refine` (the winner's own refinement) ends from starts
-    `start_m` / `basin_rad` from T_best in random directions."""
-    T_base_cam = invert_T(T_best)
-    ends = []
-    for _ in range(settings.basin_starts):
-        T = T_base_cam.copy()
-        T[:3, 3] += start_m * _unit(rng)
-        T[:3, :3] = T_base_cam[:3, :3] @ R_from_rotvec(settings.basin_rad * _unit(rng))
-        ends.append(refine(invert_T(T)))
-    return np.array(ends).reshape(-1, 4, 4)
-
-
-def _unit(rng: np.random.Generator) -> np.ndarray:
-    v = rng.normal(size=3)
-    return v / np.linalg.norm(v)
