@@ -372,6 +372,20 @@ class SequenceConfig:
 
 
 @dataclass(frozen=True)
+class Exposure:
+    """A camera's automatic exposure: each frame's 8-bit channels multiplied by one gain whose
+    natural log is drawn with standard deviation `gain_sigma`, clipped at 255 (highlights
+    saturate). A gain in linear light is the same gain on gamma-encoded values, so this is what
+    a sensor's exposure change writes. The default, 0, renders every frame of a sequence at
+    one exposure."""
+
+    gain_sigma: float = 0.0
+
+    def __post_init__(self) -> None:
+        _non_negative("exposure.gain_sigma", self.gain_sigma)
+
+
+@dataclass(frozen=True)
 class Output:
     image_format: str = "png"
     jpeg_quality: int = 95
@@ -394,6 +408,7 @@ class SynthConfig:
     background: Background = field(default_factory=Background)
     distractors: Distractors = field(default_factory=Distractors)
     sequence: SequenceConfig = field(default_factory=SequenceConfig)
+    exposure: Exposure = field(default_factory=Exposure)
     output: Output = field(default_factory=Output)
 
     def to_dict(self) -> dict[str, Any]:

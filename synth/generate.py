@@ -244,7 +244,8 @@ ADDED_CONFIG_KEYS = (("camera", "closeup_prob"), ("camera", "closeup_radius_m"),
                      ("distractors", "robot_name"), ("distractors", "robot_distance_m"),
                      ("distractors", "loose_prob"), ("distractors", "loose_keypoints"),
                      ("distractors", "loose_distance_m"), ("distractors", "loose_height_m"),
-                     ("camera", "T_cam_base"), ("background", "plate"))
+                     ("camera", "T_cam_base"), ("background", "plate"),
+                     ("exposure", "gain_sigma"))
 
 
 def without_retired_keys(info: Any) -> Any:
@@ -258,7 +259,7 @@ def without_retired_keys(info: Any) -> Any:
             config[section].pop(key, None)
     defaults = SynthConfig().to_dict()
     for section, key in ADDED_CONFIG_KEYS:
-        if isinstance(config.get(section), dict):
+        if isinstance(config.setdefault(section, {}), dict):
             config[section].setdefault(key, defaults[section][key])
     return info
 

@@ -31,6 +31,7 @@ MATERIAL_STREAM = 0x3A7
 HIDE_HAND_STREAM = 0x41DE
 OTHER_ROBOT_STREAM = 0x07E2
 LOOSE_PARTS_STREAM = 0x1005E
+EXPOSURE_STREAM = 0xE7905
 
 LIGHT_PART_VALUE = 0.5                 # a part this light (HSV value) turns white plastic
 WHITE_PLASTIC_VALUE = (0.85, 1.0)
@@ -178,3 +179,30 @@ def with_realism(scene, seed: int, index: int, config: SynthConfig, robot: Robot
             sample_loose_parts(stream(seed, LOOSE_PARTS_STREAM, index, mode), config, other,
                                T_cam_base)
     return dataclasses.replace(scene, **changes)
+
+
+def exposure_gain(seed: int, index: int, config: SynthConfig) -> float:
+    """The exposure gain of frame `index` under `config.exposure` (drawn anew for every frame,
+    in every sequence mode: a camera's exposure follows the view); 1 where `gain_sigma` is 0.
+
+    >>> from synth.config import config_from_dict
+    >>> exposure_gain(0, 0, config_from_dict({}))
+    1.0
+    >>> 0.5 < exposure_gain(0, 0, config_from_dict({"exposure": {"gain_sigma": 0.1}})) < 2
+    True
+    """
+    sigma = config.exposure.gain_sigma
+    if not sigma:
+        return 1.0
+    return float(np.exp(sigma * np.random.default_rng([seed, EXPOSURE_STREAM, index]).normal()))
+
+
+def exposed(rgb: np.ndarray, gain: float) -> np.ndarray:
+    """An (H, W, 3) uint8 image times `gain`, clipped at 255 (unchanged where it is 1).
+
+    >>> exposed(np.array([[[200, 100, 10]]], np.uint8), 1.5)[0, 0].tolist()
+    [255, 150, 15]
+    """
+    if gain == 1.0:
+        return rgb
+    return np.clip(np.rint(rgb.astype(np.float32) * np.float32(gain)), 0, 255).astype(np.uint8)

@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from dream.camera import CameraIntrinsics
+from dream.edges.exposure import ExposureSettings, exposure_gain
 from dream.edges.settings import EdgeSettings
 from dream.errors import InputError
 from dream.polish.objective import evenly_spaced
@@ -53,7 +54,29 @@ def background_model(frames: np.ndarray, settings: EdgeSettings) -> np.ndarray:
     if len(frames) < settings.min_background_frames:
         raise InputError(f"{len(frames)} frames are too few for a background model (at least "
                          f"{settings.min_background_frames})")
-    return np.median(frames, axis=0)
+    background = np.median(frames, axis=0)
+    if settings.exposure is None:
+        return background
+    matched = matched_frames(frames, background, settings.exposure)
+    return background if matched is frames else np.median(matched, axis=0)
+
+
+def matched_frames(frames: np.ndarray, background: np.ndarray,
+                   settings: ExposureSettings | None) -> np.ndarray:
+    """Grey frames (F, H, W) each divided by its exposure gain over `background` (H, W)
+    (`dream.edges.exposure`), float32; the same array where every gain is one (or `settings`
+    is None).
+
+    >>> frames = np.full((2, 4, 4), 0.5, np.float32); frames[1] *= 1.2
+    >>> matched_frames(frames, frames[0], ExposureSettings())[1, 0, 0].round(4).item()
+    0.5
+    """
+    if settings is None:
+        return frames
+    gains = np.array([exposure_gain(f, background, settings) for f in frames])
+    if np.all(gains == 1.0):
+        return frames
+    return (np.asarray(frames, np.float32) / gains.astype(np.float32)[:, None, None])
 
 
 def frames_and_background(sequence: Sequence, chosen: np.ndarray, settings: EdgeSettings,
@@ -69,4 +92,5 @@ def frames_and_background(sequence: Sequence, chosen: np.ndarray, settings: Edge
     frames = images[np.searchsorted(needed, chosen)]
     if not len(background_idx):
         return frames, None
-    return frames, background_model(images[np.searchsorted(needed, background_idx)], settings)
+    background = background_model(images[np.searchsorted(needed, background_idx)], settings)
+    return matched_frames(frames, background, settings.exposure), background

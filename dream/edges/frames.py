@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from dream.calibration import CalibrationResult, Observations
-from dream.edges.background import background_model, load_grey
+from dream.edges.background import background_model, load_grey, matched_frames
 from dream.edges.calibration import edge_jackknife, moving_vertices, outline_meshes
 from dream.edges.refine import align_edges
 from dream.edges.score import edge_score
@@ -157,7 +157,8 @@ def _shared_background(sequence: Sequence, settings: EdgeSettings) -> np.ndarray
     grey = load_grey(sequence, evenly_spaced(np.arange(len(sequence)),
                                              settings.background_frames), camera)
     background = background_model(grey, settings)
-    if not background_explains(grey, background, settings):
+    if not background_explains(matched_frames(grey, background, settings.exposure), background,
+                               settings):
         log.info("edge alignment of each frame: the frames do not share one background (a "
                  "moving camera?); edges are matched without a background model")
         return None
@@ -176,6 +177,8 @@ def _align_frame(sequence: Sequence, i: int, meshes, joints: np.ndarray,
     grey = load_grey(sequence, np.array([i]), camera)
     if background is not None and background.shape != grey.shape[1:]:
         background = None
+    if background is not None:
+        grey = matched_frames(grey, background, settings.exposure)
     P = vertices_in_base(meshes, joints)
     full = scale_images(grey, camera, camera.width, settings, background)
     score0 = edge_score(meshes, P, T0, full, settings, usable)

@@ -2,16 +2,17 @@
 
 The colour background model is the per-pixel median of many frames (evenly spaced, as
 `dream.edges.background`); a pixel of a frame is "moving" when one of its colour channels
-differs from it by at least `threshold`. An opening removes speckle (sensor noise, compression),
-a closing bridges thin gaps, and blobs smaller than `min_area_fraction` of the image go. Then
-hysteresis: the pixels that differ by at least `weak_threshold` (opened and closed alike) join
-the mask where they connect to it, so a link only a little unlike the scene behind it is not
-cut off where it touches one that differs clearly, and faint differences alone stay out. What
-the mask holds is the moving arm, plus its shadow and anything else that moved; what it misses
-is any part of the arm that matches the scene behind it in colour, and the links that never move
-(they are in the background model). So a motion mask suits a polish of the moving links only
-(`dream calibrate --polish --motion-masks`) and inspection (`dream masks`), not the robot's
-full silhouette.
+differs from it by at least `threshold`, once the frame's exposure is matched to the model's
+(`dream.edges.exposure`: a camera on automatic exposure). An opening removes speckle (sensor
+noise, compression), a closing bridges thin gaps, and blobs smaller than `min_area_fraction`
+of the image go. Then hysteresis: the pixels that differ by at least `weak_threshold` (opened
+and closed alike) join the mask where they connect to it, so a link only a little unlike the
+scene behind it is not cut off where it touches one that differs clearly, and faint differences
+alone stay out. What the mask holds is the moving arm, plus its shadow and anything else that
+moved; what it misses is any part of the arm that matches the scene behind it in colour, and
+the links that never move (they are in the background model). So a motion mask suits a
+polish of the moving links only (`dream calibrate --polish --motion-masks`) and inspection
+(`dream masks`), not the robot's full silhouette.
 
     >>> import numpy as np
     >>> frames = np.zeros((9, 40, 40, 3), np.uint8)
@@ -23,11 +24,12 @@ full silhouette.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
+from dream.edges.exposure import ExposureSettings, exposure_gain
 from dream.errors import InputError
 from dream.polish.objective import evenly_spaced
 from dream.sequence import Sequence
@@ -57,6 +59,10 @@ class MotionSettings:
             covering `min_area_fraction` of the image) for the masks to be made.
         static_link_m: links whose vertices move less than this over the frames are in the
             background model, so not in the masks (`dream.silhouette.static_links`).
+        exposure: each frame's exposure is matched to the background model's before they are
+            compared, and the model's frames to their first median before the median is taken
+            again (where the arm covers a pixel in some frames, the median of the others is
+            at their exposure; `dream.edges.exposure`); None compares them as read.
     """
 
     threshold: float = 0.1
@@ -68,6 +74,7 @@ class MotionSettings:
     min_background_frames: int = 5
     min_moving_fraction: float = 0.5
     static_link_m: float = 0.005
+    exposure: ExposureSettings | None = field(default_factory=ExposureSettings)
 
     def __post_init__(self) -> None:
         check_fields(self, "motion masks",
@@ -97,7 +104,37 @@ def background_rgb(frames: np.ndarray, settings: MotionSettings) -> np.ndarray:
         raise InputError(f"{len(frames)} frames are too few for a background model (at least "
                          f"{settings.min_background_frames})",
                          fix="record more frames of the fixed camera with the arm moving")
-    return np.median(frames, axis=0).astype(np.uint8)
+    background = np.median(frames, axis=0)
+    if settings.exposure is None:
+        return background.astype(np.uint8)
+    gains = [_gain(f, background, settings.exposure) for f in frames]
+    if all(g is None for g in gains):
+        return background.astype(np.uint8)
+    matched = np.stack([f if g is None else np.clip(np.rint(
+        f.astype(np.float32) / np.float32(g)), 0, COLOUR_LEVELS).astype(np.uint8)
+        for f, g in zip(frames, gains, strict=True)])
+    return np.median(matched, axis=0).astype(np.uint8)
+
+
+def _gain(frame: np.ndarray, background: np.ndarray, settings: ExposureSettings
+          ) -> float | None:
+    """The exposure gain of an RGB frame over the background (both in 0-255), None where it
+    is one."""
+    gain = exposure_gain(np.asarray(frame, np.float32) / COLOUR_LEVELS,
+                         np.asarray(background, np.float32) / COLOUR_LEVELS, settings)
+    return None if gain == 1.0 else gain
+
+
+def colour_difference(frame: np.ndarray, background: np.ndarray,
+                      settings: MotionSettings) -> np.ndarray:
+    """(H, W) the largest difference of any channel (0-255 levels) of an RGB frame from the
+    background (H, W, 3), after the frame's exposure is matched to the background's
+    (`settings.exposure`)."""
+    gain = None if settings.exposure is None else _gain(frame, background, settings.exposure)
+    if gain is None:
+        return np.abs(frame.astype(np.int16) - background.astype(np.int16)).max(axis=2)
+    return np.abs(frame.astype(np.float32) / np.float32(gain)
+                  - background.astype(np.float32)).max(axis=2)
 
 
 def disk(radius: float) -> np.ndarray | None:
@@ -120,7 +157,7 @@ def motion_masks(frames: np.ndarray, background: np.ndarray, settings: MotionSet
     min_area = settings.min_area_fraction * H * W
     out = np.zeros((F, H, W), bool)
     for f in range(F):
-        diff = np.abs(frames[f].astype(np.int16) - background.astype(np.int16)).max(axis=2)
+        diff = colour_difference(frames[f], background, settings)
         strong = _cleaned(diff >= settings.threshold * COLOUR_LEVELS, opening, closing)
         count, labels, stats, _ = cv2.connectedComponentsWithStats(strong, connectivity=8)
         big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= min_area)

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from dream.edges.exposure import ExposureSettings
 from dream.errors import InputError
 from dream.settings_checks import check_fields
 from dream.silhouette import DEFAULT_MAX_TRIANGLES
@@ -68,6 +69,9 @@ class EdgeSettings:
             less; 0 turns the link weights off. On the design seeds (no keypoint guard) the
             median error went 1.96 mm without, 1.75 / 1.71 / 1.82 mm with 1.5 / 2 / 3.
         max_triangles: triangle budget of the robot's meshes (`dream.silhouette`).
+        exposure: with a background model, each grey frame's exposure is matched to the
+            model's before they are compared, and the model's frames to their first median
+            before the median is taken again (`dream.edges.exposure`); None: as read.
     """
 
     scale_widths_px: tuple[int, ...] = (80, 160, 320)
@@ -99,6 +103,7 @@ class EdgeSettings:
     keypoint_margin_px: float = 3.0
     link_weight_scale: float = 2.0
     max_triangles: int = DEFAULT_MAX_TRIANGLES
+    exposure: ExposureSettings | None = field(default_factory=ExposureSettings)
 
     def __post_init__(self) -> None:
         widths = tuple(int(w) for w in self.scale_widths_px)

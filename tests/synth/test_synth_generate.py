@@ -386,3 +386,26 @@ def test_workers_are_capped_at_the_frames_and_cores(tmp_path, capsys):
                  str(tmp_path / "one")])
     assert code == 0 and "1 rendering processes instead of --workers 64" in \
         capsys.readouterr().err
+
+
+def test_an_automatic_exposure_scales_each_frame_by_its_own_gain():
+    """`exposure.gain_sigma`: each frame of a fixed-camera sequence is the frame at the fixed
+    exposure times its own gain (clipped), and the rest of the draw is unchanged."""
+    from synth.realism import exposed, exposure_gain
+
+    robot = load_robot("panda")
+    plain = config_from_dict({"intrinsics": FIXED, "sequence": {"mode": "fixed_camera"}})
+    auto = config_from_dict({"intrinsics": FIXED, "sequence": {"mode": "fixed_camera"},
+                             "exposure": {"gain_sigma": 0.2}})
+    frames = {}
+    for name, config in (("plain", plain), ("auto", auto)):
+        maker = FrameMaker(robot, config, seed=3)
+        try:
+            frames[name] = [maker.make(i) for i in range(3)]
+        finally:
+            maker.close()
+    gains = [exposure_gain(3, i, auto) for i in range(3)]
+    assert len(set(gains)) == 3 and all(g != 1.0 for g in gains)
+    for gain, a, b in zip(gains, frames["plain"], frames["auto"], strict=True):
+        assert np.array_equal(exposed(a.rgb, gain), b.rgb)
+        assert np.array_equal(a.uv, b.uv, equal_nan=True)

@@ -27,6 +27,7 @@ def frame(seed, index, config):
     ({"lights": {"count": [0, 2]}}, "lights.count"),
     ({"intrinsics": {"fx": 100}}, "all of fx, fy, cx, cy"),
     ({"sequence": {"mode": "loop"}}, "sequence.mode"),
+    ({"exposure": {"gain_sigma": -0.1}}, "exposure.gain_sigma"),
     ({"background": {"kinds": {"plaid": 1}}}, "unknown kinds"),
     ({"nonsense": {}}, "unknown config key .nonsense."),
     ({"lights": {"intensity": "bright"}}, "lights.intensity"),
