@@ -372,17 +372,20 @@ class SequenceConfig:
 
 
 @dataclass(frozen=True)
-class Exposure:
-    """A camera's automatic exposure: each frame's 8-bit channels multiplied by one gain whose
-    natural log is drawn with standard deviation `gain_sigma`, clipped at 255 (highlights
-    saturate). A gain in linear light is the same gain on gamma-encoded values, so this is what
-    a sensor's exposure change writes. The default, 0, renders every frame of a sequence at
-    one exposure."""
+class Sensor:
+    """What a real camera's sensor adds to each frame. `gain_sigma`: automatic exposure, the
+    frame's 8-bit channels multiplied by one gain whose natural log is drawn with this standard
+    deviation (a gain in linear light is the same gain on gamma-encoded values). `noise_std`:
+    read noise, Gaussian of this standard deviation in 8-bit levels, drawn anew for every pixel
+    and frame. Both clipped to 0-255; 0 (the default) adds nothing, so every frame of a
+    sequence shows the scene at one exposure and without noise."""
 
     gain_sigma: float = 0.0
+    noise_std: float = 0.0
 
     def __post_init__(self) -> None:
-        _non_negative("exposure.gain_sigma", self.gain_sigma)
+        _non_negative("sensor.gain_sigma", self.gain_sigma)
+        _non_negative("sensor.noise_std", self.noise_std)
 
 
 @dataclass(frozen=True)
@@ -408,7 +411,7 @@ class SynthConfig:
     background: Background = field(default_factory=Background)
     distractors: Distractors = field(default_factory=Distractors)
     sequence: SequenceConfig = field(default_factory=SequenceConfig)
-    exposure: Exposure = field(default_factory=Exposure)
+    sensor: Sensor = field(default_factory=Sensor)
     output: Output = field(default_factory=Output)
 
     def to_dict(self) -> dict[str, Any]:

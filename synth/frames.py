@@ -35,7 +35,7 @@ from synth.randomize import (
     trajectory_joints_at,
 )
 from synth.rays import keypoint_ray_hits
-from synth.realism import exposed, exposure_gain
+from synth.realism import sensor_effects
 from synth.render import BACKGROUND_GEOM, SceneRenderer
 from synth.rendered import RenderedFrame
 from synth.scene import RobotScene, build_scene
@@ -279,7 +279,7 @@ class FrameMaker:
                 np.random.default_rng(p.scene.background_seed), camera.height, camera.width,
                 self.config.background.kinds, self.photos)
             rgb[background] = bg[background]
-        rgb = exposed(rgb, exposure_gain(self.seed, index, self.config))
+        rgb = sensor_effects(rgb, self.seed, index, self.config)
         P_cam = true_keypoints_cam(self.true_robot, q_true, p.scene.T_cam_base, self.extension)
         hits = keypoint_ray_hits(self.scene, self.renderer.data, P_cam, p.scene.T_cam_base,
                                  self.ray_groups, self.distractor_set)

@@ -245,7 +245,7 @@ ADDED_CONFIG_KEYS = (("camera", "closeup_prob"), ("camera", "closeup_radius_m"),
                      ("distractors", "loose_prob"), ("distractors", "loose_keypoints"),
                      ("distractors", "loose_distance_m"), ("distractors", "loose_height_m"),
                      ("camera", "T_cam_base"), ("background", "plate"),
-                     ("exposure", "gain_sigma"))
+                     ("sensor", "gain_sigma"), ("sensor", "noise_std"))
 
 
 def without_retired_keys(info: Any) -> Any:

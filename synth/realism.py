@@ -31,7 +31,7 @@ MATERIAL_STREAM = 0x3A7
 HIDE_HAND_STREAM = 0x41DE
 OTHER_ROBOT_STREAM = 0x07E2
 LOOSE_PARTS_STREAM = 0x1005E
-EXPOSURE_STREAM = 0xE7905
+SENSOR_STREAM = 0xE7905
 
 LIGHT_PART_VALUE = 0.5                 # a part this light (HSV value) turns white plastic
 WHITE_PLASTIC_VALUE = (0.85, 1.0)
@@ -181,28 +181,25 @@ def with_realism(scene, seed: int, index: int, config: SynthConfig, robot: Robot
     return dataclasses.replace(scene, **changes)
 
 
-def exposure_gain(seed: int, index: int, config: SynthConfig) -> float:
-    """The exposure gain of frame `index` under `config.exposure` (drawn anew for every frame,
-    in every sequence mode: a camera's exposure follows the view); 1 where `gain_sigma` is 0.
+def sensor_effects(rgb: np.ndarray, seed: int, index: int, config: SynthConfig) -> np.ndarray:
+    """Frame `index`'s (H, W, 3) uint8 image as `config.sensor` writes it: times its exposure
+    gain, plus read noise, clipped (drawn anew for every frame, in every sequence mode; the
+    image itself where both are 0).
 
     >>> from synth.config import config_from_dict
-    >>> exposure_gain(0, 0, config_from_dict({}))
-    1.0
-    >>> 0.5 < exposure_gain(0, 0, config_from_dict({"exposure": {"gain_sigma": 0.1}})) < 2
+    >>> rgb = np.full((2, 2, 3), 100, np.uint8)
+    >>> sensor_effects(rgb, 0, 0, config_from_dict({})) is rgb
     True
+    >>> bright = sensor_effects(rgb, 0, 0, config_from_dict({"sensor": {"gain_sigma": 0.1}}))
+    >>> bool(np.all(bright == bright[0, 0, 0])), bool(bright[0, 0, 0] != 100)
+    (True, True)
     """
-    sigma = config.exposure.gain_sigma
-    if not sigma:
-        return 1.0
-    return float(np.exp(sigma * np.random.default_rng([seed, EXPOSURE_STREAM, index]).normal()))
-
-
-def exposed(rgb: np.ndarray, gain: float) -> np.ndarray:
-    """An (H, W, 3) uint8 image times `gain`, clipped at 255 (unchanged where it is 1).
-
-    >>> exposed(np.array([[[200, 100, 10]]], np.uint8), 1.5)[0, 0].tolist()
-    [255, 150, 15]
-    """
-    if gain == 1.0:
+    sensor = config.sensor
+    if not (sensor.gain_sigma or sensor.noise_std):
         return rgb
-    return np.clip(np.rint(rgb.astype(np.float32) * np.float32(gain)), 0, 255).astype(np.uint8)
+    rng = np.random.default_rng([seed, SENSOR_STREAM, index])
+    gain = np.exp(sensor.gain_sigma * rng.normal())
+    noise = sensor.noise_std * rng.standard_normal(rgb.shape, np.float32) \
+        if sensor.noise_std else 0.0
+    return np.clip(np.rint(rgb.astype(np.float32) * np.float32(gain) + noise), 0,
+                   255).astype(np.uint8)

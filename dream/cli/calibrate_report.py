@@ -55,12 +55,11 @@ def _inlier_rmse(seq, result, obs, T: np.ndarray) -> float:
 def _motion_masks(seq, robot, out: TextIO):
     """`--motion-masks`: the polish's mask source (frame indices -> motion masks) and the links
     left out of its silhouettes (those that never move stay in the background model)."""
-    from dream.edges.motion import MotionSettings, sequence_background, sequence_motion_masks
+    from dream.edges.motion import MotionSettings, sequence_motion_masks, sequence_motion_model
     from dream.pipeline import joints_in_robot_order
     from dream.silhouette import load_robot_meshes, static_links
 
-    settings = MotionSettings()
-    background = sequence_background(seq, settings)
+    background, settings = sequence_motion_model(seq, MotionSettings())
     static = static_links(load_robot_meshes(robot), joints_in_robot_order(seq, robot),
                           settings.static_link_m)
     print(f"no masks in the data: the polish uses motion masks (--motion-masks), without the "

@@ -41,7 +41,7 @@ def run_masks(request: MasksRequest, out: TextIO | None = None) -> int:
         MotionSettings,
         check_motion,
         motion_masks,
-        sequence_background,
+        sequence_motion_model,
     )
     from dream.io import check_output_folder, load_image
     from dream.io.atomic import staged_directory
@@ -50,8 +50,7 @@ def run_masks(request: MasksRequest, out: TextIO | None = None) -> int:
     out = out or sys.stdout
     check_output_folder(request.out)                     # before any reading
     seq = read_data(request)
-    settings = MotionSettings()
-    background = sequence_background(seq, settings)
+    background, settings = sequence_motion_model(seq, MotionSettings())
     cover = np.zeros(len(seq))
     with staged_directory(request.out) as stage:         # a failure leaves nothing
         (stage / "background.png").write_bytes(encode_png(background, stage / "background.png"))

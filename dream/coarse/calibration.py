@@ -107,7 +107,7 @@ def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> 
         MotionSettings,
         check_motion,
         motion_masks,
-        sequence_background,
+        sequence_motion_model,
     )
     from dream.io import load_image, load_mask
     from dream.pipeline import joints_in_robot_order
@@ -120,8 +120,7 @@ def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> 
         frames, search = _frame_sets(with_mask, with_mask, settings)
         masks = np.stack([load_mask(sequence.frames[i], camera) for i in frames])
         return SearchMasks(meshes, frames, joints[frames], masks, DATA_MASKS, (), search)
-    motion = MotionSettings()
-    background = sequence_background(sequence, motion)
+    background, motion = sequence_motion_model(sequence, MotionSettings())
     everything = np.arange(len(sequence))
     for_search = evenly_spaced(everything, MOTION_CANDIDATES * settings.search_frames)
     tried = np.union1d(for_search, evenly_spaced(everything, settings.finish_frames))

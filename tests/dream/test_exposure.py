@@ -1,19 +1,28 @@
 """The exposure match (`dream.edges.exposure`) and what it does for the motion masks and the
-edge alignment's background model of a camera on automatic exposure."""
+edge alignment's background model of a camera on automatic exposure; block compression
+(`dream.edges.compression`) and the motion masks of a JPEG recording."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
 from dream.edges.background import background_model, matched_frames
+from dream.edges.compression import block_step_ratio
 from dream.edges.exposure import ExposureSettings, exposure_gain, matched_exposure
-from dream.edges.motion import MotionSettings, background_rgb, motion_masks
+from dream.edges.motion import (
+    MotionSettings,
+    background_rgb,
+    motion_masks,
+    recording_settings,
+)
 from dream.edges.settings import EdgeSettings
 from dream.errors import InputError
 
 SIZE = (60, 80)
-ARM = (slice(20, 40), slice(25, 45))         # a patch of 400 of the 4800 pixels
+SENSOR_NOISE = 2.0                            # grey levels
+ARM = (slice(21, 39), slice(25, 45))         # 360 of the 4800 pixels, its sides off the 8-px grid
 
 
 def scene(seed: int = 0) -> np.ndarray:
@@ -85,7 +94,7 @@ def test_motion_masks_of_a_camera_on_automatic_exposure_are_those_of_a_fixed_one
     settings = MotionSettings()
     expected = motion_masks(fixed, background_rgb(fixed, settings), settings)
     masks = motion_masks(auto, background_rgb(auto, settings), settings)
-    assert expected.sum(axis=(1, 2)).min() >= 300             # the arm, 400 pixels
+    assert expected.sum(axis=(1, 2)).min() >= 300             # the arm, 360 pixels
     assert (masks != expected).sum(axis=(1, 2)).max() <= 20
     unmatched = MotionSettings(exposure=None)
     flooded = motion_masks(auto, background_rgb(auto, unmatched), unmatched)
@@ -104,3 +113,46 @@ def test_grey_frames_are_matched_to_the_edge_background_model():
     assert (differs & ~arm).sum() <= 0.01 * (~arm).sum()
     assert (np.abs(frames - model[None]) >= 0.05)[1][~arm[1]].mean() > 0.5   # unmatched
     assert matched_frames(frames, model, None) is frames
+
+
+def jpeg(rgb: np.ndarray, quality: int) -> np.ndarray:
+    ok, data = cv2.imencode(".jpg", rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, quality])
+    assert ok
+    return cv2.imdecode(data, cv2.IMREAD_COLOR)[..., ::-1]
+
+
+def wall() -> np.ndarray:
+    """(H, W, 3) uint8: a smoothly lit wall, as much of a real scene is."""
+    y, x = np.mgrid[0:SIZE[0], 0:SIZE[1]]
+    level = 90 + 1.2 * x + 0.8 * y
+    return np.clip(np.stack([level, 0.9 * level, 0.8 * level], axis=2), 0, 255).astype(np.uint8)
+
+
+def test_a_block_compressed_recording_is_told_from_a_lossless_one():
+    background = wall()
+    shifts = [6 * k - 24 for k in range(9)]
+    rng = np.random.default_rng(4)                  # a sensor's noise: no two frames code alike
+    lossless = np.stack([np.clip(with_arm(background, 1.0, s, colour=200)
+                                 + rng.normal(0, SENSOR_NOISE, (*SIZE, 3)), 0, 255)
+                         .astype(np.uint8) for s in shifts])
+    compressed = np.stack([jpeg(f, 60) for f in lossless])
+    settings = MotionSettings()
+    for frames, expect_weak in ((lossless, settings.weak_threshold),
+                                (compressed, settings.threshold)):
+        model = background_rgb(frames, settings)
+        ratios = [block_step_ratio(cv2.cvtColor(f, cv2.COLOR_RGB2GRAY).astype(float)
+                                   - cv2.cvtColor(model, cv2.COLOR_RGB2GRAY)) for f in frames]
+        chosen = recording_settings(frames, model, settings)
+        assert chosen.weak_threshold == expect_weak, np.median(ratios)
+    # the hysteresis off, the compressed masks lie nearer the arm
+    model = background_rgb(compressed, settings)
+    arm = np.stack([arm_at(s) for s in shifts])
+    with_weak = motion_masks(compressed, model, settings)
+    without = motion_masks(compressed, model, recording_settings(compressed, model, settings))
+    assert (without & ~arm).sum() < (with_weak & ~arm).sum()
+    assert (without & arm).sum() >= 0.9 * arm.sum()
+
+
+def test_block_steps_need_an_image_of_two_blocks():
+    with pytest.raises(InputError, match="at least 16 pixels"):
+        block_step_ratio(np.zeros((8, 40)))

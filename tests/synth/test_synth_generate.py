@@ -388,24 +388,27 @@ def test_workers_are_capped_at_the_frames_and_cores(tmp_path, capsys):
         capsys.readouterr().err
 
 
-def test_an_automatic_exposure_scales_each_frame_by_its_own_gain():
-    """`exposure.gain_sigma`: each frame of a fixed-camera sequence is the frame at the fixed
-    exposure times its own gain (clipped), and the rest of the draw is unchanged."""
-    from synth.realism import exposed, exposure_gain
+def test_a_sensor_s_exposure_and_noise_change_each_frame_alone():
+    """`sensor.gain_sigma` and `noise_std`: each frame of a fixed-camera sequence is the frame
+    without them as `sensor_effects` writes it, its own gain and noise, and the rest of the
+    draw (labels, joints) is unchanged."""
+    from synth.realism import sensor_effects
 
     robot = load_robot("panda")
     plain = config_from_dict({"intrinsics": FIXED, "sequence": {"mode": "fixed_camera"}})
-    auto = config_from_dict({"intrinsics": FIXED, "sequence": {"mode": "fixed_camera"},
-                             "exposure": {"gain_sigma": 0.2}})
+    real = config_from_dict({"intrinsics": FIXED, "sequence": {"mode": "fixed_camera"},
+                             "sensor": {"gain_sigma": 0.2, "noise_std": 2.0}})
     frames = {}
-    for name, config in (("plain", plain), ("auto", auto)):
+    for name, config in (("plain", plain), ("real", real)):
         maker = FrameMaker(robot, config, seed=3)
         try:
             frames[name] = [maker.make(i) for i in range(3)]
         finally:
             maker.close()
-    gains = [exposure_gain(3, i, auto) for i in range(3)]
-    assert len(set(gains)) == 3 and all(g != 1.0 for g in gains)
-    for gain, a, b in zip(gains, frames["plain"], frames["auto"], strict=True):
-        assert np.array_equal(exposed(a.rgb, gain), b.rgb)
+    ratios = []
+    for i, (a, b) in enumerate(zip(frames["plain"], frames["real"], strict=True)):
+        assert np.array_equal(sensor_effects(a.rgb, 3, i, real), b.rgb)
         assert np.array_equal(a.uv, b.uv, equal_nan=True)
+        assert np.array_equal(a.joints, b.joints)
+        ratios.append(float(np.median(b.rgb[a.rgb > 20] / a.rgb[a.rgb > 20])))
+    assert len({round(r, 2) for r in ratios}) == 3          # a gain of its own in each frame
