@@ -24,17 +24,20 @@ polish of the moving links only (`dream calibrate --polish --motion-masks`) and 
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
 
-from dream.edges.compression import block_step_ratio
+from dream.edges.compression import BLOCK_PX, block_step_ratio
 from dream.edges.exposure import ExposureSettings, exposure_gain
 from dream.errors import InputError
 from dream.polish.objective import evenly_spaced
 from dream.sequence import Sequence
 from dream.settings_checks import check_fields
+
+log = logging.getLogger(__name__)
 
 COLOUR_LEVELS = 255.0     # 8-bit colour channels are compared in [0, 1]
 
@@ -212,7 +215,7 @@ def recording_settings(frames: np.ndarray, background: np.ndarray, settings: Mot
     """`settings` for a recording whose RGB frames (F, H, W, 3) give `background`: without
     the hysteresis (`weak_threshold` raised to `threshold`) where the frames are
     block-compressed (`compressed_step_ratio`), else as given."""
-    if settings.weak_threshold >= settings.threshold:
+    if settings.weak_threshold >= settings.threshold or min(background.shape[:2]) < 2 * BLOCK_PX:
         return settings
     grey_background = cv2.cvtColor(background, cv2.COLOR_RGB2GRAY).astype(np.float32)
     ratios = []
@@ -222,6 +225,8 @@ def recording_settings(frames: np.ndarray, background: np.ndarray, settings: Mot
         ratios.append(block_step_ratio(grey / np.float32(gain or 1.0) - grey_background))
     if np.median(ratios) < settings.compressed_step_ratio:
         return settings
+    log.info("the frames are block-compressed (JPEG; block steps %.2f times the others): motion "
+             "masks without the hysteresis", float(np.median(ratios)))
     return replace(settings, weak_threshold=settings.threshold)
 
 

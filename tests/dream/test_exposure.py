@@ -156,3 +156,10 @@ def test_a_block_compressed_recording_is_told_from_a_lossless_one():
 def test_block_steps_need_an_image_of_two_blocks():
     with pytest.raises(InputError, match="at least 16 pixels"):
         block_step_ratio(np.zeros((8, 40)))
+
+
+def test_frames_smaller_than_two_blocks_keep_the_hysteresis():
+    frames = np.zeros((5, 10, 12, 3), np.uint8)
+    frames[0, 2:5, 2:5] = 200
+    settings = MotionSettings()
+    assert recording_settings(frames, background_rgb(frames, settings), settings) == settings
