@@ -185,7 +185,7 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
     return {"method": "silhouette search", "hypotheses": guess.description,
             "hypotheses_scored": outcome.hypotheses, "evidence": inputs.source,
             "frames": [seq.frames[int(i)].name for i in inputs.frames],
-            "left_out_links": list(inputs.left_out),
+            "left_out_links": list(inputs.left_out), "motion_masks": inputs.motion,
             "carried": carried_doc(inputs.carried, CARRIED in outcome.hypotheses),
             "T_cam_base": outcome.best.T_cam_base.tolist(), "iou": outcome.best.iou,
             "rival_iou": None if rival is None else rival.iou,

@@ -82,7 +82,10 @@ class SearchMasks:
     the positions among the chosen of the frames the hypotheses are scored on (`search`; the
     finishing refinement compares them all), and what the carving at the first winner found
     the arm carrying (`carried`; None where it did not run; `dream.coarse.carried`) and the
-    pixels of it left out of the search (`region`; None where none are)."""
+    pixels of it left out of the search (`region`; None where none are), and with motion
+    masks how they were made (`motion`: the hysteresis on or off, a block-compressed recording's
+    being off, and how many of the frames had their exposure matched; None with the data's
+    masks)."""
 
     meshes: RobotMeshes
     frames: np.ndarray
@@ -93,6 +96,7 @@ class SearchMasks:
     search: np.ndarray
     carried: CarvingOutcome | None = None
     region: CarriedRegion | None = None
+    motion: dict | None = None
 
 
 def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> SearchMasks:
@@ -106,6 +110,7 @@ def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> 
     from dream.edges.motion import (
         MotionSettings,
         check_motion,
+        frame_gain,
         motion_masks,
         sequence_motion_model,
     )
@@ -124,8 +129,12 @@ def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> 
     everything = np.arange(len(sequence))
     for_search = evenly_spaced(everything, MOTION_CANDIDATES * settings.search_frames)
     tried = np.union1d(for_search, evenly_spaced(everything, settings.finish_frames))
-    masks = np.stack([motion_masks(load_image(sequence.frames[int(i)], camera)[None],
-                                   background, motion)[0] for i in tried])
+    masks, matched = [], 0
+    for i in tried:
+        image = load_image(sequence.frames[int(i)], camera)
+        masks.append(motion_masks(image[None], background, motion)[0])
+        matched += frame_gain(image, background, motion) != 1.0
+    masks = np.stack(masks)
     coverage = masks.reshape(len(masks), -1).mean(axis=1)
     check_motion(coverage[np.isin(tried, for_search)], motion, str(sequence.source))
     moving = tried[coverage >= motion.min_area_fraction]
@@ -136,8 +145,10 @@ def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> 
                          "it", sequence.source, "record the arm moving, or give robot masks")
     if static:
         meshes = without_links(meshes, static)
+    made = {"hysteresis": motion.weak_threshold < motion.threshold,
+            "frames_exposure_matched": int(matched), "frames_made": len(tried)}
     return SearchMasks(meshes, frames, joints[frames], masks[np.searchsorted(tried, frames)],
-                       MOTION_MASKS, static, search)
+                       MOTION_MASKS, static, search, motion=made)
 
 
 def _frame_sets(for_search: np.ndarray, for_finish: np.ndarray, settings: SearchSettings

@@ -129,6 +129,13 @@ def background_rgb(frames: np.ndarray, settings: MotionSettings) -> np.ndarray:
     return np.median(matched, axis=0).astype(np.uint8)
 
 
+def frame_gain(frame: np.ndarray, background: np.ndarray, settings: MotionSettings) -> float:
+    """The exposure gain an RGB frame is divided by before it is compared with the
+    background (1 where none is, or `settings.exposure` is None)."""
+    gain = None if settings.exposure is None else _gain(frame, background, settings.exposure)
+    return 1.0 if gain is None else gain
+
+
 def _gain(frame: np.ndarray, background: np.ndarray, settings: ExposureSettings
           ) -> float | None:
     """The exposure gain of an RGB frame over the background (both in 0-255), None where it

@@ -311,6 +311,9 @@ def test_a_recording_of_seven_frames_calibrates_without_keypoints(panda, meshes,
     t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
     assert t_err < 0.01 and r_err < np.deg2rad(0.5), (t_err, np.rad2deg(r_err))
     assert doc["start"]["evidence"] == "motion masks" and len(doc["start"]["frames"]) == 7
+    made = doc["start"]["motion_masks"]
+    assert made["frames_made"] == 7 and made["frames_exposure_matched"] == 0
+    assert isinstance(made["hysteresis"], bool)
 
 
 def test_refine_auto_keeps_the_keypoint_result_where_edges_cannot_run(panda, meshes, tmp_path,
