@@ -132,8 +132,9 @@ def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> 
     masks, matched = [], 0
     for i in tried:
         image = load_image(sequence.frames[int(i)], camera)
-        masks.append(motion_masks(image[None], background, motion)[0])
-        matched += frame_gain(image, background, motion) != 1.0
+        gain = frame_gain(image, background, motion)
+        masks.append(motion_masks(image[None], background, motion, [gain])[0])
+        matched += gain != 1.0
     masks = np.stack(masks)
     coverage = masks.reshape(len(masks), -1).mean(axis=1)
     check_motion(coverage[np.isin(tried, for_search)], motion, str(sequence.source))

@@ -118,12 +118,10 @@ def background_rgb(frames: np.ndarray, settings: MotionSettings) -> np.ndarray:
                          f"{settings.min_background_frames})",
                          fix="record more frames of the fixed camera with the arm moving")
     background = np.median(frames, axis=0)
-    if settings.exposure is None:
+    gains = [frame_gain(f, background, settings) for f in frames]
+    if all(g == 1.0 for g in gains):
         return background.astype(np.uint8)
-    gains = [_gain(f, background, settings.exposure) for f in frames]
-    if all(g is None for g in gains):
-        return background.astype(np.uint8)
-    matched = np.stack([f if g is None else np.clip(np.rint(
+    matched = np.stack([f if g == 1.0 else np.clip(np.rint(
         f.astype(np.float32) / np.float32(g)), 0, COLOUR_LEVELS).astype(np.uint8)
         for f, g in zip(frames, gains, strict=True)])
     return np.median(matched, axis=0).astype(np.uint8)
@@ -131,27 +129,18 @@ def background_rgb(frames: np.ndarray, settings: MotionSettings) -> np.ndarray:
 
 def frame_gain(frame: np.ndarray, background: np.ndarray, settings: MotionSettings) -> float:
     """The exposure gain an RGB frame is divided by before it is compared with the
-    background (1 where none is, or `settings.exposure` is None)."""
-    gain = None if settings.exposure is None else _gain(frame, background, settings.exposure)
-    return 1.0 if gain is None else gain
+    background (both in 0-255; `dream.edges.exposure`): 1 where none is, or where
+    `settings.exposure` is None."""
+    if settings.exposure is None:
+        return 1.0
+    return exposure_gain(np.asarray(frame, np.float32) / COLOUR_LEVELS,
+                         np.asarray(background, np.float32) / COLOUR_LEVELS, settings.exposure)
 
 
-def _gain(frame: np.ndarray, background: np.ndarray, settings: ExposureSettings
-          ) -> float | None:
-    """The exposure gain of an RGB frame over the background (both in 0-255), None where it
-    is one."""
-    gain = exposure_gain(np.asarray(frame, np.float32) / COLOUR_LEVELS,
-                         np.asarray(background, np.float32) / COLOUR_LEVELS, settings)
-    return None if gain == 1.0 else gain
-
-
-def colour_difference(frame: np.ndarray, background: np.ndarray,
-                      settings: MotionSettings) -> np.ndarray:
-    """(H, W) the largest difference of any channel (0-255 levels) of an RGB frame from the
-    background (H, W, 3), after the frame's exposure is matched to the background's
-    (`settings.exposure`)."""
-    gain = None if settings.exposure is None else _gain(frame, background, settings.exposure)
-    if gain is None:
+def colour_difference(frame: np.ndarray, background: np.ndarray, gain: float) -> np.ndarray:
+    """(H, W) the largest difference of any channel (0-255 levels) of an RGB frame divided by
+    its exposure `gain` (`frame_gain`) from the background (H, W, 3)."""
+    if gain == 1.0:
         return np.abs(frame.astype(np.int16) - background.astype(np.int16)).max(axis=2)
     return np.abs(frame.astype(np.float32) / np.float32(gain)
                   - background.astype(np.float32)).max(axis=2)
@@ -163,10 +152,10 @@ def disk(radius: float) -> np.ndarray | None:
     return None if r < 1 else cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
 
 
-def motion_masks(frames: np.ndarray, background: np.ndarray, settings: MotionSettings
-                 ) -> np.ndarray:
+def motion_masks(frames: np.ndarray, background: np.ndarray, settings: MotionSettings,
+                 gains: list[float] | None = None) -> np.ndarray:
     """(F, H, W) bool motion masks of RGB frames (F, H, W, 3) against `background` (H, W, 3)
-    (module doc; pure)."""
+    (module doc; pure); `gains`: the frames' `frame_gain`s where the caller has them."""
     frames = np.asarray(frames)
     if frames.ndim != 4 or frames.shape[1:] != np.shape(background):
         raise InputError(f"frames have shape {frames.shape} and the background "
@@ -177,7 +166,8 @@ def motion_masks(frames: np.ndarray, background: np.ndarray, settings: MotionSet
     min_area = settings.min_area_fraction * H * W
     out = np.zeros((F, H, W), bool)
     for f in range(F):
-        diff = colour_difference(frames[f], background, settings)
+        gain = frame_gain(frames[f], background, settings) if gains is None else gains[f]
+        diff = colour_difference(frames[f], background, gain)
         strong = _cleaned(diff >= settings.threshold * COLOUR_LEVELS, opening, closing)
         count, labels, stats, _ = cv2.connectedComponentsWithStats(strong, connectivity=8)
         big = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= min_area)
@@ -227,9 +217,9 @@ def recording_settings(frames: np.ndarray, background: np.ndarray, settings: Mot
     grey_background = cv2.cvtColor(background, cv2.COLOR_RGB2GRAY).astype(np.float32)
     ratios = []
     for frame in frames:
-        gain = None if settings.exposure is None else _gain(frame, background, settings.exposure)
         grey = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY).astype(np.float32)
-        ratios.append(block_step_ratio(grey / np.float32(gain or 1.0) - grey_background))
+        ratios.append(block_step_ratio(grey / np.float32(frame_gain(frame, background, settings))
+                                       - grey_background))
     if np.median(ratios) < settings.compressed_step_ratio:
         return settings
     log.info("the frames are block-compressed (JPEG; block steps %.2f times the others): motion "
