@@ -5,7 +5,7 @@ before and after `--split-frame`, with the focal length scaled by each of `--foc
 
 The masks are those the silhouette search compares (`dream.coarse.calibration.search_masks`:
 the data's own, else motion masks; never the reference). With the right pose and intrinsics
-every side lies within the half pixel of quantization; an outline offset that follows the
+every side lies within half a pixel; an outline offset that follows the
 arm's motion is a time lag or blur, one that flips sign between the arm far from and near the
 camera is a magnification (the focal length), one the same everywhere a shifted pose. Pixels
 the robot covers in most frames (in the background model of motion masks) are left out.
@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from dream.api import load_robot
-from dream.coarse.calibration import search_masks
+from dream.coarse.calibration import MOTION_MASKS, search_masks
 from dream.coarse.evidence import held_pixels
 from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
@@ -90,7 +90,8 @@ def main() -> None:
         camera = replace(sequence.camera, fx=sequence.camera.fx * scale,
                          fy=sequence.camera.fy * scale)
         rendered = render_frames(P, inputs.meshes.faces, T, camera)
-        held = cv2.dilate(held_pixels(rendered).astype(np.uint8), kernel).astype(bool)
+        held = cv2.dilate(held_pixels(rendered).astype(np.uint8), kernel).astype(bool) \
+            if inputs.source == MOTION_MASKS else None
         groups: dict[str, dict[str, list]] = {}
         for frame, r, m in zip(inputs.frames, rendered, inputs.masks, strict=True):
             if not m.any():

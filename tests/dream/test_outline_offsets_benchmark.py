@@ -9,12 +9,14 @@ import numpy as np
 import pytest
 
 from dream.camera import CameraIntrinsics
+from dream.coarse.carried import voxel_hull
 from dream.errors import InputError
 from dream.silhouette import render_points
 from tests.benchmark_scripts import load_benchmark
 
 CAMERA = CameraIntrinsics(200.0, 200.0, 79.5, 59.5, 160, 120)
 MAGNIFIED = 1.05      # a focal length 5 % longer than the camera's
+BOX_M = np.array([0.3, 0.2, 0.1])     # the box's sides
 
 
 @pytest.fixture(scope="module")
@@ -24,13 +26,10 @@ def bench():
 
 def box() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A box's corners (8, 3), triangles (12, 3), and a pose 1 m in front of the camera."""
-    corners = (np.array(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij")).reshape(3, -1).T
-               - 0.5) * [0.3, 0.2, 0.1]
-    faces = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
-                      [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    corners, faces = voxel_hull(np.zeros((1, 3)), 1.0)
     T = np.eye(4)
     T[2, 3] = 1.0
-    return corners, faces, T
+    return corners * BOX_M, faces, T
 
 
 def test_a_mask_wider_on_one_side_is_seen_on_that_side_only(bench):
