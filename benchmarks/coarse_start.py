@@ -11,7 +11,10 @@ calibrating, so only the images are read. Each scene is calibrated from a guess 
 T_cam_base), with `--auto` by the automatic search, and with `--mark-frames N` from a mark on
 the end effector (the last keypoint link's origin) clicked in N frames: its labels plus
 `--mark-noise-px`; with `--fooled` the keypoint path (`--use-labels`) from labels projected at
-a camera that far off, so that its refinements and their verdict are tested from a wrong start.
+a camera that far off, so that its refinements and their verdict are tested from a wrong start;
+with `--given-focal F` the calibration is given fx, fy F times those rendered with (the search
+fits the focal length where the outlines tell it: `dream.coarse.focal`); `--reuse-scenes` takes
+scenes already rendered in `--work`.
 Printed per scene: error, verdict, 1-sigma, time; then the share within `--right-mm` /
 `--right-deg`, the wrong results called `good`, the right ones called `good` or `check`, and
 how often the truth lies inside the written 95 % ellipsoid (each scene's chi-square of the
@@ -28,6 +31,7 @@ frames that agree.
         [--first-seed 1000] [--frames 30] [--auto] [--mark-frames 5 --mark-noise-px 2]
         [--fooled] [--skip-guess] [--only panda_1003,xarm7_1010] [--work DIR]
         [--robots URDF,... --scale-to-robot] [--set intrinsics.width=960 ...]
+        [--given-focal 0.96 [--fixed-focal]] [--reuse-scenes]
     python benchmarks/coarse_start.py real --data ../shared/realdata/panda_teleop [--guesses 10]
     python benchmarks/coarse_start.py real --data ../shared/realdata/franka_offline --center R.json
     python benchmarks/coarse_start.py real --data ../shared/realdata/panda_teleop \
@@ -106,10 +110,14 @@ def randomisation(robot: str, scale_to_robot: bool, overrides: tuple[str, ...] =
 
 
 def render_scene(robot: str, out: Path, seed: int, frames: int,
-                 scale_to_robot: bool = False, overrides: tuple[str, ...] = ()) -> Path:
+                 scale_to_robot: bool = False, overrides: tuple[str, ...] = (),
+                 reuse: bool = False) -> Path:
     """A fixed-camera `real_world.yaml` scene of `robot` (a built-in name or a URDF), its robot
-    masks deleted."""
+    masks deleted; with `reuse`, a scene already rendered in `out` is taken as it is."""
     from synth.generate import SynthJob, generate
+
+    if reuse and (out / "_synth.json").is_file() and not any(out.glob("*.seg.png")):
+        return out
 
     generate(SynthJob(robot=robot, out_dir=out, num_frames=frames,
                       config=randomisation(robot, scale_to_robot, overrides), seed=seed,
@@ -118,6 +126,15 @@ def render_scene(robot: str, out: Path, seed: int, frames: int,
     for mask in out.glob("*.seg.png"):
         mask.unlink()
     return out
+
+
+def given_focal(data: Path, scale: float, out: Path) -> Path:
+    """A copy of `data` whose fx, fy are `scale` times those it was rendered with (intrinsics
+    given wrong, as after resizing an image without its K)."""
+    from dream.coarse.focal import with_focal_scale
+
+    seq = read_sequence(data)
+    return write_dream(seq.with_fixed_camera(with_focal_scale(seq.camera, scale)), out)
 
 
 def guess_file(T_true: np.ndarray, offset_m: float, offset_rad: float,
@@ -174,8 +191,8 @@ def fooled_labels(data: Path, T_true: np.ndarray, offset_m: float, offset_rad: f
 
 
 def calibrate(data: Path, out: Path, guess: Path | None,
-              T_true: np.ndarray | None = None, mark: tuple[Path, str, str] | None = None
-              ) -> dict:
+              T_true: np.ndarray | None = None, mark: tuple[Path, str, str] | None = None,
+              fixed_focal: bool = False) -> dict:
     """One `dream calibrate` without keypoints (from `guess`, or from `mark`: the marks file,
     its link and offset): its error against `T_true` (default the data's reference), time,
     verdict, 1-sigma and IoUs."""
@@ -186,6 +203,7 @@ def calibrate(data: Path, out: Path, guess: Path | None,
         guess, marks = None, {"use_labels": True}
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
         doc = run_calibrate(CalibrateRequest(data=str(data), out=str(out),
+                                             fixed_focal=fixed_focal,
                                              camera_guess=None if guess is None else str(guess),
                                              **marks))
     seconds = time.perf_counter() - start
@@ -195,7 +213,10 @@ def calibrate(data: Path, out: Path, guess: Path | None,
     xi = increment_between(T, T_true)
     chi2 = float(xi @ np.linalg.pinv(np.asarray(doc["covariance_xi"])) @ xi)
     sigma = float(np.linalg.norm(doc["sigma_camera_position_base_m"]))
-    return {"mm": t_err * 1e3, "deg": float(np.rad2deg(r_err)), "verdict":
+    focal = (doc.get("start") or {}).get("focal")
+    return {"focal": "" if focal is None else f", focal x{focal['scale']:.3f} "
+            f"{'adopted' if focal['adopted'] else 'kept as given'}",
+            "mm": t_err * 1e3, "deg": float(np.rad2deg(r_err)), "verdict":
             doc["quality"]["verdict"], "sigma_mm": sigma * 1e3,
             "inside95": chi2 <= CHI2_6DOF_95, "chi2": chi2, "seconds": seconds,
             "polish_iou": doc.get("polish", {}).get("iou_after"),
@@ -230,7 +251,10 @@ def run_renders(args: argparse.Namespace) -> None:
             name = Path(robot).stem
             for seed in range(args.first_seed, args.first_seed + args.scenes):
                 data = render_scene(robot, tmp / f"{name}_{seed}", seed, args.frames,
-                                    args.scale_to_robot, tuple(args.set))
+                                    args.scale_to_robot, tuple(args.set), args.reuse_scenes)
+                if args.given_focal != 1.0:
+                    data = given_focal(data, args.given_focal,
+                                       tmp / f"{name}_{seed}_focal{args.given_focal:g}")
                 T_true = truth_poses(read_sequence(data))[0]
                 modes = [] if args.skip_guess else [("guess", guess_file(
                     T_true, args.guess_m, np.deg2rad(args.guess_deg), rng, tmp))]
@@ -254,7 +278,7 @@ def run_renders(args: argparse.Namespace) -> None:
                         continue    # its guesses and marks drawn all the same
                     try:
                         row = calibrate(source, tmp / f"{name}_{seed}_{mode}.json", guess,
-                                        T_true, mark=mark)
+                                        T_true, mark=mark, fixed_focal=args.fixed_focal)
                     except DreamError as exc:
                         print(f"{name} {seed} {mode}: failed: {exc}", flush=True)
                         continue
@@ -262,7 +286,7 @@ def run_renders(args: argparse.Namespace) -> None:
                     print(f"{name} {seed} {mode}: {row['mm']:.1f} mm {row['deg']:.2f} deg, "
                           f"{row['verdict']}, 1-sigma {row['sigma_mm']:.1f} mm (truth at "
                           f"chi2 {row['chi2']:.1f}), IoU {row['iou']:.3f}, "
-                          f"{row['seconds']:.0f} s"
+                          f"{row['seconds']:.0f} s{row['focal']}"
                           + ("" if mark is None else f", the mark's own pose "
                              f"{row['mark_mm']:.0f} mm off"), flush=True)
     for mode, rows in by_mode.items():
@@ -283,7 +307,7 @@ def run_real(args: argparse.Namespace) -> None:
         if mark is not None:
             guesses = [None]
         for k, guess in enumerate(guesses):
-            row = calibrate(data, tmp / f"r{k}.json", guess, T_true, mark)
+            row = calibrate(data, tmp / f"r{k}.json", guess, T_true, mark, args.fixed_focal)
             rows.append(row)
             polish = ("" if row["polish_iou"] is None else
                       f", polish IoU {row['polish_iou']:.3f}")
@@ -292,7 +316,7 @@ def run_real(args: argparse.Namespace) -> None:
                   f"{row['deg']:.2f} deg{' from the centre' if args.center else ''}, "
                   f"{row['verdict']}, 1-sigma {row['sigma_mm']:.1f} mm (chi2 "
                   f"{row['chi2']:.1f}), search IoU "
-                  f"{row['iou']:.3f}{polish}, {row['seconds']:.0f} s", flush=True)
+                  f"{row['iou']:.3f}{polish}, {row['seconds']:.0f} s{row['focal']}", flush=True)
     summary(rows, args.right_mm, args.right_deg, data.name)
 
 
@@ -305,6 +329,8 @@ def main() -> None:
         s.add_argument("--guess-deg", type=float, default=20.0)
         s.add_argument("--auto", action="store_true")
         s.add_argument("--seed", type=int, default=0)
+        s.add_argument("--fixed-focal", action="store_true", help="calibrate with the data's "
+                       "fx, fy as given (no focal-length fit)")
         s.add_argument("--right-mm", type=float, default=10.0 if name == "renders" else 10.0)
         s.add_argument("--right-deg", type=float, default=0.5 if name == "renders" else 1.0)
     r = sub.choices["renders"]
@@ -316,6 +342,10 @@ def main() -> None:
     r.add_argument("--scale-to-robot", action="store_true", help="the randomisation's "
                    "camera and distractor distances and sizes times the robot's size over "
                    "the Panda's (a small arm seen from as near as a user would put the camera)")
+    r.add_argument("--given-focal", type=float, default=1.0, help="give the calibration fx, "
+                   "fy this many times those rendered with (default 1: as rendered)")
+    r.add_argument("--reuse-scenes", action="store_true", help="take a scene already "
+                   "rendered in --work as it is (the same seed and settings render the same)")
     r.add_argument("--scenes", type=int, default=3)
     r.add_argument("--first-seed", type=int, default=1000)
     r.add_argument("--frames", type=int, default=30)

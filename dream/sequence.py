@@ -193,6 +193,12 @@ class Sequence:
                              "do not come from one fixed camera", self.source, fix)
         return self.camera
 
+    def with_fixed_camera(self, camera: CameraIntrinsics) -> Sequence:
+        """The same frames seen through `camera` alone (no frame keeps its own intrinsics): a
+        fixed camera's intrinsics corrected, e.g. a focal length fitted to the images."""
+        return replace(self, camera=camera, frames=tuple(replace(f, camera=None)
+                                                          for f in self.frames))
+
     @property
     def has_labels(self) -> bool:
         return any(f.uv_labels is not None for f in self.frames)

@@ -70,6 +70,7 @@ class CalibrateRequest(DataOptions):
     mark: str | None = None
     mark_link: str | None = None
     mark_offset: str | None = None
+    fixed_focal: bool = False
     loaded_model: Any = None
 
     def __post_init__(self) -> None:
@@ -354,6 +355,10 @@ def add_calibrate_args(p: argparse.ArgumentParser) -> None:
                    help="with --mark: the URDF link the marked point is fixed to")
     p.add_argument("--mark-offset", metavar="X,Y,Z",
                    help="with --mark: the point in --mark-link's frame, metres (default 0,0,0)")
+    p.add_argument("--fixed-focal", action="store_true",
+                   help="without keypoints: keep the data's fx, fy as given (by default the "
+                        "search fits their scale where the robot's outlines determine it and "
+                        "the overlap agrees, and reports it)")
     p.add_argument("--loss", choices=("huber", "cauchy", "l2"), default="huber",
                    help="robust loss of the keypoint fit (default: %(default)s)")
     p.add_argument("--loss-scale-px", type=float, default=RobustLoss().scale_px,

@@ -141,6 +141,7 @@ def search_start(request, seq, out: TextIO):
     """The search (module doc): robot, the stand-in result and observations at its pose, its
     outcome and masks, and the guess."""
     from dream.coarse.calibration import coarse_start, search_covariance, stand_in_result
+    from dream.coarse.focal import FocalSettings
 
     guess = camera_guess(request.camera_guess, request.look_at, request.guess_sigma)
     robot, extra = (keypoint_hypothesis(request, seq, out) if request.keypoints_given
@@ -160,13 +161,28 @@ def search_start(request, seq, out: TextIO):
     print(f"searching the camera pose from the robot's silhouettes, "
           f"{guess.description}", file=out)
 
-    outcome, inputs = coarse_start(seq, robot, guess, progress=_progress, extra=extra)
-    result, obs = stand_in_result(seq, outcome.best.T_cam_base, search_covariance(outcome))
+    outcome, inputs = coarse_start(seq, robot, guess, progress=_progress, extra=extra,
+                                   focal=FocalSettings(fit=not request.fixed_focal))
+    result, obs = stand_in_result(seq, outcome.best.T_cam_base,
+                                  search_covariance(outcome, focal=inputs.focal))
     print(f"search ({outcome.seconds:.1f} s, {inputs.source} of {len(inputs.frames)} frames): "
           f"best IoU {outcome.best.iou:.3f}, best rival "
           f"{'none' if outcome.rival is None else f'{outcome.rival.iou:.3f}'}, "
           f"{outcome.basin_returned} of {outcome.basin_starts} restarts returned", file=out)
     return robot, result, obs, outcome, inputs, guess, marked
+
+
+def with_fitted_focal(seq, inputs, out: TextIO):
+    """The sequence through the camera whose focal length the search fitted and adopted
+    (`dream.coarse.focal`), so that the refinements after it see what it saw; else as given."""
+    focal = inputs.focal
+    if focal is None or not focal.adopted:
+        return seq
+    print(f"focal length: fx, fy {seq.camera.fx:.2f}, {seq.camera.fy:.2f} -> "
+          f"{focal.camera.fx:.2f}, {focal.camera.fy:.2f} (x{focal.scale:.3f}), fitted to the "
+          "robot's outlines; the pose and every refinement after the search use them",
+          file=out)
+    return seq.with_fixed_camera(focal.camera)
 
 
 def _progress(line: str) -> None:
@@ -232,7 +248,13 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
     mark's clicks at the pose written (with `--mark`), and the condition of the pose written
     (`dream.quality`)."""
     from dream.coarse.settings import SearchSettings
-    from dream.coarse.verdict import carried_finding, cues_finding, mark_finding, search_findings
+    from dream.coarse.verdict import (
+        carried_finding,
+        cues_finding,
+        focal_finding,
+        mark_finding,
+        search_findings,
+    )
     from dream.quality import condition_findings, quality_from
 
     s = doc["start"]
@@ -241,6 +263,9 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
                                s["basin_m"])
     if cue_move is not None:
         findings.append(cues_finding(*cue_move))
+    focal = focal_finding(s.get("focal"))
+    if focal is not None:
+        findings.append(focal)
     carried = s.get("carried") or {}
     if carried.get("named"):
         findings.append(carried_finding(carried["named"],
@@ -274,6 +299,7 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
                          "drop --model-extension, or give --model without --camera-guess and "
                          "--mark")
     robot, result, obs, outcome, inputs, guess, marked = search_start(request, seq, out)
+    seq = with_fitted_focal(seq, inputs, out)
     found = (seq, outcome, inputs, guess, marked)
     doc = search_document(request, data_doc, readings_doc, result, obs, found)
     T_other = T_own = None
@@ -301,6 +327,7 @@ def search_document(request, data_doc: dict, readings_doc: dict | None, result, 
     doc = result_document(request, seq, result, obs, data_doc, readings_doc)
     doc["rmse_px"] = None
     doc["start"] = start_doc(outcome, inputs, guess, seq, marked)
+    doc["start"]["focal"] = None if inputs.focal is None else inputs.focal.to_dict()
     doc["uncertainty"]["method"] = (
         f"jackknife of the search's finish over {len(outcome.frames_xi)} frame groups and "
         f"{len(outcome.links_xi)} links + spread of its restarts around the pose found (the "
@@ -335,7 +362,7 @@ def _challenged(request, data_doc: dict, readings_doc: dict | None, found: tuple
               f"the edge alignment's (IoU {challenge.iou_between:.3f})", file=out)
     if challenge.won or challenge.share > 0:
         result, obs = stand_in_result(seq, challenge.T_cam_base_between,
-                                      search_covariance(outcome))
+                                      search_covariance(outcome, focal=inputs.focal))
         doc = {**search_document(request, data_doc, readings_doc, result, obs,
                                  (seq, outcome, inputs, guess, marked)), "edges": doc["edges"]}
     doc["start"]["challenge"] = challenge.to_dict()

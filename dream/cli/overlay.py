@@ -4,7 +4,7 @@ a dataset, at its reference extrinsic or at the poses a RESULT.json wrote."""
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -48,7 +48,9 @@ def run_overlay(request: OverlayRequest) -> int:
     seq = read_data(request)
     robot, skeleton = _robot(seq, request)
     if request.extrinsic is not None:
-        poses = _result_poses(read_result(request.extrinsic), seq)
+        doc = read_result(request.extrinsic)
+        poses = _result_poses(doc, seq)
+        seq = _with_result_focal(doc, seq)
     else:
         from dream.pipeline import truth_poses
 
@@ -77,6 +79,18 @@ def _robot(seq, request: OverlayRequest):
 
     print("no --keypoints for this URDF: drawing the outline alone")
     return robot_for_search(seq, request), False
+
+
+def _with_result_focal(doc: dict, seq):
+    """The sequence through the camera whose focal length the result's search fitted and
+    adopted (RESULT.json `start.focal`, `dream.coarse.focal`): its pose was found with it."""
+    focal = (doc.get("start") or {}).get("focal")
+    if not focal or not focal["adopted"]:
+        return seq
+    used = focal["used"]
+    print(f"drawn with fx, fy {used['fx']:.2f}, {used['fy']:.2f}: fitted by the calibration "
+          f"(the data's {seq.camera.fx:.2f}, {seq.camera.fy:.2f})")
+    return seq.with_fixed_camera(replace(seq.camera, fx=used["fx"], fy=used["fy"]))
 
 
 def _result_poses(doc: dict, seq) -> np.ndarray:

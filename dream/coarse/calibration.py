@@ -12,9 +12,11 @@ finished on up to `finish_frames` (on rendered scenes, one frame's mask error, a
 link the colour of the floor, moves the optimum of 8 frames by 1-2 cm, of 30 by a few
 millimetres). What the arm carries that the URDF lacks (a tool, a held object) is carved at
 the winner (`dream.coarse.carried`), reported, and its pixels left out of the search run
-again from there. The search's 1-sigma is the spread of its finish
-over frame groups and links left out (jackknives) and of its basin check's restarts around
-the winner: where they do not return, it is large and says so.
+again from there. Then the focal-length scale the robot's outlines ask for is fitted at the
+winner (`dream.coarse.focal`); where adopted, the search runs again from there through the
+camera with that focal length, and the callers go on with that camera. The search's 1-sigma
+is the spread of its finish over frame groups and links left out (jackknives) and of its
+basin check's restarts around the winner: where they do not return, it is large and says so.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import numpy as np
 from dream.calibration import CalibrationResult, FrameSolution, Observations
 from dream.camera import CameraIntrinsics
 from dream.coarse.carried import CarriedRegion, carried_geometry, carried_region
+from dream.coarse.focal import FocalEstimate, FocalSettings, fit_focal
 from dream.coarse.hypotheses import around, fibonacci_directions, shell
 from dream.coarse.mark import Mark, MarkSettings, mark_points, mark_pose, mark_sigma, track_mark
 from dream.coarse.search import SearchOutcome, Winner, find_winner, search, within
@@ -49,7 +52,7 @@ from dream.silhouette import (
 
 log = logging.getLogger(__name__)
 
-GUESS, SHELL, CARRIED = "guess", "shell", "carried"
+GUESS, SHELL, CARRIED, FOCAL = "guess", "shell", "carried", "focal"
 DATA_MASKS, MOTION_MASKS = "the data's masks", "motion masks"
 RESOLUTION_FRACTION = 0.5   # of the basin check's return limits: its 1-sigma without a jackknife
 JACKKNIFE_SHRINKAGE = 0.25  # of the search's jackknife covariance towards its diagonal (set
@@ -85,7 +88,9 @@ class SearchMasks:
     pixels of it left out of the search (`region`; None where none are), and with motion
     masks how they were made (`motion`: the hysteresis on or off, a block-compressed recording's
     being off, and how many of the frames had their exposure matched; None with the data's
-    masks)."""
+    masks), and the focal-length scale fitted at the winner (`focal`; None where it was not
+    fitted; `dream.coarse.focal`: where adopted, the search's pose is the one through
+    `focal.camera`)."""
 
     meshes: RobotMeshes
     frames: np.ndarray
@@ -97,6 +102,7 @@ class SearchMasks:
     carried: CarvingOutcome | None = None
     region: CarriedRegion | None = None
     motion: dict | None = None
+    focal: FocalEstimate | None = None
 
 
 def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> SearchMasks:
@@ -191,10 +197,11 @@ def hypotheses_for(guess: CameraGuess, inputs: SearchMasks, settings: SearchSett
 def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
                  settings: SearchSettings | None = None,
                  progress: Callable[[str], None] | None = None,
-                 extra: dict[str, np.ndarray] | None = None
-                 ) -> tuple[SearchOutcome, SearchMasks]:
+                 extra: dict[str, np.ndarray] | None = None,
+                 focal: FocalSettings | None = None) -> tuple[SearchOutcome, SearchMasks]:
     """The coarse search of a fixed-camera `sequence` (module doc); `extra`: more hypotheses
-    by source (the keypoint pose of a detector), scored beside the guess's."""
+    by source (the keypoint pose of a detector), scored beside the guess's; `focal`: whether
+    and how the focal-length scale is fitted at the winner (`with_focal`)."""
     settings = settings or SearchSettings()
     inputs = search_masks(sequence, robot, settings)
     if progress is not None:
@@ -207,18 +214,20 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
                          hypotheses, settings, aimed_only=aimed_only,
                          held=inputs.source == MOTION_MASKS, progress=progress,
                          search_frames=inputs.search)
-    if not settings.find_carried or winner.best.iou < settings.min_found_iou:
+    if winner.best.iou < settings.min_found_iou:
         return winner.checked(), inputs
-    return with_carried(sequence.camera, inputs, winner, settings, progress)
+    if settings.find_carried:
+        winner, inputs = with_carried(sequence.camera, inputs, winner, settings, progress)
+    return with_focal(sequence.camera, inputs, winner, settings, focal, progress)
 
 
 def with_carried(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
                  settings: SearchSettings, progress: Callable[[str], None] | None = None
-                 ) -> tuple[SearchOutcome, SearchMasks]:
+                 ) -> tuple[Winner, SearchMasks]:
     """The carving at the winner (`dream.coarse.carried`) in the inputs; where it finds
     something and `settings.leave_out_carried`, the search again from the winner and its rival
-    without the carved hull's pixels (`CarriedRegion`), whose checks stand for the first
-    winner's (those are not run); otherwise the first winner checked."""
+    without the carved hull's pixels (`CarriedRegion`), its checks still to run (the first
+    winner's never run); otherwise the first winner."""
     say = progress or (lambda line: None)
     attached = AttachedSettings()
     carving = carried_geometry(inputs.meshes, inputs.joints, inputs.masks, camera,
@@ -226,23 +235,53 @@ def with_carried(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
     inputs = replace(inputs, carried=carving)
     if carving.finding is None:
         say(f"nothing carried found: {carving.reason}")
-        return winner.checked(), inputs
+        return winner, inputs
     link, points = carving.finding.geometry.link, carving.finding.points_link
     say(f"something the URDF lacks moves with {link} (about "
         f"{' x '.join(f'{100 * s:.0f}' for s in carving.finding.geometry.size_m)} cm, "
         f"{carving.finding.points} carved points)"
         + (": searching again without its pixels" if settings.leave_out_carried else ""))
     if not settings.leave_out_carried:
-        return winner.checked(), inputs
+        return winner, inputs
     region = carried_region(inputs.meshes.robot, inputs.joints, link, points, attached.voxel_m,
                             settings.carried_margin_px)
     inputs = replace(inputs, region=region)
     starts = [winner.best.T_cam_base] + ([] if winner.rival is None
                                          else [winner.rival.T_cam_base])
-    searched = search(inputs.meshes, inputs.joints, inputs.masks, camera,
-                      {CARRIED: np.stack(starts)}, settings,
+    searched = find_winner(inputs.meshes, inputs.joints, inputs.masks, camera,
+                           {CARRIED: np.stack(starts)}, settings,
+                           held=inputs.source == MOTION_MASKS, progress=progress,
+                           search_frames=inputs.search, region=region)
+    return (replace(searched, hypotheses={**winner.hypotheses, **searched.hypotheses},
+                    seconds=winner.seconds + searched.seconds), inputs)
+
+
+def with_focal(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
+               settings: SearchSettings, focal: FocalSettings | None = None,
+               progress: Callable[[str], None] | None = None
+               ) -> tuple[SearchOutcome, SearchMasks]:
+    """The focal-length scale fitted at the winner (`dream.coarse.focal`) in the inputs; where
+    it is adopted, the search again from its pose and the winner's rival through the camera
+    with that focal length, checked there (the first winner's checks never run); otherwise
+    the winner checked."""
+    focal = focal or FocalSettings()
+    if not focal.fit:
+        return winner.checked(), inputs
+    say = progress or (lambda line: None)
+    P = vertices_in_base(inputs.meshes, inputs.joints)
+    estimate = fit_focal(P, inputs.meshes, inputs.masks, camera, winner.best.T_cam_base,
+                         settings, focal, inputs.source == MOTION_MASKS, inputs.region)
+    inputs = replace(inputs, focal=estimate)
+    say(f"focal length: {estimate.reason}"
+        + (": searching again with it" if estimate.adopted else ""))
+    if not estimate.adopted:
+        return winner.checked(), inputs
+    starts = [estimate.T_cam_base] + ([] if winner.rival is None
+                                      else [winner.rival.T_cam_base])
+    searched = search(inputs.meshes, inputs.joints, inputs.masks, estimate.camera,
+                      {FOCAL: np.stack(starts)}, settings,
                       held=inputs.source == MOTION_MASKS, progress=progress,
-                      search_frames=inputs.search, region=region)
+                      search_frames=inputs.search, region=inputs.region)
     return (replace(searched, hypotheses={**winner.hypotheses, **searched.hypotheses},
                     seconds=winner.seconds + searched.seconds), inputs)
 
@@ -293,8 +332,8 @@ def mark_start(sequence: Sequence, robot: Robot, mark: Mark,
     return MarkStart(mark, guess, fit, frames, len(mark.frames), P_base[mark.frames])
 
 
-def search_covariance(outcome: SearchOutcome, settings: SearchSettings | None = None
-                      ) -> np.ndarray:
+def search_covariance(outcome: SearchOutcome, settings: SearchSettings | None = None,
+                      focal: FocalEstimate | None = None) -> np.ndarray:
     """(6, 6) the search's own 1-sigma (xi of `dream.pnp` at the winner): the jackknives of
     its finish over frame groups and over links (`SearchOutcome.frames_xi`, `links_xi`;
     `dream.refined_uncertainty.jackknife_covariance`; their sum shrunk towards its diagonal by
@@ -306,7 +345,8 @@ def search_covariance(outcome: SearchOutcome, settings: SearchSettings | None = 
     that ends within the outcome's `basin_return_m` / `basin_return_rad` counts as returned
     (`SearchSettings.basin_lengths`), so the check
     alone does not resolve the pose below that. The restarts that ended elsewhere are the
-    verdict's basin finding, not spread of this pose."""
+    verdict's basin finding, not spread of this pose. An adopted focal-length scale (`focal`)
+    adds its own uncertainty (`FocalEstimate.pose_covariance`)."""
     settings = settings or SearchSettings()
     T_best = outcome.best.T_cam_base
     ends = outcome.basin_ends
@@ -323,7 +363,8 @@ def search_covariance(outcome: SearchOutcome, settings: SearchSettings | None = 
     else:
         precision = np.diag((np.repeat([settings.basin_return_rad, outcome.basin_return_m], 3)
                              * RESOLUTION_FRACTION) ** 2)
-    return xi.T @ xi / len(xi) + precision
+    return xi.T @ xi / len(xi) + precision + (np.zeros((6, 6)) if focal is None
+                                              else focal.pose_covariance)
 
 
 def stand_in_result(sequence: Sequence, T_cam_base: np.ndarray, covariance: np.ndarray

@@ -12,7 +12,7 @@ from dream.camera import CameraIntrinsics
 from dream.coarse.carried import CarriedRegion
 from dream.coarse.evidence import held_pixels, held_vertices, region_vertices
 from dream.coarse.settings import SearchSettings
-from dream.polish.objective import scaled_camera, shrink_mask
+from dream.polish.objective import Contour, scaled_camera, select_contour, shrink_mask
 from dream.polish.refine import refine_pose
 from dream.polish.settings import PolishSettings
 from dream.silhouette import RobotMeshes, render_frames, silhouette_iou
@@ -51,17 +51,32 @@ class Scales:
         for level in range(len(self.levels))[levels]:
             camera, masks = self.levels[level]
             rendered = self._rendered(T, camera)
-            usable = self.usable
-            if self.held:
-                held = held_vertices(self.P, T, camera, held_pixels(rendered))
-                usable = ~held if usable is None else usable & ~held
-            ignored = None if self.region is None else self.region.pixels(T, camera)
-            if ignored is not None:
-                out = ~region_vertices(self.P, T, camera, ignored)
-                usable = out if usable is None else usable & out
+            usable, ignored = self._usable(T, camera, rendered)
             T = refine_pose(self.P, self.faces, masks, camera, T, self.params, usable, NoWorse(
                 self, level, self.iou_of(rendered, level, T, ignored), self.iou_tolerance))[0]
         return T
+
+    def _usable(self, T: np.ndarray, camera: CameraIntrinsics, rendered: np.ndarray
+                ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """(the vertices that may be contour points at T, per frame where it varies; the
+        carried region's pixels at T, None without one) at a level's `camera`, given the
+        silhouettes `rendered` there (class doc)."""
+        usable = self.usable
+        if self.held:
+            held = held_vertices(self.P, T, camera, held_pixels(rendered))
+            usable = ~held if usable is None else usable & ~held
+        ignored = None if self.region is None else self.region.pixels(T, camera)
+        if ignored is not None:
+            out = ~region_vertices(self.P, T, camera, ignored)
+            usable = out if usable is None else usable & out
+        return usable, ignored
+
+    def contour(self, T: np.ndarray) -> Contour:
+        """The finest level's contour points at T, as its refinement selects them."""
+        camera, _ = self.levels[-1]
+        rendered = self._rendered(T, camera)
+        return select_contour(self.P, self.faces, T, camera, self.params,
+                              self._usable(T, camera, rendered)[0], rendered)
 
     def iou_at(self, T: np.ndarray, level: int) -> float:
         return self.iou_of(self._rendered(T, self.levels[level][0]), level, T)

@@ -25,6 +25,10 @@ Each finding is (level, one sentence with what to do), as in `dream.quality`:
   lacks (`dream.coarse.carried`): the search leaves its pixels out, but it hides part of the
   arm and its carving is only as good as the pose it was carved at (`check`; on the rendered
   benchmark scenes every search that landed more than 1 cm off had one).
+- **focal**: the robot's outlines and their overlap ask for another focal length than the
+  given one (`dream.coarse.focal`): the pose was found with it, and the user's intrinsics need
+  correcting (`check`); both ask for more than its `max_change` off: the intrinsics or the
+  pose are wrong (`unreliable`).
 
     >>> from dream.coarse.settings import SearchSettings
     >>> s = SearchSettings()
@@ -100,6 +104,35 @@ def carried_finding(link: str, size_m) -> Finding:
                    "the masks): the search left its pixels out, but it hides part of the arm, "
                    "so the pose may be off by a centimetre or more; check the overlays, or "
                    "record without it")
+
+
+def focal_finding(focal: dict | None) -> Finding | None:
+    """The focal finding (module doc) of RESULT.json's `start.focal`
+    (`dream.coarse.focal.FocalEstimate.to_dict`).
+
+    >>> focal_finding({"adopted": True, "scale": 1.04, "given": {"fx": 100.0, "fy": 100.0},
+    ...                "used": {"fx": 104.0, "fy": 104.0}, "reason": "r"})[0]
+    'check'
+    >>> focal_finding({"adopted": False, "scale": 1.01, "reason": "the outlines agree"}) is None
+    True
+    """
+    if focal is None:
+        return None
+    if focal["adopted"]:
+        given, used = focal["given"], focal["used"]
+        return CHECK, (f"the robot's outlines ask for a focal length x{focal['scale']:.3f} the "
+                       f"given one, and their overlap agrees: the pose was found with fx, fy "
+                       f"{used['fx']:.1f}, {used['fy']:.1f} (given {given['fx']:.1f}, "
+                       f"{given['fy']:.1f}), and with the given ones it lies centimetres off; "
+                       "correct the camera's intrinsics (an image resized or cropped after "
+                       "calibrating? lens distortion left uncorrected?), or pass --fixed-focal "
+                       "to keep them")
+    if focal["reason"].startswith("beyond"):
+        return UNRELIABLE, (f"the robot's outlines and their overlap ask for a focal length "
+                            f"x{focal['scale']:.2f} the given one: the intrinsics (the image "
+                            "size they belong to, their units) or the pose found are wrong; "
+                            "check both")
+    return None
 
 
 def mark_finding(click_residuals_px: np.ndarray, max_px: float) -> Finding | None:

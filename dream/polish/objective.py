@@ -25,6 +25,7 @@ The search runs at a reduced resolution: masks shrunk to at most `search_width_p
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import cv2
@@ -173,6 +174,16 @@ class Objective:
         self.k = params.huber_scale_px
         self.cut_inside = params.max_residual_px
         self.cut_outside = params.max_outside_residual_px
+
+    def with_camera(self, camera: CameraIntrinsics) -> Objective:
+        """The same objective seen through another camera of the same image size (the
+        distance fields shared)."""
+        if (camera.width, camera.height) != (self.camera.width, self.camera.height):
+            raise InputError(f"a {camera.width}x{camera.height} camera for "
+                             f"{self.camera.width}x{self.camera.height} distance fields")
+        other = copy.copy(self)
+        other.camera = camera
+        return other
 
     def residuals(self, contour: Contour, T: np.ndarray, jacobian: bool
                   ) -> tuple[np.ndarray, np.ndarray | None] | None:
