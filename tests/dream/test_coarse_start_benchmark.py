@@ -55,3 +55,20 @@ def test_randomisation_overrides_apply_before_the_scaling(bench):
     assert config.intrinsics.width == 960
     factor = bench.robot_size(so101) / bench.robot_size("panda")
     np.testing.assert_allclose(config.camera.radius_m, np.array([1.0, 2.0]) * factor)
+
+
+def test_a_scene_given_the_wrong_focal_length_and_a_rendered_scene_reused(bench, tmp_path):
+    """`--given-focal`: a copy whose fx, fy are scaled, the truth and images as rendered;
+    `--reuse-scenes`: a scene already rendered is taken as it is, not rendered again."""
+    data = bench.render_scene(str(robot_data_dir() / SO101), tmp_path / "so101", 7, 2, True)
+    stamp = (data / "_synth.json").stat().st_mtime_ns
+    again = bench.render_scene(str(robot_data_dir() / SO101), tmp_path / "so101", 7, 2, True,
+                               reuse=True)
+    assert again == data and (data / "_synth.json").stat().st_mtime_ns == stamp
+    given = read_sequence(bench.given_focal(data, 0.96, tmp_path / "short"))
+    rendered = read_sequence(data)
+    assert given.camera.fx == pytest.approx(0.96 * rendered.camera.fx)
+    assert given.camera.fy == pytest.approx(0.96 * rendered.camera.fy)
+    assert (given.camera.cx, given.camera.cy) == (rendered.camera.cx, rendered.camera.cy)
+    np.testing.assert_allclose(given.frames[0].T_cam_base_true,
+                               rendered.frames[0].T_cam_base_true, atol=1e-12)
