@@ -46,8 +46,6 @@ from dream.silhouette import RobotMeshes
 
 log = logging.getLogger(__name__)
 
-GIVEN, FITTED = "given", "fitted"
-
 
 @dataclass(frozen=True)
 class FocalSettings:
@@ -130,11 +128,6 @@ class FocalEstimate:
             return np.zeros((6, 6))
         return self.sigma_used ** 2 * np.outer(self.xi_per_log_scale, self.xi_per_log_scale)
 
-    @property
-    def out_of_range(self) -> bool:
-        """Whether the outlines asked for more than `max_change` (its reason says so)."""
-        return self.reason.startswith("beyond")
-
     def to_dict(self) -> dict:
         given = self.given
         return {"scale": self.scale, "sigma_relative": self.sigma,
@@ -197,15 +190,21 @@ class _FocalProblem:
         return apply_increment(x[0], dx[:6]), x[1] + float(dx[6])
 
 
-def joint_fit(scales: Scales, contour: Contour, T: np.ndarray, settings: FocalSettings,
-              keep: np.ndarray | None = None) -> tuple[np.ndarray, float]:
-    """(the pose, the step in log s) of the joint fit on `contour` (the finest level of
-    `scales`, at its camera), from T; `keep` (N,) weighs the points (default all 1)."""
+def finest_objective(scales: Scales) -> Objective:
+    """The finish's objective at the finest level of `scales` (its camera and masks)."""
     camera, masks = scales.levels[-1]
-    objective = Objective(np.stack([signed_distance(m) for m in masks]), camera, scales.params)
+    return Objective(np.stack([signed_distance(m) for m in masks]), camera, scales.params)
+
+
+def joint_fit(objective: Objective, contour: Contour, T: np.ndarray, settings: FocalSettings,
+              initial_damping: float, keep: np.ndarray | None = None
+              ) -> tuple[np.ndarray, float]:
+    """(the pose, the step in log s) of the joint fit on `contour` (at `objective`'s camera),
+    from T, Levenberg-Marquardt starting at `initial_damping` (the polish's); `keep` (N,)
+    weighs the points (default all 1)."""
     weights = np.ones(len(contour.s)) if keep is None else np.asarray(keep, float)
     problem = _FocalProblem(objective, contour, weights, settings.derivative_step)
-    lm = inner_lm_settings(scales.params.initial_damping, settings.lm_iterations)
+    lm = inner_lm_settings(initial_damping, settings.lm_iterations)
     return levenberg_marquardt(problem, (np.asarray(T, float), 0.0), lm).x
 
 
@@ -228,13 +227,13 @@ def fit_focal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray, camera: Cam
         T = scales.refine(T)
         if rounds == 1:
             iou_given = scales.iou(T)
-        contour = scales.contour(T)
-        T, step = joint_fit(scales, contour, T, settings)
+        contour, objective = scales.contour(T), finest_objective(scales)
+        T, step = joint_fit(objective, contour, T, settings, scales.params.initial_damping)
         log_s += step
         log.debug("focal fit round %d: scale %.4f (step %+.4f)", rounds, np.exp(log_s), step)
         if abs(step) < settings.step_tolerance or abs(log_s) > 2 * settings.max_change:
             break
-    sigma = _sigma(scales, contour, T, settings, len(P))
+    sigma = _sigma(objective, contour, T, settings, scales.params.initial_damping, len(P))
     final = scales_at(float(np.exp(log_s)))
     T = final.refine(T)
     iou_fitted = final.iou(T)
@@ -247,14 +246,14 @@ def fit_focal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray, camera: Cam
                          xi, float(np.hypot(np.nan_to_num(sigma), settings.sigma_floor)))
 
 
-def _sigma(scales: Scales, contour: Contour, T: np.ndarray, settings: FocalSettings,
-           frames: int) -> float:
+def _sigma(objective: Objective, contour: Contour, T: np.ndarray, settings: FocalSettings,
+           initial_damping: float, frames: int) -> float:
     """The delete-one-group jackknife 1-sigma of log s over frame groups of the last round's
     contour points (NaN with fewer than `MIN_GROUPS` groups)."""
     groups = list(frame_groups(frames, settings.jackknife_groups).values())
     if len(groups) < MIN_GROUPS:
         return float("nan")
-    steps = np.array([joint_fit(scales, contour, T, settings,
+    steps = np.array([joint_fit(objective, contour, T, settings, initial_damping,
                                 ~np.isin(contour.frame, group))[1] for group in groups])
     G = len(steps)
     return float(np.sqrt((G - 1) / G * np.sum((steps - steps.mean()) ** 2)))
