@@ -77,6 +77,7 @@ def test_the_decision_needs_the_overlap_and_a_change_within_range():
     assert _decision(0.05, 0.002, 0.60, 0.62, settings)[0]
     refused, why = _decision(0.05, 0.002, 0.60, 0.59, settings)
     assert not refused and "does not agree" in why
+    assert not _decision(0.05, 0.002, 0.60, 0.6005, settings)[0]   # a gain within the noise
     assert not _decision(0.05, 0.02, 0.60, 0.62, settings)[0]      # within 3 sigma
     assert not _decision(0.001, 1e-5, 0.60, 0.62, settings)[0]     # below min_change
     beyond, why = _decision(0.3, 0.002, 0.60, 0.70, settings)
