@@ -203,6 +203,7 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
             "frames": [seq.frames[int(i)].name for i in inputs.frames],
             "left_out_links": list(inputs.left_out), "motion_masks": inputs.motion,
             "carried": carried_doc(inputs.carried, CARRIED in outcome.hypotheses),
+            "focal": None if inputs.focal is None else inputs.focal.to_dict(),
             "T_cam_base": outcome.best.T_cam_base.tolist(), "iou": outcome.best.iou,
             "rival_iou": None if rival is None else rival.iou,
             "rival_distance_m": None if distance is None else distance[0],
@@ -327,7 +328,6 @@ def search_document(request, data_doc: dict, readings_doc: dict | None, result, 
     doc = result_document(request, seq, result, obs, data_doc, readings_doc)
     doc["rmse_px"] = None
     doc["start"] = start_doc(outcome, inputs, guess, seq, marked)
-    doc["start"]["focal"] = None if inputs.focal is None else inputs.focal.to_dict()
     doc["uncertainty"]["method"] = (
         f"jackknife of the search's finish over {len(outcome.frames_xi)} frame groups and "
         f"{len(outcome.links_xi)} links + spread of its restarts around the pose found (the "

@@ -33,7 +33,7 @@ from dream.coarse.carried import CarriedRegion, carried_geometry, carried_region
 from dream.coarse.focal import FocalEstimate, FocalSettings, fit_focal
 from dream.coarse.hypotheses import around, fibonacci_directions, shell
 from dream.coarse.mark import Mark, MarkSettings, mark_points, mark_pose, mark_sigma, track_mark
-from dream.coarse.search import SearchOutcome, Winner, find_winner, search, within
+from dream.coarse.search import SearchOutcome, Winner, find_winner, within
 from dream.coarse.settings import SearchSettings
 from dream.diagnosis.attached import AttachedSettings, CarvingOutcome
 from dream.errors import InputError
@@ -246,14 +246,23 @@ def with_carried(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
     region = carried_region(inputs.meshes.robot, inputs.joints, link, points, attached.voxel_m,
                             settings.carried_margin_px)
     inputs = replace(inputs, region=region)
-    starts = [winner.best.T_cam_base] + ([] if winner.rival is None
-                                         else [winner.rival.T_cam_base])
+    return (searched_again(camera, inputs, winner, winner.best.T_cam_base, CARRIED, settings,
+                           progress), inputs)
+
+
+def searched_again(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
+                   T_start: np.ndarray, source: str, settings: SearchSettings,
+                   progress: Callable[[str], None] | None = None) -> Winner:
+    """The search again through `camera` from `T_start` and the winner's rival (as `source`),
+    without `inputs.region`'s pixels, its checks still to run; its counts and time include the
+    first winner's."""
+    starts = [T_start] + ([] if winner.rival is None else [winner.rival.T_cam_base])
     searched = find_winner(inputs.meshes, inputs.joints, inputs.masks, camera,
-                           {CARRIED: np.stack(starts)}, settings,
+                           {source: np.stack(starts)}, settings,
                            held=inputs.source == MOTION_MASKS, progress=progress,
-                           search_frames=inputs.search, region=region)
-    return (replace(searched, hypotheses={**winner.hypotheses, **searched.hypotheses},
-                    seconds=winner.seconds + searched.seconds), inputs)
+                           search_frames=inputs.search, region=inputs.region)
+    return replace(searched, hypotheses={**winner.hypotheses, **searched.hypotheses},
+                   seconds=winner.seconds + searched.seconds)
 
 
 def with_focal(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
@@ -276,14 +285,8 @@ def with_focal(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
         + (": searching again with it" if estimate.adopted else ""))
     if not estimate.adopted:
         return winner.checked(), inputs
-    starts = [estimate.T_cam_base] + ([] if winner.rival is None
-                                      else [winner.rival.T_cam_base])
-    searched = search(inputs.meshes, inputs.joints, inputs.masks, estimate.camera,
-                      {FOCAL: np.stack(starts)}, settings,
-                      held=inputs.source == MOTION_MASKS, progress=progress,
-                      search_frames=inputs.search, region=inputs.region)
-    return (replace(searched, hypotheses={**winner.hypotheses, **searched.hypotheses},
-                    seconds=winner.seconds + searched.seconds), inputs)
+    return (searched_again(estimate.camera, inputs, winner, estimate.T_cam_base, FOCAL,
+                           settings, progress).checked(), inputs)
 
 
 @dataclass(frozen=True)

@@ -228,12 +228,16 @@ def fit_focal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray, camera: Cam
                             region)
 
     log_s, T, iou_given, rounds = 0.0, np.asarray(T_cam_base, float), float("nan"), 0
+    objective: Objective | None = None
     for rounds in range(1, settings.rounds + 1):
         scales = scales_at(float(np.exp(log_s)))
         T = scales.refine(T)
         if rounds == 1:
             iou_given = scales.iou(T)
-        contour, objective = scales.contour(T), finest_objective(scales)
+        # the finest level's masks, so their distance fields, are the same at every scale
+        objective = (finest_objective(scales) if objective is None
+                     else objective.with_camera(scales.levels[-1][0]))
+        contour = scales.contour(T)
         T, step = joint_fit(objective, contour, T, settings, scales.params.initial_damping)
         log_s += step
         log.debug("focal fit round %d: scale %.4f (step %+.4f)", rounds, np.exp(log_s), step)
