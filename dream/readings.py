@@ -47,10 +47,15 @@ class HeldReadingsSettings:
             reading exactly.
         min_updates: and the readings change at least this often (fewer: a static recording,
             whose repeated readings are the truth).
+        min_update_spacing: and the median number of frames from one update to the next is
+            at least this: a log that updates with every frame while the arm moves repeats
+            its readings only where the arm rests (parked before or after a motion), and
+            those repeats are the truth.
     """
 
     min_repeat_fraction: float = 0.5
     min_updates: int = 3
+    min_update_spacing: int = 2
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_repeat_fraction < 1.0:
@@ -58,6 +63,9 @@ class HeldReadingsSettings:
                              f"{self.min_repeat_fraction}")
         if self.min_updates < 2:
             raise InputError(f"min_updates must be >= 2, got {self.min_updates}")
+        if self.min_update_spacing < 2:
+            raise InputError(f"min_update_spacing must be >= 2 frames, got "
+                             f"{self.min_update_spacing}")
 
 
 @dataclass(frozen=True)
@@ -116,7 +124,8 @@ def reading_updates(timestamps: np.ndarray, joints: np.ndarray,
     update_index = np.concatenate([[0], np.flatnonzero(~repeats) + 1])
     repeat_fraction = float(repeats.mean()) if len(repeats) else 0.0
     held = (repeat_fraction >= settings.min_repeat_fraction
-            and len(update_index) >= settings.min_updates)
+            and len(update_index) >= settings.min_updates
+            and np.median(np.diff(update_index)) >= settings.min_update_spacing)
     period = float(np.median(np.diff(t[update_index]))) if len(update_index) > 1 else None
     return ReadingUpdates(update_index, repeat_fraction, bool(held), period)
 

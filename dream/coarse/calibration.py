@@ -3,20 +3,22 @@
 the coarse search (`dream.coarse.search`), and a stand-in keypoint result at its pose so that
 the image refinements (`--refine`) and RESULT.json take it from there.
 
-With motion masks, the links that never move over the recording are left out of the model
-(they are in the background model, so not in the masks), the pixels the robot covers in most
-frames at a hypothesis are not compared (`dream.coarse.evidence.held_pixels`: a shoulder
-turning in place stays in the background model), and the search uses the frames whose masks
-show motion. The hypotheses are scored on a few frames (`search_frames`); the winner is
-finished on up to `finish_frames` (on rendered scenes, one frame's mask error, a shadow or a
-link the colour of the floor, moves the optimum of 8 frames by 1-2 cm, of 30 by a few
-millimetres). What the arm carries that the URDF lacks (a tool, a held object) is carved at
-the winner (`dream.coarse.carried`), reported, and its pixels left out of the search run
-again from there. Then the focal-length scale the robot's outlines ask for is fitted at the
-winner (`dream.coarse.focal`); where adopted, the search runs again from there through the
-camera with that focal length, and the callers go on with that camera. The search's 1-sigma
-is the spread of its finish over frame groups and links left out (jackknives) and of its
-basin check's restarts around the winner: where they do not return, it is large and says so.
+With motion masks, the links that never move over the recording are left out of the model (they
+are in the background model, so not in the masks), the pixels the robot covers in most frames
+at a hypothesis are not compared (`dream.coarse.evidence.held_pixels`: a shoulder turning in
+place stays in the background model), and the search uses the frames whose masks show motion,
+drawn as the background model's are (where the arm rests in one pose for most of the recording,
+each pose once: `dream.edges.background.median_frames`). The hypotheses are scored on a few
+frames (`search_frames`); the winner is finished on up to `finish_frames` (on rendered scenes,
+one frame's mask error, a shadow or a link the colour of the floor, moves the optimum of 8
+frames by 1-2 cm, of 30 by a few millimetres). What the arm carries that the URDF lacks (a
+tool, a held object) is carved at the winner (`dream.coarse.carried`), reported, and its pixels
+left out of the search run again from there. Then the focal-length scale the robot's outlines
+ask for is fitted at the winner (`dream.coarse.focal`); where adopted, the search runs again
+from there through the camera with that focal length, and the callers go on with that camera.
+The search's 1-sigma is the spread of its finish over frame groups and links left out
+(jackknives) and of its basin check's restarts around the winner: where they do not return, it
+is large and says so.
 """
 
 from __future__ import annotations
@@ -113,6 +115,7 @@ def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> 
     Raises:
         InputError: a camera that moves, frames without images, an arm that hardly moves.
     """
+    from dream.edges.background import median_frames
     from dream.edges.motion import (
         MotionSettings,
         check_motion,
@@ -132,7 +135,7 @@ def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> 
         masks = np.stack([load_mask(sequence.frames[i], camera) for i in frames])
         return SearchMasks(meshes, frames, joints[frames], masks, DATA_MASKS, (), search)
     background, motion = sequence_motion_model(sequence, MotionSettings())
-    everything = np.arange(len(sequence))
+    everything = median_frames(joints)       # as the background model's frames
     for_search = evenly_spaced(everything, MOTION_CANDIDATES * settings.search_frames)
     tried = np.union1d(for_search, evenly_spaced(everything, settings.finish_frames))
     masks, matched = [], 0

@@ -28,11 +28,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from dream.camera import CameraIntrinsics, project
+from dream.edges.background import MEDIAN_SHARE
 from dream.errors import InputError
 from dream.silhouette import MIN_DEPTH_M, RobotMeshes
 from dream.transforms import camera_coordinates
-
-MEDIAN_SHARE = 0.5   # a per-pixel median holds what covers a pixel in more than half the frames
 
 
 @dataclass(frozen=True)

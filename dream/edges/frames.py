@@ -22,7 +22,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from dream.calibration import CalibrationResult, Observations
-from dream.edges.background import background_model, load_grey, matched_frames
+from dream.edges.background import (
+    background_indices,
+    background_model,
+    load_grey,
+    matched_frames,
+)
 from dream.edges.calibration import edge_jackknife, moving_vertices, outline_meshes
 from dream.edges.refine import align_edges
 from dream.edges.score import edge_score
@@ -32,7 +37,6 @@ from dream.errors import CannotRefine, InputError
 from dream.pnp import PoseFit
 from dream.polish.calibration import inlier_keypoints
 from dream.polish.guard import fit_shrinkage
-from dream.polish.objective import evenly_spaced
 from dream.refined_uncertainty import RefinementJackknife
 from dream.robot import Robot
 from dream.robot.link_geometry import LinkGeometry
@@ -145,17 +149,18 @@ def refine_frames_with_edges(sequence: Sequence, robot: Robot, result: Calibrati
 
 
 def _shared_background(sequence: Sequence, settings: EdgeSettings) -> np.ndarray | None:
-    """The background model of the frames when they share one camera, are enough, all have
-    images and the model explains them (`background_explains`); else None."""
-    if len(sequence) < settings.min_background_frames or any(
+    """The background model of the frames when they share one camera, are enough (counted as
+    `background_indices` counts them), all have images and the model explains them
+    (`background_explains`); else None."""
+    chosen = background_indices(sequence, settings.background_frames)
+    if len(chosen) < settings.min_background_frames or any(
             f.image_path is None for f in sequence.frames):
         return None
     try:
         camera = sequence.fixed_camera("share a background model")
     except InputError:
         return None
-    grey = load_grey(sequence, evenly_spaced(np.arange(len(sequence)),
-                                             settings.background_frames), camera)
+    grey = load_grey(sequence, chosen, camera)
     background = background_model(grey, settings)
     if not background_explains(matched_frames(grey, background, settings.exposure), background,
                                settings):

@@ -30,10 +30,10 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
+from dream.edges.background import background_indices
 from dream.edges.compression import BLOCK_PX, block_step_ratio
 from dream.edges.exposure import ExposureSettings, exposure_gain
 from dream.errors import InputError
-from dream.polish.objective import evenly_spaced
 from dream.sequence import Sequence
 from dream.settings_checks import check_fields
 
@@ -54,13 +54,21 @@ class MotionSettings:
             0.89, a dark arm on a dark floor 0.64 -> 0.71, precision 0.865 -> 0.861.
         open_px, close_px: radii of the opening and the closing, pixels per 320 px of width.
         min_area_fraction: blobs smaller than this share of the image are dropped.
-        background_frames: frames whose per-pixel median is the background (evenly spaced).
-        min_background_frames: fewer frames give no background model (an error). Its median
-            holds the scene wherever the arm covers a pixel in fewer than half of them; 5 lets
-            a recording of 7 photos calibrate without keypoints (renders of xarm7 and panda at
-            960x540 with a second robot: 5 of 6 within 1 cm, the sixth `unreliable`).
-        min_moving_fraction: at least this share of the frames must show motion (a mask
-            covering `min_area_fraction` of the image) for the masks to be made.
+        background_frames: frames whose per-pixel median is the background (evenly spaced;
+            where the arm rests in one pose in most frames, each pose counts once:
+            `dream.edges.background.background_indices`).
+        min_background_frames: fewer frames, so counted, give no background model (an error).
+            Its median holds the scene wherever the arm covers a pixel in fewer than half of
+            them; 5 lets a recording of 7 photos calibrate without keypoints (renders of xarm7
+            and panda at 960x540 with a second robot: 5 of 6 within 1 cm, the sixth
+            `unreliable`).
+        min_moving_frames: at least this many of the frames looked at must show motion (a
+            mask covering `min_area_fraction` of the image) for the masks to be made: as many
+            as a background model needs, and the search's 1-sigma leaves out one of five frame
+            groups in turn. No share of the frames is asked for: in a close-up of the base the
+            moving links pass through the view in a few frames only, and those frames' masks
+            are right, while an arm at rest for most of the recording is told by its joint
+            readings (`background_indices`), not by its masks.
         static_link_m: links whose vertices move less than this over the frames are in the
             background model, so not in the masks (`dream.silhouette.static_links`).
         compressed_step_ratio: a recording whose frames' differences from the background
@@ -83,19 +91,19 @@ class MotionSettings:
     min_area_fraction: float = 0.002
     background_frames: int = 60
     min_background_frames: int = 5
-    min_moving_fraction: float = 0.5
+    min_moving_frames: int = 5
     static_link_m: float = 0.005
     compressed_step_ratio: float = 1.2
     exposure: ExposureSettings | None = field(default_factory=ExposureSettings)
 
     def __post_init__(self) -> None:
         check_fields(self, "motion masks",
-                     positive_ints=("background_frames", "min_background_frames"),
+                     positive_ints=("background_frames", "min_background_frames",
+                                    "min_moving_frames"),
                      positive=("threshold", "weak_threshold", "static_link_m",
                                "compressed_step_ratio"),
-                     non_negative=("open_px", "close_px", "min_area_fraction",
-                                   "min_moving_fraction"))
-        for name in ("threshold", "min_area_fraction", "min_moving_fraction"):
+                     non_negative=("open_px", "close_px", "min_area_fraction"))
+        for name in ("threshold", "min_area_fraction"):
             if getattr(self, name) > 1:
                 raise InputError(f"motion masks: {name} must not exceed 1, got "
                                  f"{getattr(self, name)}")
@@ -192,19 +200,19 @@ def _cleaned(mask: np.ndarray, opening: np.ndarray | None, closing: np.ndarray |
 
 
 def check_motion(coverage: np.ndarray, settings: MotionSettings, what: str) -> None:
-    """Refuse the masks of a recording where the arm hardly moves: fewer than
-    `min_moving_fraction` of the frames have at least `min_area_fraction` of their image in
-    the mask (`coverage`: (F,) shares; the background model then holds the arm).
+    """Refuse the masks of a recording where the arm hardly moves in view: fewer than
+    `min_moving_frames` frames have at least `min_area_fraction` of their image in the mask
+    (`coverage`: (F,) shares).
 
     Raises:
         InputError: naming `what` (the data) and the fix.
     """
     moving = np.asarray(coverage) >= settings.min_area_fraction
-    if moving.mean() < settings.min_moving_fraction:
+    if moving.sum() < settings.min_moving_frames:
         raise InputError(f"only {int(moving.sum())} of {len(moving)} frames show motion against "
-                         "the background model: the arm hardly moves, so the background holds "
-                         "it", what, "record the arm moving through the view (motion masks "
-                         "need a moving arm), or give robot masks")
+                         f"the background model (at least {settings.min_moving_frames} needed): "
+                         "the arm hardly moves in view", what, "record the arm moving through "
+                         "the view (motion masks need a moving arm), or give robot masks")
 
 
 def recording_settings(frames: np.ndarray, background: np.ndarray, settings: MotionSettings
@@ -255,7 +263,12 @@ def sequence_motion_model(sequence: Sequence, settings: MotionSettings
         raise InputError(f"{len(sequence)} frames are too few for a background model (at least "
                          f"{settings.min_background_frames})", sequence.source,
                          "record more frames of the fixed camera with the arm moving")
-    chosen = evenly_spaced(np.arange(len(sequence)), settings.background_frames)
+    chosen = background_indices(sequence, settings.background_frames)
+    if len(chosen) < settings.min_background_frames:
+        raise InputError(f"the arm hardly moves: its joint readings show {len(chosen)} distinct "
+                         f"poses in {len(sequence)} frames, and a background model needs "
+                         f"{settings.min_background_frames}", sequence.source,
+                         "record the arm moving through the view, or give robot masks")
     frames = np.stack([load_image(sequence.frames[int(i)], camera) for i in chosen])
     background = background_rgb(frames, settings)
     return background, recording_settings(frames, background, settings)

@@ -31,7 +31,8 @@ class EdgeSettings:
             it and something else just inside, probed this far along the normal.
         motion_threshold: a pixel differs from the background by at least this (grey level).
         background_frames: frames whose per-pixel median is the background model (evenly
-            spaced).
+            spaced; where the arm rests in one pose in most frames, each pose counts once:
+            `dream.edges.background.background_indices`).
         min_background_frames: fewer frames give no background model (as the motion masks'
             `MotionSettings.min_background_frames`).
         huber_scale_px: Huber scale of the edge residuals.

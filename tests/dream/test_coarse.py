@@ -316,6 +316,49 @@ def test_a_recording_of_seven_frames_calibrates_without_keypoints(panda, meshes,
     assert isinstance(made["hysteresis"], bool)
 
 
+def parked_dataset(panda, meshes, folder, parked: int, moving: int) -> np.ndarray:
+    """A DREAM folder of images only: the arm at rest in one pose for `parked` frames (its
+    readings jittered as an encoder's at rest), then `moving` frames in other poses; returns
+    the pose."""
+    import cv2
+
+    from dream.io import write_dream
+    from dream.sequence import Frame, Sequence
+
+    T_true, joints, images, _ = edge_scene(panda, meshes, frames=moving + 1)
+    rng = np.random.default_rng(4)
+    order = [0] * parked + list(range(1, moving + 1))
+    (folder / "images").mkdir(parents=True)
+    frames = []
+    for k, i in enumerate(order):
+        path = folder / "images" / f"{k}.png"
+        cv2.imwrite(str(path), np.repeat((images[i] * 255).astype(np.uint8)[..., None], 3, 2))
+        frames.append(Frame(name=f"{k:06d}", joints=joints[i] + rng.normal(0.0, 1e-5, 7),
+                            image_path=path))
+    write_dream(Sequence(robot="panda", camera=CAMERA, joint_names=panda.joint_names,
+                         keypoint_names=panda.keypoint_names, frames=tuple(frames)),
+                folder / "data")
+    return T_true
+
+
+def test_an_arm_at_rest_for_most_of_the_recording_calibrates_without_keypoints(
+        panda, meshes, tmp_path, capsys):
+    """At rest in one pose for 14 of 24 frames: the background model and the search count the
+    pose once (`dream.edges.background.background_indices`), so the motion masks show the arm
+    in those frames too and the search finds the camera."""
+    T_true = parked_dataset(panda, meshes, tmp_path, parked=14, moving=10)
+    position = invert_T(off_by(T_true, 0.1, np.deg2rad(5.0), 3))[:3, 3]
+    out = tmp_path / "r.json"
+    code = main(["calibrate", "--data", str(tmp_path / "data"), "--out", str(out),
+                 "--camera-guess", ",".join(f"{v:.3f}" for v in position),
+                 "--look-at", ",".join(f"{v:.3f}" for v in TARGET)])
+    assert code == 0, capsys.readouterr().err
+    doc = json.loads(out.read_text())
+    t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
+    assert t_err < 0.01 and r_err < np.deg2rad(0.5), (t_err, np.rad2deg(r_err))
+    assert doc["start"]["frames"][0] == "000000" and len(doc["start"]["frames"]) == 11
+
+
 def test_refine_auto_keeps_the_keypoint_result_where_edges_cannot_run(panda, meshes, tmp_path,
                                                                         capsys):
     """Blank images: no edge near the outline. The default --refine auto writes the keypoint

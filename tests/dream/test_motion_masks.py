@@ -12,7 +12,14 @@ import pytest
 
 from dream.camera import project
 from dream.cli import main
-from dream.edges.motion import MotionSettings, background_rgb, check_motion, motion_masks
+from dream.edges.background import background_indices
+from dream.edges.motion import (
+    MotionSettings,
+    background_rgb,
+    check_motion,
+    motion_masks,
+    sequence_motion_model,
+)
 from dream.errors import InputError
 from dream.io import write_dream
 from dream.metrics import pose_errors
@@ -64,6 +71,9 @@ def test_background_needs_frames_and_a_moving_arm():
     with pytest.raises(InputError, match="hardly moves"):
         check_motion(np.zeros(10), settings, "data")
     check_motion(np.full(10, 0.1), settings, "data")
+    check_motion(np.r_[np.full(5, 0.1), np.zeros(20)], settings, "data")   # 5 in view: enough
+    with pytest.raises(InputError, match="only 4 of 25 frames"):
+        check_motion(np.r_[np.full(4, 0.1), np.zeros(21)], settings, "data")
     with pytest.raises(InputError, match="threshold"):
         MotionSettings(threshold=0.0)
     with pytest.raises(InputError, match="weak_threshold 0.2 must not exceed"):
@@ -154,3 +164,48 @@ def test_motion_mask_misuse_is_one_clear_error(tmp_path, capsys, extra, message)
                  *extra])
     _, err = capsys.readouterr()
     assert code == 2 and message in err and not out.exists()
+
+
+def test_an_arm_at_rest_for_most_frames_stays_out_of_the_background(panda, meshes, tmp_path):
+    """Parked in one pose for 15 of 24 frames, the arm counts once among the background model's
+    frames (`background_indices`), so the model shows the scene behind it and the parked frames'
+    masks show the arm; a median of all the frames would hold it."""
+    T_true, joints, images, scene = edge_scene(panda, meshes, frames=10)
+    order = [0] * 15 + list(range(1, 10))
+    rgb = np.repeat((images * 255).astype(np.uint8)[..., None], 3, axis=3)
+    frames = []
+    for k, i in enumerate(order):
+        path = tmp_path / f"{k}.png"
+        cv2.imwrite(str(path), rgb[i])
+        frames.append(Frame(name=f"{k:06d}", joints=joints[i], image_path=path))
+    seq = Sequence(robot="panda", camera=CAMERA, joint_names=panda.joint_names,
+                   keypoint_names=panda.keypoint_names, frames=tuple(frames))
+    assert background_indices(seq, 60).tolist() == [0] + list(range(15, 24))
+    settings = MotionSettings()
+    background, settings = sequence_motion_model(seq, settings)
+    parked = render_silhouette(without_links(meshes, static_links(
+        meshes, joints, settings.static_link_m)), joints[0], T_true, CAMERA)
+    scene_rgb = np.round(scene * 255)
+    covered = np.mean([render_silhouette(meshes, q, T_true, CAMERA) for q in joints], axis=0)
+    free = parked & (covered < 0.5)     # where the ten poses leave the scene in most frames
+    assert free.sum() > 0.3 * parked.sum()
+    assert (np.abs(background[free, 0] - scene_rgb[free]) < NOISE_GREY).mean() > 0.95
+    mask = motion_masks(rgb[0][None], background, settings)[0]
+    assert (mask & free).sum() / free.sum() > 0.95
+    held = background_rgb(rgb[order], settings)          # every frame: the arm stays in it
+    assert (motion_masks(rgb[0][None], held, settings)[0] & free).sum() < 0.05 * free.sum()
+
+
+def test_a_recording_at_rest_in_fewer_poses_than_a_background_needs_is_refused(panda, meshes,
+                                                                                 tmp_path):
+    """At rest for 10 of 12 frames, moved to two other poses between: three poses."""
+    _, joints, images, _ = edge_scene(panda, meshes, frames=3)
+    frames = []
+    for k, i in enumerate([0] * 5 + [1, 2] + [0] * 5):
+        path = tmp_path / f"{k}.png"
+        cv2.imwrite(str(path), np.repeat((images[i] * 255).astype(np.uint8)[..., None], 3, 2))
+        frames.append(Frame(name=f"{k:06d}", joints=joints[i], image_path=path))
+    seq = Sequence(robot="panda", camera=CAMERA, joint_names=panda.joint_names,
+                   keypoint_names=panda.keypoint_names, frames=tuple(frames))
+    with pytest.raises(InputError, match="3 distinct poses in 12 frames"):
+        sequence_motion_model(seq, MotionSettings())

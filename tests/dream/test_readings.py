@@ -42,6 +42,13 @@ def test_a_held_log_is_found_and_a_streaming_one_is_not():
     assert held.repeat_fraction == pytest.approx(50 / 59)
     static = reading_updates(t, np.ones((60, 2)))  # an arm at rest: its readings are the truth
     assert not static.held
+    parked = q.copy()
+    parked[:40] = q[0]        # at rest for 40 frames, then streaming: the repeats are the truth
+    rested = reading_updates(t, parked)
+    assert rested.repeat_fraction == pytest.approx(39 / 59) and len(rested.update_index) == 21
+    assert not rested.held
+    parked[40:] = q[40 + (np.arange(20) // HOLD_FRAMES) * HOLD_FRAMES]
+    assert reading_updates(t, parked).held     # at rest, then a 5 Hz log: held
 
 
 def test_linear_motion_sampled_between_frames_is_recovered_exactly():
@@ -186,6 +193,8 @@ def test_bad_arguments_are_input_errors():
         update_times(np.array([0.0, np.nan, 1.0]), np.array([0, 1]))
     with pytest.raises(InputError, match="min_repeat_fraction"):
         HeldReadingsSettings(min_repeat_fraction=1.5)
+    with pytest.raises(InputError, match="min_update_spacing"):
+        HeldReadingsSettings(min_update_spacing=1)
     with pytest.raises(InputError, match="increasing"):
         reading_updates(np.array([0.0, 2.0, 1.0]), np.zeros((3, 2)))
     with pytest.raises(InputError, match="expected"):
