@@ -205,8 +205,12 @@ class Lights:
     color_jitter: float = 0.2            # per-channel multiplicative jitter of white
     ambient: Range = (0.05, 0.4)
     specular: Range = (0.0, 0.3)
+    shadow_prob: float = 0.0             # the first light casts shadows (on the floor, the
+    #                                      robot, distractors; not on a 2D background)
 
     def __post_init__(self) -> None:
+        if not 0.0 <= self.shadow_prob <= 1.0:
+            raise InputError(f"lights.shadow_prob must lie in [0, 1], got {self.shadow_prob}")
         lo, hi = self.count
         if not 1 <= lo <= hi <= MAX_LIGHTS:
             raise InputError(f"lights.count must be [low, high] with 1 <= low <= high <= "

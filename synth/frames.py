@@ -36,7 +36,7 @@ from synth.randomize import (
 )
 from synth.rays import keypoint_ray_hits
 from synth.realism import sensor_effects
-from synth.render import BACKGROUND_GEOM, SceneRenderer
+from synth.render import BACKGROUND_GEOM, RenderSettings, SceneRenderer
 from synth.rendered import RenderedFrame
 from synth.scene import RobotScene, build_scene
 from synth.scene_settings import MAX_LIGHTS, SceneSettings
@@ -115,7 +115,8 @@ class FrameMaker:
         self.other_geoms = None if self.other_robot is None else \
             OtherRobotGeoms.from_model(self.scene.model, self.other_robot)
         self.nominal_camera = nominal_camera(config, seed)
-        self.renderer = SceneRenderer(self.scene, self.nominal_camera)
+        self.renderer = SceneRenderer(self.scene, self.nominal_camera, RenderSettings(
+            shadows=config.lights.shadow_prob > 0))
         self.joint_log = load_joint_log(config.joints.log, robot) if config.joints.log else None
         self.photos = list_photos(config.background.photos) if config.background.photos else ()
         self.plate = None if config.background.plate is None else read_plate(config)
@@ -155,6 +156,7 @@ class FrameMaker:
                 model.light_diffuse[light_id] = light.diffuse
                 model.light_specular[light_id] = light.specular
                 model.light_ambient[light_id] = 0.0
+            model.light_castshadow[light_id] = on and slot == 0 and p.scene.shadows
         model.vis.headlight.ambient[:] = p.scene.ambient
         model.vis.headlight.diffuse[:] = HEADLIGHT_DIFFUSE
         model.vis.headlight.specular[:] = 0.0

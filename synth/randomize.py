@@ -27,6 +27,7 @@ SEQUENCE_STREAM = 0x5E0     # spawn key of the per-sequence random stream
 FRAME_STREAM = 0xF4A        # spawn key of the per-frame random streams
 HELD_STREAM = 0x4E1D        # spawn key of the held object's stream (held_prob = 0 leaves the
                             # other draws, and so older data sets, unchanged)
+SHADOW_STREAM = 0x5AD0      # spawn key, with the scene's texture seed, of whether it has shadows
 HELD_BOARD_THICKNESS_M = (0.004, 0.02)  # full thickness of a held plate
 HELD_MIN_SIDE_FRACTION = 0.3           # a held object's other sides: 0.3-1 x its largest
 HELD_PART_SCALE = (0.3, 0.7)           # a further part of an assembly, x the held size
@@ -96,6 +97,7 @@ class SceneDraw:
     held: HeldObjectDraw | None = None
     hide_hand: bool = False     # the hand's visuals are not drawn (synth.realism)
     other_robot: OtherRobotDraw | None = None
+    shadows: bool = False       # the first light casts shadows (`Lights.shadow_prob`)
 
 
 @dataclass(frozen=True)
@@ -186,9 +188,13 @@ def sample_scene(rng: np.random.Generator, config: SynthConfig, default_rgba: np
             rng.random() < dc.textured_prob else -1
         distractors.append(DistractorDraw(kind, size, position, q / np.linalg.norm(q), rgba,
                                           texture))
+    texture_seed, background_seed = int(rng.integers(2 ** 31)), int(rng.integers(2 ** 31))
+    # a stream of its own, so that every other draw is that of the same seed without shadows
+    shadows = bool(np.random.default_rng([texture_seed, SHADOW_STREAM]).random()
+                   < lc.shadow_prob)
     return SceneDraw(camera, T_cam_base, tuple(lights), ambient, robot_rgba, float(specular),
-                     float(shininess), floor, tuple(distractors),
-                     int(rng.integers(2 ** 31)), int(rng.integers(2 ** 31)))
+                     float(shininess), floor, tuple(distractors), texture_seed, background_seed,
+                     shadows=shadows)
 
 
 def _random_shape(rng: np.random.Generator, half_sides: np.ndarray, position: np.ndarray,

@@ -49,7 +49,8 @@ class SceneSettings:
     """What `build_scene` puts in the MuJoCo model. Metres, radians, pixels.
 
     Attributes:
-        num_lights: spot lights (not directional, no shadows) for domain randomisation.
+        num_lights: spot lights (not directional; shadows only where `Lights.shadow_prob` asks)
+            for domain randomisation.
         light_height_m: initial height of the lights above the base, on a circle of
             `light_radius_m`, all aimed at the base origin.
         light_radius_m: radius of that circle.

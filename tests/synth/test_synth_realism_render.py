@@ -117,3 +117,22 @@ def test_unknown_other_robot_is_refused_before_writing(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "unknown robot 'kuka'" in err and err.count("\n") == 1
     assert not out.exists()
+
+
+def test_shadows_darken_the_floor_beside_the_robot_and_change_nothing_else():
+    """With `lights.shadow_prob` 1 the first light casts the robot's shadow on the floor: some
+    floor pixels darken, none brighten, the robot's pixels and labels stay; the draws (joints,
+    camera) are those of the same seed without shadows."""
+    floor = {"background": {"floor_prob": 1.0}, "lights": {"count": [1, 1], "ambient": [0.1, 0.1],
+                                                          "elevation_rad": [1.0, 1.2]}}
+    _, plain = _render(floor, frames=2)
+    shaded_values = {**floor, "lights": {**floor["lights"], "shadow_prob": 1.0}}
+    maker, shaded = _render(shaded_values, frames=2)
+    assert all(maker.params(i).scene.shadows for i in range(2))
+    for (a, *_), (b, *_) in zip(plain, shaded, strict=True):
+        assert np.array_equal(a.uv, b.uv) and np.array_equal(a.joints, b.joints)
+        assert np.array_equal(a.link_ids, b.link_ids)
+        background = a.link_ids == 0
+        change = b.rgb.astype(int).sum(axis=2) - a.rgb.astype(int).sum(axis=2)
+        assert (change[background] < -30).sum() > MIN_PIXELS      # a shadow on the floor
+        assert (change[background] > 3).sum() == 0                # nothing lit more
