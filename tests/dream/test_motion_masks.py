@@ -20,6 +20,7 @@ from dream.edges.motion import (
     motion_masks,
     sequence_motion_model,
 )
+from dream.edges.shadow import ShadowSettings
 from dream.errors import InputError
 from dream.io import write_dream
 from dream.metrics import pose_errors
@@ -209,3 +210,28 @@ def test_a_recording_at_rest_in_fewer_poses_than_a_background_needs_is_refused(p
                    keypoint_names=panda.keypoint_names, frames=tuple(frames))
     with pytest.raises(InputError, match="3 distinct poses in 12 frames"):
         sequence_motion_model(seq, MotionSettings())
+
+
+def test_a_cast_shadow_is_left_out_of_the_mask_and_the_arm_beside_it_kept():
+    """The scene darkened by 0.5 in every channel beside a grey link: without the shadow test
+    (the default) the mask holds both, with it the link alone."""
+    y, x = np.mgrid[0:60, 0:80] / 80.0
+    background = np.stack([80 + 100 * x, 150 - 60 * y, 60 + 40 * (x + y)], axis=2)
+    background = np.round(background).astype(np.uint8)             # a smooth coloured floor
+    frame = background.copy()
+    frame[10:50, 20:35] = (235, 235, 240)                         # the (white) link
+    frame[30:50, 35:70] = np.round(background[30:50, 35:70] * 0.5).astype(np.uint8)
+    link = np.zeros((60, 80), bool)
+    link[10:50, 20:35] = True
+    shadow = np.zeros((60, 80), bool)
+    shadow[30:50, 35:70] = True
+    kept = motion_masks(frame[None], background, MotionSettings())[0]
+    assert kept[shadow].mean() > 0.95 and kept[link].mean() > 0.95
+    tested = MotionSettings(shadow=ShadowSettings())
+    mask = motion_masks(frame[None], background, tested)[0]
+    assert mask[shadow].mean() < 0.05 and mask[link].mean() > 0.95
+    grey = [np.repeat(cv2.cvtColor(a, cv2.COLOR_RGB2GRAY)[..., None], 3, 2)
+            for a in (frame, background)]           # a monochrome camera: no shadow told apart
+    assert motion_masks(grey[0][None], grey[1], tested)[0][shadow].mean() > 0.95
+    with pytest.raises(InputError, match="min_ratio < max_ratio"):
+        ShadowSettings(min_ratio=0.9, max_ratio=0.5)
