@@ -44,17 +44,20 @@ def render(robot: str, seed: int, frames: int, shadows: bool, out: Path) -> Path
     return out
 
 
-def counts(data: Path, shadow: ShadowSettings | None) -> np.ndarray:
-    """(true positives, false positives, false negatives) of the motion masks of every frame of
-    `data` against its robot masks."""
+def counts(data: Path, variants: dict[str, ShadowSettings | None]) -> dict[str, np.ndarray]:
+    """For each variant of the shadow test (None: none), (true positives, false positives,
+    false negatives) of the motion masks of every frame of `data` against its robot masks; the
+    background model (which the test does not change) and the images read once."""
     seq = read_sequence(data)
-    background, settings = sequence_motion_model(seq, replace(MotionSettings(), shadow=shadow))
-    out = np.zeros(3, np.int64)
+    background, settings = sequence_motion_model(seq, MotionSettings())
+    out = {name: np.zeros(3, np.int64) for name in variants}
     for frame in seq.frames:
-        mask = motion_masks(load_image(frame, seq.camera)[None], background, settings)[0]
+        image = load_image(frame, seq.camera)[None]
         robot = load_mask(frame, seq.camera) > 0
-        out += (np.count_nonzero(mask & robot), np.count_nonzero(mask & ~robot),
-                np.count_nonzero(~mask & robot))
+        for name, shadow in variants.items():
+            mask = motion_masks(image, background, replace(settings, shadow=shadow))[0]
+            out[name] += (np.count_nonzero(mask & robot), np.count_nonzero(mask & ~robot),
+                          np.count_nonzero(~mask & robot))
     return out
 
 
@@ -86,8 +89,7 @@ def main() -> None:
                     data = render(robot, seed, args.frames, shadows,
                                   root / f"{robot}_{seed}{'_shadows' if shadows else ''}")
                     line = f"{robot} {seed} {'shadows' if shadows else 'plain  '}"
-                    for name, shadow in variants.items():
-                        c = counts(data, shadow)
+                    for name, c in counts(data, variants).items():
                         totals[(shadows, name)] = totals.get((shadows, name), 0) + c
                         line += f" | {name}: {shares(c)}"
                     print(line, flush=True)

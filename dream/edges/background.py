@@ -49,8 +49,7 @@ def pose_groups(joints: np.ndarray, tolerance: float = SAME_POSE) -> np.ndarray:
     firsts: list[int] = []
     groups = np.zeros(len(q), dtype=int)
     for i in range(len(q)):
-        same = np.flatnonzero(np.all(np.abs(q[firsts] - q[i]) <= tolerance, axis=1)) if firsts \
-            else np.zeros(0, int)
+        same = np.flatnonzero(np.all(np.abs(q[firsts] - q[i]) <= tolerance, axis=1))
         if len(same):
             groups[i] = firsts[same[0]]
         else:
@@ -144,8 +143,8 @@ def frames_and_background(sequence: Sequence, chosen: np.ndarray, settings: Edge
                           camera: CameraIntrinsics | None = None
                           ) -> tuple[np.ndarray, np.ndarray | None]:
     """The grey images (n, H, W) of the frames `chosen` of a fixed-camera sequence, and its
-    background model (None when it has fewer than `min_background_frames` distinct poses:
-    `background_indices`); each image is read once."""
+    background model (None when it has fewer than `min_background_frames` frames, counted as
+    `background_indices` counts them); each image is read once."""
     background_idx = background_indices(sequence, settings.background_frames)
     if len(background_idx) < settings.min_background_frames:
         background_idx = np.zeros(0, int)

@@ -188,7 +188,8 @@ def motion_masks(frames: np.ndarray, background: np.ndarray, settings: MotionSet
     opening, closing = disk(settings.open_px * per_width), disk(settings.close_px * per_width)
     min_area = settings.min_area_fraction * H * W
     out = np.zeros((F, H, W), bool)
-    shadow = None if colourless(background) else settings.shadow
+    shadow = settings.shadow if settings.shadow is not None and not colourless(background) \
+        else None
     for f in range(F):
         gain = frame_gain(frames[f], background, settings) if gains is None else gains[f]
         diff = colour_difference(frames[f], background, gain)

@@ -41,7 +41,7 @@ from dream.polish.refine import refine_pose
 from dream.polish.settings import PolishSettings
 from dream.silhouette import render_silhouette, vertices_in_base
 from dream.transforms import R_from_rotvec, invert_T
-from tests.dream.test_edges import CAMERA, TARGET, edge_scene, image_dataset
+from tests.dream.test_edges import CAMERA, TARGET, edge_scene, image_dataset, ordered_sequence
 
 GUESS_M, GUESS_RAD = 0.3, np.deg2rad(20.0)     # the rough guess's error
 CHI2_6DOF_95 = 12.592    # 95 % quantile of the chi-square distribution with 6 degrees of freedom
@@ -301,13 +301,7 @@ def test_a_recording_of_seven_frames_calibrates_without_keypoints(panda, meshes,
     the scene wherever the arm covers a pixel in at most three of them): the motion masks and
     the search from a guess 10 cm / 5 deg off find the camera."""
     T_true = image_dataset(panda, meshes, tmp_path, frames=7)
-    position = invert_T(off_by(T_true, 0.1, np.deg2rad(5.0), 3))[:3, 3]
-    out = tmp_path / "r.json"
-    code = main(["calibrate", "--data", str(tmp_path / "data"), "--out", str(out),
-                 "--camera-guess", ",".join(f"{v:.3f}" for v in position),
-                 "--look-at", ",".join(f"{v:.3f}" for v in TARGET)])
-    assert code == 0, capsys.readouterr().err
-    doc = json.loads(out.read_text())
+    doc = calibrated_from_a_guess(T_true, tmp_path, capsys)
     t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
     assert t_err < 0.01 and r_err < np.deg2rad(0.5), (t_err, np.rad2deg(r_err))
     assert doc["start"]["evidence"] == "motion masks" and len(doc["start"]["frames"]) == 7
@@ -320,25 +314,26 @@ def parked_dataset(panda, meshes, folder, parked: int, moving: int) -> np.ndarra
     """A DREAM folder of images only: the arm at rest in one pose for `parked` frames (its
     readings jittered as an encoder's at rest), then `moving` frames in other poses; returns
     the pose."""
-    import cv2
-
     from dream.io import write_dream
-    from dream.sequence import Frame, Sequence
 
     T_true, joints, images, _ = edge_scene(panda, meshes, frames=moving + 1)
-    rng = np.random.default_rng(4)
-    order = [0] * parked + list(range(1, moving + 1))
     (folder / "images").mkdir(parents=True)
-    frames = []
-    for k, i in enumerate(order):
-        path = folder / "images" / f"{k}.png"
-        cv2.imwrite(str(path), np.repeat((images[i] * 255).astype(np.uint8)[..., None], 3, 2))
-        frames.append(Frame(name=f"{k:06d}", joints=joints[i] + rng.normal(0.0, 1e-5, 7),
-                            image_path=path))
-    write_dream(Sequence(robot="panda", camera=CAMERA, joint_names=panda.joint_names,
-                         keypoint_names=panda.keypoint_names, frames=tuple(frames)),
+    order = [0] * parked + list(range(1, moving + 1))
+    write_dream(ordered_sequence(panda, images, joints, order, folder / "images", 1e-5),
                 folder / "data")
     return T_true
+
+
+def calibrated_from_a_guess(T_true: np.ndarray, folder, capsys) -> dict:
+    """RESULT.json of `dream calibrate` without keypoints of `folder`/data from a guess 10 cm
+    / 5 deg off `T_true`, checked to exit 0."""
+    position = invert_T(off_by(T_true, 0.1, np.deg2rad(5.0), 3))[:3, 3]
+    out = folder / "r.json"
+    code = main(["calibrate", "--data", str(folder / "data"), "--out", str(out),
+                 "--camera-guess", ",".join(f"{v:.3f}" for v in position),
+                 "--look-at", ",".join(f"{v:.3f}" for v in TARGET)])
+    assert code == 0, capsys.readouterr().err
+    return json.loads(out.read_text())
 
 
 def test_an_arm_at_rest_for_most_of_the_recording_calibrates_without_keypoints(
@@ -347,13 +342,7 @@ def test_an_arm_at_rest_for_most_of_the_recording_calibrates_without_keypoints(
     pose once (`dream.edges.background.background_indices`), so the motion masks show the arm
     in those frames too and the search finds the camera."""
     T_true = parked_dataset(panda, meshes, tmp_path, parked=14, moving=10)
-    position = invert_T(off_by(T_true, 0.1, np.deg2rad(5.0), 3))[:3, 3]
-    out = tmp_path / "r.json"
-    code = main(["calibrate", "--data", str(tmp_path / "data"), "--out", str(out),
-                 "--camera-guess", ",".join(f"{v:.3f}" for v in position),
-                 "--look-at", ",".join(f"{v:.3f}" for v in TARGET)])
-    assert code == 0, capsys.readouterr().err
-    doc = json.loads(out.read_text())
+    doc = calibrated_from_a_guess(T_true, tmp_path, capsys)
     t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
     assert t_err < 0.01 and r_err < np.deg2rad(0.5), (t_err, np.rad2deg(r_err))
     assert doc["start"]["frames"][0] == "000000" and len(doc["start"]["frames"]) == 11

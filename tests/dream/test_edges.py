@@ -170,6 +170,22 @@ def image_dataset(panda, meshes, folder: Path, blank: bool = False,
     return T_true
 
 
+def ordered_sequence(panda, images: np.ndarray, joints: np.ndarray, order, folder: Path,
+                     jitter_rad: float = 0.0) -> Sequence:
+    """A sequence of images only (RGB PNGs written to `folder`): its frame k shows `edge_scene`'s
+    grey image and joints number `order[k]`, the readings jittered by `jitter_rad` (an
+    encoder's noise at rest)."""
+    rng = np.random.default_rng(4)
+    frames = []
+    for k, i in enumerate(order):
+        path = folder / f"{k}.png"
+        cv2.imwrite(str(path), np.repeat((images[i] * 255).astype(np.uint8)[..., None], 3, 2))
+        q = joints[i] + (rng.normal(0.0, jitter_rad, joints.shape[1]) if jitter_rad else 0.0)
+        frames.append(Frame(name=f"{k:06d}", joints=q, image_path=path))
+    return Sequence(robot="panda", camera=CAMERA, joint_names=panda.joint_names,
+                    keypoint_names=panda.keypoint_names, frames=tuple(frames))
+
+
 def test_calibrate_aligns_edges_by_default_without_masks(panda, meshes, tmp_path, capsys):
     T_true = image_dataset(panda, meshes, tmp_path)
     out = tmp_path / "result.json"

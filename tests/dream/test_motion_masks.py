@@ -27,7 +27,7 @@ from dream.metrics import pose_errors
 from dream.sequence import Frame, Sequence
 from dream.silhouette import render_silhouette, static_links, without_links
 from dream.transforms import transform_points
-from tests.dream.test_edges import CAMERA, edge_scene, image_dataset
+from tests.dream.test_edges import CAMERA, edge_scene, image_dataset, ordered_sequence
 
 NOISE_GREY = 6          # sensor noise of the synthetic frames, grey levels of 255
 
@@ -174,13 +174,7 @@ def test_an_arm_at_rest_for_most_frames_stays_out_of_the_background(panda, meshe
     T_true, joints, images, scene = edge_scene(panda, meshes, frames=10)
     order = [0] * 15 + list(range(1, 10))
     rgb = np.repeat((images * 255).astype(np.uint8)[..., None], 3, axis=3)
-    frames = []
-    for k, i in enumerate(order):
-        path = tmp_path / f"{k}.png"
-        cv2.imwrite(str(path), rgb[i])
-        frames.append(Frame(name=f"{k:06d}", joints=joints[i], image_path=path))
-    seq = Sequence(robot="panda", camera=CAMERA, joint_names=panda.joint_names,
-                   keypoint_names=panda.keypoint_names, frames=tuple(frames))
+    seq = ordered_sequence(panda, images, joints, order, tmp_path)
     assert background_indices(seq, 60).tolist() == [0] + list(range(15, 24))
     settings = MotionSettings()
     background, settings = sequence_motion_model(seq, settings)
@@ -201,13 +195,7 @@ def test_a_recording_at_rest_in_fewer_poses_than_a_background_needs_is_refused(p
                                                                                  tmp_path):
     """At rest for 10 of 12 frames, moved to two other poses between: three poses."""
     _, joints, images, _ = edge_scene(panda, meshes, frames=3)
-    frames = []
-    for k, i in enumerate([0] * 5 + [1, 2] + [0] * 5):
-        path = tmp_path / f"{k}.png"
-        cv2.imwrite(str(path), np.repeat((images[i] * 255).astype(np.uint8)[..., None], 3, 2))
-        frames.append(Frame(name=f"{k:06d}", joints=joints[i], image_path=path))
-    seq = Sequence(robot="panda", camera=CAMERA, joint_names=panda.joint_names,
-                   keypoint_names=panda.keypoint_names, frames=tuple(frames))
+    seq = ordered_sequence(panda, images, joints, [0] * 5 + [1, 2] + [0] * 5, tmp_path)
     with pytest.raises(InputError, match="3 distinct poses in 12 frames"):
         sequence_motion_model(seq, MotionSettings())
 

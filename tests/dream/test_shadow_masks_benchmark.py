@@ -9,8 +9,8 @@ from tests.benchmark_scripts import load_benchmark
 def test_the_shadow_test_raises_the_masks_precision_in_a_scene_with_shadows(tmp_path):
     bench = load_benchmark("shadow_masks")
     data = bench.render("panda", 1000, 8, True, tmp_path / "scene")
-    without = bench.counts(data, None)
-    with_test = bench.counts(data, bench.ShadowSettings())
+    found = bench.counts(data, {"without": None, "with": bench.ShadowSettings()})
+    without, with_test = found["without"], found["with"]
     precision = [tp / (tp + fp) for tp, fp, _ in (without, with_test)]
     assert precision[1] > precision[0] + 0.1, precision
     recall = [tp / (tp + fn) for tp, _, fn in (without, with_test)]
