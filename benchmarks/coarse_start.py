@@ -222,8 +222,13 @@ def calibrate(data: Path, out: Path, guess: Path | None,
             "polish_iou": doc.get("polish", {}).get("iou_after"),
             "iou": (doc.get("start") or {}).get("iou", (doc.get("silhouette_check") or {}).get(
                 "iou_silhouettes", float("nan"))),
-            "mark_mm": None if mark is None else pose_errors(
-                np.asarray(doc["start"]["mark"]["T_cam_base"]), T_true)[0] * 1e3}
+            "mark_mm": mark_error_mm(doc, T_true) if mark is not None else None}
+
+
+def mark_error_mm(doc: dict, T_true: np.ndarray) -> float | None:
+    """The mark's own PnP pose's error (mm), None where it had too few frames for one."""
+    T_mark = doc["start"]["mark"]["T_cam_base"]
+    return None if T_mark is None else pose_errors(np.asarray(T_mark), T_true)[0] * 1e3
 
 
 def summary(rows: list[dict], right_mm: float, right_deg: float, label: str) -> None:
@@ -287,7 +292,8 @@ def run_renders(args: argparse.Namespace) -> None:
                           f"{row['verdict']}, 1-sigma {row['sigma_mm']:.1f} mm (truth at "
                           f"chi2 {row['chi2']:.1f}), IoU {row['iou']:.3f}, "
                           f"{row['seconds']:.0f} s{row['focal']}"
-                          + ("" if mark is None else f", the mark's own pose "
+                          + ("" if mark is None else ", the mark too few for a pose"
+                             if row["mark_mm"] is None else f", the mark's own pose "
                              f"{row['mark_mm']:.0f} mm off"), flush=True)
     for mode, rows in by_mode.items():
         summary(rows, args.right_mm, args.right_deg, mode)

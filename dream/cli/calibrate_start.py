@@ -152,11 +152,15 @@ def search_start(request, seq, out: TextIO):
 
         marked = mark_start(seq, robot, read_mark(request, seq, robot))
         guess = marked.guess
-        print(f"mark: {marked.clicked} clicked and {len(marked.frames) - marked.clicked} "
-              f"tracked frames, pose over time RMSE {marked.fit.rmse_px:.1f} px; searching "
-              f"within {guess.sigma_m * 100:.0f} cm / {np.rad2deg(guess.sigma_rad):.0f} deg",
-              file=out)
-    if extra:
+        extra = {**extra, **marked.hypotheses}
+        known = f"mark: {marked.clicked} clicked and {len(marked.frames) - marked.clicked} " \
+                "tracked frames"
+        print(f"{known}, too few for a pose of their own: they place each orientation of the "
+              f"automatic search ({sum(map(len, marked.hypotheses.values()))} cameras)"
+              if marked.fit is None else
+              f"{known}, pose over time RMSE {marked.fit.rmse_px:.1f} px; searching within "
+              f"{guess.sigma_m * 100:.0f} cm / {np.rad2deg(guess.sigma_rad):.0f} deg", file=out)
+    if KEYPOINTS in extra:
         guess = replace(guess, description=guess.description + "; the keypoint pose")
     print(f"searching the camera pose from the robot's silhouettes, "
           f"{guess.description}", file=out)
@@ -234,13 +238,17 @@ def carried_doc(carving, left_out: bool) -> dict | None:
 
 
 def mark_doc(marked, seq) -> dict:
-    """RESULT.json's `start.mark`: the mark's frames, its PnP pose and fit."""
+    """RESULT.json's `start.mark`: the mark's frames, its PnP pose and fit (None where it is
+    known in too few frames for one) and how many cameras it placed for the search."""
+    fit = marked.fit
     return {"clicked_frames": marked.clicked,
             "tracked_frames": len(marked.frames) - marked.clicked,
             "frames": [seq.frames[int(i)].name for i in marked.frames],
-            "T_cam_base": marked.fit.T_cam_base.tolist(), "rmse_px": marked.fit.rmse_px,
-            "search_sigma_m": marked.guess.sigma_m,
-            "search_sigma_rad": marked.guess.sigma_rad}
+            "T_cam_base": None if fit is None else fit.T_cam_base.tolist(),
+            "rmse_px": None if fit is None else fit.rmse_px,
+            "placed_hypotheses": sum(map(len, marked.hypotheses.values())),
+            "search_sigma_m": None if fit is None else marked.guess.sigma_m,
+            "search_sigma_rad": None if fit is None else marked.guess.sigma_rad}
 
 
 def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,

@@ -60,7 +60,8 @@ def run_mark(request: MarkRequest, out: TextIO | None = None,
     url = f"http://{HOST}:{server.server_address[1]}/"
     print(f"dream mark: {len(names)} frames{f', {len(marks)} marked in {target}' if marks else ''}"
           f"; open {url} in a browser (on this machine), click the same point of the end "
-          "effector in five or more frames, then Done (or Ctrl-C here)", file=out, flush=True)
+          "effector in five or more frames (two at least), then Done (or Ctrl-C here)",
+          file=out, flush=True)
     if ready is not None:
         ready(url)
     try:

@@ -34,12 +34,20 @@ from dream.camera import CameraIntrinsics
 from dream.coarse.carried import CarriedRegion, carried_geometry, carried_region
 from dream.coarse.focal import FocalEstimate, FocalSettings, fit_focal
 from dream.coarse.hypotheses import around, fibonacci_directions, shell
-from dream.coarse.mark import Mark, MarkSettings, mark_points, mark_pose, mark_sigma, track_mark
+from dream.coarse.mark import (
+    Mark,
+    MarkSettings,
+    mark_points,
+    mark_pose,
+    mark_sigma,
+    placed_by_mark,
+    track_mark,
+)
 from dream.coarse.search import SearchOutcome, Winner, find_winner, within
 from dream.coarse.settings import SearchSettings
 from dream.diagnosis.attached import AttachedSettings, CarvingOutcome
 from dream.errors import InputError
-from dream.pnp import NoSolution, PoseFit, increment_between
+from dream.pnp import MIN_KEYPOINTS, NoSolution, PoseFit, increment_between
 from dream.polish.objective import evenly_spaced
 from dream.refined_uncertainty import MIN_GROUPS, jackknife_covariance
 from dream.robot import Robot
@@ -54,7 +62,7 @@ from dream.silhouette import (
 
 log = logging.getLogger(__name__)
 
-GUESS, SHELL, CARRIED, FOCAL = "guess", "shell", "carried", "focal"
+GUESS, SHELL, CARRIED, FOCAL, MARK = "guess", "shell", "carried", "focal", "mark"
 DATA_MASKS, MOTION_MASKS = "the data's masks", "motion masks"
 RESOLUTION_FRACTION = 0.5   # of the basin check's return limits: its 1-sigma without a jackknife
 JACKKNIFE_SHRINKAGE = 0.25  # of the search's jackknife covariance towards its diagonal (set
@@ -295,22 +303,28 @@ def with_focal(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
 @dataclass(frozen=True)
 class MarkStart:
     """The mark's start: the mark, the guess around its pose, its PnP fit, the frames it is
-    known in (clicked and tracked, indices into the sequence), how many were clicked, and the
-    mark in the base frame at the clicked frames (to check the clicks at the pose found)."""
+    known in (clicked and tracked, indices into the sequence), how many were clicked, the mark
+    in the base frame at the clicked frames (to check the clicks at the pose found), and the
+    hypotheses it adds. Known in fewer frames than a pose needs, it has no fit: the guess asks
+    for the automatic search, and each orientation of the search's shell, placed where the
+    mark's frames put it (`dream.coarse.mark.placed_by_mark`), joins its hypotheses."""
 
     mark: Mark
     guess: CameraGuess
-    fit: PoseFit
+    fit: PoseFit | None
     frames: np.ndarray
     clicked: int
     P_clicked_base: np.ndarray
+    hypotheses: dict[str, np.ndarray]
 
 
 def mark_start(sequence: Sequence, robot: Robot, mark: Mark,
                settings: SearchSettings | None = None,
                mark_settings: MarkSettings | None = None) -> MarkStart:
     """The mark tracked through the fixed camera's images and its PnP over time
-    (`dream.coarse.mark`), as a guess searched around within the PnP's own 1-sigma."""
+    (`dream.coarse.mark`), as a guess searched around within the PnP's own 1-sigma; known in
+    fewer than `MIN_KEYPOINTS` frames, the automatic search with cameras placed by the mark
+    (`MarkStart`)."""
     import cv2
 
     from dream.io import load_image
@@ -329,13 +343,27 @@ def mark_start(sequence: Sequence, robot: Robot, mark: Mark,
 
     P_base = mark_points(robot, joints, mark.link, mark.offset_link_m)
     frames, uv = track_mark(gray, mark.frames, mark.uv, P_base, mark_settings)
+    known = (f"{len(mark.frames)} clicked, {len(frames) - len(mark.frames)} tracked frames")
+    if len(frames) < MIN_KEYPOINTS:
+        placed = placed_by_mark(shell_orientations(settings), P_base[frames], uv, camera)
+        guess = CameraGuess(None, settings.guess_sigma_m, settings.guess_sigma_rad,
+                            f"the automatic search, with its orientations placed by the mark "
+                            f"on {mark.link} ({known}: too few for a pose of its own)")
+        return MarkStart(mark, guess, None, frames, len(mark.frames), P_base[mark.frames],
+                         {MARK: placed})
     fit = mark_pose(P_base[frames], uv, camera)
     sigma_m, sigma_rad = mark_sigma(fit, mark_settings, settings.guess_sigma_m,
                                     settings.guess_sigma_rad)
     guess = CameraGuess(fit.T_cam_base, sigma_m, sigma_rad,
-                        f"around the pose of the mark on {mark.link} ({len(mark.frames)} "
-                        f"clicked, {len(frames) - len(mark.frames)} tracked frames)")
-    return MarkStart(mark, guess, fit, frames, len(mark.frames), P_base[mark.frames])
+                        f"around the pose of the mark on {mark.link} ({known})")
+    return MarkStart(mark, guess, fit, frames, len(mark.frames), P_base[mark.frames], {})
+
+
+def shell_orientations(settings: SearchSettings) -> np.ndarray:
+    """(n, 3, 3) the automatic search's camera orientations: looking at the robot from each
+    of its shell's directions, with each of its rolls (`shell`)."""
+    directions = fibonacci_directions(settings.shell_directions, settings.min_elevation_sin)
+    return shell(np.zeros(3), 1.0, directions, (1.0,), settings.shell_rolls)[:, :3, :3]
 
 
 def search_covariance(outcome: SearchOutcome, settings: SearchSettings | None = None,

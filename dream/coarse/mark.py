@@ -7,10 +7,14 @@ correspondences of a single pose.
 
 The pose is rough (a few clicked pixels, a trajectory a few decimetres wide): it is the centre
 of the silhouette search (`dream.coarse.calibration`), searched around within a 1-sigma taken
-from the PnP's own covariance, and the clicks are checked again at the pose found.
+from the PnP's own covariance, and the clicks are checked again at the pose found. A mark known
+in fewer frames than a pose needs (the end effector seldom in view, frames too far apart to
+track) still places cameras: with the orientation given, its clicks fix the position
+(`placed_by_mark`), so each orientation of the automatic search becomes one camera that sees
+the clicks where they were made.
 
     >>> import numpy as np
-    >>> from dream.camera import CameraIntrinsics, project
+    >>> from dream.camera import CameraIntrinsics, pixels_to_normalized, project
     >>> from dream.transforms import look_at, transform_points
     >>> cam = CameraIntrinsics(500.0, 500.0, 320.0, 240.0, 640, 480)
     >>> T = look_at(np.array([1.5, 0.5, 1.0]), np.zeros(3))
@@ -31,7 +35,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from dream.camera import CameraIntrinsics, project
+from dream.camera import CameraIntrinsics, pixels_to_normalized, project
 from dream.errors import InputError
 from dream.pnp import MIN_KEYPOINTS, NoSolution, PoseFit, solve_pnp
 from dream.robot import Robot
@@ -39,6 +43,8 @@ from dream.sequence import Sequence
 from dream.transforms import transform_points
 
 MARK_COLUMNS = ("frame", "u", "v")
+MIN_CLICK_SPREAD = 1e-3   # normalised image units: clicks nearer than this are one pixel
+MIN_MARK_DEPTH_M = 0.05   # a placed camera sees every marked point at least this far ahead
 CACHED_IMAGES = 4   # the tracker steps between neighbours: a few images in memory suffice
 FIX_MARKS = ("write one row per clicked frame: frame,u,v (the frame's name or index, the "
              "pixel with the origin at the top-left pixel's centre); dream mark writes it")
@@ -240,6 +246,50 @@ def mark_pose(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics) -> P
                          fix="click the mark in frames where the end effector is in places "
                              "that do not lie on one line")
     return fit
+
+
+def placed_by_mark(R_cam_base: np.ndarray, P_base: np.ndarray, uv: np.ndarray,
+                   camera: CameraIntrinsics) -> np.ndarray:
+    """(m, 4, 4) cameras, one per orientation `R_cam_base` (n, 3, 3), each at the position
+    that puts the mark's points `P_base` (k, 3; k >= 2) nearest their pixels `uv` (k, 2): with
+    the orientation fixed, the projection's equations x (R P + t)_z = (R P + t)_x and
+    y (R P + t)_z = (R P + t)_y are linear in t, so the position is their least-squares
+    solution. Too few clicks for a pose of their own (`mark_pose` needs 4) still place each
+    orientation of the automatic search. Cameras that see a point behind them are dropped.
+
+    >>> from dream.transforms import look_at
+    >>> cam = CameraIntrinsics(500.0, 500.0, 320.0, 240.0, 640, 480)
+    >>> T = look_at(np.array([1.5, 0.5, 1.0]), np.zeros(3))
+    >>> P = np.array([[0.3, 0.1, 0.4], [0.1, -0.2, 0.6]])
+    >>> placed = placed_by_mark(T[None, :3, :3], P, project(cam, transform_points(T, P)), cam)
+    >>> bool(np.allclose(placed[0], T))
+    True
+
+    Raises:
+        InputError: fewer than 2 clicks, or clicks at one pixel (they place no camera).
+    """
+    R = np.asarray(R_cam_base, float)
+    P = np.asarray(P_base, float)
+    if R.ndim != 3 or R.shape[1:] != (3, 3) or P.ndim != 2 or P.shape[1] != 3 \
+            or np.shape(uv) != (len(P), 2):
+        raise InputError(f"placed_by_mark needs (n, 3, 3) rotations, (k, 3) points and (k, 2) "
+                         f"pixels, got {R.shape}, {P.shape}, {np.shape(uv)}")
+    xy = pixels_to_normalized(camera, uv)
+    A = np.zeros((2 * len(P), 3))
+    A[0::2, 0], A[1::2, 1] = 1.0, 1.0
+    A[0::2, 2], A[1::2, 2] = -xy[:, 0], -xy[:, 1]
+    if len(P) < 2 or np.linalg.matrix_rank(A, tol=MIN_CLICK_SPREAD) < 3:
+        raise InputError(f"the mark's {len(P)} click(s) lie at one pixel and place no camera",
+                         fix="click the mark in 2 or more frames where the end effector is in "
+                             "different places")
+    RP = np.einsum("nij,kj->nki", R, P)                       # (n, k, 3)
+    b = -np.stack([RP[..., 0] - xy[:, 0] * RP[..., 2],
+                   RP[..., 1] - xy[:, 1] * RP[..., 2]], axis=2).reshape(len(R), -1)
+    t = b @ np.linalg.pinv(A).T                                # (n, 3)
+    in_front = np.all(RP[..., 2] + t[:, None, 2] > MIN_MARK_DEPTH_M, axis=1)
+    out = np.tile(np.eye(4), (int(in_front.sum()), 1, 1))
+    out[:, :3, :3], out[:, :3, 3] = R[in_front], t[in_front]
+    return out
 
 
 def mark_sigma(fit: PoseFit, settings: MarkSettings, max_m: float, max_rad: float

@@ -12,11 +12,18 @@ import pytest
 
 from dream.camera import CameraIntrinsics, project
 from dream.cli import main
-from dream.coarse.mark import MarkSettings, mark_pose, mark_sigma, read_marks, track_mark
+from dream.coarse.mark import (
+    MarkSettings,
+    mark_pose,
+    mark_sigma,
+    placed_by_mark,
+    read_marks,
+    track_mark,
+)
 from dream.errors import InputError
 from dream.io import read_sequence
 from dream.metrics import pose_errors
-from dream.transforms import look_at, transform_points
+from dream.transforms import R_from_rotvec, look_at, transform_points
 from tests.dream.test_edges import image_dataset
 
 CLICK_NOISE_PX = 2.0
@@ -54,13 +61,18 @@ def test_tracker_follows_a_moving_dot_between_clicks_and_stops_where_it_is_lost(
     assert frames.tolist() == [0, 12]
 
 
+def random_view(rng: np.random.Generator, points: int) -> tuple[np.ndarray, np.ndarray]:
+    """A random camera looking at a robot's workspace, and `points` random points in it."""
+    T = look_at(rng.uniform([1.0, -1.0, 0.5], [1.8, 1.0, 1.5]), rng.uniform(-0.1, 0.1, 3)
+                + [0.0, 0.0, 0.4], rng.uniform(-0.3, 0.3))
+    return T, rng.uniform([-0.3, -0.5, 0.1], [0.6, 0.5, 0.8], (points, 3))
+
+
 def test_mark_pose_recovers_random_cameras_from_five_noisy_clicks():
     camera = CameraIntrinsics(400.0, 400.0, 319.5, 239.5, 640, 480)
     rng = np.random.default_rng(0)
     for _ in range(5):
-        T = look_at(rng.uniform([1.0, -1.0, 0.5], [1.8, 1.0, 1.5]), rng.uniform(-0.1, 0.1, 3)
-                    + [0.0, 0.0, 0.4], rng.uniform(-0.3, 0.3))
-        P = rng.uniform([-0.3, -0.5, 0.1], [0.6, 0.5, 0.8], (5, 3))
+        T, P = random_view(rng, 5)
         uv = project(camera, transform_points(T, P)) + rng.normal(0, CLICK_NOISE_PX, (5, 2))
         fit = mark_pose(P, uv, camera)
         m, rad = pose_errors(fit.T_cam_base, T)
@@ -77,6 +89,30 @@ def test_mark_pose_needs_four_frames_off_one_line():
     line = np.linspace(0, 1, 6)[:, None] * np.array([[0.2, 0.1, 0.3]])
     with pytest.raises(InputError, match="on one line|fixes no camera pose"):
         mark_pose(line, project(camera, transform_points(T, line)), camera)
+
+
+def test_two_clicks_place_random_camera_orientations():
+    """Random pose -> project two points -> place the true orientation -> the true pose; an
+    orientation a few degrees off is placed where its clicks land nearer than at the true
+    position; cameras that would see a click behind them are dropped; one-pixel clicks fail."""
+    camera = CameraIntrinsics(400.0, 400.0, 319.5, 239.5, 640, 480)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        T, P = random_view(rng, 2)
+        uv = project(camera, transform_points(T, P))
+        placed = placed_by_mark(T[None, :3, :3], P, uv, camera)
+        assert np.allclose(placed[0], T, atol=1e-9)
+        turned = T.copy()
+        turned[:3, :3] = R_from_rotvec(rng.normal(0.0, np.deg2rad(3.0), 3)) @ T[:3, :3]
+        placed = placed_by_mark(turned[None, :3, :3], P, uv, camera)[0]
+        assert np.allclose(placed[:3, :3], turned[:3, :3])
+        off = np.linalg.norm(project(camera, transform_points(placed, P)) - uv, axis=1)
+        unplaced = np.linalg.norm(project(camera, transform_points(turned, P)) - uv, axis=1)
+        assert off.max() < unplaced.max(), (off, unplaced)
+    backwards = look_at(np.array([1.5, 0.0, 1.0]), np.array([3.0, 0.0, 1.0]))[:3, :3]
+    assert placed_by_mark(np.stack([T[:3, :3], backwards]), P, uv, camera).shape == (1, 4, 4)
+    with pytest.raises(InputError, match="one pixel"):
+        placed_by_mark(T[None, :3, :3], P, np.repeat(uv[:1], 2, axis=0), camera)
 
 
 def marks_file(folder, rows: list[str]):
@@ -117,20 +153,30 @@ def test_marks_file_errors_name_the_line_and_the_fix(panda, meshes, tmp_path):
             read_marks(marks_file(tmp_path, rows), seq)
 
 
+def calibrated_from_clicks(panda, meshes, tmp_path, capsys, count: int, offset: np.ndarray,
+                           mark_offset: str, *extra: str) -> tuple[np.ndarray, dict, str]:
+    """`dream calibrate --mark` of `image_dataset`'s scene, the point at `offset` in
+    `MARK_LINK`'s frame clicked in `count` frames (`CLICK_NOISE_PX` where `offset` is the
+    mark's, exact otherwise) and given as `mark_offset`: the truth, RESULT.json, the console."""
+    T_true = image_dataset(panda, meshes, tmp_path)
+    seq = read_sequence(tmp_path / "data")
+    noise = CLICK_NOISE_PX if np.array_equal(offset, MARK_OFFSET) else 0.0
+    marks = clicks(panda, seq, T_true, offset, tmp_path, noise, count=count)
+    out = tmp_path / "r.json"
+    code = main(["calibrate", "--data", str(tmp_path / "data"), "--out", str(out), "--mark",
+                 str(marks), "--mark-link", MARK_LINK, "--mark-offset", mark_offset, *extra])
+    printed, err = capsys.readouterr()
+    assert code == 0, err
+    return T_true, json.loads(out.read_text()), printed
+
+
 def test_calibrate_from_a_mark_clicked_in_five_frames(panda, meshes, tmp_path, capsys):
     """Images only, a mark between the fingers clicked (2 px noise) in 5 of 10 frames of random
     poses (too far apart to track): the search around the mark's pose lands on the camera, and
     the clicks agree with it."""
-    T_true = image_dataset(panda, meshes, tmp_path)
-    seq = read_sequence(tmp_path / "data")
-    marks = clicks(panda, seq, T_true, MARK_OFFSET, tmp_path, CLICK_NOISE_PX)
-    out = tmp_path / "r.json"
-    code = main(["calibrate", "--data", str(tmp_path / "data"), "--out", str(out), "--mark",
-                 str(marks), "--mark-link", MARK_LINK, "--mark-offset", "0,0,0.1"])
-    printed, err = capsys.readouterr()
-    assert code == 0, err
+    T_true, doc, printed = calibrated_from_clicks(panda, meshes, tmp_path, capsys, 5,
+                                                  MARK_OFFSET, "0,0,0.1")
     assert "mark: 5 clicked and 0 tracked frames" in printed
-    doc = json.loads(out.read_text())
     t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
     assert t_err < 0.01 and r_err < np.deg2rad(0.5), (t_err, np.rad2deg(r_err))
     mark = doc["start"]["mark"]
@@ -139,18 +185,25 @@ def test_calibrate_from_a_mark_clicked_in_five_frames(panda, meshes, tmp_path, c
     assert doc["quality"]["verdict"] in ("good", "check")
 
 
+def test_calibrate_from_a_mark_clicked_in_two_frames(panda, meshes, tmp_path, capsys):
+    """Too few clicks for the mark's own pose (2 of 10 frames, 2 px noise): they place the
+    automatic search's orientations, which compete with its shell (each as placed and aimed),
+    and the clicks agree with the pose found."""
+    T_true, doc, printed = calibrated_from_clicks(panda, meshes, tmp_path, capsys, 2,
+                                                  MARK_OFFSET, "0,0,0.1", "--refine", "none")
+    assert "too few for a pose of their own" in printed
+    t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
+    assert t_err < 0.01 and r_err < np.deg2rad(0.5), (t_err, np.rad2deg(r_err))
+    mark = doc["start"]["mark"]
+    assert mark["T_cam_base"] is None and mark["placed_hypotheses"] > 0
+    assert np.median(mark["click_residuals_px"]) < 5
+    assert doc["start"]["hypotheses_scored"]["mark"] == 2 * mark["placed_hypotheses"]
+
+
 def test_a_wrong_mark_offset_is_a_finding(panda, meshes, tmp_path, capsys):
     """Clicks of one point, --mark-offset of another 15 cm away: the verdict says so."""
-    T_true = image_dataset(panda, meshes, tmp_path)
-    seq = read_sequence(tmp_path / "data")
-    marks = clicks(panda, seq, T_true, np.zeros(3), tmp_path, 0.0)
-    out = tmp_path / "r.json"
-    code = main(["calibrate", "--data", str(tmp_path / "data"), "--out", str(out), "--mark",
-                 str(marks), "--mark-link", MARK_LINK, "--mark-offset", "0,0,0.15",
-                 "--refine", "none"])
-    _, err = capsys.readouterr()
-    assert code == 0, err
-    doc = json.loads(out.read_text())
+    _, doc, _ = calibrated_from_clicks(panda, meshes, tmp_path, capsys, 5, np.zeros(3),
+                                       "0,0,0.15", "--refine", "none")
     warnings = " ".join(doc["quality"]["warnings"])
     assert doc["quality"]["verdict"] != "good" and "from where it was clicked" in warnings
 
