@@ -279,9 +279,9 @@ def placed_by_mark(R_cam_base: np.ndarray, P_base: np.ndarray, uv: np.ndarray,
     A[0::2, 0], A[1::2, 1] = 1.0, 1.0
     A[0::2, 2], A[1::2, 2] = -xy[:, 0], -xy[:, 1]
     if len(P) < 2 or np.linalg.matrix_rank(A, tol=MIN_CLICK_SPREAD) < 3:
-        raise InputError(f"the mark's {len(P)} click(s) lie at one pixel and place no camera",
-                         fix="click the mark in 2 or more frames where the end effector is in "
-                             "different places")
+        raise InputError(f"the mark is known in {len(P)} frame(s), all at one pixel: that "
+                         "places no camera", fix="click the mark in 2 or more frames where the "
+                                                 "end effector is in different places")
     RP = np.einsum("nij,kj->nki", R, P)                       # (n, k, 3)
     b = -np.stack([RP[..., 0] - xy[:, 0] * RP[..., 2],
                    RP[..., 1] - xy[:, 1] * RP[..., 2]], axis=2).reshape(len(R), -1)

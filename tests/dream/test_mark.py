@@ -113,6 +113,8 @@ def test_two_clicks_place_random_camera_orientations():
     assert placed_by_mark(np.stack([T[:3, :3], backwards]), P, uv, camera).shape == (1, 4, 4)
     with pytest.raises(InputError, match="one pixel"):
         placed_by_mark(T[None, :3, :3], P, np.repeat(uv[:1], 2, axis=0), camera)
+    with pytest.raises(InputError, match="known in 1 frame"):
+        placed_by_mark(T[None, :3, :3], P[:1], uv[:1], camera)
 
 
 def marks_file(folder, rows: list[str]):
