@@ -13,9 +13,11 @@ frames (`search_frames`); the winner is finished on up to `finish_frames` (on re
 one frame's mask error, a shadow or a link the colour of the floor, moves the optimum of 8
 frames by 1-2 cm, of 30 by a few millimetres). What the arm carries that the URDF lacks (a
 tool, a held object) is carved at the winner (`dream.coarse.carried`), reported, and its pixels
-left out of the search run again from there. Then the focal-length scale the robot's outlines
-ask for is fitted at the winner (`dream.coarse.focal`); where adopted, the search runs again
-from there through the camera with that focal length, and the callers go on with that camera.
+left out of the search run again from there, whose finishes also leave out the frames that pull
+the pose far harder than the others (`dream.coarse.scales`). Then the focal-length scale the
+robot's outlines ask for is fitted at the winner (`dream.coarse.focal`); where adopted, the
+search runs again from there through the camera with that focal length, and the callers go on
+with that camera.
 The search's 1-sigma is the spread of its finish over frame groups and links left out
 (jackknives) and of its basin check's restarts around the winner: where they do not return, it
 is large and says so.

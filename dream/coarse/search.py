@@ -13,7 +13,9 @@ one chosen, and how clearly the images chose it (pure).
    best of those (distinct again) at the finest too, and scored by the IoU of their rendered
    silhouettes there.
 3. The highest IoU wins, refined at `finish_width_px` on every frame given (the hypotheses
-   and the local refinement compare only `search_frames` of them). The verdict's evidence: the
+   and the local refinement compare only `search_frames` of them; with a carried region,
+   finished again without the frames that pull its pose far harder than the others:
+   `dream.coarse.scales`). The verdict's evidence: the
    best rival's IoU (a refined candidate that, finished as the winner is, stays farther than
    `rival_m` or `rival_rad` from it; the gap says how much better the winner explains the
    images; a rival that explains them better wins instead), and the basin check:

@@ -68,6 +68,10 @@ class SearchSettings:
             others with something carved stayed within 1 cm).
         carried_margin_px: the carved hull's pixels are widened by this many pixels of the
             scale compared (0, 5 and 10 were no better on all four scenes of a held ball).
+        frame_influence: where a carried region is left out, the finish is repeated without
+            the frames whose pull on its pose exceeds this many times the median frame's
+            (`dream.coarse.scales.outlying_frames`); 0 never repeats it.
+        max_outlying_share: at most this share of the frames is left out so.
     """
 
     guess_sigma_m: float = 0.3
@@ -107,6 +111,8 @@ class SearchSettings:
     find_carried: bool = True
     leave_out_carried: bool = True
     carried_margin_px: int = 2
+    frame_influence: float = 10.0
+    max_outlying_share: float = 0.2
 
     def __post_init__(self) -> None:
         check_fields(self, "coarse search",
@@ -118,15 +124,15 @@ class SearchSettings:
                                "rival_m", "rival_rad", "basin_m", "basin_rad",
                                "basin_return_m", "basin_return_rad", "basin_reference_m"),
                      non_negative=("min_gap", "basin_starts", "min_found_iou", "carried_margin_px",
-                                   "round_iou_tolerance",
-                                   "min_basin_share", "jackknife_groups"))
+                                   "round_iou_tolerance", "frame_influence",
+                                   "min_basin_share", "jackknife_groups", "max_outlying_share"))
         if not self.shell_distances or min(self.shell_distances) <= 0:
             raise InputError("coarse search: shell_distances must be positive")
         if not self.local_widths_px or min(self.local_widths_px) < 8:
             raise InputError("coarse search: local_widths_px must be at least 8 px")
         if not -1 <= self.min_elevation_sin <= 1:
             raise InputError("coarse search: min_elevation_sin must lie in [-1, 1]")
-        for name in ("min_found_iou", "min_basin_share"):
+        for name in ("min_found_iou", "min_basin_share", "max_outlying_share"):
             if getattr(self, name) > 1:
                 raise InputError(f"coarse search: {name} must not exceed 1")
 
