@@ -156,7 +156,7 @@ def search_start(request, seq, out: TextIO):
         known = f"mark: {marked.clicked} clicked and {len(marked.frames) - marked.clicked} " \
                 "tracked frames"
         print(f"{known}, too few for a pose of their own: they place each orientation of the "
-              f"automatic search ({sum(map(len, marked.hypotheses.values()))} cameras)"
+              f"automatic search ({marked.placed} cameras)"
               if marked.fit is None else
               f"{known}, pose over time RMSE {marked.fit.rmse_px:.1f} px; searching within "
               f"{guess.sigma_m * 100:.0f} cm / {np.rad2deg(guess.sigma_rad):.0f} deg", file=out)
@@ -246,7 +246,7 @@ def mark_doc(marked, seq) -> dict:
             "frames": [seq.frames[int(i)].name for i in marked.frames],
             "T_cam_base": None if fit is None else fit.T_cam_base.tolist(),
             "rmse_px": None if fit is None else fit.rmse_px,
-            "placed_hypotheses": sum(map(len, marked.hypotheses.values())),
+            "placed_hypotheses": marked.placed,
             "search_sigma_m": None if fit is None else marked.guess.sigma_m,
             "search_sigma_rad": None if fit is None else marked.guess.sigma_rad}
 

@@ -319,6 +319,11 @@ class MarkStart:
     P_clicked_base: np.ndarray
     hypotheses: dict[str, np.ndarray]
 
+    @property
+    def placed(self) -> int:
+        """How many cameras the mark placed for the search (0 where it has a pose)."""
+        return sum(map(len, self.hypotheses.values()))
+
 
 def mark_start(sequence: Sequence, robot: Robot, mark: Mark,
                settings: SearchSettings | None = None,

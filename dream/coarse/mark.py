@@ -14,7 +14,7 @@ track) still places cameras: with the orientation given, its clicks fix the posi
 the clicks where they were made.
 
     >>> import numpy as np
-    >>> from dream.camera import CameraIntrinsics, pixels_to_normalized, project
+    >>> from dream.camera import CameraIntrinsics, project
     >>> from dream.transforms import look_at, transform_points
     >>> cam = CameraIntrinsics(500.0, 500.0, 320.0, 240.0, 640, 480)
     >>> T = look_at(np.array([1.5, 0.5, 1.0]), np.zeros(3))
