@@ -212,6 +212,8 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
             "rival_iou": None if rival is None else rival.iou,
             "rival_distance_m": None if distance is None else distance[0],
             "rival_angle_rad": None if distance is None else distance[1],
+            "finish_left_out_frames": [seq.frames[int(inputs.frames[i])].name
+                                       for i in outcome.best.left_out_frames],
             "gap": outcome.gap, "basin_returned": outcome.basin_returned,
             "basin_starts": outcome.basin_starts, "basin_m": outcome.basin_m,
             "basin_return_m": outcome.basin_return_m,

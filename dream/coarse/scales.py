@@ -71,35 +71,43 @@ class Scales:
         """The silhouette polish at each of `levels` in turn; a round that lowers the IoU at
         its level by more than `round_iou_tolerance` is undone and ends that level
         (`refine_pose`'s `keep`)."""
+        return self.refine_reporting(T, levels)[0]
+
+    def refine_reporting(self, T: np.ndarray, levels: slice = slice(None)
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """`refine`, and the positions among `P` of the frames its end left out (sorted; empty
+        where none pulled far harder than the others, or where leaving them out did not
+        explain all the masks better)."""
         for level in range(len(self.levels))[levels]:
             camera, masks = self.levels[level]
             rendered = self._rendered(T, camera)
             usable, ignored = self._usable(T, camera, rendered)
             T = refine_pose(self.P, self.faces, masks, camera, T, self.params, usable, NoWorse(
                 self, level, self.iou_of(rendered, level, T, ignored), self.iou_tolerance))[0]
-        return T if self.outliers is None else self._without_outlying_frames(T)
+        return (T, np.zeros(0, int)) if self.outliers is None \
+            else self._without_outlying_frames(T)
 
-    def _without_outlying_frames(self, T: np.ndarray) -> np.ndarray:
+    def _without_outlying_frames(self, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The finest level's refinement again from `T` without the frames that pull `T` far
         harder than the others (`outlying_frames`), kept where it explains all the frames'
         masks better (their IoU at the finest level); `T` where no frame pulls so or it does
         not (a frame that pulls hard can also be right: on a rendered scene with a held
         object, without this guard, the search ended 13.5 mm off at an IoU of 0.5345 where it
-        had ended 7.7 mm off at 0.5355)."""
+        had ended 7.7 mm off at 0.5355); with the frames left out (empty where none)."""
         camera, masks = self.levels[-1]
         objective = Objective(np.stack([signed_distance(m) for m in masks]), camera,
                               self.params)
         influence = frame_influence(objective, self.contour(T), T, len(self.P))
         drop = outlying_frames(influence, *self.outliers)
         if not len(drop):
-            return T
+            return T, drop
         log.info("finish again without %d of %d frames that pull the pose %.0f-%.0fx as hard "
                  "as the median frame", len(drop), len(self.P),
                  influence[drop].min() / np.median(influence),
                  influence[drop].max() / np.median(influence))
         T_kept = self.frames(np.setdiff1d(np.arange(len(self.P)), drop)).refine(
             T, slice(-1, None))
-        return T_kept if self.iou(T_kept) > self.iou(T) else T
+        return (T_kept, drop) if self.iou(T_kept) > self.iou(T) else (T, np.zeros(0, int))
 
     def frames(self, keep: np.ndarray) -> Scales:
         """These scales on the frames `keep` only, without the outlying-frames check."""

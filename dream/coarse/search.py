@@ -67,12 +67,14 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class Candidate:
     """A refined hypothesis: its pose, where it came from, its coarse score and the mean IoU
-    of its rendered silhouettes after the local refinement."""
+    of its rendered silhouettes after the local refinement; once finished, the positions among
+    the search's frames of those its finish left out (`Scales.refine_reporting`)."""
 
     T_cam_base: np.ndarray
     source: str
     coarse_iou: float
     iou: float
+    left_out_frames: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -251,12 +253,18 @@ def find_winner(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         return T if finish is None else finish.refine(T)
 
     def finished_candidate(c: Candidate) -> Candidate:
-        T = finished(c.T_cam_base)
-        return replace(c, T_cam_base=T, iou=scales.iou(T))
+        if finish is None:
+            return replace(c, iou=scales.iou(c.T_cam_base))
+        T, left_out = finish.refine_reporting(c.T_cam_base)
+        return replace(c, T_cam_base=T, iou=scales.iou(T),
+                       left_out_frames=tuple(int(i) for i in left_out))
 
     candidates, best, rival = _winner_and_rival(candidates, finished_candidate, settings)
     say(f"refined the {len(candidates)} best distinct hypotheses: best IoU {best.iou:.3f}"
         f"{f', best rival {rival.iou:.3f}' if rival is not None else ''}")
+    if best.left_out_frames:
+        say(f"the winner's finish left out {len(best.left_out_frames)} of {len(q)} frames "
+            "that pull its pose far harder than the others")
     counts = {name: len(T) * (1 if name in aimed_only else 2)
               for name, T in hypotheses.items()}
 

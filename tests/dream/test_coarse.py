@@ -283,6 +283,7 @@ def test_calibrate_without_keypoints_from_a_camera_guess(panda, meshes, tmp_path
         start = doc["start"]
         assert start["evidence"] == "motion masks" and "panda_link0" in start["left_out_links"]
         assert start["iou"] > 0.8 and doc["keypoints_used"] == 0 and doc["rmse_px"] is None
+        assert start["finish_left_out_frames"] == []   # nothing carried: no frame left out
         assert doc["quality"]["verdict"] in ("good", "check")
         edges = doc["edges"]
         assert edges["cross_check"] and not edges["kept"]

@@ -43,10 +43,21 @@ def test_with_a_carried_region_the_finish_leaves_the_outlying_frame_out(panda, m
     T_true, joints, masks = shifted_scene(panda, meshes)
     region = carried_region(panda, joints, "panda_hand", FAR_LINK_POINT, 0.02, 2)
     P = vertices_in_base(meshes, joints)
-    errors = {}
+    errors, left_out = {}, {}
     for factor in (0.0, SearchSettings().frame_influence):
         settings = replace(SearchSettings(), frame_influence=factor)
-        T = finish_scale(P, meshes, masks, CAMERA, settings, region=region).refine(T_true)
+        T, left_out[factor] = finish_scale(P, meshes, masks, CAMERA, settings,
+                                           region=region).refine_reporting(T_true)
         errors[factor] = pose_errors(T, T_true)
     (m_all, rad_all), (m_kept, rad_kept) = errors.values()
     assert m_kept < 0.5 * m_all and m_kept < 0.002, errors
+    assert left_out[0.0].tolist() == [] and left_out[settings.frame_influence].tolist() == [
+        WRONG_FRAME], left_out
+
+
+def test_without_a_carried_region_no_frame_is_left_out(panda, meshes):
+    T_true, joints, masks = shifted_scene(panda, meshes)
+    scales = finish_scale(vertices_in_base(meshes, joints), meshes, masks, CAMERA,
+                          SearchSettings())
+    assert scales.outliers is None
+    assert scales.refine_reporting(T_true)[1].tolist() == []
