@@ -39,7 +39,7 @@ from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
 from dream.optim import levenberg_marquardt
 from dream.pnp import apply_increment, increment_between
-from dream.polish.objective import Contour, Objective, signed_distance
+from dream.polish.objective import Contour, Objective
 from dream.polish.refine import inner_lm_settings
 from dream.refined_uncertainty import MIN_GROUPS, frame_groups
 from dream.settings_checks import check_fields
@@ -198,8 +198,7 @@ class _FocalProblem:
 
 def finest_objective(scales: Scales) -> Objective:
     """The finish's objective at the finest level of `scales` (its camera and masks)."""
-    camera, masks = scales.levels[-1]
-    return Objective(np.stack([signed_distance(m) for m in masks]), camera, scales.params)
+    return Objective(scales.distances(-1), scales.levels[-1][0], scales.params)
 
 
 def joint_fit(objective: Objective, contour: Contour, T: np.ndarray, settings: FocalSettings,

@@ -38,7 +38,12 @@ import numpy as np
 from dream.camera import CameraIntrinsics, project
 from dream.edges.settings import EdgeSettings
 from dream.errors import InputError
-from dream.polish.objective import bilinear, evenly_spaced, scaled_camera, signed_distance
+from dream.polish.objective import (
+    bilinear,
+    evenly_spaced,
+    scaled_camera,
+    signed_distance_near,
+)
 from dream.silhouette import render_points
 from dream.threads import map_frames
 
@@ -88,7 +93,7 @@ def _frame_outline(P: np.ndarray, faces: np.ndarray, T: np.ndarray, camera: Came
     empty = (np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))
     if not rendered.any():
         return empty
-    sdf = signed_distance(rendered)[None]
+    sdf = signed_distance_near(rendered, settings.contour_band_px)[None]
     uv = project(camera, P @ T[:3, :3].T + T[:3, 3])
     margin = -(settings.search_range_px + 1.0)     # the border's outline is no image edge
     ok = np.all(np.isfinite(uv), axis=1) & camera.in_image(uv, margin)

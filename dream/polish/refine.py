@@ -195,8 +195,8 @@ def search_camera(camera: CameraIntrinsics, params: PolishSettings) -> CameraInt
 def refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
                 camera: CameraIntrinsics, T_cam_base: np.ndarray,
                 params: PolishSettings, usable: np.ndarray | None = None,
-                keep: Callable[[np.ndarray, np.ndarray], bool] | None = None
-                ) -> tuple[np.ndarray, int, int]:
+                keep: Callable[[np.ndarray, np.ndarray], bool] | None = None,
+                distances: np.ndarray | None = None) -> tuple[np.ndarray, int, int]:
     """The silhouette optimum near `T_cam_base` (search resolution already applied).
 
     Args:
@@ -210,10 +210,13 @@ def refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
             each round, so a round may lower its own cost and still move the outline off the
             masks: a held object as large as the hand drags the contour inside it outwards,
             round after round).
+        distances: (F, H, W) the masks' `signed_distance`s, where already computed.
     Returns:
         (T (4, 4), rounds run, contour points of the last round).
     """
-    objective = Objective(np.stack([signed_distance(m) for m in masks]), camera, params)
+    if distances is None:
+        distances = np.stack([signed_distance(m) for m in masks])
+    objective = Objective(distances, camera, params)
     T = kept = np.array(T_cam_base, dtype=float)
     rounds, points = 0, 0
     for rounds in range(1, params.outer_iterations + 1):

@@ -148,6 +148,45 @@ def test_signed_distance_is_the_exact_distance_and_the_same_every_call(height, w
     assert all(np.array_equal(signed_distance(mask), first) for _ in range(8))
 
 
+def test_the_band_limited_distance_picks_the_same_contour_points(panda, meshes, monkeypatch):
+    """`signed_distance_near` is exact wherever a band's bilinear read and its gradient reach
+    (silhouettes cut by the border, in view, small), so the contour and outline points are
+    the whole image's."""
+    from dream.edges.search import select_outline
+    from dream.edges.settings import EdgeSettings
+    from dream.polish import objective
+    from dream.silhouette import vertices_in_base
+
+    def whole_image(mask, band_px):
+        return signed_distance(mask)
+
+    rng = np.random.default_rng(7)
+    P = vertices_in_base(meshes, random_joints(rng, panda, 3, 0.8))
+    poses = []
+    for distance in (0.6, 1.5, 4.0):          # cut by the border, in view, small
+        T = camera_pose(rng)
+        T[:3, 3] *= distance / np.linalg.norm(T[:3, 3])
+        poses.append(T)
+        mask = render_silhouette(meshes, random_joints(rng, panda, 1, 0.8)[0], T, CAMERA)
+        full, near = signed_distance(mask), objective.signed_distance_near(mask, 2.0)
+        read = np.abs(full) <= 2.0 + objective.NEAR_MARGIN_PX
+        assert np.array_equal(near[read], full[read]) and np.all(np.abs(near[~read]) > 2.0)
+
+    def points(T):
+        contour = objective.select_contour(P, meshes.faces, T, CAMERA, PolishSettings())
+        outline = select_outline(P, meshes.faces, T, CAMERA, EdgeSettings())
+        return [contour.P_base, contour.frame, contour.s, contour.vertex] + [
+            getattr(outline, name) for name in outline.__dataclass_fields__]
+
+    got = [points(T) for T in poses]
+    monkeypatch.setattr(objective, "signed_distance_near", whole_image)
+    monkeypatch.setattr("dream.edges.search.signed_distance_near", whole_image)
+    want = [points(T) for T in poses]
+    assert sum(len(g[2]) for g in got) > 100
+    for g, w in zip(got, want, strict=True):
+        assert all(np.array_equal(a, b) for a, b in zip(g, w, strict=True))
+
+
 def test_silhouette_covers_the_keypoints(panda, meshes):
     rng = np.random.default_rng(1)
     inside = []
