@@ -20,6 +20,7 @@ from synth.scene_settings import MAX_IMAGE_SIZE_PX, MAX_LIGHTS
 
 Range = tuple[float, float]
 DISTORTION_COEFFS = ("k1", "k2", "p1", "p2", "k3")  # plumb_bob order
+CABLE_MIN_RADIUS_M = 1e-4   # a thinner cable is not drawn by any camera
 
 
 def _range(name: str, value: Any, lo_limit: float = -np.inf, hi_limit: float = np.inf) -> Range:
@@ -326,6 +327,17 @@ class Distractors:
     loose_keypoints: int = 3
     loose_distance_m: Range = (0.4, 1.0)
     loose_height_m: Range = (0.0, 0.5)
+    # A cable the URDF lacks, clipped along the arm (`synth.cable`): with `cable_prob` per
+    # sequence (per frame in `random` mode), from the floor `cable_start_m` from the base through
+    # a clip on each of some keypoint links, `cable_clip_offset_m` from their origins, sagging
+    # between clips (`cable_slack`: length over distance), drawn as `cable_segments` capsules of
+    # radius `cable_radius_m`.
+    cable_prob: float = 0.0
+    cable_radius_m: Range = (0.004, 0.012)
+    cable_slack: Range = (1.02, 1.25)
+    cable_clip_offset_m: Range = (0.03, 0.08)
+    cable_start_m: Range = (0.1, 0.3)
+    cable_segments: int = 24
 
     def __post_init__(self) -> None:
         lo, hi = self.count
@@ -348,8 +360,18 @@ class Distractors:
                              f"{self.loose_keypoints!r}",
                              fix="set how many of the last keypoint links a loose part may "
                                  "start at (e.g. 3)")
+        for name, low in (("cable_radius_m", CABLE_MIN_RADIUS_M), ("cable_slack", 1.0),
+                          ("cable_clip_offset_m", 0.0), ("cable_start_m", 0.0)):
+            object.__setattr__(self, name, _range(f"distractors.{name}", getattr(self, name),
+                                                  low))
+        if isinstance(self.cable_segments, bool) or not isinstance(self.cable_segments, int) \
+                or self.cable_segments < 1:
+            raise InputError(f"distractors.cable_segments must be a whole number >= 1, got "
+                             f"{self.cable_segments!r}", fix="set how many capsules draw a "
+                             "cable (e.g. 24)")
         for name in ("occluder_prob", "textured_prob", "held_prob", "held_board_prob",
-                     "held_textured_prob", "held_checker_prob", "robot_prob", "loose_prob"):
+                     "held_textured_prob", "held_checker_prob", "robot_prob", "loose_prob",
+                     "cable_prob"):
             _probability(f"distractors.{name}", getattr(self, name))
         for name in ("held_size_m", "held_offset_m"):
             lo, hi = getattr(self, name)

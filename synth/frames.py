@@ -15,6 +15,7 @@ from dream.extended import extended_robot, joint_offset_vector
 from dream.extension import ModelExtension
 from dream.robot import Robot, load_robot
 from dream.transforms import R_from_quaternion_xyzw, invert_T, quaternion_xyzw_from_R
+from synth.cable import cable_in_base
 from synth.config import SynthConfig
 from synth.extension import (
     held_reading_time,
@@ -103,8 +104,10 @@ class FrameMaker:
         dc = config.distractors
         # the last distractor slots hold the parts of the held assembly
         self.held_slots = dc.held_parts[1] if dc.held_prob > 0 else 0
+        # and after them, the cable's capsules
+        self.cable_slots = dc.cable_segments if dc.cable_prob > 0 else 0
         options = SceneSettings(num_lights=min(MAX_LIGHTS, config.lights.count[1]),
-                                num_distractors=dc.count[1] + self.held_slots,
+                                num_distractors=dc.count[1] + self.held_slots + self.cable_slots,
                                 num_textures=NUM_TEXTURES,
                                 texture_size=config.background.texture_size, floor=True,
                                 floor_texture_size=FLOOR_TEXTURE_PX)
@@ -138,7 +141,8 @@ class FrameMaker:
     def params(self, index: int) -> FrameDraw:
         return sample_frame(self.seed, index, self.robot, self.config, self.default_rgba,
                             len(self.scene.light_ids),
-                            len(self.scene.distractor_geom_ids) - self.held_slots,
+                            len(self.scene.distractor_geom_ids) - self.held_slots
+                            - self.cable_slots,
                             len(self.scene.texture_ids), self.joint_log, self.other_robot)
 
     # ----- applying the randomisation --------------------------------------------------------
@@ -208,12 +212,25 @@ class FrameMaker:
                 quaternion_wxyz=np.roll(quaternion_xyzw_from_R(R_base_object), 1)))
         return shapes + [None] * (self.held_slots - len(shapes))
 
+    def _cable_shapes(self, p: FrameDraw, q_true: np.ndarray) -> list[DistractorDraw | None]:
+        """The cable's capsules in the base frame at joints `q_true`, None for each slot
+        without one."""
+        cable = p.scene.cable
+        if cable is None:
+            return [None] * self.cable_slots
+        T_base_links = self.true_robot.link_poses(q_true, cable.links)
+        return [DistractorDraw("capsule", np.array([cable.radius_m, half, 0.0]), centre,
+                               quaternion, cable.rgba, -1)
+                for centre, quaternion, half in cable_in_base(cable, T_base_links,
+                                                              self.cable_slots)]
+
     def _apply_distractors(self, p: FrameDraw, q_true: np.ndarray) -> None:
         model, scene = self.scene.model, self.scene
         shapes: list[DistractorDraw | None] = list(p.scene.distractors)
-        regular = len(scene.distractor_body_ids) - self.held_slots
+        regular = len(scene.distractor_body_ids) - self.held_slots - self.cable_slots
         shapes += [None] * (regular - len(shapes))
         shapes += self._held_shapes(p, q_true)
+        shapes += self._cable_shapes(p, q_true)
         for body, geom, d in zip(scene.distractor_body_ids, scene.distractor_geom_ids, shapes,
                                  strict=True):
             if d is None:

@@ -245,7 +245,10 @@ ADDED_CONFIG_KEYS = (("camera", "closeup_prob"), ("camera", "closeup_radius_m"),
                      ("distractors", "loose_prob"), ("distractors", "loose_keypoints"),
                      ("distractors", "loose_distance_m"), ("distractors", "loose_height_m"),
                      ("camera", "T_cam_base"), ("background", "plate"),
-                     ("sensor", "gain_sigma"), ("sensor", "noise_std"))
+                     ("sensor", "gain_sigma"), ("sensor", "noise_std"),
+                     ("distractors", "cable_prob"), ("distractors", "cable_radius_m"),
+                     ("distractors", "cable_slack"), ("distractors", "cable_clip_offset_m"),
+                     ("distractors", "cable_start_m"), ("distractors", "cable_segments"))
 
 
 def without_retired_keys(info: Any) -> Any:

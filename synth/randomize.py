@@ -19,6 +19,7 @@ from dream.camera import CameraIntrinsics
 from dream.errors import InputError
 from dream.robot import Robot
 from dream.transforms import look_at
+from synth.cable import CableDraw, sample_cable
 from synth.config import SynthConfig
 from synth.other_robot import OtherRobotDraw
 from synth.realism import with_realism
@@ -27,6 +28,7 @@ SEQUENCE_STREAM = 0x5E0     # spawn key of the per-sequence random stream
 FRAME_STREAM = 0xF4A        # spawn key of the per-frame random streams
 HELD_STREAM = 0x4E1D        # spawn key of the held object's stream (held_prob = 0 leaves the
                             # other draws, and so older data sets, unchanged)
+CABLE_STREAM = 0xCAB1E      # spawn key of the cable's stream (cable_prob = 0: nothing drawn)
 SHADOW_STREAM = 0x5AD0      # spawn key, with the scene's texture seed, of whether it has shadows
 HELD_BOARD_THICKNESS_M = (0.004, 0.02)  # full thickness of a held plate
 HELD_MIN_SIDE_FRACTION = 0.3           # a held object's other sides: 0.3-1 x its largest
@@ -98,6 +100,7 @@ class SceneDraw:
     hide_hand: bool = False     # the hand's visuals are not drawn (synth.realism)
     other_robot: OtherRobotDraw | None = None
     shadows: bool = False       # the first light casts shadows (`Lights.shadow_prob`)
+    cable: CableDraw | None = None  # a cable clipped along the arm (`synth.cable`)
 
 
 @dataclass(frozen=True)
@@ -243,6 +246,17 @@ def sample_held_object(rng: np.random.Generator, config: SynthConfig, link: str,
     return HeldObjectDraw(link, tuple(parts), checkerboard)
 
 
+def sample_scene_cable(rng: np.random.Generator, config: SynthConfig, robot: Robot
+                       ) -> CableDraw | None:
+    """With probability `distractors.cable_prob`, a cable clipped along the arm
+    (`synth.cable.sample_cable`)."""
+    dc = config.distractors
+    if rng.random() >= dc.cable_prob:
+        return None
+    return sample_cable(rng, tuple(robot.keypoint_names), dc.cable_radius_m, dc.cable_slack,
+                        dc.cable_clip_offset_m, dc.cable_start_m)
+
+
 def _occluder_placement(rng: np.random.Generator, camera_position: np.ndarray,
                         target: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A distractor part-way between the camera and a point of the robot, small enough and
@@ -320,6 +334,8 @@ def sample_frame(seed: int, index: int, robot: Robot, config: SynthConfig,
     held_key = [seed, HELD_STREAM] + ([index] if mode == "random" else [])
     held = sample_held_object(np.random.default_rng(held_key), config, robot.keypoint_names[-1],
                               num_textures)
+    cable = sample_scene_cable(np.random.default_rng(
+        [seed, CABLE_STREAM] + ([index] if mode == "random" else [])), config, robot)
     timestamp = None if mode == "random" else index / config.sequence.fps
     if mode == "random":
         scene = sample_scene(rng, config, *limits)
@@ -330,6 +346,6 @@ def sample_frame(seed: int, index: int, robot: Robot, config: SynthConfig,
             trajectory_joints(seed, index, robot, config, joint_log)
     # a sequence's close-up aims at where the keypoints are in the middle of the joint ranges
     aim = joints if mode == "random" else (robot.joint_lower + robot.joint_upper) / 2
-    scene = with_realism(dataclasses.replace(scene, held=held), seed, index, config, robot, aim,
-                         default_rgba, other_robot)
+    scene = with_realism(dataclasses.replace(scene, held=held, cable=cable), seed, index,
+                         config, robot, aim, default_rgba, other_robot)
     return FrameDraw(index, scene, joints, timestamp)
