@@ -35,6 +35,11 @@ def _range(name: str, value: Any, lo_limit: float = -np.inf, hi_limit: float = n
     return lo, hi
 
 
+def _whole_number(name: str, value: Any, fix: str) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise InputError(f"{name} must be a whole number >= 1, got {value!r}", fix=fix)
+
+
 def _non_negative(name: str, value: float) -> float:
     if not (np.isfinite(float(value)) and float(value) >= 0.0):
         raise InputError(f"{name} must be a finite number >= 0, got {value}")
@@ -351,24 +356,16 @@ class Distractors:
         if not 1 <= lo <= hi:
             raise InputError("distractors.held_parts must be [low, high] with 1 <= low <= high")
         object.__setattr__(self, "held_parts", (int(lo), int(hi)))
-        for name in ("robot_distance_m", "loose_distance_m", "loose_height_m"):
-            object.__setattr__(self, name, _range(f"distractors.{name}", getattr(self, name),
-                                                  0.0))
-        if isinstance(self.loose_keypoints, bool) or not isinstance(self.loose_keypoints, int) \
-                or self.loose_keypoints < 1:
-            raise InputError(f"distractors.loose_keypoints must be a whole number >= 1, got "
-                             f"{self.loose_keypoints!r}",
-                             fix="set how many of the last keypoint links a loose part may "
-                                 "start at (e.g. 3)")
-        for name, low in (("cable_radius_m", CABLE_MIN_RADIUS_M), ("cable_slack", 1.0),
-                          ("cable_clip_offset_m", 0.0), ("cable_start_m", 0.0)):
+        for name, low in (("robot_distance_m", 0.0), ("loose_distance_m", 0.0),
+                          ("loose_height_m", 0.0), ("cable_radius_m", CABLE_MIN_RADIUS_M),
+                          ("cable_slack", 1.0), ("cable_clip_offset_m", 0.0),
+                          ("cable_start_m", 0.0)):
             object.__setattr__(self, name, _range(f"distractors.{name}", getattr(self, name),
                                                   low))
-        if isinstance(self.cable_segments, bool) or not isinstance(self.cable_segments, int) \
-                or self.cable_segments < 1:
-            raise InputError(f"distractors.cable_segments must be a whole number >= 1, got "
-                             f"{self.cable_segments!r}", fix="set how many capsules draw a "
-                             "cable (e.g. 24)")
+        _whole_number("distractors.loose_keypoints", self.loose_keypoints,
+                      "set how many of the last keypoint links a loose part may start at (e.g. 3)")
+        _whole_number("distractors.cable_segments", self.cable_segments,
+                      "set how many capsules draw a cable (e.g. 24)")
         for name in ("occluder_prob", "textured_prob", "held_prob", "held_board_prob",
                      "held_textured_prob", "held_checker_prob", "robot_prob", "loose_prob",
                      "cable_prob"):
