@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dream.errors import InputError
-from dream.transforms import quaternion_xyzw_from_R
+from dream.transforms import R_from_rotvec, quaternion_xyzw_from_R
 
 SAMPLES_PER_SPAN = 24         # points of each clip-to-clip parabola before the resampling
 PARABOLA_SLACK = 3.0 / 8.0    # a level parabola of sag d over chord L is about L (1 + 8/3 (d/L)^2)
@@ -133,13 +133,11 @@ def _z_onto(direction: np.ndarray) -> np.ndarray:
     """The quaternion (w, x, y, z) of a rotation that turns the z axis onto unit `direction`."""
     axis = np.cross(Z_AXIS, direction)
     sin, cos = float(np.linalg.norm(axis)), float(direction @ Z_AXIS)
-    if sin < PARALLEL:
-        R = np.eye(3) if cos > 0 else np.diag([1.0, -1.0, -1.0])
+    if sin < PARALLEL:                # along z: none, or a half turn about x
+        rotvec = np.zeros(3) if cos > 0 else np.array([np.pi, 0.0, 0.0])
     else:
-        k = axis / sin
-        K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-        R = np.eye(3) + sin * K + (1 - cos) * K @ K
-    return np.roll(quaternion_xyzw_from_R(R), 1)
+        rotvec = axis / sin * np.arctan2(sin, cos)
+    return np.roll(quaternion_xyzw_from_R(R_from_rotvec(rotvec)), 1)
 
 
 def sample_cable(rng: np.random.Generator, keypoint_links: tuple[str, ...], radius_m: tuple,

@@ -102,12 +102,14 @@ class FrameMaker:
         self.joint_offsets = np.zeros(robot.num_joints) if self.extension is None else \
             joint_offset_vector(robot, self.extension.joint_offset_rad)
         dc = config.distractors
-        # the last distractor slots hold the parts of the held assembly
+        # the distractor slots: the recipe's own, then the held assembly's parts, then the
+        # cable's capsules
+        self.regular_slots = dc.count[1]
         self.held_slots = dc.held_parts[1] if dc.held_prob > 0 else 0
-        # and after them, the cable's capsules
         self.cable_slots = dc.cable_segments if dc.cable_prob > 0 else 0
         options = SceneSettings(num_lights=min(MAX_LIGHTS, config.lights.count[1]),
-                                num_distractors=dc.count[1] + self.held_slots + self.cable_slots,
+                                num_distractors=self.regular_slots + self.held_slots
+                                + self.cable_slots,
                                 num_textures=NUM_TEXTURES,
                                 texture_size=config.background.texture_size, floor=True,
                                 floor_texture_size=FLOOR_TEXTURE_PX)
@@ -141,8 +143,7 @@ class FrameMaker:
     def params(self, index: int) -> FrameDraw:
         return sample_frame(self.seed, index, self.robot, self.config, self.default_rgba,
                             len(self.scene.light_ids),
-                            len(self.scene.distractor_geom_ids) - self.held_slots
-                            - self.cable_slots,
+                            self.regular_slots,
                             len(self.scene.texture_ids), self.joint_log, self.other_robot)
 
     # ----- applying the randomisation --------------------------------------------------------
@@ -227,8 +228,7 @@ class FrameMaker:
     def _apply_distractors(self, p: FrameDraw, q_true: np.ndarray) -> None:
         model, scene = self.scene.model, self.scene
         shapes: list[DistractorDraw | None] = list(p.scene.distractors)
-        regular = len(scene.distractor_body_ids) - self.held_slots - self.cable_slots
-        shapes += [None] * (regular - len(shapes))
+        shapes += [None] * (self.regular_slots - len(shapes))
         shapes += self._held_shapes(p, q_true)
         shapes += self._cable_shapes(p, q_true)
         for body, geom, d in zip(scene.distractor_body_ids, scene.distractor_geom_ids, shapes,
