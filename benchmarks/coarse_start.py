@@ -130,11 +130,12 @@ def render_scene(robot: str, out: Path, seed: int, frames: int,
 
 def given_focal(data: Path, scale: float, out: Path) -> Path:
     """A copy of `data` whose fx, fy are `scale` times those it was rendered with (intrinsics
-    given wrong, as after resizing an image without its K)."""
+    given wrong, as after resizing an image without its K), written anew over an earlier one."""
     from dream.coarse.focal import with_focal_scale
 
     seq = read_sequence(data)
-    return write_dream(seq.with_fixed_camera(with_focal_scale(seq.camera, scale)), out)
+    return write_dream(seq.with_fixed_camera(with_focal_scale(seq.camera, scale)), out,
+                       overwrite=True)
 
 
 def guess_file(T_true: np.ndarray, offset_m: float, offset_rad: float,

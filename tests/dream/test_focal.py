@@ -7,20 +7,21 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from dream.camera import CameraIntrinsics
 from dream.cli import main
-from dream.coarse.focal import FocalSettings, _decision, fit_focal, with_focal_scale
+from dream.coarse.focal import FocalSettings, _decision, _sigma, fit_focal, with_focal_scale
 from dream.coarse.scales import finish_scale
 from dream.coarse.settings import SearchSettings
 from dream.coarse.verdict import focal_finding
 from dream.errors import InputError
 from dream.io import read_sequence, write_dream
 from dream.metrics import pose_errors
-from dream.polish.objective import Objective, signed_distance
+from dream.polish.objective import Contour, Objective, signed_distance
 from dream.polish.settings import PolishSettings
 from dream.silhouette import vertices_in_base
 from tests.dream.test_coarse import GUESS_M, GUESS_RAD, off_by, rendered_masks
@@ -85,6 +86,33 @@ def test_the_decision_needs_the_overlap_and_a_change_within_range():
     assert "stand" in _decision(0.3, 0.002, 0.60, 0.59, settings)[1]   # the overlap disagrees
     assert "stand" in _decision(0.3, 0.2, 0.60, 0.70, settings)[1]     # not resolved
     assert focal_finding({"adopted": False, "scale": 1.35, "reason": why})[0] == "unreliable"
+
+
+def test_a_pull_on_one_link_in_every_frame_widens_the_scale_s_1_sigma(monkeypatch):
+    """Something the arm carries pulls the hand's outline alike in every frame: the frame
+    groups' fits agree, and only the fits without the hand's points tell the pull."""
+    links = ("upper", "fore", "wrist", "hand")
+    per_link, frames = 30, 10
+    vertex_link = np.repeat(np.arange(len(links)), 5)                      # 5 vertices each
+    vertex = np.tile(np.arange(len(vertex_link)), frames * per_link * len(links)
+                     // len(vertex_link))
+    frame = np.repeat(np.arange(frames), len(vertex) // frames)
+    contour = Contour(np.zeros((len(vertex), 3)), frame, np.zeros(len(vertex)), vertex)
+    hand = vertex_link[vertex] == links.index("hand")
+
+    def fit(objective, contour, T, settings, damping, keep):     # the hand asks for +2 %
+        return T, 0.02 * keep[hand].sum() / hand.sum()
+
+    monkeypatch.setattr("dream.coarse.focal.joint_fit", fit)
+    meshes = SimpleNamespace(vertex_link=vertex_link, links=links)
+    sigma = _sigma(None, contour, np.eye(4), FocalSettings(), 1e-3, frames, meshes, True)
+    # the frame groups' steps are all 0.016 (each keeps 4 of 5 frames); the links' 0.02
+    # but without the hand, 0: jackknife variance 3/4 * (3 * 0.005 ** 2 + 0.015 ** 2)
+    assert sigma == pytest.approx(0.015)
+    without = replace(contour, vertex=None)                   # no vertices: frame groups only
+    for args in ((without, True), (contour, False)):          # nothing carried: the same
+        assert _sigma(None, args[0], np.eye(4), FocalSettings(), 1e-3, frames, meshes,
+                      args[1]) == pytest.approx(0.0, abs=1e-12)
 
 
 def test_focal_settings_and_scales_are_checked():
