@@ -13,8 +13,11 @@ the end effector (the last keypoint link's origin) clicked in N frames: its labe
 `--mark-noise-px`; with `--fooled` the keypoint path (`--use-labels`) from labels projected at
 a camera that far off, so that its refinements and their verdict are tested from a wrong start;
 with `--given-focal F` the calibration is given fx, fy F times those rendered with (the search
-fits the focal length where the outlines tell it: `dream.coarse.focal`); `--reuse-scenes` takes
-scenes already rendered in `--work`.
+fits the focal length where the outlines tell it: `dream.coarse.focal`); with `--video-codec`
+the frames go through a video codec and back first (OpenCV's FFmpeg encoder at its default
+rate: `vp9`, transforms of several sizes with a loop filter, as a modern video file or stream;
+`mpeg4`, MPEG-4 part 2 in 8x8 blocks); `--reuse-scenes` takes scenes already rendered in
+`--work`.
 Printed per scene: error, verdict, 1-sigma, time; then the share within `--right-mm` /
 `--right-deg`, the wrong results called `good`, the right ones called `good` or `check`, and
 how often the truth lies inside the written 95 % ellipsoid (each scene's chi-square of the
@@ -31,7 +34,7 @@ frames that agree.
         [--first-seed 1000] [--frames 30] [--auto] [--mark-frames 5 --mark-noise-px 2]
         [--fooled] [--skip-guess] [--only panda_1003,xarm7_1010] [--work DIR]
         [--robots URDF,... --scale-to-robot] [--set intrinsics.width=960 ...]
-        [--given-focal 0.96 [--fixed-focal]] [--reuse-scenes]
+        [--given-focal 0.96 [--fixed-focal]] [--video-codec vp9] [--reuse-scenes]
     python benchmarks/coarse_start.py real --data ../shared/realdata/panda_teleop [--guesses 10]
     python benchmarks/coarse_start.py real --data ../shared/realdata/franka_offline --center R.json
     python benchmarks/coarse_start.py real --data ../shared/realdata/panda_teleop \
@@ -69,6 +72,8 @@ SCALED_KEYS = (("camera", "radius_m"), ("camera", "target_m"), ("camera", "targe
                ("distractors", "distance_m"), ("distractors", "held_size_m"),
                ("distractors", "held_offset_m"), ("distractors", "robot_distance_m"),
                ("distractors", "loose_distance_m"), ("distractors", "loose_height_m"))
+VIDEO_CODECS = {"vp9": ("VP90", ".mkv"), "mpeg4": ("mp4v", ".mp4")}   # FourCC, container
+VIDEO_FPS = 10.0          # the rate written in the file; the encoder's default bit rate is kept
 
 
 def robot_keypoints(robot: str) -> tuple[str, ...] | None:
@@ -136,6 +141,46 @@ def given_focal(data: Path, scale: float, out: Path) -> Path:
     seq = read_sequence(data)
     return write_dream(seq.with_fixed_camera(with_focal_scale(seq.camera, scale)), out,
                        overwrite=True)
+
+
+def video_coded(data: Path, codec: str, out: Path) -> Path:
+    """A copy of `data` (written anew) whose images went through the video `codec`
+    (`VIDEO_CODECS`) and back, in frame order.
+
+    Raises:
+        DreamError: the codec cannot be written here, or returns another number of frames.
+    """
+    import cv2
+
+    from dream.errors import InputError
+
+    fourcc, container = VIDEO_CODECS[codec]
+    copy = write_dream(read_sequence(data), out, overwrite=True)
+    paths = [frame.image_path for frame in read_sequence(copy).frames]
+    images = [cv2.imread(str(path), cv2.IMREAD_COLOR) for path in paths]
+    height, width = images[0].shape[:2]
+    with tempfile.TemporaryDirectory() as tmp:
+        video = str(Path(tmp) / f"frames{container}")
+        writer = cv2.VideoWriter(video, cv2.VideoWriter_fourcc(*fourcc), VIDEO_FPS,
+                                 (width, height))
+        if not writer.isOpened():
+            raise InputError(f"OpenCV cannot write {codec} here", str(data),
+                             f"choose another of {sorted(VIDEO_CODECS)}")
+        for image in images:
+            writer.write(image)
+        writer.release()
+        reader, decoded = cv2.VideoCapture(video), []
+        while len(decoded) <= len(paths):
+            ok, image = reader.read()
+            if not ok:
+                break
+            decoded.append(image)
+        reader.release()
+    if len(decoded) != len(paths):
+        raise InputError(f"{codec} gave back {len(decoded)} of {len(paths)} frames", str(data))
+    for path, image in zip(paths, decoded, strict=True):
+        cv2.imwrite(str(path), image)
+    return copy
 
 
 def guess_file(T_true: np.ndarray, offset_m: float, offset_rad: float,
@@ -258,6 +303,9 @@ def run_renders(args: argparse.Namespace) -> None:
             for seed in range(args.first_seed, args.first_seed + args.scenes):
                 data = render_scene(robot, tmp / f"{name}_{seed}", seed, args.frames,
                                     args.scale_to_robot, tuple(args.set), args.reuse_scenes)
+                if args.video_codec:
+                    data = video_coded(data, args.video_codec,
+                                       tmp / f"{name}_{seed}_{args.video_codec}")
                 if args.given_focal != 1.0:
                     data = given_focal(data, args.given_focal,
                                        tmp / f"{name}_{seed}_focal{args.given_focal:g}")
@@ -351,6 +399,8 @@ def main() -> None:
                    "the Panda's (a small arm seen from as near as a user would put the camera)")
     r.add_argument("--given-focal", type=float, default=1.0, help="give the calibration fx, "
                    "fy this many times those rendered with (default 1: as rendered)")
+    r.add_argument("--video-codec", choices=sorted(VIDEO_CODECS), help="the frames through "
+                   "this video codec and back before calibrating (a recording kept as video)")
     r.add_argument("--reuse-scenes", action="store_true", help="take a scene already "
                    "rendered in --work as it is (the same seed and settings render the same)")
     r.add_argument("--scenes", type=int, default=3)

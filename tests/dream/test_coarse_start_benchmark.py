@@ -72,3 +72,20 @@ def test_a_scene_given_the_wrong_focal_length_and_a_rendered_scene_reused(bench,
     assert (given.camera.cx, given.camera.cy) == (rendered.camera.cx, rendered.camera.cy)
     np.testing.assert_allclose(given.frames[0].T_cam_base_true,
                                rendered.frames[0].T_cam_base_true, atol=1e-12)
+
+
+def test_a_scene_through_a_video_codec_keeps_its_frames_and_truth(bench, tmp_path):
+    """`--video-codec`: a copy whose images went through the codec and back: as many frames,
+    the same size, a few levels off the rendered pixels, the truth as rendered."""
+    import cv2
+
+    data = bench.render_scene("panda", tmp_path / "panda", 7, 3)
+    rendered = read_sequence(data)
+    for codec in sorted(bench.VIDEO_CODECS):
+        coded = read_sequence(bench.video_coded(data, codec, tmp_path / codec))
+        assert len(coded) == len(rendered)
+        for before, after in zip(rendered.frames, coded.frames, strict=True):
+            a = cv2.imread(str(before.image_path)).astype(int)
+            b = cv2.imread(str(after.image_path)).astype(int)
+            assert a.shape == b.shape and 0 < np.abs(a - b).mean() < 10
+            np.testing.assert_allclose(after.T_cam_base_true, before.T_cam_base_true)
