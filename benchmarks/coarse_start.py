@@ -54,7 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from dream.cli.calibrate import CalibrateRequest, run_calibrate
-from dream.errors import DreamError
+from dream.errors import DreamError, InputError
 from dream.io import read_sequence, write_dream
 from dream.metrics import pose_errors
 from dream.pipeline import truth_poses
@@ -148,11 +148,9 @@ def video_coded(data: Path, codec: str, out: Path) -> Path:
     (`VIDEO_CODECS`) and back, in frame order.
 
     Raises:
-        DreamError: the codec cannot be written here, or returns another number of frames.
+        InputError: the codec cannot be written here, or returns another number of frames.
     """
     import cv2
-
-    from dream.errors import InputError
 
     fourcc, container = VIDEO_CODECS[codec]
     copy = write_dream(read_sequence(data), out, overwrite=True)
