@@ -396,19 +396,19 @@ class SequenceConfig:
 
 @dataclass(frozen=True)
 class Sensor:
-    """What a real camera's sensor adds to each frame. `gain_sigma`: automatic exposure, the
-    frame's 8-bit channels multiplied by one gain whose natural log is drawn with this standard
-    deviation (a gain in linear light is the same gain on gamma-encoded values). `noise_std`:
-    read noise, Gaussian of this standard deviation in 8-bit levels, drawn anew for every pixel
-    and frame. Both clipped to 0-255; 0 (the default) adds nothing, so every frame of a
-    sequence shows the scene at one exposure and without noise."""
+    """What a real camera adds to each frame (0, the default: nothing). `gain_sigma`: automatic
+    exposure, the 8-bit channels times one gain whose log has this standard deviation (in linear
+    light the same gain). `noise_std`: read noise, Gaussian, this standard deviation in 8-bit
+    levels, anew for every pixel and frame. `blur_px`: the lens's and demosaicing's blur, a
+    Gaussian of this standard deviation in pixels, before the gain and noise. Clipped 0-255."""
 
     gain_sigma: float = 0.0
     noise_std: float = 0.0
+    blur_px: float = 0.0
 
     def __post_init__(self) -> None:
-        _non_negative("sensor.gain_sigma", self.gain_sigma)
-        _non_negative("sensor.noise_std", self.noise_std)
+        for name in ("gain_sigma", "noise_std", "blur_px"):
+            _non_negative(f"sensor.{name}", getattr(self, name))
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import colorsys
 import dataclasses
 
+import cv2
 import numpy as np
 
 from dream.robot import Robot
@@ -182,9 +183,9 @@ def with_realism(scene, seed: int, index: int, config: SynthConfig, robot: Robot
 
 
 def sensor_effects(rgb: np.ndarray, seed: int, index: int, config: SynthConfig) -> np.ndarray:
-    """Frame `index`'s (H, W, 3) uint8 image as `config.sensor` writes it: times its exposure
-    gain, plus read noise, clipped (drawn anew for every frame, in every sequence mode; the
-    image itself where both are 0).
+    """Frame `index`'s (H, W, 3) uint8 image as `config.sensor` writes it: blurred, times its
+    exposure gain, plus read noise, clipped (drawn anew for every frame, in every sequence
+    mode; the image itself where all three are 0).
 
     >>> from synth.config import config_from_dict
     >>> rgb = np.full((2, 2, 3), 100, np.uint8)
@@ -195,6 +196,8 @@ def sensor_effects(rgb: np.ndarray, seed: int, index: int, config: SynthConfig) 
     (True, True)
     """
     sensor = config.sensor
+    if sensor.blur_px:
+        rgb = cv2.GaussianBlur(rgb, (0, 0), sensor.blur_px)
     if not (sensor.gain_sigma or sensor.noise_std):
         return rgb
     rng = np.random.default_rng([seed, SENSOR_STREAM, index])

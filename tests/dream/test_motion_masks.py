@@ -65,6 +65,25 @@ def test_a_faint_part_joins_the_mask_only_where_it_touches_a_clear_one():
     assert without[10:30, 10:30].all() and not without[31:, :].any()
 
 
+
+@pytest.mark.parametrize("blur_px", [0.5, 0.7, 0.9])
+def test_a_blurred_edge_s_outline_lies_where_the_edge_is_not_where_its_ramp_ends(blur_px):
+    """A lens's blur spreads a bright part's edge over a ramp: a fixed threshold puts the
+    outline a pixel outside all round; half the local contrast puts it on the edge, and a
+    sharp edge keeps the mask it had."""
+    background = np.full((240, 320, 3), 60, np.uint8)
+    sharp = background.copy()
+    sharp[80:160, 100:220] = 220
+    truth = np.zeros((240, 320), bool)
+    truth[80:160, 100:220] = True
+    blurred = cv2.GaussianBlur(sharp, (0, 0), blur_px)
+    plain = motion_masks(blurred[None], background, MotionSettings(edge_px=0))[0]
+    trimmed = motion_masks(blurred[None], background, MotionSettings())[0]
+    assert np.count_nonzero(plain & ~truth) == 2 * (80 + 120)       # one pixel all round
+    assert np.array_equal(trimmed, truth)
+    as_it_was = motion_masks(sharp[None], background, MotionSettings(edge_px=0))[0]
+    assert np.array_equal(motion_masks(sharp[None], background, MotionSettings())[0], as_it_was)
+
 def test_background_needs_frames_and_a_moving_arm():
     settings = MotionSettings()
     with pytest.raises(InputError, match="too few for a background model"):

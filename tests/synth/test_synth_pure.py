@@ -29,6 +29,7 @@ def frame(seed, index, config):
     ({"sequence": {"mode": "loop"}}, "sequence.mode"),
     ({"sensor": {"gain_sigma": -0.1}}, "sensor.gain_sigma"),
     ({"sensor": {"noise_std": -1}}, "sensor.noise_std"),
+    ({"sensor": {"blur_px": -0.5}}, "sensor.blur_px"),
     ({"background": {"kinds": {"plaid": 1}}}, "unknown kinds"),
     ({"nonsense": {}}, "unknown config key .nonsense."),
     ({"lights": {"intensity": "bright"}}, "lights.intensity"),
@@ -234,3 +235,20 @@ def test_progress_rewrites_a_line_only_on_a_terminal(stream_type, monkeypatch):
         assert text.count("\r") == 10 and text.count("\n") == 1       # every 1 s: each update
     else:
         assert "\r" not in text and text.count("\n") == 4              # every 10 s, and the end
+
+
+def test_the_sensor_s_blur_turns_a_sharp_edge_into_a_ramp_centred_on_it():
+    """`sensor.blur_px`: a Gaussian of that many pixels, alone (no gain, no noise): the pixels
+    either side of a step keep their sum and lie half a pixel either side of its middle."""
+    from scipy.stats import norm
+
+    from synth.realism import sensor_effects
+
+    rgb = np.zeros((21, 20, 3), np.uint8)
+    rgb[:, 10:] = 200
+    out = sensor_effects(rgb, 0, 0, config_from_dict({"sensor": {"blur_px": 1.0}}))
+    row = out[10, :, 0].astype(float)
+    assert row[0] == 0 and row[-1] == 200 and np.all(np.diff(row) >= 0)
+    assert row[9] == pytest.approx(200 * norm.cdf(-0.5), abs=2)
+    assert row[9] + row[10] == pytest.approx(200, abs=1)
+    assert np.array_equal(sensor_effects(rgb, 0, 0, config_from_dict({})), rgb)
