@@ -65,7 +65,6 @@ def test_a_faint_part_joins_the_mask_only_where_it_touches_a_clear_one():
     assert without[10:30, 10:30].all() and not without[31:, :].any()
 
 
-
 @pytest.mark.parametrize("blur_px", [0.5, 0.7, 0.9])
 def test_a_blurred_edge_s_outline_lies_where_the_edge_is_not_where_its_ramp_ends(blur_px):
     """A lens's blur spreads a bright part's edge over a ramp: a fixed threshold puts the
@@ -83,6 +82,7 @@ def test_a_blurred_edge_s_outline_lies_where_the_edge_is_not_where_its_ramp_ends
     assert np.array_equal(trimmed, truth)
     as_it_was = motion_masks(sharp[None], background, MotionSettings(edge_px=0))[0]
     assert np.array_equal(motion_masks(sharp[None], background, MotionSettings())[0], as_it_was)
+
 
 def test_background_needs_frames_and_a_moving_arm():
     settings = MotionSettings()
