@@ -1,10 +1,13 @@
 """The coarse search: many camera hypotheses scored on the robot's masks, the best few refined,
 one chosen, and how clearly the images chose it (pure).
 
-1. Every hypothesis (around a guess, on a shell around the robot) is aimed
-   at the robot (`dream.coarse.hypotheses.aim`) and scored by `splat_iou` at
-   `coarse_width_px`.
-2. The `local_starts` best, no two within `distinct_m` and `distinct_rad` of each other, are
+1. Every hypothesis on a shell around the robot is aimed at the part of the robot it sees
+   (`dream.coarse.hypotheses.aim_in_view`: where the image border cuts the robot, the masks
+   centre on that part); one around a guess is scored as given and aimed at the whole robot
+   (`aim`), and where the masks touch the image border (`touches_border`) aimed in view too.
+   Each is scored by `splat_iou` at `coarse_width_px`.
+2. The `local_starts` best, no two within `distinct_m` and `distinct_rad` of each other (a
+   guess's hypotheses aimed in view apart: their `in_view_starts` best besides), are
    refined by the silhouette polish's Levenberg-Marquardt (`dream.polish.refine.refine_pose`)
    at each of `local_widths_px` but the finest in turn (a round that lowers the IoU at its
    scale by more than `round_iou_tolerance` is undone and ends that scale: the polish's
@@ -117,27 +120,47 @@ class SearchOutcome:
 
 
 def distinct_best(T: np.ndarray, scores: np.ndarray, count: int, distinct_m: float,
-                  distinct_rad: float) -> list[int]:
-    """Indices of the `count` highest `scores`, skipping any within `distinct_m` and
-    `distinct_rad` of one already taken (greedy, best first).
+                  distinct_rad: float, among: np.ndarray | None = None,
+                  taken: list[int] | None = None) -> list[int]:
+    """Indices of the `count` highest `scores` (of those `among` (N,) bool, default all),
+    skipping any within `distinct_m` and `distinct_rad` of one already taken (greedy, best
+    first; `taken`: indices taken before, not counted).
 
     >>> T = np.stack([np.eye(4)] * 3); T[2, 0, 3] = 1.0
     >>> distinct_best(T, np.array([0.9, 0.8, 0.5]), 2, 0.1, 0.1)
     [0, 2]
+    >>> distinct_best(T, np.array([0.9, 0.8, 0.5]), 2, 0.1, 0.1, np.array([0, 1, 1], bool))
+    [1, 2]
+    >>> distinct_best(T, np.array([0.9, 0.8, 0.5]), 2, 0.1, 0.1, taken=[0])
+    [2]
     """
-    taken: list[int] = []
-    for i in np.argsort(-scores, kind="stable"):
-        if all(not within(T[i], T[j], distinct_m, distinct_rad) for j in taken):
-            taken.append(int(i))
-            if len(taken) == count:
-                break
-    return taken
+    before = list(taken or [])
+    out: list[int] = []
+    order = np.argsort(-scores, kind="stable")
+    for i in order if among is None else order[np.asarray(among, bool)[order]]:
+        if len(out) == count:
+            break
+        if all(not within(T[i], T[j], distinct_m, distinct_rad) for j in before + out):
+            out.append(int(i))
+    return out
 
 
 def within(T_a: np.ndarray, T_b: np.ndarray, limit_m: float, limit_rad: float) -> bool:
     """Whether two T_cam_base lie within `limit_m` (camera centres) and `limit_rad`."""
     m, rad = pose_errors(T_a, T_b)
     return bool(m <= limit_m and rad <= limit_rad)
+
+
+def touches_border(masks: np.ndarray) -> bool:
+    """Whether any of the masks (F, H, W) bool reaches the image's outermost rows or columns:
+    the border may cut the robot.
+
+    >>> masks = np.zeros((2, 4, 5), bool); masks[1, 1:3, 1:4] = True
+    >>> touches_border(masks), touches_border(np.roll(masks, 1, axis=1))
+    (False, True)
+    """
+    m = np.asarray(masks, bool)
+    return bool(m[:, [0, -1], :].any() or m[:, :, [0, -1]].any())
 
 
 def coarse_scores(points: np.ndarray, masks: np.ndarray, camera: CameraIntrinsics,
@@ -199,7 +222,8 @@ def find_winner(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         joints: (F, J) the frames' joints in `meshes.robot`'s order.
         masks: (F, H, W) bool robot masks at `camera`'s size.
         hypotheses: source name -> (n, 4, 4) T_cam_base; each is scored as given and aimed at
-            the robot, those of a source in `aimed_only` only aimed.
+            the robot (where the masks touch the image border, aimed at the part of it in
+            view too); those of a source in `aimed_only` only aimed at the part in view.
         usable: (V,) bool, the vertices whose outline is matched (default all).
         held: the masks are motion masks, which miss what the robot covers in most frames
             (`dream.coarse.evidence.held_pixels`).
@@ -239,14 +263,15 @@ def find_winner(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     points = points_of(P, meshes.faces, tri, weights)
     f, v, u = np.nonzero(coarse)
     centre = points.reshape(-1, 3).mean(axis=0)
-    T_all, sources = _aimed(hypotheses, points, centre, np.array([u.mean(), v.mean()]),
-                            coarse_camera, aimed_only)
+    T_all, sources, in_view = _aimed(hypotheses, points, centre,
+                                     np.array([u.mean(), v.mean()]), coarse_camera, aimed_only,
+                                     touches_border(coarse))
     scores = coarse_scores(points, coarse, coarse_camera, T_all, settings.batch, held)
     say(f"scored {len(T_all)} camera hypotheses at {width} px (best coarse IoU "
         f"{scores.max():.3f})")
     scales = Scales(P, meshes, masks, camera, settings, usable, held,
                      None if region is None else region.frames(sub))
-    candidates = _refined(scales, T_all, scores, sources, settings)
+    candidates = _refined(scales, T_all, scores, sources, in_view, settings)
     finish = _finish_scales(P_all, meshes, masks_all, camera, settings, usable, scales, region)
 
     def finished(T: np.ndarray) -> np.ndarray:
@@ -265,8 +290,7 @@ def find_winner(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     if best.left_out_frames:
         say(f"the winner's finish left out {len(best.left_out_frames)} of {len(q)} frames "
             "that pull its pose far harder than the others")
-    counts = {name: len(T) * (1 if name in aimed_only else 2)
-              for name, T in hypotheses.items()}
+    counts = {name: sources.count(name) for name in hypotheses}
 
     def run_checks() -> Checks:
         start_m, return_m = settings.basin_lengths(camera_distance(best.T_cam_base, centre))
@@ -336,12 +360,17 @@ def _finish_scales(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
 
 
 def _refined(scales: Scales, T_all: np.ndarray, scores: np.ndarray, sources: list[str],
-             settings: SearchSettings) -> list[Candidate]:
-    """The `local_starts` best distinct hypotheses refined at every local scale but the
-    finest, and the `fine_starts` best of those (distinct again) at the finest; best first."""
+             in_view: np.ndarray, settings: SearchSettings) -> list[Candidate]:
+    """The `local_starts` best distinct hypotheses but the extra ones aimed in view (`in_view`
+    (N,) bool) and the `in_view_starts` best distinct extra ones, each refined at every local
+    scale but the finest; the `fine_starts` best of all (distinct again) at the finest too;
+    best first."""
     first = []
-    for i in distinct_best(T_all, scores, settings.local_starts, settings.distinct_m,
-                           settings.distinct_rad):
+    starts = distinct_best(T_all, scores, settings.local_starts, settings.distinct_m,
+                           settings.distinct_rad, ~in_view)
+    starts += distinct_best(T_all, scores, settings.in_view_starts, settings.distinct_m,
+                            settings.distinct_rad, in_view, starts)
+    for i in starts:
         T = scales.refine(T_all[i], slice(0, -1))
         first.append((T, i, scales.iou_at(T, max(len(scales.levels) - 2, 0))))
     T_first = np.array([T for T, _, _ in first])
@@ -355,18 +384,23 @@ def _refined(scales: Scales, T_all: np.ndarray, scores: np.ndarray, sources: lis
 
 
 def _aimed(hypotheses: dict[str, np.ndarray], points: np.ndarray, centre: np.ndarray,
-           uv: np.ndarray, camera: CameraIntrinsics, aimed_only: tuple[str, ...]
-           ) -> tuple[np.ndarray, list[str]]:
-    """Every hypothesis aimed and, unless its source is in `aimed_only`, as given; one only
-    aimed has no other view to fall back on where the border cuts the robot, so it is aimed at
-    the part in view (`aim_in_view` of the surface `points`)."""
-    poses, sources = [], []
+           uv: np.ndarray, camera: CameraIntrinsics, aimed_only: tuple[str, ...],
+           cut: bool) -> tuple[np.ndarray, list[str], np.ndarray]:
+    """Every hypothesis of a source in `aimed_only` aimed at the part of the robot in view
+    (`aim_in_view` of the surface `points`: where the border cuts the robot, the images'
+    pixels centre on that part); every other one aimed at the whole robot and as given, and
+    where the masks touch the image border (`cut`) aimed in view too; (N,) bool: those last,
+    the extra ones."""
+    poses, sources, extra = [], [], []
     for name, T in hypotheses.items():
         T = np.asarray(T, float).reshape(-1, 4, 4)
         aimed = aim(T, centre, uv, camera)
-        variants = [aim_in_view(aimed, points, centre, uv, camera)] if name in aimed_only \
-            else [aimed, T]
-        for V in variants:
+        variants = [(aimed, False), (T, False)]
+        if name in aimed_only or cut:
+            in_view = aim_in_view(aimed, points, centre, uv, camera)
+            variants = [(in_view, False)] if name in aimed_only else variants + [(in_view, True)]
+        for V, is_extra in variants:
             poses.append(V)
             sources += [name] * len(V)
-    return np.concatenate(poses), sources
+            extra.append(np.full(len(V), is_extra))
+    return np.concatenate(poses), sources, np.concatenate(extra)

@@ -34,6 +34,10 @@ class SearchSettings:
         coarse_width_px: mask width of the coarse score of every hypothesis.
         batch: hypotheses scored at once.
         local_starts: the best-scoring distinct hypotheses refined locally.
+        in_view_starts: how many more are refined of the hypotheses of a guess (or of keypoints,
+            a mark) aimed at the part of the robot in view, distinct from those and each
+            other: on the masks of a close-up, a view of part of the arm scores as well as one
+            of the whole arm, and ranked with the others they would crowd them out.
         distinct_m, distinct_rad: hypotheses closer than both (camera centre, rotation) are one.
         local_widths_px: mask widths of the local refinement's scales, coarsest first.
         local_rounds: polish rounds per scale of the local refinement.
@@ -89,6 +93,7 @@ class SearchSettings:
     coarse_width_px: int = 64
     batch: int = 256
     local_starts: int = 48
+    in_view_starts: int = 8
     distinct_m: float = 0.1
     distinct_rad: float = float(np.deg2rad(8.0))
     local_widths_px: tuple[int, ...] = (80, 160)
@@ -126,7 +131,7 @@ class SearchSettings:
                                "rival_m", "rival_rad", "basin_m", "basin_rad",
                                "basin_return_m", "basin_return_rad", "basin_reference_m"),
                      non_negative=("min_gap", "basin_starts", "min_found_iou", "carried_margin_px",
-                                   "round_iou_tolerance", "frame_influence",
+                                   "round_iou_tolerance", "frame_influence", "in_view_starts",
                                    "min_basin_share", "jackknife_groups", "max_outlying_share"))
         if not self.shell_distances or min(self.shell_distances) <= 0:
             raise InputError("coarse search: shell_distances must be positive")

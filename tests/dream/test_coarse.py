@@ -39,13 +39,16 @@ from dream.pnp import increment_between
 from dream.polish.objective import scaled_camera, shrink_mask
 from dream.polish.refine import refine_pose
 from dream.polish.settings import PolishSettings
+from dream.sample import random_joints
 from dream.silhouette import render_silhouette, vertices_in_base
-from dream.transforms import R_from_rotvec, invert_T
+from dream.transforms import R_from_rotvec, invert_T, look_at
 from tests.dream.test_edges import CAMERA, TARGET, edge_scene, image_dataset, ordered_sequence
 
 GUESS_M, GUESS_RAD = 0.3, np.deg2rad(20.0)     # the rough guess's error
 CHI2_6DOF_95 = 12.592    # 95 % quantile of the chi-square distribution with 6 degrees of freedom
 HELD_RADIUS_PX = 35     # a held object's disk at the hand: larger than the hand in view
+CLOSE_UP_FRACTION = 0.45     # a close-up's camera distance, of the edge scenes' camera's
+CLOSE_UP_AIM_BELOW_M = 0.2   # how far below the edge scenes' target the close-up looks
 SMALL = SearchSettings(guess_samples=200, local_starts=6, fine_starts=2, basin_starts=2)
 
 
@@ -434,6 +437,26 @@ def test_hypotheses_aimed_in_view_centre_the_part_the_image_shows(distortion):
     assert np.array_equal(aim_in_view(away, points, centre, target, camera), away)
 
 
+def test_a_guess_reaches_a_close_up_the_image_border_cuts(panda, meshes):
+    """A close-up aimed low, the top of the arm cut by the image border in every frame, and a
+    single hypothesis at the true camera centre turned 15 deg: as given it is too far off,
+    and aimed at the whole arm's centre it sees the arm too low; aimed at the part in view
+    (`aim_in_view`, tried for a guess's hypotheses where the masks touch the border) it
+    starts in the truth's basin."""
+    joints = random_joints(np.random.default_rng(0), panda, 6, 0.8)
+    T_true = look_at(TARGET + CLOSE_UP_FRACTION * np.array([1.3, 0.5, 0.6]),
+                     TARGET - np.array([0.0, 0.0, CLOSE_UP_AIM_BELOW_M]))
+    masks = np.stack([render_silhouette(meshes, q, T_true, CAMERA) for q in joints])
+    assert all(m[0].any() for m in masks)                   # the border cuts the arm's top
+    settings = replace(SMALL, basin_starts=0, jackknife_groups=0)
+    for seed in range(3):
+        T_guess = off_by(T_true, 0.0, np.deg2rad(15.0), seed)
+        outcome = search(meshes, joints, masks, CAMERA, {"guess": T_guess[None]}, settings)
+        assert outcome.hypotheses == {"guess": 3}       # as given, aimed, aimed in view
+        m, rad = pose_errors(outcome.best.T_cam_base, T_true)
+        assert m < 0.002 and rad < np.deg2rad(0.1), (seed, m, np.rad2deg(rad))
+
+
 def test_silhouettes_guard_the_keypoint_path(panda, meshes, tmp_path, capsys):
     """Keypoints that agree perfectly with a camera 30 cm / 20 deg off (a detector fooled the
     same way in every frame): the edge alignment cannot run there and the keypoint pose used to
@@ -485,7 +508,8 @@ def test_the_keypoint_pose_competes_with_the_guess(panda, meshes, tmp_path, caps
     assert "the keypoint pose joins the search's hypotheses" in printed
     doc = json.loads(out.read_text())
     assert doc["start"]["hypotheses"].endswith("; the keypoint pose")
-    assert doc["start"]["hypotheses_scored"]["keypoints"] == 2   # as given and aimed
+    # as given, aimed at the robot and at the part in view (the masks reach the image border)
+    assert doc["start"]["hypotheses_scored"]["keypoints"] == 3
     t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
     assert t_err < 0.01 and r_err < np.deg2rad(0.5), (t_err, np.rad2deg(r_err))
 

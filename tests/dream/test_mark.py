@@ -199,7 +199,8 @@ def test_calibrate_from_a_mark_clicked_in_two_frames(panda, meshes, tmp_path, ca
     mark = doc["start"]["mark"]
     assert mark["T_cam_base"] is None and mark["placed_hypotheses"] > 0
     assert np.median(mark["click_residuals_px"]) < 5
-    assert doc["start"]["hypotheses_scored"]["mark"] == 2 * mark["placed_hypotheses"]
+    # as given, aimed at the robot and at the part in view (the masks reach the image border)
+    assert doc["start"]["hypotheses_scored"]["mark"] == 3 * mark["placed_hypotheses"]
 
 
 def test_a_wrong_mark_offset_is_a_finding(panda, meshes, tmp_path, capsys):
