@@ -263,15 +263,15 @@ def find_winner(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     points = points_of(P, meshes.faces, tri, weights)
     f, v, u = np.nonzero(coarse)
     centre = points.reshape(-1, 3).mean(axis=0)
-    T_all, sources, in_view = _aimed(hypotheses, points, centre,
-                                     np.array([u.mean(), v.mean()]), coarse_camera, aimed_only,
-                                     touches_border(coarse))
+    T_all, sources, extra = _aimed(hypotheses, points, centre,
+                                   np.array([u.mean(), v.mean()]), coarse_camera, aimed_only,
+                                   touches_border(coarse))
     scores = coarse_scores(points, coarse, coarse_camera, T_all, settings.batch, held)
     say(f"scored {len(T_all)} camera hypotheses at {width} px (best coarse IoU "
         f"{scores.max():.3f})")
     scales = Scales(P, meshes, masks, camera, settings, usable, held,
                      None if region is None else region.frames(sub))
-    candidates = _refined(scales, T_all, scores, sources, in_view, settings)
+    candidates = _refined(scales, T_all, scores, sources, extra, settings)
     finish = _finish_scales(P_all, meshes, masks_all, camera, settings, usable, scales, region)
 
     def finished(T: np.ndarray) -> np.ndarray:
@@ -360,16 +360,16 @@ def _finish_scales(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
 
 
 def _refined(scales: Scales, T_all: np.ndarray, scores: np.ndarray, sources: list[str],
-             in_view: np.ndarray, settings: SearchSettings) -> list[Candidate]:
-    """The `local_starts` best distinct hypotheses but the extra ones aimed in view (`in_view`
+             extra: np.ndarray, settings: SearchSettings) -> list[Candidate]:
+    """The `local_starts` best distinct hypotheses but the extra ones aimed in view (`extra`
     (N,) bool) and the `in_view_starts` best distinct extra ones, each refined at every local
     scale but the finest; the `fine_starts` best of all (distinct again) at the finest too;
     best first."""
     first = []
     starts = distinct_best(T_all, scores, settings.local_starts, settings.distinct_m,
-                           settings.distinct_rad, ~in_view)
+                           settings.distinct_rad, ~extra)
     starts += distinct_best(T_all, scores, settings.in_view_starts, settings.distinct_m,
-                            settings.distinct_rad, in_view, starts)
+                            settings.distinct_rad, extra, starts)
     for i in starts:
         T = scales.refine(T_all[i], slice(0, -1))
         first.append((T, i, scales.iou_at(T, max(len(scales.levels) - 2, 0))))
@@ -395,10 +395,12 @@ def _aimed(hypotheses: dict[str, np.ndarray], points: np.ndarray, centre: np.nda
     for name, T in hypotheses.items():
         T = np.asarray(T, float).reshape(-1, 4, 4)
         aimed = aim(T, centre, uv, camera)
-        variants = [(aimed, False), (T, False)]
-        if name in aimed_only or cut:
-            in_view = aim_in_view(aimed, points, centre, uv, camera)
-            variants = [(in_view, False)] if name in aimed_only else variants + [(in_view, True)]
+        if name in aimed_only:
+            variants = [(aim_in_view(aimed, points, centre, uv, camera), False)]
+        else:
+            variants = [(aimed, False), (T, False)]
+            if cut:
+                variants.append((aim_in_view(aimed, points, centre, uv, camera), True))
         for V, is_extra in variants:
             poses.append(V)
             sources += [name] * len(V)
