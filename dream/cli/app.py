@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import re
 import sys
 from collections.abc import Sequence
 from importlib.metadata import entry_points
@@ -36,6 +37,8 @@ CORE_COMMANDS = (robots, info, overlay, masks, mark, calibrate, diagnose, eval, 
 EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 EXIT_BROKEN_PIPE = 141          # 128 + SIGPIPE, what a shell reports for a writer cut off
+# a value list that starts with a minus sign: "-0.7,0.5,0.6", "-0.1,0.01,0,0", "-1e-3"
+NEGATIVE_VALUES = re.compile(r"^-\.?\d[\d.eE+\-]*(,[\d.eE+\-]*)*$")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -62,8 +65,27 @@ def _add_stage_commands(sub: argparse._SubParsersAction) -> None:
         register(sub)
 
 
+def joined_negative_values(argv: Sequence[str]) -> list[str]:
+    """`argv` with each negative value list joined to the long option before it
+    (`--look-at -0.7,0,0.4` -> `--look-at=-0.7,0,0.4`): argparse takes a value that starts
+    with a minus sign and holds a comma for an option, and stops at it.
+
+    >>> joined_negative_values(["calibrate", "--camera-guess", "-0.7,-0.5,0.6", "--seed", "-1"])
+    ['calibrate', '--camera-guess=-0.7,-0.5,0.6', '--seed=-1']
+    """
+    out: list[str] = []
+    for token in argv:
+        if (out and NEGATIVE_VALUES.match(token) and out[-1].startswith("--")
+                and "=" not in out[-1]):
+            out[-1] = f"{out[-1]}={token}"
+        else:
+            out.append(token)
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = build_parser().parse_args(joined_negative_values(sys.argv[1:] if argv is None
+                                                            else argv))
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     try:

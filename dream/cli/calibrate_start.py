@@ -20,6 +20,7 @@ from dream.errors import InputError
 FIX_GUESS = ("give --camera-guess X,Y,Z --look-at X,Y,Z (metres, base frame: where the camera "
              "is and a point on the robot it looks at) or --camera-guess RESULT.json")
 FIX_SIGMA = "give --guess-sigma METRES,DEGREES, e.g. 0.3,20"
+MAX_SIGMA_DEG = 180.0     # a rotation 1-sigma beyond this is not degrees of one guess
 KEYPOINTS = "keypoints"   # the search's hypothesis source of --model / --use-labels
 FIX_MARK = ("give --mark MARKS.csv --mark-link LINK [--mark-offset X,Y,Z] (the clicked point, "
             "metres in that link's frame)")
@@ -75,6 +76,9 @@ def camera_guess(camera_guess: str | None, look_at: str | None, guess_sigma: str
         sigma_m, sigma_rad = float(m), float(np.deg2rad(deg))
         if not (sigma_m > 0 and sigma_rad > 0):
             raise InputError(f"--guess-sigma {guess_sigma} must be positive", fix=FIX_SIGMA)
+        if deg > MAX_SIGMA_DEG:
+            raise InputError(f"--guess-sigma {guess_sigma}: a 1-sigma of {deg:g} deg turns the "
+                             f"camera every way (at most {MAX_SIGMA_DEG:g})", fix=FIX_SIGMA)
     if camera_guess is None:
         if look_at is not None:
             raise InputError("--look-at goes with --camera-guess X,Y,Z", fix=FIX_GUESS)
@@ -87,14 +91,15 @@ def camera_guess(camera_guess: str | None, look_at: str | None, guess_sigma: str
                              fix=FIX_GUESS)
         doc = read_result(camera_guess)
         return CameraGuess(np.asarray(doc["T_cam_base"], float), sigma_m, sigma_rad,
-                           f"around the extrinsic of {camera_guess}")
+                           f"around the extrinsic of {camera_guess}", user_given=True)
     if look_at is None:
         raise InputError("--camera-guess X,Y,Z needs --look-at X,Y,Z (a point on the robot the "
                          "camera looks at)", fix=FIX_GUESS)
     position = parse_numbers(camera_guess, (3,), "--camera-guess", FIX_GUESS)
     target = parse_numbers(look_at, (3,), "--look-at", FIX_GUESS)
     return CameraGuess(guess_pose(position, target), sigma_m, sigma_rad,
-                       f"around a camera at {list(position)} looking at {list(target)}")
+                       f"around a camera at {list(position)} looking at {list(target)}",
+                       user_given=True)
 
 
 def robot_for_search(seq, request):

@@ -35,10 +35,11 @@ from dream.calibration import CalibrationResult, FrameSolution, Observations
 from dream.camera import CameraIntrinsics
 from dream.coarse.carried import CarriedRegion, carried_geometry, carried_region
 from dream.coarse.focal import FocalEstimate, FocalSettings, fit_focal
-from dream.coarse.hypotheses import around, fibonacci_directions, shell
+from dream.coarse.hypotheses import around, check_guess_scale, fibonacci_directions, shell
 from dream.coarse.mark import (
     Mark,
     MarkSettings,
+    check_mark_offset,
     mark_points,
     mark_pose,
     mark_sigma,
@@ -75,12 +76,14 @@ MOTION_CANDIDATES = 3   # frames tried for motion masks per search frame (evenly
 @dataclass(frozen=True)
 class CameraGuess:
     """A rough camera pose and how rough (1-sigma per axis); `T_cam_base` None asks for the
-    automatic search around the robot."""
+    automatic search around the robot. `user_given`: the numbers were typed, so their scale is
+    checked against the robot's size (`check_guess_scale`) before any hypothesis is drawn."""
 
     T_cam_base: np.ndarray | None
     sigma_m: float
     sigma_rad: float
     description: str
+    user_given: bool = False
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.sigma_m) and self.sigma_m > 0 and np.isfinite(self.sigma_rad)
@@ -193,13 +196,18 @@ def hypotheses_for(guess: CameraGuess, inputs: SearchMasks, settings: SearchSett
     out: dict[str, np.ndarray] = {}
     aimed_only: tuple[str, ...] = ()
     rng = np.random.default_rng(settings.seed)
+    P = vertices_in_base(inputs.meshes, inputs.joints).reshape(-1, 3)
+    centre = P.mean(axis=0)
+    size = float(np.max(np.linalg.norm(P - centre, axis=1)))
+    if guess.T_cam_base is not None and guess.user_given:
+        reach = float(np.max(np.linalg.norm(P, axis=1)))   # from the base: the wrist's alone
+        check_guess_scale(guess.T_cam_base, guess.sigma_m, centre, reach,
+                          settings.max_guess_distance, settings.max_guess_sigma,
+                          guess.description)
     if guess.T_cam_base is not None:
         out[GUESS] = around(guess.T_cam_base, guess.sigma_m, guess.sigma_rad,
                             settings.guess_samples, rng)
     else:
-        P = vertices_in_base(inputs.meshes, inputs.joints).reshape(-1, 3)
-        centre = P.mean(axis=0)
-        size = float(np.max(np.linalg.norm(P - centre, axis=1)))
         out[SHELL] = shell(centre, size, fibonacci_directions(settings.shell_directions,
                                                                settings.min_elevation_sin),
                            settings.shell_distances, settings.shell_rolls)
@@ -348,6 +356,8 @@ def mark_start(sequence: Sequence, robot: Robot, mark: Mark,
             return None
         return cv2.cvtColor(load_image(frame, camera), cv2.COLOR_RGB2GRAY)
 
+    check_mark_offset(robot, joints, mark.link, mark.offset_link_m,
+                      mark_settings.max_offset_reach)
     P_base = mark_points(robot, joints, mark.link, mark.offset_link_m)
     frames, uv = track_mark(gray, mark.frames, mark.uv, P_base, mark_settings)
     known = (f"{len(mark.frames)} clicked, {len(frames) - len(mark.frames)} tracked frames")

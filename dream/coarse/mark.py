@@ -45,6 +45,7 @@ from dream.transforms import transform_points
 MARK_COLUMNS = ("frame", "u", "v")
 MIN_CLICK_SPREAD = 1e-3   # normalised image units: clicks nearer than this are one pixel
 MIN_MARK_DEPTH_M = 0.05   # a placed camera sees every marked point at least this far ahead
+NORMALISED_MAX = 1.0   # clicks all within [-1, 1] px: normalised image coordinates, not pixels
 CACHED_IMAGES = 4   # the tracker steps between neighbours: a few images in memory suffice
 FIX_MARKS = ("write one row per clicked frame: frame,u,v (the frame's name or index, the "
              "pixel with the origin at the top-left pixel's centre); dream mark writes it")
@@ -67,6 +68,8 @@ class MarkSettings:
     min_sigma_m: float = 0.05         # ... at least this (a PnP of few clicks is optimistic)
     min_sigma_rad: float = math.radians(5.0)
     max_click_residual_px: float = 10.0   # at the pose found, clicks farther off: a finding
+    max_offset_reach: float = 1.0     # a mark farther from its link than this times the link's
+                                      # farthest distance from the base: not metres
 
     def __post_init__(self) -> None:
         if self.window_px < 3 or self.window_px % 2 == 0:
@@ -75,7 +78,8 @@ class MarkSettings:
             if getattr(self, name) < 0:
                 raise InputError(f"{name} must be >= 0, got {getattr(self, name)}")
         for name in ("epsilon_px", "max_round_trip_px", "max_step_m", "agree_px", "sigma_factor",
-                     "min_sigma_m", "min_sigma_rad", "max_click_residual_px"):
+                     "min_sigma_m", "min_sigma_rad", "max_click_residual_px",
+                     "max_offset_reach"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise InputError(f"{name} must be positive, got {getattr(self, name)}")
 
@@ -140,6 +144,11 @@ def read_marks(path: str | Path, sequence: Sequence) -> tuple[np.ndarray, np.nda
         uv.append((u, v))
     if not frames:
         raise InputError("the marks file has no rows", path, FIX_MARKS)
+    if np.all(np.abs(uv) <= NORMALISED_MAX):
+        raise InputError(f"every click lies within {NORMALISED_MAX:g} px of the image's corner: "
+                         "normalised coordinates, not pixels?", path,
+                         "give u, v in pixels of the data's images (origin at the top-left "
+                         "pixel's centre)")
     if len(set(frames)) != len(frames):
         raise InputError("a frame is marked twice", path, "keep one row per frame")
     order = np.argsort(frames)
@@ -159,6 +168,19 @@ def mark_points(robot: Robot, joints: np.ndarray, link: str, offset_link_m: np.n
     """(n, 3) the mark in the base frame at each row of `joints` (n, J)."""
     T_base_link = robot.link_poses(joints, (link,))[:, 0]
     return T_base_link[:, :3, :3] @ np.asarray(offset_link_m, float) + T_base_link[:, :3, 3]
+
+
+def check_mark_offset(robot: Robot, joints: np.ndarray, link: str, offset_link_m: np.ndarray,
+                      max_reach: float) -> None:
+    """Refuse an offset that cannot be metres: the mark farther from its link than `max_reach`
+    times the link's farthest distance from the base over `joints` (n, J) (millimetres given
+    for metres)."""
+    reach = float(np.linalg.norm(robot.link_poses(joints, (link,))[:, 0, :3, 3], axis=1).max())
+    offset = float(np.linalg.norm(offset_link_m))
+    if offset > max_reach * max(reach, np.finfo(float).eps):
+        raise InputError(f"the mark lies {offset:.3g} m from {link}, which lies at most "
+                         f"{reach:.2f} m from the base", fix="give --mark-offset X,Y,Z in metres "
+                         "in that link's frame (are these millimetres?)")
 
 
 def track_mark(gray: Callable[[int], np.ndarray | None], frames: np.ndarray, uv: np.ndarray,

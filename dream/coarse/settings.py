@@ -20,6 +20,11 @@ class SearchSettings:
         guess_sigma_m, guess_sigma_rad: default 1-sigma of a rough guess, per axis (camera
             centre in the base frame; rotation vector).
         guess_samples: hypotheses drawn around a guess (each also aimed at the robot).
+        max_guess_distance, max_guess_sigma: a guess whose camera lies farther from the
+            robot's centre than the first, or whose 1-sigma in metres exceeds the second, both
+            in units of the robot's reach (its moving parts' largest distance from the base
+            origin), is refused: its numbers are not metres
+            (`dream.coarse.hypotheses.check_guess_scale`).
         shell_directions: directions of the automatic search's cameras around the robot.
         shell_distances: their distances from the robot's centre, in units of its size (the
             largest distance of a mesh point from the base origin over the frames).
@@ -83,6 +88,8 @@ class SearchSettings:
     guess_sigma_m: float = 0.3
     guess_sigma_rad: float = float(np.deg2rad(20.0))
     guess_samples: int = 2000
+    max_guess_distance: float = 20.0
+    max_guess_sigma: float = 5.0
     shell_directions: int = 160
     shell_distances: tuple[float, ...] = (0.5, 0.75, 1.1, 1.6, 2.4, 3.5)
     shell_rolls: int = 12
@@ -129,7 +136,8 @@ class SearchSettings:
                                     "fine_starts", "finish_width_px", "jackknife_link_points"),
                      positive=("guess_sigma_m", "guess_sigma_rad", "distinct_m", "distinct_rad",
                                "rival_m", "rival_rad", "basin_m", "basin_rad",
-                               "basin_return_m", "basin_return_rad", "basin_reference_m"),
+                               "basin_return_m", "basin_return_rad", "basin_reference_m",
+                               "max_guess_distance", "max_guess_sigma"),
                      non_negative=("min_gap", "basin_starts", "min_found_iou", "carried_margin_px",
                                    "round_iou_tolerance", "frame_influence", "in_view_starts",
                                    "min_basin_share", "jackknife_groups", "max_outlying_share"))

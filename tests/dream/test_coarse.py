@@ -380,12 +380,33 @@ def test_guess_options_are_checked_before_any_work(tmp_path, capsys):
         (["--camera-guess", "1,0", "--look-at", "0,0,0"], "--camera-guess"),
         (["--camera-guess", "1,0,1", "--look-at", "1,0,1"], "coincide"),
         (["--guess-sigma", "0.3"], "--guess-sigma"),
+        (["--guess-sigma", "0.3,400"], "every way"),
+        (["--camera-guess", "-1,0,1", "--look-at", "-1,0,1"], "coincide"),   # minus signs
     ]
     for extra, message in cases:
         code = main(["calibrate", "--data", str(tmp_path / "missing"), "--out",
                      str(tmp_path / "r.json"), *extra])
         _, err = capsys.readouterr()
         assert code == 2 and message in err, (extra, err)
+
+
+def test_a_guess_in_millimetres_or_a_swapped_sigma_is_refused(panda, meshes, tmp_path,
+                                                              capsys):
+    T_true = image_dataset(panda, meshes, tmp_path)
+    position = invert_T(off_by(T_true, 0.1, np.deg2rad(5.0), 3))[:3, 3]
+    out = tmp_path / "r.json"
+    cases = [
+        ([1000 * position, 1000 * TARGET, None], "are these millimetres?"),
+        ([position, TARGET, "20,0.3"], "are the two swapped?"),
+    ]
+    for (camera, target, sigma), message in cases:
+        code = main(["calibrate", "--data", str(tmp_path / "data"), "--out", str(out),
+                     "--camera-guess", ",".join(f"{v:.3f}" for v in camera),
+                     "--look-at", ",".join(f"{v:.3f}" for v in target),
+                     *(["--guess-sigma", sigma] if sigma else [])])
+        _, err = capsys.readouterr()
+        assert code == 2 and message in err and "robot's reach" in err, err
+        assert not out.exists()
 
 
 def test_guess_pose_looks_at_the_target():

@@ -150,7 +150,8 @@ def test_marks_file_errors_name_the_line_and_the_fix(panda, meshes, tmp_path):
                           (["frame,u,v", "1,a,3"], "numbers"),
                           (["frame,u,v", "1,2000,3"], "outside"),
                           (["frame,u,v", "1,2,3", "000001,4,5"], "twice"),
-                          (["frame,u,v"], "no rows")):
+                          (["frame,u,v"], "no rows"),
+                          (["frame,u,v", "1,0.31,0.52", "3,0.62,0.40"], "normalised")):
         with pytest.raises(InputError, match=message):
             read_marks(marks_file(tmp_path, rows), seq)
 
@@ -209,6 +210,17 @@ def test_a_wrong_mark_offset_is_a_finding(panda, meshes, tmp_path, capsys):
                                        "0,0,0.15", "--refine", "none")
     warnings = " ".join(doc["quality"]["warnings"])
     assert doc["quality"]["verdict"] != "good" and "from where it was clicked" in warnings
+
+
+def test_a_mark_offset_in_millimetres_is_refused(panda, meshes, tmp_path, capsys):
+    T_true = image_dataset(panda, meshes, tmp_path)
+    seq = read_sequence(tmp_path / "data")
+    marks = clicks(panda, seq, T_true, MARK_OFFSET, tmp_path, CLICK_NOISE_PX)
+    out = tmp_path / "r.json"
+    code = main(["calibrate", "--data", str(tmp_path / "data"), "--out", str(out), "--mark",
+                 str(marks), "--mark-link", MARK_LINK, "--mark-offset", "0,0,100"])
+    _, err = capsys.readouterr()
+    assert code == 2 and "are these millimetres?" in err and not out.exists(), err
 
 
 def test_mark_options_are_checked_before_any_work(tmp_path, capsys):
