@@ -77,7 +77,7 @@ MOTION_CANDIDATES = 3   # frames tried for motion masks per search frame (evenly
 class CameraGuess:
     """A rough camera pose and how rough (1-sigma per axis); `T_cam_base` None asks for the
     automatic search around the robot. `user_given`: the numbers were typed, so their scale is
-    checked against the robot's size (`check_guess_scale`) before any hypothesis is drawn."""
+    checked against the robot's reach (`check_guess_scale`) before any hypothesis is drawn."""
 
     T_cam_base: np.ndarray | None
     sigma_m: float
@@ -196,18 +196,21 @@ def hypotheses_for(guess: CameraGuess, inputs: SearchMasks, settings: SearchSett
     out: dict[str, np.ndarray] = {}
     aimed_only: tuple[str, ...] = ()
     rng = np.random.default_rng(settings.seed)
-    P = vertices_in_base(inputs.meshes, inputs.joints).reshape(-1, 3)
-    centre = P.mean(axis=0)
-    size = float(np.max(np.linalg.norm(P - centre, axis=1)))
-    if guess.T_cam_base is not None and guess.user_given:
-        reach = float(np.max(np.linalg.norm(P, axis=1)))   # from the base: the wrist's alone
-        check_guess_scale(guess.T_cam_base, guess.sigma_m, centre, reach,
-                          settings.max_guess_distance, settings.max_guess_sigma,
-                          guess.description)
     if guess.T_cam_base is not None:
+        if guess.user_given:
+            P = vertices_in_base(inputs.meshes, inputs.joints).reshape(-1, 3)
+            # the reach: the moving parts' farthest distance from the base origin, the arm's
+            # size even where only its wrist moves
+            check_guess_scale(guess.T_cam_base, guess.sigma_m, P.mean(axis=0),
+                              float(np.max(np.linalg.norm(P, axis=1))),
+                              settings.max_guess_distance, settings.max_guess_sigma,
+                              guess.description)
         out[GUESS] = around(guess.T_cam_base, guess.sigma_m, guess.sigma_rad,
                             settings.guess_samples, rng)
     else:
+        P = vertices_in_base(inputs.meshes, inputs.joints).reshape(-1, 3)
+        centre = P.mean(axis=0)
+        size = float(np.max(np.linalg.norm(P - centre, axis=1)))
         out[SHELL] = shell(centre, size, fibonacci_directions(settings.shell_directions,
                                                                settings.min_elevation_sin),
                            settings.shell_distances, settings.shell_rolls)

@@ -177,7 +177,7 @@ def check_mark_offset(robot: Robot, joints: np.ndarray, link: str, offset_link_m
     for metres)."""
     reach = float(np.linalg.norm(robot.link_poses(joints, (link,))[:, 0, :3, 3], axis=1).max())
     offset = float(np.linalg.norm(offset_link_m))
-    if offset > max_reach * max(reach, np.finfo(float).eps):
+    if offset > max_reach * reach:
         raise InputError(f"the mark lies {offset:.3g} m from {link}, which lies at most "
                          f"{reach:.2f} m from the base", fix="give --mark-offset X,Y,Z in metres "
                          "in that link's frame (are these millimetres?)")
