@@ -258,8 +258,11 @@ def calibrate(data: Path, out: Path, guess: Path | None,
     chi2 = float(xi @ np.linalg.pinv(np.asarray(doc["covariance_xi"])) @ xi)
     sigma = float(np.linalg.norm(doc["sigma_camera_position_base_m"]))
     focal = (doc.get("start") or {}).get("focal")
-    return {"focal": "" if focal is None else f", focal x{focal['scale']:.3f} "
-            f"{'adopted' if focal['adopted'] else 'kept as given'}",
+    away = (doc.get("start") or {}).get("away") or {"share": 0.0}
+    return {"focal": ("" if focal is None else f", focal x{focal['scale']:.3f} "
+                      f"{'adopted' if focal['adopted'] else 'kept as given'}")
+            + ("" if not away["share"] else f", {100 * away['share']:.1f} % of the moving "
+               f"pixels away from the robot (IoU without them {away['iou_without']:.3f})"),
             "mm": t_err * 1e3, "deg": float(np.rad2deg(r_err)), "verdict":
             doc["quality"]["verdict"], "sigma_mm": sigma * 1e3,
             "inside95": chi2 <= CHI2_6DOF_95, "chi2": chi2, "seconds": seconds,

@@ -317,12 +317,12 @@ class Distractors:
     held_textured_prob: float = 0.8
     held_parts: tuple[int, int] = (1, 1)  # parts of the held assembly (a tool, a fixture)
     held_checker_prob: float = 0.0        # the held assembly shows a black-and-white checkerboard
-    # Another robot in the scene, unlabelled: with `robot_prob`, the robot `robot_name` (a
-    # built-in name or URDF; None: the same robot) stands `robot_distance_m` from the base, on
-    # the far side from the camera, in its own random joint configuration.
+    # Another robot, unlabelled: with `robot_prob`, `robot_name` (built-in or URDF; None: this
+    # one) `robot_distance_m` beyond the base, in random joints (`robot_moves`: in every frame).
     robot_prob: float = 0.0
     robot_name: str | None = None
     robot_distance_m: Range = (0.8, 2.0)
+    robot_moves: bool = False
     # Loose parts of that robot, unlabelled: in a frame without the whole robot, with
     # `loose_prob`, its links from one of its last `loose_keypoints` keypoint links to the end of
     # the chain (a hand, a wrist with its hand) in random joints and a random orientation,

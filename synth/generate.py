@@ -235,8 +235,7 @@ def discard_unfinished(out: Path, created: Path | None) -> None:
 RETIRED_CONFIG_KEYS = (("appearance", "reflectance"),)
 
 
-# recipe keys added later whose defaults render what folders made before them rendered:
-# filled in with those defaults before comparing, so such a folder still resumes
+# recipe keys added later, filled in with their defaults (rendering as before): old folders resume
 ADDED_CONFIG_KEYS = (("camera", "closeup_prob"), ("camera", "closeup_radius_m"),
                      ("appearance", "white_plastic_prob"), ("appearance", "metal_prob"),
                      ("appearance", "hide_hand_prob"), ("distractors", "held_parts"),
@@ -248,7 +247,8 @@ ADDED_CONFIG_KEYS = (("camera", "closeup_prob"), ("camera", "closeup_radius_m"),
                      ("sensor", "gain_sigma"), ("sensor", "noise_std"),
                      ("distractors", "cable_prob"), ("distractors", "cable_radius_m"),
                      ("distractors", "cable_slack"), ("distractors", "cable_clip_offset_m"),
-                     ("distractors", "cable_start_m"), ("distractors", "cable_segments"))
+                     ("distractors", "cable_start_m"), ("distractors", "cable_segments"),
+                     ("distractors", "robot_moves"))
 
 
 def without_retired_keys(info: Any) -> Any:

@@ -32,6 +32,7 @@ MATERIAL_STREAM = 0x3A7
 HIDE_HAND_STREAM = 0x41DE
 OTHER_ROBOT_STREAM = 0x07E2
 LOOSE_PARTS_STREAM = 0x1005E
+OTHER_MOTION_STREAM = 0x07E3   # the other robot's joints per frame (`distractors.robot_moves`)
 SENSOR_STREAM = 0xE7905
 
 LIGHT_PART_VALUE = 0.5                 # a part this light (HSV value) turns white plastic
@@ -175,10 +176,14 @@ def with_realism(scene, seed: int, index: int, config: SynthConfig, robot: Robot
     changes["hide_hand"] = bool(hide)
     if other is not None:
         T_cam_base = changes.get("T_cam_base", scene.T_cam_base)
-        changes["other_robot"] = sample_other_robot(
-            stream(seed, OTHER_ROBOT_STREAM, index, mode), config, other, T_cam_base) or \
-            sample_loose_parts(stream(seed, LOOSE_PARTS_STREAM, index, mode), config, other,
-                               T_cam_base)
+        drawn = sample_other_robot(stream(seed, OTHER_ROBOT_STREAM, index, mode), config,
+                                   other, T_cam_base)
+        if drawn is not None and config.distractors.robot_moves and mode != "random":
+            rng = np.random.default_rng([seed, OTHER_MOTION_STREAM, index])
+            drawn = dataclasses.replace(drawn, joints=rng.uniform(other.joint_lower,
+                                                                  other.joint_upper))
+        changes["other_robot"] = drawn or sample_loose_parts(
+            stream(seed, LOOSE_PARTS_STREAM, index, mode), config, other, T_cam_base)
     return dataclasses.replace(scene, **changes)
 
 

@@ -214,6 +214,7 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
             "carried": carried_doc(inputs.carried, CARRIED in outcome.hypotheses),
             "focal": None if inputs.focal is None else inputs.focal.to_dict(),
             "T_cam_base": outcome.best.T_cam_base.tolist(), "iou": outcome.best.iou,
+            "away": away_doc(outcome, inputs, seq),
             "rival_iou": None if rival is None else rival.iou,
             "rival_distance_m": None if distance is None else distance[0],
             "rival_angle_rad": None if distance is None else distance[1],
@@ -231,6 +232,17 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
                            for c in outcome.candidates],
             "seconds": outcome.seconds, "challenge": None,
             "mark": None if marked is None else mark_doc(marked, seq)}
+
+
+def away_doc(outcome, inputs, seq) -> dict:
+    """RESULT.json's `start.away`: the masks' moving pixels away from the robot at the
+    search's winner (`dream.coarse.away`) and its IoU without them (the found test's)."""
+    from dream.coarse.away import away_at_pose
+    from dream.coarse.settings import SearchSettings
+
+    away = away_at_pose(inputs.meshes, inputs.joints, inputs.masks, seq.camera,
+                        outcome.best.T_cam_base, SearchSettings().away_margin_px)
+    return {**away.to_dict(), "iou_without": away.iou_without(outcome.best.iou)}
 
 
 def carried_doc(carving, left_out: bool) -> dict | None:
@@ -265,6 +277,7 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
     (`dream.quality`)."""
     from dream.coarse.settings import SearchSettings
     from dream.coarse.verdict import (
+        away_finding,
         carried_finding,
         cues_finding,
         focal_finding,
@@ -273,10 +286,13 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
     )
     from dream.quality import condition_findings, quality_from
 
-    s = doc["start"]
+    s, settings = doc["start"], SearchSettings()
+    away = s.get("away")
     findings = search_findings(s["iou"], s["rival_iou"], s["rival_distance_m"],
-                               s["basin_returned"], s["basin_starts"], SearchSettings(),
-                               s["basin_m"])
+                               s["basin_returned"], s["basin_starts"], settings,
+                               s["basin_m"], None if away is None else away["iou_without"])
+    if away is not None:
+        findings.append(away_finding(away["share"], settings))
     if cue_move is not None:
         findings.append(cues_finding(*cue_move))
     focal = focal_finding(s.get("focal"))

@@ -83,6 +83,11 @@ class SearchSettings:
             the frames that held the finish 15-17 mm off pulled 10-57 times as hard as the
             median frame); 0 never repeats it.
         max_outlying_share: at most this share of the frames is left out so.
+        away_margin_px: a mask's connected part that comes no nearer than this (pixels per
+            320 px of image width) to the robot's silhouette at the pose found lies away from
+            the robot (`dream.coarse.evidence.away_from_robot`: something else that moves).
+        max_away_share: where more of the moving pixels than this lie away from the robot,
+            the verdict is at most `check` (`dream.coarse.verdict.away_finding`).
     """
 
     guess_sigma_m: float = 0.3
@@ -127,6 +132,8 @@ class SearchSettings:
     carried_margin_px: int = 2
     frame_influence: float = 10.0
     max_outlying_share: float = 0.2
+    away_margin_px: float = 3.0
+    max_away_share: float = 0.05
 
     def __post_init__(self) -> None:
         check_fields(self, "coarse search",
@@ -140,14 +147,15 @@ class SearchSettings:
                                "max_guess_distance", "max_guess_sigma"),
                      non_negative=("min_gap", "basin_starts", "min_found_iou", "carried_margin_px",
                                    "round_iou_tolerance", "frame_influence", "in_view_starts",
-                                   "min_basin_share", "jackknife_groups", "max_outlying_share"))
+                                   "min_basin_share", "jackknife_groups", "max_outlying_share",
+                                   "away_margin_px", "max_away_share"))
         if not self.shell_distances or min(self.shell_distances) <= 0:
             raise InputError("coarse search: shell_distances must be positive")
         if not self.local_widths_px or min(self.local_widths_px) < 8:
             raise InputError("coarse search: local_widths_px must be at least 8 px")
         if not -1 <= self.min_elevation_sin <= 1:
             raise InputError("coarse search: min_elevation_sin must lie in [-1, 1]")
-        for name in ("min_found_iou", "min_basin_share", "max_outlying_share"):
+        for name in ("min_found_iou", "min_basin_share", "max_outlying_share", "max_away_share"):
             if getattr(self, name) > 1:
                 raise InputError(f"coarse search: {name} must not exceed 1")
 

@@ -25,6 +25,9 @@ Each finding is (level, one sentence with what to do), as in `dream.quality`:
   lacks (`dream.coarse.carried`): the search leaves its pixels out, but it hides part of the
   arm and its carving is only as good as the pose it was carved at (`check`; on the rendered
   benchmark scenes every search that landed more than 1 cm off had one).
+- **away**: more than `max_away_share` of the moving pixels lie in parts of the masks that
+  come nowhere near the robot at the pose found (`dream.coarse.away`: another arm at work, a
+  person): the found test reads the IoU without them, and the verdict is at most `check`.
 - **focal**: the robot's outlines and their overlap ask for another focal length than the
   given one (`dream.coarse.focal`): the pose was found with it, and the user's intrinsics need
   correcting (`check`); both ask for more than its `max_change` off: the intrinsics or the
@@ -54,13 +57,17 @@ from dream.quality import (
 
 def search_findings(best_iou: float, rival_iou: float | None, rival_distance_m: float | None,
                     basin_returned: int, basin_starts: int,
-                    settings: SearchSettings, basin_m: float | None = None) -> list[Finding]:
+                    settings: SearchSettings, basin_m: float | None = None,
+                    found_iou: float | None = None) -> list[Finding]:
     """The found, gap and basin findings (module doc); `basin_m`: how far the restarts
-    started (default `settings.basin_m`; `SearchOutcome.basin_m`)."""
+    started (default `settings.basin_m`; `SearchOutcome.basin_m`); `found_iou`: the IoU the
+    found test reads (default `best_iou`; without the pixels away from the robot: the away
+    finding)."""
     out: list[Finding] = []
-    if best_iou < settings.min_found_iou:
+    found_iou = best_iou if found_iou is None else found_iou
+    if found_iou < settings.min_found_iou:
         out.append((UNRELIABLE, f"the robot's silhouettes at the pose found overlap the masks by "
-                    f"IoU {best_iou:.2f} only (below {settings.min_found_iou}): the robot was "
+                    f"IoU {found_iou:.2f} only (below {settings.min_found_iou}): the robot was "
                     "not found in the images; check the overlays, give a camera guess closer "
                     "to the truth (--camera-guess, --look-at) or a keypoint model"))
     if rival_iou is not None and best_iou - rival_iou < settings.min_gap:
@@ -91,6 +98,21 @@ def cues_finding(distance_m: float, angle_rad: float) -> Finding | None:
                    f"mm and {np.rad2deg(angle_rad):.2f} deg: something the model lacks (a tool, "
                    "a cable, a shadow) pulls one of them; the 1-sigma includes the disagreement; "
                    "check the overlays, or leave the suspect links out (--exclude-links)")
+
+
+def away_finding(share: float, settings: SearchSettings) -> Finding | None:
+    """The away finding (module doc) of the share of moving pixels away from the robot.
+
+    >>> s = SearchSettings()
+    >>> away_finding(0.01, s) is None, away_finding(0.3, s)[0]
+    (True, 'check')
+    """
+    if share <= settings.max_away_share:
+        return None
+    return CHECK, (f"{100 * share:.0f} % of the moving pixels lie away from the robot at the pose "
+                   "found (another arm at work, a person, something moved in view?): they were "
+                   "not counted as robot; if the robot itself is among them the pose is wrong; "
+                   "check the overlays, or record with nothing else moving")
 
 
 def carried_finding(link: str, size_m) -> Finding:

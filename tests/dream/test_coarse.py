@@ -287,6 +287,7 @@ def test_calibrate_without_keypoints_from_a_camera_guess(panda, meshes, tmp_path
         assert start["evidence"] == "motion masks" and "panda_link0" in start["left_out_links"]
         assert start["iou"] > 0.8 and doc["keypoints_used"] == 0 and doc["rmse_px"] is None
         assert start["finish_left_out_frames"] == []   # nothing carried: no frame left out
+        assert start["away"]["share"] < SearchSettings().max_away_share   # nothing else moves
         assert doc["quality"]["verdict"] in ("good", "check")
         edges = doc["edges"]
         assert edges["cross_check"] and not edges["kept"]
@@ -350,6 +351,52 @@ def test_an_arm_at_rest_for_most_of_the_recording_calibrates_without_keypoints(
     t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
     assert t_err < 0.01 and r_err < np.deg2rad(0.5), (t_err, np.rad2deg(r_err))
     assert doc["start"]["frames"][0] == "000000" and len(doc["start"]["frames"]) == 11
+
+
+def moving_block_dataset(panda, meshes, folder, side_px: int = 24) -> np.ndarray:
+    """A DREAM folder of images only in which, besides the arm, a bright block (a person, a
+    second arm at work) stands somewhere else in every frame, never near the arm; returns the
+    pose."""
+    from dream.io import write_dream
+
+    T_true, joints, images, _ = edge_scene(panda, meshes)
+    arm = np.any([render_silhouette(meshes, q, T_true, CAMERA) for q in joints], axis=0)
+    clear = side_px // 2     # the block's nearest pixel at least this far from the arm
+    spots = [(y, x) for y in range(0, CAMERA.height - side_px, side_px // 2)
+             for x in range(0, CAMERA.width - side_px, side_px // 2)
+             if not arm[max(y - clear, 0):y + side_px + clear,
+                        max(x - clear, 0):x + side_px + clear].any()]
+    assert len(spots) >= len(images)
+    painted = images.copy()
+    for i, (y, x) in enumerate(spots[::max(len(spots) // len(images), 1)][:len(images)]):
+        painted[i, y:y + side_px, x:x + side_px] = 1.0
+    (folder / "images").mkdir(parents=True)
+    write_dream(ordered_sequence(panda, painted, joints, range(len(images)), folder / "images"),
+                folder / "data")
+    return T_true
+
+
+def test_something_else_moving_away_from_the_arm_is_named_and_not_counted(panda, meshes,
+                                                                          tmp_path, capsys):
+    """A block that moves about the image away from the arm is in the motion masks: the pose
+    is still found, RESULT.json says which share of the moving pixels lay away from the robot
+    and its IoU without them, and the verdict is at most `check` with a warning that says so."""
+    T_true = moving_block_dataset(panda, meshes, tmp_path)
+    doc = calibrated_from_a_guess(T_true, tmp_path, capsys)
+    t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
+    assert t_err < 0.01 and r_err < np.deg2rad(0.5), (t_err, np.rad2deg(r_err))
+    away = doc["start"]["away"]
+    assert away["share"] > SearchSettings().max_away_share
+    assert away["frames_with_away_pixels"] >= len(doc["start"]["frames"]) // 2
+    assert away["iou_without"] > doc["start"]["iou"]
+    assert doc["quality"]["verdict"] != "good"
+    assert any("away from the robot" in w for w in doc["quality"]["warnings"])
+
+
+def test_the_found_test_reads_the_iou_without_the_pixels_away_from_the_robot():
+    settings = SearchSettings()
+    assert search_findings(0.35, None, None, 4, 4, settings)[0][0] == "unreliable"
+    assert search_findings(0.35, None, None, 4, 4, settings, found_iou=0.6) == []
 
 
 def test_refine_auto_keeps_the_keypoint_result_where_edges_cannot_run(panda, meshes, tmp_path,

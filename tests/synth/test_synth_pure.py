@@ -37,6 +37,7 @@ def frame(seed, index, config):
     ({"distractors": {"held_offset_m": [0.2, 0.1]}}, "distractors.held_offset_m"),
     ({"distractors": {"held_parts": [0, 2]}}, "distractors.held_parts"),
     ({"distractors": {"robot_prob": 2}}, "distractors.robot_prob"),
+    ({"distractors": {"robot_moves": "yes"}}, "distractors.robot_moves"),
     ({"distractors": {"loose_prob": -0.5}}, "distractors.loose_prob"),
     ({"distractors": {"loose_keypoints": 0}}, "distractors.loose_keypoints"),
     ({"distractors": {"loose_keypoints": 1.5}}, "distractors.loose_keypoints"),

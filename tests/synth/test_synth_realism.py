@@ -117,6 +117,14 @@ def test_other_robot_stands_beyond_the_arm_in_its_own_joints():
     sequence = {**values, "sequence": {"mode": "fixed_camera"}}
     a, b = frame(6, 0, sequence, UR5), frame(6, 5, sequence, UR5)
     assert np.array_equal(a.scene.other_robot.joints, b.scene.other_robot.joints)
+    moving = {"distractors": {**values["distractors"], "robot_moves": True},
+              "sequence": {"mode": "fixed_camera"}}
+    c, d = frame(6, 0, moving, UR5), frame(6, 5, moving, UR5)
+    assert np.array_equal(c.scene.other_robot.T_base_other, a.scene.other_robot.T_base_other)
+    assert np.array_equal(c.scene.other_robot.T_base_other, d.scene.other_robot.T_base_other)
+    assert not np.array_equal(c.scene.other_robot.joints, d.scene.other_robot.joints)
+    assert np.all(d.scene.other_robot.joints >= UR5.joint_lower)
+    assert np.all(d.scene.other_robot.joints <= UR5.joint_upper)
 
 
 def test_loose_parts_are_the_end_of_the_chain_beside_the_arm_on_the_camera_side():
