@@ -85,7 +85,7 @@ class SearchSettings:
         max_outlying_share: at most this share of the frames is left out so.
         away_margin_px: a mask's connected part that comes no nearer than this (pixels per
             320 px of image width) to the robot's silhouette at the pose found lies away from
-            the robot (`dream.coarse.evidence.away_from_robot`: something else that moves).
+            the robot (`dream.coarse.away.away_from_robot`: something else that moves).
         max_away_share: where more of the moving pixels than this lie away from the robot,
             the verdict is at most `check` (`dream.coarse.verdict.away_finding`).
     """
