@@ -393,6 +393,23 @@ def test_something_else_moving_away_from_the_arm_is_named_and_not_counted(panda,
     assert any("away from the robot" in w for w in doc["quality"]["warnings"])
 
 
+def test_at_a_wrong_pose_the_robot_itself_lies_away_and_the_verdict_says_so(panda, meshes):
+    """At the true pose nothing of the robot's own masks lies away from it; at a pose 30 cm
+    off most of it does, which the away finding reports (at most `check`), so a pose fitted
+    to something else never reads those pixels as explained."""
+    from dream.coarse.away import away_at_pose
+    from dream.coarse.verdict import away_finding
+
+    T_true, joints, masks = rendered_masks(panda, meshes)
+    settings = SearchSettings()
+    right = away_at_pose(meshes, joints, masks, CAMERA, T_true, settings.away_margin_px)
+    assert right.share == 0.0 and np.allclose(right.iou, right.iou_near)
+    assert away_finding(right.share, settings) is None
+    wrong = away_at_pose(meshes, joints, masks, CAMERA, off_by(T_true, GUESS_M, GUESS_RAD, 1),
+                         settings.away_margin_px)
+    assert wrong.share > 0.5 and away_finding(wrong.share, settings)[0] == "check"
+
+
 def test_the_found_test_reads_the_iou_without_the_pixels_away_from_the_robot():
     settings = SearchSettings()
     assert search_findings(0.35, None, None, 4, 4, settings)[0][0] == "unreliable"
