@@ -174,7 +174,8 @@ def add_silhouette_check(seq, robot, result, doc: dict, out: TextIO) -> tuple[di
                            o.best.T_cam_base)
     return doc, crosscheck_findings(check.iou_written, o.best.iou, check.distance_m,
                                     check.angle_rad, o.basin_returned, o.basin_starts,
-                                    check.source, SearchSettings(), o.basin_m)
+                                    check.source, SearchSettings(), o.basin_m,
+                                    doc["silhouette_check"]["away"])
 
 
 def add_quality(result, obs, doc: dict, out: TextIO, extra: list | tuple = ()) -> dict:

@@ -12,6 +12,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from dream.coarse.away import AwayPixels, away_at_pose
 from dream.coarse.calibration import MOTION_MASKS, search_masks
 from dream.coarse.search import SearchOutcome, pose_iou, search
 from dream.coarse.settings import SearchSettings
@@ -26,7 +27,8 @@ CROSSCHECK_STARTS = 4   # the given poses, as given and aimed at the robot's mas
 class Crosscheck:
     """The silhouettes' optimum near a written pose: the search's outcome, the IoU of the
     written pose's silhouettes, the distance (m, rad) from the written pose to the optimum, the
-    masks' source and how many frames."""
+    masks' source and how many frames, and the masks' pixels away from the robot at the
+    optimum (`dream.coarse.away`)."""
 
     outcome: SearchOutcome
     iou_written: float
@@ -34,6 +36,12 @@ class Crosscheck:
     angle_rad: float
     source: str
     frames: int
+    away: AwayPixels
+
+    @property
+    def found_iou(self) -> float:
+        """The larger of the two IoUs without the pixels away from the robot."""
+        return self.away.iou_without(max(self.iou_written, self.outcome.best.iou))
 
     def to_dict(self) -> dict:
         o = self.outcome
@@ -43,6 +51,7 @@ class Crosscheck:
                 "distance_m": self.distance_m, "angle_rad": self.angle_rad,
                 "basin_returned": o.basin_returned, "basin_starts": o.basin_starts,
                 "basin_m": o.basin_m, "basin_return_m": o.basin_return_m,
+                "away": {**self.away.to_dict(), "iou_without": self.found_iou},
                 "seconds": o.seconds}
 
 
@@ -68,4 +77,7 @@ def silhouette_crosscheck(sequence: Sequence, robot: Robot, T_written: np.ndarra
     iou = pose_iou(inputs.meshes, inputs.joints, inputs.masks, sequence.camera, T_written,
                    local, held)
     m, rad = pose_errors(np.asarray(T_written), outcome.best.T_cam_base)
-    return Crosscheck(outcome, iou, float(m), float(rad), inputs.source, len(inputs.frames))
+    away = away_at_pose(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
+                        outcome.best.T_cam_base, settings.away_margin_px)
+    return Crosscheck(outcome, iou, float(m), float(rad), inputs.source, len(inputs.frames),
+                      away)

@@ -567,6 +567,7 @@ def test_silhouettes_guard_the_keypoint_path(panda, meshes, tmp_path, capsys):
         doc = json.loads(out.read_text())
         check = doc["silhouette_check"]
         assert check["ran"] and "silhouette cross-check" in printed
+        assert check["away"]["share"] < SearchSettings().max_away_share   # nothing else moves
         if name == "right":
             assert doc["quality"]["verdict"] == "good" and check["distance_m"] < 0.005
         else:
