@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from dream.camera import CameraIntrinsics
+from dream.edges.motion import disk
 from dream.errors import InputError
 from dream.silhouette import RobotMeshes, render_frames, vertices_in_base
 
@@ -67,12 +68,12 @@ def away_from_robot(masks: np.ndarray, silhouettes: np.ndarray, margin_px: float
     if masks.ndim != 3 or masks.shape != silhouettes.shape:
         raise InputError(f"masks {masks.shape} and silhouettes {silhouettes.shape} must both "
                          "be (F, H, W)")
-    r = max(int(round(margin_px)), 0)
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
+    kernel = disk(margin_px)
     counts = np.zeros((4, len(masks)))
     for f, (mask, silhouette) in enumerate(zip(masks, silhouettes, strict=True)):
         _, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-        near = cv2.dilate(silhouette.astype(np.uint8), kernel).astype(bool)
+        near = silhouette if kernel is None else \
+            cv2.dilate(silhouette.astype(np.uint8), kernel).astype(bool)
         touched = np.unique(labels[near & mask])
         kept = np.isin(labels, touched[touched > 0])
         inter = np.count_nonzero(silhouette & mask)
