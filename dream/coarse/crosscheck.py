@@ -40,8 +40,8 @@ class Crosscheck:
 
     @property
     def found_iou(self) -> float:
-        """The larger of the two IoUs without the pixels away from the robot."""
-        return self.away.iou_without(max(self.iou_written, self.outcome.best.iou))
+        """The optimum's IoU without the pixels away from the robot there."""
+        return self.away.iou_without(self.outcome.best.iou)
 
     def to_dict(self) -> dict:
         o = self.outcome

@@ -179,7 +179,8 @@ def crosscheck_findings(iou_written: float, iou_silhouettes: float, distance_m: 
                         basin_m: float | None = None, away=None) -> list[Finding]:
     """The crosscheck findings (module doc) of the silhouettes' optimum near a written pose
     (`basin_m` as in `search_findings`; `away`: RESULT.json's `silhouette_check.away`, whose
-    IoU the found test reads and whose share the away finding).
+    IoU of the optimum without the away pixels the found tests read for `iou_silhouettes`, and
+    whose share the away finding).
 
     >>> s = SearchSettings()
     >>> [f[0] for f in crosscheck_findings(0.6, 0.7, 0.12, 0.02, 4, 4, "motion masks", s)]
@@ -187,7 +188,8 @@ def crosscheck_findings(iou_written: float, iou_silhouettes: float, distance_m: 
     >>> crosscheck_findings(0.7, 0.7, 0.004, 0.002, 4, 4, "motion masks", s)
     []
     """
-    found = max(iou_written, iou_silhouettes) if away is None else away["iou_without"]
+    silhouettes_found = iou_silhouettes if away is None else away["iou_without"]
+    found = max(iou_written, silhouettes_found)
     if found < settings.min_found_iou:
         return [(CHECK, f"the robot's silhouettes at and near the pose written overlap the "
                  f"{evidence} by IoU {found:.2f} only (below "
@@ -204,7 +206,7 @@ def crosscheck_findings(iou_written: float, iou_silhouettes: float, distance_m: 
     else:
         out.append(cues_finding(distance_m, angle_rad))
     out += search_findings(iou_silhouettes, None, None, basin_returned, basin_starts, settings,
-                           basin_m, None if away is None else away["iou_without"])
+                           basin_m, silhouettes_found)
     if away is not None:
         out.append(away_finding(away["share"], settings))
     return [f for f in out if f is not None]
