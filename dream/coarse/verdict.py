@@ -187,6 +187,10 @@ def crosscheck_findings(iou_written: float, iou_silhouettes: float, distance_m: 
     ['unreliable']
     >>> crosscheck_findings(0.7, 0.7, 0.004, 0.002, 4, 4, "motion masks", s)
     []
+    >>> nothing_away = {"share": 0.0, "iou_without": 0.35}
+    >>> [f[0] for f in crosscheck_findings(0.5, 0.35, 0.004, 0.002, 4, 4, "motion masks", s,
+    ...                                    away=nothing_away)]
+    ['unreliable']
     """
     silhouettes_found = iou_silhouettes if away is None else away["iou_without"]
     found = max(iou_written, silhouettes_found)
