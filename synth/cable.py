@@ -124,12 +124,12 @@ def cable_segments(points: np.ndarray, count: int, floor_z: float
     for a, b in zip(ends[:-1], ends[1:], strict=True):
         direction = b - a
         length = float(np.linalg.norm(direction))
-        pieces.append(((a + b) / 2, _z_onto(direction / length if length > 0 else Z_AXIS),
+        pieces.append(((a + b) / 2, z_onto(direction / length if length > 0 else Z_AXIS),
                        length / 2))
     return pieces
 
 
-def _z_onto(direction: np.ndarray) -> np.ndarray:
+def z_onto(direction: np.ndarray) -> np.ndarray:
     """The quaternion (w, x, y, z) of a rotation that turns the z axis onto unit `direction`."""
     axis = np.cross(Z_AXIS, direction)
     sin, cos = float(np.linalg.norm(axis)), float(direction @ Z_AXIS)

@@ -15,79 +15,20 @@ import numpy as np
 
 from dream.errors import InputError
 from dream.recipe import load_recipe, plain, recipe_from_dict
-from dream.transforms import is_rigid
-from synth.scene_settings import MAX_IMAGE_SIZE_PX, MAX_LIGHTS
+from synth.config_fields import (
+    Range,
+    finite_number,
+    image_side,
+    non_negative,
+    probability,
+    rigid_rows,
+    value_range,
+    whole_number,
+)
+from synth.scene_settings import MAX_LIGHTS
 
-Range = tuple[float, float]
 DISTORTION_COEFFS = ("k1", "k2", "p1", "p2", "k3")  # plumb_bob order
 CABLE_MIN_RADIUS_M = 1e-4   # a thinner cable is not drawn by any camera
-
-
-def _range(name: str, value: Any, lo_limit: float = -np.inf, hi_limit: float = np.inf) -> Range:
-    try:
-        lo, hi = (float(v) for v in value)
-    except (TypeError, ValueError):
-        raise InputError(f"{name} must be a [low, high] pair of numbers, got {value!r}") from None
-    if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
-        raise InputError(f"{name} must satisfy low <= high, got [{lo}, {hi}]")
-    if lo < lo_limit or hi > hi_limit:
-        raise InputError(f"{name} must lie within [{lo_limit}, {hi_limit}], got [{lo}, {hi}]")
-    return lo, hi
-
-
-def _whole_number(name: str, value: Any, fix: str) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise InputError(f"{name} must be a whole number >= 1, got {value!r}", fix=fix)
-
-
-def _non_negative(name: str, value: float) -> float:
-    if not (np.isfinite(float(value)) and float(value) >= 0.0):
-        raise InputError(f"{name} must be a finite number >= 0, got {value}")
-    return float(value)
-
-
-def _finite(name: str, value: Any, fix: str) -> float:
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        number = np.nan
-    if isinstance(value, bool) or not np.isfinite(number):
-        raise InputError(f"{name} must be a finite number, got {value!r}", fix=fix)
-    return number
-
-
-def _image_side(name: str, value: Any) -> int:
-    try:
-        whole = not isinstance(value, bool) and int(value) == value
-    except (TypeError, ValueError, OverflowError):
-        whole = False
-    if not whole or not 1 <= value <= MAX_IMAGE_SIZE_PX:
-        raise InputError(f"{name} must be a whole number of pixels from 1 to "
-                         f"{MAX_IMAGE_SIZE_PX}, got {value!r}",
-                         fix=f"set {name} between 1 and {MAX_IMAGE_SIZE_PX} (MuJoCo's offscreen "
-                             "OpenGL buffer cannot render larger images with every camera model)")
-    return int(value)
-
-
-def _rigid(name: str, value) -> tuple[tuple[float, ...], ...]:
-    """A 4x4 rigid transform given as rows, as a tuple of 4 tuples of floats."""
-    fix = f"give {name} as 4 rows of 4 numbers: a rotation, a translation in metres"
-    try:
-        T = np.array(value, dtype=float)
-    except (TypeError, ValueError):
-        T = np.zeros(0)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise InputError(f"{name} must be a finite 4x4 matrix, got {value!r}", fix=fix)
-    if not is_rigid(T):
-        raise InputError(f"{name} is not a rigid transform (its rotation must be orthonormal "
-                         "with determinant 1, its last row 0 0 0 1)", fix=fix)
-    return tuple(tuple(float(v) for v in row) for row in T)
-
-
-def _probability(name: str, value: float) -> float:
-    if not 0.0 <= float(value) <= 1.0:
-        raise InputError(f"{name} is a probability in [0, 1], got {value}")
-    return float(value)
 
 
 @dataclass(frozen=True)
@@ -109,24 +50,24 @@ class CameraShell:
     T_cam_base: tuple[tuple[float, ...], ...] | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "radius_m", _range("camera.radius_m", self.radius_m, 1e-3))
+        object.__setattr__(self, "radius_m", value_range("camera.radius_m", self.radius_m, 1e-3))
         object.__setattr__(self, "closeup_radius_m",
-                           _range("camera.closeup_radius_m", self.closeup_radius_m, 1e-3))
-        _probability("camera.closeup_prob", self.closeup_prob)
-        object.__setattr__(self, "azimuth_rad", _range("camera.azimuth_rad", self.azimuth_rad))
+                           value_range("camera.closeup_radius_m", self.closeup_radius_m, 1e-3))
+        probability("camera.closeup_prob", self.closeup_prob)
+        object.__setattr__(self, "azimuth_rad", value_range("camera.azimuth_rad", self.azimuth_rad))
         object.__setattr__(self, "elevation_rad",
-                           _range("camera.elevation_rad", self.elevation_rad, -1.5, 1.5))
-        object.__setattr__(self, "roll_rad", _range("camera.roll_rad", self.roll_rad))
+                           value_range("camera.elevation_rad", self.elevation_rad, -1.5, 1.5))
+        object.__setattr__(self, "roll_rad", value_range("camera.roll_rad", self.roll_rad))
         fix = "give camera.target_m as [x, y, z] in metres in the robot base frame"
         if isinstance(self.target_m, str) or not hasattr(self.target_m, "__len__") or \
                 len(self.target_m) != 3:
             raise InputError(f"camera.target_m must be 3 numbers, got {self.target_m!r}",
                              fix=fix)
-        object.__setattr__(self, "target_m", tuple(_finite(f"camera.target_m[{i}]", v, fix)
+        object.__setattr__(self, "target_m", tuple(finite_number(f"camera.target_m[{i}]", v, fix)
                                                    for i, v in enumerate(self.target_m)))
-        _non_negative("camera.target_jitter_m", self.target_jitter_m)
+        non_negative("camera.target_jitter_m", self.target_jitter_m)
         if self.T_cam_base is not None:
-            object.__setattr__(self, "T_cam_base", _rigid("camera.T_cam_base", self.T_cam_base))
+            object.__setattr__(self, "T_cam_base", rigid_rows("camera.T_cam_base", self.T_cam_base))
             if self.closeup_prob > 0:
                 raise InputError("camera.T_cam_base fixes the camera, so camera.closeup_prob "
                                  f"{self.closeup_prob} cannot move it to a close-up",
@@ -149,7 +90,7 @@ class Intrinsics:
 
     def __post_init__(self) -> None:
         for name in ("width", "height"):
-            object.__setattr__(self, name, _image_side(f"intrinsics.{name}", getattr(self, name)))
+            object.__setattr__(self, name, image_side(f"intrinsics.{name}", getattr(self, name)))
         fixed = [self.fx, self.fy, self.cx, self.cy]
         if any(v is not None for v in fixed) and any(v is None for v in fixed):
             raise InputError("intrinsics: give all of fx, fy, cx, cy (fixed camera) or none "
@@ -157,7 +98,7 @@ class Intrinsics:
         if self.fixed:
             for name in ("fx", "fy"):
                 key = f"intrinsics.{name}"
-                value = _finite(key, getattr(self, name), f"set {key} to the focal length in "
+                value = finite_number(key, getattr(self, name), f"set {key} to the focal length in "
                                                           "pixels")
                 if value <= 0:
                     raise InputError(f"{key} must be a focal length > 0 (pixels), got {value}",
@@ -165,10 +106,10 @@ class Intrinsics:
                 object.__setattr__(self, name, value)
             for name in ("cx", "cy"):
                 key = f"intrinsics.{name}"
-                object.__setattr__(self, name, _finite(key, getattr(self, name),
+                object.__setattr__(self, name, finite_number(key, getattr(self, name),
                                                        f"set {key} to the principal point in "
                                                        "pixels"))
-        object.__setattr__(self, "hfov_rad", _range("intrinsics.hfov_rad", self.hfov_rad, 0.05,
+        object.__setattr__(self, "hfov_rad", value_range("intrinsics.hfov_rad", self.hfov_rad, 0.05,
                                                     3.0))
         if self.distortion is not None:
             try:
@@ -199,7 +140,7 @@ class Joints:
     def __post_init__(self) -> None:
         if not 0.0 < self.range_fraction <= 1.0:
             raise InputError("joints.range_fraction must be in (0, 1]")
-        _non_negative("joints.log_noise_rad", self.log_noise_rad)
+        non_negative("joints.log_noise_rad", self.log_noise_rad)
 
 
 @dataclass(frozen=True)
@@ -226,9 +167,9 @@ class Lights:
                                          ("elevation_rad", -np.pi / 2, np.pi / 2),
                                          ("intensity", 0.0, np.inf), ("ambient", 0.0, 1.0),
                                          ("specular", 0.0, 1.0)):
-            object.__setattr__(self, name, _range(f"lights.{name}", getattr(self, name),
+            object.__setattr__(self, name, value_range(f"lights.{name}", getattr(self, name),
                                                   lo_limit, hi_limit))
-        _non_negative("lights.color_jitter", self.color_jitter)
+        non_negative("lights.color_jitter", self.color_jitter)
 
 
 @dataclass(frozen=True)
@@ -251,16 +192,16 @@ class Appearance:
     hide_hand_prob: float = 0.0
 
     def __post_init__(self) -> None:
-        _probability("appearance.keep_real_colors_prob", self.keep_real_colors_prob)
+        probability("appearance.keep_real_colors_prob", self.keep_real_colors_prob)
         for name in ("white_plastic_prob", "metal_prob", "hide_hand_prob"):
-            _probability(f"appearance.{name}", getattr(self, name))
+            probability(f"appearance.{name}", getattr(self, name))
         if self.white_plastic_prob + self.metal_prob > 1.0:
             raise InputError("appearance.white_plastic_prob + metal_prob must be at most 1, got "
                              f"{self.white_plastic_prob} + {self.metal_prob}")
-        _non_negative("appearance.hue_jitter", self.hue_jitter)
+        non_negative("appearance.hue_jitter", self.hue_jitter)
         for name, hi_limit in (("saturation", 1.0), ("value_scale", np.inf), ("specular", 1.0),
                                ("shininess", 1.0)):
-            object.__setattr__(self, name, _range(f"appearance.{name}", getattr(self, name),
+            object.__setattr__(self, name, value_range(f"appearance.{name}", getattr(self, name),
                                                   0.0, hi_limit))
 
 
@@ -293,7 +234,7 @@ class Background:
         if photo > 0 and not self.photos:
             raise InputError("background.kinds.photo > 0 needs background.photos (a folder of "
                              "photos)", fix="set background.photos: DIR or kinds.photo: 0")
-        _probability("background.floor_prob", self.floor_prob)
+        probability("background.floor_prob", self.floor_prob)
         if self.plate is not None and self.floor_prob > 0:
             raise InputError(f"background.plate shows the scene's own floor, so "
                              f"background.floor_prob {self.floor_prob} would draw another over it",
@@ -343,15 +284,23 @@ class Distractors:
     cable_clip_offset_m: Range = (0.03, 0.08)
     cable_start_m: Range = (0.1, 0.3)
     cable_segments: int = 24
+    # A person guiding the arm by hand (`synth.person`): with `person_prob` per sequence (per
+    # frame in `random` mode), a hand gripping the last keypoint link, an arm, a torso and a
+    # head, standing `person_distance_m` from the base (horizontally, not on the camera's side)
+    # with the shoulder `person_shoulder_height_m` above the floor (z = 0), leaning towards the
+    # hand where it is out of reach.
+    person_prob: float = 0.0
+    person_distance_m: Range = (0.6, 1.0)
+    person_shoulder_height_m: Range = (1.2, 1.5)
 
     def __post_init__(self) -> None:
         lo, hi = self.count
         if not 0 <= lo <= hi:
             raise InputError("distractors.count must be [low, high] with 0 <= low <= high")
         object.__setattr__(self, "count", (int(lo), int(hi)))
-        object.__setattr__(self, "size_m", _range("distractors.size_m", self.size_m, 1e-3))
-        object.__setattr__(self, "distance_m", _range("distractors.distance_m", self.distance_m,
-                                                      0.0))
+        object.__setattr__(self, "size_m", value_range("distractors.size_m", self.size_m, 1e-3))
+        object.__setattr__(self, "distance_m",
+                           value_range("distractors.distance_m", self.distance_m, 0.0))
         lo, hi = self.held_parts
         if not 1 <= lo <= hi:
             raise InputError("distractors.held_parts must be [low, high] with 1 <= low <= high")
@@ -359,17 +308,18 @@ class Distractors:
         for name, low in (("robot_distance_m", 0.0), ("loose_distance_m", 0.0),
                           ("loose_height_m", 0.0), ("cable_radius_m", CABLE_MIN_RADIUS_M),
                           ("cable_slack", 1.0), ("cable_clip_offset_m", 0.0),
-                          ("cable_start_m", 0.0)):
-            object.__setattr__(self, name, _range(f"distractors.{name}", getattr(self, name),
+                          ("cable_start_m", 0.0), ("person_distance_m", 0.0),
+                          ("person_shoulder_height_m", 0.0)):
+            object.__setattr__(self, name, value_range(f"distractors.{name}", getattr(self, name),
                                                   low))
-        _whole_number("distractors.loose_keypoints", self.loose_keypoints,
+        whole_number("distractors.loose_keypoints", self.loose_keypoints,
                       "set how many of the last keypoint links a loose part may start at (e.g. 3)")
-        _whole_number("distractors.cable_segments", self.cable_segments,
+        whole_number("distractors.cable_segments", self.cable_segments,
                       "set how many capsules draw a cable (e.g. 24)")
         for name in ("occluder_prob", "textured_prob", "held_prob", "held_board_prob",
                      "held_textured_prob", "held_checker_prob", "robot_prob", "loose_prob",
-                     "cable_prob"):
-            _probability(f"distractors.{name}", getattr(self, name))
+                     "cable_prob", "person_prob"):
+            probability(f"distractors.{name}", getattr(self, name))
         for name in ("held_size_m", "held_offset_m"):
             lo, hi = getattr(self, name)
             if not 0 <= lo <= hi:
@@ -408,7 +358,7 @@ class Sensor:
 
     def __post_init__(self) -> None:
         for name in ("gain_sigma", "noise_std", "blur_px"):
-            _non_negative(f"sensor.{name}", getattr(self, name))
+            non_negative(f"sensor.{name}", getattr(self, name))
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,8 @@ from synth.gl import mujoco
 from synth.labels import keypoint_labels
 from synth.nominal import nominal_camera
 from synth.other_robot import OtherRobotGeoms
+from synth.person import SLOTS as PERSON_SLOTS
+from synth.person import person_shapes
 from synth.randomize import (
     DistractorDraw,
     FrameDraw,
@@ -103,13 +105,14 @@ class FrameMaker:
             joint_offset_vector(robot, self.extension.joint_offset_rad)
         dc = config.distractors
         # the distractor slots: the recipe's own, then the held assembly's parts, then the
-        # cable's capsules
+        # cable's capsules, then the person's shapes
         self.regular_slots = dc.count[1]
         self.held_slots = dc.held_parts[1] if dc.held_prob > 0 else 0
         self.cable_slots = dc.cable_segments if dc.cable_prob > 0 else 0
+        self.person_slots = PERSON_SLOTS if dc.person_prob > 0 else 0
         options = SceneSettings(num_lights=min(MAX_LIGHTS, config.lights.count[1]),
                                 num_distractors=self.regular_slots + self.held_slots
-                                + self.cable_slots,
+                                + self.cable_slots + self.person_slots,
                                 num_textures=NUM_TEXTURES,
                                 texture_size=config.background.texture_size, floor=True,
                                 floor_texture_size=FLOOR_TEXTURE_PX)
@@ -225,12 +228,23 @@ class FrameMaker:
                 for centre, quaternion, half in cable_in_base(cable, T_base_links,
                                                               self.cable_slots)]
 
+    def _person_shapes(self, p: FrameDraw, q_true: np.ndarray) -> list[DistractorDraw | None]:
+        """The person's shapes in the base frame at joints `q_true`, None for each slot
+        without one."""
+        person = p.scene.person
+        if person is None:
+            return [None] * self.person_slots
+        T_base_link = self.true_robot.link_poses(q_true, person.link)[0]
+        return [DistractorDraw(kind, size, centre, quaternion, rgba, -1)
+                for kind, size, centre, quaternion, rgba in person_shapes(person, T_base_link)]
+
     def _apply_distractors(self, p: FrameDraw, q_true: np.ndarray) -> None:
         model, scene = self.scene.model, self.scene
         shapes: list[DistractorDraw | None] = list(p.scene.distractors)
         shapes += [None] * (self.regular_slots - len(shapes))
         shapes += self._held_shapes(p, q_true)
         shapes += self._cable_shapes(p, q_true)
+        shapes += self._person_shapes(p, q_true)
         for body, geom, d in zip(scene.distractor_body_ids, scene.distractor_geom_ids, shapes,
                                  strict=True):
             if d is None:

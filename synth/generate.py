@@ -236,19 +236,16 @@ RETIRED_CONFIG_KEYS = (("appearance", "reflectance"),)
 
 
 # recipe keys added later, filled in with their defaults (rendering as before): old folders resume
-ADDED_CONFIG_KEYS = (("camera", "closeup_prob"), ("camera", "closeup_radius_m"),
-                     ("appearance", "white_plastic_prob"), ("appearance", "metal_prob"),
-                     ("appearance", "hide_hand_prob"), ("distractors", "held_parts"),
-                     ("distractors", "held_checker_prob"), ("distractors", "robot_prob"),
-                     ("distractors", "robot_name"), ("distractors", "robot_distance_m"),
-                     ("distractors", "loose_prob"), ("distractors", "loose_keypoints"),
-                     ("distractors", "loose_distance_m"), ("distractors", "loose_height_m"),
-                     ("camera", "T_cam_base"), ("background", "plate"), ("sensor", "blur_px"),
-                     ("sensor", "gain_sigma"), ("sensor", "noise_std"),
-                     ("distractors", "cable_prob"), ("distractors", "cable_radius_m"),
-                     ("distractors", "cable_slack"), ("distractors", "cable_clip_offset_m"),
-                     ("distractors", "cable_start_m"), ("distractors", "cable_segments"),
-                     ("distractors", "robot_moves"))
+ADDED_CONFIG_KEYS = tuple((section, key) for section, keys in (
+    ("camera", ("closeup_prob", "closeup_radius_m", "T_cam_base")),
+    ("appearance", ("white_plastic_prob", "metal_prob", "hide_hand_prob")),
+    ("background", ("plate",)), ("sensor", ("blur_px", "gain_sigma", "noise_std")),
+    ("distractors", ("held_parts", "held_checker_prob", "robot_prob", "robot_name",
+                     "robot_distance_m", "robot_moves", "loose_prob", "loose_keypoints",
+                     "loose_distance_m", "loose_height_m", "cable_prob", "cable_radius_m",
+                     "cable_slack", "cable_clip_offset_m", "cable_start_m", "cable_segments",
+                     "person_prob", "person_distance_m", "person_shoulder_height_m")))
+    for key in keys)
 
 
 def without_retired_keys(info: Any) -> Any:

@@ -18,10 +18,11 @@ import numpy as np
 from dream.camera import CameraIntrinsics
 from dream.errors import InputError
 from dream.robot import Robot
-from dream.transforms import look_at
+from dream.transforms import invert_T, look_at
 from synth.cable import CableDraw, sample_cable
 from synth.config import SynthConfig
 from synth.other_robot import OtherRobotDraw
+from synth.person import PersonDraw, sample_person
 from synth.realism import with_realism
 
 SEQUENCE_STREAM = 0x5E0     # spawn key of the per-sequence random stream
@@ -29,6 +30,7 @@ FRAME_STREAM = 0xF4A        # spawn key of the per-frame random streams
 HELD_STREAM = 0x4E1D        # spawn key of the held object's stream (held_prob = 0 leaves the
                             # other draws, and so older data sets, unchanged)
 CABLE_STREAM = 0xCAB1E      # spawn key of the cable's stream (cable_prob = 0: nothing drawn)
+PERSON_STREAM = 0x9E450     # spawn key of the person's stream (person_prob = 0: nothing drawn)
 SHADOW_STREAM = 0x5AD0      # spawn key, with the scene's texture seed, of whether it has shadows
 HELD_BOARD_THICKNESS_M = (0.004, 0.02)  # full thickness of a held plate
 HELD_MIN_SIDE_FRACTION = 0.3           # a held object's other sides: 0.3-1 x its largest
@@ -101,6 +103,7 @@ class SceneDraw:
     other_robot: OtherRobotDraw | None = None
     shadows: bool = False       # the first light casts shadows (`Lights.shadow_prob`)
     cable: CableDraw | None = None  # a cable clipped along the arm (`synth.cable`)
+    person: PersonDraw | None = None  # a person guiding the arm by hand (`synth.person`)
 
 
 @dataclass(frozen=True)
@@ -257,6 +260,18 @@ def sample_scene_cable(rng: np.random.Generator, config: SynthConfig, robot: Rob
                         dc.cable_clip_offset_m, dc.cable_start_m)
 
 
+def sample_scene_person(rng: np.random.Generator, config: SynthConfig, robot: Robot,
+                        scene: SceneDraw) -> PersonDraw | None:
+    """With probability `distractors.person_prob`, a person gripping the last keypoint link
+    (`synth.person.sample_person`), not on the camera's side of the base."""
+    dc = config.distractors
+    if rng.random() >= dc.person_prob:
+        return None
+    camera_position = invert_T(scene.T_cam_base)[:3, 3]
+    return sample_person(rng, robot.keypoint_names[-1], camera_position, dc.person_distance_m,
+                         dc.person_shoulder_height_m)
+
+
 def _occluder_placement(rng: np.random.Generator, camera_position: np.ndarray,
                         target: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A distractor part-way between the camera and a point of the robot, small enough and
@@ -348,4 +363,6 @@ def sample_frame(seed: int, index: int, robot: Robot, config: SynthConfig,
     aim = joints if mode == "random" else (robot.joint_lower + robot.joint_upper) / 2
     scene = with_realism(dataclasses.replace(scene, held=held, cable=cable), seed, index,
                          config, robot, aim, default_rgba, other_robot)
-    return FrameDraw(index, scene, joints, timestamp)
+    person = sample_scene_person(np.random.default_rng(
+        [seed, PERSON_STREAM] + ([index] if mode == "random" else [])), config, robot, scene)
+    return FrameDraw(index, dataclasses.replace(scene, person=person), joints, timestamp)
