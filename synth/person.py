@@ -47,6 +47,7 @@ SWIVEL_RAD = np.pi / 4        # the elbow's turn about the shoulder-hand line, a
 SKIN_VALUE = (0.35, 0.95)     # skin tones: red 1, green and blue these shares of it, all
 SKIN_GREEN = (0.6, 0.8)       # scaled by a value from SKIN_VALUE
 SKIN_BLUE = (0.45, 0.65)
+TINY_M = 1e-9                 # below this length a direction is taken as undefined
 SLOTS = 6                     # upper arm, forearm, hand, torso, legs, head
 
 
@@ -92,7 +93,7 @@ def elbow_position(shoulder: np.ndarray, hand: np.ndarray, upper_m: float, fore_
     along = (upper_m ** 2 - fore_m ** 2 + d ** 2) / (2 * d) if d > 0 else 0.0
     off = np.sqrt(max(upper_m ** 2 - along ** 2, 0.0))
     down = -Z_AXIS - (-Z_AXIS @ u) * u
-    if np.linalg.norm(down) < 1e-9:       # a vertical line: any horizontal side
+    if np.linalg.norm(down) < TINY_M:       # a vertical line: any horizontal side
         down = np.cross(u, [1.0, 0.0, 0.0])
     down /= np.linalg.norm(down)
     side = np.cross(u, down)
@@ -107,7 +108,7 @@ def shoulder_position(anchor: np.ndarray, hand: np.ndarray, reach_m: float) -> n
     away = anchor - hand
     d = float(np.linalg.norm(away))
     limit = REACH_FRACTION * reach_m
-    return anchor if d <= limit else hand + away / d * limit
+    return anchor.copy() if d <= limit else hand + away / d * limit
 
 
 def _capsule(a: np.ndarray, b: np.ndarray, radius: float
@@ -129,9 +130,9 @@ def person_shapes(person: PersonDraw, T_base_link: np.ndarray
     shoulder = shoulder_position(person.anchor_m, hand, upper + fore)
     shoulder[2] = max(shoulder[2], MIN_SHOULDER_HEIGHT_M * s)
     elbow = elbow_position(shoulder, hand, upper, fore, person.swivel_rad)
-    along = (hand - elbow) / max(float(np.linalg.norm(hand - elbow)), 1e-9)
+    along = (hand - elbow) / max(float(np.linalg.norm(hand - elbow)), TINY_M)
     hips = np.array([*person.anchor_m[:2], HIP_HEIGHT_M * s])
-    up = (shoulder - hips) / max(float(np.linalg.norm(shoulder - hips)), 1e-9)
+    up = (shoulder - hips) / max(float(np.linalg.norm(shoulder - hips)), TINY_M)
     sleeve, skin = person.sleeve_rgba, person.skin_rgba
     return [(*_capsule(shoulder, elbow, UPPER_ARM_RADIUS_M * s), sleeve),
             (*_capsule(elbow, hand - HAND_HALF_LENGTH_M * s * along, FOREARM_RADIUS_M * s),

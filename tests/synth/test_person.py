@@ -147,3 +147,14 @@ def test_the_rendered_person_grips_the_moving_hand_and_is_not_the_robot():
     finally:
         maker.close()
         plain.close()
+
+
+def test_drawing_the_person_leaves_its_draw_as_it_was():
+    draw = person(anchor=(0.5, 0.0, 0.5))                # a low anchor the shoulder is lifted from
+    before = draw.anchor_m.copy()
+    T = np.eye(4)
+    T[:3, 3] = [0.4, 0.0, 0.4]                           # the hand within reach
+    shapes = person_shapes(draw, T)
+    assert np.array_equal(draw.anchor_m, before)
+    assert capsule_ends(*shapes[0][1:3], shapes[0][3])[0][2] == pytest.approx(
+        MIN_SHOULDER_HEIGHT_M)
