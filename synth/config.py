@@ -63,8 +63,9 @@ class CameraShell:
                 len(self.target_m) != 3:
             raise InputError(f"camera.target_m must be 3 numbers, got {self.target_m!r}",
                              fix=fix)
-        object.__setattr__(self, "target_m", tuple(finite_number(f"camera.target_m[{i}]", v, fix)
-                                                   for i, v in enumerate(self.target_m)))
+        object.__setattr__(self, "target_m",
+                           tuple(finite_number(f"camera.target_m[{i}]", v, fix)
+                                 for i, v in enumerate(self.target_m)))
         non_negative("camera.target_jitter_m", self.target_jitter_m)
         if self.T_cam_base is not None:
             object.__setattr__(self, "T_cam_base", rigid_rows("camera.T_cam_base", self.T_cam_base))
@@ -98,19 +99,18 @@ class Intrinsics:
         if self.fixed:
             for name in ("fx", "fy"):
                 key = f"intrinsics.{name}"
-                value = finite_number(key, getattr(self, name), f"set {key} to the focal length in "
-                                                          "pixels")
+                value = finite_number(key, getattr(self, name),
+                                      f"set {key} to the focal length in pixels")
                 if value <= 0:
                     raise InputError(f"{key} must be a focal length > 0 (pixels), got {value}",
                                      fix=f"set {key} to the camera's focal length in pixels")
                 object.__setattr__(self, name, value)
             for name in ("cx", "cy"):
                 key = f"intrinsics.{name}"
-                object.__setattr__(self, name, finite_number(key, getattr(self, name),
-                                                       f"set {key} to the principal point in "
-                                                       "pixels"))
-        object.__setattr__(self, "hfov_rad", value_range("intrinsics.hfov_rad", self.hfov_rad, 0.05,
-                                                    3.0))
+                object.__setattr__(self, name, finite_number(
+                    key, getattr(self, name), f"set {key} to the principal point in pixels"))
+        object.__setattr__(self, "hfov_rad",
+                           value_range("intrinsics.hfov_rad", self.hfov_rad, 0.05, 3.0))
         if self.distortion is not None:
             try:
                 coeffs = tuple(float(c) for c in self.distortion)
@@ -168,7 +168,7 @@ class Lights:
                                          ("intensity", 0.0, np.inf), ("ambient", 0.0, 1.0),
                                          ("specular", 0.0, 1.0)):
             object.__setattr__(self, name, value_range(f"lights.{name}", getattr(self, name),
-                                                  lo_limit, hi_limit))
+                                                       lo_limit, hi_limit))
         non_negative("lights.color_jitter", self.color_jitter)
 
 
@@ -201,8 +201,8 @@ class Appearance:
         non_negative("appearance.hue_jitter", self.hue_jitter)
         for name, hi_limit in (("saturation", 1.0), ("value_scale", np.inf), ("specular", 1.0),
                                ("shininess", 1.0)):
-            object.__setattr__(self, name, value_range(f"appearance.{name}", getattr(self, name),
-                                                  0.0, hi_limit))
+            object.__setattr__(self, name, value_range(f"appearance.{name}",
+                                                       getattr(self, name), 0.0, hi_limit))
 
 
 @dataclass(frozen=True)
@@ -310,12 +310,12 @@ class Distractors:
                           ("cable_slack", 1.0), ("cable_clip_offset_m", 0.0),
                           ("cable_start_m", 0.0), ("person_distance_m", 0.0),
                           ("person_shoulder_height_m", 0.0)):
-            object.__setattr__(self, name, value_range(f"distractors.{name}", getattr(self, name),
-                                                  low))
+            object.__setattr__(self, name, value_range(f"distractors.{name}",
+                                                       getattr(self, name), low))
         whole_number("distractors.loose_keypoints", self.loose_keypoints,
-                      "set how many of the last keypoint links a loose part may start at (e.g. 3)")
+                     "set how many of the last keypoint links a loose part may start at (e.g. 3)")
         whole_number("distractors.cable_segments", self.cable_segments,
-                      "set how many capsules draw a cable (e.g. 24)")
+                     "set how many capsules draw a cable (e.g. 24)")
         for name in ("occluder_prob", "textured_prob", "held_prob", "held_board_prob",
                      "held_textured_prob", "held_checker_prob", "robot_prob", "loose_prob",
                      "cable_prob", "person_prob"):

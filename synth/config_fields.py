@@ -1,5 +1,13 @@
-"""Checks of a recipe's fields: each returns the value in its stored type or raises an
-`InputError` that names the field (`synth.config`)."""
+"""Checks of a recipe's fields (`synth.config`): each raises an `InputError` that names the
+field, and those that convert return the value in its stored type.
+
+    >>> value_range("camera.radius_m", [1, 2.5], 1e-3)
+    (1.0, 2.5)
+    >>> probability("distractors.person_prob", 1.5)
+    Traceback (most recent call last):
+    ...
+    dream.errors.InputError: distractors.person_prob is a probability in [0, 1], got 1.5.
+"""
 
 from __future__ import annotations
 
