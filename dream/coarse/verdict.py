@@ -68,8 +68,10 @@ def search_findings(best_iou: float, rival_iou: float | None, rival_distance_m: 
     if found_iou < settings.min_found_iou:
         out.append((UNRELIABLE, f"the robot's silhouettes at the pose found overlap the masks by "
                     f"IoU {found_iou:.2f} only (below {settings.min_found_iou}): the robot was "
-                    "not found in the images; check the overlays, give a camera guess closer "
-                    "to the truth (--camera-guess, --look-at) or a keypoint model"))
+                    "not found in the images, or much else moves with it (a person guiding "
+                    "it?); check the overlays, give a camera guess closer to the truth "
+                    "(--camera-guess, --look-at) or a keypoint model, or record the arm "
+                    "driven with nothing else moving in view"))
     if rival_iou is not None and best_iou - rival_iou < settings.min_gap:
         out.append((UNRELIABLE, f"another camera pose {rival_distance_m * 100:.0f} cm away "
                     f"explains the masks nearly as well (IoU {rival_iou:.3f} against "

@@ -251,9 +251,11 @@ def test_masks_that_show_no_robot_give_an_unreliable_verdict(panda, meshes):
     rival = None if outcome.rival is None else outcome.rival.iou
     distance = None if outcome.rival is None else pose_errors(
         outcome.rival.T_cam_base, outcome.best.T_cam_base)[0]
-    levels = [level for level, _ in search_findings(
-        outcome.best.iou, rival, distance, outcome.basin_returned, outcome.basin_starts, SMALL)]
-    assert "unreliable" in levels
+    findings = search_findings(outcome.best.iou, rival, distance, outcome.basin_returned,
+                               outcome.basin_starts, SMALL)
+    assert "unreliable" in [level for level, _ in findings]
+    found = [text for _, text in findings if "not found in the images" in text]
+    assert found and "nothing else moving in view" in found[0]
 
 
 def test_a_rival_as_good_as_the_best_is_unreliable():
