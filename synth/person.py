@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dream.errors import InputError
+from dream.transforms import transform_points
 from synth.cable import Z_AXIS, z_onto
 
 UPPER_ARM_M = 0.30            # shoulder to elbow of an adult, before the drawn scale
@@ -126,7 +127,7 @@ def person_shapes(person: PersonDraw, T_base_link: np.ndarray
     shoulder."""
     s = person.scale
     upper, fore = UPPER_ARM_M * s, FOREARM_M * s
-    hand = T_base_link[:3, :3] @ person.grip_m + T_base_link[:3, 3]
+    hand = transform_points(T_base_link, person.grip_m)
     shoulder = shoulder_position(person.anchor_m, hand, upper + fore)
     shoulder[2] = max(shoulder[2], MIN_SHOULDER_HEIGHT_M * s)
     elbow = elbow_position(shoulder, hand, upper, fore, person.swivel_rad)
