@@ -145,7 +145,7 @@ def condition_findings(covariance: np.ndarray, T_cam_base: np.ndarray) -> list[F
     if rotation > ROTATION_SIGMA_CHECK_RAD:
         level = UNRELIABLE if rotation > ROTATION_SIGMA_UNRELIABLE_RAD else CHECK
         findings.append((level, f"camera rotation 1-sigma {np.rad2deg(rotation):.2f} deg: record "
-                                "configurations that spread the keypoints over the image"))
+                                "configurations that spread the arm over the image"))
     return findings
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 
@@ -35,6 +36,7 @@ from dream.coarse.settings import SearchSettings
 from dream.coarse.verdict import search_findings
 from dream.errors import InputError
 from dream.metrics import pose_errors
+from dream.overlay import OUTLINE_RGB
 from dream.pnp import increment_between
 from dream.polish.objective import scaled_camera, shrink_mask
 from dream.polish.refine import refine_pose
@@ -298,6 +300,10 @@ def test_calibrate_without_keypoints_from_a_camera_guess(panda, meshes, tmp_path
         assert np.allclose(doc["uncertainty"].get("cue_disagreement_xi", np.zeros(6)), cues)
         assert "challenge" in start
         assert (overlays / "summary.png").is_file() and len(list(overlays.glob("*.png"))) > 1
+        summary = cv2.cvtColor(cv2.imread(str(overlays / "summary.png")), cv2.COLOR_BGR2RGB)
+        assert summary.shape[0] > CAMERA.height     # the legend below the image
+        outlined = np.all(summary[:CAMERA.height] == OUTLINE_RGB, axis=-1)
+        assert outlined.sum() > CAMERA.width         # the search frames' outlines over a frame
         sigma = np.linalg.norm(doc["sigma_camera_position_base_m"])
         assert 0 < sigma < 0.05
 

@@ -1,0 +1,80 @@
+"""Overlays of a pose found without keypoints: the box around something the URDF lacks, and a
+summary legend that speaks of silhouettes, not of a keypoint fit."""
+
+import numpy as np
+import pytest
+
+from dream.errors import InputError
+from dream.overlay import (
+    BOX_EDGES,
+    CARRIED_RGB,
+    _carried_corners,
+    _search_legend,
+    blank_image,
+    draw_box,
+)
+from dream.robot.link_geometry import BOX_KIND, LinkGeometry
+from dream.sample import random_joints
+from dream.transforms import transform_points
+
+BOX = {"kind": BOX_KIND, "size_m": [0.12, 0.14, 0.06], "position_m": [0.02, 0.01, 0.09],
+       "rotation_rad": [0.0, 0.3, 0.0]}
+
+
+def square_box_uv(lo: float, hi: float) -> np.ndarray:
+    """A box seen along its z axis: corner 4x + 2y + z at (lo or hi, lo or hi)."""
+    return np.array([[(lo, hi)[x], (lo, hi)[y]] for x in (0, 1) for y in (0, 1)
+                     for _ in (0, 1)], dtype=float)
+
+
+def magenta(image: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels drawn in the box's colour (anti-aliased: at least half of it)."""
+    return np.all(np.abs(image.astype(int) - CARRIED_RGB) < 128, axis=-1)
+
+
+def test_a_box_has_twelve_edges_each_between_corners_one_side_apart():
+    assert len(BOX_EDGES) == 12 and len(set(BOX_EDGES)) == 12
+    for i, j in BOX_EDGES:
+        assert bin(i ^ j).count("1") == 1
+
+
+def test_the_box_is_drawn_along_its_edges_and_skips_corners_not_projected():
+    image = blank_image(100, 100, gray=0)
+    out = draw_box(image, square_box_uv(20.0, 80.0))
+    is_box = magenta(out)
+    assert is_box[20, 50] and is_box[80, 50] and is_box[50, 20] and is_box[50, 80]
+    assert not out[30:70, 30:70].any()          # nothing inside the square
+    assert not image.any()                       # the input is left as it was
+    uv = square_box_uv(20.0, 80.0)
+    uv[[0, 1]] = np.nan                          # the corners at (20, 20) behind the camera
+    out = draw_box(image, uv)
+    assert not magenta(out)[20, 40:60].any()   # their edges skipped
+    assert magenta(out)[80, 50]
+    with pytest.raises(InputError, match="8 corners"):
+        draw_box(image, uv[:4])
+
+
+def test_the_carried_box_moves_with_its_link(panda):
+    joints = random_joints(np.random.default_rng(0), panda, 3)
+    corners = _carried_corners(panda, joints, {"named": "panda_hand", "box_around_hull": BOX})
+    assert corners.shape == (3, 8, 3)
+    in_link, _ = LinkGeometry("panda_hand", **BOX).box_mesh()
+    T_base_hand = panda.link_poses(joints, ("panda_hand",))[:, 0]
+    for f in range(3):
+        assert np.allclose(corners[f], transform_points(T_base_hand[f], in_link))
+    assert _carried_corners(panda, joints, {}) is None
+    assert _carried_corners(panda, joints, {"named": None, "box_around_hull": None}) is None
+    assert _carried_corners(panda, joints, {"named": "no_such_link",
+                                            "box_around_hull": BOX}) is None
+
+
+def test_the_legend_of_a_search_result_names_its_evidence_not_a_keypoint_fit():
+    doc = {"start": {"evidence": "motion masks", "iou": 0.4356}, "quality": {"verdict": "check"}}
+    lines = [text for text, _ in _search_legend(doc, None, 34, None)]
+    assert "motion masks" in lines[0] and "IoU 0.44" in lines[0] and "check" in lines[0]
+    assert "the silhouette search" in lines[1] and "34 frames" in lines[2]
+    assert not any("keypoint" in line and "no keypoints" not in line for line in lines)
+    carried = {"named": "panda_hand", "left_out_of_search": True}
+    lines = [text for text, _ in _search_legend(doc, "the edge alignment", 34, carried)]
+    assert "the edge alignment" in lines[1]
+    assert "panda_hand, left out of the search" in lines[-1]
