@@ -259,11 +259,14 @@ class _Outliner:
 
 
 def write_skeleton_overlays(sequence, robot, T_cam_base: np.ndarray, out_dir,
-                            limit: int | None = None, skeleton: bool = True) -> int:
+                            limit: int | None = None, skeleton: bool = True,
+                            carried: dict | None = None) -> int:
     """The robot's outline (URDF meshes), keypoints and skeleton (without `skeleton`: the
     outline alone) of every imaged frame (the first `limit` of them) projected with
-    `T_cam_base` (F, 4, 4); returns how many images were written. The folder is written
-    atomically (`dream.io.staged_directory`): on a failure nothing is left in it."""
+    `T_cam_base` (F, 4, 4), and the box a result's search sized around something the URDF
+    lacks (`carried`: RESULT.json `start.carried`, where it named one); returns how many
+    images were written. The folder is written atomically (`dream.io.staged_directory`): on a
+    failure nothing is left in it."""
     from dream.camera import project
     from dream.io.atomic import staged_directory
     from dream.pipeline import joints_in_robot_order
@@ -276,6 +279,7 @@ def write_skeleton_overlays(sequence, robot, T_cam_base: np.ndarray, out_dir,
     chosen = frames[:limit]
     P_base = robot.forward_kinematics(joints_in_robot_order(sequence, robot))
     outliner = _Outliner(sequence, robot)
+    corners = _carried_corners(robot, outliner.joints, carried or {})
     with staged_directory(out_dir) as stage:
         for n, (i, frame) in enumerate(chosen):
             camera = sequence.frame_camera(i)
@@ -283,6 +287,9 @@ def write_skeleton_overlays(sequence, robot, T_cam_base: np.ndarray, out_dir,
             if skeleton:
                 uv = project(camera, transform_points(T_cam_base[i], P_base[i]))
                 image = draw_skeleton(image, uv, robot.skeleton_edges)
+            if corners is not None:
+                image = draw_box(image, project(camera, transform_points(T_cam_base[i],
+                                                                         corners[i])))
             _write_png(stage / f"{frame.name}.overlay.png", image)
             if (n + 1) % 50 == 0:
                 log.info("overlays: %d / %d", n + 1, len(chosen))

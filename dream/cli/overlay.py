@@ -47,10 +47,12 @@ def run_overlay(request: OverlayRequest) -> int:
     check_output_folder(request.out)  # before any reading or drawing
     seq = read_data(request)
     robot, skeleton = _robot(seq, request)
+    carried = None
     if request.extrinsic is not None:
         doc = read_result(request.extrinsic)
         poses = _result_poses(doc, seq)
         seq = _with_result_focal(doc, seq)
+        carried = _carried(doc, robot)
     else:
         from dream.pipeline import truth_poses
 
@@ -59,7 +61,7 @@ def run_overlay(request: OverlayRequest) -> int:
                              "pass --extrinsic RESULT.json")
         poses = truth_poses(seq)
     n = write_skeleton_overlays(seq, robot, poses, Path(request.out), limit=request.limit,
-                                skeleton=skeleton)
+                                skeleton=skeleton, carried=carried)
     print(f"wrote {n} overlay images to {request.out}")
     return n
 
@@ -79,6 +81,17 @@ def _robot(seq, request: OverlayRequest):
 
     print("no --keypoints for this URDF: drawing the outline alone")
     return robot_for_search(seq, request), False
+
+
+def _carried(doc: dict, robot) -> dict | None:
+    """The result's box around something the URDF lacks (RESULT.json `start.carried`), where
+    its search named one on a link of `robot`; says so, since the box is drawn in magenta."""
+    carried = (doc.get("start") or {}).get("carried") or {}
+    if not carried.get("box_around_hull") or carried.get("named") not in robot.link_names:
+        return None
+    print(f"magenta box: something the URDF lacks moving with {carried['named']}, as the "
+          f"calibration sized it")
+    return carried
 
 
 def _with_result_focal(doc: dict, seq):

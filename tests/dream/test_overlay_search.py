@@ -78,3 +78,29 @@ def test_the_legend_of_a_search_result_names_its_evidence_not_a_keypoint_fit():
     lines = [text for text, _ in _search_legend(doc, "the edge alignment", 34, carried)]
     assert "the edge alignment" in lines[1]
     assert "panda_hand, left out of the search" in lines[-1]
+
+
+def test_dream_overlay_draws_the_box_a_result_named(realdata, tmp_path, capsys):
+    import json
+
+    import cv2
+
+    from dream.cli import main
+    from dream.io import read_sequence
+
+    data = realdata / "panda_teleop"
+    T_ref = read_sequence(data).T_cam_base_reference
+    drawn = {}
+    for name, start in (("plain", None), ("box", {"carried": {"named": "panda_hand",
+                                                                "box_around_hull": BOX}})):
+        result = tmp_path / f"{name}.json"
+        result.write_text(json.dumps({"T_cam_base": T_ref.tolist(), "per_frame": [],
+                                      "start": start}))
+        assert main(["overlay", str(data), "--extrinsic", str(result), "--out",
+                     str(tmp_path / name), "--limit", "2"]) == 0
+        image = cv2.imread(str(tmp_path / name / "000000.overlay.png"))
+        drawn[name] = int(magenta(cv2.cvtColor(image, cv2.COLOR_BGR2RGB)).sum())
+        printed = capsys.readouterr().out
+        assert ("magenta box: something the URDF lacks moving with panda_hand" in printed) \
+            == (start is not None)
+    assert drawn["box"] > drawn["plain"] + 30
