@@ -7,9 +7,7 @@ meshes rendered at that pose (cyan), its skeleton (yellow with red keypoints), t
 (green rings, grey where the keypoint fit rejected them) with their residuals to that skeleton
 (magenta), and, where an image refinement moved the pose away from the keypoint fit, the
 keypoint pose's skeleton faintly (grey); `summary.png` says which is which. A pose found
-without keypoints (the silhouette search) draws the outline alone, and where the search named
-something the URDF lacks moving with a link, the box it sized around it (magenta); its
-`summary.png` holds the outlines of every frame the search compared, over one of them dimmed."""
+without keypoints (the silhouette search) is drawn by `dream.overlay_search`."""
 
 from __future__ import annotations
 
@@ -30,7 +28,6 @@ OUTLIER_RGB = (160, 160, 160)
 OUTLINE_RGB = (0, 230, 255)
 FAINT_RGB = (200, 200, 200)
 CARRIED_RGB = (255, 0, 255)   # the box around something the URDF lacks, as the search sized it
-SUMMARY_DIM = 0.5             # the frame under the search's outlines in its summary, dimmed
 FAINT_OPACITY = 0.45       # the keypoint pose's skeleton, where a refinement moved the pose
 MOVED_PX = 0.5             # a refinement moved the pose when a keypoint moved this far
 _SHIFT = 4  # fixed-point bits for sub-pixel drawing
@@ -120,6 +117,22 @@ def draw_box(image: np.ndarray, uv: np.ndarray,
         if _ok(uv[i]) and _ok(uv[j]):
             cv2.line(out, _pt(uv[i]), _pt(uv[j]), color, w, cv2.LINE_AA, _SHIFT)
     return out
+
+
+def carried_corners(robot, joints: np.ndarray, carried: dict) -> np.ndarray | None:
+    """(F, 8, 3) base-frame corners of the box the search sized around something the URDF
+    lacks moving with a link (RESULT.json `start.carried`), None where it named nothing."""
+    from dream.robot.link_geometry import BOX_KIND, LinkGeometry
+    from dream.transforms import transform_points
+
+    box, link = carried.get("box_around_hull"), carried.get("named")
+    if not box or not link or link not in robot.link_names:
+        return None
+    geometry = LinkGeometry(link, BOX_KIND, size_m=box["size_m"], position_m=box["position_m"],
+                            rotation_rad=box["rotation_rad"])
+    corners, _ = geometry.box_mesh()
+    T_base_link = robot.link_poses(joints, (link,))[:, 0]
+    return transform_points(T_base_link[:, None], corners)
 
 
 def with_legend(image: np.ndarray, lines: list[tuple[str, tuple[int, int, int]]]
@@ -279,7 +292,7 @@ def write_skeleton_overlays(sequence, robot, T_cam_base: np.ndarray, out_dir,
     chosen = frames[:limit]
     P_base = robot.forward_kinematics(joints_in_robot_order(sequence, robot))
     outliner = _Outliner(sequence, robot)
-    corners = _carried_corners(robot, outliner.joints, carried or {})
+    corners = carried_corners(robot, outliner.joints, carried or {})
     with staged_directory(out_dir) as stage:
         for n, (i, frame) in enumerate(chosen):
             camera = sequence.frame_camera(i)
@@ -322,9 +335,6 @@ def write_result_overlays(sequence, robot, obs, result, out_dir, doc: dict | Non
     poses = keypoint_poses if doc is None else [_pose_or_none(T) for T in written_poses(doc)]
     # a result found without keypoints (no observations): the outline alone
     edges = robot.skeleton_edges if obs.uv.shape[1] == len(robot.keypoint_names) else ()
-    if not edges and doc is not None and doc.get("start") is not None:
-        _write_search_overlays(sequence, robot, poses, out_dir, doc, refined_by)
-        return
     outliner = _Outliner(sequence, robot)
     summary = blank_image(cam.width, cam.height)
     moved_any = False
@@ -363,75 +373,3 @@ def _legend(result, refined_by: str | None) -> list[tuple[str, tuple[int, int, i
         lines.append(("faint grey skeleton, per frame: the keypoint pose", FAINT_RGB))
     return lines
 
-
-def _write_search_overlays(sequence, robot, poses: list, out_dir, doc: dict,
-                           refined_by: str | None) -> None:
-    """`write_result_overlays` of a pose found without keypoints (`doc["start"]`, the
-    silhouette search): per frame the outline at the pose written and the box around
-    something the URDF lacks where the search named one; `summary.png` the outlines of every
-    frame the search compared over the first of them, dimmed."""
-    from dream.camera import project
-    from dream.io.atomic import staged_directory
-    from dream.transforms import transform_points
-
-    start = doc["start"]
-    index = {frame.name: i for i, frame in enumerate(sequence.frames)}
-    compared = {index[name] for name in start.get("frames", ()) if name in index}
-    outliner = _Outliner(sequence, robot)
-    carried = start.get("carried") or {}
-    corners = _carried_corners(robot, outliner.joints, carried)
-    summary = None
-    with staged_directory(out_dir) as stage:
-        for i, frame in enumerate(sequence.frames):
-            camera, T = sequence.frame_camera(i), poses[i]
-            image = _frame_canvas(sequence, frame)
-            silhouette = outliner.silhouette(camera, i, T)
-            if i in compared and summary is None:
-                summary = (image * SUMMARY_DIM).astype(np.uint8)
-            if silhouette is not None:
-                image = draw_outline(image, silhouette)
-                if i in compared:
-                    summary = draw_outline(summary, silhouette)
-            if corners is not None and T is not None:
-                image = draw_box(image, project(camera, transform_points(T, corners[i])))
-            _write_png(stage / f"{frame.name}.result.png", image)
-        if summary is None:
-            summary = blank_image(sequence.camera.width, sequence.camera.height)
-        _write_png(stage / "summary.png", with_legend(summary, _search_legend(
-            doc, refined_by, len(compared), carried if corners is not None else None)))
-
-
-def _carried_corners(robot, joints: np.ndarray, carried: dict) -> np.ndarray | None:
-    """(F, 8, 3) base-frame corners of the box the search sized around something the URDF
-    lacks moving with a link (RESULT.json `start.carried`), None where it named nothing."""
-    from dream.robot.link_geometry import BOX_KIND, LinkGeometry
-    from dream.transforms import transform_points
-
-    box, link = carried.get("box_around_hull"), carried.get("named")
-    if not box or not link or link not in robot.link_names:
-        return None
-    geometry = LinkGeometry(link, BOX_KIND, size_m=box["size_m"], position_m=box["position_m"],
-                            rotation_rad=box["rotation_rad"])
-    corners, _ = geometry.box_mesh()
-    T_base_link = robot.link_poses(joints, (link,))[:, 0]
-    return transform_points(T_base_link[:, None], corners)
-
-
-def _search_legend(doc: dict, refined_by: str | None, compared: int,
-                   carried: dict | None) -> list[tuple[str, tuple[int, int, int]]]:
-    """The summary image's lines for a pose found without keypoints."""
-    start = doc["start"]
-    verdict = (doc.get("quality") or {}).get("verdict", "not given")
-    iou = start.get("iou")
-    lines = [(f"no keypoints: the pose from the robot's silhouettes ({start.get('evidence')})"
-              + ("" if iou is None else f", IoU {iou:.2f}") + f"; quality: {verdict}",
-              (255, 255, 255)),
-             (f"cyan outline: the pose written ({refined_by or 'the silhouette search'})",
-              OUTLINE_RGB),
-             (f"above: its outline in each of the {compared} frames the search compared",
-              OUTLINE_RGB)]
-    if carried is not None:
-        left_out = ", left out of the search" if carried.get("left_out_of_search") else ""
-        lines.append((f"magenta box, per frame: something the URDF lacks moving with "
-                      f"{carried['named']}{left_out}", CARRIED_RGB))
-    return lines

@@ -83,7 +83,7 @@ def check_outputs(request) -> tuple[Path, ...]:
 def _write_calibration(request, seq, robot, obs, result, doc: dict,
                        paths: tuple[Path, ...], base_frame: str) -> None:
     """RESULT.json, its two text files and the --overlays folder, all or none: the files are
-    written, then the overlays drawn (`write_result_overlays` stages them in a temporary folder
+    written, then the overlays drawn (`write_calibration_overlays` stages them in a temporary folder
     and moves them into place); on a failure of either (an unreadable image...) the files are
     put back as they were before the command."""
     from dream.io import replacing_files
@@ -101,7 +101,7 @@ def _write_calibration(request, seq, robot, obs, result, doc: dict,
     files = {path: text.encode("utf-8") for path, text in texts.items()}
     with replacing_files(files):  # a failure puts the files back
         if request.overlays:
-            from dream.overlay import write_result_overlays
+            from dream.overlay_search import write_calibration_overlays
 
-            write_result_overlays(seq, robot, obs, result, Path(request.overlays), doc=doc,
-                                  refined_by=pose_refined_by(doc))
+            write_calibration_overlays(seq, robot, obs, result, Path(request.overlays), doc,
+                                       pose_refined_by(doc))

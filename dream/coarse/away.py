@@ -64,22 +64,46 @@ def away_from_robot(masks: np.ndarray, silhouettes: np.ndarray, margin_px: float
                     ) -> AwayPixels:
     """The parts (8-connected) of each mask (F, H, W) that come no nearer than `margin_px` to
     that frame's silhouette (F, H, W) of the robot: pixel counts and IoUs (module doc)."""
-    masks, silhouettes = np.asarray(masks, bool), np.asarray(silhouettes, bool)
-    if masks.ndim != 3 or masks.shape != silhouettes.shape:
-        raise InputError(f"masks {masks.shape} and silhouettes {silhouettes.shape} must both "
-                         "be (F, H, W)")
+    masks, silhouettes = _checked(masks, silhouettes)
     kernel = disk(margin_px)
     counts = np.zeros((4, len(masks)))
     for f, (mask, silhouette) in enumerate(zip(masks, silhouettes, strict=True)):
-        _, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-        near = silhouette if kernel is None else \
-            cv2.dilate(silhouette.astype(np.uint8), kernel).astype(bool)
-        touched = np.unique(labels[near & mask])
-        kept = np.isin(labels, touched[touched > 0])
+        kept = mask & ~_away(mask, silhouette, kernel)
         inter = np.count_nonzero(silhouette & mask)
         counts[:, f] = (mask.sum(), (mask & ~kept).sum(), _ratio(inter, (silhouette | mask)),
                         _ratio(inter, (silhouette | kept)))
     return AwayPixels(*counts)
+
+
+def away_masks(masks: np.ndarray, silhouettes: np.ndarray, margin_px: float) -> np.ndarray:
+    """(F, H, W) bool: the pixels of `away_from_robot`'s parts away from the robot, to draw.
+
+    >>> masks = np.zeros((1, 6, 12), bool); masks[0, 1:4, 1:4] = True; masks[0, 1:4, 8:11] = True
+    >>> silhouettes = np.zeros_like(masks); silhouettes[0, 1:4, 1:3] = True
+    >>> np.flatnonzero(away_masks(masks, silhouettes, margin_px=1.0)[0].any(axis=0))
+    array([ 8,  9, 10])
+    """
+    masks, silhouettes = _checked(masks, silhouettes)
+    kernel = disk(margin_px)
+    return np.stack([_away(m, s, kernel) for m, s in zip(masks, silhouettes, strict=True)])
+
+
+def _checked(masks, silhouettes) -> tuple[np.ndarray, np.ndarray]:
+    masks, silhouettes = np.asarray(masks, bool), np.asarray(silhouettes, bool)
+    if masks.ndim != 3 or masks.shape != silhouettes.shape:
+        raise InputError(f"masks {masks.shape} and silhouettes {silhouettes.shape} must both "
+                         "be (F, H, W)")
+    return masks, silhouettes
+
+
+def _away(mask: np.ndarray, silhouette: np.ndarray, kernel: np.ndarray | None) -> np.ndarray:
+    """(H, W) bool: the 8-connected parts of `mask` that do not touch `silhouette` widened by
+    `kernel` (None: not widened)."""
+    _, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    near = silhouette if kernel is None else \
+        cv2.dilate(silhouette.astype(np.uint8), kernel).astype(bool)
+    touched = np.unique(labels[near & mask])
+    return mask & ~np.isin(labels, touched[touched > 0])
 
 
 def _ratio(inter: int, union: np.ndarray) -> float:
@@ -96,3 +120,12 @@ def away_at_pose(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     silhouettes = render_frames(vertices_in_base(meshes, joints), meshes.faces,
                                 np.asarray(T_cam_base, float), camera)
     return away_from_robot(masks, silhouettes, margin_px * camera.width / MARGIN_WIDTH_PX)
+
+
+def away_masks_at_pose(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
+                       camera: CameraIntrinsics, T_cam_base: np.ndarray, margin_px: float
+                       ) -> np.ndarray:
+    """`away_masks` against the silhouettes of `away_at_pose` (the same arguments)."""
+    silhouettes = render_frames(vertices_in_base(meshes, joints), meshes.faces,
+                                np.asarray(T_cam_base, float), camera)
+    return away_masks(masks, silhouettes, margin_px * camera.width / MARGIN_WIDTH_PX)

@@ -337,14 +337,14 @@ def parked_dataset(panda, meshes, folder, parked: int, moving: int) -> np.ndarra
     return T_true
 
 
-def calibrated_from_a_guess(T_true: np.ndarray, folder, capsys) -> dict:
+def calibrated_from_a_guess(T_true: np.ndarray, folder, capsys, *options: str) -> dict:
     """RESULT.json of `dream calibrate` without keypoints of `folder`/data from a guess 10 cm
-    / 5 deg off `T_true`, checked to exit 0."""
+    / 5 deg off `T_true` (more `options` passed on), checked to exit 0."""
     position = invert_T(off_by(T_true, 0.1, np.deg2rad(5.0), 3))[:3, 3]
     out = folder / "r.json"
     code = main(["calibrate", "--data", str(folder / "data"), "--out", str(out),
                  "--camera-guess", ",".join(f"{v:.3f}" for v in position),
-                 "--look-at", ",".join(f"{v:.3f}" for v in TARGET)])
+                 "--look-at", ",".join(f"{v:.3f}" for v in TARGET), *options])
     assert code == 0, capsys.readouterr().err
     return json.loads(out.read_text())
 
@@ -390,7 +390,8 @@ def test_something_else_moving_away_from_the_arm_is_named_and_not_counted(panda,
     is still found, RESULT.json says which share of the moving pixels lay away from the robot
     and its IoU without them, and the verdict is at most `check` with a warning that says so."""
     T_true = moving_block_dataset(panda, meshes, tmp_path)
-    doc = calibrated_from_a_guess(T_true, tmp_path, capsys)
+    overlays = tmp_path / "overlays"
+    doc = calibrated_from_a_guess(T_true, tmp_path, capsys, "--overlays", str(overlays))
     t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
     assert t_err < 0.01 and r_err < np.deg2rad(0.5), (t_err, np.rad2deg(r_err))
     away = doc["start"]["away"]
@@ -399,6 +400,18 @@ def test_something_else_moving_away_from_the_arm_is_named_and_not_counted(panda,
     assert away["iou_without"] > doc["start"]["iou"]
     assert doc["quality"]["verdict"] != "good"
     assert any("away from the robot" in w for w in doc["quality"]["warnings"])
+    # the overlays show those pixels (tinted orange) on the block, not on the arm
+    from dream.io import load_image, read_sequence
+    from dream.pipeline import joints_in_robot_order
+
+    seq = read_sequence(tmp_path / "data")
+    i = [frame.name for frame in seq.frames].index(doc["start"]["frames"][0])
+    image = cv2.cvtColor(cv2.imread(str(overlays / f"{seq.frames[i].name}.result.png")),
+                         cv2.COLOR_BGR2RGB)
+    outline = np.all(image == OUTLINE_RGB, axis=-1)
+    tinted = np.any(image != load_image(seq.frames[i], seq.camera), axis=-1) & ~outline
+    arm = render_silhouette(meshes, joints_in_robot_order(seq, panda)[i], T_true, CAMERA)
+    assert tinted.sum() > 100 and not (tinted & arm).any()
 
 
 def test_at_a_wrong_pose_the_robot_itself_lies_away_and_the_verdict_says_so(panda, meshes):

@@ -5,14 +5,8 @@ import numpy as np
 import pytest
 
 from dream.errors import InputError
-from dream.overlay import (
-    BOX_EDGES,
-    CARRIED_RGB,
-    _carried_corners,
-    _search_legend,
-    blank_image,
-    draw_box,
-)
+from dream.overlay import BOX_EDGES, CARRIED_RGB, blank_image, carried_corners, draw_box
+from dream.overlay_search import AWAY_RGB, search_legend, tint
 from dream.robot.link_geometry import BOX_KIND, LinkGeometry
 from dream.sample import random_joints
 from dream.transforms import transform_points
@@ -56,28 +50,46 @@ def test_the_box_is_drawn_along_its_edges_and_skips_corners_not_projected():
 
 def test_the_carried_box_moves_with_its_link(panda):
     joints = random_joints(np.random.default_rng(0), panda, 3)
-    corners = _carried_corners(panda, joints, {"named": "panda_hand", "box_around_hull": BOX})
+    corners = carried_corners(panda, joints, {"named": "panda_hand", "box_around_hull": BOX})
     assert corners.shape == (3, 8, 3)
     in_link, _ = LinkGeometry("panda_hand", **BOX).box_mesh()
     T_base_hand = panda.link_poses(joints, ("panda_hand",))[:, 0]
     for f in range(3):
         assert np.allclose(corners[f], transform_points(T_base_hand[f], in_link))
-    assert _carried_corners(panda, joints, {}) is None
-    assert _carried_corners(panda, joints, {"named": None, "box_around_hull": None}) is None
-    assert _carried_corners(panda, joints, {"named": "no_such_link",
+    assert carried_corners(panda, joints, {}) is None
+    assert carried_corners(panda, joints, {"named": None, "box_around_hull": None}) is None
+    assert carried_corners(panda, joints, {"named": "no_such_link",
                                             "box_around_hull": BOX}) is None
 
 
 def test_the_legend_of_a_search_result_names_its_evidence_not_a_keypoint_fit():
     doc = {"start": {"evidence": "motion masks", "iou": 0.4356}, "quality": {"verdict": "check"}}
-    lines = [text for text, _ in _search_legend(doc, None, 34, None)]
+    lines = [text for text, _ in search_legend(doc, None, 34, None)]
     assert "motion masks" in lines[0] and "IoU 0.44" in lines[0] and "check" in lines[0]
     assert "the silhouette search" in lines[1] and "34 frames" in lines[2]
     assert not any("keypoint" in line and "no keypoints" not in line for line in lines)
     carried = {"named": "panda_hand", "left_out_of_search": True}
-    lines = [text for text, _ in _search_legend(doc, "the edge alignment", 34, carried)]
+    lines = [text for text, _ in search_legend(doc, "the edge alignment", 34, carried)]
     assert "the edge alignment" in lines[1]
     assert "panda_hand, left out of the search" in lines[-1]
+    doc["start"]["away"] = {"share": 0.234}
+    lines = search_legend(doc, None, 34, None, away=True)
+    assert lines[-1] == ("orange: moving pixels away from the robot (23 % of them), not counted "
+                         "as robot", AWAY_RGB)
+
+
+def test_the_tint_blends_only_the_pixels_asked_for():
+    image = np.full((4, 5, 3), 100, np.uint8)
+    where = np.zeros((4, 5), bool)
+    where[1:3, 2] = True
+    out = tint(image, where)
+    assert np.array_equal(out[~where], image[~where]) and not np.array_equal(out[where],
+                                                                             image[where])
+    assert np.all(np.abs(out[where].astype(int) - AWAY_RGB)
+                  < np.abs(image[where].astype(int) - AWAY_RGB))   # nearer the tint
+    assert np.array_equal(image, np.full((4, 5, 3), 100, np.uint8))  # the input untouched
+    with pytest.raises(InputError, match="tint needs"):
+        tint(image, where[:3])
 
 
 def test_dream_overlay_draws_the_box_a_result_named(realdata, tmp_path, capsys):
