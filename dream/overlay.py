@@ -28,6 +28,8 @@ OUTLIER_RGB = (160, 160, 160)
 OUTLINE_RGB = (0, 230, 255)
 FAINT_RGB = (200, 200, 200)
 CARRIED_RGB = (255, 0, 255)   # the box around something the URDF lacks, as the search sized it
+AWAY_RGB = (255, 140, 0)      # moving pixels away from the robot, not counted as robot
+AWAY_OPACITY = 0.6            # of that tint over the image
 FAINT_OPACITY = 0.45       # the keypoint pose's skeleton, where a refinement moved the pose
 MOVED_PX = 0.5             # a refinement moved the pose when a keypoint moved this far
 _SHIFT = 4  # fixed-point bits for sub-pixel drawing
@@ -133,6 +135,23 @@ def carried_corners(robot, joints: np.ndarray, carried: dict) -> np.ndarray | No
     corners, _ = geometry.box_mesh()
     T_base_link = robot.link_poses(joints, (link,))[:, 0]
     return transform_points(T_base_link[:, None], corners)
+
+
+def tint(image: np.ndarray, where: np.ndarray, color: tuple[int, int, int] = AWAY_RGB,
+         opacity: float = AWAY_OPACITY) -> np.ndarray:
+    """RGB image (H, W, 3) uint8 with the pixels `where` (H, W) bool blended towards `color`.
+
+    >>> tint(np.zeros((1, 2, 3), np.uint8), np.array([[True, False]]))[0, :, 0].tolist()
+    [153, 0]
+    """
+    image, where = np.asarray(image), np.asarray(where, bool)
+    if image.ndim != 3 or where.shape != image.shape[:2]:
+        raise InputError(f"tint needs an (H, W, 3) image and an (H, W) mask, got {image.shape} "
+                         f"and {where.shape}")
+    out = image.copy()
+    out[where] = np.round((1 - opacity) * image[where] + opacity * np.asarray(color)).astype(
+        np.uint8)
+    return out
 
 
 def with_legend(image: np.ndarray, lines: list[tuple[str, tuple[int, int, int]]]
@@ -273,13 +292,14 @@ class _Outliner:
 
 def write_skeleton_overlays(sequence, robot, T_cam_base: np.ndarray, out_dir,
                             limit: int | None = None, skeleton: bool = True,
-                            carried: dict | None = None) -> int:
+                            carried: dict | None = None, away: dict | None = None) -> int:
     """The robot's outline (URDF meshes), keypoints and skeleton (without `skeleton`: the
     outline alone) of every imaged frame (the first `limit` of them) projected with
-    `T_cam_base` (F, 4, 4), and the box a result's search sized around something the URDF
-    lacks (`carried`: RESULT.json `start.carried`, where it named one); returns how many
-    images were written. The folder is written atomically (`dream.io.staged_directory`): on a
-    failure nothing is left in it."""
+    `T_cam_base` (F, 4, 4), the box a result's search sized around something the URDF lacks
+    (`carried`: RESULT.json `start.carried`, where it named one) and the moving pixels away
+    from the robot (`away`: frame index -> (H, W) bool, `dream.overlay_search.away_pixels`)
+    tinted; returns how many images were written. The folder is written atomically
+    (`dream.io.staged_directory`): on a failure nothing is left in it."""
     from dream.camera import project
     from dream.io.atomic import staged_directory
     from dream.pipeline import joints_in_robot_order
@@ -296,7 +316,10 @@ def write_skeleton_overlays(sequence, robot, T_cam_base: np.ndarray, out_dir,
     with staged_directory(out_dir) as stage:
         for n, (i, frame) in enumerate(chosen):
             camera = sequence.frame_camera(i)
-            image = outliner.draw(_frame_canvas(sequence, frame), camera, i, T_cam_base[i])
+            image = _frame_canvas(sequence, frame)
+            if away and i in away:
+                image = tint(image, away[i])
+            image = outliner.draw(image, camera, i, T_cam_base[i])
             if skeleton:
                 uv = project(camera, transform_points(T_cam_base[i], P_base[i]))
                 image = draw_skeleton(image, uv, robot.skeleton_edges)

@@ -15,6 +15,7 @@ import logging
 import numpy as np
 
 from dream.overlay import (
+    AWAY_RGB,
     CARRIED_RGB,
     OUTLINE_RGB,
     _frame_canvas,
@@ -25,34 +26,14 @@ from dream.overlay import (
     carried_corners,
     draw_box,
     draw_outline,
+    tint,
     with_legend,
     write_result_overlays,
 )
 
 log = logging.getLogger(__name__)
 
-AWAY_RGB = (255, 140, 0)      # moving pixels away from the robot, not counted as robot
-AWAY_OPACITY = 0.6            # of that tint over the image
 SUMMARY_DIM = 0.5             # the frame under the search's outlines in its summary, dimmed
-
-
-def tint(image: np.ndarray, where: np.ndarray, color: tuple[int, int, int] = AWAY_RGB,
-         opacity: float = AWAY_OPACITY) -> np.ndarray:
-    """RGB image (H, W, 3) uint8 with the pixels `where` (H, W) bool blended towards `color`.
-
-    >>> tint(np.zeros((1, 2, 3), np.uint8), np.array([[True, False]]))[0, :, 0].tolist()
-    [153, 0]
-    """
-    from dream.errors import InputError
-
-    image, where = np.asarray(image), np.asarray(where, bool)
-    if image.ndim != 3 or where.shape != image.shape[:2]:
-        raise InputError(f"tint needs an (H, W, 3) image and an (H, W) mask, got {image.shape} "
-                         f"and {where.shape}")
-    out = image.copy()
-    out[where] = np.round((1 - opacity) * image[where] + opacity * np.asarray(color)).astype(
-        np.uint8)
-    return out
 
 
 def write_calibration_overlays(sequence, robot, obs, result, out_dir, doc: dict,

@@ -47,12 +47,13 @@ def run_overlay(request: OverlayRequest) -> int:
     check_output_folder(request.out)  # before any reading or drawing
     seq = read_data(request)
     robot, skeleton = _robot(seq, request)
-    carried = None
+    carried = away = None
     if request.extrinsic is not None:
         doc = read_result(request.extrinsic)
         poses = _result_poses(doc, seq)
         seq = _with_result_focal(doc, seq)
         carried = _carried(doc, robot)
+        away = _away(doc, seq, robot, poses)
     else:
         from dream.pipeline import truth_poses
 
@@ -61,7 +62,7 @@ def run_overlay(request: OverlayRequest) -> int:
                              "pass --extrinsic RESULT.json")
         poses = truth_poses(seq)
     n = write_skeleton_overlays(seq, robot, poses, Path(request.out), limit=request.limit,
-                                skeleton=skeleton, carried=carried)
+                                skeleton=skeleton, carried=carried, away=away)
     print(f"wrote {n} overlay images to {request.out}")
     return n
 
@@ -92,6 +93,21 @@ def _carried(doc: dict, robot) -> dict | None:
     print(f"magenta box: something the URDF lacks moving with {carried['named']}, as the "
           f"calibration sized it")
     return carried
+
+
+def _away(doc: dict, seq, robot, poses: np.ndarray) -> dict | None:
+    """The moving pixels away from the robot in the frames the result's search compared, where
+    its verdict counted them (`dream.overlay_search.away_pixels`); says so, since they are
+    tinted orange."""
+    from dream.overlay_search import away_pixels
+
+    if doc.get("start") is None:
+        return None
+    away = away_pixels(seq, robot, doc, list(poses))
+    if away:
+        print(f"orange: moving pixels away from the robot in the {len(away)} frames the search "
+              f"compared, not counted as robot")
+    return away
 
 
 def _with_result_focal(doc: dict, seq):

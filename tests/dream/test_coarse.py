@@ -412,6 +412,13 @@ def test_something_else_moving_away_from_the_arm_is_named_and_not_counted(panda,
     tinted = np.any(image != load_image(seq.frames[i], seq.camera), axis=-1) & ~outline
     arm = render_silhouette(meshes, joints_in_robot_order(seq, panda)[i], T_true, CAMERA)
     assert tinted.sum() > 100 and not (tinted & arm).any()
+    # and so does `dream overlay` of the result
+    assert main(["overlay", str(tmp_path / "data"), "--extrinsic", str(tmp_path / "r.json"),
+                 "--out", str(tmp_path / "drawn")]) == 0
+    assert "orange: moving pixels away from the robot" in capsys.readouterr().out
+    drawn = cv2.cvtColor(cv2.imread(str(tmp_path / "drawn" / f"{seq.frames[i].name}.overlay.png")),
+                         cv2.COLOR_BGR2RGB)
+    assert np.array_equal(drawn[tinted], image[tinted])       # the same pixels, the same tint
 
 
 def test_at_a_wrong_pose_the_robot_itself_lies_away_and_the_verdict_says_so(panda, meshes):

@@ -5,8 +5,16 @@ import numpy as np
 import pytest
 
 from dream.errors import InputError
-from dream.overlay import BOX_EDGES, CARRIED_RGB, blank_image, carried_corners, draw_box
-from dream.overlay_search import AWAY_RGB, search_legend, tint
+from dream.overlay import (
+    AWAY_RGB,
+    BOX_EDGES,
+    CARRIED_RGB,
+    blank_image,
+    carried_corners,
+    draw_box,
+    tint,
+)
+from dream.overlay_search import search_legend
 from dream.robot.link_geometry import BOX_KIND, LinkGeometry
 from dream.sample import random_joints
 from dream.transforms import transform_points
