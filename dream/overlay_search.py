@@ -1,12 +1,14 @@
 """The overlays of a pose found without keypoints (`dream calibrate` without `--model`: the
-silhouette search, `dream.coarse`), drawn by `dream.overlay.write_result_overlays` (file edge).
+silhouette search, `dream.coarse`; file edge). `write_calibration_overlays` is what
+`dream calibrate --overlays` calls: these for such a pose, `dream.overlay`'s otherwise.
 
 Per frame: the robot's outline at the pose written (cyan); where the search named something
 the URDF lacks moving with a link (RESULT.json `start.carried`), the box it sized around it
 (magenta); where the verdict found much of the masks' moving pixels away from the robot
-(`start.away`, `dream.coarse.away`: another arm at work, a person), those pixels tinted
-orange in the frames the search compared. `summary.png` holds the outlines of every frame the
-search compared over the first of them, dimmed, with the away pixels of all of them."""
+(`start.away`, `dream.coarse.away`: another arm at work, someone walking past; not what
+touches the arm), those pixels tinted orange in the frames the search compared.
+`summary.png` holds the outlines of every frame the search compared over the first of them,
+dimmed, with the away pixels of all of them."""
 
 from __future__ import annotations
 
