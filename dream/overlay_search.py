@@ -96,9 +96,10 @@ def write_search_overlays(sequence, robot, poses: list, out_dir, doc: dict,
 
 def away_pixels(sequence, robot, doc: dict, poses: list) -> dict[int, np.ndarray]:
     """Frame index -> (H, W) bool: the search's masks' pixels away from the robot at the pose
-    written, in the frames it compared, where the verdict found them more than
-    `SearchSettings.max_away_share` of the moving pixels (none otherwise): the search's
-    masks made again (`dream.coarse.calibration.search_masks`)."""
+    written, in the frames it compared (`start.frames`, by name), where the verdict found them
+    more than `SearchSettings.max_away_share` of the moving pixels (none otherwise): the
+    search's masks made again (`dream.coarse.calibration.search_masks`) from `sequence`, whose
+    joints must be those the calibration used (its readings interpolated where it did)."""
     from dream.coarse.away import away_masks_at_pose
     from dream.coarse.calibration import search_masks
     from dream.coarse.settings import SearchSettings
@@ -113,9 +114,10 @@ def away_pixels(sequence, robot, doc: dict, poses: list) -> dict[int, np.ndarray
     except DreamError as exc:
         log.warning("overlays without the pixels away from the robot: %s", exc)
         return {}
+    compared = set(doc["start"].get("frames") or ())
     drawn = {}
     for n, i in enumerate(int(i) for i in inputs.frames):
-        if poses[i] is not None:
+        if poses[i] is not None and sequence.frames[i].name in compared:
             drawn[i] = away_masks_at_pose(inputs.meshes, inputs.joints[n:n + 1],
                                           inputs.masks[n:n + 1], sequence.camera, poses[i],
                                           settings.away_margin_px)[0]

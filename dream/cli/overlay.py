@@ -50,6 +50,11 @@ def run_overlay(request: OverlayRequest) -> int:
     carried = away = None
     if request.extrinsic is not None:
         doc = read_result(request.extrinsic)
+        # the joints the result was solved with: interpolated where calibrate interpolated them
+        if (doc.get("joint_readings") or {}).get("interpolated"):
+            from dream.cli.options import joint_readings
+
+            seq, _ = joint_readings(seq, interpolate=True)
         poses = _result_poses(doc, seq)
         seq = _with_result_focal(doc, seq)
         carried = _carried(doc, robot)

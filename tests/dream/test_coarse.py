@@ -419,6 +419,13 @@ def test_something_else_moving_away_from_the_arm_is_named_and_not_counted(panda,
     drawn = cv2.cvtColor(cv2.imread(str(tmp_path / "drawn" / f"{seq.frames[i].name}.overlay.png")),
                          cv2.COLOR_BGR2RGB)
     assert np.array_equal(drawn[tinted], image[tinted])       # the same pixels, the same tint
+    # only the frames the search compared, by name
+    from dream.overlay_search import away_pixels
+
+    named = {**doc, "start": {**doc["start"], "frames": doc["start"]["frames"][:2]}}
+    poses = [np.asarray(doc["T_cam_base"])] * len(seq.frames)
+    assert {seq.frames[k].name for k in away_pixels(seq, panda, named, poses)} \
+        <= set(doc["start"]["frames"][:2])
 
 
 def test_at_a_wrong_pose_the_robot_itself_lies_away_and_the_verdict_says_so(panda, meshes):

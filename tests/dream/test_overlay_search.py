@@ -124,3 +124,29 @@ def test_dream_overlay_draws_the_box_a_result_named(realdata, tmp_path, capsys):
         assert ("magenta box: something the URDF lacks moving with panda_hand" in printed) \
             == (start is not None)
     assert drawn["box"] > drawn["plain"] + 30
+
+
+def test_dream_overlay_draws_a_result_at_the_joints_it_was_solved_with(realdata, tmp_path):
+    """`panda_teleop` logs its joints at 5 Hz beside 30 Hz images: a result solved with the
+    readings interpolated in time is drawn with them too, not with the held ones."""
+    import json
+
+    import cv2
+
+    from dream.cli import main
+    from dream.io import read_sequence
+
+    data = realdata / "panda_teleop"
+    T_ref = read_sequence(data).T_cam_base_reference
+    drawn = {}
+    for name, readings in (("held", None), ("interpolated", {"interpolated": True})):
+        result = tmp_path / f"{name}.json"
+        result.write_text(json.dumps({"T_cam_base": T_ref.tolist(), "per_frame": [],
+                                      "joint_readings": readings}))
+        assert main(["overlay", str(data), "--extrinsic", str(result), "--out",
+                     str(tmp_path / name), "--limit", "70"]) == 0
+        drawn[name] = [cv2.imread(str(tmp_path / name / f"{i:06d}.overlay.png"))
+                       for i in (0, 69)]
+    # frame 0: the arm at rest, the same joints either way; frame 69: 0.04 rad apart
+    assert np.array_equal(drawn["held"][0], drawn["interpolated"][0])
+    assert not np.array_equal(drawn["held"][1], drawn["interpolated"][1])
