@@ -67,7 +67,7 @@ def write_search_overlays(sequence, robot, poses: list, out_dir, doc: dict,
     outliner = _Outliner(sequence, robot)
     carried = start.get("carried") or {}
     corners = carried_corners(robot, outliner.joints, carried)
-    away = away_pixels(sequence, robot, doc, poses)
+    away = away_pixels(sequence, robot, doc)
     summary = None
     with staged_directory(out_dir) as stage:
         for i, frame in enumerate(sequence.frames):
@@ -94,12 +94,13 @@ def write_search_overlays(sequence, robot, poses: list, out_dir, doc: dict,
             bool(away))))
 
 
-def away_pixels(sequence, robot, doc: dict, poses: list) -> dict[int, np.ndarray]:
+def away_pixels(sequence, robot, doc: dict) -> dict[int, np.ndarray]:
     """Frame index -> (H, W) bool: the search's masks' pixels away from the robot at the pose
-    written, in the frames it compared (`start.frames`, by name), where the verdict found them
-    more than `SearchSettings.max_away_share` of the moving pixels (none otherwise): the
-    search's masks made again (`dream.coarse.calibration.search_masks`) from `sequence`, whose
-    joints must be those the calibration used (its readings interpolated where it did)."""
+    written (`doc["T_cam_base"]`: the search's camera is fixed), in the frames it compared
+    (`start.frames`, by name), where the verdict found them more than
+    `SearchSettings.max_away_share` of the moving pixels (none otherwise): the search's masks
+    made again (`dream.coarse.calibration.search_masks`) from `sequence`, whose joints must be
+    those the calibration used (its readings interpolated where it did)."""
     from dream.coarse.away import away_masks_at_pose
     from dream.coarse.calibration import search_masks
     from dream.coarse.settings import SearchSettings
@@ -115,13 +116,12 @@ def away_pixels(sequence, robot, doc: dict, poses: list) -> dict[int, np.ndarray
         log.warning("overlays without the pixels away from the robot: %s", exc)
         return {}
     compared = set(doc["start"].get("frames") or ())
-    drawn = {}
-    for n, i in enumerate(int(i) for i in inputs.frames):
-        if poses[i] is not None and sequence.frames[i].name in compared:
-            drawn[i] = away_masks_at_pose(inputs.meshes, inputs.joints[n:n + 1],
-                                          inputs.masks[n:n + 1], sequence.camera, poses[i],
-                                          settings.away_margin_px)[0]
-    return drawn
+    chosen = [n for n, i in enumerate(inputs.frames) if sequence.frames[int(i)].name in compared]
+    if not chosen:
+        return {}
+    away = away_masks_at_pose(inputs.meshes, inputs.joints[chosen], inputs.masks[chosen],
+                              sequence.camera, doc["T_cam_base"], settings.away_margin_px)
+    return {int(inputs.frames[n]): mask for n, mask in zip(chosen, away, strict=True)}
 
 
 def search_legend(doc: dict, refined_by: str | None, compared: int, carried: dict | None,

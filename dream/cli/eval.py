@@ -11,9 +11,9 @@ from dream.cli.options import (
     DataOptions,
     add_command,
     add_data_args,
-    joint_readings,
     read_data,
     request_from,
+    solved_readings,
 )
 
 
@@ -38,9 +38,7 @@ def run_eval(request: EvalRequest) -> dict:
     doc = read_result(request.result)
     seq = read_data(request)
     check_same_data(doc, seq, request.data, request.result)
-    # the joints the result was solved with: interpolated where calibrate interpolated them
-    if (doc.get("joint_readings") or {}).get("interpolated"):
-        seq, _ = joint_readings(seq, interpolate=True)
+    seq = solved_readings(seq, doc)
     names = [k["name"] for f in doc["per_frame"][:1] for k in f.get("keypoints") or []]
     robot_from = request.result if not request.robot and doc.get("robot") else None
     robot = robot_for(seq, request.robot or doc.get("robot"), tuple(names) or None,

@@ -236,6 +236,14 @@ def joint_readings(seq: Any, interpolate: bool, out: TextIO | None = None
     return seq, doc
 
 
+def solved_readings(seq: Any, doc: dict) -> Any:
+    """`seq` with the joints a RESULT.json `doc` was solved with: its readings interpolated in
+    time where `dream calibrate` interpolated them (`joint_readings.interpolated`)."""
+    if (doc.get("joint_readings") or {}).get("interpolated"):
+        seq, _ = joint_readings(seq, interpolate=True)
+    return seq
+
+
 def request_from(cls: type[Request], args: argparse.Namespace) -> Request:
     """The request dataclass `cls` made of the options of `args` that are its fields (the
     others keep the field's default)."""

@@ -18,6 +18,7 @@ from dream.cli.options import (
     add_keypoints_arg,
     read_data,
     request_from,
+    solved_readings,
 )
 from dream.errors import InputError
 
@@ -50,15 +51,11 @@ def run_overlay(request: OverlayRequest) -> int:
     carried = away = None
     if request.extrinsic is not None:
         doc = read_result(request.extrinsic)
-        # the joints the result was solved with: interpolated where calibrate interpolated them
-        if (doc.get("joint_readings") or {}).get("interpolated"):
-            from dream.cli.options import joint_readings
-
-            seq, _ = joint_readings(seq, interpolate=True)
+        seq = solved_readings(seq, doc)
         poses = _result_poses(doc, seq)
         seq = _with_result_focal(doc, seq)
         carried = _carried(doc, robot)
-        away = _away(doc, seq, robot, poses)
+        away = _away(doc, seq, robot)
     else:
         from dream.pipeline import truth_poses
 
@@ -100,7 +97,7 @@ def _carried(doc: dict, robot) -> dict | None:
     return carried
 
 
-def _away(doc: dict, seq, robot, poses: np.ndarray) -> dict | None:
+def _away(doc: dict, seq, robot) -> dict | None:
     """The moving pixels away from the robot in the frames the result's search compared, where
     its verdict counted them (`dream.overlay_search.away_pixels`); says so, since they are
     tinted orange."""
@@ -108,7 +105,7 @@ def _away(doc: dict, seq, robot, poses: np.ndarray) -> dict | None:
 
     if doc.get("start") is None:
         return None
-    away = away_pixels(seq, robot, doc, list(poses))
+    away = away_pixels(seq, robot, doc)
     if away:
         print(f"orange: moving pixels away from the robot in the {len(away)} frames the search "
               f"compared, not counted as robot")

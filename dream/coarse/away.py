@@ -117,15 +117,23 @@ def away_at_pose(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     """`away_from_robot` of `masks` (F, H, W; `camera`'s size) against the silhouettes of
     `meshes` at `joints` (F, J) seen from `T_cam_base`; `margin_px` per `MARGIN_WIDTH_PX` of
     width."""
-    silhouettes = render_frames(vertices_in_base(meshes, joints), meshes.faces,
-                                np.asarray(T_cam_base, float), camera)
-    return away_from_robot(masks, silhouettes, margin_px * camera.width / MARGIN_WIDTH_PX)
+    return away_from_robot(masks, *_silhouettes_and_margin(meshes, joints, camera, T_cam_base,
+                                                           margin_px))
 
 
 def away_masks_at_pose(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
                        camera: CameraIntrinsics, T_cam_base: np.ndarray, margin_px: float
                        ) -> np.ndarray:
     """`away_masks` against the silhouettes of `away_at_pose` (the same arguments)."""
+    return away_masks(masks, *_silhouettes_and_margin(meshes, joints, camera, T_cam_base,
+                                                      margin_px))
+
+
+def _silhouettes_and_margin(meshes: RobotMeshes, joints: np.ndarray, camera: CameraIntrinsics,
+                            T_cam_base: np.ndarray, margin_px: float
+                            ) -> tuple[np.ndarray, float]:
+    """The silhouettes (F, H, W) of `meshes` at `joints` seen from `T_cam_base`, and
+    `margin_px` (per `MARGIN_WIDTH_PX` of width) in `camera`'s pixels."""
     silhouettes = render_frames(vertices_in_base(meshes, joints), meshes.faces,
                                 np.asarray(T_cam_base, float), camera)
-    return away_masks(masks, silhouettes, margin_px * camera.width / MARGIN_WIDTH_PX)
+    return silhouettes, margin_px * camera.width / MARGIN_WIDTH_PX
