@@ -78,15 +78,9 @@ def holdout_range(text: str | None, count: int) -> range:
     """
     if text is None:
         return range(count - count // HOLDOUT_SHARE, count)
-    try:
-        start, stop = (int(v) for v in text.split(":"))
-    except ValueError:
-        raise InputError(f"--holdout-frames {text!r} must be START:STOP", fix="e.g. 92:183"
-                         ) from None
-    if not 0 <= start < stop <= count:
-        raise InputError(f"--holdout-frames {text} lies outside the {count} frames",
-                         fix=f"give 0 <= START < STOP <= {count}")
-    return range(start, stop)
+    from dream.cli.options import parse_frame_range
+
+    return parse_frame_range(text, count, "--holdout-frames")
 
 
 def check_teacher(doc: dict, path: str) -> None:

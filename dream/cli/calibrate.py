@@ -14,6 +14,8 @@ from dream.cli.calibrate_report import (
     add_polish,
     add_quality,
     add_silhouette_check,
+    measure_steadiness,
+    steadiness_record,
 )
 from dream.cli.calibrate_write import check_outputs, finish, refined_or_kept, result_document
 from dream.cli.observe import observe
@@ -30,6 +32,7 @@ from dream.cli.options import (
     add_data_args,
     add_model_source,
     check_seed,
+    frames_in_range,
     joint_readings,
     read_data,
     request_from,
@@ -71,6 +74,7 @@ class CalibrateRequest(DataOptions):
     mark_link: str | None = None
     mark_offset: str | None = None
     fixed_focal: bool = False
+    frame_range: str | None = None
     loaded_model: Any = None
 
     def __post_init__(self) -> None:
@@ -196,14 +200,15 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     settings = request.solver_settings()
     paths = check_outputs(request)
     extension = _read_extension(request)
-    seq = read_data(request)
+    seq = frames_in_range(read_data(request), request.frame_range)
     data_doc = data_record(seq, request.data)
     seq, readings_doc = joint_readings(seq, request.joint_readings == INTERPOLATE, out)
     refine = refine_mode(request, seq)
+    motion = measure_steadiness(seq, request.frames, out)
     if request.searches:
         from dream.cli.calibrate_start import run_search
 
-        return run_search(request, seq, data_doc, readings_doc, refine, paths, out)
+        return run_search(request, seq, data_doc, readings_doc, refine, paths, out, motion)
     if request.exclude_links and refine != EDGES:
         raise InputError("--exclude-links chooses the links of the edge alignment, and it does "
                          "not run here (--refine auto runs it on data with images and no "
@@ -230,14 +235,15 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
                                   "camera": {"fx": seq.camera.fx, "fy": seq.camera.fy,
                                              "cx": seq.camera.cx, "cy": seq.camera.cy,
                                              "distortion": seq.camera.distortion}}
-    checked: list = []
+    checked: list = [steadiness_record(motion, seq, doc)]
     if refine == EDGES:
         add = add_edges if request.frames == "all" else add_frame_edges
         doc = refined_or_kept(request, lambda: add(
             seq, robot, result, obs, doc, out, request.exclude_links,
             () if extension is None else extension.link_geometry), doc, out)
         if request.frames == "all":
-            doc, checked = add_silhouette_check(seq, robot, result, doc, out)
+            doc, silhouettes = add_silhouette_check(seq, robot, result, doc, out)
+            checked += silhouettes
     elif extension is not None and extension.link_geometry and refine != POLISH:
         print("note: the model extension's link_geometry changes only the image refinements "
               "(--refine edges, --polish), and neither runs here", file=out)
@@ -359,6 +365,9 @@ def add_calibrate_args(p: argparse.ArgumentParser) -> None:
                    help="without keypoints: keep the data's fx, fy as given (by default the "
                         "search fits their scale where the robot's outlines determine it and "
                         "the overlap agrees, and reports it)")
+    p.add_argument("--frame-range", metavar="START:STOP",
+                   help="calibrate only these frames (indices in time order, STOP excluded): "
+                        "one still stretch of a recording whose camera moved")
     p.add_argument("--loss", choices=("huber", "cauchy", "l2"), default="huber",
                    help="robust loss of the keypoint fit (default: %(default)s)")
     p.add_argument("--loss-scale-px", type=float, default=RobustLoss().scale_px,

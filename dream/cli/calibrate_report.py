@@ -276,3 +276,37 @@ def print_truth_errors(doc: dict, T_true: np.ndarray, out: TextIO) -> None:
     print(f"error vs ground truth over the {int(both.sum())} frames with a pose: median camera "
           f"position {np.median(t_all) * 1000:.2f} mm, rotation "
           f"{np.rad2deg(np.median(r_all)):.3f} deg", file=out)
+
+
+def measure_steadiness(seq, frames: str, out: TextIO):
+    """Whether the camera of an all-frames calibration stayed put (`dream.steadiness`): its
+    `CameraMotion` over up to `max_frames` frames, read here and shrunk as they are read; None
+    for per-frame calibrations, data without images, or one frame."""
+    from dream.edges.background import grey
+    from dream.io import load_image
+    from dream.steadiness import SteadinessSettings, camera_motion, compared_frames, shrunk
+
+    if frames != "all" or len(seq) < 2 or not seq.has_images or seq.has_frame_cameras:
+        return None
+    settings = SteadinessSettings()
+    indices = compared_frames(len(seq), settings)
+    images = np.stack([shrunk(grey(load_image(seq.frames[i], seq.camera)), settings)
+                       for i in indices])
+    motion = camera_motion(images, indices, settings, image_width=seq.camera.width)
+    if motion.moved.any():
+        print(f"steadiness: the camera moved while it recorded ({motion.largest_px:.1f} px "
+              f"at most, {motion.moved.sum()} of {len(indices)} compared frames moved; "
+              "the verdict says what to do)", file=out)
+    return motion
+
+
+def steadiness_record(motion, seq, doc: dict):
+    """RESULT.json's `steadiness` from `measure_steadiness`'s motion (nothing without one),
+    and the verdict's finding on it (None where the camera stayed put)."""
+    from dream.steadiness import steadiness_finding
+
+    if motion is None:
+        return None
+    names = [f.name for f in seq.frames]
+    doc["steadiness"] = motion.to_dict(names)
+    return steadiness_finding(motion, names)

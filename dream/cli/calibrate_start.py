@@ -271,10 +271,10 @@ def mark_doc(marked, seq) -> dict:
 
 
 def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
-                   marked=None, camera=None) -> dict:
+                   marked=None, camera=None, extra: tuple = ()) -> dict:
     """The verdict on a pose found without keypoints: the search's findings, the cues', the
-    mark's clicks at the pose written (with `--mark`), and the condition of the pose written
-    (`dream.quality`)."""
+    mark's clicks at the pose written (with `--mark`), the condition of the pose written
+    (`dream.quality`) and the `extra` findings (a camera that moved)."""
     from dream.coarse.settings import SearchSettings
     from dream.coarse.verdict import (
         away_finding,
@@ -311,7 +311,7 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
         findings.append(mark_finding(residuals, MarkSettings().max_click_residual_px))
     findings += condition_findings(np.asarray(doc["covariance_xi"]),
                                    np.asarray(doc["T_cam_base"]))
-    quality = quality_from(0, 0, findings)
+    quality = quality_from(0, 0, findings + list(extra))
     print(f"quality: {quality.verdict}", file=out)
     for warning in quality.warnings:
         print(f"  - {warning}", file=out)
@@ -319,9 +319,10 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
 
 
 def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: str, paths,
-               out: TextIO) -> dict:
-    """`dream calibrate` by the silhouette search (`dream.cli.calibrate_start`)."""
-    from dream.cli.calibrate_report import add_polish
+               out: TextIO, motion=None) -> dict:
+    """`dream calibrate` by the silhouette search (`dream.cli.calibrate_start`); `motion`:
+    the camera's, where it was measured (`measure_steadiness`)."""
+    from dream.cli.calibrate_report import add_polish, steadiness_record
     from dream.cli.calibrate_write import finish
     from dream.refined_uncertainty import with_cue_term
 
@@ -344,7 +345,8 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
             result, obs, doc, T_own = _challenged(request, data_doc, readings_doc, found,
                                                   T_other, (result, obs, doc), out)
     doc, cue_move = with_cue_term(doc, T_other, T_own)
-    doc["quality"] = search_quality(doc, cue_move, out, marked, seq.camera)
+    moved = steadiness_record(motion, seq, doc)
+    doc["quality"] = search_quality(doc, cue_move, out, marked, seq.camera, (moved,))
     finish(request, seq, robot, obs, result, doc, paths, out)
     return doc
 

@@ -107,6 +107,34 @@ def parse_numbers(text: str, counts: tuple[int, ...], option: str, fix: str
     return values
 
 
+def parse_frame_range(text: str, count: int, option: str) -> range:
+    """`START:STOP` of an option naming frames of a recording of `count` (indices in time
+    order, STOP excluded); anything else is one `InputError` line naming `option`.
+
+    >>> parse_frame_range("2:5", 9, "--frame-range")
+    range(2, 5)
+    """
+    try:
+        start, stop = (int(v) for v in text.split(":"))
+    except ValueError:
+        raise InputError(f"{option} {text!r} must be START:STOP (frame indices, STOP "
+                         "excluded)", fix="e.g. 0:15") from None
+    if not 0 <= start < stop <= count:
+        raise InputError(f"{option} {text} lies outside the {count} frames",
+                         fix=f"give 0 <= START < STOP <= {count}")
+    return range(start, stop)
+
+
+def frames_in_range(seq: Any, text: str | None) -> Any:
+    """The frames of `seq` that `--frame-range START:STOP` names (all without it)."""
+    if text is None:
+        return seq
+    chosen = parse_frame_range(text, len(seq), "--frame-range")
+    keep = np.zeros(len(seq), bool)
+    keep[chosen.start:chosen.stop] = True
+    return seq.subset(keep)
+
+
 def _parse_distortion(text: str) -> tuple[float, ...]:
     values = parse_numbers(text, (4, 5), "--distortion",
                            "give --distortion k1,k2,p1,p2[,k3] (OpenCV's plumb_bob order)")
