@@ -5,8 +5,9 @@ Renders (or reuses) fixed-camera `real_world.yaml` scenes and runs the steadines
 alarm) and knocked half way: every frame from the middle on moved in the image by a shift of
 `--shifts` pixels (per 320 px of width, in a random direction), a roll of `--rolls` degrees
 about the image centre, or a zoom of `--zooms` (a camera pushed along its axis), as a bump of
-the tripod moves it. Prints per kind of move how many scenes were called moved, how many split
-at the right frame, and the false alarms on the scenes as rendered.
+the tripod moves it (or, `--shakes`, a shaking mount). Prints per kind of move how many
+scenes were called moved, how many split at the right frame, and the false alarms on the
+scenes as rendered.
 
 With `--calibrate N`, the first scene of N robots is also written knocked (each shift)
 and calibrated without keypoints (`dream calibrate`), then with `--frame-range` over
@@ -33,7 +34,7 @@ from dream.cli.calibrate import CalibrateRequest, run_calibrate
 from dream.edges.background import grey
 from dream.io import load_image, read_sequence
 from dream.metrics import pose_errors
-from dream.steadiness import SteadinessSettings, camera_motion, compared_frames
+from dream.steadiness import SteadinessSettings, camera_motion
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from coarse_start import render_scene  # noqa: E402
@@ -61,9 +62,9 @@ def knock(image: np.ndarray, kind: str, amount: float, direction: float) -> np.n
 
 
 def scene_frames(data: Path) -> tuple[np.ndarray, int]:
-    """The compared grey frames of a scene (`compared_frames`) and the image width."""
+    """The compared grey frames of a scene (`SteadinessSettings.compared`) and its width."""
     seq = read_sequence(data)
-    indices = compared_frames(len(seq))
+    indices = SteadinessSettings().compared(len(seq))
     return np.stack([grey(load_image(seq.frames[i], seq.camera)) for i in indices]), \
         seq.camera.width
 
@@ -77,7 +78,21 @@ def judged(frames: np.ndarray, width: int) -> dict:
 
 def moves(args: argparse.Namespace) -> list[tuple[str, float]]:
     return ([("shift", s) for s in args.shifts] + [("roll", r) for r in args.rolls]
-            + [("zoom", z) for z in args.zooms])
+            + [("zoom", z) for z in args.zooms] + [("shake", s) for s in args.shakes])
+
+
+def moved_frames(frames: np.ndarray, kind: str, amount: float, direction: float,
+                 rng: np.random.Generator) -> np.ndarray:
+    """`frames` (n, H, W) seen by a camera knocked before its middle frame; a shaking one
+    (`shake`) shifted `amount` px per 320 px anew in a random direction in each of those."""
+    half = len(frames) // 2
+    out = frames.copy()
+    for i in range(half, len(frames)):
+        if kind == "shake":
+            out[i] = knock(frames[i], "shift", amount, rng.uniform(0, 2 * np.pi))
+        else:
+            out[i] = knock(frames[i], kind, amount, direction)
+    return out
 
 
 def check_scenes(scenes: list[Path], args: argparse.Namespace) -> None:
@@ -92,9 +107,7 @@ def check_scenes(scenes: list[Path], args: argparse.Namespace) -> None:
               f"({steady['largest_px']:.2f} px)", flush=True)
         for kind, amount in moves(args):
             direction = rng.uniform(0, 2 * np.pi)
-            knocked = frames.copy()
-            knocked[half:] = [knock(f, kind, amount, direction) for f in frames[half:]]
-            found = judged(knocked, width)
+            found = judged(moved_frames(frames, kind, amount, direction, rng), width)
             stretches = found["stretches"]
             split = (len(stretches) == 2 and stretches[0][1] < half <= stretches[1][0])
             counts = tally.setdefault(f"{kind} {amount:g}", [0, 0])
@@ -141,6 +154,10 @@ def main() -> None:
     p.add_argument("--shifts", type=float, nargs="*", default=[1.0, 2.0, 4.0])
     p.add_argument("--rolls", type=float, nargs="*", default=[0.5, 1.0])
     p.add_argument("--zooms", type=float, nargs="*", default=[1.01])
+    p.add_argument("--shakes", type=float, nargs="*", default=[],
+                   help="a shaking mount: from the middle frame on each frame shifted this "
+                        "many px per 320 px in a direction of its own (its split is not "
+                        "scored)")
     p.add_argument("--seed", type=int, default=0, help="draws the shifts' directions")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a randomisation key of the scenes (repeatable), e.g. "

@@ -6,23 +6,20 @@ neither the frames before nor after, and nothing else names it (the residuals gr
 blames the keypoints or the model, and a small move passes as a good fit).
 
 The scene behind the arm does not move by itself, so its motion in the image is the camera's.
-Each compared frame is set against the first in two ways: corners of the first frame tracked
-into it (pyramidal Lucas-Kanade, kept where the track returns to its start) with a similarity
-(rotation, scale, shift) fitted to them robustly (RANSAC: the still scene is the largest set of
-corners that move together, the arm's each move their own way), and the image shift by phase
-correlation, for scenes whose corners do not track. A fitted move is a camera pose when it
-displaces an image corner by more than `move_px` and the first frame's textured pixels vote
-for it: a pixel votes for the move, or for no move, where the frame moved back by it differs
-from the first frame clearly less (by `noise_level`) than unmoved, or the other way round;
-pixels on the arm, flat ones and texture that runs along the move cannot tell and abstain.
-The votes are the guard: where the arm fills the view the fit may follow the arm, and where
-the light changes nothing matches, and in neither does the scene vote for a move.
+Each compared frame, its exposure matched to the first's, is set against the first: corners
+tracked into it (pyramidal Lucas-Kanade, both ways) with a similarity fitted to them by RANSAC
+(the still scene is the largest set of corners moving together; the arm's move each their own
+way), and the image shift by phase correlation, for scenes whose corners do not track. A
+fitted move is a camera pose when it displaces an image corner by more than `move_px` and the
+first frame's textured pixels vote for it: a pixel votes for the hypothesis (moved back by it,
+or unmoved) under which the frame differs from the first clearly less (by `noise_level`);
+pixels on the arm, flat ones and texture running along the move abstain. The votes are the
+guard: where the arm fills the view the fit may follow the arm, and the scene does not vote.
 
-Every frame is then set against every camera pose found (so that a frame whose own tracks
-failed still shows the pose it shares with others): moved where the pixels vote clearly for
-one pose, still where they vote clearly against all, otherwise not judged. The frames split
-into still stretches where consecutive judged frames differ by more than `move_px`;
-RESULT.json's `steadiness` names them, and the verdict says which to calibrate alone (`dream
+Every frame is then set against every pose found (a frame whose own tracks failed still shows
+the pose it shares with others): moved where its pixels vote clearly for one, still where they
+vote clearly against all, otherwise not judged. Still stretches split where consecutive judged
+frames differ by more than `move_px`; the verdict names the ones to calibrate alone (`dream
 calibrate --frame-range START:STOP`).
 
     >>> rng = np.random.default_rng(0)
@@ -48,6 +45,7 @@ from dream.settings_checks import check_fields
 GREY_MAX = 255           # 8-bit grey levels for the corner tracker
 IMAGE_CORNERS = 4        # a frame's displacement: the largest over its four corners
 UNTOLD = -1              # a frame whose pixels tell neither a move nor none
+LISTED_STRETCHES = 3     # more still stretches than this: a shaking mount, the longest named
 
 
 @dataclass(frozen=True)
@@ -83,9 +81,9 @@ class SteadinessSettings:
             is judged against the first ones).
         pose_spacing: a fitted move within this many `move_px` of a pose already found is
             that pose again (a poorer fit of it), not another.
-        min_pose_frames: a camera pose shown by fewer compared frames than this is not
-            claimed (in a smooth scene filled by the arm, two frames of a steady camera voted
-            for a 6 px move); a knocked camera stays knocked for the frames after.
+        min_moved_frames: fewer compared frames than this shown moved claim no move (in a
+            smooth scene filled by the arm, two frames of a steady camera voted for a 6 px
+            move); a knocked camera stays knocked, a shaking one shakes, for many frames.
         move_px: a frame moved when an image corner moves more than this (0.2 deg at 60 deg).
         unreliable_px: beyond this the verdict is `unreliable` (a panda render knocked half
             way: 1 / 2 / 4 px put the pose 9 / 18 / 46 mm off the camera before, 4 mm unknocked).
@@ -112,14 +110,14 @@ class SteadinessSettings:
     min_match: float = 0.3
     max_poses: int = 8
     pose_spacing: float = 2.0
-    min_pose_frames: int = 3
+    min_moved_frames: int = 3
     move_px: float = 1.0
     unreliable_px: float = 2.0
 
     def __post_init__(self) -> None:
         check_fields(self, "steadiness",
                      positive_ints=("width_px", "max_frames", "corners", "window_px", "levels",
-                                    "min_points", "max_poses", "min_pose_frames"),
+                                    "min_points", "max_poses", "min_moved_frames"),
                      positive=("vote_ratio", "pose_spacing", "corner_quality",
                                "corner_spacing_px", "round_trip_px", "ransac_px",
                                "min_gradient", "match_px", "move_px", "unreliable_px"),
@@ -131,6 +129,12 @@ class SteadinessSettings:
         if self.unreliable_px < self.move_px:
             raise InputError(f"steadiness: unreliable_px ({self.unreliable_px}) must be at "
                              f"least move_px ({self.move_px})")
+
+    def compared(self, count: int) -> np.ndarray:
+        """The frames compared of `count`: up to `max_frames`, evenly spaced, first and last."""
+        if count <= self.max_frames:
+            return np.arange(count)
+        return np.unique(np.linspace(0, count - 1, self.max_frames).round().astype(int))
 
 
 @dataclass(frozen=True)
@@ -224,8 +228,8 @@ def camera_motion(grey: np.ndarray, indices: np.ndarray,
     reference = _Reference.of(work[0], settings)
     poses = _camera_poses(reference, work, corners, limit, settings)
     shown = np.array([_pose_shown(reference, frame, poses, settings) for frame in work])
-    seen_in = np.bincount(shown[shown >= 0], minlength=len(poses))
-    shown[(shown > 0) & (seen_in[np.maximum(shown, 0)] < settings.min_pose_frames)] = UNTOLD
+    if np.count_nonzero(shown > 0) < settings.min_moved_frames:
+        shown[shown > 0] = UNTOLD
     moved, judged = shown > 0, shown >= 0
     shifts = np.zeros((len(work), IMAGE_CORNERS, 2))
     for i in np.flatnonzero(moved):
@@ -409,19 +413,6 @@ def _eight_bit(grey: np.ndarray) -> np.ndarray:
     return np.clip(grey * GREY_MAX, 0, GREY_MAX).astype(np.uint8)
 
 
-def compared_frames(count: int, settings: SteadinessSettings | None = None) -> np.ndarray:
-    """The indices of up to `max_frames` frames of `count`, evenly spaced, first and last
-    included.
-
-    >>> compared_frames(5, SteadinessSettings(max_frames=3)).tolist()
-    [0, 2, 4]
-    """
-    settings = settings or SteadinessSettings()
-    if count <= settings.max_frames:
-        return np.arange(count)
-    return np.unique(np.linspace(0, count - 1, settings.max_frames).round().astype(int))
-
-
 def steadiness_finding(motion: CameraMotion | None, names: list[str]) -> Finding | None:
     """The verdict's finding on a camera that moved (`names`: the recording's frame names);
     None where it stayed put or could not be judged.
@@ -445,6 +436,12 @@ def steadiness_finding(motion: CameraMotion | None, names: list[str]) -> Finding
     if len(stretches) < 2:
         return level, seen + ("; it drifted rather than jumped: record again with the camera "
                               "fixed firmly")
+    if len(stretches) > LISTED_STRETCHES:
+        a, b = max(stretches, key=lambda ab: ab[1] - ab[0])
+        return level, seen + (f"; it moved between {len(stretches)} still stretches (a "
+                              "shaking or slipping mount): record again with the camera fixed "
+                              f"firmly, or calibrate the longest stretch alone (--frame-range "
+                              f"{a}:{b + 1})")
     ranges = ", ".join(f"--frame-range {a}:{b + 1}" for a, b in stretches)
     return level, seen + (f"; calibrate each still stretch alone ({ranges}), or record again "
                           "with the camera fixed firmly")

@@ -284,12 +284,12 @@ def measure_steadiness(seq, frames: str, out: TextIO):
     for per-frame calibrations, data without images, or one frame."""
     from dream.edges.background import grey
     from dream.io import load_image
-    from dream.steadiness import SteadinessSettings, camera_motion, compared_frames, shrunk
+    from dream.steadiness import SteadinessSettings, camera_motion, shrunk
 
     if frames != "all" or len(seq) < 2 or not seq.has_images or seq.has_frame_cameras:
         return None
     settings = SteadinessSettings()
-    indices = compared_frames(len(seq), settings)
+    indices = settings.compared(len(seq))
     images = np.stack([shrunk(grey(load_image(seq.frames[i], seq.camera)), settings)
                        for i in indices])
     motion = camera_motion(images, indices, settings, image_width=seq.camera.width)

@@ -17,7 +17,6 @@ from dream.steadiness import (
     CameraMotion,
     SteadinessSettings,
     camera_motion,
-    compared_frames,
     steadiness_finding,
 )
 
@@ -104,6 +103,23 @@ def test_a_camera_that_drifted_is_told_to_be_fixed_not_split():
     assert level == UNRELIABLE and "drifted" in text and "--frame-range" not in text
 
 
+def test_a_shaking_mount_is_told_to_be_fixed_and_its_longest_stretch_named():
+    """A camera that jumps between many places: not a list of one-frame ranges, but the
+    advice to fix the mount and the longest still stretch."""
+    rng = np.random.default_rng(3)
+    frames = scene()
+    places = [0, 0, 0, 0, 0, 1, 2, 3, 4, 4, 5, 6]     # five frames still, then it shakes
+    offsets = {k: rng.uniform(2.0, 4.0) * np.array([np.cos(a), np.sin(a)])
+               for k, a in zip(range(1, 7), rng.uniform(0, 2 * np.pi, 6), strict=True)}
+    shaken = np.stack([f if p == 0 else cv2.warpAffine(f, shift(*offsets[p]), (WIDTH, HEIGHT),
+                                                       borderMode=cv2.BORDER_REPLICATE)
+                       for f, p in zip(frames, places, strict=True)])
+    motion = camera_motion(shaken, np.arange(FRAMES))
+    level, text = steadiness_finding(motion, [str(i) for i in range(FRAMES)])
+    assert level == UNRELIABLE and "shaking" in text
+    assert text.count("--frame-range") == 1 and "--frame-range 0:5" in text
+
+
 def test_bad_settings_and_shapes_are_refused():
     with pytest.raises(InputError, match="min_match"):
         SteadinessSettings(min_match=0.0)
@@ -113,7 +129,7 @@ def test_bad_settings_and_shapes_are_refused():
         SteadinessSettings(move_px=3.0, unreliable_px=2.0)
     with pytest.raises(InputError, match="frames"):
         camera_motion(np.zeros((3, 8)), np.arange(3))
-    assert compared_frames(500, SteadinessSettings(max_frames=5)).tolist() == [
+    assert SteadinessSettings(max_frames=5).compared(500).tolist() == [
         0, 125, 250, 374, 499]
 
 
