@@ -39,6 +39,7 @@ import cv2
 import numpy as np
 
 from dream.errors import InputError
+from dream.polish.objective import evenly_spaced
 from dream.quality import CHECK, UNRELIABLE, Finding
 from dream.settings_checks import check_fields
 
@@ -132,9 +133,7 @@ class SteadinessSettings:
 
     def compared(self, count: int) -> np.ndarray:
         """The frames compared of `count`: up to `max_frames`, evenly spaced, first and last."""
-        if count <= self.max_frames:
-            return np.arange(count)
-        return np.unique(np.linspace(0, count - 1, self.max_frames).round().astype(int))
+        return evenly_spaced(np.arange(count), self.max_frames)
 
 
 @dataclass(frozen=True)
@@ -243,9 +242,10 @@ def _pose_shown(reference: _Reference, frame: np.ndarray, poses: list[np.ndarray
                 settings: SteadinessSettings) -> int:
     """The pose `frame` shows: an index into `poses` (0: still), UNTOLD where its pixels cannot
     tell (module doc)."""
-    if max(reference.matching(frame, A, settings) for A in poses) < settings.min_match:
+    errors = [reference.errors(frame, A) for A in poses]   # poses[0]: unmoved
+    if max(reference.matching(e, settings) for e in errors) < settings.min_match:
         return UNTOLD
-    votes = [reference.votes(frame, A, settings) for A in poses[1:]]
+    votes = [_votes(e, errors[0], settings) for e in errors[1:]]
     if not votes:
         return 0
     best = int(np.argmax([a - b for a, b in votes]))
@@ -260,7 +260,7 @@ def _camera_poses(reference: _Reference, work: np.ndarray, corners: np.ndarray, 
     """The camera's poses seen in the frames, as image moves (2, 3) from the first frame's:
     the first pose (no move), then each move fitted to a frame (the better voted of the
     tracked similarity and the phase shift) that displaces a corner more than `limit`,
-    explains the frame better than no move (`min_match`, `_Reference.prefers`) and lies more
+    explains the frame better than no move (`min_match`, `_clear` votes) and lies more
     than `pose_spacing` times `limit` from every pose so far. Every frame is then judged
     against all of them: one whose own tracks failed (the arm across its corners) still shows
     its pose."""
@@ -270,20 +270,35 @@ def _camera_poses(reference: _Reference, work: np.ndarray, corners: np.ndarray, 
                 if A is not None]
         if not fits or len(poses) > settings.max_poses:
             continue
-        A = max(fits, key=lambda A: np.subtract(*reference.votes(frame, A, settings)))
+        still = reference.errors(frame, poses[0])
+        scored = [(A, errors, _votes(errors, still, settings))
+                  for A, errors in ((A, reference.errors(frame, A)) for A in fits)]
+        A, errors, votes = max(scored, key=lambda fit: fit[2][0] - fit[2][1])
         shift = _corner_shifts(A, corners)
         if np.linalg.norm(shift, axis=1).max() <= limit or any(
                 np.linalg.norm(shift - _corner_shifts(P, corners), axis=1).max()
                 <= settings.pose_spacing * limit for P in poses[1:]):
             continue
-        if (reference.matching(frame, A, settings) >= settings.min_match
-                and reference.prefers(frame, A, settings)):
+        if reference.matching(errors, settings) >= settings.min_match \
+                and _clear(*votes, settings):
             poses.append(A)
     return poses
 
 
+def _votes(moved: np.ndarray, still: np.ndarray, settings: SteadinessSettings
+           ) -> tuple[float, float]:
+    """The shares of the textured pixels that a frame explains better (by `noise_level`) moved
+    back by a move, and unmoved, from its `_Reference.errors` under each. Pixels that cannot
+    tell (flat along the move, or on the arm) vote for neither."""
+    both = np.isfinite(moved) & np.isfinite(still)
+    if not both.any():
+        return 0.0, 0.0
+    return (float(np.mean(moved[both] < still[both] - settings.noise_level)),
+            float(np.mean(still[both] < moved[both] - settings.noise_level)))
+
+
 def _clear(for_one: float, for_other: float, settings: SteadinessSettings) -> bool:
-    """Whether pixel votes (`_Reference.votes`) clearly favour the first hypothesis."""
+    """Whether pixel votes (`_votes`) clearly favour the first hypothesis."""
     return for_one > settings.min_votes and for_one > settings.vote_ratio * for_other
 
 
@@ -377,36 +392,15 @@ class _Reference:
                               borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
         return np.abs(seen[self.textured] - self.grey[self.textured])
 
-    def matching(self, frame: np.ndarray, A: np.ndarray, settings: SteadinessSettings
-                 ) -> float:
-        """The share of the textured pixels that `frame`, moved back by `A`, matches within
-        `match_px` of their gradient plus `noise_level`."""
-        difference = self.errors(frame, A)
-        inside = np.isfinite(difference)
+    def matching(self, errors: np.ndarray, settings: SteadinessSettings) -> float:
+        """The share of the textured pixels a frame matches, from its `errors` under a move:
+        within `match_px` of their gradient plus `noise_level`."""
+        inside = np.isfinite(errors)
         if not inside.any():
             return 0.0
         tolerance = (settings.match_px * self.gradient[self.textured][inside]
                      + settings.noise_level)
-        return float(np.mean(difference[inside] < tolerance))
-
-    def votes(self, frame: np.ndarray, A: np.ndarray, settings: SteadinessSettings
-              ) -> tuple[float, float]:
-        """The shares of the textured pixels that `frame` explains better (by `noise_level`)
-        moved back by `A`, and unmoved. Pixels that cannot tell (flat along the move, or on
-        the arm) vote for neither."""
-        moved, still = self.errors(frame, A), self.errors(frame, np.eye(2, 3))
-        both = np.isfinite(moved) & np.isfinite(still)
-        if not both.any():
-            return 0.0, 0.0
-        return (float(np.mean(moved[both] < still[both] - settings.noise_level)),
-                float(np.mean(still[both] < moved[both] - settings.noise_level)))
-
-    def prefers(self, frame: np.ndarray, A: np.ndarray, settings: SteadinessSettings
-                ) -> bool:
-        """Whether `frame` moved back by `A` explains this frame better than unmoved: more
-        than `min_votes` of the textured pixels vote for the move, and `vote_ratio` times as
-        many as vote for no move (`votes`)."""
-        return _clear(*self.votes(frame, A, settings), settings)
+        return float(np.mean(errors[inside] < tolerance))
 
 
 def _eight_bit(grey: np.ndarray) -> np.ndarray:
