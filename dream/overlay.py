@@ -121,15 +121,21 @@ def draw_box(image: np.ndarray, uv: np.ndarray,
     return out
 
 
+def names_box(carried: dict, robot) -> bool:
+    """Whether RESULT.json's `start.carried` sized a box around something the URDF lacks
+    moving with a link of `robot`."""
+    return bool(carried.get("box_around_hull")) and carried.get("named") in robot.link_names
+
+
 def carried_corners(robot, joints: np.ndarray, carried: dict) -> np.ndarray | None:
     """(F, 8, 3) base-frame corners of the box the search sized around something the URDF
     lacks moving with a link (RESULT.json `start.carried`), None where it named nothing."""
     from dream.robot.link_geometry import BOX_KIND, LinkGeometry
     from dream.transforms import transform_points
 
-    box, link = carried.get("box_around_hull"), carried.get("named")
-    if not box or not link or link not in robot.link_names:
+    if not names_box(carried, robot):
         return None
+    box, link = carried["box_around_hull"], carried["named"]
     geometry = LinkGeometry(link, BOX_KIND, size_m=box["size_m"], position_m=box["position_m"],
                             rotation_rad=box["rotation_rad"])
     corners, _ = geometry.box_mesh()

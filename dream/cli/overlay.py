@@ -89,8 +89,10 @@ def _robot(seq, request: OverlayRequest):
 def _carried(doc: dict, robot) -> dict | None:
     """The result's box around something the URDF lacks (RESULT.json `start.carried`), where
     its search named one on a link of `robot`; says so, since the box is drawn in magenta."""
+    from dream.overlay import names_box
+
     carried = (doc.get("start") or {}).get("carried") or {}
-    if not carried.get("box_around_hull") or carried.get("named") not in robot.link_names:
+    if not names_box(carried, robot):
         return None
     print(f"magenta box: something the URDF lacks moving with {carried['named']}, as the "
           f"calibration sized it")
