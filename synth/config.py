@@ -292,6 +292,9 @@ class Distractors:
     person_prob: float = 0.0
     person_distance_m: Range = (0.6, 1.0)
     person_shoulder_height_m: Range = (1.2, 1.5)
+    # A dexterous hand the URDF lacks at the last keypoint link (`synth.hand`): with `hand_prob`
+    # per sequence (per frame in `random` mode), its fingers opening and closing on their own.
+    hand_prob: float = 0.0
 
     def __post_init__(self) -> None:
         lo, hi = self.count
@@ -318,7 +321,7 @@ class Distractors:
                      "set how many capsules draw a cable (e.g. 24)")
         for name in ("occluder_prob", "textured_prob", "held_prob", "held_board_prob",
                      "held_textured_prob", "held_checker_prob", "robot_prob", "loose_prob",
-                     "cable_prob", "person_prob"):
+                     "cable_prob", "person_prob", "hand_prob"):
             probability(f"distractors.{name}", getattr(self, name))
         for name in ("held_size_m", "held_offset_m"):
             lo, hi = getattr(self, name)

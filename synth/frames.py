@@ -25,6 +25,8 @@ from synth.extension import (
     true_pose,
 )
 from synth.gl import mujoco
+from synth.hand import SLOTS as HAND_SLOTS
+from synth.hand import hand_shapes
 from synth.labels import keypoint_labels
 from synth.nominal import nominal_camera
 from synth.other_robot import OtherRobotGeoms
@@ -105,14 +107,15 @@ class FrameMaker:
             joint_offset_vector(robot, self.extension.joint_offset_rad)
         dc = config.distractors
         # the distractor slots: the recipe's own, then the held assembly's parts, then the
-        # cable's capsules, then the person's shapes
+        # cable's capsules, then the person's shapes, then the dexterous hand's
         self.regular_slots = dc.count[1]
         self.held_slots = dc.held_parts[1] if dc.held_prob > 0 else 0
         self.cable_slots = dc.cable_segments if dc.cable_prob > 0 else 0
         self.person_slots = PERSON_SLOTS if dc.person_prob > 0 else 0
+        self.hand_slots = HAND_SLOTS if dc.hand_prob > 0 else 0
         options = SceneSettings(num_lights=min(MAX_LIGHTS, config.lights.count[1]),
                                 num_distractors=self.regular_slots + self.held_slots
-                                + self.cable_slots + self.person_slots,
+                                + self.cable_slots + self.person_slots + self.hand_slots,
                                 num_textures=NUM_TEXTURES,
                                 texture_size=config.background.texture_size, floor=True,
                                 floor_texture_size=FLOOR_TEXTURE_PX)
@@ -238,6 +241,17 @@ class FrameMaker:
         return [DistractorDraw(kind, size, centre, quaternion, rgba, -1)
                 for kind, size, centre, quaternion, rgba in person_shapes(person, T_base_link)]
 
+    def _hand_shapes(self, p: FrameDraw, q_true: np.ndarray) -> list[DistractorDraw | None]:
+        """The dexterous hand's shapes in the base frame at joints `q_true` and the frame's
+        time, None for each slot without one."""
+        hand = p.scene.hand
+        if hand is None:
+            return [None] * self.hand_slots
+        T_base_link = self.true_robot.link_poses(q_true, hand.link)[0]
+        return [DistractorDraw(kind, size, centre, quaternion, rgba, -1)
+                for kind, size, centre, quaternion, rgba in
+                hand_shapes(hand, T_base_link, p.timestamp or 0.0)]
+
     def _apply_distractors(self, p: FrameDraw, q_true: np.ndarray) -> None:
         model, scene = self.scene.model, self.scene
         shapes: list[DistractorDraw | None] = list(p.scene.distractors)
@@ -245,6 +259,7 @@ class FrameMaker:
         shapes += self._held_shapes(p, q_true)
         shapes += self._cable_shapes(p, q_true)
         shapes += self._person_shapes(p, q_true)
+        shapes += self._hand_shapes(p, q_true)
         for body, geom, d in zip(scene.distractor_body_ids, scene.distractor_geom_ids, shapes,
                                  strict=True):
             if d is None:

@@ -244,7 +244,8 @@ ADDED_CONFIG_KEYS = tuple((section, key) for section, keys in (
                      "robot_distance_m", "robot_moves", "loose_prob", "loose_keypoints",
                      "loose_distance_m", "loose_height_m", "cable_prob", "cable_radius_m",
                      "cable_slack", "cable_clip_offset_m", "cable_start_m", "cable_segments",
-                     "person_prob", "person_distance_m", "person_shoulder_height_m")))
+                     "person_prob", "person_distance_m", "person_shoulder_height_m",
+                     "hand_prob")))
     for key in keys)
 
 

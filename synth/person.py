@@ -112,8 +112,10 @@ def shoulder_position(anchor: np.ndarray, hand: np.ndarray, reach_m: float) -> n
     return anchor.copy() if d <= limit else hand + away / d * limit
 
 
-def _capsule(a: np.ndarray, b: np.ndarray, radius: float
-             ) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
+def capsule(a: np.ndarray, b: np.ndarray, radius: float
+            ) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
+    """A capsule of `radius` from `a` to `b` (3,): (kind, MuJoCo size (3,), centre (3,),
+    quaternion_wxyz (4,))."""
     length = float(np.linalg.norm(b - a))
     axis = (b - a) / length if length > 0 else Z_AXIS
     return "capsule", np.array([radius, length / 2, 0.0]), (a + b) / 2, z_onto(axis)
@@ -135,13 +137,13 @@ def person_shapes(person: PersonDraw, T_base_link: np.ndarray
     hips = np.array([*person.anchor_m[:2], HIP_HEIGHT_M * s])
     up = (shoulder - hips) / max(float(np.linalg.norm(shoulder - hips)), TINY_M)
     sleeve, skin = person.sleeve_rgba, person.skin_rgba
-    return [(*_capsule(shoulder, elbow, UPPER_ARM_RADIUS_M * s), sleeve),
-            (*_capsule(elbow, hand - HAND_HALF_LENGTH_M * s * along, FOREARM_RADIUS_M * s),
+    return [(*capsule(shoulder, elbow, UPPER_ARM_RADIUS_M * s), sleeve),
+            (*capsule(elbow, hand - HAND_HALF_LENGTH_M * s * along, FOREARM_RADIUS_M * s),
              sleeve),
             ("capsule", np.array([HAND_RADIUS_M * s, HAND_HALF_LENGTH_M * s, 0.0]), hand,
              z_onto(along), skin),
-            (*_capsule(hips, shoulder, TORSO_RADIUS_M * s), sleeve),
-            (*_capsule(hips * [1, 1, 0] + LEG_RADIUS_M * s * Z_AXIS, hips, LEG_RADIUS_M * s),
+            (*capsule(hips, shoulder, TORSO_RADIUS_M * s), sleeve),
+            (*capsule(hips * [1, 1, 0] + LEG_RADIUS_M * s * Z_AXIS, hips, LEG_RADIUS_M * s),
              sleeve),
             ("sphere", np.array([HEAD_RADIUS_M * s, 0.0, 0.0]),
              shoulder + HEAD_ABOVE_SHOULDER_M * s * up, z_onto(Z_AXIS), skin)]

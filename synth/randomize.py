@@ -21,6 +21,7 @@ from dream.robot import Robot
 from dream.transforms import invert_T, look_at
 from synth.cable import CableDraw, sample_cable
 from synth.config import SynthConfig
+from synth.hand import HandDraw, sample_hand
 from synth.other_robot import OtherRobotDraw
 from synth.person import PersonDraw, sample_person
 from synth.realism import with_realism
@@ -31,6 +32,7 @@ HELD_STREAM = 0x4E1D        # spawn key of the held object's stream (held_prob =
                             # other draws, and so older data sets, unchanged)
 CABLE_STREAM = 0xCAB1E      # spawn key of the cable's stream (cable_prob = 0: nothing drawn)
 PERSON_STREAM = 0x9E450     # spawn key of the person's stream (person_prob = 0: nothing drawn)
+HAND_STREAM = 0x4A4D        # spawn key of the dexterous hand's stream (hand_prob = 0: none)
 SHADOW_STREAM = 0x5AD0      # spawn key, with the scene's texture seed, of whether it has shadows
 HELD_BOARD_THICKNESS_M = (0.004, 0.02)  # full thickness of a held plate
 HELD_MIN_SIDE_FRACTION = 0.3           # a held object's other sides: 0.3-1 x its largest
@@ -104,6 +106,7 @@ class SceneDraw:
     shadows: bool = False       # the first light casts shadows (`Lights.shadow_prob`)
     cable: CableDraw | None = None  # a cable clipped along the arm (`synth.cable`)
     person: PersonDraw | None = None  # a person guiding the arm by hand (`synth.person`)
+    hand: HandDraw | None = None      # a dexterous hand the URDF lacks (`synth.hand`)
 
 
 @dataclass(frozen=True)
@@ -272,6 +275,15 @@ def sample_scene_person(rng: np.random.Generator, config: SynthConfig, robot: Ro
                          dc.person_shoulder_height_m)
 
 
+def sample_scene_hand(rng: np.random.Generator, config: SynthConfig, robot: Robot
+                      ) -> HandDraw | None:
+    """With probability `distractors.hand_prob`, a dexterous hand at the last keypoint link
+    (`synth.hand.sample_hand`)."""
+    if rng.random() >= config.distractors.hand_prob:
+        return None
+    return sample_hand(rng, robot.keypoint_names[-1])
+
+
 def _occluder_placement(rng: np.random.Generator, camera_position: np.ndarray,
                         target: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A distractor part-way between the camera and a point of the robot, small enough and
@@ -365,4 +377,7 @@ def sample_frame(seed: int, index: int, robot: Robot, config: SynthConfig,
                          config, robot, aim, default_rgba, other_robot)
     person = sample_scene_person(np.random.default_rng(
         [seed, PERSON_STREAM] + ([index] if mode == "random" else [])), config, robot, scene)
-    return FrameDraw(index, dataclasses.replace(scene, person=person), joints, timestamp)
+    hand = sample_scene_hand(np.random.default_rng(
+        [seed, HAND_STREAM] + ([index] if mode == "random" else [])), config, robot)
+    return FrameDraw(index, dataclasses.replace(scene, person=person, hand=hand), joints,
+                     timestamp)
