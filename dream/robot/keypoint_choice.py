@@ -11,8 +11,9 @@ of every link below the base is computed by forward kinematics, and:
   rotation about it: such keypoints are useless alone.
 
 The suggestion follows `dream.robot.registry`'s principles: the base link; then, along the arm's
-chain (the links through which joints move, up to the hand whose fingers branch off, or up to
-the last moving link and then its rigidly attached flange/tool link), one link per group of
+chain (the links through which joints move, past a mobile base's wheels, a quadruped's legs or
+a head where one branch carries far more moving joints, up to the hand whose fingers branch off,
+or up to the last moving link and then its rigidly attached flange/tool link), one link per group of
 coincident origins, the distal name (as DREAM keeps panda_link2 of link1/link2); links whose
 origin coincides with one already chosen, side branches (fingers, mounts) and fixed-joint
 children at their parent's origin are left out.
@@ -39,6 +40,12 @@ MIN_COLLINEAR = 3         # two points always lie on a line
 # words naming a flange / tool link, most specific first: matched in the lower-case link name
 # between non-letters ("tool0", "link_eef", "lbr_link_ee", "j2s6s200_end_effector")
 TOOL_NAME_HINTS = ("flange", "tool", "tcp", "eef", "ee", "end_effector")
+# where the chain branches into several moving branches, one carrying at least this many times
+# the moving joints of every other, and at least MIN_ARM_BRANCH_JOINTS, is the arm (a mobile
+# base's wheels or a quadruped's legs beside it, a head beside it on a torso); branches more
+# alike are a hand's fingers, or two arms, and end the chain
+ARM_BRANCH_RATIO = 2
+MIN_ARM_BRANCH_JOINTS = 3
 
 
 @dataclass(frozen=True)
@@ -221,6 +228,22 @@ def _moves_below(tree: KinematicTree, joint) -> bool:
                                              for j in _children(tree, joint.child))
 
 
+def _moving_depth(tree: KinematicTree, joint) -> int:
+    """The moving joints on the longest path from `joint` (itself included) down the tree."""
+    own = 1 if joint.type in MOVING_TYPES else 0
+    return own + max((_moving_depth(tree, j) for j in _children(tree, joint.child)), default=0)
+
+
+def _arm_branch(tree: KinematicTree, joints: list) -> list:
+    """Of two or more moving branches `joints`, the arm's alone where one carries far more
+    moving joints than every other (`ARM_BRANCH_RATIO`), else all of them."""
+    depths = sorted(((_moving_depth(tree, j), k) for k, j in enumerate(joints)), reverse=True)
+    (best, k), (second, _) = depths[0], depths[1]
+    if best >= MIN_ARM_BRANCH_JOINTS and best >= ARM_BRANCH_RATIO * second:
+        return [joints[k]]
+    return joints
+
+
 def _tool_link(tree: KinematicTree, link: str) -> str | None:
     """The flange / tool link rigidly attached to `link` (fixed joints only), by name."""
     rigid, todo = [], [link]
@@ -238,13 +261,17 @@ def _tool_link(tree: KinematicTree, link: str) -> str | None:
 
 
 def arm_chain(tree: KinematicTree, base_link: str) -> tuple[str, ...]:
-    """Links from `base_link` along the arm: through the one child that leads to moving joints,
-    up to a link where two or more do (a hand with fingers: its origin ends the arm, the
-    tool point between the fingers lies on no surface) or none do (the last moving link, then
-    its flange / tool link if one is named so)."""
+    """Links from `base_link` along the arm: through the one child that leads to moving joints
+    (where several do and one of them carries far more moving joints than the others, that
+    one: the arm of a mobile manipulator, not its wheels or its head), up to a link where two or
+    more alike do (a hand with fingers: its origin ends the arm, the tool point between the
+    fingers lies on no surface; or two arms) or none do (the last moving link, then its
+    flange / tool link if one is named so)."""
     chain = [base_link]
     while True:
         moving = [j for j in _children(tree, chain[-1]) if _moves_below(tree, j)]
+        if len(moving) > 1:
+            moving = _arm_branch(tree, moving)
         if len(moving) != 1:
             break
         chain.append(moving[0].child)

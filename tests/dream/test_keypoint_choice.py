@@ -24,6 +24,9 @@ from dream.robot.keypoint_choice import (
 
 KINOVA = "robots/kinova_description/robots/kinova.urdf"
 Z1 = "robots/z1_description/urdf/z1.urdf"
+TIAGO = "robots/tiago_description/robots/tiago.urdf"
+TIAGO_DUAL = "robots/tiago_description/robots/tiago_dual.urdf"
+B1_Z1 = "robots/b1_description/urdf/b1-z1.urdf"
 
 # A 7-axis arm in the shape of a KUKA LBR Med 7: A1 turns about the base's vertical axis and
 # A2's origin lies on it, so lbr_link_0, lbr_link_1 and lbr_link_2 stay on that axis for every
@@ -87,6 +90,21 @@ def test_kinova_and_z1_from_example_robot_data() -> None:
     # link01 and link02 lie on the base's vertical axis for every joint value
     assert z1.suggested_collinear[0].links == ("world", "link01", "link02")
     assert z1.suggested_collinear[0].fixed_line
+
+
+def test_a_mobile_manipulators_arm_is_followed_past_its_wheels_legs_and_head() -> None:
+    """Where the chain branches, a branch with far more moving joints than every other is the
+    arm (TIAGo's torso beside its wheels and casters, then its arm beside its head; a Z1 on a
+    B1 quadruped's legs); branches alike (two arms, a hand's fingers) end the chain."""
+    tiago = analyse_keypoints(parse_urdf(robot_data_dir() / TIAGO)).suggested
+    assert tiago[:4] == ("base_footprint", "base_link", "torso_fixed_link", "torso_lift_link")
+    assert tiago[4:7] == ("arm_1_link", "arm_2_link", "arm_3_link")
+    assert tiago[-1] == "hand_palm_link" and not any("head" in n for n in tiago)
+    b1_z1 = analyse_keypoints(parse_urdf(robot_data_dir() / B1_Z1)).suggested
+    assert b1_z1[0] == "base" and b1_z1[-3:] == ("link06", "gripperStator", "gripperMover")
+    assert not any(n.startswith(("FL_", "FR_", "RL_", "RR_")) for n in b1_z1)
+    dual = analyse_keypoints(parse_urdf(robot_data_dir() / TIAGO_DUAL)).suggested
+    assert dual[-1] == "torso_lift_link"                # two arms alike: the user names one
 
 
 def test_links_on_the_base_axis_are_useless_alone(tmp_path: Path) -> None:
