@@ -129,6 +129,12 @@ def describe_robot(name_or_urdf: str, keypoints: tuple[str, ...] | None = None,
     print(f"{INDENT}use: --robot {name_or_urdf} --keypoints {','.join(advice.suggested)}",
           file=out)
     _print_lines(_collinear_lines(advice.suggested_collinear, "the suggested keypoints"), out)
+    if advice.branches:
+        _wrapped(f"warning: the chain branches at {advice.suggested[-1]} into "
+                 f"{len(advice.branches)} alike branches (two arms?), so the suggestion stops "
+                 "there; name the base "
+                 "and one arm's links with --keypoints (the arm that moves in your recording), "
+                 "starting at one of: ", advice.branches, out)
     if keypoints:
         _print_given(advice, out)
 

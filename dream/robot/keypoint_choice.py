@@ -109,6 +109,8 @@ class KeypointAdvice:
         given_coincident: groups of the given keypoints whose origins coincide.
         given_collinear: collinear sets among the given keypoints.
         skipped: links not analysed (above the base, or below an unsupported joint).
+        branches: where the chain branches into alike branches before the arm began (two arms
+            on a torso), the first link of each: the suggestion stops there (`arm_branches`).
     """
 
     base_link: str
@@ -119,10 +121,11 @@ class KeypointAdvice:
     given_coincident: tuple[tuple[str, ...], ...] = ()
     given_collinear: tuple[CollinearSet, ...] = ()
     skipped: tuple[str, ...] = ()
+    branches: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("coincident", "suggested", "suggested_collinear", "given",
-                     "given_coincident", "given_collinear", "skipped"):
+                     "given_coincident", "given_collinear", "skipped", "branches"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
         if not self.suggested or self.suggested[0] != self.base_link:
             raise RobotError(f"the suggested keypoints must start at base link "
@@ -282,6 +285,18 @@ def arm_chain(tree: KinematicTree, base_link: str) -> tuple[str, ...]:
     return tuple(chain)
 
 
+def arm_branches(tree: KinematicTree, base_link: str) -> tuple[str, ...]:
+    """Where `arm_chain` ends before it passed `MIN_ARM_BRANCH_JOINTS` moving joints, at a link
+    that two or more branches of at least that many moving joints leave (two arms on a torso,
+    not a hand's fingers after an arm), the first link of each such branch; else ()."""
+    chain = arm_chain(tree, base_link)
+    depth = len(tree.path(base_link))
+    passed = sum(tree.joints[i].type in MOVING_TYPES for i in tree.path(chain[-1])[depth:])
+    arms = [j.child for j in _children(tree, chain[-1])
+            if _moving_depth(tree, j) >= MIN_ARM_BRANCH_JOINTS]
+    return tuple(arms) if passed < MIN_ARM_BRANCH_JOINTS and len(arms) >= 2 else ()
+
+
 def suggest_keypoints(tree: KinematicTree, base_link: str,
                       origins: LinkOrigins) -> tuple[str, ...]:
     """The base link, then one link per run of coincident origins along `arm_chain` (its
@@ -326,4 +341,5 @@ def analyse_keypoints(tree: KinematicTree, base_link: str | None = None,
         suggested_collinear=collinear_sets(origins, suggested), given=given,
         given_coincident=coincident_groups(origins, given) if given else (),
         given_collinear=collinear_sets(origins, given) if given else (),
-        skipped=tuple(link for link in tree.links if link not in origins.links))
+        skipped=tuple(link for link in tree.links if link not in origins.links),
+        branches=arm_branches(tree, base))

@@ -3,11 +3,14 @@ one line (`dream.robot.keypoint_choice`)."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from dream.cli import main
 from dream.errors import RobotError
 from dream.robot import builtin_robot, parse_urdf, robot_data_dir
 from dream.robot.keypoint_choice import (
@@ -103,8 +106,17 @@ def test_a_mobile_manipulators_arm_is_followed_past_its_wheels_legs_and_head() -
     b1_z1 = analyse_keypoints(parse_urdf(robot_data_dir() / B1_Z1)).suggested
     assert b1_z1[0] == "base" and b1_z1[-3:] == ("link06", "gripperStator", "gripperMover")
     assert not any(n.startswith(("FL_", "FR_", "RL_", "RR_")) for n in b1_z1)
-    dual = analyse_keypoints(parse_urdf(robot_data_dir() / TIAGO_DUAL)).suggested
-    assert dual[-1] == "torso_lift_link"                # two arms alike: the user names one
+    dual = analyse_keypoints(parse_urdf(robot_data_dir() / TIAGO_DUAL))
+    assert dual.suggested[-1] == "torso_lift_link"      # two arms alike: the user names one
+    assert dual.branches == ("arm_left_1_link", "arm_right_1_link")
+    assert analyse_keypoints(parse_urdf(robot_data_dir() / TIAGO)).branches == ()
+    panda = builtin_robot("panda")                      # a hand's fingers are not arms
+    assert analyse_keypoints(parse_urdf(panda.urdf_path), panda.base_link).branches == ()
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main(["robots", "--urdf", str(robot_data_dir() / TIAGO_DUAL)]) == 0
+    assert "branches at torso_lift_link" in out.getvalue()
+    assert "arm_left_1_link, arm_right_1_link" in " ".join(out.getvalue().split())
 
 
 def test_links_on_the_base_axis_are_useless_alone(tmp_path: Path) -> None:
