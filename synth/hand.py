@@ -40,7 +40,7 @@ SCALE_RANGE = (0.9, 1.2)      # the hand's size over the numbers above (an Alleg
 MEAN_CURL_RAD = (0.2, 0.8)    # each joint's mean bend
 CURL_AMPLITUDE_RAD = (0.2, 0.5)
 PERIOD_S = (1.0, 4.0)         # one open-close cycle
-DARK_VALUE = (0.1, 0.9)       # grey level of the hand's cover
+GREY_VALUE = (0.1, 0.9)       # grey level of the hand's cover
 SLOTS = 1 + FINGERS * len(SEGMENTS_M)
 
 
@@ -124,7 +124,7 @@ def hand_shapes(hand: HandDraw, T_base_link: np.ndarray, time_s: float
 
 def sample_hand(rng: np.random.Generator, link: str) -> HandDraw:
     """A hand mounted on `link`, its size, roll, motion and colour drawn."""
-    grey = rng.uniform(*DARK_VALUE)
+    grey = rng.uniform(*GREY_VALUE)
     return HandDraw(link=link, scale=float(rng.uniform(*SCALE_RANGE)),
                     roll_rad=float(rng.uniform(-np.pi, np.pi)),
                     mean_curl_rad=float(rng.uniform(*MEAN_CURL_RAD)),

@@ -132,9 +132,8 @@ def describe_robot(name_or_urdf: str, keypoints: tuple[str, ...] | None = None,
     if advice.branches:
         _wrapped(f"warning: the chain branches at {advice.suggested[-1]} into "
                  f"{len(advice.branches)} alike branches (two arms?), so the suggestion stops "
-                 "there; name the base "
-                 "and one arm's links with --keypoints (the arm that moves in your recording), "
-                 "starting at one of: ", advice.branches, out)
+                 "there; name the base and one arm's links with --keypoints (the arm that "
+                 "moves in your recording), starting at one of: ", advice.branches, out)
     if keypoints:
         _print_given(advice, out)
 
