@@ -83,6 +83,22 @@ def _print_lines(lines: list[str], out: TextIO) -> None:
         print(textwrap.fill(line, WRAP_COLUMNS, subsequent_indent=INDENT * 2), file=out)
 
 
+def _print_columns(tree, path, advice, out: TextIO) -> None:
+    """The joints a recording must log for the suggested keypoints, and the moving joints the
+    model holds at rest (no keypoint moves with them; their links are drawn at rest)."""
+    from dream.robot import Robot
+
+    robot = Robot(name=tree.name or "urdf", urdf_path=str(path), base_link=advice.base_link,
+                  keypoint_names=advice.suggested, tree=tree)
+    _wrapped(f"{INDENT}joints a recording logs for them (joints.csv columns, radians or "
+             "metres): ", robot.joint_names, out)
+    held = [j.name for j in tree.joints if j.moves and j.mimic is None
+            and j.name not in robot.joint_names]
+    if held:
+        _wrapped(f"{INDENT}held at rest in the model (they move no keypoint; the silhouettes "
+                 "draw their links at rest, so keep them still while you record): ", held, out)
+
+
 def describe_robot(name_or_urdf: str, keypoints: tuple[str, ...] | None = None,
                    out: TextIO | None = None) -> None:
     """The links, joints and suggested keypoint links of one robot (a built-in name or a URDF
@@ -128,6 +144,7 @@ def describe_robot(name_or_urdf: str, keypoints: tuple[str, ...] | None = None,
                  builtin.keypoints, out)
     print(f"{INDENT}use: --robot {name_or_urdf} --keypoints {','.join(advice.suggested)}",
           file=out)
+    _print_columns(tree, path, advice, out)
     _print_lines(_collinear_lines(advice.suggested_collinear, "the suggested keypoints"), out)
     if advice.branches:
         _wrapped(f"warning: the chain branches at {advice.suggested[-1]} into "

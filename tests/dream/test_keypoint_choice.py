@@ -119,6 +119,19 @@ def test_a_mobile_manipulators_arm_is_followed_past_its_wheels_legs_and_head() -
     assert "arm_left_1_link, arm_right_1_link" in " ".join(out.getvalue().split())
 
 
+def test_the_robots_command_names_the_joints_a_recording_logs() -> None:
+    """`dream robots --urdf` lists the joints the suggested keypoints need (the recording's
+    columns) and the moving joints the model holds at rest."""
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main(["robots", "--urdf", str(robot_data_dir() / TIAGO)]) == 0
+    text = " ".join(out.getvalue().split())
+    logged = text.split("joints a recording logs for them")[1].split("held at rest")[0]
+    assert "torso_lift_joint, arm_1_joint" in logged and "arm_7_joint" in logged
+    held = text.split("held at rest in the model")[1]
+    assert "head_1_joint" in held and "wheel_left_joint" in held and "arm_1_joint" not in held
+
+
 def test_links_on_the_base_axis_are_useless_alone(tmp_path: Path) -> None:
     tree = parse_urdf(lbr_urdf(tmp_path))
     advice = analyse_keypoints(tree, given=("lbr_link_0", "lbr_link_1", "lbr_link_2"))
