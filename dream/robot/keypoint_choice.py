@@ -225,12 +225,6 @@ def _children(tree: KinematicTree, link: str) -> list:
     return [j for j in tree.joints if j.parent == link and j.type in SUPPORTED_TYPES]
 
 
-def _moves_below(tree: KinematicTree, joint) -> bool:
-    """True when `joint` or a joint below its child moves."""
-    return joint.type in MOVING_TYPES or any(_moves_below(tree, j)
-                                             for j in _children(tree, joint.child))
-
-
 def _moving_depth(tree: KinematicTree, joint) -> int:
     """The moving joints on the longest path from `joint` (itself included) down the tree."""
     own = 1 if joint.type in MOVING_TYPES else 0
@@ -272,7 +266,7 @@ def arm_chain(tree: KinematicTree, base_link: str) -> tuple[str, ...]:
     flange / tool link if one is named so)."""
     chain = [base_link]
     while True:
-        moving = [j for j in _children(tree, chain[-1]) if _moves_below(tree, j)]
+        moving = [j for j in _children(tree, chain[-1]) if _moving_depth(tree, j) > 0]
         if len(moving) > 1:
             moving = _arm_branch(tree, moving)
         if len(moving) != 1:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scenes import random_extrinsic
 
 from dream.errors import InputError
 from dream.robot import load_robot
@@ -36,15 +37,6 @@ def hand(period_s: float = 2.0) -> HandDraw:
                     np.array([0.3, 0.3, 0.3, 1.0]))
 
 
-def pose(seed: int) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    q = rng.normal(size=4)
-    T = np.eye(4)
-    T[:3, :3] = R_from_quaternion_xyzw(q / np.linalg.norm(q))
-    T[:3, 3] = rng.uniform(-1, 1, 3)
-    return T
-
-
 def test_a_finger_bends_each_joint_by_the_curl_and_keeps_its_lengths():
     rng = np.random.default_rng(0)
     for _ in range(20):
@@ -71,7 +63,7 @@ def test_the_hand_sits_on_the_flange_and_moves_with_it():
     # the palm along the link's z axis, its near edge PALM_GAP_M from the origin
     assert np.allclose(local[0][2], [0.0, 0.0, PALM_GAP_M + PALM_HALF_M[2]])
     for seed in range(5):
-        T = pose(seed)
+        T = random_extrinsic(np.random.default_rng(seed))
         moved = hand_shapes(draw, T, 0.3)
         for (_, size_a, centre_a, q_a, _), (_, size_b, centre_b, q_b, _) in zip(
                 local, moved, strict=True):
