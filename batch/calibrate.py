@@ -6,7 +6,8 @@ beside it, `calibrate.log` (what `dream calibrate` prints) and `batch.json` (its
 summary, the content hash of its inputs). The folder is written in a hidden temporary folder
 and renamed into place when complete, so a batch killed at any point leaves only whole folders.
 A re-run skips the recordings whose folder says `ok` with the same content hash and redoes the
-rest (failed, missing, or changed inputs).
+rest (failed, missing, or changed inputs). A list file's line may give its recording options of
+its own (`batch.recordings`): they replace the batch's for it, and enter its content hash.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from typing import Any
 
 from batch.engine import WorkerLost
 from batch.recordings import (
+    Listed,
     folder_names,
     input_hash,
     list_recordings,
@@ -46,6 +48,9 @@ ERROR_PREFIX = "dream calibrate: error: "
 ONE_THREAD = 1        # onnxruntime threads of a worker without --threads: one core each
 # the options that name files whose bytes a result depends on
 FILE_OPTIONS = ("model", "camera_guess", "mark", "model_extension", "camera_info", "robot")
+BATCH_OPTIONS = ("data",)  # set by the batch for each recording, never by a list line
+FIX_LINE = ("give a list line the recording's path, then dream calibrate options of its own "
+            "(dream calibrate --help lists them; the batch sets --data, --out and --overlays)")
 
 
 @dataclass(frozen=True)
@@ -185,12 +190,57 @@ def absolute_options(options: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def check_options(options: Mapping[str, Any], recording: Path) -> None:
-    """The calibrate options checked once, before any work (as `dream calibrate` checks its
-    own before reading the data)."""
+def check_options(options: Mapping[str, Any], recording: Path, where: str = "") -> None:
+    """The calibrate options checked before any work (as `dream calibrate` checks its own
+    before reading the data); `where` (a list line) leads the error."""
     from dream.cli.calibrate import CalibrateRequest
 
-    CalibrateRequest(**options, data=str(recording), out=RESULT_NAME)
+    try:
+        CalibrateRequest(**options, data=str(recording), out=RESULT_NAME)
+    except InputError as exc:
+        if not where:
+            raise
+        raise InputError(f"{where}: {exc.problem}", exc.path, exc.fix) from None
+
+
+class _LineParser(argparse.ArgumentParser):
+    """The `dream calibrate` parser of a list line: raises instead of exiting."""
+
+    def error(self, message: str):
+        raise argparse.ArgumentError(None, message)
+
+
+def line_options(entry: Listed) -> dict[str, Any]:
+    """The `dream calibrate` options of a list line (`Listed.argv`) as request fields, only
+    those the line gives; the relative files they name taken from the list's folder.
+
+    Raises:
+        InputError: naming the line: an option `dream calibrate` lacks, a bad value, or an
+            option the batch sets itself.
+    """
+    from dream.cli.calibrate import add_calibrate_args
+    from dream.cli.options import add_data_args
+
+    if not entry.argv:
+        return {}
+    parser = _LineParser(prog="a list line", add_help=False, allow_abbrev=False)
+    add_data_args(parser, required=False)
+    add_calibrate_args(parser)
+    for action in parser._actions:
+        action.default = argparse.SUPPRESS
+    try:
+        options = vars(parser.parse_args(list(entry.argv)))
+    except argparse.ArgumentError as exc:
+        raise InputError(f"{entry.where}: {exc}", fix=FIX_LINE) from None
+    fixed = sorted(set(options) & set(BATCH_OPTIONS))
+    if fixed:
+        raise InputError(f"{entry.where}: --{fixed[0]} is the batch's to set", fix=FIX_LINE)
+    folder = entry.source.parent if entry.source is not None else Path.cwd()
+    for name in FILE_OPTIONS:
+        value = options.get(name)
+        if isinstance(value, str) and (folder / value).exists():
+            options[name] = str((folder / value).resolve())
+    return options
 
 
 @dataclass(frozen=True)
@@ -208,22 +258,26 @@ def plan_batch(data: str, out_dir: Path, options: Mapping[str, Any],
     content hash are done already. A recording's content is read again only where its files'
     sizes or modification times changed since its folder was written."""
     out_resolved = out_dir.resolve()
-    recordings = [p for p in list_recordings(data)     # --data 'runs/*' --out runs/calib
-                  if p != out_resolved and out_resolved not in p.parents]
-    if not recordings:
+    entries = [e for e in list_recordings(data)     # --data 'runs/*' --out runs/calib
+               if e.path != out_resolved and out_resolved not in e.path.parents]
+    if not entries:
         raise InputError(f"--data '{data}' matches only the output folder", out_dir,
                          "give --data the recordings and --out a folder outside them")
-    check_options(options, recordings[0])
-    options = absolute_options(options)
-    digest = options_digest({**options, "overlays": overlays}, option_files(options))
+    check_options(options, entries[0].path)
+    plans: dict[tuple[str, ...], tuple[dict[str, Any], str]] = {}
+    for entry in entries:                 # every line checked before any work
+        if entry.argv not in plans:
+            plans[entry.argv] = _recording_options(entry, options, overlays)
     tasks, todo, rows = [], [], {}
-    for path, name in zip(recordings, folder_names(recordings), strict=True):
+    for entry, name in zip(entries, folder_names([e.path for e in entries]), strict=True):
+        path = entry.path
+        own, digest = plans[entry.argv]
         record = read_record(out_dir / name) or {}
         stat = recording_stat(path)
         content = (record["recording_digest"] if record.get("recording_stat") == stat
                    and isinstance(record.get("recording_digest"), str)
                    else recording_digest(path))
-        task = CalibrateTask(str(path), name, str(out_dir), options,
+        task = CalibrateTask(str(path), name, str(out_dir), own,
                              input_hash(digest, content), overlays, stat, content)
         tasks.append(task)
         if record.get("input_hash") == task.input_hash and record["row"].get("status") == OK:
@@ -231,6 +285,18 @@ def plan_batch(data: str, out_dir: Path, options: Mapping[str, Any],
         else:
             todo.append(task)
     return BatchPlan(tuple(tasks), tuple(todo), rows)
+
+
+def _recording_options(entry: Listed, options: Mapping[str, Any],
+                       overlays: bool) -> tuple[dict[str, Any], str]:
+    """A recording's options (the batch's, replaced by its list line's, checked; files made
+    absolute) and their digest (`options_digest`)."""
+    own = line_options(entry)
+    merged = {**options, **own}
+    if own:
+        check_options(merged, entry.path, entry.where)
+    merged = absolute_options(merged)
+    return merged, options_digest({**merged, "overlays": overlays}, option_files(merged))
 
 
 def run_batch(plan: BatchPlan, out_dir: Path, engine,

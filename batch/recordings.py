@@ -1,8 +1,17 @@
 """The recordings of a batch: `--data` as a glob pattern or a list file, each recording's
 folder name under the output folder, and the content hash of everything a result depends on.
 
+A list file's line is a recording's path, optionally followed by `dream calibrate` options of
+its own, from the first ` --` on (shell quoting; they replace the batch's for that recording):
+
+    lab/ep1
+    lab/ep2 --frame-range 0:120 --camera-guess 1.2,0.3,0.8 --look-at 0,0,0.4
+    lab/ep2 --frame-range 120:300
+
 >>> folder_names([Path("lab/a/ep1"), Path("lab/b/ep1"), Path("lab/b/ep2.npz")])
 ['a-ep1', 'b-ep1', 'ep2']
+>>> folder_names([Path("lab/ep2"), Path("lab/ep2"), Path("lab/ep3")])
+['ep2-part1', 'ep2-part2', 'ep3']
 """
 
 from __future__ import annotations
@@ -11,7 +20,10 @@ import glob
 import hashlib
 import json
 import re
+import shlex
+from collections import Counter
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -24,54 +36,98 @@ UNSAFE_NAME_CHARS = re.compile(r"[^A-Za-z0-9._-]+")
 HASH_FORMAT = 1                   # bumped when what the hash covers changes
 FIX_DATA = ("give --data a glob pattern in quotes ('recordings/*') or a .txt file with one "
             "recording per line")
+OPTIONS_START = " --"             # a list line's own options begin here
+PART = "part"                     # a recording listed more than once: NAME-part1, NAME-part2
 
 
-def list_recordings(data: str) -> list[Path]:
+@dataclass(frozen=True)
+class Listed:
+    """One recording of a batch: its path and, from a list file, the `dream calibrate` options
+    of its line (`argv`; its relative file names are from the folder of the list, `source`;
+    `line`, 1-based, names it in errors)."""
+
+    path: Path
+    argv: tuple[str, ...] = ()
+    source: Path | None = None
+    line: int = 0
+
+    @property
+    def where(self) -> str:
+        """The line that listed it, in words ('' for a glob's match)."""
+        return f"line {self.line} of {self.source}" if self.source is not None else ""
+
+
+def list_recordings(data: str) -> list[Listed]:
     """The recordings of `--data`: the lines of a `.txt` list file (relative paths from the
-    list's folder; blank lines and `#` comments skipped) or the paths a glob pattern matches
-    (sorted; `**` recurses), each once. A listed recording that does not exist is not an
-    error here: it fails alone, as a recording that cannot be read does."""
+    list's folder; blank lines and `#` comments skipped; each line's own options kept) or the
+    paths a glob pattern matches (sorted; `**` recurses), each path and options once. A listed
+    recording that does not exist is not an error here: it fails alone, as a recording that
+    cannot be read does."""
     if not data or not data.strip():
         raise InputError("--data is empty", fix=FIX_DATA)
     listed = Path(data)
     if listed.suffix == LIST_SUFFIX and listed.is_file():
-        paths = _read_list(listed)
+        entries = _read_list(listed)
     else:
-        paths = [Path(p) for p in sorted(glob.glob(data, recursive=True))]
-        if not paths:
+        entries = [Listed(Path(p).resolve()) for p in sorted(glob.glob(data, recursive=True))]
+        if not entries:
             raise InputError(f"--data '{data}' matches no recording", fix=FIX_DATA)
-    return list(dict.fromkeys(p.resolve() for p in paths))
+    seen: dict[tuple, Listed] = {}
+    for entry in entries:
+        seen.setdefault((entry.path, entry.argv), entry)
+    return list(seen.values())
 
 
-def _read_list(path: Path) -> list[Path]:
+def _read_list(path: Path) -> list[Listed]:
     try:
         lines = path.read_text(encoding="utf-8").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read the list of recordings ({exc})", path, FIX_DATA) from None
-    entries = [line.strip() for line in lines]
-    paths = [path.parent / e for e in entries if e and not e.startswith(COMMENT)]
-    if not paths:
+    entries = [_list_line(path, number, line.strip())
+               for number, line in enumerate(lines, start=1)
+               if line.strip() and not line.strip().startswith(COMMENT)]
+    if not entries:
         raise InputError("the list of recordings is empty", path, FIX_DATA)
-    return paths
+    return entries
+
+
+def _list_line(path: Path, number: int, line: str) -> Listed:
+    """One line of a list file: the recording's path (spaces allowed), then its options."""
+    name, start, rest = line.partition(OPTIONS_START)
+    try:
+        argv = tuple(shlex.split(start.strip() + rest)) if start else ()
+    except ValueError as exc:
+        raise InputError(f"line {number} of the list of recordings: cannot split its options "
+                         f"({exc})", path, "quote values with spaces in them as in a shell, "
+                         "with both quotes") from None
+    return Listed((path.parent / name.strip()).resolve(), argv, path, number)
 
 
 def folder_names(paths: list[Path]) -> list[str]:
     """Each recording's folder name under the output folder: its own name (a file's without
     its suffix), led by as many of its parent folders as set it apart from every other
-    recording's name of the same depth, joined by '-'."""
+    recording's name of the same depth, joined by '-'; a path listed more than once (other
+    frames, other options) gets `-part1`, `-part2`... in the order listed."""
+    distinct = list(dict.fromkeys(paths))
     parts = [[_safe(p) for p in path.parts[:-1] if p != path.anchor]
              + [_safe(path.stem if path.suffix and not path.is_dir() else path.name)]
-             for path in paths]
-    names = []
+             for path in distinct]
+    names = {}
     for i, own in enumerate(parts):
         for depth in range(1, len(own) + 1):
             name = "-".join(own[-depth:])
             if all("-".join(other[-depth:]) != name for j, other in enumerate(parts) if j != i):
                 break
-        names.append(name)
-    if len(set(names)) < len(names):
-        return [f"{i:04d}-{name}" for i, name in enumerate(names)]
-    return names
+        names[distinct[i]] = name
+    counts = Counter(paths)
+    taken: dict[Path, int] = {}
+    out = []
+    for path in paths:
+        taken[path] = taken.get(path, 0) + 1
+        out.append(f"{names[path]}-{PART}{taken[path]}" if counts[path] > 1 else names[path])
+    if len(set(out)) < len(out):
+        return [f"{i:04d}-{name}" for i, name in enumerate(out)]
+    return out
 
 
 def _safe(name: str) -> str:

@@ -162,6 +162,56 @@ def test_bad_options_fail_before_anything_is_written(recordings, tmp_path, capsy
     assert not out.exists()
 
 
+def test_list_lines_give_their_recordings_options_of_their_own(recordings, tmp_path, capsys):
+    """Two stretches of one recording and a plain one: each part as its own single run, the
+    lines' options in their hashes (a changed line redoes only its recording)."""
+    listing = tmp_path / "list.txt"
+    first, second = recordings[0], recordings[1]
+    lines = [f"{first} --frame-range 0:2", f"{first} --frame-range 2:4 --seed 1", str(second)]
+    listing.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "batch"
+    argv = ["batch", "calibrate", "--data", str(listing), "--out", str(out), "--workers", "2",
+            *OPTIONS]
+    assert main(argv) == 0
+    got = rows(out)
+    assert list(got) == ["rec000-part1", "rec000-part2", "rec001"]
+    for name, frames in (("rec000-part1", "0:2"), ("rec000-part2", "2:4")):
+        alone = run_calibrate(CalibrateRequest(
+            data=str(first), out=str(tmp_path / f"{name}.json"), use_labels=True, refine="none",
+            frame_range=frames, seed=1 if frames == "2:4" else 0), out=open(os.devnull, "w"))
+        assert got[name]["frames"] == 2
+        assert np.max(np.abs(np.asarray(got[name]["T_cam_base"])
+                             - np.asarray(alone["T_cam_base"]))) <= IDENTICAL
+        assert json.loads((out / name / "RESULT.json").read_text())["settings"][
+            "frame_range"] == frames
+    assert got["rec001"]["frames"] == 4
+    capsys.readouterr()
+    listing.write_text("\n".join([lines[0], f"{first} --frame-range 1:4", lines[2]]) + "\n")
+    assert main(argv) == 0
+    assert "2 done already (same inputs), 1 to run" in capsys.readouterr().err
+    assert rows(out)["rec000-part2"]["frames"] == 3
+
+
+@pytest.mark.parametrize("line, message", [
+    ("{rec} --frame-rang 0:2", "unrecognized arguments: --frame-rang"),
+    ("{rec} --refine bogus", "argument --refine: invalid choice"),
+    ("{rec} --data elsewhere", "--data is the batch's to set"),
+    ("{rec} --out R.json", "unrecognized arguments: --out"),
+    ("{rec} --frame-range '0:2", "cannot split its options"),
+    ("{rec} --mask-head", "--polish was not given"),
+])
+def test_a_bad_list_line_is_named_before_anything_is_written(recordings, tmp_path, capsys,
+                                                             line, message):
+    listing = tmp_path / "list.txt"
+    listing.write_text(f"{recordings[1]}\n" + line.replace("{rec}", str(recordings[0])) + "\n")
+    out = tmp_path / "out"
+    assert main(["batch", "calibrate", "--data", str(listing), "--out", str(out),
+                 *OPTIONS]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "line 2 of" in err
+    assert not out.exists()
+
+
 def _command(recordings: list[Path], out: Path, engine: str) -> list[str]:
     return [str(Path(sys.executable).parent / "dream"), "batch", "calibrate", "--data",
             str(recordings[0].parent / "rec*"), "--out", str(out), "--engine", engine,

@@ -130,14 +130,22 @@ def test_recordings_from_a_glob_or_a_list_file(tmp_path):
     for name in ("a/ep1", "b/ep1", "b/ep2"):
         (tmp_path / name).mkdir(parents=True)
     (tmp_path / "b" / "ep3.npz").write_bytes(b"x")
-    found = list_recordings(str(tmp_path / "*" / "ep*"))
+    found = [e.path for e in list_recordings(str(tmp_path / "*" / "ep*"))]
     assert [p.relative_to(tmp_path).as_posix() for p in found] == \
         ["a/ep1", "b/ep1", "b/ep2", "b/ep3.npz"]
     assert folder_names(found) == ["a-ep1", "b-ep1", "ep2", "ep3"]
     listing = tmp_path / "list.txt"
-    listing.write_text("# the lab's episodes\nb/ep2\n\na/ep1\nb/ep2\nmissing\n")
+    listing.write_text("# the lab's episodes\nb/ep2\n\na/ep1\nb/ep2\nmissing\n"
+                       "b/ep2 --frame-range 0:50 --camera-guess 'my guess.json'\n"
+                       "a/ep1  --frame-range 0:50\n")
     listed = list_recordings(str(listing))
-    assert [p.name for p in listed] == ["ep2", "ep1", "missing"]   # each once; missing fails alone
+    # each path and options once; a missing one fails alone
+    assert [e.path.name for e in listed] == ["ep2", "ep1", "missing", "ep2", "ep1"]
+    assert [e.argv for e in listed][3:] == [
+        ("--frame-range", "0:50", "--camera-guess", "my guess.json"), ("--frame-range", "0:50")]
+    assert [e.line for e in listed] == [2, 4, 6, 7, 8] and listed[3].where.startswith("line 7 of")
+    assert folder_names([e.path for e in listed]) == \
+        ["ep2-part1", "ep1-part1", "missing", "ep2-part2", "ep1-part2"]
     with pytest.raises(InputError, match="matches no recording"):
         list_recordings(str(tmp_path / "nothing*"))
     (tmp_path / "empty.txt").write_text("# nothing\n")
@@ -172,3 +180,11 @@ def test_content_hash_changes_with_the_files_and_the_options_only(tmp_path):
     assert content_hash(rec, {"seed": 0}, [model]) == base
     (rec / "000001.json").write_text("{}")
     assert content_hash(rec, {"seed": 0}, [model]) != base
+
+
+def test_the_recordings_doctests():
+    import doctest
+
+    import batch.recordings
+
+    assert doctest.testmod(batch.recordings).failed == 0
