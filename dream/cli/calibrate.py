@@ -238,11 +238,13 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     checked: list = [steadiness_record(motion, seq, doc)]
     if refine == EDGES:
         add = add_edges if request.frames == "all" else add_frame_edges
+        doc_keypoints = doc
         doc = refined_or_kept(request, lambda: add(
             seq, robot, result, obs, doc, out, request.exclude_links,
             () if extension is None else extension.link_geometry), doc, out)
         if request.frames == "all":
-            doc, silhouettes = add_silhouette_check(seq, robot, result, doc, out)
+            doc, silhouettes = add_silhouette_check(seq, robot, result, doc, out,
+                                                    doc_keypoints)
             checked += silhouettes
     elif extension is not None and extension.link_geometry and refine != POLISH:
         print("note: the model extension's link_geometry changes only the image refinements "

@@ -146,12 +146,16 @@ def _links(exclude_links: str | None) -> tuple[str, ...]:
     return tuple(n.strip() for n in (exclude_links or "").split(",") if n.strip())
 
 
-def add_silhouette_check(seq, robot, result, doc: dict, out: TextIO) -> tuple[dict, list]:
+def add_silhouette_check(seq, robot, result, doc: dict, out: TextIO,
+                         doc_keypoints: dict | None = None) -> tuple[dict, list]:
     """The silhouettes' cross-check of the pose written by `--refine edges` (or `auto`) for all
     frames, the alignment's or, where it was not kept or could not run, the keypoints'
     (`dream.coarse.crosscheck`): RESULT.json's `silhouette_check`, the covariance gains the
     disagreement of the two cues (`with_cue_term`), and the verdict's findings on it. Where no
-    masks can be made it does not run, and says why."""
+    masks can be made it does not run, and says why. Where the silhouettes side with the
+    keypoint pose against a kept alignment (`dream.coarse.crosscheck.sides_with_keypoints`),
+    `doc_keypoints` (the document before the alignment) is written instead, its `edges`
+    object saying why."""
     from dream.coarse.crosscheck import silhouette_crosscheck
     from dream.coarse.settings import SearchSettings
     from dream.coarse.verdict import crosscheck_findings
@@ -166,6 +170,9 @@ def add_silhouette_check(seq, robot, result, doc: dict, out: TextIO) -> tuple[di
         print(f"silhouette cross-check did not run: {exc.problem}", file=out)
         return {**doc, "silhouette_check": {"ran": False, "reason": exc.problem}}, []
     o = check.outcome
+    if doc_keypoints is not None:
+        doc, check = _keypoints_or_aligned(doc, doc_keypoints, check, result.fit.T_cam_base,
+                                           out)
     print(f"silhouette cross-check ({check.source} of {check.frames} frames, "
           f"{o.seconds:.1f} s): their optimum lies {check.distance_m * 1e3:.1f} mm and "
           f"{np.rad2deg(check.angle_rad):.2f} deg from the pose written (IoU "
@@ -176,6 +183,32 @@ def add_silhouette_check(seq, robot, result, doc: dict, out: TextIO) -> tuple[di
                                     check.angle_rad, o.basin_returned, o.basin_starts,
                                     check.source, SearchSettings(), o.basin_m,
                                     doc["silhouette_check"]["away"])
+
+
+def _keypoints_or_aligned(doc: dict, doc_keypoints: dict, check, T_keypoints: np.ndarray,
+                          out: TextIO) -> tuple[dict, object]:
+    """The document and cross-check of the pose the silhouettes side with: the kept
+    alignment's, or the keypoint pose's (the alignment undone, its `edges` object saying
+    why)."""
+    from dream.coarse.crosscheck import sides_with_keypoints
+    from dream.coarse.settings import SearchSettings
+
+    edges = doc.get("edges") or {}
+    if not edges.get("kept") or "T_cam_base_aligned" not in edges:
+        return doc, check
+    undo, to_keypoints, to_aligned = sides_with_keypoints(
+        T_keypoints, np.asarray(edges["T_cam_base_aligned"]), check.outcome.best.T_cam_base,
+        SearchSettings().keypoint_side_ratio)
+    if not undo:
+        return doc, check
+    reason = (f"undone: the silhouettes' optimum ({check.source}) lies "
+              f"{to_keypoints * 1e3:.1f} mm from the keypoint pose and {to_aligned * 1e3:.1f} mm "
+              "from the aligned one (the alignment slid along what the edges hardly "
+              "constrain); the keypoint pose is written")
+    print(f"edge alignment {reason}", file=out)
+    undone = {**edges, "kept": False, "reason": f"{edges['reason']}; {reason}",
+              "undone_by_silhouettes": True}
+    return {**doc_keypoints, "edges": undone}, check.at_keypoints(T_keypoints)
 
 
 def add_quality(result, obs, doc: dict, out: TextIO, extra: list | tuple = ()) -> dict:

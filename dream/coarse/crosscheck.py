@@ -4,6 +4,11 @@ data's, or motion masks), a local silhouette search started from that pose and f
 keypoint pose, and what it found. The verdict on it is `dream.coarse.verdict.crosscheck_findings`:
 a written pose that the silhouettes move by more than a few centimetres is not `good`, however
 well the keypoints agree with it.
+
+Where the written pose is the edge alignment's, the silhouettes also arbitrate between it and the
+keypoint pose it started from (`sides_with_keypoints`): an optimum much nearer the keypoint pose
+says the alignment slid off along what the edges hardly constrain (the camera's depth), and the
+keypoint pose is written instead.
 """
 
 from __future__ import annotations
@@ -37,11 +42,18 @@ class Crosscheck:
     source: str
     frames: int
     away: AwayPixels
+    iou_keypoints: float = float("nan")
 
     @property
     def found_iou(self) -> float:
         """The optimum's IoU without the pixels away from the robot there."""
         return self.away.iou_without(self.outcome.best.iou)
+
+    def at_keypoints(self, T_keypoints: np.ndarray) -> Crosscheck:
+        """The same check, as of the keypoint pose written instead of the aligned one."""
+        m, rad = pose_errors(np.asarray(T_keypoints), self.outcome.best.T_cam_base)
+        return replace(self, iou_written=self.iou_keypoints, distance_m=float(m),
+                       angle_rad=float(rad))
 
     def to_dict(self) -> dict:
         o = self.outcome
@@ -74,10 +86,28 @@ def silhouette_crosscheck(sequence: Sequence, robot: Robot, T_written: np.ndarra
                      {"written": np.asarray(T_written)[None],
                       "keypoints": np.asarray(T_keypoints)[None]},
                      local, held=held, progress=progress, search_frames=inputs.search)
-    iou = pose_iou(inputs.meshes, inputs.joints, inputs.masks, sequence.camera, T_written,
-                   local, held)
+    iou, iou_keypoints = (pose_iou(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
+                                   T, local, held) for T in (T_written, T_keypoints))
     m, rad = pose_errors(np.asarray(T_written), outcome.best.T_cam_base)
     away = away_at_pose(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
                         outcome.best.T_cam_base, settings.away_margin_px)
     return Crosscheck(outcome, iou, float(m), float(rad), inputs.source, len(inputs.frames),
-                      away)
+                      away, iou_keypoints)
+
+
+def sides_with_keypoints(T_keypoints: np.ndarray, T_aligned: np.ndarray,
+                         T_silhouettes: np.ndarray, ratio: float) -> tuple[bool, float, float]:
+    """Whether the silhouettes' optimum `T_silhouettes` lies nearer the keypoint pose than
+    `ratio` times its distance to the aligned pose (camera centres in the base frame), and
+    both distances (m). All (4, 4) `T_cam_base`.
+
+    >>> T = np.eye(4); near, far = T.copy(), T.copy()
+    >>> near[2, 3], far[2, 3] = 0.004, 0.02
+    >>> sides_with_keypoints(T, far, near, 0.5)
+    (True, 0.004, 0.016)
+    >>> sides_with_keypoints(far, T, near, 0.5)[0]
+    False
+    """
+    to_keypoints = float(pose_errors(np.asarray(T_keypoints), np.asarray(T_silhouettes))[0])
+    to_aligned = float(pose_errors(np.asarray(T_aligned), np.asarray(T_silhouettes))[0])
+    return to_keypoints < ratio * to_aligned, round(to_keypoints, 9), round(to_aligned, 9)

@@ -54,6 +54,13 @@ class SearchSettings:
         finish_width_px: the winner is refined at this mask width too (at most the camera's).
         rival_m, rival_rad: a rival is a refined candidate farther than either from the best.
         min_found_iou: below this mean IoU the robot was not found in the images.
+        keypoint_side_ratio: the silhouettes' cross-check undoes a kept edge alignment where
+            its optimum lies nearer the keypoint pose than this times its distance to the
+            aligned pose (`dream.coarse.crosscheck.sides_with_keypoints`; set on rendered
+            scenes, `benchmarks/edge_align.py` seeds 100-119: with the bundled detector the
+            keypoint poses lay 0.86-8 times as far from the optimum as the kept alignments,
+            and the two alignments that slid off exact labels along the camera's depth
+            0.23 and 0.41 times as far).
         min_gap: the best candidate's IoU must exceed the best rival's by this.
         basin_starts: restarts from around the best pose (the basin check).
         basin_m, basin_rad: how far from the best pose the restarts start.
@@ -116,6 +123,7 @@ class SearchSettings:
     rival_m: float = 0.05
     rival_rad: float = float(np.deg2rad(5.0))
     min_found_iou: float = 0.4
+    keypoint_side_ratio: float = 0.5
     min_gap: float = 0.05
     basin_starts: int = 4
     basin_m: float = 0.05
@@ -148,7 +156,7 @@ class SearchSettings:
                      non_negative=("min_gap", "basin_starts", "min_found_iou", "carried_margin_px",
                                    "round_iou_tolerance", "frame_influence", "in_view_starts",
                                    "min_basin_share", "jackknife_groups", "max_outlying_share",
-                                   "away_margin_px", "max_away_share"))
+                                   "away_margin_px", "max_away_share", "keypoint_side_ratio"))
         if not self.shell_distances or min(self.shell_distances) <= 0:
             raise InputError("coarse search: shell_distances must be positive")
         if not self.local_widths_px or min(self.local_widths_px) < 8:

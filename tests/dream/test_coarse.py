@@ -612,6 +612,46 @@ def test_silhouettes_guard_the_keypoint_path(panda, meshes, tmp_path, capsys):
             assert t_err < 0.01
 
 
+def test_silhouettes_undo_an_alignment_that_slid_off_right_keypoints(panda, meshes, tmp_path,
+                                                                     capsys, monkeypatch):
+    """Exact keypoints, and an edge alignment kept 2 cm along the camera's axis from them (what
+    edges that hardly constrain depth can do): the silhouettes' optimum lies at the keypoint
+    pose, so the alignment is undone and the keypoint pose written, saying why."""
+    import dataclasses
+
+    import dream.edges
+    from dream.camera import project
+    from dream.io import read_sequence, write_dream
+    from dream.transforms import transform_points
+
+    T_true = image_dataset(panda, meshes, tmp_path)
+    seq = read_sequence(tmp_path / "data")
+    frames = tuple(dataclasses.replace(f, uv_labels=project(seq.camera, transform_points(
+        T_true, panda.forward_kinematics(f.joints)))) for f in seq.frames)
+    write_dream(dataclasses.replace(seq, frames=frames), tmp_path / "right")
+    slid = T_true.copy()
+    slid[2, 3] += 0.02
+    aligned = dream.edges.refine_with_edges
+
+    def sliding(*args, **kwargs):
+        return dataclasses.replace(aligned(*args, **kwargs), T_aligned=slid, T_after=slid,
+                                   kept=True, jackknife=None)
+
+    monkeypatch.setattr(dream.edges, "refine_with_edges", sliding)
+    out = tmp_path / "r.json"
+    assert main(["calibrate", "--data", str(tmp_path / "right"), "--use-labels", "--out",
+                 str(out)]) == 0
+    printed = capsys.readouterr().out
+    doc = json.loads(out.read_text())
+    assert not doc["edges"]["kept"] and doc["edges"]["undone_by_silhouettes"]
+    assert "undone: the silhouettes' optimum" in doc["edges"]["reason"]
+    assert "edge alignment undone" in printed
+    t_err, _ = pose_errors(np.asarray(doc["T_cam_base"]), T_true)
+    assert t_err < 1e-4
+    check = doc["silhouette_check"]
+    assert check["distance_m"] < 0.005 and doc["quality"]["verdict"] == "good"
+
+
 def test_the_keypoint_pose_competes_with_the_guess(panda, meshes, tmp_path, capsys):
     """--use-labels with --camera-guess: the keypoint pose is one more hypothesis, scored with
     the guess's (a guess 30 cm / 20 deg off searched within 2 cm / 1 deg) on the same
