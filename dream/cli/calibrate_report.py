@@ -5,9 +5,12 @@ uncertainty, and its errors against the data's ground truth."""
 from __future__ import annotations
 
 import sys
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from dream.coarse.crosscheck import Crosscheck
 
 
 def add_polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames: str,
@@ -185,8 +188,8 @@ def add_silhouette_check(seq, robot, result, doc: dict, out: TextIO,
                                     doc["silhouette_check"]["away"])
 
 
-def _keypoints_or_aligned(doc: dict, doc_keypoints: dict, check, T_keypoints: np.ndarray,
-                          out: TextIO) -> tuple[dict, object]:
+def _keypoints_or_aligned(doc: dict, doc_keypoints: dict, check: Crosscheck,
+                          T_keypoints: np.ndarray, out: TextIO) -> tuple[dict, Crosscheck]:
     """The document and cross-check of the pose the silhouettes side with: the kept
     alignment's, or the keypoint pose's (the alignment undone, its `edges` object saying
     why)."""
