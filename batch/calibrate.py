@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import shlex
 import subprocess
 import sys
 import time
@@ -65,6 +66,7 @@ class CalibrateTask:
     overlays: bool = False
     recording_stat: str = ""
     recording_digest: str = ""
+    line_options: str = ""      # its list line's own options, as written (summary `options`)
 
     def record(self, row: dict[str, Any]) -> dict[str, Any]:
         """The recording folder's `batch.json`: the row and what says whether it is current."""
@@ -91,9 +93,10 @@ def calibrate_one(task: CalibrateTask) -> dict[str, Any]:
         seconds = time.perf_counter() - start
         if run.returncode == 0:
             doc = _with_final_paths(result_path, folder, task.overlays)
-            row = result_row(task.recording, task.name, doc, seconds)
+            row = result_row(task.recording, task.name, doc, seconds, task.line_options)
         else:
-            row = failed_row(task.recording, task.name, _error_line(run), seconds)
+            row = failed_row(task.recording, task.name, _error_line(run), seconds,
+                             task.line_options)
         write_json_atomic(tmp / RECORD_NAME, task.record(row))
     return row
 
@@ -278,7 +281,8 @@ def plan_batch(data: str, out_dir: Path, options: Mapping[str, Any],
                    and isinstance(record.get("recording_digest"), str)
                    else recording_digest(path))
         task = CalibrateTask(str(path), name, str(out_dir), own,
-                             input_hash(digest, content), overlays, stat, content)
+                             input_hash(digest, content), overlays, stat, content,
+                             shlex.join(entry.argv))
         tasks.append(task)
         if record.get("input_hash") == task.input_hash and record["row"].get("status") == OK:
             rows[name] = record["row"]
@@ -323,7 +327,7 @@ def run_batch(plan: BatchPlan, out_dir: Path, engine,
 
 def _lost_row(task: CalibrateTask, lost: WorkerLost) -> dict:
     """The row (and folder record) of a recording whose worker died."""
-    row = failed_row(task.recording, task.name, lost.message, 0.0)
+    row = failed_row(task.recording, task.name, lost.message, 0.0, task.line_options)
     with atomic_directory(Path(task.out_dir) / task.name, overwrite=True) as tmp:
         (tmp / LOG_NAME).write_text(f"error: {lost.message}\n", encoding="utf-8")
         write_json_atomic(tmp / RECORD_NAME, task.record(row))

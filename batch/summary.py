@@ -2,7 +2,8 @@
 spreadsheet) and `summary.json` (the full extrinsic), both replaced atomically as the batch
 runs (`batch.calibrate.run_batch`: every few seconds and at the end).
 
-A row: `recording` (its path), `name` (its folder), `status` (`ok` or `failed`), `frames`
+A row: `recording` (its path), `name` (its folder), `options` (a list line's own `dream
+calibrate` options, as written; empty for none), `status` (`ok` or `failed`), `frames`
 (used), the camera in the robot base frame (`camera_x_m`... and its orientation `qx`... `qw`,
 of `T_base_cam`), `sigma_position_mm` and `sigma_rotation_deg` (root-sum-square of the
 1-sigma per axis), `verdict` (`good`, `check`, `unreliable`), `seconds`, and `error` (the
@@ -23,12 +24,13 @@ from dream.io import write_bytes_atomic, write_json_atomic
 OK, FAILED = "ok", "failed"
 SUMMARY_CSV, SUMMARY_JSON = "summary.csv", "summary.json"
 M_TO_MM = 1e3
-COLUMNS = ("recording", "name", "status", "frames", "camera_x_m", "camera_y_m", "camera_z_m",
-           "qx", "qy", "qz", "qw", "sigma_position_mm", "sigma_rotation_deg", "verdict",
-           "seconds", "error")
+COLUMNS = ("recording", "name", "options", "status", "frames", "camera_x_m", "camera_y_m",
+           "camera_z_m", "qx", "qy", "qz", "qw", "sigma_position_mm", "sigma_rotation_deg",
+           "verdict", "seconds", "error")
 
 
-def result_row(recording: str, name: str, doc: dict, seconds: float) -> dict[str, Any]:
+def result_row(recording: str, name: str, doc: dict, seconds: float,
+               options: str = "") -> dict[str, Any]:
     """The row of a RESULT.json document."""
     from dream.transforms import quaternion_xyzw_from_R
 
@@ -36,7 +38,7 @@ def result_row(recording: str, name: str, doc: dict, seconds: float) -> dict[str
     q = quaternion_xyzw_from_R(T_base_cam[:3, :3])
     frames = doc.get("frames_used")
     return {
-        "recording": recording, "name": name, "status": OK,
+        "recording": recording, "name": name, "options": options, "status": OK,
         "frames": len(frames) if isinstance(frames, list) else frames,
         **{f"camera_{axis}_m": float(v) for axis, v in zip("xyz", T_base_cam[:3, 3],
                                                              strict=True)},
@@ -49,11 +51,12 @@ def result_row(recording: str, name: str, doc: dict, seconds: float) -> dict[str
     }
 
 
-def failed_row(recording: str, name: str, error: str, seconds: float) -> dict[str, Any]:
+def failed_row(recording: str, name: str, error: str, seconds: float,
+               options: str = "") -> dict[str, Any]:
     """The row of a recording that failed: its one-line error."""
     row: dict[str, Any] = dict.fromkeys(COLUMNS)
-    row.update(recording=recording, name=name, status=FAILED, seconds=round(seconds, 3),
-               error=" ".join(error.split()))
+    row.update(recording=recording, name=name, options=options, status=FAILED,
+               seconds=round(seconds, 3), error=" ".join(error.split()))
     return row
 
 

@@ -175,6 +175,8 @@ def test_list_lines_give_their_recordings_options_of_their_own(recordings, tmp_p
     assert main(argv) == 0
     got = rows(out)
     assert list(got) == ["rec000-part1", "rec000-part2", "rec001"]
+    assert [r["options"] for r in got.values()] == [
+        "--frame-range 0:2", "--frame-range 2:4 --seed 1", ""]
     for name, frames in (("rec000-part1", "0:2"), ("rec000-part2", "2:4")):
         alone = run_calibrate(CalibrateRequest(
             data=str(first), out=str(tmp_path / f"{name}.json"), use_labels=True, refine="none",
