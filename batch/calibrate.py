@@ -128,12 +128,7 @@ def calibrate_command(task: CalibrateTask, result: Path, overlays: Path) -> list
 def calibrate_argv(options: Mapping[str, Any]) -> list[str]:
     """The command-line options of `dream calibrate` that give these request fields (those
     at their default left out)."""
-    from dream.cli.calibrate import add_calibrate_args
-    from dream.cli.options import add_data_args
-
-    parser = argparse.ArgumentParser(add_help=False)
-    add_data_args(parser, required=False)
-    add_calibrate_args(parser)
+    parser = _calibrate_parser(argparse.ArgumentParser(add_help=False))
     argv: list[str] = []
     for action in parser._actions:
         if action.dest not in options or action.dest == "data":
@@ -183,11 +178,7 @@ def option_files(options: Mapping[str, Any]) -> list[Path]:
 def absolute_options(options: Mapping[str, Any]) -> dict[str, Any]:
     """The options with the files they name made absolute (workers run elsewhere), and one
     onnxruntime thread per worker unless --threads says otherwise."""
-    out = dict(options)
-    for name in FILE_OPTIONS:
-        value = out.get(name)
-        if isinstance(value, str) and Path(value).exists():
-            out[name] = str(Path(value).resolve())
+    out = _files_resolved(options, Path.cwd())
     if out.get("threads") is None:
         out["threads"] = ONE_THREAD
     return out
@@ -221,14 +212,10 @@ def line_options(entry: Listed) -> dict[str, Any]:
         InputError: naming the line: an option `dream calibrate` lacks, a bad value, or an
             option the batch sets itself.
     """
-    from dream.cli.calibrate import add_calibrate_args
-    from dream.cli.options import add_data_args
-
-    if not entry.argv:
+    if not entry.argv or entry.source is None:     # options come only from a list's lines
         return {}
-    parser = _LineParser(prog="a list line", add_help=False, allow_abbrev=False)
-    add_data_args(parser, required=False)
-    add_calibrate_args(parser)
+    parser = _calibrate_parser(_LineParser(prog="a list line", add_help=False,
+                                           allow_abbrev=False))
     for action in parser._actions:
         action.default = argparse.SUPPRESS
     try:
@@ -238,12 +225,28 @@ def line_options(entry: Listed) -> dict[str, Any]:
     fixed = sorted(set(options) & set(BATCH_OPTIONS))
     if fixed:
         raise InputError(f"{entry.where}: --{fixed[0]} is the batch's to set", fix=FIX_LINE)
-    folder = entry.source.parent if entry.source is not None else Path.cwd()
+    return _files_resolved(options, entry.source.parent)
+
+
+def _calibrate_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """`parser` given the options of `dream calibrate` (`--data` not required)."""
+    from dream.cli.calibrate import add_calibrate_args
+    from dream.cli.options import add_data_args
+
+    add_data_args(parser, required=False)
+    add_calibrate_args(parser)
+    return parser
+
+
+def _files_resolved(options: Mapping[str, Any], folder: Path) -> dict[str, Any]:
+    """The options with each file they name that exists (relative names from `folder`) made
+    absolute; the others as given."""
+    out = dict(options)
     for name in FILE_OPTIONS:
-        value = options.get(name)
+        value = out.get(name)
         if isinstance(value, str) and (folder / value).exists():
-            options[name] = str((folder / value).resolve())
-    return options
+            out[name] = str((folder / value).resolve())
+    return out
 
 
 @dataclass(frozen=True)

@@ -86,8 +86,11 @@ def silhouette_crosscheck(sequence: Sequence, robot: Robot, T_written: np.ndarra
                      {"written": np.asarray(T_written)[None],
                       "keypoints": np.asarray(T_keypoints)[None]},
                      local, held=held, progress=progress, search_frames=inputs.search)
-    iou, iou_keypoints = (pose_iou(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
-                                   T, local, held) for T in (T_written, T_keypoints))
+    iou = pose_iou(inputs.meshes, inputs.joints, inputs.masks, sequence.camera, T_written,
+                   local, held)
+    iou_keypoints = (iou if np.array_equal(T_written, T_keypoints) else
+                     pose_iou(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
+                              T_keypoints, local, held))
     m, rad = pose_errors(np.asarray(T_written), outcome.best.T_cam_base)
     away = away_at_pose(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
                         outcome.best.T_cam_base, settings.away_margin_px)
@@ -103,11 +106,12 @@ def sides_with_keypoints(T_keypoints: np.ndarray, T_aligned: np.ndarray,
 
     >>> T = np.eye(4); near, far = T.copy(), T.copy()
     >>> near[2, 3], far[2, 3] = 0.004, 0.02
-    >>> sides_with_keypoints(T, far, near, 0.5)
+    >>> side, to_keypoints, to_aligned = sides_with_keypoints(T, far, near, 0.5)
+    >>> side, round(to_keypoints, 6), round(to_aligned, 6)
     (True, 0.004, 0.016)
     >>> sides_with_keypoints(far, T, near, 0.5)[0]
     False
     """
     to_keypoints = float(pose_errors(np.asarray(T_keypoints), np.asarray(T_silhouettes))[0])
     to_aligned = float(pose_errors(np.asarray(T_aligned), np.asarray(T_silhouettes))[0])
-    return to_keypoints < ratio * to_aligned, round(to_keypoints, 9), round(to_aligned, 9)
+    return to_keypoints < ratio * to_aligned, to_keypoints, to_aligned
