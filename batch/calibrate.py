@@ -212,6 +212,8 @@ def line_options(entry: Listed) -> dict[str, Any]:
         InputError: naming the line: an option `dream calibrate` lacks, a bad value, or an
             option the batch sets itself.
     """
+    from dream.cli.app import joined_negative_values
+
     if not entry.argv or entry.source is None:     # options come only from a list's lines
         return {}
     parser = _calibrate_parser(_LineParser(prog="a list line", add_help=False,
@@ -219,7 +221,7 @@ def line_options(entry: Listed) -> dict[str, Any]:
     for action in parser._actions:
         action.default = argparse.SUPPRESS
     try:
-        options = vars(parser.parse_args(list(entry.argv)))
+        options = vars(parser.parse_args(joined_negative_values(entry.argv)))
     except argparse.ArgumentError as exc:
         raise InputError(f"{entry.where}: {exc}", fix=FIX_LINE) from None
     fixed = sorted(set(options) & set(BATCH_OPTIONS))

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from batch.calibrate import line_options
 from batch.engine import (
     EngineSettings,
     LocalEngine,
@@ -151,6 +152,17 @@ def test_recordings_from_a_glob_or_a_list_file(tmp_path):
     (tmp_path / "empty.txt").write_text("# nothing\n")
     with pytest.raises(InputError, match="list of recordings is empty"):
         list_recordings(str(tmp_path / "empty.txt"))
+
+
+def test_a_list_line_takes_value_lists_that_start_with_a_minus_sign(tmp_path):
+    """A camera behind the base: `--camera-guess -0.5,1.2,0.8` on a line, as on the command
+    line (argparse alone takes the value for an option and stops at it)."""
+    listing = tmp_path / "list.txt"
+    listing.write_text("ep1 --camera-guess -0.5,1.2,0.8 --look-at -0.1,0,0.4 --seed -1\n")
+    (entry,) = list_recordings(str(listing))
+    assert line_options(entry) == {"camera_guess": "-0.5,1.2,0.8", "look_at": "-0.1,0,0.4",
+                                   "seed": -1}
+    assert entry.argv[:2] == ("--camera-guess", "-0.5,1.2,0.8")       # as written
 
 
 def content_hash(rec: Path, options: dict, files: list[Path]) -> str:
