@@ -200,6 +200,9 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
 
     say = progress or (lambda line: None)
     target = check_output_file(request.out, parents_made=True)
+    if target.resolve() == Path(request.model).resolve():
+        raise InputError("--out names the model being adapted, which it would replace",
+                         target, "give --out a file of its own, e.g. adapted.onnx")
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -214,6 +217,11 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
     held = holdout_range(request.holdout_frames, len(seq))
     uv = pseudo_labels(seq, robot, T)
     teach = np.array([i for i in range(len(seq)) if i not in held])
+    if not len(teach):
+        raise InputError(f"--holdout-frames {held.start}:{held.stop} holds out all "
+                         f"{len(seq)} frames: none is left to teach",
+                         fix=f"hold out fewer, e.g. {len(seq) - len(seq) // HOLDOUT_SHARE}:"
+                         f"{len(seq)} (the default: the last third)")
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="dream-adapt-", dir=target.parent) as work:
         work = Path(work)

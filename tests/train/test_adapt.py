@@ -78,6 +78,28 @@ def test_an_unreliable_teacher_is_refused_in_one_line(panda, meshes, tmp_path, c
     assert not (tmp_path / "a.onnx").exists()
 
 
+def test_holding_out_every_frame_or_writing_over_the_model_is_refused(panda, meshes, tmp_path,
+                                                                      capsys):
+    """Each fails in one line before any work: nothing left to teach; an --out that would
+    replace the model being adapted (the model file stays as it was)."""
+    calibrated(panda, meshes, tmp_path)
+    model = tmp_path / "m.onnx"
+    model.write_bytes(BUNDLED_MODEL.read_bytes())
+    base = ["adapt", "--data", str(tmp_path / "data"), "--result", str(tmp_path / "r.json"),
+            "--model", str(model)]
+    count = len(read_sequence(tmp_path / "data"))
+    for extra, message in (
+            (["--out", str(tmp_path / "a.onnx"), "--holdout-frames", f"0:{count}"],
+             "none is left to teach"),
+            (["--out", str(model)], "would replace")):
+        capsys.readouterr()
+        code = main(base + extra)
+        err = capsys.readouterr().err
+        assert code == 2 and message in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "a.onnx").exists()
+    assert model.read_bytes() == BUNDLED_MODEL.read_bytes()
+
+
 def test_a_teacher_calibrated_on_part_of_the_recording_is_accepted(panda, meshes, tmp_path):
     """A fixed camera calibrated on the first frames (a copy of them) labels the whole
     recording; a result of other content is still refused."""
