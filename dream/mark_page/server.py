@@ -115,7 +115,8 @@ class _Handler(BaseHTTPRequestHandler):
                         "marks": book.marks()})
         elif self.path.startswith(IMAGE_PREFIX) and self.path.endswith(IMAGE_SUFFIX):
             index = self.path[len(IMAGE_PREFIX):-len(IMAGE_SUFFIX)]
-            if not index.isdigit() or int(index) >= len(self.book.names):
+            if not (index.isascii() and index.isdigit()) or int(index) >= len(
+                    self.book.names):                   # '²' is a digit, not an int
                 self._error(HTTPStatus.NOT_FOUND, "no such frame")
                 return
             self._send(HTTPStatus.OK, self.image_png(int(index)), "image/png")

@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import http.client
 import json
+import socket
 import threading
 
 import pytest
@@ -113,6 +114,14 @@ def test_clicks_in_the_page_become_marks_and_done_stops_it(panda, meshes, tmp_pa
         assert abs(marks[name][1] - v) < CLICK_TOLERANCE_PX, (name, marks[name])
 
 
+def raw_status(served: Served, request_line: bytes) -> int:
+    """The status of a request sent byte for byte (http.client refuses non-ASCII paths)."""
+    host, port = served.url.split("//")[1].rstrip("/").split(":")
+    with socket.create_connection((host, int(port)), timeout=10) as conn:
+        conn.sendall(request_line + f"\r\nHost: {host}:{port}\r\n\r\n".encode())
+        return int(conn.recv(64).split()[1])
+
+
 def test_server_serves_only_the_data_to_its_own_address(panda, meshes, tmp_path):
     image_dataset(panda, meshes, tmp_path)
     out = tmp_path / "marks.csv"
@@ -128,11 +137,13 @@ def test_server_serves_only_the_data_to_its_own_address(panda, meshes, tmp_path)
                      "/../data/images/0.png", "/etc/passwd", "/image/%2e%2e%2fx.png"):
             assert served.request("GET", path)[0] == 404, path
         assert served.request("GET", "/", headers={"Host": "evil.example:80"})[0] == 403
+        assert raw_status(served, b"GET /image/\xb2.png HTTP/1.1") == 404   # a digit, no int
         json_type = {"Content-Type": "application/json"}
         assert served.request("POST", "/api/mark", b"frame=000001&u=1&v=2",
                               {"Content-Type": "application/x-www-form-urlencoded"})[0] == 415
         for body in ({"frame": "nope", "u": 1, "v": 2}, {"frame": "000001", "u": 1e6, "v": 2},
-                     {"frame": "000001", "u": "x", "v": 2}, {"frame": "000001"}):
+                     {"frame": "000001", "u": "x", "v": 2}, {"frame": "000001"},
+                     {"frame": "000001", "u": float("nan"), "v": 2}):
             status, doc = served.request("POST", "/api/mark", json.dumps(body).encode(),
                                          json_type)
             assert status == 400 and doc["error"], body
