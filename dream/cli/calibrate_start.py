@@ -82,6 +82,9 @@ def camera_guess(camera_guess: str | None, look_at: str | None, guess_sigma: str
     if camera_guess is None:
         if look_at is not None:
             raise InputError("--look-at goes with --camera-guess X,Y,Z", fix=FIX_GUESS)
+        if guess_sigma is not None:     # the automatic search and a mark set their own spread
+            raise InputError("--guess-sigma goes with --camera-guess (how rough the guess is)",
+                             fix=FIX_GUESS)
         return CameraGuess(None, sigma_m, sigma_rad, "automatic search around the robot")
     if Path(camera_guess).suffix.lower() == ".json" or Path(camera_guess).is_file():
         from dream.result import read_result

@@ -33,7 +33,7 @@ def run_mark(request: MarkRequest, out: TextIO | None = None,
     `request.out` after every change (an existing marks file of the recording is read first,
     to go on marking). `ready(url)` is called once the page can be opened. Returns the number
     of marks written."""
-    from dream.coarse.mark import read_marks
+    from dream.coarse.mark import read_mark_rows
     from dream.io import check_output_file, load_image
     from dream.io.images import encode_png
     from dream.mark_page.server import HOST, MarkBook, make_server
@@ -48,7 +48,7 @@ def run_mark(request: MarkRequest, out: TextIO | None = None,
     names = [f.name for f in seq.frames]
     marks = {}
     if target.exists():
-        frames, uv = read_marks(target, seq)
+        frames, uv = read_mark_rows(target, seq)
         marks = {names[int(i)]: (float(u), float(v)) for i, (u, v) in zip(frames, uv,
                                                                           strict=True)}
     book = MarkBook(names, camera, target, marks)
@@ -69,8 +69,8 @@ def run_mark(request: MarkRequest, out: TextIO | None = None,
     finally:
         server.server_close()
     count = len(book.marks())
-    print(f"{count} marks in {target}" if count else "no marks clicked; nothing written",
-          file=out)
+    print(f"{count} marks in {target}" if count else f"no marks in {target}" if
+          target.exists() else "no marks clicked; nothing written", file=out)
     return count
 
 

@@ -106,8 +106,28 @@ class Mark:
 
 
 def read_marks(path: str | Path, sequence: Sequence) -> tuple[np.ndarray, np.ndarray]:
-    """The clicked frames' indices (sorted) and pixels (n, 2) of a `frame,u,v` CSV; a frame is
-    named as the sequence names it, or by its index.
+    """The clicked frames' indices (sorted) and pixels (n, 2) of a `frame,u,v` CSV to
+    calibrate from (`read_mark_rows`, at least one row, not all at the image's corner); a frame
+    is named as the sequence names it, or by its index.
+
+    Raises:
+        InputError: as `read_mark_rows`; no rows; every click within `NORMALISED_MAX` px of
+            the corner (normalised coordinates).
+    """
+    frames, uv = read_mark_rows(path, sequence)
+    if not len(frames):
+        raise InputError("the marks file has no rows", path, FIX_MARKS)
+    if np.all(np.abs(uv) <= NORMALISED_MAX):
+        raise InputError(f"every click lies within {NORMALISED_MAX:g} px of the image's corner: "
+                         "normalised coordinates, not pixels?", path,
+                         "give u, v in pixels of the data's images (origin at the top-left "
+                         "pixel's centre)")
+    return frames, uv
+
+
+def read_mark_rows(path: str | Path, sequence: Sequence) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of a `frame,u,v` CSV as `read_marks` gives them, none or any (as `dream mark`
+    goes on from the file it wrote).
 
     Raises:
         InputError: no such file, another header, a frame not in the data, a pixel outside the
@@ -142,17 +162,10 @@ def read_marks(path: str | Path, sequence: Sequence) -> tuple[np.ndarray, np.nda
                              f"{cam.height} image", path, "give pixels of the data's images")
         frames.append(index)
         uv.append((u, v))
-    if not frames:
-        raise InputError("the marks file has no rows", path, FIX_MARKS)
-    if np.all(np.abs(uv) <= NORMALISED_MAX):
-        raise InputError(f"every click lies within {NORMALISED_MAX:g} px of the image's corner: "
-                         "normalised coordinates, not pixels?", path,
-                         "give u, v in pixels of the data's images (origin at the top-left "
-                         "pixel's centre)")
     if len(set(frames)) != len(frames):
         raise InputError("a frame is marked twice", path, "keep one row per frame")
     order = np.argsort(frames)
-    return np.asarray(frames)[order], np.asarray(uv, float)[order]
+    return np.asarray(frames, int)[order], np.asarray(uv, float).reshape(-1, 2)[order]
 
 
 def _frame_index(text: str, names: dict[str, int], count: int) -> int | None:

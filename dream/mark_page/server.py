@@ -64,6 +64,8 @@ class MarkBook:
             self._write()
 
     def unmark(self, name: str) -> None:
+        if name not in self.names:
+            raise InputError(f"no frame {name!r}")
         with self._lock:
             self._marks.pop(name, None)
             self._write()
@@ -74,6 +76,13 @@ class MarkBook:
             f"{name},{u:.2f},{v:.2f}" for name, (u, v) in
             sorted(self._marks.items(), key=lambda item: order[item[0]])]
         write_bytes_atomic(self.out, ("\n".join(rows) + "\n").encode(), durable=False)
+
+
+def _number(value) -> float:
+    """A JSON number as a float (not a string, a boolean or null)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise InputError(f"u and v must be numbers, got {value!r}")
+    return float(value)       # OverflowError for an integer beyond a float's range
 
 
 def page_html() -> bytes:
@@ -131,8 +140,8 @@ class _Handler(BaseHTTPRequestHandler):
             return
         try:
             if self.path == "/api/mark":
-                self.book.mark(str(body.get("frame")), float(body.get("u")),
-                               float(body.get("v")))
+                self.book.mark(str(body.get("frame")), _number(body.get("u")),
+                               _number(body.get("v")))
             elif self.path == "/api/unmark":
                 self.book.unmark(str(body.get("frame")))
             elif self.path == "/api/quit":
@@ -142,7 +151,7 @@ class _Handler(BaseHTTPRequestHandler):
             else:
                 self._error(HTTPStatus.NOT_FOUND, "not found")
                 return
-        except (InputError, TypeError, ValueError) as exc:
+        except (InputError, TypeError, ValueError, OverflowError) as exc:
             self._error(HTTPStatus.BAD_REQUEST, str(exc))
             return
         self._json({"marks": self.book.marks()})
@@ -158,16 +167,17 @@ class _Handler(BaseHTTPRequestHandler):
         if self.headers.get("Content-Type", "").split(";")[0].strip() != JSON_TYPE:
             self._error(HTTPStatus.UNSUPPORTED_MEDIA_TYPE, "send JSON")
             return None
-        try:
-            length = int(self.headers.get("Content-Length", "0"))
-        except ValueError:
-            length = -1
-        if not 0 <= length <= MAX_BODY_BYTES:
+        text = self.headers.get("Content-Length", "0").strip()
+        if not (text.isascii() and text.isdigit()):
+            self._error(HTTPStatus.BAD_REQUEST, "Content-Length must be a byte count")
+            return None
+        length = int(text)
+        if length > MAX_BODY_BYTES:
             self._error(HTTPStatus.REQUEST_ENTITY_TOO_LARGE, "body too large")
             return None
         try:
             body = json.loads(self.rfile.read(length) or b"{}")
-        except (json.JSONDecodeError, UnicodeDecodeError):
+        except (ValueError, RecursionError):       # not JSON, not UTF-8, nested too deep
             body = None
         if not isinstance(body, dict):
             self._error(HTTPStatus.BAD_REQUEST, "send a JSON object")

@@ -479,6 +479,7 @@ def test_guess_options_are_checked_before_any_work(tmp_path, capsys):
         (["--camera-guess", "1,0,1", "--look-at", "1,0,1"], "coincide"),
         (["--guess-sigma", "0.3"], "--guess-sigma"),
         (["--guess-sigma", "0.3,400"], "every way"),
+        (["--guess-sigma", "0.3,20"], "--guess-sigma goes with --camera-guess"),
         (["--camera-guess", "-1,0,1", "--look-at", "-1,0,1"], "coincide"),   # minus signs
     ]
     for extra, message in cases:

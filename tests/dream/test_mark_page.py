@@ -143,15 +143,49 @@ def test_server_serves_only_the_data_to_its_own_address(panda, meshes, tmp_path)
                               {"Content-Type": "application/x-www-form-urlencoded"})[0] == 415
         for body in ({"frame": "nope", "u": 1, "v": 2}, {"frame": "000001", "u": 1e6, "v": 2},
                      {"frame": "000001", "u": "x", "v": 2}, {"frame": "000001"},
-                     {"frame": "000001", "u": float("nan"), "v": 2}):
+                     {"frame": "000001", "u": float("nan"), "v": 2},
+                     {"frame": "000001", "u": 10 ** 400, "v": 2},       # beyond a float
+                     {"frame": "000001", "u": True, "v": 2}, {"frame": "000001", "u": "12",
+                                                              "v": 2}):
             status, doc = served.request("POST", "/api/mark", json.dumps(body).encode(),
                                          json_type)
             assert status == 400 and doc["error"], body
         assert served.request("POST", "/api/mark", b"x" * 5000, json_type)[0] == 413
+        assert served.request("POST", "/api/mark", b"[" * 3000, json_type)[0] == 400  # nested
+        assert served.request("POST", "/api/unmark", b'{"frame": "nope"}', json_type)[0] == 400
+        assert raw_status(served, b"POST /api/mark HTTP/1.1\r\nContent-Type: application/json"
+                                  b"\r\nContent-Length: -5") == 400
         assert rows(out) == {"000004": (12.5, 13.0)}   # nothing bad was written
     finally:
         served.stop()
     assert not served.thread.is_alive()
+
+
+def test_the_page_goes_on_from_any_file_it_wrote(panda, meshes, tmp_path):
+    """Every mark taken back leaves the header alone; one click at the image's corner (which
+    calibrating refuses as normalised coordinates) is still a mark to go on from."""
+    image_dataset(panda, meshes, tmp_path)
+    json_type = {"Content-Type": "application/json"}
+    out = tmp_path / "marks.csv"
+    for body, remaining in ((b'{"frame": "000002"}', {}),
+                            (b'{"frame": "000003", "u": 0.3, "v": 0.2}', {"000003": [0.3, 0.2]})):
+        served = Served(tmp_path / "data", out)
+        try:
+            assert served.request("GET", "/api/frames")[1]["marks"] == {}
+            served.request("POST", "/api/mark", b'{"frame": "000002", "u": 5, "v": 6}', json_type)
+            route = "/api/unmark" if b'"u"' not in body else "/api/mark"
+            if route == "/api/mark":
+                served.request("POST", "/api/unmark", b'{"frame": "000002"}', json_type)
+            assert served.request("POST", route, body, json_type)[1]["marks"] == remaining
+        finally:
+            served.stop()
+        again = Served(tmp_path / "data", out)       # the file it wrote is read back
+        try:
+            assert again.request("GET", "/api/frames")[1]["marks"] == remaining
+            again.request("POST", "/api/unmark", b'{"frame": "000003"}', json_type)
+        finally:
+            again.stop()
+        assert again.error is None and rows(out) == {}
 
 
 def test_mark_options_and_files_fail_with_one_line(panda, meshes, tmp_path):
