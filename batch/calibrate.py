@@ -49,6 +49,8 @@ ERROR_PREFIX = "dream calibrate: error: "
 ONE_THREAD = 1        # onnxruntime threads of a worker without --threads: one core each
 # the options that name files whose bytes a result depends on
 FILE_OPTIONS = ("model", "camera_guess", "mark", "model_extension", "camera_info", "robot")
+KEYPOINT_SOURCES = ("model", "use_labels")   # `dream calibrate` takes one of them
+URDF_SUFFIXES = (".urdf", ".xml")
 BATCH_OPTIONS = ("data",)  # set by the batch for each recording, never by a list line
 FIX_LINE = ("give a list line the recording's path, then dream calibrate options of its own "
             "(dream calibrate --help lists them; the batch sets --data, --out and --overlays)")
@@ -227,7 +229,24 @@ def line_options(entry: Listed) -> dict[str, Any]:
     fixed = sorted(set(options) & set(BATCH_OPTIONS))
     if fixed:
         raise InputError(f"{entry.where}: --{fixed[0]} is the batch's to set", fix=FIX_LINE)
-    return _files_resolved(options, entry.source.parent)
+    folder = entry.source.parent
+    options = _files_resolved(options, folder)
+    for name, value in options.items():
+        if _names_a_file(name, value) and not Path(value).is_absolute():
+            raise InputError(f"{entry.where}: --{name.replace('_', '-')} {value}: no such file "
+                             f"in {folder}", fix="name the file relative to the list's folder, "
+                             "or give its absolute path")
+    return options
+
+
+def _names_a_file(name: str, value: Any) -> bool:
+    """Whether an option's value names a file (not a position `--camera-guess X,Y,Z` or a
+    built-in robot `--robot panda`)."""
+    if name not in FILE_OPTIONS or not isinstance(value, str):
+        return False
+    suffix = Path(value).suffix.lower()
+    return {"camera_guess": suffix == ".json",
+            "robot": suffix in URDF_SUFFIXES or "/" in value}.get(name, True)
 
 
 def _calibrate_parser(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -246,7 +265,7 @@ def _files_resolved(options: Mapping[str, Any], folder: Path) -> dict[str, Any]:
     out = dict(options)
     for name in FILE_OPTIONS:
         value = out.get(name)
-        if isinstance(value, str) and (folder / value).exists():
+        if isinstance(value, str) and (folder / value).is_file():
             out[name] = str((folder / value).resolve())
     return out
 
@@ -301,6 +320,8 @@ def _recording_options(entry: Listed, options: Mapping[str, Any],
     """A recording's options (the batch's, replaced by its list line's, checked; files made
     absolute) and their digest (`options_digest`)."""
     own = line_options(entry)
+    if own.keys() & set(KEYPOINT_SOURCES):          # one replaces the other
+        options = {k: v for k, v in options.items() if k not in KEYPOINT_SOURCES}
     merged = {**options, **own}
     if own:
         check_options(merged, entry.path, entry.where)

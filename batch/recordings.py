@@ -36,7 +36,8 @@ UNSAFE_NAME_CHARS = re.compile(r"[^A-Za-z0-9._-]+")
 HASH_FORMAT = 1                   # bumped when what the hash covers changes
 FIX_DATA = ("give --data a glob pattern in quotes ('recordings/*') or a .txt file with one "
             "recording per line")
-OPTIONS_START = " --"             # a list line's own options begin here
+OPTIONS_START = re.compile(r"\s--")   # a list line's own options begin here
+LINE_COMMENT = re.compile(r"\s#.*$")  # a comment after the path
 PART = "part"                     # a recording listed more than once: NAME-part1, NAME-part2
 
 
@@ -92,14 +93,31 @@ def _read_list(path: Path) -> list[Listed]:
 
 
 def _list_line(path: Path, number: int, line: str) -> Listed:
-    """One line of a list file: the recording's path (spaces allowed), then its options."""
-    name, start, rest = line.partition(OPTIONS_START)
+    """One line of a list file: the recording's path (spaces allowed, or quoted), then its
+    options from the first whitespace followed by `--`; a `#` after whitespace starts a
+    comment.
+
+    >>> line = _list_line(Path("/lab/list.txt"), 3, 'ep 1\t--seed 4 --camera-guess "a b.json"  # x')
+    >>> line.path.as_posix(), line.argv
+    ('/lab/ep 1', ('--seed', '4', '--camera-guess', 'a b.json'))
+    >>> line = _list_line(Path("/lab/list.txt"), 4, '"ep 2"  # was --seed 4')
+    >>> line.path.as_posix(), line.argv
+    ('/lab/ep 2', ())
+    """
+    found, comment = OPTIONS_START.search(line), LINE_COMMENT.search(line)
+    if comment is not None and (found is None or comment.start() < found.start()):
+        line, found = line[:comment.start()], None          # the path's own comment
+    name, options = (line, "") if found is None else (line[:found.start()], line[found.start():])
     try:
-        argv = tuple(shlex.split(start.strip() + rest)) if start else ()
+        argv = tuple(shlex.split(options, comments=True))
+        if name.lstrip().startswith(("'", '"')):
+            name = " ".join(shlex.split(name, comments=True))
     except ValueError as exc:
-        raise InputError(f"line {number} of the list of recordings: cannot split its options "
-                         f"({exc})", path, "quote values with spaces in them as in a shell, "
-                         "with both quotes") from None
+        raise InputError(f"line {number} of the list of recordings: cannot split it ({exc})",
+                         path, "quote values with spaces in them as in a shell, with both "
+                         "quotes") from None
+    if argv == ("--",):                    # options begun, none given
+        argv = ()
     return Listed((path.parent / name.strip()).resolve(), argv, path, number)
 
 

@@ -199,7 +199,7 @@ def test_list_lines_give_their_recordings_options_of_their_own(recordings, tmp_p
     ("{rec} --refine bogus", "argument --refine: invalid choice"),
     ("{rec} --data elsewhere", "--data is the batch's to set"),
     ("{rec} --out R.json", "unrecognized arguments: --out"),
-    ("{rec} --frame-range '0:2", "cannot split its options"),
+    ("{rec} --frame-range '0:2", "cannot split it"),
     ("{rec} --mask-head", "--polish was not given"),
 ])
 def test_a_bad_list_line_is_named_before_anything_is_written(recordings, tmp_path, capsys,

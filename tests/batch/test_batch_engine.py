@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from batch.calibrate import line_options
+from batch.calibrate import _recording_options, line_options
 from batch.engine import (
     EngineSettings,
     LocalEngine,
@@ -163,6 +163,32 @@ def test_a_list_line_takes_value_lists_that_start_with_a_minus_sign(tmp_path):
     assert line_options(entry) == {"camera_guess": "-0.5,1.2,0.8", "look_at": "-0.1,0,0.4",
                                    "seed": -1}
     assert entry.argv[:2] == ("--camera-guess", "-0.5,1.2,0.8")       # as written
+
+
+def test_a_list_lines_files_come_from_its_folder_or_fail_naming_the_line(tmp_path,
+                                                                          monkeypatch):
+    """Files from the list's folder, never the working folder's; a missing one fails naming
+    the line; a built-in robot's name stays a name beside a folder of that name; a line's
+    --model replaces the batch's --use-labels."""
+    lab, elsewhere = tmp_path / "lab", tmp_path / "elsewhere"
+    (lab / "panda").mkdir(parents=True)
+    elsewhere.mkdir()
+    (lab / "guess.json").write_text("{}")
+    (lab / "m.onnx").write_bytes(b"x")
+    (elsewhere / "cwd.json").write_text("{}")
+    monkeypatch.chdir(elsewhere)
+    listing = lab / "list.txt"
+    listing.write_text("ep1 --camera-guess guess.json --robot panda\n"
+                       "ep1 --camera-guess cwd.json\n"
+                       "ep1 --mark marks.csv --mark-link panda_hand\n"
+                       "ep1 --model m.onnx --camera-guess 1,0,1 --look-at 0,0,0.4\n")
+    first, cwd_only, no_marks, model = list_recordings(str(listing))
+    assert line_options(first) == {"camera_guess": str(lab / "guess.json"), "robot": "panda"}
+    for entry, flag in ((cwd_only, "--camera-guess cwd.json"), (no_marks, "--mark marks.csv")):
+        with pytest.raises(InputError, match=f"line {entry.line} of .*: {flag}: no such file"):
+            line_options(entry)
+    own, _ = _recording_options(model, {"use_labels": True, "seed": 3}, overlays=False)
+    assert own["model"] == str(lab / "m.onnx") and "use_labels" not in own and own["seed"] == 3
 
 
 def content_hash(rec: Path, options: dict, files: list[Path]) -> str:
