@@ -277,6 +277,9 @@ def print_summary(doc: dict, out: TextIO) -> None:
                   "misplaced keypoint")
         print(f"  (1-sigma = the fit's, {np.sqrt(np.trace(fit_c)) * 1e3:.2f} mm in position, "
               f"for independent detection errors, plus the spread over {spread})", file=out)
+    if uncertainty.get("cue_disagreement_xi") is not None:
+        print("  (with the disagreement of the two image cues' optima, the edges' and the "
+              "silhouettes', added)", file=out)
     if doc.get("start") is not None:
         print(f"no keypoints: the pose rests on the robot's silhouettes in "
               f"{len(doc['start']['frames'])} frames ({doc['start']['evidence']})", file=out)

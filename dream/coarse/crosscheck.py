@@ -42,7 +42,7 @@ class Crosscheck:
     source: str
     frames: int
     away: AwayPixels
-    iou_keypoints: float = float("nan")
+    iou_keypoints: float
 
     @property
     def found_iou(self) -> float:
