@@ -100,11 +100,16 @@ def test_clicks_in_the_page_become_marks_and_done_stops_it(panda, meshes, tmp_pa
         browser.wait_for("document.getElementById('marked').children.length === 3")
         shot = browser.screenshot(tmp_path / "mark_page.png")
         status = browser.evaluate("document.getElementById('status').textContent")
+        refused = browser.evaluate(      # a click before the next frame's image shows
+            "(() => { document.getElementById('next').click(); document.getElementById('frame')"
+            ".dispatchEvent(new MouseEvent('click', {clientX: 5, clientY: 5})); "
+            "return document.getElementById('status').textContent; })()")
+        browser.wait_for("document.body.dataset.shown === '4'")
         browser.click_element("#done")
         browser.wait_for("document.body.dataset.done === '1'")
     served.thread.join(30)
     assert not served.thread.is_alive() and served.count == 3
-    assert "3 frames marked, saved to marks.csv" in status
+    assert "3 frames marked, saved to marks.csv" in status and "still loading" in refused
     assert shot.stat().st_size > 10_000
     marks = rows(out)
     assert set(marks) == {"000000", "000001", "000003"}
