@@ -33,6 +33,8 @@ from dream.sequence import Sequence
 
 log = logging.getLogger(__name__)
 
+RESULT_OBJECTS = ("quality", "joint_readings", "data", "start")
+CAMERA_RTOL = 1e-6          # the result's record of the camera against the recording's
 HOLDOUT_SHARE = 3           # default: the last 1/3 of the frames by time are held out
 PCK_PX = 5.0                # PCK threshold of the report, pixels
 FINE_TUNE_LR = 5e-4         # a quarter of the recipe's: the network already works on renders
@@ -58,8 +60,11 @@ class AdaptRequest:
     overrides: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
-        if not (self.minutes > 0 and np.isfinite(self.minutes)):
-            raise InputError(f"--minutes {self.minutes} must be positive", fix="e.g. 20")
+        least = SCORING_MINUTES + MIN_TRAINING_MINUTES
+        if not (self.minutes >= least and np.isfinite(self.minutes)):
+            raise InputError(f"--minutes {self.minutes} leaves no time to train: the export and "
+                             f"the held-out scoring take {SCORING_MINUTES:g}", fix=f"give at "
+                             f"least {least:g}, e.g. 20")
         for flag, count in (("--renders", self.renders), ("--scene-renders",
                                                            self.scene_renders)):
             if count < 0:
@@ -85,6 +90,10 @@ def holdout_range(text: str | None, count: int) -> range:
 
 def check_teacher(doc: dict, path: str) -> None:
     """A result that may teach: all frames of a fixed camera, not `unreliable`."""
+    for key in RESULT_OBJECTS:
+        if doc.get(key) is not None and not isinstance(doc[key], dict):
+            raise InputError(f"its '{key}' is not an object: not a RESULT.json of dream "
+                             "calibrate", path, "give the RESULT.json dream calibrate wrote")
     verdict = (doc.get("quality") or {}).get("verdict")
     if verdict == UNRELIABLE:
         raise InputError("is `unreliable` and cannot teach a network", path,
@@ -147,11 +156,48 @@ def teacher(request: AdaptRequest, out) -> tuple:
     check_teacher(doc, request.result)
     seq = read_sequence(request.data)
     check_same_data(doc, seq, request.data, request.result, part_ok=True)
+    seq = _teachers_camera(doc, seq, request)
     recorded = len(seq)
     interpolated = bool((doc.get("joint_readings") or {}).get("interpolated"))
     seq, _ = joint_readings(seq, interpolated, out)
     model = OnnxKeypointModel(request.model)
     return seq, np.asarray(doc["T_cam_base"], float), model, doc, recorded
+
+
+def _teachers_camera(doc: dict, seq: Sequence, request: AdaptRequest) -> Sequence:
+    """`seq` through the camera its extrinsic was solved with: refused where the result was
+    made for another robot or through other intrinsics than the recording's own; with the
+    focal length the search adopted (`start.focal`)."""
+    from dream.camera import CameraIntrinsics
+    from dream.provenance import camera_record
+
+    robot = doc.get("robot")
+    if robot and seq.robot and robot != seq.robot:
+        raise InputError(f"was calibrated for the robot {robot!r}, --data {request.data} "
+                         f"records {seq.robot!r}", request.result,
+                         "give the RESULT.json of this recording's calibration")
+    used = (doc.get("data") or {}).get("camera")
+    own = camera_record(seq.camera)
+    if isinstance(used, dict) and any(
+            not np.isclose(float(used.get(k, np.nan)), float(own[k]), rtol=CAMERA_RTOL)
+            for k in ("width", "height", "fx", "fy", "cx", "cy")):
+        raise InputError(f"was calibrated through another camera ({_camera_words(used)}) "
+                         f"than --data {request.data} holds ({_camera_words(own)})",
+                         request.result, "calibrate the recording with its own intrinsics "
+                         "(or write the intrinsics used into it), then adapt")
+    focal = (doc.get("start") or {}).get("focal") or {}
+    if focal.get("adopted"):
+        fitted = focal["used"]
+        camera = seq.camera
+        seq = seq.with_fixed_camera(CameraIntrinsics(
+            float(fitted["fx"]), float(fitted["fy"]), camera.cx, camera.cy, camera.width,
+            camera.height, camera.distortion))
+    return seq
+
+
+def _camera_words(record: dict) -> str:
+    return (f"{record.get('width')}x{record.get('height')}, fx {record.get('fx')}, "
+            f"fy {record.get('fy')}")
 
 
 def training_config(request: AdaptRequest, folders: list[str], repeat: int, minutes: float):
@@ -203,11 +249,6 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
     if target.resolve() == Path(request.model).resolve():
         raise InputError("--out names the model being adapted, which it would replace",
                          target, "give --out a file of its own, e.g. adapted.onnx")
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(f"cannot create the folder ({exc.strerror})", target.parent,
-                         "choose a writable location") from None
     seq, T, model, doc, recorded = teacher(request, out)
     made_from = (doc.get("data") or {}).get("num_frames", recorded)
     if made_from != recorded:
@@ -222,6 +263,15 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
                          f"{len(seq)} frames: none is left to teach",
                          fix=f"hold out fewer, e.g. {len(seq) - len(seq) // HOLDOUT_SHARE}:"
                          f"{len(seq)} (the default: the last third)")
+    if not len(held):
+        raise InputError(f"{len(seq)} frames are too few to hold some out and score them",
+                         request.data, f"record at least {HOLDOUT_SHARE} frames, or give "
+                         "--holdout-frames START:STOP")
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create the folder ({exc.strerror})", target.parent,
+                         "choose a writable location") from None
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="dream-adapt-", dir=target.parent) as work:
         work = Path(work)

@@ -120,8 +120,9 @@ def parse_frame_range(text: str, count: int, option: str) -> range:
         raise InputError(f"{option} {text!r} must be START:STOP (frame indices, STOP "
                          "excluded)", fix="e.g. 0:15") from None
     if not 0 <= start < stop <= count:
-        raise InputError(f"{option} {text} lies outside the {count} frames",
-                         fix=f"give 0 <= START < STOP <= {count}")
+        where = ("holds no frame (STOP must exceed START)" if 0 <= stop <= start <= count
+                 else f"lies outside the {count} frames")
+        raise InputError(f"{option} {text} {where}", fix=f"give 0 <= START < STOP <= {count}")
     return range(start, stop)
 
 

@@ -100,6 +100,45 @@ def test_holding_out_every_frame_or_writing_over_the_model_is_refused(panda, mes
     assert model.read_bytes() == BUNDLED_MODEL.read_bytes()
 
 
+def test_a_result_of_another_robot_or_camera_or_shape_is_refused(panda, meshes, tmp_path,
+                                                                  capsys):
+    """Each in one line, nothing created: a result for another robot, through other
+    intrinsics than the recording's (labels would be wrong), with a `quality` that is not an
+    object; a budget with no time to train."""
+    calibrated(panda, meshes, tmp_path)
+    doc = json.loads((tmp_path / "r.json").read_text())
+    cases = [({**doc, "robot": "ur5"}, "for the robot 'ur5'"),
+             ({**doc, "data": {**doc["data"], "camera": {**doc["data"]["camera"],
+                                                         "fx": 2 * doc["data"]["camera"]["fx"]}}},
+              "through another camera"),
+             ({**doc, "quality": "good"}, "'quality' is not an object")]
+    out = tmp_path / "new" / "a.onnx"
+    for bad, message in cases:
+        (tmp_path / "bad.json").write_text(json.dumps(bad))
+        capsys.readouterr()
+        code = main(["adapt", "--data", str(tmp_path / "data"), "--result",
+                     str(tmp_path / "bad.json"), "--model", str(BUNDLED_MODEL), "--out", str(out)])
+        err = capsys.readouterr().err
+        assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    with pytest.raises(InputError, match="no time to train"):
+        AdaptRequest(data="d", result="r.json", model="m.onnx", out="a.onnx", minutes=1.0)
+    assert not out.parent.exists()
+
+
+def test_the_labels_go_through_the_focal_length_the_search_adopted(panda, meshes, tmp_path):
+    calibrated(panda, meshes, tmp_path)
+    doc = json.loads((tmp_path / "r.json").read_text())
+    camera = doc["data"]["camera"]
+    doc["start"] = {"focal": {"adopted": True, "used": {"fx": 1.04 * camera["fx"],
+                                                        "fy": 1.04 * camera["fy"]}}}
+    (tmp_path / "f.json").write_text(json.dumps(doc))
+    request = AdaptRequest(data=str(tmp_path / "data"), result=str(tmp_path / "f.json"),
+                           model=str(BUNDLED_MODEL), out=str(tmp_path / "a.onnx"))
+    seq = teacher(request, io.StringIO())[0]
+    assert seq.camera.fx == pytest.approx(1.04 * camera["fx"])
+    assert (seq.camera.cx, seq.camera.width) == (camera["cx"], camera["width"])
+
+
 def test_a_teacher_calibrated_on_part_of_the_recording_is_accepted(panda, meshes, tmp_path):
     """A fixed camera calibrated on the first frames (a copy of them) labels the whole
     recording; a result of other content is still refused."""
