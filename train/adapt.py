@@ -249,6 +249,7 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
     if target.resolve() == Path(request.model).resolve():
         raise InputError("--out names the model being adapted, which it would replace",
                          target, "give --out a file of its own, e.g. adapted.onnx")
+    training_config(request, [str(target.parent)], 1, request.minutes)  # recipe, --set: now
     seq, T, model, doc, recorded = teacher(request, out)
     made_from = (doc.get("data") or {}).get("num_frames", recorded)
     if made_from != recorded:

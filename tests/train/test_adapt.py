@@ -111,13 +111,16 @@ def test_a_result_of_another_robot_or_camera_or_shape_is_refused(panda, meshes, 
              ({**doc, "data": {**doc["data"], "camera": {**doc["data"]["camera"],
                                                          "fx": 2 * doc["data"]["camera"]["fx"]}}},
               "through another camera"),
-             ({**doc, "quality": "good"}, "'quality' is not an object")]
+             ({**doc, "quality": "good"}, "'quality' is not an object"),
+             (doc, "recipe the model was trained with is not here")]
     out = tmp_path / "new" / "a.onnx"
     for bad, message in cases:
         (tmp_path / "bad.json").write_text(json.dumps(bad))
         capsys.readouterr()
+        recipe = ([] if bad is not doc else ["--config", str(tmp_path / "no_recipe.yaml")])
         code = main(["adapt", "--data", str(tmp_path / "data"), "--result",
-                     str(tmp_path / "bad.json"), "--model", str(BUNDLED_MODEL), "--out", str(out)])
+                     str(tmp_path / "bad.json"), "--model", str(BUNDLED_MODEL), "--out", str(out),
+                     *recipe])
         err = capsys.readouterr().err
         assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
     with pytest.raises(InputError, match="no time to train"):
