@@ -168,7 +168,6 @@ def _teachers_camera(doc: dict, seq: Sequence, request: AdaptRequest) -> Sequenc
     """`seq` through the camera its extrinsic was solved with: refused where the result was
     made for another robot or through other intrinsics than the recording's own; with the
     focal length the search adopted (`start.focal`)."""
-    from dream.camera import CameraIntrinsics
     from dream.provenance import camera_record
 
     robot = doc.get("robot")
@@ -188,10 +187,8 @@ def _teachers_camera(doc: dict, seq: Sequence, request: AdaptRequest) -> Sequenc
     focal = (doc.get("start") or {}).get("focal") or {}
     if focal.get("adopted"):
         fitted = focal["used"]
-        camera = seq.camera
-        seq = seq.with_fixed_camera(CameraIntrinsics(
-            float(fitted["fx"]), float(fitted["fy"]), camera.cx, camera.cy, camera.width,
-            camera.height, camera.distortion))
+        seq = seq.with_fixed_camera(dataclasses.replace(
+            seq.camera, fx=float(fitted["fx"]), fy=float(fitted["fy"])))
     return seq
 
 
