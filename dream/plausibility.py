@@ -27,6 +27,8 @@ from dream.errors import InputError
 
 JOINT_LIMIT_MARGIN_RAD = 0.1     # readings this far beyond a revolute limit are refused
 JOINT_LIMIT_MARGIN_M = 0.01      # ... and this far beyond a prismatic one
+MAX_PRINCIPAL_OFFSET = 0.25      # the principal point lies within this share of the size
+                                 # from the image's centre (the middle half of each axis)
 MIN_HFOV_DEG = 2.0               # a pinhole camera's horizontal field of view, plausible range
 MAX_HFOV_DEG = 160.0
 MAX_FOCAL_ASPECT = 1.5           # fx / fy (or fy / fx): pixels are nearly square
@@ -100,15 +102,22 @@ def _finite_limits(robot) -> tuple[np.ndarray, np.ndarray]:
 
 
 def check_camera(camera: CameraIntrinsics, where: Path | None = None) -> None:
-    """Refuse intrinsics that cannot belong to the images: a principal point outside them, a
-    field of view outside [`MIN_HFOV_DEG`, `MAX_HFOV_DEG`], fx and fy far apart, distortion
-    that folds or scales radii by more than `MAX_RADIAL_SCALE_CHANGE` inside the image."""
+    """Refuse intrinsics that cannot belong to the images: a principal point outside their
+    middle half (`MAX_PRINCIPAL_OFFSET`), a field of view outside [`MIN_HFOV_DEG`,
+    `MAX_HFOV_DEG`], fx and fy far apart, distortion that folds or scales radii by more than
+    `MAX_RADIAL_SCALE_CHANGE` inside the image."""
     w, h = camera.width, camera.height
     for name, value, size, side in (("cx", camera.cx, w, "wide"), ("cy", camera.cy, h, "high")):
         if not -0.5 <= value <= size - 0.5:
             raise InputError(f"{name} = {value:g} px lies outside the {size} px {side} images",
                              where, "give the principal point in pixels of these images (for "
                              "a resized image, scale fx, fy, cx and cy by the same factor)")
+        if abs(value - (size - 1) / 2) > MAX_PRINCIPAL_OFFSET * size:
+            raise InputError(f"{name} = {value:g} px lies far from the centre of the {size} px "
+                             f"{side} images ({(size - 1) / 2:g}); is it normalised, or for "
+                             "another resolution?", where, "give the principal point in pixels "
+                             "of these images (for a resized image, scale fx, fy, cx and cy by "
+                             "the same factor)")
     hfov = np.rad2deg(2 * np.arctan(w / 2 / camera.fx))
     if not MIN_HFOV_DEG <= hfov <= MAX_HFOV_DEG:
         guess = "is the focal length in millimetres?" if hfov > MAX_HFOV_DEG else \

@@ -37,6 +37,8 @@ RESULT_OBJECTS = ("quality", "joint_readings", "data", "start")
 CAMERA_RTOL = 1e-6          # the result's record of the camera against the recording's
 HOLDOUT_SHARE = 3           # default: the last 1/3 of the frames by time are held out
 PCK_PX = 5.0                # PCK threshold of the report, pixels
+# the bundled model's recipe, in the repository dream is installed from (`pip install -e`)
+BUNDLED_RECIPE = Path(__file__).resolve().parents[1] / "configs" / "train" / "panda_cpu.yaml"
 FINE_TUNE_LR = 5e-4         # a quarter of the recipe's: the network already works on renders
 SCORING_MINUTES = 1.5       # kept from --minutes for the export and the held-out scoring
 MIN_TRAINING_MINUTES = 0.5
@@ -51,7 +53,7 @@ class AdaptRequest:
     result: str
     model: str
     out: str
-    config: str = "configs/train/panda_cpu.yaml"
+    config: str = str(BUNDLED_RECIPE)
     holdout_frames: str | None = None
     minutes: float = 20.0
     renders: int = 1000

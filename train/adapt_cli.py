@@ -15,8 +15,9 @@ import sys
 def cmd_adapt(args: argparse.Namespace) -> int:
     from train.adapt import AdaptRequest
 
+    recipe = {} if args.config is None else {"config": args.config}
     request = AdaptRequest(data=args.data, result=args.result, model=args.model, out=args.out,
-                           config=args.config, holdout_frames=args.holdout_frames,
+                           **recipe, holdout_frames=args.holdout_frames,
                            minutes=args.minutes, renders=args.renders,
                            scene_renders=args.scene_renders, seed=args.seed,
                            overrides=tuple(args.set or ()))
@@ -42,8 +43,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "unreliable): the extrinsic that labels the frames")
     p.add_argument("--model", required=True, help="the ONNX model to start from")
     p.add_argument("--out", required=True, help="the adapted .onnx (and its card, .md)")
-    p.add_argument("--config", default="configs/train/panda_cpu.yaml",
-                   help="the recipe the model was trained with (default: %(default)s)")
+    p.add_argument("--config",
+                   help="the recipe the model was trained with (default: the bundled model's, "
+                        "configs/train/panda_cpu.yaml of the repository dream is installed "
+                        "from)")
     p.add_argument("--holdout-frames", metavar="START:STOP",
                    help="frames left out of adapting and scored after it (default: the last "
                         "third)")

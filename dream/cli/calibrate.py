@@ -193,6 +193,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     no torch) -> RESULT.json, plus RESULT.ros.txt and RESULT.T_base_cam.txt for robot
     software (`dream.ros`). Every output location is checked before the work, and the files
     and the --overlays folder appear together or not at all."""
+    from dream.io.recording_files import check_spares_recording
     from dream.pipeline import calibrate
     from dream.provenance import data_record
 
@@ -200,7 +201,9 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     settings = request.solver_settings()
     paths = check_outputs(request)
     extension = _read_extension(request)
-    seq = frames_in_range(read_data(request), request.frame_range)
+    seq = read_data(request)
+    check_spares_recording([request.out, *paths], seq, request.data)
+    seq = frames_in_range(seq, request.frame_range)
     data_doc = data_record(seq, request.data)
     seq, readings_doc = joint_readings(seq, request.joint_readings == INTERPOLATE, out)
     refine = refine_mode(request, seq)

@@ -156,7 +156,7 @@ def add_silhouette_check(seq, robot, result, doc: dict, out: TextIO,
     (`dream.coarse.crosscheck`): RESULT.json's `silhouette_check`, the covariance gains the
     disagreement of the two cues (`with_cue_term`), and the verdict's findings on it. Where no
     masks can be made it does not run, and says why. Where the silhouettes side with the
-    keypoint pose against a kept alignment (`dream.coarse.crosscheck.sides_with_keypoints`),
+    keypoint pose against a kept alignment (`dream.coarse.crosscheck.undoes_alignment`),
     `doc_keypoints` (the document before the alignment) is written instead, its `edges`
     object saying why."""
     from dream.coarse.crosscheck import silhouette_crosscheck
@@ -193,15 +193,14 @@ def _keypoints_or_aligned(doc: dict, doc_keypoints: dict, check: Crosscheck,
     """The document and cross-check of the pose the silhouettes side with: the kept
     alignment's, or the keypoint pose's (the alignment undone, its `edges` object saying
     why)."""
-    from dream.coarse.crosscheck import sides_with_keypoints
+    from dream.coarse.crosscheck import undoes_alignment
     from dream.coarse.settings import SearchSettings
 
     edges = doc.get("edges") or {}
     if not edges.get("kept") or "T_cam_base_aligned" not in edges:
         return doc, check
-    undo, to_keypoints, to_aligned = sides_with_keypoints(
-        T_keypoints, np.asarray(edges["T_cam_base_aligned"]), check.outcome.best.T_cam_base,
-        SearchSettings().keypoint_side_ratio)
+    undo, to_keypoints, to_aligned = undoes_alignment(
+        check, T_keypoints, np.asarray(edges["T_cam_base_aligned"]), SearchSettings())
     if not undo:
         return doc, check
     reason = (f"undone: the silhouettes' optimum ({check.source}) lies "

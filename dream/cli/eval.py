@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -15,6 +16,7 @@ from dream.cli.options import (
     request_from,
     solved_readings,
 )
+from dream.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -30,13 +32,18 @@ def run_eval(request: EvalRequest) -> dict:
     """The metrics of `request.result` on `request.data`, written to `request.out` and
     summarised on stdout; returns METRICS.json's document."""
     from dream.io import check_output_file, write_json_atomic
+    from dream.io.recording_files import check_spares_recording
     from dream.pipeline import evaluate, robot_for
     from dream.provenance import check_same_data
     from dream.result import read_result
 
     check_output_file(request.out)
+    if Path(request.out).resolve() == Path(request.result).resolve():
+        raise InputError("--out is the --result it scores: writing it would replace the result",
+                         request.out, "choose another --out, e.g. METRICS.json")
     doc = read_result(request.result)
     seq = read_data(request)
+    check_spares_recording([request.out], seq, request.data)
     check_same_data(doc, seq, request.data, request.result)
     seq = solved_readings(seq, doc)
     names = [k["name"] for f in doc["per_frame"][:1] for k in f.get("keypoints") or []]

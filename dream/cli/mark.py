@@ -36,11 +36,13 @@ def run_mark(request: MarkRequest, out: TextIO | None = None,
     from dream.coarse.mark import read_mark_rows
     from dream.io import check_output_file, load_image
     from dream.io.images import encode_png
+    from dream.io.recording_files import check_spares_recording
     from dream.mark_page.server import HOST, MarkBook, make_server
 
     out = out or sys.stdout
     target = check_output_file(request.out)
     seq = read_data(request)
+    check_spares_recording([target], seq, request.data)
     camera = seq.fixed_camera("mark one point in the frames of one camera")
     if any(f.image_path is None for f in seq.frames):
         raise InputError("some frames have no image, and the page shows the images",

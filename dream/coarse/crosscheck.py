@@ -6,9 +6,10 @@ a written pose that the silhouettes move by more than a few centimetres is not `
 well the keypoints agree with it.
 
 Where the written pose is the edge alignment's, the silhouettes also arbitrate between it and the
-keypoint pose it started from (`sides_with_keypoints`): an optimum much nearer the keypoint pose
+keypoint pose it started from (`undoes_alignment`): an optimum much nearer the keypoint pose
 says the alignment slid off along what the edges hardly constrain (the camera's depth), and the
-keypoint pose is written instead.
+keypoint pose is written instead; not where their optimum agrees with the aligned pose
+anyway.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from dream.coarse.away import AwayPixels, away_at_pose
 from dream.coarse.calibration import MOTION_MASKS, search_masks
 from dream.coarse.search import SearchOutcome, pose_iou, search
 from dream.coarse.settings import SearchSettings
+from dream.coarse.verdict import cues_agree
 from dream.metrics import pose_errors
 from dream.robot import Robot
 from dream.sequence import Sequence
@@ -31,9 +33,10 @@ CROSSCHECK_STARTS = 4   # the given poses, as given and aimed at the robot's mas
 @dataclass(frozen=True)
 class Crosscheck:
     """The silhouettes' optimum near a written pose: the search's outcome, the IoU of the
-    written pose's silhouettes, the distance (m, rad) from the written pose to the optimum, the
-    masks' source and how many frames, and the masks' pixels away from the robot at the
-    optimum (`dream.coarse.away`)."""
+    written pose's silhouettes (scored as the search scores its optimum), the distance (m,
+    rad) from the written pose to the optimum, the masks' source and how many frames, the
+    masks' pixels away from the robot at the optimum (`dream.coarse.away`), and the keypoint
+    pose's IoU."""
 
     outcome: SearchOutcome
     iou_written: float
@@ -86,11 +89,13 @@ def silhouette_crosscheck(sequence: Sequence, robot: Robot, T_written: np.ndarra
                      {"written": np.asarray(T_written)[None],
                       "keypoints": np.asarray(T_keypoints)[None]},
                      local, held=held, progress=progress, search_frames=inputs.search)
-    iou = pose_iou(inputs.meshes, inputs.joints, inputs.masks, sequence.camera, T_written,
-                   local, held)
-    iou_keypoints = (iou if np.array_equal(T_written, T_keypoints) else
-                     pose_iou(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
-                              T_keypoints, local, held))
+
+    def scored(T: np.ndarray) -> float:     # as the search scores its optimum
+        return pose_iou(inputs.meshes, inputs.joints, inputs.masks, sequence.camera, T, local,
+                        held, inputs.search)
+
+    iou = scored(T_written)
+    iou_keypoints = iou if np.array_equal(T_written, T_keypoints) else scored(T_keypoints)
     m, rad = pose_errors(np.asarray(T_written), outcome.best.T_cam_base)
     away = away_at_pose(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
                         outcome.best.T_cam_base, settings.away_margin_px)
@@ -115,3 +120,16 @@ def sides_with_keypoints(T_keypoints: np.ndarray, T_aligned: np.ndarray,
     to_keypoints = float(pose_errors(np.asarray(T_keypoints), np.asarray(T_silhouettes))[0])
     to_aligned = float(pose_errors(np.asarray(T_aligned), np.asarray(T_silhouettes))[0])
     return to_keypoints < ratio * to_aligned, to_keypoints, to_aligned
+
+
+def undoes_alignment(check: Crosscheck, T_keypoints: np.ndarray, T_aligned: np.ndarray,
+                     settings: SearchSettings) -> tuple[bool, float, float]:
+    """Whether the silhouettes undo a kept edge alignment `T_aligned` (the pose `check` was
+    made at) that started from `T_keypoints`, and their optimum's distances (m) to both: where
+    they disagree with the aligned pose (`dream.coarse.verdict.cues_agree`: within that the
+    alignment stands) and side with the keypoint pose (`sides_with_keypoints`,
+    `keypoint_side_ratio`). Masks that also hold something else moving (a person, IoU below
+    `min_found_iou`) still arbitrate: on renders their optimum sided with the right pose."""
+    side, to_keypoints, to_aligned = sides_with_keypoints(
+        T_keypoints, T_aligned, check.outcome.best.T_cam_base, settings.keypoint_side_ratio)
+    return side and not cues_agree(check.distance_m, check.angle_rad), to_keypoints, to_aligned

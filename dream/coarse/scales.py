@@ -193,7 +193,8 @@ def finish_scale(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
                  camera: CameraIntrinsics, settings: SearchSettings,
                  usable: np.ndarray | None = None, held: bool = False,
                  region: CarriedRegion | None = None) -> Scales:
-    """The one scale the winner is finished and scored at: `finish_width_px` (capped at the
+    """The one scale the winner is finished at (its IoU is still scored at the local scales'
+    finest, as its rivals'): `finish_width_px` (capped at the
     camera's width) on the frames of `P` (F, V, 3) and `masks` (F, H, W); with a carried
     `region`, its refinements end without the outlying frames (`SearchSettings.
     frame_influence`, module doc)."""

@@ -339,12 +339,15 @@ def _winner_and_rival(candidates: list[Candidate], finished: Callable[[Candidate
 
 def pose_iou(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
              camera: CameraIntrinsics, T_cam_base: np.ndarray,
-             settings: SearchSettings | None = None, held: bool = False) -> float:
-    """The mean IoU of the robot's silhouettes at `T_cam_base` with `masks`, at the search's
-    finest width (`finish_width_px`), as the search scores its winner."""
-    P = vertices_in_base(meshes, np.asarray(joints, float))
-    scales = finish_scale(P, meshes, np.asarray(masks, bool), camera,
-                          settings or SearchSettings(), held=held)
+             settings: SearchSettings | None = None, held: bool = False,
+             frames: np.ndarray | None = None) -> float:
+    """The mean IoU of the robot's silhouettes at `T_cam_base` with `masks`, as the search
+    scores its candidates and its winner: at the finest of `local_widths_px`, on `frames`
+    (the search's `search_frames`; default all), so that it compares with their `iou`."""
+    sub = np.arange(len(joints)) if frames is None else np.asarray(frames, int)
+    P = vertices_in_base(meshes, np.asarray(joints, float)[sub])
+    scales = Scales(P, meshes, np.asarray(masks, bool)[sub], camera,
+                    settings or SearchSettings(), None, held)
     return scales.iou(np.asarray(T_cam_base, float))
 
 

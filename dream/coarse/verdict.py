@@ -86,6 +86,12 @@ def search_findings(best_iou: float, rival_iou: float | None, rival_distance_m: 
     return out
 
 
+def cues_agree(distance_m: float, angle_rad: float) -> bool:
+    """Whether two image cues' poses `distance_m` and `angle_rad` apart agree: within what a
+    `good` result's 1-sigma may be (`dream.quality`)."""
+    return distance_m <= POSITION_SIGMA_CHECK_M and angle_rad <= ROTATION_SIGMA_CHECK_RAD
+
+
 def cues_finding(distance_m: float, angle_rad: float) -> Finding | None:
     """The cues finding (module doc): the edge alignment's pose against the masks' optimum.
 
@@ -94,7 +100,7 @@ def cues_finding(distance_m: float, angle_rad: float) -> Finding | None:
     >>> cues_finding(0.03, 0.001)[0]
     'check'
     """
-    if distance_m <= POSITION_SIGMA_CHECK_M and angle_rad <= ROTATION_SIGMA_CHECK_RAD:
+    if cues_agree(distance_m, angle_rad):
         return None
     return CHECK, (f"the edge alignment and the robot's masks disagree by {distance_m * 1e3:.1f} "
                    f"mm and {np.rad2deg(angle_rad):.2f} deg: something the model lacks (a tool, "

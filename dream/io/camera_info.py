@@ -6,7 +6,8 @@ Two forms are read:
   `image_height`, `camera_matrix: {rows: 3, cols: 3, data: [9]}`, `distortion_model`,
   `distortion_coefficients: {data: [...]}`;
 - a `sensor_msgs/CameraInfo` message as `ros2 topic echo` (`width`, `height`, `k`, `d`,
-  `distortion_model`) or ROS 1's `rostopic echo` (`K`, `D`) print it.
+  `distortion_model`) or ROS 1's `rostopic echo` (`K`, `D`) print it (each message followed
+  by `---`: the first message is read).
 
 Only the `plumb_bob` model is supported (OpenCV's k1, k2, p1, p2, k3), and `rational_polynomial`
 whose coefficients beyond the fifth are zero.
@@ -35,11 +36,12 @@ def _load_yaml(path: Path) -> dict[str, Any]:
     import yaml
 
     text = fields.read_text(path, FIX_CAMERA_INFO)
-    try:
-        data = yaml.safe_load(text)
+    try:   # an echoed topic: messages each followed by `---`; the first is taken
+        documents = [d for d in yaml.safe_load_all(text) if d is not None]
     except yaml.YAMLError as exc:
         raise InputError(f"not valid YAML ({fields.one_line(exc)})", path,
                          FIX_CAMERA_INFO) from None
+    data = documents[0] if documents else None
     return fields.as_dict(data, "the file", path, FIX_CAMERA_INFO)
 
 

@@ -3,10 +3,12 @@
 `joints.csv` has a header row. Its columns: `image` (optional: the image file, relative to the
 folder), `timestamp` (optional: capture time, s) and one column per joint, named after the
 URDF's joints, in radians (prismatic joints in metres); one row per image. Without an `image`
-column the folder's images (`.png`, `.jpg`, `.jpeg`), sorted by name, go with the rows in
-order. The camera: `camera_info.yaml` (ROS CameraInfo, `dream.io.camera_info`) or `K.txt` in the
-folder, or `--intrinsics` / `--camera-info`. Frames are named "000000"... in row order (in time
-order when the timestamps say another).
+column the folder's images (`.png`, `.jpg`, `.jpeg`), sorted by name with numbers by value
+(frame_2 before frame_10), go with the rows in order. Another spelling of the two known columns
+(`Image`, `time`, `stamp_ns`...) is refused rather than taken for a joint, and timestamps that
+cannot be seconds (nanoseconds...) too. The camera: `camera_info.yaml` (ROS CameraInfo,
+`dream.io.camera_info`) or `K.txt` in the folder, or `--intrinsics` / `--camera-info`. Frames
+are named "000000"... in row order (in time order when the timestamps say another).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import csv
 import io
 import logging
 import math
+import re
 from collections.abc import Sequence as SequenceOf
 from pathlib import Path
 
@@ -41,6 +44,11 @@ K_FILE = "K.txt"
 IMAGE_COLUMN = "image"
 TIME_COLUMN = "timestamp"
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg")
+# other names of the two known columns, refused so that neither passes as an unused joint
+TIME_ALIASES = ("time", "stamp", "t", "time_s", "timestamp_s", "stamp_s", "time_ns",
+                "timestamp_ns", "stamp_ns", "secs", "seconds")
+MAX_TIMESTAMP_S = 1e11          # seconds since 1970 reach this in the year 5138
+MAX_FRAME_STEP_S = 3600.0       # a recording's frames lie less than an hour apart
 FIX_CSV = (f"write {CSV_FILE} with a header row: [image,] [timestamp,] then one column per "
            "joint (the URDF's joint names), radians, one row per image")
 
@@ -80,12 +88,58 @@ def _images(folder: Path, header: list[str], rows: list[list[str]], path: Path) 
                 raise InputError(f"line {i}: image {fields.quote(image.name)} not found in "
                                  f"{folder}", path, "add the image or remove the row")
         return images
-    images = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS)
+    images = sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS),
+                    key=lambda p: natural_key(p.name))
     if len(images) != len(rows):
         raise InputError(f"{len(rows)} rows of readings but {len(images)} images in the folder",
                          path, f"add an '{IMAGE_COLUMN}' column naming each row's image, or "
                          "keep one image per row")
     return images
+
+
+def natural_key(name: str) -> tuple:
+    """Sort key of a file name that orders its numbers by value (frame_2 before frame_10).
+
+    >>> sorted(["f_10.png", "f_2.png", "f_1.png"], key=natural_key)
+    ['f_1.png', 'f_2.png', 'f_10.png']
+    """
+    return tuple((0, int(part), "") if part.isdigit() else (1, 0, part)
+                 for part in re.split(r"(\d+)", name))
+
+
+def _check_column_names(header: list[str], path: Path) -> None:
+    """Refuse another spelling of `image` or `timestamp` (module doc)."""
+    for column in header:
+        known = column.lower()
+        if known == IMAGE_COLUMN and column != IMAGE_COLUMN:
+            raise InputError(f"column {fields.quote(column)}: the image column is called "
+                             f"{fields.quote(IMAGE_COLUMN)}", path, f"rename it to {IMAGE_COLUMN}")
+        if (known == TIME_COLUMN or known in TIME_ALIASES) and column != TIME_COLUMN:
+            raise InputError(f"column {fields.quote(column)} looks like a time; the time column "
+                             f"is called {fields.quote(TIME_COLUMN)}, in seconds", path,
+                             f"rename it to {TIME_COLUMN} (in seconds), or remove it")
+
+
+def check_seconds(times: SequenceOf[float], path: Path) -> None:
+    """Refuse timestamps that cannot be seconds: beyond `MAX_TIMESTAMP_S`, or frames more
+    than `MAX_FRAME_STEP_S` apart (median), as milli-, micro- or nanoseconds are.
+
+    >>> check_seconds([1.7e9, 1.7e9 + 0.033], Path("joints.csv"))
+    >>> check_seconds([0, 33_333_333, 66_666_666], Path("joints.csv"))
+    Traceback (most recent call last):
+    ...
+    dream.errors.InputError: joints.csv: timestamps lie 3.33333e+07 s apart (median) and reach \
+6.66667e+07 s: they are not seconds. Fix: give the timestamps in seconds (nanoseconds divided \
+by 1e9, microseconds by 1e6, milliseconds by 1e3)
+    """
+    t = np.sort(np.asarray(times, float))
+    steps = np.diff(t)
+    step = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 0.0
+    if step > MAX_FRAME_STEP_S or np.abs(t).max() > MAX_TIMESTAMP_S:
+        raise InputError(f"timestamps lie {step:g} s apart (median) and reach "
+                         f"{np.abs(t).max():g} s: they are not seconds", path,
+                         "give the timestamps in seconds (nanoseconds divided by 1e9, "
+                         "microseconds by 1e6, milliseconds by 1e3)")
 
 
 def _camera(folder: Path, intrinsics: IntrinsicsArg | None, width: int, height: int):
@@ -117,6 +171,7 @@ def read_csv_layout(path: str | Path, *, joint_names: SequenceOf[str] | None = N
     folder = path.parent if path.name == CSV_FILE else path
     csv_path = folder / CSV_FILE
     header, rows = _rows(csv_path)
+    _check_column_names(header, csv_path)
     columns = [c for c in header if c not in (IMAGE_COLUMN, TIME_COLUMN)]
     names = check_joint_names(joint_names, tuple(columns))
     missing = [n for n in names if n not in header]
@@ -131,6 +186,7 @@ def read_csv_layout(path: str | Path, *, joint_names: SequenceOf[str] | None = N
         t = header.index(TIME_COLUMN)
         times = [_number(row[t], f"line {i} {TIME_COLUMN}", csv_path)
                  for i, row in enumerate(rows, start=2)]
+        check_seconds(times, csv_path)
     images = _images(folder, header, rows, csv_path)
     order = np.argsort(times, kind="stable") if times is not None else np.arange(len(rows))
     width, height = common_image_size(images)

@@ -99,10 +99,10 @@ def load_json(path: Path, fix: str | None = None) -> Any:
 
 
 def read_text(path: Path, fix: str | None = None) -> str:
-    """A UTF-8 text file's content."""
+    """A UTF-8 text file's content (without the byte-order mark a spreadsheet may write)."""
     data = read_bytes(path, fix)
     try:
-        return data.decode("utf-8")
+        return data.decode("utf-8-sig")
     except UnicodeDecodeError:
         raise InputError("is not UTF-8 text", path, fix) from None
 

@@ -183,7 +183,7 @@ def load_image(frame: Frame, camera: CameraIntrinsics | None = None) -> np.ndarr
     if path.suffix.lower() == NPZ_SUFFIX:
         rgb = _stack_image(path, frame.image_index)
     else:
-        bgr = _decode(path, cv2.IMREAD_COLOR)
+        bgr = _decode(path, cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
         rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
     check_size(rgb.shape[1], rgb.shape[0], camera, path)
     return rgb

@@ -109,6 +109,9 @@ def test_clean_inputs_pass(labels, tmp_path):
 @pytest.mark.parametrize("camera, words", [
     (CameraIntrinsics(600.0, 600.0, 3313.0, 240.0, 640, 480), "cx = 3313 px lies outside"),
     (CameraIntrinsics(600.0, 600.0, 320.0, -80.0, 640, 480), "cy = -80 px lies outside"),
+    (CameraIntrinsics(600.0, 600.0, 0.5, 0.5, 640, 480), "cx = 0.5 px lies far from the "
+     "centre.*normalised"),
+    (CameraIntrinsics(300.0, 300.0, 319.5, 120.0, 320, 240), "another resolution"),
     (CameraIntrinsics(4.0, 4.0, 319.5, 239.5, 640, 480), "millimetres"),
     (CameraIntrinsics(40000.0, 40000.0, 319.5, 239.5, 640, 480), "larger image"),
     (CameraIntrinsics(600.0, 200.0, 319.5, 239.5, 640, 480), "differ by a factor 3.00"),
@@ -168,6 +171,8 @@ def test_eval_refuses_a_result_of_other_data(labels, tmp_path, capsys):
     assert len(doc["data"]["content_sha256"]) == 64 and doc["settings"]["frames"] == "all"
     assert main(["eval", "--data", str(labels), "--result", str(result), "--out",
                  str(metrics)]) == 0
+    line = refused(["eval", "--data", labels, "--result", result, "--out", result], capsys)
+    assert "is the --result it scores" in line and json.loads(result.read_text()) == doc
     other = tmp_path / "other"
     assert main(["sample", "--out", str(other), "--num", "6", "--seed", "6"]) == 0
     line = refused(["eval", "--data", other, "--result", result, "--out", tmp_path / "m2.json"],

@@ -146,6 +146,10 @@ def test_camera_info_yaml_in_every_form(tmp_path):
     path.write_text(f"width: {WIDTH}\nheight: {HEIGHT}\nD: []\n"
                     f"K: [150.0, 0.0, 79.2, 0.0, 151.0, 60.3, 0.0, 0.0, 1.0]\n")
     assert read_camera_info(path) == replace(CAMERA, distortion=None)
+    echoed = (f"width: {WIDTH}\nheight: {HEIGHT}\nd: []\n"
+              "k: [150.0, 0.0, 79.2, 0.0, 151.0, 60.3, 0.0, 0.0, 1.0]\n---\n")
+    path.write_text(echoed * 2)                       # `ros2 topic echo`, two messages
+    assert read_camera_info(path) == replace(CAMERA, distortion=None)
     path.write_text(camera_info_text(CAMERA).replace("plumb_bob", "equidistant"))
     with pytest.raises(InputError, match="equidistant"):
         read_camera_info(path)
@@ -266,3 +270,80 @@ def test_a_bag_read_again_takes_its_images_from_the_cache(imaged, tmp_path, monk
     stack = first.frames[0].image_path
     np.savez(stack, rgb_images=np.zeros((2, HEIGHT, WIDTH, 3), np.uint8))   # stale: 2 of 5
     _same(read_sequence(bag, joint_names=seq.joint_names), seq)
+
+
+def _jpeg_with_orientation(rgb: np.ndarray, orientation: int) -> tuple[bytes, bytes]:
+    """A JPEG of `rgb` as written, and the same bytes with an EXIF orientation tag (APP1)."""
+    plain = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))[1].tobytes()
+    ifd = (b"\x01\x00" + b"\x12\x01" + b"\x03\x00" + b"\x01\x00\x00\x00"
+           + orientation.to_bytes(2, "little") + b"\x00\x00" + b"\x00\x00\x00\x00")
+    exif = b"Exif\x00\x00" + b"II*\x00" + b"\x08\x00\x00\x00" + ifd
+    app1 = b"\xff\xe1" + (len(exif) + 2).to_bytes(2, "big") + exif
+    return plain, plain[:2] + app1 + plain[2:]
+
+
+def test_an_exif_rotation_leaves_the_pixels_as_stored(imaged, tmp_path):
+    """The intrinsics describe the sensor's pixels: a JPEG's EXIF orientation (a phone's, a
+    camera turned upside down) must not turn the image the keypoints are found in."""
+    seq, _ = imaged
+    rgb = np.random.default_rng(1).integers(0, 256, (HEIGHT, WIDTH, 3), dtype=np.uint8)
+    for orientation in (3, 6):
+        plain, tagged = _jpeg_with_orientation(rgb, orientation)
+        (tmp_path / "plain.jpg").write_bytes(plain)
+        (tmp_path / "tagged.jpg").write_bytes(tagged)
+        frames = [replace(seq.frames[0], image_path=tmp_path / name)
+                  for name in ("plain.jpg", "tagged.jpg")]
+        assert np.array_equal(load_image(frames[1], CAMERA), load_image(frames[0], CAMERA))
+
+
+def test_a_users_csv_is_read_as_a_spreadsheet_writes_it(imaged, tmp_path):
+    """Image names numbered without leading zeros pair with the rows in numeric order; a
+    byte-order mark is read past; another spelling of the time or image column, and
+    timestamps in nanoseconds, are refused in one line."""
+    seq, _ = imaged
+    folder = write_csv_layout(seq, tmp_path / "csv", image_column=False)
+    for i, number in enumerate((1, 2, 10, 11, 20)):        # as text: 1, 10, 11, 2, 20
+        (folder / f"{i:04d}.png").rename(folder / f"frame_{number}.png")
+    csv_path = folder / "joints.csv"
+    text = csv_path.read_text()
+    csv_path.write_text("\ufeff" + text, encoding="utf-8")
+    _same(read_sequence(folder), seq)
+    header, *rows = text.splitlines()
+    for renamed, message in (("time", "looks like a time"), ("Timestamp", "looks like a time"),
+                             ("stamp_ns", "looks like a time")):
+        csv_path.write_text("\n".join([header.replace("timestamp", renamed), *rows]))
+        with pytest.raises(InputError, match=message):
+            read_sequence(folder)
+    nanoseconds = [",".join([str(int(float(r.split(",")[0]) * 1e9)), *r.split(",")[1:]])
+                   for r in rows]
+    csv_path.write_text("\n".join([header, *nanoseconds]))
+    with pytest.raises(InputError, match="not seconds.*divided by 1e9"):
+        read_sequence(folder)
+    image_folder = write_csv_layout(seq, tmp_path / "named")
+    named = image_folder / "joints.csv"
+    named.write_text(named.read_text().replace("image,", "Image,", 1))
+    with pytest.raises(InputError, match="the image column is called"):
+        read_sequence(image_folder)
+
+
+def test_no_output_writes_over_the_recording(imaged, tmp_path, capsys):
+    """--out naming the joint log, the camera file or an image of the recording, or a frame's
+    file name in a DREAM folder, is refused before any work and the file left as it was."""
+    from dream.io import write_dream
+    from dream.io.recording_files import check_spares_recording
+
+    seq, _ = imaged
+    folder = write_csv_layout(seq, tmp_path / "csv")
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    for name in ("joints.csv", "camera_info.yaml", "0001.png", "K.txt"):
+        code = main(["calibrate", "--data", str(folder), "--use-labels", "--out",
+                     str(folder / name)])
+        err = capsys.readouterr().err
+        assert code == 2 and "writing it would change the recording" in err, err
+        assert len(err.strip().splitlines()) == 1
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+    check_spares_recording([folder / "result.json"], read_sequence(folder), folder)
+    dream = tmp_path / "dream"
+    write_dream(seq, dream)
+    with pytest.raises(InputError, match="would be read as a frame"):
+        check_spares_recording([dream / "000010.json"], read_sequence(dream), dream)

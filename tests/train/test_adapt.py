@@ -177,8 +177,12 @@ def test_frames_a_held_log_leaves_out_still_count_as_the_recordings(tmp_path):
 
 
 @pytest.mark.slow
-def test_adapt_writes_a_model_that_calibrate_runs_unchanged(panda, meshes, tmp_path, capsys):
+def test_adapt_writes_a_model_that_calibrate_runs_unchanged(panda, meshes, tmp_path, capsys,
+                                                            monkeypatch):
+    """Run from another folder than the repository's, without --config: the bundled model's
+    recipe is found all the same."""
     calibrated(panda, meshes, tmp_path)
+    monkeypatch.chdir(tmp_path)
     out = tmp_path / "adapted.onnx"
     code = main(["adapt", "--data", str(tmp_path / "data"), "--result", str(tmp_path / "r.json"),
                  "--model", str(BUNDLED_MODEL), "--out", str(out), "--holdout-frames", "6:10",
