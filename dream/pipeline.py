@@ -132,7 +132,9 @@ def joints_in_robot_order(sequence: Sequence, robot: Robot) -> np.ndarray:
         return robot.joints_from_named(list(sequence.joint_names), sequence.joints)
     except RobotError as exc:
         raise InputError(f"the data's joints do not fit robot '{robot.name}': {exc}",
-                         sequence.source) from None
+                         sequence.source, "give --robot the robot (or URDF file) the data was "
+                         "recorded on, or name the data's joint columns after its URDF joints"
+                         ) from None
 
 
 def with_robot_joints(sequence: Sequence, robot: Robot, joints: np.ndarray) -> Sequence:
@@ -261,7 +263,9 @@ def evaluate(sequence: Sequence, robot: Robot, result_doc: dict[str, Any]) -> di
             j = kp_index.get(kp.get("name"))
             if j is not None and kp.get("uv") is not None:
                 uv_det[i, j] = kp["uv"]
-    kp_err = keypoint_errors(uv_det, uv_true, in_frame)
+    # a result calibrated without keypoints (the image search) has none to score
+    scored = any(by_name.get(name, {}).get("keypoints") for name in names)
+    kp_err = keypoint_errors(uv_det, uv_true, in_frame) if scored else None
     t_err, r_err = pose_errors(T_est[has_truth], T_true[has_truth])
     solved = np.all(np.isfinite(T_est[has_truth].reshape(-1, 16)), axis=1)
     return {
@@ -272,8 +276,9 @@ def evaluate(sequence: Sequence, robot: Robot, result_doc: dict[str, Any]) -> di
         "add_m": summarise(add_counted),
         "add_auc": auc(add_counted, ADD_AUC_THRESHOLD_M, ADD_AUC_STEP_M),
         "add_auc_threshold_m": ADD_AUC_THRESHOLD_M,
-        "keypoint_l2_px": summarise(kp_err),
-        "pck_auc": auc(kp_err, PCK_AUC_THRESHOLD_PX, PCK_AUC_STEP_PX),
+        "keypoint_l2_px": None if kp_err is None else summarise(kp_err),
+        "pck_auc": None if kp_err is None else auc(kp_err, PCK_AUC_THRESHOLD_PX,
+                                                   PCK_AUC_STEP_PX),
         "pck_auc_threshold_px": PCK_AUC_THRESHOLD_PX,
         "translation_error_m": summarise(np.where(solved, t_err, np.inf)),
         "rotation_error_rad": summarise(np.where(solved, r_err, np.inf)),

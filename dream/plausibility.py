@@ -29,6 +29,7 @@ JOINT_LIMIT_MARGIN_RAD = 0.1     # readings this far beyond a revolute limit are
 JOINT_LIMIT_MARGIN_M = 0.01      # ... and this far beyond a prismatic one
 MAX_PRINCIPAL_OFFSET = 0.25      # the principal point lies within this share of the size
                                  # from the image's centre (the middle half of each axis)
+SWAPPED_TOLERANCE_PX = 1.0       # cx, cy this near the other axis's centre look swapped
 MIN_HFOV_DEG = 2.0               # a pinhole camera's horizontal field of view, plausible range
 MAX_HFOV_DEG = 160.0
 MAX_FOCAL_ASPECT = 1.5           # fx / fy (or fy / fx): pixels are nearly square
@@ -103,9 +104,10 @@ def _finite_limits(robot) -> tuple[np.ndarray, np.ndarray]:
 
 def check_camera(camera: CameraIntrinsics, where: Path | None = None) -> None:
     """Refuse intrinsics that cannot belong to the images: a principal point outside their
-    middle half (`MAX_PRINCIPAL_OFFSET`), a field of view outside [`MIN_HFOV_DEG`,
-    `MAX_HFOV_DEG`], fx and fy far apart, distortion that folds or scales radii by more than
-    `MAX_RADIAL_SCALE_CHANGE` inside the image."""
+    middle half (`MAX_PRINCIPAL_OFFSET`) or at the centre of images of swapped width and
+    height, a field of view outside [`MIN_HFOV_DEG`, `MAX_HFOV_DEG`], fx and fy far apart,
+    distortion that folds or scales radii by more than `MAX_RADIAL_SCALE_CHANGE` inside the
+    image."""
     w, h = camera.width, camera.height
     for name, value, size, side in (("cx", camera.cx, w, "wide"), ("cy", camera.cy, h, "high")):
         if not -0.5 <= value <= size - 0.5:
@@ -118,6 +120,11 @@ def check_camera(camera: CameraIntrinsics, where: Path | None = None) -> None:
                              "another resolution?", where, "give the principal point in pixels "
                              "of these images (for a resized image, scale fx, fy, cx and cy by "
                              "the same factor)")
+    if _looks_swapped(camera):
+        raise InputError(f"cx = {camera.cx:g}, cy = {camera.cy:g} px are the centre of "
+                         f"{h}x{w} images, these are {w}x{h}: are cx and cy (or the width and "
+                         "height) swapped?", where, "give cx along the image's width and cy "
+                         "along its height, in pixels")
     hfov = np.rad2deg(2 * np.arctan(w / 2 / camera.fx))
     if not MIN_HFOV_DEG <= hfov <= MAX_HFOV_DEG:
         guess = "is the focal length in millimetres?" if hfov > MAX_HFOV_DEG else \
@@ -133,6 +140,16 @@ def check_camera(camera: CameraIntrinsics, where: Path | None = None) -> None:
                          where, "check fx and fy (and their order: fx, fy, cx, cy)")
     if camera.distortion is not None:
         _check_distortion(camera, where)
+
+
+def _looks_swapped(camera: CameraIntrinsics) -> bool:
+    """Whether the principal point is the centre of an image of swapped width and height."""
+    w, h = camera.width, camera.height
+
+    def centred(value: float, size: int) -> bool:
+        return any(abs(value - c) <= SWAPPED_TOLERANCE_PX for c in ((size - 1) / 2, size / 2))
+
+    return w != h and centred(camera.cx, h) and centred(camera.cy, w)
 
 
 def _check_distortion(camera: CameraIntrinsics, where: Path | None) -> None:

@@ -25,6 +25,7 @@ FIX_CAMERA = ("give --camera RESULT.json (an earlier calibration), or --camera X
               "--look-at X,Y,Z and --intrinsics fx,fy,cx,cy,width,height (metres, base frame)")
 NONE = "none"
 INTRINSICS_FIELDS = ("fx", "fy", "cx", "cy", "width", "height")
+REACH_SAMPLES = 64        # joint vectors whose link origins give the robot's reach
 
 
 def _joint_ranges(items: list[str]) -> dict[str, tuple[float, float]]:
@@ -99,6 +100,7 @@ class PlanRequest:
 
 
 def _prior(request: PlanRequest):
+    from dream.plausibility import check_camera
     from plan.camera_prior import prior_from_look_at, prior_from_result
 
     camera = None
@@ -108,6 +110,7 @@ def _prior(request: PlanRequest):
                              f"{','.join(INTRINSICS_FIELDS)}",
                              fix="give e.g. --intrinsics 600,600,319.5,239.5,640,480 (pixels)")
         camera = parse_intrinsics(request.intrinsics)
+        check_camera(camera)
     rotation = None if request.rotation_sigma_deg is None else \
         math.radians(request.rotation_sigma_deg)
     if not request.camera_is_position():
@@ -126,6 +129,26 @@ def _prior(request: PlanRequest):
     kwargs = {k: v for k, v in (("position_sigma_m", request.position_sigma_m),
                                 ("rotation_sigma_rad", rotation)) if v is not None}
     return prior_from_look_at(position, target, camera, **kwargs)
+
+
+def _check_scale(robot, prior, target) -> None:
+    """Refuse a camera position or look-at point that cannot be metres for `robot`
+    (`dream.coarse.hypotheses.check_guess_scale`, as `dream calibrate --camera-guess`), its
+    reach the farthest link origin over `REACH_SAMPLES` joint vectors within its limits
+    (continuous joints within a turn)."""
+    import numpy as np
+
+    from dream.coarse.hypotheses import check_guess_scale
+    from dream.coarse.settings import SearchSettings
+
+    lower = np.where(np.isfinite(robot.joint_lower), robot.joint_lower, -np.pi)
+    upper = np.where(np.isfinite(robot.joint_upper), robot.joint_upper, np.pi)
+    joints = np.random.default_rng(0).uniform(lower, upper, (REACH_SAMPLES, len(lower)))
+    P = robot.link_poses(joints, robot.link_names)[..., :3, 3].reshape(-1, 3)
+    settings = SearchSettings()
+    check_guess_scale(prior.T_cam_base, prior.position_sigma_m, P.mean(axis=0),
+                      float(np.max(np.linalg.norm(P, axis=1))), settings.max_guess_distance,
+                      settings.max_guess_sigma, f"--camera {prior.source}", target)
 
 
 def _robot(request: PlanRequest):
@@ -187,6 +210,9 @@ def run_plan(request: PlanRequest) -> None:
     check_output_dir(Path(request.out), request.overwrite)
     robot = _robot(request)
     prior = _prior(request)
+    if request.camera_is_position():
+        _check_scale(robot, prior, np.asarray(parse_numbers(request.look_at, (3,), "--look-at",
+                                                            FIX_CAMERA), float))
     feasibility = _feasibility(request)
     settings = PlanSettings(num_poses=request.num, candidates=request.candidates,
                             max_draws=request.max_draws, camera_samples=request.camera_samples,

@@ -95,7 +95,13 @@ def job_from(args: argparse.Namespace, workers: int):
     from synth.config import load_config
     from synth.generate import SynthJob
 
-    keypoints = tuple(k for k in args.keypoints.split(",") if k) if args.keypoints else None
+    keypoints = None
+    if args.keypoints:
+        from dream.cli.options import parse_keypoints
+        from dream.pipeline import robot_with_option_keypoints
+
+        keypoints = parse_keypoints(args.keypoints)
+        robot_with_option_keypoints(args.robot, keypoints)   # a link the URDF lacks: one line
     extension = None
     if args.model_extension:
         from dream.extension import read_extension

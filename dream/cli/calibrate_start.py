@@ -102,7 +102,7 @@ def camera_guess(camera_guess: str | None, look_at: str | None, guess_sigma: str
     target = parse_numbers(look_at, (3,), "--look-at", FIX_GUESS)
     return CameraGuess(guess_pose(position, target), sigma_m, sigma_rad,
                        f"around a camera at {list(position)} looking at {list(target)}",
-                       user_given=True)
+                       user_given=True, look_at_base_m=np.asarray(target, float))
 
 
 def robot_for_search(seq, request):
@@ -114,7 +114,7 @@ def robot_for_search(seq, request):
 
     keypoints = request.keypoint_links
     try:
-        robot = robot_for(seq, request.robot, keypoints)
+        robot = robot_for(seq, request.robot, option_keypoints=keypoints)
     except RobotError:
         from dream.robot.keypoint_choice import analyse_keypoints
         from dream.robot.urdf import parse_urdf

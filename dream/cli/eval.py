@@ -48,7 +48,9 @@ def run_eval(request: EvalRequest) -> dict:
     seq = solved_readings(seq, doc)
     names = [k["name"] for f in doc["per_frame"][:1] for k in f.get("keypoints") or []]
     robot_from = request.result if not request.robot and doc.get("robot") else None
-    robot = robot_for(seq, request.robot or doc.get("robot"), tuple(names) or None,
+    # the keypoints scored: the result's, else the labels' (a result without keypoints)
+    robot = robot_for(seq, request.robot or doc.get("robot"),
+                      tuple(names) or seq.keypoint_names or None,
                       robot_from=robot_from, keypoints_from=request.result,
                       option_keypoints=request.keypoint_links)
     metrics = evaluate(seq, robot, doc)
@@ -65,8 +67,11 @@ def _print_metrics(metrics: dict) -> None:
           f"ADD AUC {metrics['add_auc']:.4f} (0-{metrics['add_auc_threshold_m']} m, "
           f"{metrics['frames_in_add_auc']} frames)")
     kp = metrics["keypoint_l2_px"]
-    print(f"keypoint L2 mean {fmt(kp['mean'])} px, median {fmt(kp['median'])} px, PCK AUC "
-          f"{metrics['pck_auc']:.4f} (0-{metrics['pck_auc_threshold_px']:g} px)")
+    if kp is None:
+        print("keypoints: none in the result (calibrated without keypoints)")
+    else:
+        print(f"keypoint L2 mean {fmt(kp['mean'])} px, median {fmt(kp['median'])} px, PCK AUC "
+              f"{metrics['pck_auc']:.4f} (0-{metrics['pck_auc_threshold_px']:g} px)")
     print(f"camera position error median {fmt(t['median'], 1e3)} mm, rotation error median "
           f"{fmt(r['median'], np.rad2deg(1))} deg")
 

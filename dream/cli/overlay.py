@@ -71,7 +71,8 @@ def run_overlay(request: OverlayRequest) -> int:
 
 def _robot(seq, request: OverlayRequest):
     """The robot to draw, and whether with its keypoints: a user URDF without `--keypoints`
-    is drawn as its outline alone (no keypoints are needed for it)."""
+    is drawn as its outline alone (no keypoints are needed for it; meshes that cannot be
+    loaded are then an error, not overlays with nothing drawn)."""
     from dream.errors import RobotError
     from dream.pipeline import robot_for
 
@@ -81,9 +82,12 @@ def _robot(seq, request: OverlayRequest):
         if request.keypoint_links is not None:
             raise
     from dream.cli.calibrate_start import robot_for_search
+    from dream.silhouette import load_robot_meshes
 
+    robot = robot_for_search(seq, request)
+    load_robot_meshes(robot)        # the outline is all there is to draw: its meshes must load
     print("no --keypoints for this URDF: drawing the outline alone")
-    return robot_for_search(seq, request), False
+    return robot, False
 
 
 def _carried(doc: dict, robot) -> dict | None:

@@ -84,6 +84,7 @@ class CameraGuess:
     sigma_rad: float
     description: str
     user_given: bool = False
+    look_at_base_m: np.ndarray | None = None     # the point a typed guess looks at (3,)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.sigma_m) and self.sigma_m > 0 and np.isfinite(self.sigma_rad)
@@ -204,7 +205,7 @@ def hypotheses_for(guess: CameraGuess, inputs: SearchMasks, settings: SearchSett
             check_guess_scale(guess.T_cam_base, guess.sigma_m, P.mean(axis=0),
                               float(np.max(np.linalg.norm(P, axis=1))),
                               settings.max_guess_distance, settings.max_guess_sigma,
-                              guess.description)
+                              guess.description, guess.look_at_base_m)
         out[GUESS] = around(guess.T_cam_base, guess.sigma_m, guess.sigma_rad,
                             settings.guess_samples, rng)
     else:

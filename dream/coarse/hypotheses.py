@@ -225,12 +225,12 @@ def camera_distance(T_cam_base: np.ndarray, P_base: np.ndarray) -> float:
 
 def check_guess_scale(T_cam_base: np.ndarray, sigma_m: float, centre_base_m: np.ndarray,
                       reach_m: float, max_distance: float, max_sigma: float,
-                      description: str) -> None:
-    """Refuse a guess whose numbers cannot be metres for this robot: its camera farther from
-    the robot's centre `centre_base_m` (3,) than `max_distance` times the robot's reach
-    `reach_m` (how far its moving parts get from the base origin; millimetres or centimetres
-    given for metres), or a 1-sigma `sigma_m` above `max_sigma` times it (`--guess-sigma
-    METRES,DEGREES` swapped).
+                      description: str, look_at_base_m: np.ndarray | None = None) -> None:
+    """Refuse a guess whose numbers cannot be metres for this robot: its camera, or the point
+    it looks at `look_at_base_m` (3,) where given, farther from the robot's centre
+    `centre_base_m` (3,) than `max_distance` times the robot's reach `reach_m` (how far its
+    moving parts get from the base origin; millimetres or centimetres given for metres), or a
+    1-sigma `sigma_m` above `max_sigma` times it (`--guess-sigma METRES,DEGREES` swapped).
 
     >>> T = look_at(np.array([700.0, 500.0, 600.0]), np.zeros(3))   # millimetres
     >>> check_guess_scale(T, 0.3, np.zeros(3), 0.9, 20.0, 5.0, "a camera at [700, 500, 600]")
@@ -246,6 +246,13 @@ def check_guess_scale(T_cam_base: np.ndarray, sigma_m: float, centre_base_m: np.
                          f"where a camera that sees it lies within {max_distance:g} times",
                          fix="give the camera guess in metres in the robot's base frame (are "
                              "these millimetres?)")
+    if look_at_base_m is not None:
+        away = float(np.linalg.norm(np.asarray(look_at_base_m, float) - centre_base_m))
+        if away > max_distance * reach_m:
+            raise InputError(f"{description}: the point looked at lies {away:.1f} m from the "
+                             f"robot, {away / reach_m:.0f} times its reach ({reach_m:.2f} m)",
+                             fix="give --look-at in metres in the robot's base frame, a point "
+                                 "on the robot (are these millimetres?)")
     if sigma_m > max_sigma * reach_m:
         raise InputError(f"a guess's 1-sigma of {sigma_m:g} m is {sigma_m / reach_m:.0f} times "
                          f"the robot's reach ({reach_m:.2f} m); a guess that rough is no guess",

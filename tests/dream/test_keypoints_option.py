@@ -94,11 +94,20 @@ def test_robots_refuses_unknown_links(med7, capsys):
 
 
 def test_overlay_takes_keypoints_for_a_user_urdf(med7, med7_data, tmp_path, capsys):
-    # without --keypoints the outline alone is drawn (no keypoints are needed for it)
-    code, out, err = run(["overlay", med7_data, "--robot", med7, "--out", tmp_path / "a",
+    # without --keypoints the outline alone is drawn (no keypoints are needed for it) ...
+    boxed = tmp_path / "boxed.urdf"
+    box = '<visual><geometry><box size="0.08 0.08 0.2"/></geometry></visual>'
+    boxed.write_text(med7.read_text().replace('<link name="lbr_link_2"/>',
+                                              f'<link name="lbr_link_2">{box}</link>'))
+    code, out, err = run(["overlay", med7_data, "--robot", boxed, "--out", tmp_path / "a",
                           "--limit", "2"], capsys)
     assert code == 0, err
     assert "drawing the outline alone" in out and "wrote 2 overlay images" in out
+    # ... so a URDF without geometry to outline has nothing to draw
+    code, _, err = run(["overlay", med7_data, "--robot", med7, "--out", tmp_path / "none"],
+                       capsys)
+    assert "has no visual geometry" in one_error_line(code, err)
+    assert not (tmp_path / "none").exists()
     code, _, err = run(["overlay", med7_data, "--robot", med7, "--keypoints",
                         "lbr_link_0,nope", "--out", tmp_path / "b"], capsys)
     line = one_error_line(code, err)
@@ -165,3 +174,39 @@ def test_plan_takes_keypoints(med7):
                                               "lbr_link_ee")
     with pytest.raises(InputError, match="'nope', not a link"):
         _robot(replace(request, keypoints="lbr_link_0,nope"))
+
+
+def test_the_search_refuses_keypoints_the_urdf_lacks(med7, med7_data, tmp_path, capsys):
+    """Without a model the search needs no keypoints, but links named that the URDF lacks
+    are a mistake all the same (the suggested ones were taken in their place); dream synth
+    names them as the other commands do."""
+    code, _, err = run(["calibrate", "--data", med7_data, "--robot", med7, "--keypoints",
+                        "lbr_link_0,nope", "--camera-guess", "1.5,0.5,1", "--look-at",
+                        "0,0,0.4", "--out", tmp_path / "r.json"], capsys)
+    assert "'nope', not a link of robot" in one_error_line(code, err)
+    assert not (tmp_path / "r.json").exists()
+    code, _, err = run(["synth", "--robot", med7, "--keypoints", "lbr_link_0,nope", "--num", "2",
+                        "--out", tmp_path / "renders"], capsys)
+    line = one_error_line(code, err)
+    assert "'nope', not a link of robot" in line and f"dream robots --urdf {med7}" in line
+    assert not (tmp_path / "renders").exists()
+
+
+def test_eval_of_a_result_without_keypoints_scores_the_labels_links(med7, med7_data, tmp_path,
+                                                                      capsys):
+    """A result of the image search has no keypoints: its ADD is over the labels' links, and
+    it has no keypoint error or PCK to report (null, not 0)."""
+    result = tmp_path / "r.json"
+    code, _, err = run(["calibrate", "--data", med7_data, "--robot", med7, "--use-labels",
+                        "--refine", "none", "--out", result], capsys)
+    assert code == 0, err
+    doc = json.loads(result.read_text())
+    for entry in doc["per_frame"]:
+        entry.pop("keypoints", None)
+    result.write_text(json.dumps(doc))
+    code, out, err = run(["eval", "--data", med7_data, "--robot", med7, "--result", result,
+                          "--out", tmp_path / "m.json"], capsys)
+    assert code == 0, err
+    metrics = json.loads((tmp_path / "m.json").read_text())
+    assert metrics["pck_auc"] is None and metrics["keypoint_l2_px"] is None
+    assert metrics["add_m"]["median"] < 0.01 and "none in the result" in out

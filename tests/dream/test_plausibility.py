@@ -112,6 +112,7 @@ def test_clean_inputs_pass(labels, tmp_path):
     (CameraIntrinsics(600.0, 600.0, 0.5, 0.5, 640, 480), "cx = 0.5 px lies far from the "
      "centre.*normalised"),
     (CameraIntrinsics(300.0, 300.0, 319.5, 120.0, 320, 240), "another resolution"),
+    (CameraIntrinsics(300.0, 300.0, 119.5, 159.5, 320, 240), "are cx and cy .* swapped"),
     (CameraIntrinsics(4.0, 4.0, 319.5, 239.5, 640, 480), "millimetres"),
     (CameraIntrinsics(40000.0, 40000.0, 319.5, 239.5, 640, 480), "larger image"),
     (CameraIntrinsics(600.0, 200.0, 319.5, 239.5, 640, 480), "differ by a factor 3.00"),

@@ -296,7 +296,7 @@ def test_an_exif_rotation_leaves_the_pixels_as_stored(imaged, tmp_path):
         assert np.array_equal(load_image(frames[1], CAMERA), load_image(frames[0], CAMERA))
 
 
-def test_a_users_csv_is_read_as_a_spreadsheet_writes_it(imaged, tmp_path):
+def test_a_users_csv_is_read_as_a_spreadsheet_writes_it(imaged, tmp_path, capsys):
     """Image names numbered without leading zeros pair with the rows in numeric order; a
     byte-order mark is read past; another spelling of the time or image column, and
     timestamps in nanoseconds, are refused in one line."""
@@ -324,6 +324,11 @@ def test_a_users_csv_is_read_as_a_spreadsheet_writes_it(imaged, tmp_path):
     named.write_text(named.read_text().replace("image,", "Image,", 1))
     with pytest.raises(InputError, match="the image column is called"):
         read_sequence(image_folder)
+    named.write_text(named.read_text().replace("Image,", "image,", 1).replace(
+        "panda_joint1", "z1_joint1"))                  # another arm's log, no --robot
+    assert main(["calibrate", "--data", str(image_folder), "--camera-guess", "1.5,0.5,1",
+                 "--look-at", "0,0,0.4", "--out", str(tmp_path / "r.json")]) == 2
+    assert "Fix: give --robot the robot" in capsys.readouterr().err
 
 
 def test_no_output_writes_over_the_recording(imaged, tmp_path, capsys):

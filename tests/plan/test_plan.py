@@ -200,6 +200,12 @@ def test_dream_plan_from_a_result_with_the_model_keypoints(tmp_path):
     (["--camera", "1.6,0,0.6", "--intrinsics", "600,600,319.5,239.5,640,480"],
      "needs --look-at"),
     ([*CAMERA_ARGS, "--keep-out", "1,2,3"], "must be 6 finite numbers"),
+    (["--camera", "1600,0,600", "--look-at", "0,0,400", "--intrinsics",
+      "600,600,319.5,239.5,640,480"], "are these millimetres?"),
+    (["--camera", "1.6,0,0.6", "--look-at", "0,0,400", "--intrinsics",
+      "600,600,319.5,239.5,640,480"], "the point looked at lies"),
+    (["--camera", "1.6,0,0.6", "--look-at", "0,0,0.4", "--intrinsics",
+      "3.6,3.6,319.5,239.5,640,480"], "is the focal length in millimetres?"),
 ])
 def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, args, message):
     out = tmp_path / "plan"
