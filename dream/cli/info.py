@@ -29,7 +29,7 @@ def run_info(request: InfoRequest) -> None:
     seq = read_data(request)
     cam = seq.camera
     print(f"data:      {request.data} ({len(seq)} frames)")
-    print(f"robot:     {seq.robot}")
+    print(f"robot:     {_robot_words(seq)}")
     dist = "none" if cam.distortion is None else ", ".join(f"{c:.4g}" for c in cam.distortion)
     print(f"camera:    {cam.width}x{cam.height} fx={cam.fx:.2f} fy={cam.fy:.2f} cx={cam.cx:.2f} "
           f"cy={cam.cy:.2f} distortion: {dist}")
@@ -54,6 +54,22 @@ def run_info(request: InfoRequest) -> None:
     print("joints (min .. max):")
     for name, lo, hi in zip(seq.joint_names, q.min(0), q.max(0), strict=True):
         print(f"  {name:24s} {lo:+.4f} .. {hi:+.4f}")
+
+
+def _robot_words(seq) -> str:
+    """The robot the data names (or its layout's default), and whether its joints fit."""
+    from dream.errors import DreamError
+    from dream.robot import load_robot
+
+    try:
+        robot = load_robot(seq.robot)
+    except DreamError:
+        return f"{seq.robot} (not a robot dream knows: give the commands --robot ARM.urdf)"
+    missing = [n for n in robot.joint_names if n not in seq.joint_names]
+    if not missing:
+        return seq.robot
+    return (f"{seq.robot}, but the data has no joint {missing[0]}: give the commands --robot "
+            "with the arm (or its URDF file) the data was recorded on")
 
 
 def cmd_info(args: argparse.Namespace) -> int:

@@ -55,6 +55,11 @@ FIX_CSV = (f"write {CSV_FILE} with a header row: [image,] [timestamp,] then one 
 
 def _rows(path: Path) -> tuple[list[str], list[list[str]]]:
     text = fields.read_text(path, FIX_CSV)
+    first = text.split("\n", 1)[0]
+    if first.count(";") > first.count(","):
+        raise InputError("its values are separated by ';', not commas (a spreadsheet's "
+                         "locale?)", path, "save it as CSV with commas between values and '.' "
+                         "as the decimal point")
     rows = [row for row in csv.reader(io.StringIO(text)) if any(c.strip() for c in row)]
     if len(rows) < 2:
         raise InputError("needs a header row and at least one row of readings", path, FIX_CSV)
@@ -142,9 +147,21 @@ by 1e9, microseconds by 1e6, milliseconds by 1e3)
                          "microseconds by 1e6, milliseconds by 1e3)")
 
 
+def _warn_repeated_times(times: list[float], joints: np.ndarray, path: Path) -> None:
+    """Log the first two rows stamped alike with other joint readings (a log's clock that
+    stood still, or rows copied in twice): the frames' order in time is then a guess."""
+    first: dict[float, int] = {}
+    for i, t in enumerate(times):
+        j = first.setdefault(t, i)
+        if j != i and not np.array_equal(joints[i], joints[j]):
+            logger.warning("%s: lines %d and %d share the timestamp %r but not the joint "
+                           "readings; check the log's clock", path, j + 2, i + 2, t)
+            return
+
+
 def _camera(folder: Path, intrinsics: IntrinsicsArg | None, width: int, height: int):
-    if intrinsics is not None:
-        return camera_from_argument(intrinsics, width, height, folder / CSV_FILE)
+    if intrinsics is not None:      # given on the command line: no file of the folder to name
+        return camera_from_argument(intrinsics, width, height, None)
     if (folder / CAMERA_INFO_FILE).is_file():
         camera = read_camera_info(folder / CAMERA_INFO_FILE)
         return camera_from_argument(camera, width, height, folder / CAMERA_INFO_FILE)
@@ -187,6 +204,7 @@ def read_csv_layout(path: str | Path, *, joint_names: SequenceOf[str] | None = N
         times = [_number(row[t], f"line {i} {TIME_COLUMN}", csv_path)
                  for i, row in enumerate(rows, start=2)]
         check_seconds(times, csv_path)
+        _warn_repeated_times(times, joints, csv_path)
     images = _images(folder, header, rows, csv_path)
     order = np.argsort(times, kind="stable") if times is not None else np.arange(len(rows))
     width, height = common_image_size(images)

@@ -83,8 +83,10 @@ def camera_from_K(K: np.ndarray, width: int, height: int, path: Path,
                   fix: str | None = None) -> CameraIntrinsics:
     """A camera from a 3x3 matrix K (last row 0 0 1, no skew), checked, naming `path`."""
     if not np.allclose(K[2], K_LAST_ROW, atol=K_TOLERANCE):
-        raise InputError(f"camera matrix K has last row {K[2].tolist()}, expected [0, 0, 1]",
-                         path, fix)
+        transposed = np.allclose(K[:, 2], K_LAST_ROW, atol=K_TOLERANCE)
+        raise InputError(f"camera matrix K has last row {K[2].tolist()}, expected [0, 0, 1]"
+                         f"{' (it is transposed: its last column is)' if transposed else ''}",
+                         path, fix or ("write K row by row: fx 0 cx / 0 fy cy / 0 0 1"))
     with fields.errors_name(path, fix):
         return CameraIntrinsics.from_K(K, width, height, distortion)
 

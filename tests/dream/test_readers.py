@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import shutil
 from dataclasses import replace
 from fractions import Fraction
@@ -296,9 +297,10 @@ def test_an_exif_rotation_leaves_the_pixels_as_stored(imaged, tmp_path):
         assert np.array_equal(load_image(frames[1], CAMERA), load_image(frames[0], CAMERA))
 
 
-def test_a_users_csv_is_read_as_a_spreadsheet_writes_it(imaged, tmp_path, capsys):
+def test_a_users_csv_is_read_as_a_spreadsheet_writes_it(imaged, tmp_path, capsys, caplog):
     """Image names numbered without leading zeros pair with the rows in numeric order; a
-    byte-order mark is read past; another spelling of the time or image column, and
+    byte-order mark is read past; rows stamped alike with other readings are a warning;
+    another spelling of the time or image column, and
     timestamps in nanoseconds, are refused in one line."""
     seq, _ = imaged
     folder = write_csv_layout(seq, tmp_path / "csv", image_column=False)
@@ -314,6 +316,11 @@ def test_a_users_csv_is_read_as_a_spreadsheet_writes_it(imaged, tmp_path, capsys
         csv_path.write_text("\n".join([header.replace("timestamp", renamed), *rows]))
         with pytest.raises(InputError, match=message):
             read_sequence(folder)
+    repeated = [",".join([rows[0].split(",")[0], *r.split(",")[1:]]) for r in rows[:2]]
+    csv_path.write_text("\n".join([header, *repeated, *rows[2:]]))
+    with caplog.at_level(logging.WARNING, logger="dream.io.csv_layout"):
+        read_sequence(folder)
+    assert "lines 2 and 3 share the timestamp" in caplog.text
     nanoseconds = [",".join([str(int(float(r.split(",")[0]) * 1e9)), *r.split(",")[1:]])
                    for r in rows]
     csv_path.write_text("\n".join([header, *nanoseconds]))
@@ -324,8 +331,21 @@ def test_a_users_csv_is_read_as_a_spreadsheet_writes_it(imaged, tmp_path, capsys
     named.write_text(named.read_text().replace("image,", "Image,", 1))
     with pytest.raises(InputError, match="the image column is called"):
         read_sequence(image_folder)
-    named.write_text(named.read_text().replace("Image,", "image,", 1).replace(
-        "panda_joint1", "z1_joint1"))                  # another arm's log, no --robot
+    text = named.read_text().replace("Image,", "image,", 1)
+    named.write_text(text.replace(",", ";"))           # a spreadsheet's locale
+    with pytest.raises(InputError, match="separated by ';'.*Fix: save it as CSV with commas"):
+        read_sequence(image_folder)
+    named.write_text(text)
+    (image_folder / "camera_info.yaml").unlink()
+    (image_folder / "K.txt").write_text("150 0 0\n0 151 0\n79.2 60.3 1\n")
+    with pytest.raises(InputError, match="K.txt: .*it is transposed.*Fix: write K row by row"):
+        read_sequence(image_folder)
+    with pytest.raises(InputError, match="^the given intrinsics are for 640x480 images"):
+        read_sequence(image_folder, intrinsics=replace(CAMERA, width=640, height=480))
+    (image_folder / "K.txt").write_text("150 0 79.2\n0 151 60.3\n0 0 1\n")
+    named.write_text(text.replace("panda_joint1", "z1_joint1"))  # another arm's, no --robot
+    assert main(["info", str(image_folder)]) == 0
+    assert "robot:     panda, but the data has no joint panda_joint1" in capsys.readouterr().out
     assert main(["calibrate", "--data", str(image_folder), "--camera-guess", "1.5,0.5,1",
                  "--look-at", "0,0,0.4", "--out", str(tmp_path / "r.json")]) == 2
     assert "Fix: give --robot the robot" in capsys.readouterr().err
