@@ -251,6 +251,10 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
     training_config(request, [str(target.parent)], 1, request.minutes)  # recipe, --set: now
     seq, T, model, doc, recorded = teacher(request, out)
     made_from = (doc.get("data") or {}).get("num_frames", recorded)
+    if not isinstance(made_from, int) or made_from > recorded:
+        raise InputError(f"was calibrated on {made_from} frames, more than the {recorded} of "
+                         f"--data {request.data}", request.result,
+                         "give --data the recording the result was made from")
     if made_from != recorded:
         say(f"the result was calibrated on {made_from} of the recording's {recorded} frames; "
             "its extrinsic labels them all (a fixed camera)")

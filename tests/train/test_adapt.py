@@ -112,6 +112,8 @@ def test_a_result_of_another_robot_or_camera_or_shape_is_refused(panda, meshes, 
                                                          "fx": 2 * doc["data"]["camera"]["fx"]}}},
               "through another camera"),
              ({**doc, "quality": "good"}, "'quality' is not an object"),
+             ({key: value for key, value in doc.items() if key != "data"} | {
+                 "data": {"num_frames": 500}}, "calibrated on 500 frames, more than the"),
              (doc, "recipe the model was trained with is not here")]
     out = tmp_path / "new" / "a.onnx"
     for bad, message in cases:
