@@ -133,7 +133,8 @@ def carried_finding(link: str, size_m) -> Finding:
     return CHECK, (f"something the URDF lacks moves with {link} (about {size} cm, carved from "
                    "the masks): the search left its pixels out, but it hides part of the arm, "
                    "so the pose may be off by a centimetre or more; check the overlays, or "
-                   "record without it")
+                   "record without it (where nothing is there, the joint readings up to that link "
+                   "may be offset)")
 
 
 def focal_finding(focal: dict | None) -> Finding | None:
