@@ -47,12 +47,16 @@ def add_polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames
     return result_doc_with_polish(doc, report, _inlier_rmse(seq, result, obs, report.T_after))
 
 
-def _inlier_rmse(seq, result, obs, T: np.ndarray) -> float:
-    """RESULT.json's `rmse_px` at a refined pose T: the keypoint fit's inliers' (NaN without)."""
+def _inlier_rmse(seq, result, obs, T: np.ndarray, frame: int | None = None) -> float:
+    """RESULT.json's `rmse_px` at a refined pose T: the keypoint fit's inliers' (NaN without),
+    of every frame or of `frame` alone (through its own intrinsics)."""
     from dream.polish.calibration import inlier_keypoints
 
-    inliers = inlier_keypoints(result, obs, slice(None))
-    return inliers.rmse_px(seq.camera, T) if inliers is not None else float("nan")
+    if frame is None:
+        inliers, camera = inlier_keypoints(result, obs, slice(None)), seq.camera
+    else:
+        inliers, camera = inlier_keypoints(result, obs, frame), seq.frame_camera(frame)
+    return inliers.rmse_px(camera, T) if inliers is not None else float("nan")
 
 
 def _motion_masks(seq, robot, out: TextIO):
@@ -133,7 +137,9 @@ def add_frame_edges(seq, robot, result, obs, doc: dict, out: TextIO,
         seq, robot, result, obs, exclude_links=_links(exclude_links),
         progress=progress if len(seq) > PROGRESS_EVERY_FRAMES else None,
         link_geometry=link_geometry)
-    doc = result_doc_with_frame_edges(doc, results)
+    index = {frame.name: i for i, frame in enumerate(seq.frames)}
+    doc = result_doc_with_frame_edges(doc, results, lambda res: _inlier_rmse(
+        seq, result, obs, res.T_after, index[res.frame]))
     e = doc["edges"]
     print(f"edge alignment of each frame ({e['frames_aligned']} frames, {e['seconds']:.1f} s"
           f"{', background model' if e['background_model'] else ''}): kept in "

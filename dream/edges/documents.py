@@ -11,6 +11,7 @@ fields are the aligned pose's (`dream.polish.documents.with_pose_fields`), with 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from collections.abc import Sequence as SequenceOf
 from typing import Any
 
@@ -78,11 +79,14 @@ def frame_edges_to_dict(res: FrameEdgeResult) -> dict[str, Any]:
 
 
 def result_doc_with_frame_edges(doc: dict[str, Any],
-                                results: SequenceOf[FrameEdgeResult | None]) -> dict[str, Any]:
+                                results: SequenceOf[FrameEdgeResult | None],
+                                rmse_after: Callable[[FrameEdgeResult], float] = lambda res:
+                                float("nan")) -> dict[str, Any]:
     """An "each"-mode RESULT.json document with each aligned frame's `edges` object and, where
-    kept, its aligned `T_cam_base` (`dream.polish.documents.with_frame_refinements`); the
-    top-level `edges` object counts them."""
-    out = with_frame_refinements(doc, results, "edges", frame_edges_to_dict)
+    kept, its aligned `T_cam_base` and `rmse_after(result)` as its `rmse_px` (the frame's
+    inlier keypoints at the aligned pose; `dream.polish.documents.with_frame_refinements`);
+    the top-level `edges` object counts them."""
+    out = with_frame_refinements(doc, results, "edges", frame_edges_to_dict, rmse_after)
     done = [r for r in results if r is not None]
     out["edges"] = {"mode": "each", "frames_aligned": len(done),
                     "frames_kept": sum(r.kept for r in done),

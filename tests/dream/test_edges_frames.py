@@ -9,6 +9,7 @@ import json
 import numpy as np
 import pytest
 
+from dream.camera import project
 from dream.cli import main
 from dream.edges import EdgeSettings
 from dream.edges.frames import background_explains, decide_frame, refine_frames_with_edges
@@ -21,6 +22,7 @@ from dream.pipeline import (
     observations_from_labels,
     robot_for,
 )
+from dream.transforms import transform_points
 from tests.dream.test_edges import edge_scene, image_dataset
 
 
@@ -45,6 +47,13 @@ def test_calibrate_each_aligns_every_frame_by_default_without_masks(panda, meshe
     assert np.median(add1) < 0.5 * np.median(add0), (np.median(add0), np.median(add1))
     kept = np.array([f["edges"]["kept"] for f in doc["per_frame"]])
     assert np.allclose(after[~kept], before[~kept])
+    for i in np.flatnonzero(kept):       # a kept frame's RMSE is its keypoints' at its pose
+        uv = project(seq.camera, transform_points(after[i], P[i]))
+        inlier = np.array([k["inlier"] for k in doc["per_frame"][i]["keypoints"]])
+        detected = np.array([k["uv"] or [np.nan, np.nan]
+                             for k in doc["per_frame"][i]["keypoints"]], float)
+        expected = np.sqrt(np.mean(np.sum((uv - detected)[inlier] ** 2, 1)))
+        assert doc["per_frame"][i]["rmse_px"] == pytest.approx(expected, rel=1e-6)
     reported = [f for f in doc["per_frame"] if f["frame"] == doc["reported_frame"]][0]
     if reported["edges"]["kept"]:     # the reported frame's 1-sigma is its aligned pose's
         assert doc["uncertainty"]["method"] == "jackknife of the edge alignment"
