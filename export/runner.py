@@ -234,7 +234,11 @@ class OnnxKeypointModel:
         self.path = Path(path)
         self.threads = _check_threads(threads)
         if not self.path.is_file():
-            raise InputError("model file not found", self.path, FIX)
+            from dream.models import BUNDLED_MODEL
+
+            raise InputError("model file not found", self.path,
+                             f"give the path of an exported model (the bundled Panda model is "
+                             f"{BUNDLED_MODEL}), or {FIX}")
         options = ort.SessionOptions()
         if self.threads is not None:
             options.intra_op_num_threads = self.threads

@@ -293,17 +293,18 @@ def print_summary(doc: dict, out: TextIO) -> None:
           f"in {doc['frames_used']} frames ({doc['frames_mode']} mode)", file=out)
 
 
-def print_truth_errors(doc: dict, T_true: np.ndarray, out: TextIO) -> None:
-    """Where the data has ground truth (or a reference extrinsic): the written pose's error
-    against it and, with --frames each, the reported frame's and the median over the frames'
-    poses written."""
+def print_truth_errors(doc: dict, T_true: np.ndarray, out: TextIO,
+                       against: str = "ground truth") -> None:
+    """Where the data has ground truth (or a reference extrinsic: `against` "the reference"):
+    the written pose's error against it and, with --frames each, the reported frame's and the
+    median over the frames' poses written."""
     from dream.metrics import pose_errors
     from dream.result import written_poses
 
     if doc["frames_mode"] == "all":
         if np.all(np.isfinite(T_true[0])):
             t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true[0])
-            print(f"error vs ground truth: camera position {t_err * 1000:.2f} mm, rotation "
+            print(f"error vs {against}: camera position {t_err * 1000:.2f} mm, rotation "
                   f"{np.rad2deg(r_err):.3f} deg", file=out)
         return
     T_written = written_poses(doc)
@@ -315,9 +316,9 @@ def print_truth_errors(doc: dict, T_true: np.ndarray, out: TextIO) -> None:
     reported = [e["frame"] for e in doc["per_frame"]].index(doc["reported_frame"])
     if np.all(np.isfinite(T_true[reported])):
         t_err, r_err = pose_errors(np.asarray(doc["T_cam_base"]), T_true[reported])
-        print(f"error vs ground truth: reported frame {doc['reported_frame']}: camera "
+        print(f"error vs {against}: reported frame {doc['reported_frame']}: camera "
               f"position {t_err * 1000:.2f} mm, rotation {np.rad2deg(r_err):.3f} deg", file=out)
-    print(f"error vs ground truth over the {int(both.sum())} frames with a pose: median camera "
+    print(f"error vs {against} over the {int(both.sum())} frames with a pose: median camera "
           f"position {np.median(t_all) * 1000:.2f} mm, rotation "
           f"{np.rad2deg(np.median(r_all)):.3f} deg", file=out)
 

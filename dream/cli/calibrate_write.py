@@ -53,7 +53,10 @@ def finish(request, seq, robot, obs, result, doc: dict, paths, out: TextIO) -> N
     base_frame = request.base_frame or robot.base_link
     _write_calibration(request, seq, robot, obs, result, doc, paths, base_frame)
     print_summary(doc, out)
-    print_truth_errors(doc, truth_poses(seq), out)
+    reference_only = seq.T_cam_base_reference is not None and all(
+        f.T_cam_base_true is None for f in seq.frames)
+    print_truth_errors(doc, truth_poses(seq), out,
+                       "the reference" if reference_only else "ground truth")
     ros_path, matrix_path, urdf_path, launch_path, handeye_path = paths
     print(f"wrote {request.out}, {ros_path} (ROS static_transform_publisher: x y z qx qy qz qw "
           f"{base_frame} {request.camera_frame}), {matrix_path} (T_base_cam), {urdf_path} (URDF "

@@ -288,7 +288,8 @@ def add_command(sub: argparse._SubParsersAction, name: str,
     return p
 
 
-DATA_HELP = "dataset folder (DREAM layout, panda_teleop, franka_offline) or ManiUniCon .npz"
+DATA_HELP = ("the recording: a dataset folder (DREAM layout, panda_teleop, franka_offline, "
+             "images + joints.csv), a ROS bag, or a ManiUniCon .npz")
 
 
 def add_data_args(p: argparse.ArgumentParser, required: bool = True,

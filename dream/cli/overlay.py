@@ -154,7 +154,7 @@ def cmd_overlay(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     """The `dream overlay` parser."""
     p = add_command(sub, "overlay", cmd_overlay,
-                    "draw projected keypoints and skeleton on the images")
+                    "draw the robot's outline, projected keypoints and skeleton on the images")
     p.add_argument("data", help=DATA_FILE_HELP)
     p.add_argument("--out", required=True, help="folder for the overlay PNGs")
     p.add_argument("--extrinsic", help="RESULT.json to draw with (default: the data's reference)")

@@ -24,6 +24,7 @@ from dream.cli import main  # noqa: E402
 from dream.detection import detect_keypoints, load_keypoint_model  # noqa: E402
 from dream.errors import InputError  # noqa: E402
 from dream.io import load_image, read_sequence, write_dream  # noqa: E402
+from dream.models import BUNDLED_MODEL  # noqa: E402
 from dream.peaks import PeakSettings  # noqa: E402
 from dream.pipeline import robot_for  # noqa: E402
 from dream.preprocess import Preprocess  # noqa: E402
@@ -331,6 +332,7 @@ def test_bad_onnx_files_are_one_line_input_errors(exported, drawn, tmp_path, cap
         message = str(info.value)
         assert "\n" not in message and str(path) in message and words in message
         assert "export it with dream export" in message
+    assert str(BUNDLED_MODEL) in message          # a path that is not there: where it is
     with pytest.raises(InputError, match="no model loader for '.pt'"):
         load_keypoint_model(tmp_path / "model.pt")
     line = _one_line_error(main(["calibrate", "--model", str(foreign), "--data", str(drawn),
