@@ -386,10 +386,14 @@ def read_extension(path: str | Path) -> ModelExtension:
     robot = doc.get("robot")
     if robot is not None and (not isinstance(robot, str) or not robot):
         raise InputError(f"robot must be a robot name, got {robot!r}", path, fix)
+    from dream.extension_limits import check_plausible
+
     try:
-        return extension_from_effects(doc.get("effects") or {}, robot)
+        extension = extension_from_effects(doc.get("effects") or {}, robot)
     except InputError as exc:
         raise InputError(exc.problem, path, exc.fix or f"correct the file, or {fix}") from None
+    check_plausible(extension, path)
+    return extension
 
 
 def extension_yaml(extension: ModelExtension) -> str:

@@ -30,6 +30,8 @@ JOINT_LIMIT_MARGIN_M = 0.01      # ... and this far beyond a prismatic one
 MAX_PRINCIPAL_OFFSET = 0.25      # the principal point lies within this share of the size
                                  # from the image's centre (the middle half of each axis)
 SWAPPED_TOLERANCE_PX = 1.0       # cx, cy this near the other axis's centre look swapped
+MAX_TIMESTAMP_S = 1e11           # seconds since 1970 reach this in the year 5138
+MAX_FRAME_STEP_S = 3600.0        # a recording's frames lie less than an hour apart
 MIN_HFOV_DEG = 2.0               # a pinhole camera's horizontal field of view, plausible range
 MAX_HFOV_DEG = 160.0
 MAX_FOCAL_ASPECT = 1.5           # fx / fy (or fy / fx): pixels are nearly square
@@ -178,3 +180,32 @@ def check_sequence_cameras(seq) -> None:
         if frame.camera is not None and frame.camera not in seen:
             seen.add(frame.camera)
             check_camera(frame.camera, frame.source or seq.source)
+
+
+def check_seconds(times: SequenceOf[float], path: Path | None) -> None:
+    """Refuse timestamps that cannot be seconds: beyond `MAX_TIMESTAMP_S`, or frames more
+    than `MAX_FRAME_STEP_S` apart (median), as milli-, micro- or nanoseconds are.
+
+    >>> check_seconds([1.7e9, 1.7e9 + 0.033], Path("joints.csv"))
+    >>> check_seconds([0, 33_333_333, 66_666_666], Path("joints.csv"))
+    Traceback (most recent call last):
+    ...
+    dream.errors.InputError: joints.csv: timestamps lie 3.33333e+07 s apart (median) and reach \
+6.66667e+07 s: they are not seconds. Fix: give the timestamps in seconds (nanoseconds divided \
+by 1e9, microseconds by 1e6, milliseconds by 1e3)
+    """
+    t = np.sort(np.asarray(times, float))
+    steps = np.diff(t)
+    step = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 0.0
+    if step > MAX_FRAME_STEP_S or np.abs(t).max() > MAX_TIMESTAMP_S:
+        raise InputError(f"timestamps lie {step:g} s apart (median) and reach "
+                         f"{np.abs(t).max():g} s: they are not seconds", path,
+                         "give the timestamps in seconds (nanoseconds divided by 1e9, "
+                         "microseconds by 1e6, milliseconds by 1e3)")
+
+
+def check_sequence_times(seq) -> None:
+    """`check_seconds` of the frames' timestamps, where they have any."""
+    times = [f.timestamp for f in seq.frames if f.timestamp is not None]
+    if times:
+        check_seconds(times, seq.source)

@@ -20,6 +20,8 @@ from dream.cli.options import (
 )
 from dream.errors import InputError
 
+TIMED_EFFECTS = ("time_offset", "held_readings")   # effects that read the frames' timestamps
+
 
 @dataclass(frozen=True)
 class DiagnoseRequest(DataOptions):
@@ -48,7 +50,15 @@ def run_diagnose(request: DiagnoseRequest) -> dict:
 
     check_output_folder(request.out)  # before the analysis, which takes a while
     seq = read_data(request)
+    if Path(request.out).resolve() == Path(request.data).resolve():
+        raise InputError("--out is the recording's folder: the report would mix with it",
+                         request.out, "give --out a folder of its own, e.g. report")
     effects = request.effect_names()
+    timed = sorted(set(effects or ()) & set(TIMED_EFFECTS))
+    if timed and any(f.timestamp is None for f in seq.frames):
+        raise InputError(f"--effects names {', '.join(timed)}, which need every frame's "
+                         "timestamp, and some frames have none", request.data,
+                         "give data with timestamps (seconds), or leave those effects out")
     settings = DiagnoseSettings(**({"effects": effects} if effects else {}),
                                 folds=request.folds)
     if len(seq) <= settings.folds:

@@ -190,7 +190,7 @@ def read_data(request: Any):
     plausibility (`dream.plausibility`). A camera given that differs from the data's own is
     refused unless `--override-intrinsics`."""
     from dream.io import read_sequence
-    from dream.plausibility import check_sequence_cameras
+    from dream.plausibility import check_sequence_cameras, check_sequence_times
 
     data = request.data
     if not data or not data.strip():
@@ -201,6 +201,7 @@ def read_data(request: Any):
         _refuse_conflicting_intrinsics(data, given, request.robot, topics)
     seq = read_sequence(data, intrinsics=given, robot=request.robot, topics=topics)
     check_sequence_cameras(seq)
+    check_sequence_times(seq)
     return seq
 
 

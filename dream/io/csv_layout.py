@@ -34,6 +34,7 @@ from dream.io.common import (
     frame_name,
 )
 from dream.io.intrinsics import IntrinsicsArg, camera_from_argument, camera_from_K, read_K_txt
+from dream.plausibility import check_seconds
 from dream.sequence import Frame, Sequence
 
 logger = logging.getLogger(__name__)
@@ -47,8 +48,6 @@ IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg")
 # other names of the two known columns, refused so that neither passes as an unused joint
 TIME_ALIASES = ("time", "stamp", "t", "time_s", "timestamp_s", "stamp_s", "time_ns",
                 "timestamp_ns", "stamp_ns", "secs", "seconds")
-MAX_TIMESTAMP_S = 1e11          # seconds since 1970 reach this in the year 5138
-MAX_FRAME_STEP_S = 3600.0       # a recording's frames lie less than an hour apart
 FIX_CSV = (f"write {CSV_FILE} with a header row: [image,] [timestamp,] then one column per "
            "joint (the URDF's joint names), radians, one row per image")
 
@@ -123,28 +122,6 @@ def _check_column_names(header: list[str], path: Path) -> None:
             raise InputError(f"column {fields.quote(column)} looks like a time; the time column "
                              f"is called {fields.quote(TIME_COLUMN)}, in seconds", path,
                              f"rename it to {TIME_COLUMN} (in seconds), or remove it")
-
-
-def check_seconds(times: SequenceOf[float], path: Path) -> None:
-    """Refuse timestamps that cannot be seconds: beyond `MAX_TIMESTAMP_S`, or frames more
-    than `MAX_FRAME_STEP_S` apart (median), as milli-, micro- or nanoseconds are.
-
-    >>> check_seconds([1.7e9, 1.7e9 + 0.033], Path("joints.csv"))
-    >>> check_seconds([0, 33_333_333, 66_666_666], Path("joints.csv"))
-    Traceback (most recent call last):
-    ...
-    dream.errors.InputError: joints.csv: timestamps lie 3.33333e+07 s apart (median) and reach \
-6.66667e+07 s: they are not seconds. Fix: give the timestamps in seconds (nanoseconds divided \
-by 1e9, microseconds by 1e6, milliseconds by 1e3)
-    """
-    t = np.sort(np.asarray(times, float))
-    steps = np.diff(t)
-    step = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 0.0
-    if step > MAX_FRAME_STEP_S or np.abs(t).max() > MAX_TIMESTAMP_S:
-        raise InputError(f"timestamps lie {step:g} s apart (median) and reach "
-                         f"{np.abs(t).max():g} s: they are not seconds", path,
-                         "give the timestamps in seconds (nanoseconds divided by 1e9, "
-                         "microseconds by 1e6, milliseconds by 1e3)")
 
 
 def _warn_repeated_times(times: list[float], joints: np.ndarray, path: Path) -> None:

@@ -382,6 +382,9 @@ def test_batch_zero_is_refused(imaged, tmp_path, capsys):
     ("effects:\n  intrinsics_error: {fx: 1, fy: 1, cx: 1, cy: 1, skew: 0}\n", "skew"),
     ("effects:\n  camera_moved: {frame: '000001', rotation: [0, 0, 0]}\n", "rotation"),
     ("effects: {}\nextra: 1\n", "extra"),
+    ("effects:\n  joint_offset: {panda_joint4: 2.0}\n", "(115 deg)"),
+    ("effects:\n  lens_distortion: {k1: -10}\n", "lens_distortion k1 = -10 is beyond"),
+    ("effects:\n  time_offset: {seconds: 80}\n", "time_offset seconds = 80 is beyond"),
 ])
 def test_model_extension_refuses_wrong_format_and_unknown_keys(labels, tmp_path, capsys, text,
                                                               named):

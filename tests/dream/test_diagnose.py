@@ -279,3 +279,24 @@ def test_a_new_effect_must_keep_the_accepted_ones_plausible():
     why = first_implausible(fit, ("time_offset", "joint_offset"), tight)
     assert why.startswith("joint_offset: implausible magnitude")
     assert first_implausible(fit, ("joint_offset",), tight).startswith("implausible magnitude")
+
+
+def test_cli_refuses_a_report_in_the_data_or_time_effects_without_timestamps(tmp_path,
+                                                                            capsys):
+    """Both before any analysis, in one line: the report's folder is the recording's, or
+    --effects asks for an effect of time on frames without timestamps."""
+    seq = make_injected_sequence(InjectionSettings(num_frames=12, seed=3),
+                                 extension_from_effects({}, "panda"))
+    data = tmp_path / "data"
+    write_dream(seq, data)
+    assert main(["diagnose", "--data", str(data), "--use-labels", "--out", str(data)]) == 2
+    assert "--out is the recording's folder" in capsys.readouterr().err
+    untimed = tmp_path / "untimed"
+    write_dream(dataclasses.replace(seq, frames=tuple(
+        dataclasses.replace(f, timestamp=None) for f in seq.frames)),
+                untimed)
+    assert main(["diagnose", "--data", str(untimed), "--use-labels", "--out",
+                 str(tmp_path / "report"), "--effects", "joint_offset,time_offset"]) == 2
+    err = capsys.readouterr().err
+    assert "--effects names time_offset, which need every frame's timestamp" in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "report").exists()

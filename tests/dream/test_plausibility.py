@@ -210,3 +210,16 @@ def test_franka_offline_in_degrees_names_the_unit_not_collinear_keypoints(realda
     line = refused(["calibrate", "--data", data, "--model", BUNDLED_MODEL, "--out",
                     tmp_path / "r.json"], capsys)
     assert "are these degrees?" in line and "collinear" not in line
+
+
+def test_timestamps_that_cannot_be_seconds_are_refused_in_any_layout(labels, tmp_path, capsys):
+    """A DREAM folder whose frames were stamped in nanoseconds: one line, before any work."""
+    def in_nanoseconds(doc: dict) -> None:
+        doc["timestamp"] = doc["timestamp"] * 1e9
+
+    data = edited(labels, tmp_path / "ns", frame_edit=in_nanoseconds)
+    line = refused(["calibrate", "--data", data, "--use-labels", "--out", tmp_path / "r.json"],
+                   capsys)
+    assert "they are not seconds" in line and "divided by 1e9" in line
+    assert not (tmp_path / "r.json").exists()
+

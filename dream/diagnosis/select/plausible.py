@@ -12,19 +12,7 @@ from collections.abc import Sequence as SequenceOf
 import numpy as np
 
 from dream.diagnosis.fit.model import FitResult
-
-PLAUSIBLE = {                      # largest plausible magnitude of each kind of parameter
-    "joint_offset": np.deg2rad(10.0),  # rad: encoder zero errors are a few degrees at most
-    "link_length": 0.05,               # m
-    "keypoint_bias": 0.05,             # m (norm of a keypoint's offset)
-    "lens_distortion.k": 0.5,          # k1, k2 (changes)
-    "lens_distortion.p": 0.05,         # p1, p2 (changes)
-    "intrinsics_error.f": 0.2,         # relative focal length change
-    "intrinsics_error.c": 0.1,         # principal point change / focal length
-    "time_offset": 0.5,                # s
-    "camera_moved.r": np.deg2rad(10.0),  # rad (rotation vector norm)
-    "camera_moved.t": 0.2,             # m (translation norm)
-}
+from dream.extension_limits import PLAUSIBLE  # noqa: F401  (the selection's limits)
 
 
 def implausible_effect(fit: FitResult, effects: SequenceOf[str],
