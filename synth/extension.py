@@ -72,6 +72,7 @@ def check_extension(extension: ModelExtension, robot: Robot, config: SynthConfig
         InputError: another robot, unknown joints or keypoints, zero-length offsets, a camera
             the lens cannot render, or effects the sequence mode cannot show.
     """
+    from dream.plausibility import check_camera
     from synth.lens import plan_lens
 
     mode = config.sequence.mode
@@ -89,7 +90,15 @@ def check_extension(extension: ModelExtension, robot: Robot, config: SynthConfig
                          "random field of view per frame",
                          fix="give intrinsics.fx, fy, cx, cy in the recipe (the nominal camera)")
     if extension.distortion is not None or extension.intrinsics is not None:
-        plan_lens(true_camera(nominal_camera(config), extension))
+        camera = true_camera(nominal_camera(config), extension)
+        try:
+            check_camera(camera)        # its intrinsics for the recipe's images
+        except InputError as exc:
+            raise InputError(f"the model extension's camera on the recipe's {camera.width}x"
+                             f"{camera.height} images: {exc.problem}", fix="use the extension "
+                             "of a camera of this resolution, or set intrinsics.width and "
+                             "height to its images'") from None
+        plan_lens(camera)
     if extension.time_offset_s and mode != "trajectory":
         raise InputError(f"time_offset needs sequence.mode trajectory, not '{mode}'",
                          fix=f"set sequence.mode=trajectory, or {KEYPOINT_ONLY_HINT}")

@@ -275,11 +275,13 @@ def _apply_extension(request: CalibrateRequest, extension, seq, robot, obs, out:
     problem without a file of its own names the extension's)."""
     from dream.diagnosis.run import apply_extension_to_observations
     from dream.extended import extended_robot
+    from dream.plausibility import check_camera
 
     frames = len(seq)
     try:
         seq, obs = apply_extension_to_observations(seq, robot, obs, extension)
         robot = extended_robot(robot, extension)
+        check_camera(seq.camera)        # its intrinsics for these images (not another size)
     except InputError as exc:
         if exc.path is not None:
             raise

@@ -399,6 +399,16 @@ def test_model_extension_refuses_wrong_format_and_unknown_keys(labels, tmp_path,
     assert not (tmp_path / "r.json").exists()
 
 
+def test_an_extensions_camera_for_other_images_is_refused(labels, tmp_path, capsys):
+    """Absolute intrinsics of a camera of another size: refused naming the extension."""
+    path = tmp_path / "ext.yaml"
+    path.write_text("effects:\n  intrinsics_error: {fx: 600, fy: 600, cx: 5000, cy: 3000}\n")
+    line = refused(["calibrate", "--data", labels, "--use-labels", "--out", tmp_path / "r.json",
+                    "--model-extension", path], capsys)
+    assert str(path) in line and "cx = 5000 px lies outside" in line
+    assert not (tmp_path / "r.json").exists()
+
+
 def test_written_extensions_still_load(tmp_path):
     ext = extension_from_effects({
         "lens_distortion": {"k1": 0.1}, "time_offset": {"seconds": 0.02},

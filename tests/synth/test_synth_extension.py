@@ -141,6 +141,8 @@ def test_time_offset_camera_move_and_keypoint_bias_in_a_trajectory(tmp_path):
     ("random", {"link_length": {"panda_joint2": 0.01}}, "zero origin offset"),
     ("random", {"keypoint_bias": {"panda_link1": [0, 0, 0.01]}}, "panda_link1"),
     ("random", {"lens_distortion": {"k1": -3.0}}, "distortion"),
+    ("random", {"intrinsics_error": {"fx": 600, "fy": 600, "cx": 319.5, "cy": 239.5}},
+     "model extension's camera on the recipe's"),       # for 640x480 images
     ("random", {"link_geometry": {"panda_hand": "exclude"}}, "cannot be rendered"),
     ("random", {"link_geometry": {"tool0": {"kind": "scale", "scale": 1.1}}}, "tool0"),
 ])
