@@ -21,6 +21,7 @@ from dream.cli.options import (
 from dream.errors import InputError
 
 TIMED_EFFECTS = ("time_offset", "held_readings")   # effects that read the frames' timestamps
+NOT_TESTABLE = "not testable"      # an effect's evidence when the data cannot test it
 
 
 @dataclass(frozen=True)
@@ -83,6 +84,8 @@ def _print_diagnosis(doc: dict, out_dir: str) -> None:
     for effect in doc["effects"]:
         if effect["name"] in doc["verdict"]:
             print(f"  {effect['name']}: {effect['params']}")
+        elif str(effect.get("evidence", "")).startswith(NOT_TESTABLE):   # not silently
+            print(f"  {effect['name']} {effect['evidence']}")
     for name, found in (doc.get("image_findings") or {}).items():
         for link, params in found.items():
             size = " x ".join(f"{100 * s:.0f}" for s in params["size_m"])

@@ -284,7 +284,8 @@ def test_a_new_effect_must_keep_the_accepted_ones_plausible():
 def test_cli_refuses_a_report_in_the_data_or_time_effects_without_timestamps(tmp_path,
                                                                             capsys):
     """Both before any analysis, in one line: the report's folder is the recording's, or
-    --effects asks for an effect of time on frames without timestamps."""
+    --effects asks for an effect of time on frames without timestamps. An effect the data
+    cannot test (timestamps in milliseconds: the arm seems still) says so on the console."""
     seq = make_injected_sequence(InjectionSettings(num_frames=12, seed=3),
                                  extension_from_effects({}, "panda"))
     data = tmp_path / "data"
@@ -300,3 +301,10 @@ def test_cli_refuses_a_report_in_the_data_or_time_effects_without_timestamps(tmp
     err = capsys.readouterr().err
     assert "--effects names time_offset, which need every frame's timestamp" in err
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "report").exists()
+    slow = tmp_path / "milliseconds"          # stamped in ms: the arm seems to stand still
+    write_dream(dataclasses.replace(seq, frames=tuple(
+        dataclasses.replace(f, timestamp=1000 * f.timestamp) for f in seq.frames)), slow)
+    assert main(["diagnose", "--data", str(slow), "--use-labels", "--out",
+                 str(tmp_path / "slow"), "--effects", "time_offset"]) == 0
+    assert "time_offset not testable: " in capsys.readouterr().out
+
