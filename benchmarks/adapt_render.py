@@ -61,7 +61,7 @@ def train_model(robot: str, frames: int, minutes: float, work: Path) -> Path:
          f"data.train=[{plain},{rw}]", "--set", f"trainer.time_budget_minutes={minutes}"])
     timed("dream train", start)
     model = work / f"{robot}.onnx"
-    run(["export", "--checkpoint", work / "run" / "best.ckpt", "--out", model])
+    run(["export", "--checkpoint", work / "run" / "best.ckpt", "--out", model, "--overwrite"])
     return model
 
 

@@ -12,8 +12,13 @@ import argparse
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from dream.errors import InputError
 
+    if Path(args.out).exists() and not args.overwrite:   # a model in use, the bundled one...
+        raise InputError("the model file exists", args.out,
+                         "give another --out, or --overwrite to replace it")
     try:
         from export.onnx_export import PARITY_ATOL, export_model  # torch from here on
     except ImportError as exc:
@@ -48,4 +53,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="peak-finder constant written into the model (repeatable), e.g. "
                         "ambiguity_ratio=0.8; the parameters not named keep the training "
                         "config's eval.peaks (default: all of eval.peaks)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing --out file (refused without it)")
     p.set_defaults(func=cmd_export)

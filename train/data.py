@@ -55,6 +55,10 @@ def read_folders(folders: SequenceOf[str]) -> list[Sequence]:
     if not folders:
         raise InputError("no dataset folders given", fix="set data.train=[DIR, ...] in the recipe "
                          "or with --set")
+    missing = [folder for folder in folders if not Path(folder).exists()]
+    if missing:
+        raise InputError("the dataset folder does not exist", missing[0],
+                         "check data.train / data.val (the recipe or --set)")
     return [read_sequence(folder) for folder in folders]
 
 
@@ -66,9 +70,31 @@ def resolve_from_data(config: TrainConfig, sequences: SequenceOf[Sequence]) -> T
     if not keypoints:
         raise InputError("the training data names no keypoints", first.source,
                          "write keypoints with projected_location in the frame files")
-    data = replace(config.data, keypoints=tuple(keypoints), robot=config.data.robot or first.robot)
+    robot = config.data.robot or first.robot
+    for seq in sequences:
+        if not same_robot(seq.robot, robot):
+            raise InputError(f"holds frames of robot {seq.robot!r}, and the model is for "
+                             f"{robot!r}", seq.source, "train on frames of one robot (data.train"
+                             ", data.robot)")
+    named = {name for seq in sequences for name in seq.keypoint_names}
+    missing = [name for name in keypoints if name not in named]
+    if missing:
+        raise InputError(f"data.keypoints names {', '.join(missing)}, which no training frame "
+                         f"labels (they label {', '.join(sorted(named))})", first.source,
+                         "name keypoints the data labels, or leave data.keypoints null")
+    data = replace(config.data, keypoints=tuple(keypoints), robot=robot)
     model = replace(config.model, num_keypoints=config.model.num_keypoints or len(keypoints))
     return config.replace(data=data, model=model)
+
+
+def same_robot(a: str, b: str) -> bool:
+    """Whether two robot names (built-in names or URDF paths) name the same robot: equal, or
+    URDF files of the same name (the data may have been rendered on another machine).
+
+    >>> same_robot("/a/z1.urdf", "/b/z1.urdf"), same_robot("panda", "/a/z1.urdf")
+    (True, False)
+    """
+    return a == b or Path(a).stem == Path(b).stem
 
 
 @dataclass(frozen=True)

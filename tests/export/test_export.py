@@ -233,6 +233,14 @@ def test_export_peaks_override_keeps_the_config_eval_peaks(untrained_checkpoint,
     written = PeakSettings(**json.loads(props["dream.peak_params"]))
     assert written == PeakSettings(threshold=0.3, smoothing_sigma=0.5, ambiguity_ratio=0.8)
     assert OnnxKeypointModel(out).peak_params == written
+    before = out.read_bytes()                           # an existing model is not replaced...
+    line = _one_line_error(main(["export", "--checkpoint", str(untrained_checkpoint), "--out",
+                                 str(out)]), capsys.readouterr().err)
+    assert "the model file exists" in line and "--overwrite" in line
+    assert out.read_bytes() == before
+    assert main(["export", "--checkpoint", str(untrained_checkpoint), "--out", str(out),
+                 "--overwrite"]) == 0                    # ... unless asked
+    capsys.readouterr()
     line = _one_line_error(main(["export", "--checkpoint", str(untrained_checkpoint), "--out",
                                  str(tmp_path / "q.onnx"), "--peaks", "sharpness=2"]),
                            capsys.readouterr().err)

@@ -156,6 +156,24 @@ def _remove_the_images(data: Path) -> Path:
     return data
 
 
+@pytest.mark.parametrize(("overrides", "words"), [
+    (("data.robot=ur5",), "and the model is for 'ur5'"),
+    (("data.keypoints=[panda_link0,panda_linkXX]",), "names panda_linkXX, which no training"),
+    (("data.train=[/no/such/folder]",), "does not exist. Fix: check data.train"),
+])
+def test_the_data_must_be_of_the_models_robot_and_label_its_keypoints(drawn, tmp_path,
+                                                                      overrides, words):
+    """A recipe or --set that names another robot, a keypoint the frames do not label, or a
+    folder that is not there, is refused before training (the model was exported as that
+    robot's, or with an untrained belief map; the fix named --data, an option train lacks)."""
+    seq = read_sequence(drawn)
+    assert seq.robot == "panda" and "panda_link0" in seq.keypoint_names
+    out = tmp_path / "run"
+    with pytest.raises(InputError, match=words):
+        run_training(tiny(drawn, *overrides), out)
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("damage", ["truncated image", "no images", "missing checkpoint",
                                     "garbage init_from"])
 def test_an_input_error_found_before_training_creates_no_run_folder(drawn, tmp_path, damage):
