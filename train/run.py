@@ -278,9 +278,12 @@ def _check_run_dir(run_dir: Path) -> None:
         problem = f"cannot be created: {existing} is a file"
     elif not os.access(existing, os.W_OK | os.X_OK):
         problem = f"cannot be written: {existing} is not writable"
+    elif existing == run_dir and any(run_dir.iterdir()) and not (run_dir / CONFIG_FILE).exists():
+        problem = "holds other files and no run (no config.yaml): a data folder?"
     else:
         return
-    raise InputError(f"the run folder {problem}", run_dir, "give --out a new or existing folder")
+    raise InputError(f"the run folder {problem}", run_dir,
+                     "give --out a new folder, or the folder of a run to go on with")
 
 
 def _make_run_dir(run_dir: Path) -> Path | None:

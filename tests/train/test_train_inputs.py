@@ -81,6 +81,11 @@ def test_a_run_folder_that_is_a_file_is_refused(drawn, tmp_path, capsys):
     line = _error_line(main(_train_cli(drawn, afile / "run")), capsys.readouterr().err)
     assert f"{afile / 'run'}: the run folder cannot be created: {afile} is a file" in line
     assert afile.read_text() == "not a folder"
+    data = _copy(drawn, tmp_path)                      # --out naming the data folder itself
+    before = sorted(p.name for p in data.iterdir())
+    line = _error_line(main(_train_cli(drawn, data)), capsys.readouterr().err)
+    assert "holds other files and no run" in line
+    assert sorted(p.name for p in data.iterdir()) == before
 
 
 @pytest.mark.parametrize(("seed", "ok"), [(-1, False), (0, True), (2 ** 32 - 1, True),
