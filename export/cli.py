@@ -16,7 +16,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
     from dream.errors import InputError
 
-    if Path(args.out).exists() and not args.overwrite:   # a model in use, the bundled one...
+    if Path(args.out).is_file() and not args.overwrite:   # a model in use, the bundled one...
         raise InputError("the model file exists", args.out,
                          "give another --out, or --overwrite to replace it")
     try:
