@@ -344,10 +344,11 @@ def pose_iou(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
     """The mean IoU of the robot's silhouettes at `T_cam_base` with `masks`, as the search
     scores its candidates and its winner: at the finest of `local_widths_px`, on `frames`
     (the search's `search_frames`; default all), so that it compares with their `iou`."""
+    settings = settings or SearchSettings()
     sub = np.arange(len(joints)) if frames is None else np.asarray(frames, int)
     P = vertices_in_base(meshes, np.asarray(joints, float)[sub])
-    scales = Scales(P, meshes, np.asarray(masks, bool)[sub], camera,
-                    settings or SearchSettings(), None, held)
+    finest = replace(settings, local_widths_px=settings.local_widths_px[-1:])  # the only one read
+    scales = Scales(P, meshes, np.asarray(masks, bool)[sub], camera, finest, None, held)
     return scales.iou(np.asarray(T_cam_base, float))
 
 
