@@ -308,3 +308,21 @@ def test_cli_refuses_a_report_in_the_data_or_time_effects_without_timestamps(tmp
                  str(tmp_path / "slow"), "--effects", "time_offset"]) == 0
     assert "time_offset not testable: " in capsys.readouterr().out
 
+
+
+@pytest.mark.parametrize("effect,moved", [("keypoint_bias", False), ("link_length", False),
+                                          ("camera_moved", True)])
+def test_the_residual_step_is_a_camera_move_not_a_misfit_of_the_pose(tmp_path, effect, moved):
+    """report.md's "best single step in the residuals": a keypoint's bias or a link's length
+    leaves residuals that follow the arm's smooth motion, which a test against constant
+    residuals called a significant step (p 1e-37 and 3e-9 on these sequences); only the
+    camera's move is one."""
+    from dream.diagnosis.run import run_diagnosis
+
+    seq, robot, _ = _case(effect, 9001, frames=100)
+    doc = run_diagnosis(seq, robot, observations_from_labels(seq, robot), tmp_path / "r")
+    step = doc["residual_analysis"]["change_point"]
+    assert step["null"] == "joints"
+    assert step["significant"] is moved, step["p_value"]
+    report = (tmp_path / "r" / "report.md").read_text()
+    assert ("significant" in report.split("Best single step")[1].split("\n")[0]) is moved

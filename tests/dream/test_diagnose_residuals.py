@@ -115,6 +115,36 @@ def test_step_located_at_frame_30():
     assert out["step_px"] == pytest.approx(np.sqrt(np.mean(np.sum(step ** 2, -1))), rel=0.2)
 
 
+@pytest.mark.parametrize("seed", range(5))
+def test_a_misfit_that_follows_the_joints_is_no_step(seed):
+    """A model error of a fixed camera leaves residuals that follow the pose (here: each
+    keypoint's residual a random first-harmonic function of the joints, 4x the noise),
+    autocorrelated along a smooth motion: the step test is against that, not against a
+    constant (which called such sequences a step at p < 1e-60). A camera move on top of it
+    still shows."""
+    rng = np.random.default_rng(100 + seed)
+    uv, q, t = _trajectories(rng)
+    weights = rng.normal(0, 4 * NOISE_PX, size=(2 * J, K, 2))
+    features = np.concatenate([np.sin(q), np.cos(q)], axis=1)     # (F, 2J)
+    r = np.einsum("fj,jkc->fkc", features, weights) + rng.normal(0, NOISE_PX, uv.shape)
+    smooth = analyse_change_point(_set(uv, r, q, t))
+    assert smooth["null"] == "joints"
+    assert not smooth["significant"], smooth["p_value"]
+    r[40:] += rng.normal(0, 4 * NOISE_PX, size=(K, 2))    # the camera moves at frame 40
+    moved = analyse_change_point(_set(uv, r, q, t))
+    assert moved["significant"] and abs(moved["index"] - 40) <= 1
+
+
+def test_too_few_frames_for_the_joints_test_against_a_constant():
+    rng = np.random.default_rng(5)
+    uv, q, t = _trajectories(rng)
+    n = 12                                          # < 3 frames per regressor of 1 + 2J
+    r = rng.normal(0, NOISE_PX, uv.shape)[:n]
+    r[6:] += 3.0
+    out = analyse_change_point(_set(uv[:n], r, q[:n], t[:n]))
+    assert out["null"] == "constant" and out["significant"] and out["index"] == 6
+
+
 def test_null_has_no_significant_step_in_most_seeds():
     flagged = sum(analyse_change_point(_null(seed))["significant"] for seed in range(10))
     assert flagged <= 1

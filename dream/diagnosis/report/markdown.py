@@ -226,11 +226,14 @@ def _highlights(analysis: Mapping | None) -> list[str]:
         lines.append("- No timestamps: no time analysis.")
     cp = a.get("change_point") or {}
     if cp.get("frame") is not None:
-        lines.append(f"- Best single step in the residuals: at frame {cp['frame']} (step "
-                     f"{fmt(cp.get('step_px'))} px, explains "
+        against = ("beyond what follows the arm's pose" if cp.get("null") == "joints" else
+                   "against constant residuals (too few frames to test against the pose)")
+        verdict = (", significant: the camera moved there, or the observations changed"
+                   if cp.get("significant") else "")
+        lines.append(f"- Best single step in the residuals ({against}): at frame "
+                     f"{cp['frame']} (step {fmt(cp.get('step_px'))} px, explains "
                      f"{fmt(100 * (num(cp.get('explained_fraction')) or 0.0), 2)} % of the "
-                     f"residual variance, score p = {fmt_p(cp.get('p_value'))}"
-                     f"{', significant' if cp.get('significant') else ''}).")
+                     f"residual variance left, score p = {fmt_p(cp.get('p_value'))}{verdict}).")
     return lines or ["No residual analysis."]
 
 

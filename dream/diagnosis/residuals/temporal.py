@@ -2,7 +2,8 @@
 
 - `time_offset` leaves residuals proportional to the keypoints' image velocity
   (`analyse_velocity`, `analyse_time`).
-- `camera_moved` leaves a step in the residuals at one frame (`analyse_change_point`).
+- `camera_moved` leaves a step in the residuals at one frame, beyond what follows the arm's
+  pose (`analyse_change_point`).
 """
 
 from __future__ import annotations
@@ -25,6 +26,10 @@ from dream.diagnosis.residuals.residual_set import (
 )
 
 MIN_SEGMENT_FRAMES = 3       # frames (with used keypoints) on each side of a change point
+NULL_FRAMES_PER_PARAM = 3    # frames per regressor of the pose-following null before it is used
+MIN_JOINT_SPREAD_RAD = 1e-3  # a joint that spreads less than this is taken as still
+RANK_TOLERANCE = 1e-9        # singular values below this x the largest span nothing
+STEP_NORM_TOLERANCE = 1e-9   # a step the null explains to this (per frame) is not tested
 
 
 def _lag1_autocorr(x: np.ndarray) -> float | None:
@@ -83,87 +88,117 @@ def analyse_time(res: ResidualSet) -> dict | None:
             "velocity": analyse_velocity(res)}
 
 
-def _segment_sums(res: ResidualSet) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Frames with used keypoints (V,) and their per-(keypoint, component) counts, sums and
-    sums of squares (V, 2K), in frame order."""
-    r = np.nan_to_num(res.residual)
-    used = np.repeat(res.used[..., None], 2, -1)                   # (F, K, 2)
-    valid = np.flatnonzero(res.used.any(1))
-    n = used[valid].reshape(len(valid), -1).astype(float)
-    s1 = np.where(used, r, 0.0)[valid].reshape(len(valid), -1)
-    s2 = np.where(used, r * r, 0.0)[valid].reshape(len(valid), -1)
-    return valid, n, s1, s2
+def _joint_basis(res: ResidualSet, valid: np.ndarray) -> tuple[np.ndarray, str]:
+    """(V, P) regressors of a misfit that follows the arm's pose, and the null's name.
+
+    A wrong model of a fixed camera and its robot (joint offsets, link lengths, intrinsics,
+    distortion, a keypoint's bias) leaves each keypoint's residual a function of the joint
+    readings, which a smooth motion changes smoothly: tested against a constant, such a
+    misfit reads as a step. The null is therefore 1, sin q and cos q of the joints that move;
+    with fewer than NULL_FRAMES_PER_PARAM frames per regressor it falls back to the constant.
+    """
+    q = np.asarray(res.joints, dtype=float)[valid]
+    moving = np.nanstd(q, axis=0) > MIN_JOINT_SPREAD_RAD
+    q = np.nan_to_num(q[:, moving])
+    basis = np.column_stack([np.ones(len(valid)), np.sin(q), np.cos(q)])
+    if len(valid) < NULL_FRAMES_PER_PARAM * basis.shape[1] or not moving.any():
+        return np.ones((len(valid), 1)), "constant"
+    return basis, "joints"
 
 
-def _within_ss(n: np.ndarray, s1: np.ndarray, s2: np.ndarray) -> np.ndarray:
-    """Sum over groups of the within-group sum of squares, from counts and sums (..., G)."""
+def _range(X: np.ndarray) -> np.ndarray:
+    """Orthonormal basis (n, r) of the columns of X (r its numerical rank)."""
+    U, s, _ = np.linalg.svd(X, full_matrices=False)
+    return U[:, s > RANK_TOLERANCE * s[0]]
+
+
+def _step_gains(res: ResidualSet, valid: np.ndarray, splits: np.ndarray, basis: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, float, int, int]:
+    """The residual sum of squares a step at each split removes beyond `basis` (S,), the
+    (keypoint, component) series each step reaches (S,), the null's RSS, the observations
+    and the null's parameters. Each (keypoint, component) series has its own coefficients."""
+    gain, reached = np.zeros(len(splits)), np.zeros(len(splits))
+    rss0, n_obs, params = 0.0, 0, 0
+    for k in range(res.used.shape[1]):
+        rows = np.flatnonzero(res.used[valid, k])
+        if len(rows) <= basis.shape[1]:
+            continue
+        Q = _range(basis[rows])
+        E = (rows[:, None] >= splits[None, :]).astype(float)         # (n, S) the step
+        E -= Q @ (Q.T @ E)
+        ee = np.einsum("ns,ns->s", E, E)
+        ok = ee > STEP_NORM_TOLERANCE * len(rows)
+        for c in range(2):
+            y = res.residual[valid[rows], k, c]
+            y = y - Q @ (Q.T @ y)
+            rss0 += float(y @ y)
+            n_obs += len(rows)
+            params += Q.shape[1]
+            gain += np.where(ok, (y @ E) ** 2 / np.maximum(ee, 1e-300), 0.0)
+            reached += ok
+    return gain, reached, rss0, n_obs, params
+
+
+def _segment_means(res: ResidualSet, frames: np.ndarray) -> tuple[np.ndarray, list]:
+    """Each (keypoint, component)'s mean used residual over `frames` (K, 2), NaN where none,
+    and the mean over all their used residuals ([du, dv])."""
+    used = res.used[frames]
+    r = np.where(used[..., None], np.nan_to_num(res.residual[frames]), 0.0)
+    n = used.sum(0)[:, None].astype(float)
     with np.errstate(invalid="ignore", divide="ignore"):
-        ss = np.where(n > 0, s2 - s1 * s1 / np.maximum(n, 1), 0.0)
-    return np.maximum(ss, 0.0).sum(-1)
+        per = np.where(n > 0, r.sum(0) / np.maximum(n, 1.0), np.nan)
+    overall = r.reshape(-1, 2).sum(0) / max(1.0, float(used.sum()))
+    return per, float_list(overall)
 
 
 def analyse_change_point(res: ResidualSet) -> dict:
     """The best single split of the frame sequence into before / after.
 
-    Model: every (keypoint, component) has its own mean residual, constant (null) or with one
-    step at the split (alternative); the split maximises the Gaussian likelihood ratio
-    `lr = N log(RSS0 / RSS1)` over splits leaving >= MIN_SEGMENT_FRAMES frames with used
-    keypoints on each side. A camera that moved between two frames shows as such a step.
+    Model: every (keypoint, component) residual follows the arm's pose (`null`: "joints",
+    1, sin q, cos q of the moving joints; "constant" on too few frames, see `_joint_basis`)
+    with or without one step at the split; the split maximises the step's F statistic over
+    splits leaving >= MIN_SEGMENT_FRAMES frames with used keypoints on each side. A camera that
+    moved between two frames shows as such a step; a misfit that follows the pose does not.
 
-    Returns: `index` and `frame` (the first frame after the split), `lr`, `f_stat` (the F
+    Returns: `index` and `frame` (the first frame after the split), `null`, `f_stat` (the F
     statistic of the step at that split), `p_value` (its F-test p-value times the number of
     candidate splits, clipped to 1: a conservative score, not an exact p-value), `significant`
-    (p_value < ALPHA), `explained_fraction` (1 - RSS1/RSS0), `step_px` (RMS over keypoints of
-    the length of the after - before mean difference), `mean_before_px` / `mean_after_px`
-    (mean used residual of each segment), and `per_frame_mean_px` (F x [du, dv] or None).
-    Frames are taken in the given order.
+    (p_value < ALPHA), `explained_fraction` (of the null's residual sum of squares),
+    `step_px` (RMS over keypoints of the length of the after - before mean difference),
+    `mean_before_px` / `mean_after_px` (mean used residual of each segment), and
+    `per_frame_mean_px` (F x [du, dv] or None). Frames are taken in the given order.
     """
-    out: dict[str, Any] = {"index": None, "frame": None, "lr": None, "f_stat": None,
+    out: dict[str, Any] = {"index": None, "frame": None, "null": None, "f_stat": None,
                            "p_value": None, "significant": False, "explained_fraction": None,
                            "step_px": None, "mean_before_px": None, "mean_after_px": None,
                            "num_candidates": 0,
                            "per_frame_mean_px": float_list(per_frame_mean(res))}
-    valid, n, s1, s2 = _segment_sums(res)
+    valid = np.flatnonzero(res.used.any(1))
     V = len(valid)
     if V < 2 * MIN_SEGMENT_FRAMES:
         return out
-    cn, c1, c2 = np.cumsum(n, 0), np.cumsum(s1, 0), np.cumsum(s2, 0)
-    tot_n, tot_1, tot_2 = cn[-1], c1[-1], c2[-1]
-    rss0 = float(_within_ss(tot_n, tot_1, tot_2))
-    N = float(tot_n.sum())
     splits = np.arange(MIN_SEGMENT_FRAMES, V - MIN_SEGMENT_FRAMES + 1)   # first valid after
-    bn, b1, b2 = cn[splits - 1], c1[splits - 1], c2[splits - 1]
-    an, a1, a2 = tot_n - bn, tot_1 - b1, tot_2 - b2
-    rss1 = _within_ss(bn, b1, b2) + _within_ss(an, a1, a2)
-    if rss0 <= 0:
+    basis, null = _joint_basis(res, valid)
+    gain, reached, rss0, n_obs, params = _step_gains(res, valid, splits, basis)
+    dof = n_obs - params - reached
+    if rss0 <= 0 or not np.any((reached > 0) & (dof > 0)):
         return out
-    with np.errstate(divide="ignore"):
-        lr = N * np.log(rss0 / np.maximum(rss1, 1e-300))
-    best = int(np.argmax(lr))
-    s = int(splits[best])
-    extra = int(np.count_nonzero((bn[best] > 0) & (an[best] > 0)))
-    params = int(np.count_nonzero(bn[best] > 0) + np.count_nonzero(an[best] > 0))
-    dof = N - params
-    f_stat = p = None
-    if extra > 0 and dof > 0:
-        if rss1[best] > 0:
-            f_stat = float(((rss0 - rss1[best]) / extra) / (rss1[best] / dof))
-            p = min(1.0, float(stats.f.sf(f_stat, extra, dof)) * len(splits))
-        else:
-            f_stat, p = math.inf, 0.0
     with np.errstate(invalid="ignore", divide="ignore"):
-        mb = np.where(bn[best] > 0, b1[best] / np.maximum(bn[best], 1), np.nan).reshape(-1, 2)
-        ma = np.where(an[best] > 0, a1[best] / np.maximum(an[best], 1), np.nan).reshape(-1, 2)
-    diff = np.hypot(*(ma - mb).T)
+        f_all = np.where((reached > 0) & (dof > 0),
+                         (gain / np.maximum(reached, 1)) / ((rss0 - gain) / np.maximum(dof, 1)),
+                         -np.inf)
+    best = int(np.argmax(f_all))
+    f_stat = float(f_all[best]) if rss0 - gain[best] > 0 else math.inf
+    p = 0.0 if math.isinf(f_stat) else min(
+        1.0, float(stats.f.sf(f_stat, reached[best], dof[best])) * len(splits))
+    index = int(valid[splits[best]])
+    before, mean_b = _segment_means(res, valid[:splits[best]])
+    after, mean_a = _segment_means(res, valid[splits[best]:])
+    diff = np.hypot(*(after - before).T)
     diff = diff[np.isfinite(diff)]
-    seg_b = b1[best].reshape(-1, 2).sum(0) / max(1.0, bn[best].reshape(-1, 2)[:, 0].sum())
-    seg_a = a1[best].reshape(-1, 2).sum(0) / max(1.0, an[best].reshape(-1, 2)[:, 0].sum())
-    index = int(valid[s])
-    out.update(index=index, frame=res.frame_names[index], lr=finite_or_none(lr[best]),
-               f_stat=finite_or_none(f_stat), p_value=p,
-               significant=bool(p is not None and p < ALPHA),
-               explained_fraction=finite_or_none(1.0 - rss1[best] / rss0),
+    out.update(index=index, frame=res.frame_names[index], null=null,
+               f_stat=finite_or_none(f_stat), p_value=p, significant=bool(p < ALPHA),
+               explained_fraction=finite_or_none(gain[best] / rss0),
                step_px=finite_or_none(np.sqrt(np.mean(diff ** 2))) if diff.size else None,
-               mean_before_px=float_list(seg_b), mean_after_px=float_list(seg_a),
-               num_candidates=int(len(splits)))
+               mean_before_px=mean_b, mean_after_px=mean_a, num_candidates=int(len(splits)))
     return out
