@@ -13,7 +13,8 @@ the robot base frame (`T_cam_base`, with its uncertainty) without a checkerboard
 
 The API (each name's own help says more):
 
-- read_sequence(path): a recording in any supported layout (docs/data_format.md).
+- read_sequence(path): a recording in any supported layout (docs/data_format.md), its
+  cameras and timestamps checked.
 - load_robot(sequence | name | urdf_path): URDF kinematics and keypoints.
 - load_keypoint_model(path), BUNDLED_MODEL: a keypoint network (ONNX).
 - detect(sequence, robot, model), labels(sequence, robot): 2D keypoints as Observations.
@@ -49,7 +50,7 @@ _API = {
     "evaluate": "dream.api",
     "diagnose": "dream.api",
     "result_document": "dream.api",
-    "read_sequence": "dream.io.read",
+    "read_sequence": "dream.api",
     "load_keypoint_model": "dream.detection",
     "read_result": "dream.result",
     "Sequence": "dream.sequence",

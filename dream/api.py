@@ -33,6 +33,29 @@ from dream.sequence import Sequence
 
 log = logging.getLogger(__name__)
 
+IMAGE_MARGIN_PX = 1.0         # a keypoint this far beyond the image's last pixel lies outside
+MAX_OUTSIDE_FRACTION = 0.5    # observations mostly beyond the images are of another camera
+
+
+def read_sequence(path: str | Path, **options: Any) -> Sequence:
+    """A recording in any supported layout (docs/data_format.md), its cameras and timestamps
+    checked as `dream calibrate` checks them: a principal point of another resolution, a focal
+    length in millimetres or timestamps that are not seconds raise `InputError`.
+
+    `options`: those of `dream.io.read_sequence` (`fmt`, `joint_names`, `intrinsics` (a
+    `CameraIntrinsics` or fx, fy, cx, cy in pixels), `robot`, `topics`).
+    """
+    from dream.io.read import read_sequence as read_unchecked
+    from dream.plausibility import check_sequence_cameras, check_sequence_times
+
+    if not isinstance(path, (str, Path)):
+        raise InputError(f"read_sequence needs the recording's path, not {type(path).__name__}",
+                         fix="pass the dataset folder or file as a str or pathlib.Path")
+    sequence = read_unchecked(path, **options)
+    check_sequence_cameras(sequence)
+    check_sequence_times(sequence)
+    return sequence
+
 
 def load_robot(source: Sequence | str | Path,
                keypoints: SequenceOf[str] | None = None) -> Robot:
@@ -41,26 +64,79 @@ def load_robot(source: Sequence | str | Path,
     Args:
         source: a `Sequence` (its data names the robot), a built-in name (`dream robots`
             lists them) or the path of a .urdf file.
-        keypoints: link names to use as keypoints (default: the robot's own).
+        keypoints: link names to use as keypoints (default: the robot's own), a list.
     """
+    if isinstance(keypoints, str):
+        raise InputError(f"keypoints={keypoints!r} is one string",
+                         fix='pass a list of link names, e.g. keypoints=["link0", "link2"]')
     names = tuple(keypoints) if keypoints else None
     if isinstance(source, Sequence):
         return robot_for(source, None, names)
     return _load_named_robot(str(source), list(names) if names else None)
 
 
-def detect(sequence: Sequence, robot: Robot, model: KeypointModel,
+def _check_recording(sequence: Any, robot: Any) -> None:
+    """The arguments are a `Sequence` and a `Robot`, and the readings fit the robot (radians
+    within its joint limits: `dream.plausibility`)."""
+    from dream.plausibility import check_robot_readings
+
+    _check_type(sequence, Sequence, "sequence", "dream.read_sequence(path)")
+    _check_type(robot, Robot, "robot", "dream.load_robot(sequence)")
+    check_robot_readings(sequence, robot)
+
+
+def _check_type(value: Any, kind: type, name: str, make: str) -> None:
+    if not isinstance(value, kind):
+        raise InputError(f"{name} is a {type(value).__name__}, not a {kind.__name__}",
+                         fix=f"pass the {kind.__name__} that {make} returns")
+
+
+def detect(sequence: Sequence, robot: Robot, model: KeypointModel | str | Path,
            batch_size: int = DEFAULT_BATCH_SIZE) -> Observations:
     """The keypoints a model finds in every frame (the robot takes the model's keypoints).
 
-    `model`: `dream.load_keypoint_model("model.onnx")`, e.g. `dream.BUNDLED_MODEL`.
+    `model`: a network loaded by `dream.load_keypoint_model("model.onnx")`, or the path of
+    its ONNX file (e.g. `dream.BUNDLED_MODEL`). Joint readings outside the robot's limits
+    (degrees given for radians) raise `InputError`.
     """
+    from dream.detection import load_keypoint_model
+
+    _check_recording(sequence, robot)
+    if isinstance(model, (str, Path)):
+        model = load_keypoint_model(model)
     return detect_keypoints(sequence, robot, model, batch_size=batch_size)
 
 
 def labels(sequence: Sequence, robot: Robot) -> Observations:
     """The data's own 2D keypoint labels as observations (`dream calibrate --use-labels`)."""
+    _check_recording(sequence, robot)
     return observations_from_labels(sequence, robot)
+
+
+def _check_observations(sequence: Sequence, observations: Any) -> None:
+    """The observations are of `sequence`'s frames, in its images."""
+    _check_type(sequence, Sequence, "sequence", "dream.read_sequence(path)")
+    _check_type(observations, Observations, "observations", "dream.detect or dream.labels")
+    names = tuple(frame.name for frame in sequence.frames)
+    if observations.frame_names != names:
+        raise InputError(f"the observations are of {len(observations.frame_names)} frames "
+                         f"({_span(observations.frame_names)}), the sequence has {len(names)} "
+                         f"({_span(names)})",
+                         fix="pass the observations that dream.detect or dream.labels made of "
+                             "this sequence (subset both alike)")
+    uv = observations.uv[observations.found]
+    camera = sequence.camera
+    outside = ((uv[:, 0] > camera.width - 0.5 + IMAGE_MARGIN_PX)
+               | (uv[:, 1] > camera.height - 0.5 + IMAGE_MARGIN_PX)).mean() if len(uv) else 0.0
+    if outside > MAX_OUTSIDE_FRACTION:
+        raise InputError(f"{outside:.0%} of the observed keypoints lie beyond the sequence's "
+                         f"{camera.width}x{camera.height} images",
+                         fix="pass the observations made of this sequence's images (or its "
+                             "intrinsics of another resolution?)")
+
+
+def _span(names: SequenceOf[str]) -> str:
+    return f"{names[0]} .. {names[-1]}" if names else "none"
 
 
 def calibrate(sequence: Sequence, observations: Observations, mode: str = "all",
@@ -72,6 +148,9 @@ def calibrate(sequence: Sequence, observations: Observations, mode: str = "all",
             keypoint jackknife in its uncertainty) or "each" (every frame's own pose).
         settings: the solver's constants (default `SolverSettings()`).
     """
+    _check_observations(sequence, observations)
+    if settings is not None:
+        _check_type(settings, SolverSettings, "settings", "dream.SolverSettings(...)")
     return _calibrate_sequence(sequence, observations, mode, settings)
 
 
@@ -128,13 +207,25 @@ def evaluate(sequence: Sequence, robot: Robot, result: CalibrationResult | dict[
     """Errors of a result against the data's ground truth (`dream eval`'s METRICS.json).
 
     `result`: a `CalibrationResult` with the `observations` it was solved from, or a
-    RESULT.json document (`dream.read_result`).
+    RESULT.json document (`dream.read_result`). A document made from other data than
+    `sequence` raises `InputError`; where `dream calibrate` interpolated a held joint log,
+    the sequence's readings are interpolated alike (`dream.readings.solved_readings`).
     """
+    from dream.provenance import check_same_data
+    from dream.readings import solved_readings
+
     if isinstance(result, CalibrationResult):
         if observations is None:
             raise InputError("evaluate needs the observations a CalibrationResult was solved "
                              "from", fix="pass observations=, or a RESULT.json document")
+        _check_observations(sequence, observations)
         result = result_document(result, observations, robot)
+    elif not isinstance(result, dict):
+        raise InputError(f"result is a {type(result).__name__}",
+                         fix="pass a CalibrationResult or dream.read_result(path)")
+    else:
+        check_same_data(result, sequence, str(sequence.source), "the result document")
+        sequence = solved_readings(sequence, result)
     return _evaluate_result(sequence, robot, result)
 
 

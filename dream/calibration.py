@@ -184,6 +184,15 @@ class CalibrationResult:
         return np.sqrt(np.diag(self.covariance)[3:])
 
     @property
+    def sigma_camera_position_base_m(self) -> np.ndarray:
+        """(3,) 1-sigma of the camera's position in the base frame along base x, y, z, m (of
+        `covariance`, the rotation's share included: RESULT.json's
+        `sigma_camera_position_base_m`)."""
+        from dream.result import camera_position_covariance
+
+        return np.sqrt(np.diag(camera_position_covariance(self.T_cam_base, self.covariance)))
+
+    @property
     def sigma_rotation_rad(self) -> np.ndarray:
         """(3,) 1-sigma of the rotation about the camera axes, rad (of `covariance`)."""
         return np.sqrt(np.diag(self.covariance)[:3])

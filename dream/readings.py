@@ -383,6 +383,19 @@ def without_frames_after_last_update(sequence: Sequence, updates: ReadingUpdates
 UPDATE_TIME_TOLERANCE = 1e-9   # of a period
 
 
+def solved_readings(sequence: Sequence, result: dict[str, Any]) -> Sequence:
+    """`sequence` with the joints a RESULT.json document `result` was solved with: where `dream
+    calibrate` interpolated a held joint log (`joint_readings.interpolated`), the readings
+    interpolated in time and the frames after the log's last update left out."""
+    if not (result.get("joint_readings") or {}).get("interpolated"):
+        return sequence
+    updates = sequence_updates(sequence)
+    if updates is None or not updates.held:
+        return sequence
+    sequence, _ = with_interpolated_readings(sequence)
+    return without_frames_after_last_update(sequence, updates)[0]
+
+
 def held_update_times(times_s: np.ndarray, period_s: float, phase_s: float) -> np.ndarray:
     """(F,) the time of the last update at or before each image time, for a log that updates
     every `period_s`, the first update `phase_s` before the first image."""

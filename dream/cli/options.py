@@ -267,11 +267,10 @@ def joint_readings(seq: Any, interpolate: bool, out: TextIO | None = None
 
 
 def solved_readings(seq: Any, doc: dict) -> Any:
-    """`seq` with the joints a RESULT.json `doc` was solved with: its readings interpolated in
-    time where `dream calibrate` interpolated them (`joint_readings.interpolated`)."""
-    if (doc.get("joint_readings") or {}).get("interpolated"):
-        seq, _ = joint_readings(seq, interpolate=True)
-    return seq
+    """`seq` with the joints a RESULT.json `doc` was solved with (`dream.readings`)."""
+    from dream.readings import solved_readings as readings_of
+
+    return readings_of(seq, doc)
 
 
 def request_from(cls: type[Request], args: argparse.Namespace) -> Request:

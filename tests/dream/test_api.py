@@ -91,3 +91,73 @@ def test_readme_example_runs_as_written(tmp_path, monkeypatch, capsys) -> None:
     metrics = dream.evaluate(namespace["sequence"], namespace["robot"], result,
                              namespace["observations"])
     assert metrics["translation_error_m"]["median"] < 0.02  # the demo: about 9 mm
+
+
+def _labelled_scene(tmp_path: Path, frames: int = 30):
+    """A labelled keypoint-only recording written as a DREAM folder, read back checked."""
+    from dream.inject import InjectionSettings, make_injected_sequence
+    from dream.io import write_dream
+
+    write_dream(make_injected_sequence(InjectionSettings(num_frames=frames, seed=3)),
+                tmp_path / "scene")
+    sequence = dream.read_sequence(tmp_path / "scene")
+    return tmp_path / "scene", sequence, dream.load_robot(sequence)
+
+
+def test_the_api_refuses_what_the_commands_refuse(tmp_path) -> None:
+    """Joints in degrees, intrinsics of another resolution, observations of other frames, a
+    result of other data: each an `InputError`, as the commands give (they passed the API
+    and calibrated 0.7-1.2 m off)."""
+    import dataclasses
+
+    from dream.camera import CameraIntrinsics
+
+    folder, sequence, robot = _labelled_scene(tmp_path)
+    in_degrees = dataclasses.replace(sequence, frames=tuple(
+        dataclasses.replace(f, joints=np.degrees(f.joints))
+        for f in sequence.frames))
+    with pytest.raises(dream.InputError, match="degrees"):
+        dream.labels(in_degrees, robot)
+    c = sequence.camera
+    with pytest.raises(dream.InputError, match="centre"):
+        dream.read_sequence(folder, intrinsics=CameraIntrinsics(
+            c.fx, c.fy, 2 * c.cx, 2 * c.cy, c.width, c.height))
+    observations = dream.labels(sequence, robot)
+    part = dataclasses.replace(sequence, frames=sequence.frames[:10])
+    with pytest.raises(dream.InputError, match="observations are of 30 frames"):
+        dream.calibrate(part, observations)
+    with pytest.raises(dream.InputError, match="SolverSettings"):
+        dream.calibrate(sequence, observations, settings={"seed": 1})
+    with pytest.raises(dream.InputError, match="list of link names"):
+        dream.load_robot("panda", keypoints="panda_link0")
+    result = dream.calibrate(sequence, observations)
+    document = dream.result_document(result, observations, robot)
+    from dream.provenance import data_record
+
+    document["data"] = data_record(part, "part")
+    with pytest.raises(dream.InputError, match="other data"):
+        dream.evaluate(sequence, robot, document)
+    document["data"] = data_record(sequence, str(folder))
+    assert dream.evaluate(sequence, robot, document)["translation_error_m"]["median"] < 0.01
+
+
+def test_the_camera_position_sigma_includes_the_rotation(tmp_path) -> None:
+    """`sigma_camera_position_base_m` is RESULT.json's; the camera-axis translation sigma
+    leaves the rotation's share out (5x smaller on the demo)."""
+    _, sequence, robot = _labelled_scene(tmp_path)
+    observations = dream.labels(sequence, robot)
+    result = dream.calibrate(sequence, observations)
+    document = dream.result_document(result, observations, robot)
+    assert np.allclose(result.sigma_camera_position_base_m,
+                       document["sigma_camera_position_base_m"])
+    assert np.linalg.norm(result.sigma_camera_position_base_m) > np.linalg.norm(
+        result.sigma_translation_m)
+
+
+def test_detect_takes_the_model_file(tmp_path) -> None:
+    from dream.cli import main
+
+    assert main(["demo", "--out", str(tmp_path / "demo")]) == 0
+    sequence = dream.read_sequence(tmp_path / "demo" / "scene")
+    observations = dream.detect(sequence, dream.load_robot(sequence), dream.BUNDLED_MODEL)
+    assert observations.found.any()
