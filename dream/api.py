@@ -194,12 +194,22 @@ def refine_edges(sequence: Sequence, robot: Robot, result: CalibrationResult,
                              exclude_links=exclude_links, link_geometry=link_geometry)
 
 
-def result_document(result: CalibrationResult, observations: Observations,
-                    robot: Robot) -> dict[str, Any]:
-    """The RESULT.json document of a calibration (docs/data_format.md)."""
+def result_document(result: CalibrationResult, observations: Observations, robot: Robot,
+                    sequence: Sequence | None = None) -> dict[str, Any]:
+    """The RESULT.json document of the keypoints' calibration (docs/data_format.md) with its
+    `quality` verdict; with `sequence` (the data it was solved from) also its `data` record,
+    by which `dream eval` and `dream.evaluate` refuse other data. An image refinement's pose
+    (`refine_edges`, `polish_result`) is not in it: `dream calibrate` writes those."""
+    from dream.provenance import data_record
+    from dream.quality import result_quality
     from dream.result import result_to_dict
 
-    return result_to_dict(result, observations, robot=robot.name)
+    document = result_to_dict(result, observations, robot=robot.name)
+    document["quality"] = result_quality(result, observations).to_dict()
+    if sequence is not None:
+        _check_observations(sequence, observations)
+        document["data"] = data_record(sequence, str(sequence.source))
+    return document
 
 
 def evaluate(sequence: Sequence, robot: Robot, result: CalibrationResult | dict[str, Any],

@@ -137,7 +137,9 @@ def test_the_api_refuses_what_the_commands_refuse(tmp_path) -> None:
     document["data"] = data_record(part, "part")
     with pytest.raises(dream.InputError, match="other data"):
         dream.evaluate(sequence, robot, document)
-    document["data"] = data_record(sequence, str(folder))
+    document = dream.result_document(result, observations, robot, sequence)
+    assert document["data"] == data_record(sequence, str(folder))
+    assert document["quality"]["verdict"] in ("good", "check")
     assert dream.evaluate(sequence, robot, document)["translation_error_m"]["median"] < 0.01
 
 
