@@ -148,7 +148,22 @@ def _check_scale(robot, prior, target) -> None:
     settings = SearchSettings()
     check_guess_scale(prior.T_cam_base, prior.position_sigma_m, P.mean(axis=0),
                       float(np.max(np.linalg.norm(P, axis=1))), settings.max_guess_distance,
-                      settings.max_guess_sigma, f"--camera {prior.source}", target)
+                      settings.max_guess_sigma, f"--camera {prior.source}", target,
+                      sigma_fix="give --position-sigma-m in metres (e.g. 0.05), or leave it out")
+
+
+def _check_above_table(prior, table_z_m: float | None) -> None:
+    """Refuse a camera below the table plane: it would look at the robot through the table,
+    which the plan does not model as hiding anything."""
+    if table_z_m is None:
+        return
+    R, t = prior.T_cam_base[:3, :3], prior.T_cam_base[:3, 3]
+    z = float((-R.T @ t)[2])
+    if z < table_z_m:
+        raise InputError(f"--camera {prior.source}: the camera lies at z = {z:.2f} m, below the "
+                         f"table (--table-z {table_z_m:g}); it would see the robot through it",
+                         fix="give the camera's position in the base frame above the table, "
+                             "or --table-z none where there is no table")
 
 
 def _robot(request: PlanRequest):
@@ -214,6 +229,7 @@ def run_plan(request: PlanRequest) -> None:
         _check_scale(robot, prior, np.asarray(parse_numbers(request.look_at, (3,), "--look-at",
                                                             FIX_CAMERA), float))
     feasibility = _feasibility(request)
+    _check_above_table(prior, feasibility.table_z_m)
     settings = PlanSettings(num_poses=request.num, candidates=request.candidates,
                             max_draws=request.max_draws, camera_samples=request.camera_samples,
                             noise_px=request.noise_px, seed=request.seed)

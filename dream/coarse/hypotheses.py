@@ -223,14 +223,19 @@ def camera_distance(T_cam_base: np.ndarray, P_base: np.ndarray) -> float:
     return float(np.linalg.norm(invert_T(T_cam_base)[:3, 3] - np.asarray(P_base, float)))
 
 
+GUESS_SIGMA_FIX = ("give --guess-sigma METRES,DEGREES (e.g. 0.3,20: are the two swapped?), or "
+                   "leave --camera-guess out for the automatic search")
+
 def check_guess_scale(T_cam_base: np.ndarray, sigma_m: float, centre_base_m: np.ndarray,
                       reach_m: float, max_distance: float, max_sigma: float,
-                      description: str, look_at_base_m: np.ndarray | None = None) -> None:
+                      description: str, look_at_base_m: np.ndarray | None = None,
+                      sigma_fix: str = GUESS_SIGMA_FIX) -> None:
     """Refuse a guess whose numbers cannot be metres for this robot: its camera, or the point
     it looks at `look_at_base_m` (3,) where given, farther from the robot's centre
     `centre_base_m` (3,) than `max_distance` times the robot's reach `reach_m` (how far its
     moving parts get from the base origin; millimetres or centimetres given for metres), or a
-    1-sigma `sigma_m` above `max_sigma` times it (`--guess-sigma METRES,DEGREES` swapped).
+    1-sigma `sigma_m` above `max_sigma` times it (`--guess-sigma METRES,DEGREES` swapped;
+    `sigma_fix` says what to give instead).
 
     >>> T = look_at(np.array([700.0, 500.0, 600.0]), np.zeros(3))   # millimetres
     >>> check_guess_scale(T, 0.3, np.zeros(3), 0.9, 20.0, 5.0, "a camera at [700, 500, 600]")
@@ -256,5 +261,4 @@ def check_guess_scale(T_cam_base: np.ndarray, sigma_m: float, centre_base_m: np.
     if sigma_m > max_sigma * reach_m:
         raise InputError(f"a guess's 1-sigma of {sigma_m:g} m is {sigma_m / reach_m:.0f} times "
                          f"the robot's reach ({reach_m:.2f} m); a guess that rough is no guess",
-                         fix="give --guess-sigma METRES,DEGREES (e.g. 0.3,20: are the two "
-                             "swapped?), or leave --camera-guess out for the automatic search")
+                         fix=sigma_fix)

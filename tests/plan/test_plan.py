@@ -206,6 +206,9 @@ def test_dream_plan_from_a_result_with_the_model_keypoints(tmp_path):
       "600,600,319.5,239.5,640,480"], "the point looked at lies"),
     (["--camera", "1.6,0,0.6", "--look-at", "0,0,0.4", "--intrinsics",
       "3.6,3.6,319.5,239.5,640,480"], "is the focal length in millimetres?"),
+    (["--camera", "1.4,0.5,-0.5", "--look-at", "0,0,0.4", "--intrinsics",
+      "600,600,319.5,239.5,640,480"], "below the table (--table-z 0)"),
+    ([*CAMERA_ARGS, "--position-sigma-m", "50"], "give --position-sigma-m in metres"),
 ])
 def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, args, message):
     out = tmp_path / "plan"
