@@ -516,3 +516,23 @@ def test_a_lite_encoder_exports_with_the_same_interface(tmp_path):
     model = OnnxKeypointModel(result.path, threads=1)
     out = model.run(np.zeros((2, 3, 64, 64), np.float32))
     assert out["belief"].shape == (2, 3, 32, 32) and model.keypoint_names == ("a", "b", "c")
+
+
+def test_export_writes_the_model_card_beside_the_model(untrained_checkpoint, tmp_path, capsys):
+    """`dream export` says what the file is beside it (robot, keypoints, training data and
+    steps, where it came from); a card already there is replaced only with --overwrite."""
+    out = tmp_path / "m.onnx"
+    assert main(["export", "--checkpoint", str(untrained_checkpoint), "--out", str(out)]) == 0
+    capsys.readouterr()
+    card = (tmp_path / "m.md").read_text()
+    meta = OnnxKeypointModel(out).metadata
+    assert f"keypoint network for `{meta.robot}`" in card
+    assert ", ".join(meta.keypoint_names) in card
+    assert "- Training data: " in card and str(untrained_checkpoint) in card
+    assert "optimiser steps" in card or "not recorded" in card
+    other = tmp_path / "n.onnx"
+    (tmp_path / "n.md").write_text("my notes")
+    line = _one_line_error(main(["export", "--checkpoint", str(untrained_checkpoint), "--out",
+                                 str(other)]), capsys.readouterr().err)
+    assert "the model's card exists" in line and not other.exists()
+    assert (tmp_path / "n.md").read_text() == "my notes"
