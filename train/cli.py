@@ -36,7 +36,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="YAML recipe, e.g. configs/train/panda_cpu.yaml")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a config key (repeatable), e.g. trainer.max_epochs=3 or "
-                        "data.train=[DIR1,DIR2]")
+                        "data.train=[DIR1,DIR2]; trainer.max_steps is rounded up to whole "
+                        "epochs (exact under trainer.time_budget_minutes); the keys and their "
+                        "meaning: train/config.py")
     p.add_argument("--out", required=True,
                    help="run folder (checkpoints, config.yaml, metrics.csv); resumed from its "
                         "last.ckpt when present")
