@@ -18,6 +18,7 @@ from dream.coarse.hypotheses import around, guess_pose
 from dream.errors import InputError
 from dream.io import fields
 from dream.result import FIX_RESULT, read_result
+from dream.robot.identity import same_robot_name
 from dream.transforms import check_pose, invert_T
 
 # a rough position guess: 1-sigma per axis when none is given
@@ -89,8 +90,8 @@ def prior_from_result(path: str | Path, camera: CameraIntrinsics | None = None,
     path = Path(path)
     doc = read_result(path)
     named = doc.get("robot")
-    if robot_names and named is not None and named not in robot_names \
-            and Path(named).stem not in robot_names:
+    if robot_names and named is not None and not any(same_robot_name(named, name)
+                                                     for name in robot_names):
         raise InputError(f"the result calibrated robot '{named}', not "
                          f"'{sorted(robot_names)[0]}'", path,
                          f"give the result of a calibration of this robot, or --robot {named}")

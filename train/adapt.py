@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from dream.errors import InputError
+from dream.robot.identity import same_robot_name
 from dream.sequence import Sequence
 
 log = logging.getLogger(__name__)
@@ -173,7 +174,7 @@ def _teachers_camera(doc: dict, seq: Sequence, request: AdaptRequest) -> Sequenc
     from dream.provenance import camera_record
 
     robot = doc.get("robot")
-    if robot and seq.robot and robot != seq.robot:
+    if robot and seq.robot and not same_robot_name(robot, seq.robot):
         raise InputError(f"was calibrated for the robot {robot!r}, --data {request.data} "
                          f"records {seq.robot!r}", request.result,
                          "give the RESULT.json of this recording's calibration")

@@ -37,6 +37,7 @@ from dream.io.images import (
     check_size,
 )
 from dream.preprocess import Preprocess
+from dream.robot.identity import same_robot_name
 from dream.sequence import Frame, Sequence
 from train.augment import Augment, inside_image
 from train.config import TrainConfig
@@ -72,7 +73,7 @@ def resolve_from_data(config: TrainConfig, sequences: SequenceOf[Sequence]) -> T
                          "write keypoints with projected_location in the frame files")
     robot = config.data.robot or first.robot
     for seq in sequences:
-        if not same_robot(seq.robot, robot):
+        if not same_robot_name(seq.robot, robot):
             raise InputError(f"holds frames of robot {seq.robot!r}, and the model is for "
                              f"{robot!r}", seq.source, "train on frames of one robot (data.train"
                              ", data.robot)")
@@ -85,16 +86,6 @@ def resolve_from_data(config: TrainConfig, sequences: SequenceOf[Sequence]) -> T
     data = replace(config.data, keypoints=tuple(keypoints), robot=robot)
     model = replace(config.model, num_keypoints=config.model.num_keypoints or len(keypoints))
     return config.replace(data=data, model=model)
-
-
-def same_robot(a: str, b: str) -> bool:
-    """Whether two robot names (built-in names or URDF paths) name the same robot: equal, or
-    URDF files of the same name (the data may have been rendered on another machine).
-
-    >>> same_robot("/a/z1.urdf", "/b/z1.urdf"), same_robot("panda", "/a/z1.urdf")
-    (True, False)
-    """
-    return a == b or Path(a).stem == Path(b).stem
 
 
 @dataclass(frozen=True)
