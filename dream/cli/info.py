@@ -83,4 +83,5 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "summarise a dataset: frames, robot, camera, labels, truth")
     p.add_argument("data", help=DATA_FILE_HELP)
     add_intrinsics_args(p)
-    p.add_argument("--robot", help=argparse.SUPPRESS)
+    p.add_argument("--robot", help="the arm the data was recorded on (built-in name or URDF "
+                   "path; default: the data's): says whether the joints fit it")
