@@ -226,14 +226,15 @@ def _highlights(analysis: Mapping | None) -> list[str]:
         lines.append("- No timestamps: no time analysis.")
     cp = a.get("change_point") or {}
     if cp.get("frame") is not None:
-        against = ("beyond what follows the arm's pose" if cp.get("null") == "joints" else
-                   "against constant residuals (too few frames to test against the pose)")
+        left = ("that the arm's pose leaves" if cp.get("null") == "joints" else
+                "(tested against constant residuals: too few frames to test against the pose)")
         verdict = (", significant: the camera moved there, or the observations changed"
                    if cp.get("significant") else "")
-        lines.append(f"- Best single step in the residuals ({against}): at frame "
-                     f"{cp['frame']} (step {fmt(cp.get('step_px'))} px, explains "
+        lines.append(f"- Best single step in the residuals: at frame {cp['frame']} (step "
+                     f"{fmt(cp.get('step_px'))} px, explains "
                      f"{fmt(100 * (num(cp.get('explained_fraction')) or 0.0), 2)} % of the "
-                     f"residual variance left, score p = {fmt_p(cp.get('p_value'))}{verdict}).")
+                     f"residual variance {left}, score p = {fmt_p(cp.get('p_value'))}"
+                     f"{verdict}).")
     return lines or ["No residual analysis."]
 
 
