@@ -36,8 +36,7 @@ from dream.io import read_sequence
 from dream.pipeline import calibrate
 from dream.pnp import PoseFit
 from dream.readings import with_interpolated_readings
-from dream.result import camera_position_covariance
-from dream.transforms import invert_T
+from dream.transforms import camera_position_covariance, invert_T
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_MODEL = REPO / "dream" / "models" / "panda_cpu.onnx"

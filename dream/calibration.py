@@ -36,6 +36,7 @@ from dream.pnp import (
     refine_best,
     solve_pnp_batch,
 )
+from dream.transforms import camera_position_covariance
 
 log = logging.getLogger(__name__)
 
@@ -188,8 +189,6 @@ class CalibrationResult:
         """(3,) 1-sigma of the camera's position in the base frame along base x, y, z, m (of
         `covariance`, the rotation's share included: RESULT.json's
         `sigma_camera_position_base_m`)."""
-        from dream.result import camera_position_covariance
-
         return np.sqrt(np.diag(camera_position_covariance(self.T_cam_base, self.covariance)))
 
     @property

@@ -144,7 +144,7 @@ def links_with_points(vertex_link: np.ndarray, points_vertex: np.ndarray,
 def set_covariance(doc: dict[str, Any], covariance: np.ndarray) -> None:
     """Set a RESULT.json document's `covariance_xi` and its 1-sigma fields (about the camera
     axes, and of the camera position in the base frame) for the pose it holds."""
-    from dream.result import camera_position_covariance
+    from dream.transforms import camera_position_covariance
 
     cov = np.asarray(covariance, dtype=float)
     T = np.asarray(doc["T_cam_base"], dtype=float)

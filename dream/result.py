@@ -11,17 +11,14 @@ from dream.calibration import CalibrationResult, Observations
 from dream.errors import InputError
 from dream.io import fields
 from dream.pnp import PoseFit
-from dream.transforms import invert_T, is_rigid, quaternion_xyzw_from_R, skew
+from dream.transforms import (
+    camera_position_covariance,
+    invert_T,
+    is_rigid,
+    quaternion_xyzw_from_R,
+)
 
 RESULT_FORMAT_VERSION = 1
-
-
-def camera_position_covariance(T_cam_base: np.ndarray, covariance_xi: np.ndarray) -> np.ndarray:
-    """Covariance (3, 3) of the camera centre in the base frame, c = -R^T t, propagated from the
-    covariance of xi = (delta_rot, delta_t) (camera frame, `dream.pnp`)."""
-    R, t = T_cam_base[:3, :3], T_cam_base[:3, 3]
-    J = np.concatenate([-R.T @ skew(t), -R.T], axis=1)  # d c / d xi
-    return J @ covariance_xi @ J.T
 
 
 def _matrix(a: np.ndarray | None) -> list | None:

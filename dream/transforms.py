@@ -228,3 +228,11 @@ def look_at(position_base: np.ndarray, target_base: np.ndarray, roll_rad: float 
     x, y = c * x + s * y, -s * x + c * y
     T_base_cam = make_T(np.stack([x, y, z], axis=1), position_base)
     return invert_T(T_base_cam)
+
+
+def camera_position_covariance(T_cam_base: np.ndarray, covariance_xi: np.ndarray) -> np.ndarray:
+    """Covariance (3, 3) of the camera centre in the base frame, c = -R^T t, propagated from the
+    covariance of xi = (delta_rot, delta_t) (camera frame, `dream.pnp`)."""
+    R, t = T_cam_base[:3, :3], T_cam_base[:3, 3]
+    J = np.concatenate([-R.T @ skew(t), -R.T], axis=1)  # d c / d xi
+    return J @ covariance_xi @ J.T

@@ -271,7 +271,7 @@ def print_summary(doc: dict, out: TextIO) -> None:
         print("  (1-sigma of the keypoint pose: the refined pose had too few links and frames "
               "for its own)", file=out)
     elif uncertainty.get("covariance_xi_keypoint_jackknife") is not None:
-        from dream.result import camera_position_covariance
+        from dream.transforms import camera_position_covariance
 
         fit_c = camera_position_covariance(np.asarray(doc["T_cam_base"]),
                                            np.asarray(uncertainty["covariance_xi_fit"]))

@@ -332,7 +332,7 @@ def mark_sigma(fit: PoseFit, settings: MarkSettings, max_m: float, max_rad: floa
     """The search's 1-sigma (m, rad) around the mark's pose: `sigma_factor` x the PnP's own
     largest sigma of the camera centre and of the rotation, within [`min_sigma_*`, the
     guess's default]."""
-    from dream.result import camera_position_covariance
+    from dream.transforms import camera_position_covariance
 
     if not np.all(np.isfinite(fit.covariance)):
         return max_m, max_rad

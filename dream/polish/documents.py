@@ -71,7 +71,7 @@ def with_pose_fields(doc: dict[str, Any], T: np.ndarray, rmse_px: float) -> None
     `quaternion_xyzw`, `T_base_cam`, `sigma_camera_position_base_m`) and, when finite,
     `rmse_px` to those of the pose `T`, polished or aligned (the covariance is still the
     keypoint fit's: `dream.refined_uncertainty.with_refined_uncertainty` replaces it)."""
-    from dream.result import camera_position_covariance
+    from dream.transforms import camera_position_covariance
 
     doc["T_cam_base"] = T.tolist()
     doc["translation_m"] = T[:3, 3].tolist()

@@ -16,8 +16,7 @@ from dream.crb import extrinsic_crb
 from dream.errors import CalibrationError, InputError
 from dream.metrics import add_per_frame, auc, keypoint_errors, pose_errors
 from dream.pnp import PoseFit, SolverSettings, apply_increment, increment_between, solve_pnp
-from dream.result import camera_position_covariance
-from dream.transforms import T_from_rotvec_t, invert_T, transform_points
+from dream.transforms import T_from_rotvec_t, camera_position_covariance, invert_T, transform_points
 
 Z95 = 1.959964
 
