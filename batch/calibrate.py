@@ -16,15 +16,18 @@ import argparse
 import json
 import logging
 import shlex
+import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import closing, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from batch.engine import WorkerLost
+from batch.lock import out_lock
 from batch.recordings import (
     Listed,
     folder_names,
@@ -52,6 +55,18 @@ FILE_OPTIONS = ("model", "camera_guess", "mark", "model_extension", "camera_info
 KEYPOINT_SOURCES = ("model", "use_labels")   # `dream calibrate` takes one of them
 URDF_SUFFIXES = (".urdf", ".xml")
 BATCH_OPTIONS = ("data",)  # set by the batch for each recording, never by a list line
+RERUN_ALONE = "run dream calibrate on this recording alone to see where it stops"
+# why a signal kills `dream calibrate`, and what to do (by the signal's name)
+KILLED_BY = {
+    "SIGKILL": ("out of memory?", "check `dmesg` for the out-of-memory killer and give each "
+                "worker more memory (fewer --workers)"),
+    "SIGSEGV": ("a crash in a native library", RERUN_ALONE),
+    "SIGABRT": ("a native library aborted", RERUN_ALONE),
+}
+KILLED_OTHER = ("stopped from outside, or a crash", "let it run to its end, or " + RERUN_ALONE)
+FIX_LINE_FILE = "name the file relative to the list's folder, or give its absolute path"
+FIX_OPTION_FILE = ("give the path of an existing file (a relative one from the working "
+                   "folder)")
 FIX_LINE = ("give a list line the recording's path, then dream calibrate options of its own "
             "(dream calibrate --help lists them; the batch sets --data, --out and --overlays)")
 
@@ -104,13 +119,28 @@ def calibrate_one(task: CalibrateTask) -> dict[str, Any]:
 
 
 def _error_line(run: subprocess.CompletedProcess) -> str:
-    """The one-line error of a failed `dream calibrate` (a crash: its last line)."""
+    """The one-line error of a failed `dream calibrate` (a crash: its last line; killed by a
+    signal: which)."""
+    if run.returncode < 0:
+        return killed_line(-run.returncode)
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     for line in lines:
         if line.startswith(ERROR_PREFIX):
             return line[len(ERROR_PREFIX):]
     last = lines[-1] if lines else "no message"
     return f"internal error (exit code {run.returncode}): {last}"
+
+
+def killed_line(number: int) -> str:
+    """The error of a `dream calibrate` killed by signal `number` (SIGKILL: most often the
+    kernel's out-of-memory killer)."""
+    try:
+        name = signal.Signals(number).name
+    except ValueError:
+        name = "unknown signal"
+    cause, fix = KILLED_BY.get(name, KILLED_OTHER)
+    return (f"dream calibrate was killed by signal {number} ({name}: {cause}). Fix: {fix}, "
+            f"then run the same command again (it redoes the failed recordings)")
 
 
 def dream_command() -> list[str]:
@@ -231,12 +261,24 @@ def line_options(entry: Listed) -> dict[str, Any]:
         raise InputError(f"{entry.where}: --{fixed[0]} is the batch's to set", fix=FIX_LINE)
     folder = entry.source.parent
     options = _files_resolved(options, folder)
-    for name, value in options.items():
-        if _names_a_file(name, value) and not Path(value).is_absolute():
-            raise InputError(f"{entry.where}: --{name.replace('_', '-')} {value}: no such file "
-                             f"in {folder}", fix="name the file relative to the list's folder, "
-                             "or give its absolute path")
+    check_option_files(options, folder, entry.where, FIX_LINE_FILE)
     return options
+
+
+def check_option_files(options: Mapping[str, Any], folder: Path, where: str = "",
+                       fix: str = FIX_OPTION_FILE) -> None:
+    """Each file the options name exists (relative names from `folder`, absolute ones as
+    given), checked before any work; `where` (a list line) leads the error.
+
+    Raises:
+        InputError: naming the option and its file.
+    """
+    for name, value in options.items():
+        if _names_a_file(name, value) and not (folder / value).is_file():
+            relative = "" if Path(value).is_absolute() else f" in {folder}"
+            lead = f"{where}: " if where else ""
+            raise InputError(f"{lead}--{name.replace('_', '-')} {value}: no such file"
+                             f"{relative}", fix=fix)
 
 
 def _names_a_file(name: str, value: Any) -> bool:
@@ -291,6 +333,7 @@ def plan_batch(data: str, out_dir: Path, options: Mapping[str, Any],
         raise InputError(f"--data '{data}' matches only the output folder", out_dir,
                          "give --data the recordings and --out a folder outside them")
     check_options(options, entries[0].path)
+    check_option_files(options, Path.cwd())
     plans: dict[tuple[str, ...], tuple[dict[str, Any], str]] = {}
     for entry in entries:                 # every line checked before any work
         if entry.argv not in plans:
@@ -336,19 +379,28 @@ def run_batch(plan: BatchPlan, out_dir: Path, engine,
     it finishes). Returns the rows in the order of the tasks."""
     rows = dict(plan.rows)
     written = time.monotonic()
-    for i, value in engine.run(calibrate_one, plan.todo):
-        task = plan.todo[i]
-        if isinstance(value, WorkerLost):
-            value = _lost_row(task, value)
-        rows[task.name] = value
-        if time.monotonic() - written >= SUMMARY_PERIOD_S:
-            write_summary(out_dir, [rows[t.name] for t in plan.tasks if t.name in rows])
-            written = time.monotonic()
-        if on_result is not None:
-            on_result(value)
+    try:
+        with closing(engine.run(calibrate_one, plan.todo)) as results:  # stopped on leaving
+            for i, value in results:
+                task = plan.todo[i]
+                if isinstance(value, WorkerLost):
+                    value = _lost_row(task, value)
+                rows[task.name] = value
+                if time.monotonic() - written >= SUMMARY_PERIOD_S:
+                    write_summary(out_dir, _rows_so_far(plan, rows))
+                    written = time.monotonic()
+                if on_result is not None:
+                    on_result(value)
+    except KeyboardInterrupt:           # Ctrl-C, SIGTERM: the summary lists what is done
+        write_summary(out_dir, _rows_so_far(plan, rows))
+        raise
     ordered = [rows[t.name] for t in plan.tasks]
     write_summary(out_dir, ordered)
     return ordered
+
+
+def _rows_so_far(plan: BatchPlan, rows: dict[str, dict]) -> list[dict]:
+    return [rows[t.name] for t in plan.tasks if t.name in rows]
 
 
 def _lost_row(task: CalibrateTask, lost: WorkerLost) -> dict:
@@ -360,12 +412,20 @@ def _lost_row(task: CalibrateTask, lost: WorkerLost) -> dict:
     return row
 
 
-def prepare_out_dir(out: str) -> Path:
-    """The batch's output folder, created; leftovers of a killed batch removed."""
+@contextmanager
+def batch_output(out: str) -> Iterator[Path]:
+    """The batch's output folder, created and locked for this batch while the block runs
+    (`batch.lock`: a second batch into it refuses to start). The half-written folders there
+    are removed once the lock is held (a killed batch's) and when the block ends (a stopped
+    batch's: the block stops its engine's workers first)."""
     from dream.io import make_output_dir
 
     out_dir = make_output_dir(out)
-    removed = remove_temporaries(out_dir)
-    if removed:
-        log.info("removed %d half-written folder(s) of an earlier batch", removed)
-    return out_dir
+    with out_lock(out_dir):
+        removed = remove_temporaries(out_dir)
+        if removed:
+            log.info("removed %d half-written folder(s) of an earlier batch", removed)
+        try:
+            yield out_dir
+        finally:
+            remove_temporaries(out_dir)

@@ -9,8 +9,9 @@ from dataclasses import fields
 
 EXIT_SOME_FAILED = 1     # the batch ran to its end and some recordings failed
 ENGINE_HELP = ("local: a process pool on this machine; ray: Ray (the cluster extra), a local "
-               "Ray started here or the cluster of --address / RAY_ADDRESS (default: "
-               "%(default)s)")
+               "Ray started here or the cluster of --address / RAY_ADDRESS; Ray opens network "
+               "ports that belong on a trusted network only (docs/scaling.md, 'Ports and "
+               "trust') (default: %(default)s)")
 # the request fields `dream batch calibrate` sets itself for each recording
 PER_RECORDING = ("data", "out", "overlays", "loaded_model")
 
@@ -30,8 +31,9 @@ def _calibrate_options(args: argparse.Namespace) -> dict:
 
 
 def cmd_batch_calibrate(args: argparse.Namespace) -> int:
-    from batch.calibrate import plan_batch, prepare_out_dir, run_batch
+    from batch.calibrate import batch_output, plan_batch, run_batch
     from batch.engine import make_engine
+    from batch.interrupt import sigterm_interrupts
     from batch.progress import BatchProgress
     from batch.summary import FAILED, SUMMARY_CSV, SUMMARY_JSON, summary_counts
 
@@ -39,17 +41,20 @@ def cmd_batch_calibrate(args: argparse.Namespace) -> int:
     plan = plan_batch(args.data, _out_path(args.out), _calibrate_options(args), args.overlays)
     try:
         engine.start()                  # a cluster that cannot be joined writes nothing
-        out_dir = prepare_out_dir(args.out)
-        print(f"batch: {len(plan.tasks)} recordings, {len(plan.rows)} done already (same "
-              f"inputs), {len(plan.todo)} to run on the {engine.describe()}", file=sys.stderr)
-        progress = BatchProgress("batch", len(plan.tasks), len(plan.rows), engine.workers)
-        try:
-            rows = run_batch(plan, out_dir, engine, lambda row: progress.update(
-                failed=row["status"] == FAILED))
-        finally:
-            progress.close()
+        # after Ray's start, which installs a SIGTERM handler of its own
+        with sigterm_interrupts(), batch_output(args.out) as out_dir:
+            print(f"batch: {len(plan.tasks)} recordings, {len(plan.rows)} done already (same "
+                  f"inputs), {len(plan.todo)} to run on the {engine.describe()}",
+                  file=sys.stderr)
+            progress = BatchProgress("batch", len(plan.tasks), len(plan.rows), engine.workers)
+            try:
+                rows = run_batch(plan, out_dir, engine, lambda row: progress.update(
+                    failed=row["status"] == FAILED))
+            finally:
+                progress.close()
+                engine.close()          # its workers stopped while --out is still locked
     finally:
-        engine.close()
+        engine.close()                  # (again: nothing left to do when closed above)
     ok, failed = summary_counts(rows)
     print(f"{out_dir}: {ok} calibrated, {failed} failed; {SUMMARY_CSV} and {SUMMARY_JSON} list "
           "them, each recording's folder holds its RESULT.json and calibrate.log")
@@ -68,6 +73,7 @@ def _out_path(out: str):
 
 def cmd_batch_synth(args: argparse.Namespace) -> int:
     from batch.engine import make_engine
+    from batch.interrupt import sigterm_interrupts
     from batch.progress import BatchProgress
     from batch.synth import run_batch_synth
     from synth.cli import job_from, report_done
@@ -83,8 +89,10 @@ def cmd_batch_synth(args: argparse.Namespace) -> int:
 
     try:
         engine.start()
-        stats = run_batch_synth(job, engine, overwrite=args.overwrite,
-                                on_progress=lambda n: progress[0].update(n), on_start=begin)
+        with sigterm_interrupts():      # after Ray's start, as in `cmd_batch_calibrate`
+            stats = run_batch_synth(job, engine, overwrite=args.overwrite,
+                                    on_progress=lambda n: progress[0].update(n),
+                                    on_start=begin)
     finally:
         for p in progress:
             p.close()

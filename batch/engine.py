@@ -10,6 +10,9 @@ process dies (a crash in a native library) is reported as `WorkerLost`, the othe
 local pool runs the items that were in flight when it broke again one at a time; a Ray actor's
 death names its item, which is tried `MAX_ATTEMPTS` times. A local worker whose batch is killed
 finishes the item it runs and exits (`batch.parent_watch`); Ray's actors die with their driver.
+A local run that stops early (Ctrl-C, SIGTERM turned into KeyboardInterrupt by
+`batch.interrupt`, an item's exception) stops its workers: each interrupts the item it runs
+(which cleans up after itself) and exits, and the run waits for them.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from __future__ import annotations
 import logging
 import multiprocessing as mp
 import os
+import signal
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -38,6 +42,8 @@ WORKER_DIED = ("its worker process died running it (a crash in a native library,
                "memory ran out)")
 # one thread per worker process; MuJoCo renders offscreen with Mesa's software EGL
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", THREADS_ENV)
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)   # a local worker stops on either
+STOPPED_EXIT_STATUS = 130                         # a worker stopped with its batch
 CLUSTER_EXTRA = "pip install 'dream-calib[cluster]' (Ray)"
 JOIN_FIX = ("check that `ray start --head` runs there and this machine reaches its port; with "
             "Ray's token authentication set RAY_AUTH_MODE=token and give this machine the "
@@ -101,19 +107,59 @@ def _init_worker(setup: Callable[..., None] | None, setup_args: tuple) -> Except
 _WATCH: list[ParentWatch] = []       # a local worker's watch of its batch (set up first)
 
 
+_STOP = {"requested": False, "in_item": False}   # a local worker's stop (`_stop_worker`)
+
+
 def _init_local_worker(setup: Callable[..., None] | None, setup_args: tuple,
                        batch_pid: int) -> None:
     _WATCH.append(watch_parent(batch_pid))
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, _stop_worker)
     failed = _init_worker(setup, setup_args)
     if failed is not None:
         _SETUP_FAILED.append(failed)
 
 
+def _stop_worker(signum: int, frame: Any) -> None:
+    """A local worker told to stop (its batch stops: Ctrl-C, SIGTERM): where no item runs it
+    exits at once; else the item is interrupted (KeyboardInterrupt, once: `calibrate_one`
+    then kills its `dream calibrate` and removes its temporary folder) and the worker exits
+    after it (`_call`), taking no other item."""
+    first = not _STOP["requested"]
+    _STOP["requested"] = True
+    if not _STOP["in_item"]:
+        os._exit(STOPPED_EXIT_STATUS)
+    if first:
+        raise KeyboardInterrupt
+
+
 def _call(fn: Callable[[Any], Any], item: Any) -> Any:
     if _SETUP_FAILED:
         raise _SETUP_FAILED[0]
-    with _WATCH[0].item():
+    try:
+        with _WATCH[0].item():
+            return _run_item(fn, item)
+    finally:
+        if _STOP["requested"]:
+            os._exit(STOPPED_EXIT_STATUS)
+
+
+def _run_item(fn: Callable[[Any], Any], item: Any) -> Any:
+    _STOP["in_item"] = True
+    try:
         return fn(item)
+    finally:
+        _STOP["in_item"] = False
+
+
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """Tell each worker process of `pool` to stop (`_stop_worker`). The pool's processes are
+    its `_processes` (pid: process), the only way to reach them."""
+    for pid in list(getattr(pool, "_processes", None) or {}):
+        try:
+            os.kill(pid, signal.SIGTERM)
+        except ProcessLookupError:      # gone already
+            continue
 
 
 @contextmanager
@@ -191,7 +237,9 @@ class LocalEngine:
                     pool.shutdown(wait=False, cancel_futures=True)
                     pool = self._pool(setup, setup_args)
         finally:
-            pool.shutdown(wait=False, cancel_futures=True)
+            if in_flight:       # stopped early (Ctrl-C, SIGTERM, an item's exception)
+                _stop_workers(pool)
+            pool.shutdown(wait=bool(in_flight), cancel_futures=True)
 
 
 def _lost_or_retry(index: int, tries: int, pending: deque) -> WorkerLost | None:

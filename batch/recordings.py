@@ -19,6 +19,7 @@ from __future__ import annotations
 import glob
 import hashlib
 import json
+import logging
 import re
 import shlex
 from collections import Counter
@@ -28,6 +29,12 @@ from pathlib import Path
 from typing import Any
 
 from dream.errors import InputError
+from dream.io.detect import MANIUNICON, PANDA_TELEOP, detect_format
+from dream.io.images import NPZ_SUFFIX
+from dream.io.panda_teleop import find_episode
+from dream.io.rosbag import ROS1_SUFFIX, ROS2_FILES, is_bag
+
+log = logging.getLogger(__name__)
 
 LIST_SUFFIX = ".txt"              # --data LIST.txt: one recording per line
 COMMENT = "#"
@@ -39,6 +46,10 @@ FIX_DATA = ("give --data a glob pattern in quotes ('recordings/*') or a .txt fil
 OPTIONS_START = re.compile(r"\s--")   # a list line's own options begin here
 LINE_COMMENT = re.compile(r"\s#.*$")  # a comment after the path
 PART = "part"                     # a recording listed more than once: NAME-part1, NAME-part2
+# the suffixes of a recording that is a file: an .npz, a ROS 1 bag, a ROS 2 bag's storage
+RECORDING_FILES = (NPZ_SUFFIX, ROS1_SUFFIX, *ROS2_FILES)
+OWN, HOLDER = "own", "holder"     # `recording_kind`: by its own files, through one inside it
+NAMED_LEFT_OUT = 3                # left-out matches named in the log line (then a count)
 
 
 @dataclass(frozen=True)
@@ -61,22 +72,85 @@ class Listed:
 def list_recordings(data: str) -> list[Listed]:
     """The recordings of `--data`: the lines of a `.txt` list file (relative paths from the
     list's folder; blank lines and `#` comments skipped; each line's own options kept) or the
-    paths a glob pattern matches (sorted; `**` recurses), each path and options once. A listed
-    recording that does not exist is not an error here: it fails alone, as a recording that
-    cannot be read does."""
+    recordings a glob pattern matches (sorted; `**` recurses; `recordings_of` keeps the
+    matches that are recordings), each path and options once. A listed recording that does
+    not exist is not an error here: it fails alone, as a recording that cannot be read does."""
     if not data or not data.strip():
         raise InputError("--data is empty", fix=FIX_DATA)
     listed = Path(data)
     if listed.suffix == LIST_SUFFIX and listed.is_file():
         entries = _read_list(listed)
     else:
-        entries = [Listed(Path(p).resolve()) for p in sorted(glob.glob(data, recursive=True))]
-        if not entries:
-            raise InputError(f"--data '{data}' matches no recording", fix=FIX_DATA)
+        entries = [Listed(path) for path in _glob_recordings(data)]
     seen: dict[tuple, Listed] = {}
     for entry in entries:
         seen.setdefault((entry.path, entry.argv), entry)
     return list(seen.values())
+
+
+def _glob_recordings(data: str) -> list[Path]:
+    """The recordings among the matches of the glob pattern `data` (the others logged)."""
+    matches = list(dict.fromkeys(Path(p).resolve()
+                                 for p in sorted(glob.glob(data, recursive=True))))
+    kept = recordings_of(matches)
+    if not kept:
+        among = f" ({len(matches)} match(es), none a recording)" if matches else ""
+        raise InputError(f"--data '{data}' matches no recording{among}", fix=FIX_DATA)
+    _log_left_out(data, [p for p in matches if p not in kept], kept)
+    return [p for p in matches if p in kept]
+
+
+def recordings_of(paths: Iterable[Path]) -> set[Path]:
+    """The paths that are recordings (`recording_kind`), less those that are part of another
+    (inside a recording of its own files: the frames and folders of a recording matched by
+    `**`) and the folders that hold another (a folder whose one .npz or episode folder is a
+    match itself, which stands for it)."""
+    found = {path: kind for path in paths if (kind := recording_kind(path)) is not None}
+    own = {path for path, kind in found.items() if kind == OWN}
+    found = {path: kind for path, kind in found.items() if not own.intersection(path.parents)}
+    holders = {folder for path in found for folder in path.parents}
+    return {path for path in found if path not in holders}
+
+
+def recording_kind(path: Path) -> str | None:
+    """Whether `path` is one recording `dream calibrate --data` reads, and how: `OWN`, a
+    recording file (a ROS bag, an .npz) or a folder of one of the layouts it detects
+    (`dream.io.detect`) by its own files; `HOLDER`, a folder that is one through its one .npz
+    or its one panda_teleop episode folder; None, anything else (a frame or the settings of a
+    recording's folder, a folder of several recordings, a stray file)."""
+    if path.suffix.lower() in RECORDING_FILES and path.is_file():
+        return _file_kind(path)
+    if not path.is_dir():
+        return None
+    try:
+        layout = detect_format(path)
+        inner = find_episode(path) != path if layout == PANDA_TELEOP else layout == MANIUNICON
+    except InputError:                  # no layout, or several panda_teleop episodes
+        return None
+    return HOLDER if inner else OWN
+
+
+def _file_kind(path: Path) -> str | None:
+    return OWN if path.suffix.lower() == NPZ_SUFFIX or is_bag(path) else None
+
+
+def _log_left_out(data: str, left_out: list[Path], kept: set[Path]) -> None:
+    """Say which matches are no recording: a warning for those neither inside a recording nor
+    a folder above one (a stray file, an empty folder), a note for the others."""
+    above = {folder for path in kept for folder in path.parents}
+    stray = [p for p in left_out if p not in above and not kept.intersection(p.parents)]
+    if stray:
+        log.warning("--data '%s': left out %d match(es) that are not recordings: %s", data,
+                    len(stray), _named(stray))
+    if len(left_out) > len(stray):
+        log.info("--data '%s': left out %d match(es) inside a recording or above one (its "
+                 "files, the folders that hold recordings)", data, len(left_out) - len(stray))
+
+
+def _named(paths: list[Path]) -> str:
+    named = ", ".join(str(p) for p in paths[:NAMED_LEFT_OUT])
+    more = len(paths) - NAMED_LEFT_OUT
+    return f"{named} and {more} more" if more > 0 else named
 
 
 def _read_list(path: Path) -> list[Listed]:

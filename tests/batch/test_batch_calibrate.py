@@ -18,6 +18,7 @@ import pytest
 
 from batch.calibrate import CalibrateTask, calibrate_command, calibrate_one
 from batch.cli import _calibrate_options as _options
+from batch.lock import LOCK_NAME
 from batch.summary import COLUMNS
 from dream.cli import main
 from dream.cli.calibrate import CalibrateRequest, run_calibrate
@@ -34,6 +35,8 @@ KILL_DEADLINE_S = 120
 POLL_S = 0.05
 ORPHAN_WAIT_S = 20.0
 HEAD_PORT = 6391          # `ray start --head` of the test
+STOP_DEADLINE_S = 30      # a stopped batch ends well within this
+EXIT_INTERRUPTED = 130
 
 
 @pytest.fixture(scope="module")
@@ -129,6 +132,22 @@ def test_a_crash_is_one_recording_failed(recordings, tmp_path, monkeypatch):
     assert record["input_hash"] == "hash" and record["row"] == row
 
 
+def test_a_calibration_killed_by_a_signal_says_which(tmp_path, monkeypatch):
+    """The out-of-memory killer's SIGKILL: the row names the signal and what to do."""
+    import batch.calibrate
+
+    def killed(task, result, overlays):
+        return [sys.executable, "-c", "import os, signal; os.kill(os.getpid(), signal.SIGKILL)"]
+
+    monkeypatch.setattr(batch.calibrate, "calibrate_command", killed)
+    row = calibrate_one(CalibrateTask(str(tmp_path), "rec000", str(tmp_path),
+                                      {"use_labels": True}, "hash"))
+    assert row["status"] == "failed"
+    assert row["error"].startswith("dream calibrate was killed by signal 9 (SIGKILL: out of "
+                                   "memory?). Fix: ")
+    assert "--workers" in row["error"] and "no message" not in row["error"]
+
+
 def test_the_options_travel_as_the_calibrate_command_line(recordings, tmp_path):
     from dream.cli.app import build_parser
     from dream.cli.options import request_from
@@ -151,6 +170,7 @@ def test_the_options_travel_as_the_calibrate_command_line(recordings, tmp_path):
     (["--engine", "local", "--address", "ray://head:10001"], "--address joins a Ray"),
     (["--workers", "0"], "--workers must be 1 or more"),
     (["--motion-masks"], "--polish was not given"),
+    (["--camera-info", "{tmp}/none.yaml"], "--camera-info {tmp}/none.yaml: no such file"),
 ])
 def test_bad_options_fail_before_anything_is_written(recordings, tmp_path, capsys, argv,
                                                      message):
@@ -158,7 +178,7 @@ def test_bad_options_fail_before_anything_is_written(recordings, tmp_path, capsy
     data = [] if "--data" in argv else ["--data", str(recordings[0])]
     out = tmp_path / "out"
     assert main(["batch", "calibrate", *data, "--out", str(out), "--use-labels", *argv]) == 2
-    assert message in capsys.readouterr().err
+    assert message.replace("{tmp}", str(tmp_path)) in capsys.readouterr().err
     assert not out.exists()
 
 
@@ -201,6 +221,7 @@ def test_list_lines_give_their_recordings_options_of_their_own(recordings, tmp_p
     ("{rec} --out R.json", "unrecognized arguments: --out"),
     ("{rec} --frame-range '0:2", "cannot split it"),
     ("{rec} --mask-head", "--polish was not given"),
+    ("{rec} --model /nonexistent/model.onnx", "--model /nonexistent/model.onnx: no such file"),
 ])
 def test_a_bad_list_line_is_named_before_anything_is_written(recordings, tmp_path, capsys,
                                                              line, message):
@@ -279,6 +300,32 @@ def test_a_killed_batch_loses_nothing_finished_and_resumes(recordings, single, t
     assert (f"6 recordings, {done_already} done already (same inputs), {6 - done_already} to "
             "run") in rerun.stderr
     check_results(out, single)
+
+
+@pytest.mark.slow
+def test_sigterm_stops_the_batch_as_ctrl_c_does(recordings, tmp_path):
+    """`kill PID` (SIGTERM to the batch alone; `timeout` and Slurm send it too): exit 130 with
+    "interrupted", the recording running interrupted, the summary of what is done, and no
+    temporary folder, lock or process left."""
+    out = tmp_path / "batch"
+    before = set(_left_behind())
+    proc = subprocess.Popen(_command(recordings, out, "local"), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + KILL_DEADLINE_S
+    while not _finished_folders(out) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(POLL_S)
+    os.kill(proc.pid, signal.SIGTERM)
+    try:
+        _, err = proc.communicate(timeout=STOP_DEADLINE_S)
+    finally:
+        proc.kill()
+    assert proc.returncode == EXIT_INTERRUPTED, err
+    assert "dream batch: interrupted" in err
+    assert not set(_left_behind()) - before     # its worker and their dream calibrate
+    finished = {folder.name for folder in _finished_folders(out)}
+    assert 1 <= len(finished) < 6, finished
+    assert set(rows(out)) <= finished
+    assert not [p for p in out.iterdir() if is_temporary(p) or p.name == LOCK_NAME]
 
 
 @pytest.mark.slow

@@ -5,6 +5,7 @@ named and hashed as the batch resumes them."""
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -12,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from batch.calibrate import _recording_options, line_options
+from batch.calibrate import _recording_options, line_options, plan_batch
 from batch.engine import (
     EngineSettings,
     LocalEngine,
@@ -102,6 +103,70 @@ def test_an_exception_stops_the_run_and_a_dead_worker_is_retried_then_reported(r
         assert all(got[i] == i for i in got if i != DIE_ON)
 
 
+# a batch whose items take long; Ctrl-C (SIGINT to it alone) must not wait for them
+STOPPED_DRIVER = """
+import sys, time
+from pathlib import Path
+from batch.engine import LocalEngine
+
+def long_item(path):
+    Path(path).write_text(str(__import__("os").getpid()))
+    try:
+        time.sleep(float(sys.argv[2]))
+    finally:
+        Path(path + ".stopped").write_text("")
+
+if __name__ == "__main__":
+    try:
+        for _ in LocalEngine(2).run(long_item, [f"{sys.argv[1]}/{i}" for i in range(4)]):
+            pass
+    except KeyboardInterrupt:
+        print("interrupted", flush=True)
+"""
+LONG_ITEM_S = 60.0
+STOP_DEADLINE_S = 20.0
+START_DEADLINE_S = 60.0
+POLL_S = 0.05
+
+
+@pytest.mark.slow
+def test_a_stopped_local_run_stops_its_workers_items(tmp_path):
+    """The batch process interrupted alone (`kill -INT PID`; SIGTERM becomes the same): the
+    items running are interrupted, their clean-up runs, the workers exit, no other item
+    starts, and the batch does not wait for the items to end."""
+    script, items = tmp_path / "driver.py", tmp_path / "items"
+    script.write_text(STOPPED_DRIVER)
+    items.mkdir()
+    repo = str(Path(__file__).resolve().parents[2])
+    proc = subprocess.Popen([sys.executable, str(script), str(items), str(LONG_ITEM_S)],
+                            cwd=repo, env={**os.environ, "PYTHONPATH": repo},
+                            stdout=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + START_DEADLINE_S
+    while len(list(items.iterdir())) < 2 and time.monotonic() < deadline:
+        time.sleep(POLL_S)
+    os.kill(proc.pid, signal.SIGINT)
+    try:
+        out, _ = proc.communicate(timeout=STOP_DEADLINE_S)
+    finally:
+        proc.kill()
+    assert "interrupted" in out
+    started = sorted(p for p in items.iterdir() if p.suffix != ".stopped")
+    assert [p.name for p in started] == ["0", "1"]
+    assert all(p.with_suffix(".stopped").exists() for p in started)
+    for pid in (int(p.read_text()) for p in started):
+        with pytest.raises(ProcessLookupError):
+            os.kill(pid, 0)
+
+
+def test_the_engine_help_says_ray_opens_ports_for_a_trusted_network_only(capsys):
+    from dream.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["batch", "calibrate", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "trusted network" in text and "docs/scaling.md, 'Ports and trust'" in text
+
+
 def test_engine_settings_are_checked():
     with pytest.raises(InputError, match="unknown --engine"):
         EngineSettings("spark")
@@ -127,9 +192,17 @@ def test_the_core_and_the_local_engine_do_not_import_ray():
     assert 'cluster = ["ray[client]' in pyproject
 
 
+def dream_recording(folder: Path) -> Path:
+    """A folder of the DREAM layout as `dream.io.detect` sees it (its frames, its settings)."""
+    folder.mkdir(parents=True)
+    for name in ("_camera_settings.json", "000000.json", "000000.rgb.png"):
+        (folder / name).write_text("{}")
+    return folder
+
+
 def test_recordings_from_a_glob_or_a_list_file(tmp_path):
     for name in ("a/ep1", "b/ep1", "b/ep2"):
-        (tmp_path / name).mkdir(parents=True)
+        dream_recording(tmp_path / name)
     (tmp_path / "b" / "ep3.npz").write_bytes(b"x")
     found = [e.path for e in list_recordings(str(tmp_path / "*" / "ep*"))]
     assert [p.relative_to(tmp_path).as_posix() for p in found] == \
@@ -152,6 +225,32 @@ def test_recordings_from_a_glob_or_a_list_file(tmp_path):
     (tmp_path / "empty.txt").write_text("# nothing\n")
     with pytest.raises(InputError, match="list of recordings is empty"):
         list_recordings(str(tmp_path / "empty.txt"))
+
+
+def test_a_glob_keeps_the_recordings_not_their_files_nor_stray_matches(tmp_path, caplog):
+    """`nest/**` matches every file and folder: only the recordings are kept (a folder of a
+    layout, an .npz), not what lies inside them, nor a folder that holds them (`lab` with
+    its one .npz, `teleop/one` of one episode, matched itself); the stray matches are named
+    in a warning."""
+    nest = tmp_path / "nest"
+    dream_recording(nest / "lab" / "rec1")
+    dream_recording(nest / "lab" / "deeper" / "rec2")
+    (nest / "lab" / "ep3.npz").write_bytes(b"x")
+    for episode in ("teleop/one/ep", "teleop/two/ep_a", "teleop/two/ep_b"):
+        (nest / episode).mkdir(parents=True)
+        (nest / episode / "info.json").write_text("{}")
+    (nest / "lab" / "NOTES.txt").write_text("calibrated on Monday")
+    (nest / "empty").mkdir()
+    with caplog.at_level("WARNING", logger="batch.recordings"):
+        found = [e.path.relative_to(nest).as_posix() for e in list_recordings(f"{nest}/**")]
+    assert found == ["lab/deeper/rec2", "lab/ep3.npz", "lab/rec1", "teleop/one/ep",
+                     "teleop/two/ep_a", "teleop/two/ep_b"]
+    assert "left out 2 match(es) that are not recordings" in caplog.text
+    assert str(nest / "lab" / "NOTES.txt") in caplog.text and str(nest / "empty") in caplog.text
+    assert [e.path.name for e in list_recordings(f"{nest}/lab/*")] == ["ep3.npz", "rec1"]
+    assert [e.path.name for e in list_recordings(f"{nest}/teleop/*")] == ["one"]
+    with pytest.raises(InputError, match=r"matches no recording \(1 match\(es\), none"):
+        list_recordings(f"{nest}/lab/*.txt")
 
 
 def test_a_list_line_takes_value_lists_that_start_with_a_minus_sign(tmp_path):
@@ -189,6 +288,25 @@ def test_a_list_lines_files_come_from_its_folder_or_fail_naming_the_line(tmp_pat
             line_options(entry)
     own, _ = _recording_options(model, {"use_labels": True, "seed": 3}, overlays=False)
     assert own["model"] == str(lab / "m.onnx") and "use_labels" not in own and own["seed"] == 3
+
+
+def test_a_missing_file_by_its_absolute_path_fails_before_any_work(tmp_path):
+    """On a list line as by a relative name, and in the batch's own options."""
+    dream_recording(tmp_path / "ep1")
+    gone = tmp_path / "gone.onnx"
+    listing = tmp_path / "list.txt"
+    listing.write_text(f"ep1 --model {gone}\n")
+    (entry,) = list_recordings(str(listing))
+    with pytest.raises(InputError, match=f"line 1 of .*: --model {gone}: no such file"):
+        line_options(entry)
+    out = tmp_path / "out"
+    for option in ("camera_info", "model_extension"):
+        with pytest.raises(InputError, match=f"--{option.replace('_', '-')} {gone}: no such"):
+            plan_batch(str(tmp_path / "ep*"), out, {"use_labels": True, option: str(gone)},
+                       overlays=False)
+    with pytest.raises(InputError, match=f"--model {gone}: no such file"):
+        plan_batch(str(tmp_path / "ep*"), out, {"model": str(gone)}, overlays=False)
+    assert not out.exists()
 
 
 def content_hash(rec: Path, options: dict, files: list[Path]) -> str:

@@ -1,0 +1,51 @@
+"""A batch stopped with SIGTERM (`kill PID`, `timeout`, a Slurm job's end) stops as on Ctrl-C:
+the signal raises KeyboardInterrupt in the batch's main thread, so that the engine stops its
+workers, the summary lists what is done, the lock of `--out` is removed and the command ends
+with "interrupted" (exit 130), instead of the process dying at once with its workers left
+running.
+
+    >>> import os, time
+    >>> with sigterm_interrupts():
+    ...     try:
+    ...         os.kill(os.getpid(), signal.SIGTERM)
+    ...         time.sleep(1)
+    ...     except KeyboardInterrupt:
+    ...         print("interrupted")
+    interrupted
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+
+@contextmanager
+def sigterm_interrupts() -> Iterator[None]:
+    """SIGTERM raises KeyboardInterrupt while the block runs (the first one: a batch already
+    stopping is not interrupted in its clean-up by a second); the handler before it is
+    restored after. Only the main thread can handle signals: elsewhere nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, interrupt_once())
+    try:
+        yield
+    finally:
+        # None: a handler not installed from Python (Ray's); the default is the closest
+        signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+
+
+def interrupt_once() -> Callable[[int, Any], None]:
+    """A signal handler that raises KeyboardInterrupt the first time and ignores the rest."""
+    raised: list[int] = []
+
+    def handler(signum: int, frame: Any) -> None:
+        if not raised:
+            raised.append(signum)
+            raise KeyboardInterrupt
+
+    return handler
