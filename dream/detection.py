@@ -82,7 +82,7 @@ class DetectionSettings:
         if isinstance(self.batch_size, bool) or int(self.batch_size) != self.batch_size or \
                 self.batch_size < 1:
             raise InputError(f"batch size must be an integer >= 1, got {self.batch_size!r}",
-                             fix="pass --batch N with N >= 1")
+                             fix="give a batch size of 1 or more images (--batch N)")
         object.__setattr__(self, "batch_size", int(self.batch_size))
         if self.peak_params is not None and not isinstance(self.peak_params, PeakSettings):
             raise InputError(f"peak_params must be a PeakSettings, got "

@@ -157,7 +157,8 @@ def observations_from_labels(sequence: Sequence, robot: Robot) -> Observations:
     """Observations from the 2D labels; labels outside the image count as not observed."""
     if not sequence.has_labels:
         raise InputError("the data has no 2D keypoint labels (projected_location)",
-                         sequence.source, "use --model with a detector instead of --use-labels")
+                         sequence.source,
+                         "detect the keypoints with a model instead (--model, dream.detect)")
     P_base = robot.forward_kinematics(joints_in_robot_order(sequence, robot))
     uv = sequence.uv_labels()
     uv = np.where(sequence.camera.in_image(uv)[..., None], uv, np.nan)
@@ -172,7 +173,7 @@ def calibrate(sequence: Sequence, obs: Observations, mode: str = "all",
     `CalibrationError` names the data (`sequence.source`)."""
     if mode not in ("all", "each"):
         raise InputError(f"unknown frames mode '{mode}'",
-                         fix="use --frames all or --frames each")
+                         fix="use 'all' or 'each' (--frames all or --frames each)")
     try:
         if mode == "all":
             camera = sequence.fixed_camera("use --frames each")

@@ -65,7 +65,7 @@ def detect_format(path: str | Path) -> str:
     """The layout at `path`: one of `FORMATS`; an unknown layout is an `InputError`."""
     path = Path(path)
     if not path.exists():
-        raise InputError("does not exist", path, "check the --data path")
+        raise InputError("does not exist", path, "check the recording's path (--data)")
     if is_bag(path):
         return ROSBAG
     found = _detect_file(path) if path.is_file() else _detect_folder(path)
