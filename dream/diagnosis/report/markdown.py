@@ -226,8 +226,12 @@ def _highlights(analysis: Mapping | None) -> list[str]:
         lines.append("- No timestamps: no time analysis.")
     cp = a.get("change_point") or {}
     if cp.get("frame") is not None:
-        left = ("that the arm's pose leaves" if cp.get("null") == "joints" else
-                "(tested against constant residuals: too few frames to test against the pose)")
+        null = str(cp.get("null") or "")
+        left = ("that the arm's pose leaves" if null == "joints" else
+                f"(tested against constant residuals: {null.partition(': ')[2]})")
+        sparse = cp.get("against_constant") or []
+        if sparse:
+            left += f"; {', '.join(sparse)} seen in too few frames, against their constant"
         verdict = (", significant: the camera moved there, or the observations changed"
                    if cp.get("significant") else "")
         lines.append(f"- Best single step in the residuals: at frame {cp['frame']} (step "

@@ -8,7 +8,6 @@
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -95,14 +94,17 @@ def _joint_basis(res: ResidualSet, valid: np.ndarray) -> tuple[np.ndarray, str]:
     distortion, a keypoint's bias) leaves each keypoint's residual a function of the joint
     readings, which a smooth motion changes smoothly: tested against a constant, such a
     misfit reads as a step. The null is therefore 1, sin q and cos q of the joints that move;
-    with fewer than NULL_FRAMES_PER_PARAM frames per regressor it falls back to the constant.
+    with no joint moving, or fewer than NULL_FRAMES_PER_PARAM frames per regressor, it falls
+    back to the constant (the name says why).
     """
     q = np.asarray(res.joints, dtype=float)[valid]
     moving = np.nanstd(q, axis=0) > MIN_JOINT_SPREAD_RAD
+    if not moving.any():
+        return np.ones((len(valid), 1)), "constant: the arm does not move"
     q = np.nan_to_num(q[:, moving])
     basis = np.column_stack([np.ones(len(valid)), np.sin(q), np.cos(q)])
-    if len(valid) < NULL_FRAMES_PER_PARAM * basis.shape[1] or not moving.any():
-        return np.ones((len(valid), 1)), "constant"
+    if len(valid) < NULL_FRAMES_PER_PARAM * basis.shape[1]:
+        return np.ones((len(valid), 1)), "constant: too few frames to test against the pose"
     return basis, "joints"
 
 
@@ -113,17 +115,23 @@ def _range(X: np.ndarray) -> np.ndarray:
 
 
 def _step_gains(res: ResidualSet, valid: np.ndarray, splits: np.ndarray, basis: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, float, int, int]:
+                ) -> tuple[np.ndarray, np.ndarray, float, int, int, list[str]]:
     """The residual sum of squares a step at each split removes beyond `basis` (S,), the
-    (keypoint, component) series each step reaches (S,), the null's RSS, the observations
-    and the null's parameters. Each (keypoint, component) series has its own coefficients."""
+    (keypoint, component) series each step reaches (S,), the null's RSS, the observations,
+    the null's parameters, and the keypoints seen in too few frames for `basis` (tested against
+    their constant instead). Each (keypoint, component) series has its own coefficients."""
     gain, reached = np.zeros(len(splits)), np.zeros(len(splits))
-    rss0, n_obs, params = 0.0, 0, 0
+    rss0, n_obs, params, sparse = 0.0, 0, 0, []
     for k in range(res.used.shape[1]):
         rows = np.flatnonzero(res.used[valid, k])
-        if len(rows) <= basis.shape[1]:
+        if len(rows) < 2:
             continue
-        Q = _range(basis[rows])
+        X = basis[rows]
+        if len(rows) < NULL_FRAMES_PER_PARAM * X.shape[1]:
+            if X.shape[1] > 1:
+                sparse.append(res.keypoint_names[k])
+            X = X[:, :1]                         # the constant, the basis's first column
+        Q = _range(X)
         E = (rows[:, None] >= splits[None, :]).astype(float)         # (n, S) the step
         E -= Q @ (Q.T @ E)
         ee = np.einsum("ns,ns->s", E, E)
@@ -136,7 +144,7 @@ def _step_gains(res: ResidualSet, valid: np.ndarray, splits: np.ndarray, basis: 
             params += Q.shape[1]
             gain += np.where(ok, (y @ E) ** 2 / np.maximum(ee, 1e-300), 0.0)
             reached += ok
-    return gain, reached, rss0, n_obs, params
+    return gain, reached, rss0, n_obs, params, sparse
 
 
 def _segment_means(res: ResidualSet, frames: np.ndarray) -> tuple[np.ndarray, list]:
@@ -155,12 +163,15 @@ def analyse_change_point(res: ResidualSet) -> dict:
     """The best single split of the frame sequence into before / after.
 
     Model: every (keypoint, component) residual follows the arm's pose (`null`: "joints",
-    1, sin q, cos q of the moving joints; "constant" on too few frames, see `_joint_basis`)
-    with or without one step at the split; the split maximises the step's F statistic over
-    splits leaving >= MIN_SEGMENT_FRAMES frames with used keypoints on each side. A camera that
-    moved between two frames shows as such a step; a misfit that follows the pose does not.
+    1, sin q, cos q of the moving joints; "constant: " and why otherwise, see `_joint_basis`;
+    `against_constant`: keypoints seen in too few frames for the joints, tested against their
+    constant) with or without one step at the split; the split is the one whose step has the
+    smallest F-test p-value, over splits leaving >= MIN_SEGMENT_FRAMES frames with used
+    keypoints on each side. A camera that moved between two frames shows as such a step; a
+    misfit that follows the pose does not.
 
-    Returns: `index` and `frame` (the first frame after the split), `null`, `f_stat` (the F
+    Returns: `index` and `frame` (the first frame after the split), `null`,
+    `against_constant`, `f_stat` (the F
     statistic of the step at that split), `p_value` (its F-test p-value times the number of
     candidate splits, clipped to 1: a conservative score, not an exact p-value), `significant`
     (p_value < ALPHA), `explained_fraction` (of the null's residual sum of squares),
@@ -168,7 +179,8 @@ def analyse_change_point(res: ResidualSet) -> dict:
     `mean_before_px` / `mean_after_px` (mean used residual of each segment), and
     `per_frame_mean_px` (F x [du, dv] or None). Frames are taken in the given order.
     """
-    out: dict[str, Any] = {"index": None, "frame": None, "null": None, "f_stat": None,
+    out: dict[str, Any] = {"index": None, "frame": None, "null": None,
+                           "against_constant": [], "f_stat": None,
                            "p_value": None, "significant": False, "explained_fraction": None,
                            "step_px": None, "mean_before_px": None, "mean_after_px": None,
                            "num_candidates": 0,
@@ -179,24 +191,27 @@ def analyse_change_point(res: ResidualSet) -> dict:
         return out
     splits = np.arange(MIN_SEGMENT_FRAMES, V - MIN_SEGMENT_FRAMES + 1)   # first valid after
     basis, null = _joint_basis(res, valid)
-    gain, reached, rss0, n_obs, params = _step_gains(res, valid, splits, basis)
+    gain, reached, rss0, n_obs, params, sparse = _step_gains(res, valid, splits, basis)
     dof = n_obs - params - reached
-    if rss0 <= 0 or not np.any((reached > 0) & (dof > 0)):
+    testable = (reached > 0) & (dof > 0)
+    if rss0 <= 0 or not testable.any():
         return out
     with np.errstate(invalid="ignore", divide="ignore"):
-        f_all = np.where((reached > 0) & (dof > 0),
-                         (gain / np.maximum(reached, 1)) / ((rss0 - gain) / np.maximum(dof, 1)),
-                         -np.inf)
-    best = int(np.argmax(f_all))
-    f_stat = float(f_all[best]) if rss0 - gain[best] > 0 else math.inf
-    p = 0.0 if math.isinf(f_stat) else min(
-        1.0, float(stats.f.sf(f_stat, reached[best], dof[best])) * len(splits))
+        f_all = np.where(testable, (gain / np.maximum(reached, 1))
+                         / (np.maximum(rss0 - gain, 0.0) / np.maximum(dof, 1)), -np.inf)
+        p_all = np.where(testable, stats.f.sf(f_all, np.maximum(reached, 1),
+                                              np.maximum(dof, 1)), np.inf)
+    # splits reach different numbers of series: ranked by p, not by F (other dof)
+    best = int(np.lexsort((-f_all, p_all))[0])
+    f_stat = float(f_all[best])
+    p = min(1.0, float(p_all[best]) * len(splits))
     index = int(valid[splits[best]])
     before, mean_b = _segment_means(res, valid[:splits[best]])
     after, mean_a = _segment_means(res, valid[splits[best]:])
     diff = np.hypot(*(after - before).T)
     diff = diff[np.isfinite(diff)]
     out.update(index=index, frame=res.frame_names[index], null=null,
+               against_constant=sparse,
                f_stat=finite_or_none(f_stat), p_value=p, significant=bool(p < ALPHA),
                explained_fraction=finite_or_none(gain[best] / rss0),
                step_px=finite_or_none(np.sqrt(np.mean(diff ** 2))) if diff.size else None,
