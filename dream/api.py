@@ -16,6 +16,7 @@ get wrong.
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Sequence as SequenceOf
 from pathlib import Path
 from typing import Any
@@ -48,7 +49,7 @@ def read_sequence(path: str | Path, **options: Any) -> Sequence:
     from dream.io.read import read_sequence as read_unchecked
     from dream.plausibility import check_sequence_cameras, check_sequence_times
 
-    if not isinstance(path, (str, Path)):
+    if not isinstance(path, (str, os.PathLike)):
         raise InputError(f"read_sequence needs the recording's path, not {type(path).__name__}",
                          fix="pass the dataset folder or file as a str or pathlib.Path")
     sequence = read_unchecked(path, **options)
@@ -118,7 +119,7 @@ def _check_observations(sequence: Sequence, observations: Any) -> None:
     _check_type(sequence, Sequence, "sequence", "dream.read_sequence(path)")
     _check_type(observations, Observations, "observations", "dream.detect or dream.labels")
     names = tuple(frame.name for frame in sequence.frames)
-    if observations.frame_names != names:
+    if tuple(observations.frame_names) != names:
         raise InputError(f"the observations are of {len(observations.frame_names)} frames "
                          f"({_span(observations.frame_names)}), the sequence has {len(names)} "
                          f"({_span(names)})",
@@ -234,7 +235,8 @@ def evaluate(sequence: Sequence, robot: Robot, result: CalibrationResult | dict[
         raise InputError(f"result is a {type(result).__name__}",
                          fix="pass a CalibrationResult or dream.read_result(path)")
     else:
-        check_same_data(result, sequence, str(sequence.source), "the result document")
+        check_same_data(result, sequence, str(sequence.source), "the result document",
+                        given_as="the sequence")
         sequence = solved_readings(sequence, result)
     return _evaluate_result(sequence, robot, result)
 

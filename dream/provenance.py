@@ -71,11 +71,12 @@ def data_record(seq, data: str) -> dict[str, Any]:
 
 
 def check_same_data(result: dict[str, Any], seq, data: str, result_path: str | Path,
-                    part_ok: bool = False) -> None:
+                    part_ok: bool = False, given_as: str = "--data") -> None:
     """Refuse to score a result made from other data than `seq` (`--data`). Results written
     before the record existed carry none and pass. With `part_ok`, a result made from some of
     `seq`'s frames passes too (`made_from_part`: a fixed camera calibrated on the first
-    frames of a recording labels all of them)."""
+    frames of a recording labels all of them). `given_as` names where `seq` came from in the
+    message (the option, or the API's argument)."""
     record = result.get("data")
     if not isinstance(record, dict) or "content_sha256" not in record:
         return
@@ -84,9 +85,10 @@ def check_same_data(result: dict[str, Any], seq, data: str, result_path: str | P
     if part_ok and made_from_part(record, seq):
         return
     raise InputError(f"was calibrated from other data ({record.get('path')}, "
-                     f"{record.get('num_frames')} frames) than --data {data} "
+                     f"{record.get('num_frames')} frames) than {given_as} {data} "
                      f"({len(seq.frames)} frames, other content)", result_path,
-                     "give --data the dataset the result was made from, or calibrate this one")
+                     f"give {given_as} the dataset the result was made from, or calibrate "
+                     "this one")
 
 
 def made_from_part(record: dict[str, Any], seq) -> bool:

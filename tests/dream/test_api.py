@@ -130,12 +130,17 @@ def test_the_api_refuses_what_the_commands_refuse(tmp_path) -> None:
         dream.calibrate(sequence, observations, settings={"seed": 1})
     with pytest.raises(dream.InputError, match="list of link names"):
         dream.load_robot("panda", keypoints="panda_link0")
-    result = dream.calibrate(sequence, observations)
+    listed = dataclasses.replace(observations, frame_names=list(observations.frame_names))
+    result = dream.calibrate(sequence, listed)       # the names as a list are the same frames
     document = dream.result_document(result, observations, robot)
+    from pathlib import PurePosixPath
+
     from dream.provenance import data_record
 
+    assert len(dream.read_sequence(PurePosixPath(folder))) == len(sequence)
+
     document["data"] = data_record(part, "part")
-    with pytest.raises(dream.InputError, match="other data"):
+    with pytest.raises(dream.InputError, match="other data .* than the sequence"):
         dream.evaluate(sequence, robot, document)
     document = dream.result_document(result, observations, robot, sequence)
     assert document["data"] == data_record(sequence, str(folder))
