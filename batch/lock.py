@@ -2,10 +2,11 @@
 
 A batch that starts removes the half-written folders a killed batch left in `--out`; a second
 batch started into the folder of a running one would so delete that one's work in progress.
-The lock prevents it: it holds the batch's pid and host, is taken before anything is removed,
-and removed when the batch ends (an error and Ctrl-C included). A lock whose batch is gone (its
-pid no longer runs on this host: a batch killed with kill -9) is taken over; one of another
-host cannot be checked from here and is left to its owner (the error says how to remove it).
+The lock prevents it: it holds the batch's pid and host and is held with `flock` while the
+batch runs, is taken before anything is removed, and removed when the batch ends (an error and
+Ctrl-C included). A lock whose batch is gone (not held, its pid no longer running on this host:
+a batch killed with kill -9) is taken over, by one batch only; one of another host cannot be
+checked from here and is left to its owner (the error says how to remove it).
 
     >>> import tempfile
     >>> folder = Path(tempfile.mkdtemp())
@@ -18,6 +19,7 @@ host cannot be checked from here and is left to its owner (the error says how to
 
 from __future__ import annotations
 
+import fcntl
 import json
 import logging
 import os
@@ -36,8 +38,9 @@ LOCK_NAME = ".dream-batch.lock"     # hidden, and not a temporary (`dream.io.is_
 TAKE_OVER_TRIES = 2                 # a stale lock removed, then created once more
 CHECK_PID = 0                       # os.kill(pid, 0): whether pid runs, no signal sent
 TIME_FORMAT = "%Y-%m-%d %H:%M:%S"
+LOCK_MODE = 0o644
 
-_HELD: set[Path] = set()            # the locks this process holds
+_HELD: dict[Path, int] = {}         # the locks this process holds, and their descriptors
 
 
 @dataclass(frozen=True)
@@ -96,37 +99,63 @@ def out_lock(out_dir: Path) -> Iterator[Path]:
 
 
 def acquire(out_dir: Path) -> Path:
-    """Create the lock file of `out_dir` (a stale one taken over); returns its path.
+    """Take the lock of `out_dir` (a stale one taken over); returns its path.
+
+    The file is held with `flock` while the batch runs, so two batches that start together
+    cannot both take over one stale lock: the second finds it held. The holder it names is
+    checked as well (a lock of another host, or of a running process of this one, is kept).
 
     Raises:
         InputError: another batch that runs (or may run) holds it, or it cannot be written.
     """
     lock = out_dir / LOCK_NAME
     for _ in range(TAKE_OVER_TRIES):
-        if _create(lock):
-            _HELD.add(lock.resolve())
-            return lock
-        holder = read_holder(lock)
-        if lock.resolve() in _HELD or not is_stale(holder):
+        fd, created = _open(lock)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise _in_use(out_dir, lock, read_holder(lock)) from None
+        if not _still_at(fd, lock):       # removed by the batch that held it: open anew
+            os.close(fd)
+            continue
+        holder = None if created else read_holder(lock)
+        if not created and (lock.resolve() in _HELD or not is_stale(holder)):
+            os.close(fd)
             raise _in_use(out_dir, lock, holder)
-        log.warning("%s: taking over the lock of a batch that is gone (%s)", out_dir,
-                    holder.describe())
-        lock.unlink(missing_ok=True)
+        if holder is not None:
+            log.warning("%s: taking over the lock of a batch that is gone (%s)", out_dir,
+                        holder.describe())
+        _write_holder(fd)
+        _HELD[lock.resolve()] = fd
+        return lock
     raise _in_use(out_dir, lock, read_holder(lock))
 
 
-def _create(lock: Path) -> bool:
-    """Create `lock` holding this batch, unless it exists (False)."""
+def _open(lock: Path) -> tuple[int, bool]:
+    """A descriptor of `lock`, and whether this call created it."""
     try:
-        fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_EXCL)
-    except FileExistsError:
-        return False
+        try:
+            return os.open(lock, os.O_RDWR | os.O_CREAT | os.O_EXCL, LOCK_MODE), True
+        except FileExistsError:
+            return os.open(lock, os.O_RDWR), False
     except OSError as exc:
-        raise InputError(f"cannot create the batch's lock file ({exc.strerror or exc})", lock,
+        raise InputError(f"cannot open the batch's lock file ({exc.strerror or exc})", lock,
                          "give --out a folder you can write") from None
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        json.dump(asdict(this_batch()), f)
-    return True
+
+
+def _still_at(fd: int, lock: Path) -> bool:
+    """Whether the open file `fd` is still the one at `lock`'s path."""
+    try:
+        return os.fstat(fd).st_ino == os.stat(lock).st_ino
+    except FileNotFoundError:
+        return False
+
+
+def _write_holder(fd: int) -> None:
+    os.ftruncate(fd, 0)
+    os.lseek(fd, 0, os.SEEK_SET)
+    os.write(fd, json.dumps(asdict(this_batch())).encode())
 
 
 def _in_use(out_dir: Path, lock: Path, holder: Holder | None) -> InputError:
@@ -137,8 +166,9 @@ def _in_use(out_dir: Path, lock: Path, holder: Holder | None) -> InputError:
 
 
 def release(lock: Path) -> None:
-    """Remove the lock file, where it is still this batch's."""
-    holder = read_holder(lock)
-    if holder is not None and (holder.pid, holder.host) == (os.getpid(), socket.gethostname()):
-        lock.unlink(missing_ok=True)
-    _HELD.discard(lock.resolve())
+    """Remove the lock file and let it go, where this batch holds it."""
+    fd = _HELD.pop(lock.resolve(), None)
+    if fd is None:
+        return
+    lock.unlink(missing_ok=True)           # while still held: no one takes the removed file
+    os.close(fd)

@@ -29,14 +29,17 @@ from pathlib import Path
 from typing import Any
 
 from dream.errors import InputError
+from dream.io.csv_layout import CSV_FILE
 from dream.io.detect import MANIUNICON, PANDA_TELEOP, detect_format
+from dream.io.dream_layout.names import CAMERA_SETTINGS
 from dream.io.images import NPZ_SUFFIX
-from dream.io.panda_teleop import find_episode
+from dream.io.panda_teleop import INFO_FILE, find_episode
 from dream.io.rosbag import ROS1_SUFFIX, ROS2_FILES, is_bag
 
 log = logging.getLogger(__name__)
 
 LIST_SUFFIX = ".txt"              # --data LIST.txt: one recording per line
+LAYOUT_FILES = (INFO_FILE, CSV_FILE, CAMERA_SETTINGS)   # each makes its folder a recording
 COMMENT = "#"
 HASH_BLOCK_BYTES = 1 << 20
 UNSAFE_NAME_CHARS = re.compile(r"[^A-Za-z0-9._-]+")
@@ -90,7 +93,7 @@ def list_recordings(data: str) -> list[Listed]:
 
 def _glob_recordings(data: str) -> list[Path]:
     """The recordings among the matches of the glob pattern `data` (the others logged)."""
-    matches = list(dict.fromkeys(Path(p).resolve()
+    matches = list(dict.fromkeys(_folder_of_layout_file(Path(p).resolve())
                                  for p in sorted(glob.glob(data, recursive=True))))
     kept = recordings_of(matches)
     if not kept:
@@ -98,6 +101,13 @@ def _glob_recordings(data: str) -> list[Path]:
         raise InputError(f"--data '{data}' matches no recording{among}", fix=FIX_DATA)
     _log_left_out(data, [p for p in matches if p not in kept], kept)
     return [p for p in matches if p in kept]
+
+
+def _folder_of_layout_file(path: Path) -> Path:
+    """The folder a recording's layout file names (`*/info.json`, `*/joints.csv`,
+    `*/_camera_settings.json` matched by a pattern: each stands for its recording, as
+    `dream calibrate --data` reads it), else `path`."""
+    return path.parent if path.name in LAYOUT_FILES and path.is_file() else path
 
 
 def recordings_of(paths: Iterable[Path]) -> set[Path]:

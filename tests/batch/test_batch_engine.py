@@ -249,6 +249,11 @@ def test_a_glob_keeps_the_recordings_not_their_files_nor_stray_matches(tmp_path,
     assert str(nest / "lab" / "NOTES.txt") in caplog.text and str(nest / "empty") in caplog.text
     assert [e.path.name for e in list_recordings(f"{nest}/lab/*")] == ["ep3.npz", "rec1"]
     assert [e.path.name for e in list_recordings(f"{nest}/teleop/*")] == ["one"]
+    # a recording's layout file stands for its folder, as `dream calibrate --data` reads it
+    assert [e.path.name for e in list_recordings(f"{nest}/teleop/*/*/info.json")] == [
+        "ep", "ep_a", "ep_b"]
+    assert [e.path.name for e in list_recordings(f"{nest}/lab/**/_camera_settings.json")
+            ] == ["rec2", "rec1"]
     with pytest.raises(InputError, match=r"matches no recording \(1 match\(es\), none"):
         list_recordings(f"{nest}/lab/*.txt")
 

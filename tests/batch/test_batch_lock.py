@@ -100,3 +100,21 @@ def test_the_lock_doctests():
     import batch.lock
 
     assert doctest.testmod(batch.lock).failed == 0
+
+
+def test_two_batches_cannot_both_take_over_one_stale_lock(tmp_path):
+    """The first batch to take over a stale lock holds it (flock) before it rewrites it; a
+    second one starting at the same moment finds it held, whatever pid the file still names
+    (both took it over, and the second removed the first one's work in progress)."""
+    import fcntl
+
+    lock = write_lock(tmp_path, gone_pid())
+    fd = os.open(lock, os.O_RDWR)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)    # the first batch, taking it over
+        with pytest.raises(InputError, match="another dream batch writes into this --out"):
+            acquire(tmp_path)
+    finally:
+        os.close(fd)
+    with out_lock(tmp_path) as taken:                      # let go: stale, taken over
+        assert read_holder(taken).pid == os.getpid()
