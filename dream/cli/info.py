@@ -63,8 +63,8 @@ def _robot_words(seq) -> str:
 
     try:
         robot = load_robot(seq.robot)
-    except DreamError:
-        return f"{seq.robot} (not a robot dream knows: give the commands --robot ARM.urdf)"
+    except DreamError as exc:
+        return f"{seq.robot} (cannot be loaded: {exc})"
     missing = [n for n in robot.joint_names if n not in seq.joint_names]
     if not missing:
         return seq.robot

@@ -26,15 +26,19 @@ _SHA256 = re.compile(r"[0-9a-f]{64}")
 
 
 def same_robot_name(a: str, b: str) -> bool:
-    """Whether two robot references (built-in names or URDF paths) name the same robot by name
-    alone: equal, or of the same file name without suffix (a URDF's path on another machine,
-    or a built-in robot's URDF). Where the URDFs can be read, compare their content instead
-    (`robot_difference`).
+    """Whether two robot references (built-in names or URDF paths) name the same robot: equal;
+    where both URDFs can be read here, of the same content; else of the same file name
+    without suffix (a URDF's path on another machine, or a built-in robot's URDF).
 
     >>> same_robot_name("/a/z1.urdf", "/b/z1.urdf"), same_robot_name("panda", "/a/z1.urdf")
     (True, False)
     """
-    return a == b or Path(a).stem == Path(b).stem
+    if a == b:
+        return True
+    hashes = robot_urdf_sha256(a), robot_urdf_sha256(b)
+    if None not in hashes:
+        return hashes[0] == hashes[1]
+    return Path(a).stem == Path(b).stem
 
 
 def urdf_sha256(path: str | Path) -> str:

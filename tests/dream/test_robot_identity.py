@@ -116,3 +116,20 @@ def test_keypoints_option_must_name_the_model_keypoints(tmp_path):
     assert same.keypoint_names == MED7_KEYPOINTS           # the model's order
     with pytest.raises(InputError, match="contradicts the keypoints of the model"):
         load_model_robot(seq, model, str(med7_path), ("lbr_link_0", "lbr_link_1"))
+
+
+def test_robot_names_compare_content_where_both_urdfs_are_here(tmp_path):
+    """`dream adapt`, training data and `dream plan` compare robot references alike: the same
+    file name on another machine passes, but two readable URDFs named alike of other content
+    (robot.urdf of a UR5e and of a Panda) are two robots, and one file under two names is one."""
+    from dream.robot.identity import same_robot_name
+
+    (tmp_path / "ur5e").mkdir()
+    (tmp_path / "panda").mkdir()
+    (tmp_path / "ur5e" / "robot.urdf").write_text('<robot name="ur5e"/>')
+    (tmp_path / "panda" / "robot.urdf").write_text('<robot name="panda"/>')
+    (tmp_path / "copy.urdf").write_text('<robot name="ur5e"/>')
+    assert not same_robot_name(str(tmp_path / "ur5e" / "robot.urdf"),
+                               str(tmp_path / "panda" / "robot.urdf"))
+    assert same_robot_name(str(tmp_path / "ur5e" / "robot.urdf"), str(tmp_path / "copy.urdf"))
+    assert same_robot_name(str(tmp_path / "ur5e" / "robot.urdf"), "/elsewhere/robot.urdf")
