@@ -14,7 +14,6 @@ from dream.cli.options import (
     add_data_args,
     read_data,
     request_from,
-    solved_readings,
 )
 from dream.errors import InputError
 
@@ -35,6 +34,7 @@ def run_eval(request: EvalRequest) -> dict:
     from dream.io.recording_files import check_spares_recording
     from dream.pipeline import evaluate, robot_for
     from dream.provenance import check_same_data
+    from dream.readings import solved_readings
     from dream.result import read_result
 
     check_output_file(request.out)

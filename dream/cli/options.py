@@ -189,8 +189,7 @@ def read_data(request: Any):
     `--intrinsics` (and `--distortion`) or `--camera-info` where given, the cameras checked for
     plausibility (`dream.plausibility`). A camera given that differs from the data's own is
     refused unless `--override-intrinsics`."""
-    from dream.io import read_sequence
-    from dream.plausibility import check_sequence_cameras, check_sequence_times
+    from dream.api import read_sequence  # the reader with the cameras and times checked
 
     data = request.data
     if not data or not data.strip():
@@ -199,10 +198,7 @@ def read_data(request: Any):
     topics = request.topics()
     if given is not None and not request.override_intrinsics:
         _refuse_conflicting_intrinsics(data, given, request.robot, topics)
-    seq = read_sequence(data, intrinsics=given, robot=request.robot, topics=topics)
-    check_sequence_cameras(seq)
-    check_sequence_times(seq)
-    return seq
+    return read_sequence(data, intrinsics=given, robot=request.robot, topics=topics)
 
 
 def _refuse_conflicting_intrinsics(data: str, given, robot: str | None, topics) -> None:
@@ -264,13 +260,6 @@ def joint_readings(seq: Any, interpolate: bool, out: TextIO | None = None
     if interpolate:
         doc["frames_left_out"] = list(late)
     return seq, doc
-
-
-def solved_readings(seq: Any, doc: dict) -> Any:
-    """`seq` with the joints a RESULT.json `doc` was solved with (`dream.readings`)."""
-    from dream.readings import solved_readings as readings_of
-
-    return readings_of(seq, doc)
 
 
 def request_from(cls: type[Request], args: argparse.Namespace) -> Request:

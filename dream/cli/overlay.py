@@ -18,7 +18,6 @@ from dream.cli.options import (
     add_keypoints_arg,
     read_data,
     request_from,
-    solved_readings,
 )
 from dream.errors import InputError
 
@@ -43,6 +42,7 @@ def run_overlay(request: OverlayRequest) -> int:
     reference) into `request.out`; returns how many were written."""
     from dream.io import check_output_folder
     from dream.overlay import write_skeleton_overlays
+    from dream.readings import solved_readings
     from dream.result import read_result
 
     check_output_folder(request.out)  # before any reading or drawing
