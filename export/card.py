@@ -3,7 +3,7 @@ what it was trained on and for how long, how it was exported; the metadata insid
 the same to the program (`export.runner.ModelMetadata`).
 
     card_path(Path("model.onnx")) -> Path("model.md")
-    model_card(report, config, checkpoint) -> str
+    model_card(report, checkpoint) -> str
 """
 
 from __future__ import annotations
@@ -44,10 +44,9 @@ def _training_lines(config: Any) -> list[str]:
             f"- Validation: {validation}."]
 
 
-def model_card(report: Any, config: Any, checkpoint: str | Path) -> str:
-    """The card's text for an `export.onnx_export.ExportReport` of `checkpoint` (its resolved
-    `config`, `train.config.TrainConfig`)."""
-    meta = report.metadata
+def model_card(report: Any, checkpoint: str | Path) -> str:
+    """The card's text for an `export.onnx_export.ExportReport` of `checkpoint`."""
+    meta, config = report.metadata, report.config
     pre = meta.preprocess
     diffs = ", ".join(f"{name} {diff:.2g}" for name, diff in report.max_abs_diff.items())
     peaks = ", ".join(f"{k} {v:g}" for k, v in dataclasses.asdict(meta.peak_params).items()

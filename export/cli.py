@@ -25,15 +25,13 @@ def cmd_export(args: argparse.Namespace) -> int:
                              "give another --out, or --overwrite to replace it")
     try:
         from export.onnx_export import PARITY_ATOL, export_model  # torch from here on
-        from train.checkpoint import load_checkpoint
     except ImportError as exc:
         raise InputError(f"dream export needs torch and onnx ({exc})",
                          fix="install the training extras: pip install -e '.[train]'") from None
 
     report = export_model(args.checkpoint, args.out, opset=args.opset,
                           peak_overrides=args.peaks or ())
-    _, config = load_checkpoint(args.checkpoint)
-    write_bytes_atomic(card, model_card(report, config, args.checkpoint).encode())
+    write_bytes_atomic(card, model_card(report, args.checkpoint).encode())
     meta = report.metadata
     pre = meta.preprocess
     diffs = ", ".join(f"{name} {diff:.2g}" for name, diff in report.max_abs_diff.items())

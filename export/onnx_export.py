@@ -96,12 +96,14 @@ class ExportReport:
         metadata: the description stored in it.
         output_names: the graph's outputs, in order.
         max_abs_diff: per output, the largest |onnxruntime - torch| on the parity batch.
+        config: the checkpoint's resolved training config (for the model card).
     """
 
     path: Path
     metadata: ModelMetadata
     output_names: tuple[str, ...]
     max_abs_diff: dict[str, float]
+    config: TrainConfig
 
 
 def config_sha256(config: TrainConfig) -> str:
@@ -288,7 +290,7 @@ def export_model(checkpoint: str | Path, out: str | Path, opset: int | None = No
             tmp.unlink()
     log.info("exported %s: outputs %s, max |onnxruntime - torch| %s", out,
              ", ".join(wrapper.output_names), diffs)
-    return ExportReport(out, metadata, wrapper.output_names, diffs)
+    return ExportReport(out, metadata, wrapper.output_names, diffs, config)
 
 
 def export_onnx(checkpoint: str | Path, out: str | Path) -> Path:
