@@ -226,6 +226,7 @@ def camera_distance(T_cam_base: np.ndarray, P_base: np.ndarray) -> float:
 GUESS_SIGMA_FIX = ("give --guess-sigma METRES,DEGREES (e.g. 0.3,20: are the two swapped?), or "
                    "leave --camera-guess out for the automatic search")
 
+
 def check_guess_scale(T_cam_base: np.ndarray, sigma_m: float, centre_base_m: np.ndarray,
                       reach_m: float, max_distance: float, max_sigma: float,
                       description: str, look_at_base_m: np.ndarray | None = None,
