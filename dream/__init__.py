@@ -23,7 +23,7 @@ The API (each name's own help says more):
   edges (no masks needed).
 - polish_result(sequence, robot, result, observations): align the silhouette with the masks.
 - evaluate(sequence, robot, result, observations): errors against the ground truth.
-- result_document(result, observations, robot, sequence), read_result(path): RESULT.json.
+- result_document(result, observations, robot, sequence, refined), read_result(path): RESULT.json.
 - diagnose(sequence, robot, observations, report_dir=None): the sim-to-real diagnosis.
 - DreamError, InputError, CalibrationError, RobotError: what the library raises.
 

@@ -196,20 +196,31 @@ def refine_edges(sequence: Sequence, robot: Robot, result: CalibrationResult,
 
 
 def result_document(result: CalibrationResult, observations: Observations, robot: Robot,
-                    sequence: Sequence | None = None) -> dict[str, Any]:
-    """The RESULT.json document of the keypoints' calibration (docs/data_format.md) with its
+                    sequence: Sequence | None = None, refined: Any = None) -> dict[str, Any]:
+    """The RESULT.json document (docs/data_format.md) of the keypoints' calibration with its
     `quality` verdict; with `sequence` (the data it was solved from) also its `data` record,
-    by which `dream eval` and `dream.evaluate` refuse other data. An image refinement's pose
-    (`refine_edges`, `polish_result`) is not in it: `dream calibrate` writes those."""
+    by which `dream eval` and `dream.evaluate` refuse other data.
+
+    `refined`: what `refine_edges` or `polish_result` returned for this result (needs
+    `sequence`). Its object is written in, and where it was kept its pose, `rmse_px`, 1-sigma
+    and verdict are the refined pose's, as `dream calibrate` writes them; without it the
+    document holds the keypoint pose. (The command's silhouette cross-check of an edge
+    alignment is not run here.)
+    """
     from dream.provenance import data_record
-    from dream.quality import result_quality
+    from dream.refinement_document import with_refinement, written_quality
     from dream.result import result_to_dict
 
+    if refined is not None and sequence is None:
+        raise InputError("a refined result needs the sequence it was refined on",
+                         fix="pass sequence= as well as refined=")
     document = result_to_dict(result, observations, robot=robot.name)
-    document["quality"] = result_quality(result, observations).to_dict()
     if sequence is not None:
         _check_observations(sequence, observations)
         document["data"] = data_record(sequence, str(sequence.source))
+    if refined is not None:
+        document = with_refinement(document, refined, sequence, result, observations)
+    document["quality"] = written_quality(result, observations, document).to_dict()
     return document
 
 

@@ -9,6 +9,8 @@ from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
 
+from dream.refinement_document import with_refinement, written_quality
+
 if TYPE_CHECKING:
     from dream.coarse.crosscheck import Crosscheck
 
@@ -18,7 +20,7 @@ def add_polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames
     """`--polish`: the silhouette polish of the one extrinsic (`frames` "all") or of every
     frame's own pose ("each"), rendering the model extension's `link_geometry`; returns
     RESULT.json's document with it."""
-    from dream.polish import has_masks, polish_calibration, result_doc_with_polish
+    from dream.polish import has_masks, polish_calibration
 
     if frames != "all":
         return _polish_frames(seq, robot, result, obs, doc, out, link_geometry)
@@ -44,19 +46,7 @@ def add_polish(seq, robot, result, obs, model, doc: dict, out: TextIO, *, frames
         print("  frames left out (do their joint readings match their images?): " + "; ".join(
             f"{report.frames[i]} ({agreement.reasons[i]}: IoU {agreement.iou_common[i]:.2f}, "
             f"{agreement.iou_own[i]:.2f} alone)" for i in agreement.left_out), file=out)
-    return result_doc_with_polish(doc, report, _inlier_rmse(seq, result, obs, report.T_after))
-
-
-def _inlier_rmse(seq, result, obs, T: np.ndarray, frame: int | None = None) -> float:
-    """RESULT.json's `rmse_px` at a refined pose T: the keypoint fit's inliers' (NaN without),
-    of every frame or of `frame` alone (through its own intrinsics)."""
-    from dream.polish.calibration import inlier_keypoints
-
-    if frame is None:
-        inliers, camera = inlier_keypoints(result, obs, slice(None)), seq.camera
-    else:
-        inliers, camera = inlier_keypoints(result, obs, frame), seq.frame_camera(frame)
-    return inliers.rmse_px(camera, T) if inliers is not None else float("nan")
+    return with_refinement(doc, report, seq, result, obs)
 
 
 def _motion_masks(seq, robot, out: TextIO):
@@ -79,7 +69,7 @@ def _polish_frames(seq, robot, result, obs, doc: dict, out: TextIO,
                    link_geometry: tuple = ()) -> dict:
     """`--polish --frames each`: every solved frame's own pose polished."""
     from dream.detection import PROGRESS_EVERY_FRAMES
-    from dream.polish import polish_frames, result_doc_with_frame_polishes
+    from dream.polish import polish_frames
 
     def progress(done: int, total: int) -> None:
         print(f"polished {done}/{total} frames", file=sys.stderr)
@@ -87,7 +77,7 @@ def _polish_frames(seq, robot, result, obs, doc: dict, out: TextIO,
     reports = polish_frames(seq, robot, result, obs,
                             progress=progress if len(seq) > PROGRESS_EVERY_FRAMES else None,
                             link_geometry=link_geometry)
-    doc = result_doc_with_frame_polishes(doc, reports)
+    doc = with_refinement(doc, reports, seq, result, obs, kind="polish")
     p = doc["polish"]
     if p["frames_polished"]:
         print(f"silhouette polish of each frame ({p['frames_polished']} frames with masks, "
@@ -107,7 +97,6 @@ def add_edges(seq, robot, result, obs, doc: dict, out: TextIO,
     """`--refine edges`: the one extrinsic aligned with the images' edges; returns RESULT.json's
     document with it."""
     from dream.edges import refine_with_edges
-    from dream.edges.documents import result_doc_with_edges
 
     res = refine_with_edges(seq, robot, result.fit.T_cam_base, obs,
                             exclude_links=_links(exclude_links), link_geometry=link_geometry)
@@ -119,7 +108,7 @@ def add_edges(seq, robot, result, obs, doc: dict, out: TextIO,
     if res.mismatched_links:
         print(f"  links whose outline disagrees with the images (a tool or gripper the URDF "
               f"lacks? --exclude-links): {', '.join(res.mismatched_links)}", file=out)
-    return result_doc_with_edges(doc, res, _inlier_rmse(seq, result, obs, res.T_after))
+    return with_refinement(doc, res, seq, result, obs)
 
 
 def add_frame_edges(seq, robot, result, obs, doc: dict, out: TextIO,
@@ -127,7 +116,6 @@ def add_frame_edges(seq, robot, result, obs, doc: dict, out: TextIO,
     """`--refine edges --frames each`: every solved frame's own pose aligned with its image's
     edges; returns RESULT.json's document with them."""
     from dream.detection import PROGRESS_EVERY_FRAMES
-    from dream.edges.documents import result_doc_with_frame_edges
     from dream.edges.frames import refine_frames_with_edges
 
     def progress(done: int, total: int) -> None:
@@ -137,9 +125,7 @@ def add_frame_edges(seq, robot, result, obs, doc: dict, out: TextIO,
         seq, robot, result, obs, exclude_links=_links(exclude_links),
         progress=progress if len(seq) > PROGRESS_EVERY_FRAMES else None,
         link_geometry=link_geometry)
-    index = {frame.name: i for i, frame in enumerate(seq.frames)}
-    doc = result_doc_with_frame_edges(doc, results, lambda res: _inlier_rmse(
-        seq, result, obs, res.T_after, index[res.frame]))
+    doc = with_refinement(doc, results, seq, result, obs, kind="edges")
     e = doc["edges"]
     print(f"edge alignment of each frame ({e['frames_aligned']} frames, {e['seconds']:.1f} s"
           f"{', background model' if e['background_model'] else ''}): kept in "
@@ -222,28 +208,11 @@ def _keypoints_or_aligned(doc: dict, doc_keypoints: dict, check: Crosscheck,
 def add_quality(result, obs, doc: dict, out: TextIO, extra: list | tuple = ()) -> dict:
     """The quality verdict (`dream.quality`) on the pose written, with the `extra` findings:
     printed, with its reasons; RESULT.json's `quality` object."""
-    from dream.quality import result_quality
-    from dream.result import written_poses
-
-    quality = result_quality(result, obs, pose_refined_by(doc),
-                             covariance=np.asarray(doc["covariance_xi"], dtype=float),
-                             T_cam_base=np.asarray(doc["T_cam_base"], dtype=float),
-                             T_frames=written_poses(doc), extra=extra)
+    quality = written_quality(result, obs, doc, extra)
     print(f"quality: {quality.verdict}", file=out)
     for warning in quality.warnings:
         print(f"  - {warning}", file=out)
     return quality.to_dict()
-
-
-def pose_refined_by(doc: dict) -> str | None:
-    """The image refinement whose pose was written, in words (None: the keypoint pose): all
-    frames' kept refinement, or the reported frame's (`--frames each`)."""
-    names = {"edges": "the edge alignment", "polish": "the silhouette polish"}
-    if doc.get("frames_mode") == "all":
-        return next((name for key, name in names.items() if doc.get(key, {}).get("kept")),
-                    None)
-    entry = next((e for e in doc["per_frame"] if e["frame"] == doc.get("reported_frame")), {})
-    return next((name for key, name in names.items() if entry.get(key, {}).get("kept")), None)
 
 
 def print_summary(doc: dict, out: TextIO) -> None:

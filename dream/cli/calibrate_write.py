@@ -11,9 +11,10 @@ from typing import TextIO
 
 import numpy as np
 
-from dream.cli.calibrate_report import pose_refined_by, print_summary, print_truth_errors
+from dream.cli.calibrate_report import print_summary, print_truth_errors
 from dream.cli.options import AUTO
 from dream.errors import CannotRefine, InputError
+from dream.refinement_document import pose_refined_by
 
 
 def refined_or_kept(request, refine, doc: dict, out: TextIO) -> dict:

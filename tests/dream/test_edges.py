@@ -255,7 +255,47 @@ def test_api_refine_edges_aligns_all_frames_or_each_frame(panda, meshes, tmp_pat
     seq = dream.read_sequence(tmp_path / "data")
     robot = dream.load_robot(seq)
     obs = dream.labels(seq, robot)
-    res = dream.refine_edges(seq, robot, dream.calibrate(seq, obs), obs)
+    result = dream.calibrate(seq, obs)
+    res = dream.refine_edges(seq, robot, result, obs)
     assert res.kept and pose_errors(res.T_after, T_true)[0] < 0.002
-    frames = dream.refine_edges(seq, robot, dream.calibrate(seq, obs, mode="each"), obs)
+    each = dream.calibrate(seq, obs, mode="each")
+    frames = dream.refine_edges(seq, robot, each, obs)
     assert len(frames) == len(seq) and sum(f.kept for f in frames if f is not None) >= 7
+
+
+def test_api_result_document_writes_the_refined_pose(panda, meshes, tmp_path):
+    """A script that saves a refined result gets the aligned pose, its 1-sigma and verdict, as
+    `dream calibrate` writes them (it got the keypoint pose); a refinement of another result
+    or mode is refused."""
+    import dataclasses
+
+    import dream
+
+    image_dataset(panda, meshes, tmp_path)
+    seq = dream.read_sequence(tmp_path / "data")
+    robot = dream.load_robot(seq)
+    obs = dream.labels(seq, robot)
+    result = dream.calibrate(seq, obs)
+    res = dream.refine_edges(seq, robot, result, obs)
+    doc = dream.result_document(result, obs, robot, seq, refined=res)
+    assert res.kept and doc["edges"]["kept"]
+    assert np.allclose(doc["T_cam_base"], res.T_after)
+    assert not np.allclose(doc["T_cam_base"], result.T_cam_base, atol=1e-9)
+    assert np.allclose(doc["T_base_cam"], np.linalg.inv(res.T_after))
+    assert doc["uncertainty"]["method"] == f"jackknife of {res.jackknife.refined_by}"
+    assert np.allclose(doc["covariance_xi"], res.jackknife.covariance)
+    assert doc["quality"]["verdict"] == "good"
+    with pytest.raises(dream.InputError, match="needs the sequence"):
+        dream.result_document(result, obs, robot, refined=res)
+    other = dataclasses.replace(res, T_before=res.T_before @ T_from_rotvec_t(
+        np.zeros(3), np.array([0.05, 0.0, 0.0])))
+    with pytest.raises(dream.InputError, match="another pose"):
+        dream.result_document(result, obs, robot, seq, refined=other)
+    each = dream.calibrate(seq, obs, mode="each")
+    with pytest.raises(dream.InputError, match="not a refinement of this each-frames"):
+        dream.result_document(each, obs, robot, seq, refined=res)
+    frames = dream.refine_edges(seq, robot, each, obs)
+    doc_each = dream.result_document(each, obs, robot, seq, refined=frames)
+    kept = [e for e in doc_each["per_frame"] if e.get("edges", {}).get("kept")]
+    assert doc_each["edges"]["frames_kept"] == len(kept) >= 7
+    assert all(np.allclose(e["T_cam_base"], e["edges"]["T_cam_base_aligned"]) for e in kept)
