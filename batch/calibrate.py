@@ -30,6 +30,7 @@ from batch.engine import WorkerLost
 from batch.lock import out_lock
 from batch.recordings import (
     Listed,
+    earlier_names,
     folder_names,
     input_hash,
     list_recordings,
@@ -339,7 +340,9 @@ def plan_batch(data: str, out_dir: Path, options: Mapping[str, Any],
         if entry.argv not in plans:
             plans[entry.argv] = _recording_options(entry, options, overlays)
     tasks, todo, rows = [], [], {}
-    for entry, name in zip(entries, folder_names([e.path for e in entries]), strict=True):
+    names = earlier_names([(str(e.path), shlex.join(e.argv)) for e in entries],
+                          folder_names([e.path for e in entries]), _earlier_folders(out_dir))
+    for entry, name in zip(entries, names, strict=True):
         path = entry.path
         own, digest = plans[entry.argv]
         record = read_record(out_dir / name) or {}
@@ -356,6 +359,17 @@ def plan_batch(data: str, out_dir: Path, options: Mapping[str, Any],
         else:
             todo.append(task)
     return BatchPlan(tuple(tasks), tuple(todo), rows)
+
+
+def _earlier_folders(out_dir: Path) -> dict[tuple[str, str], str]:
+    """The recording folders an earlier batch wrote into `out_dir`: (recording, its list
+    line's options) -> the folder's name."""
+    folders: dict[tuple[str, str], str] = {}
+    for folder in sorted(out_dir.iterdir()) if out_dir.is_dir() else ():
+        row = (read_record(folder) or {}).get("row") or {}
+        if isinstance(row.get("recording"), str):
+            folders.setdefault((row["recording"], str(row.get("options") or "")), folder.name)
+    return folders
 
 
 def _recording_options(entry: Listed, options: Mapping[str, Any],

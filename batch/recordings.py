@@ -232,6 +232,27 @@ def folder_names(paths: list[Path]) -> list[str]:
     return out
 
 
+def earlier_names(keys: list[tuple[str, str]], names: list[str],
+                  earlier: Mapping[tuple[str, str], str]) -> list[str]:
+    """`names` (`folder_names`), except that a recording an earlier batch into the same output
+    folder wrote under another name keeps that name (`keys`: each recording's path and its
+    list line's options; `earlier`: the same key -> the folder that holds its record), so that
+    adding a recording whose name clashes does not rename and redo a finished one. A name
+    that another recording of this batch takes is not given back.
+
+    >>> earlier_names([("/a/rec", ""), ("/b/rec", "")], ["a-rec", "b-rec"],
+    ...               {("/a/rec", ""): "rec"})
+    ['rec', 'b-rec']
+    """
+    counts = Counter(keys)
+    out = list(names)
+    for i, key in enumerate(keys):
+        old = earlier.get(key)
+        if old is not None and counts[key] == 1 and old not in out:
+            out[i] = old
+    return out
+
+
 def _safe(name: str) -> str:
     return UNSAFE_NAME_CHARS.sub("_", name).strip("._") or "recording"
 

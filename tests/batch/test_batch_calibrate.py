@@ -116,6 +116,29 @@ def test_overlays_on_request_land_in_each_folder(recordings, tmp_path):
     assert rows(out)["rec001"]["status"] == "ok"
 
 
+def test_a_recording_added_with_a_clashing_name_leaves_the_finished_one(recordings, tmp_path,
+                                                                        capsys):
+    """A finished recording keeps its folder when a later run adds one of the same name from
+    elsewhere; before, both were renamed by their parents and the finished one redone."""
+    import shutil
+
+    other = tmp_path / "other" / recordings[1].name
+    shutil.copytree(recordings[1], other)
+    out, listed = tmp_path / "batch", tmp_path / "list.txt"
+    listed.write_text(f"{recordings[1]}\n")
+    assert main(["batch", "calibrate", "--data", str(listed), "--out", str(out), "--workers",
+                 "1", *OPTIONS]) == 0
+    listed.write_text(f"{recordings[1]}\n{other}\n")
+    capsys.readouterr()
+    assert main(["batch", "calibrate", "--data", str(listed), "--out", str(out), "--workers",
+                 "1", *OPTIONS]) == 0
+    assert "2 recordings, 1 done already (same inputs), 1 to run" in capsys.readouterr().err
+    got = rows(out)
+    assert got["rec001"]["recording"] == str(recordings[1])
+    assert got["other-rec001"]["recording"] == str(other)
+    assert {p.name for p in out.iterdir() if p.is_dir()} == {"rec001", "other-rec001"}
+
+
 def test_a_crash_is_one_recording_failed(recordings, tmp_path, monkeypatch):
     import batch.calibrate
 
