@@ -26,6 +26,9 @@ FIX_CAMERA = ("give --camera RESULT.json (an earlier calibration), or --camera X
 NONE = "none"
 INTRINSICS_FIELDS = ("fx", "fy", "cx", "cy", "width", "height")
 REACH_SAMPLES = 64        # joint vectors whose link origins give the robot's reach
+# below this share of the image's shorter side, the keypoints' spread is too small for the
+# keypoint model and the outline alignment: `dream plan` warns
+MIN_ROBOT_SPAN_FRACTION = 0.25
 
 
 def _joint_ranges(items: list[str]) -> dict[str, tuple[float, float]]:
@@ -249,12 +252,32 @@ def run_plan(request: PlanRequest) -> None:
           f"{math.degrees(p['rotation_worst_rad']):.3f} deg (random valid poses: "
           f"{r['position_worst_m'] * 1e3:.2f} mm, {math.degrees(r['rotation_worst_rad']):.3f} "
           "deg)")
+    _warn_small_robot(robot, prior, plan.joints)
     moves = plan.move_clearance_m
     if moves is not None and np.any(moves < feasibility.clearance_m):
         print(f"warning: {int(np.sum(moves < feasibility.clearance_m))} of {len(moves)} "
               "straight joint moves between the poses pass closer than the clearance to a "
               "link, box or the table (plan.json \"moves\"): drive those with a motion planner")
     print(f"wrote {request.out}/joints.txt, plan.json, contact_sheet.png")
+
+
+def _warn_small_robot(robot, prior, joints) -> None:
+    """Warn where the planned poses' keypoints span little of the image (median over the
+    poses of their bounding box's longer side): a camera far from the robot."""
+    import numpy as np
+
+    from dream.camera import project
+    from dream.transforms import transform_points
+
+    P = robot.link_poses(joints, robot.keypoint_names)[..., :3, 3]
+    uv = project(prior.camera, transform_points(prior.T_cam_base, P))
+    span = float(np.nanmedian(np.max(np.nanmax(uv, axis=1) - np.nanmin(uv, axis=1), axis=1)))
+    side = min(prior.camera.width, prior.camera.height)
+    if span < MIN_ROBOT_SPAN_FRACTION * side:
+        print(f"warning: the robot's keypoints span about {span:.0f} px of the "
+              f"{prior.camera.width}x{prior.camera.height} image (median over the poses); "
+              f"below {MIN_ROBOT_SPAN_FRACTION:.0%} of its {side} px the keypoints and outlines "
+              "are too small for an accurate calibration: place the camera nearer the robot")
 
 
 def cmd_plan(args: argparse.Namespace) -> int:

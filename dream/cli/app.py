@@ -11,6 +11,7 @@ import re
 import sys
 from collections.abc import Sequence
 from importlib.metadata import entry_points
+from pathlib import Path
 
 from dream import __version__
 from dream.cli import (
@@ -83,9 +84,25 @@ def joined_negative_values(argv: Sequence[str]) -> list[str]:
     return out
 
 
+def unrecognized_hint(extra: Sequence[str]) -> str:
+    """What to do about arguments no option took: where they are existing paths, the shell
+    most likely expanded an unquoted pattern (`--data runs/*`) into several.
+
+    >>> unrecognized_hint(["--colour"])
+    ''
+    """
+    if not any(Path(token).exists() for token in extra if not token.startswith("-")):
+        return ""
+    return (" (paths: did the shell expand an unquoted pattern? quote it, --data 'runs/*', "
+            "or give one path)")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(joined_negative_values(sys.argv[1:] if argv is None
-                                                            else argv))
+    parser = build_parser()
+    args, extra = parser.parse_known_args(joined_negative_values(sys.argv[1:] if argv is None
+                                                                  else argv))
+    if extra:
+        parser.error(f"unrecognized arguments: {' '.join(extra)}{unrecognized_hint(extra)}")
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     try:

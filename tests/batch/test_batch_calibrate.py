@@ -139,6 +139,21 @@ def test_a_recording_added_with_a_clashing_name_leaves_the_finished_one(recordin
     assert {p.name for p in out.iterdir() if p.is_dir()} == {"rec001", "other-rec001"}
 
 
+def test_an_unquoted_pattern_is_named(recordings, tmp_path, capsys):
+    """The shell's expansion of `--data runs/*` gave argparse's bare "unrecognized arguments"."""
+    with pytest.raises(SystemExit) as stop:
+        main(["batch", "calibrate", "--data", *map(str, recordings[:3]), "--out",
+              str(tmp_path / "out"), *OPTIONS])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert f"unrecognized arguments: {recordings[1]} {recordings[2]}" in err
+    assert "quote it, --data 'runs/*'" in err
+    with pytest.raises(SystemExit):
+        main(["info", "--no-such-option"])
+    assert "quote it" not in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_crash_is_one_recording_failed(recordings, tmp_path, monkeypatch):
     import batch.calibrate
 

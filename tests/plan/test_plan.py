@@ -97,7 +97,8 @@ def test_dream_plan_writes_the_plan_folder(tmp_path, panda, checker, capsys):
     code = main(["plan", "--robot", "panda", *CAMERA_ARGS, "--num", "6", "--candidates",
                  "60", "--out", str(out), "--keep-out", "0.4,0.4,0,0.8,0.8,0.4"])
     assert code == 0
-    assert "predicted 1-sigma" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "predicted 1-sigma" in printed and "span about" not in printed
     doc = json.loads((out / "plan.json").read_text())
     joints = np.loadtxt(out / "joints.txt")
     assert joints.shape == (6, 7)
@@ -109,6 +110,17 @@ def test_dream_plan_writes_the_plan_folder(tmp_path, panda, checker, capsys):
                         CAMERA, T_CAM_BASE)
     assert all(boxed.check(q).valid for q in joints)
     assert (out / "contact_sheet.png").stat().st_size > 0
+
+
+def test_a_camera_far_from_the_robot_is_warned_of(tmp_path, capsys):
+    """A camera 8 m away planned without a word (the Panda about 60 px tall)."""
+    code = main(["plan", "--robot", "panda", "--camera", "8,0,1.5", "--look-at", "0,0,0.4",
+                 "--intrinsics", "600,600,319.5,239.5,640,480", "--num", "3", "--candidates",
+                 "30", "--out", str(tmp_path / "plan")])
+    assert code == 0
+    printed = capsys.readouterr().out
+    span = float(printed.split("keypoints span about ")[1].split(" px")[0])
+    assert 30 < span < 120 and "place the camera nearer the robot" in printed
 
 
 def test_a_box_may_hold_the_base_and_moves_are_checked(tmp_path, panda):
