@@ -147,7 +147,7 @@ def main() -> None:
         run(["adapt", "--data", data, "--result", result, "--model", model, "--out", adapted,
              "--holdout-frames", f"{args.teach}:{args.frames}", "--minutes", args.minutes,
              "--config", RECIPE, "--scene-renders", args.scene_renders, "--seed",
-             args.adapt_seed])
+             args.adapt_seed, "--overwrite"])
         timed("dream adapt", start)
         for label, m in (("trained", model), ("adapted", adapted)):
             line = score(held, args.robot, m, work, label)

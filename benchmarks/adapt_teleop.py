@@ -111,7 +111,7 @@ def main() -> None:
         run(["adapt", "--data", data, "--result", teacher, "--model", BUNDLED_MODEL, "--out",
              adapted, "--holdout-frames", f"{HOLDOUT[0]}:{HOLDOUT[1]}", "--minutes",
              args.minutes, "--config", REPO / "configs" / "train" / "panda_cpu.yaml",
-             "--scene-renders", args.scene_renders])
+             "--scene-renders", args.scene_renders, "--overwrite"])
         print(f"dream adapt: {(time.perf_counter() - start) / 60:.1f} minutes in all")
         print(adapted.with_suffix(".md").read_text())
         for frames in (HOLDOUT, TAUGHT_CLOSE):

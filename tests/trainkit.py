@@ -75,11 +75,12 @@ def make_drawn_dataset(out_dir: Path, num_frames: int = 32, width: int = 128, he
 
 
 class StopAtEpoch(Callback):
-    """Kills a run (an exception) when epoch `epoch` starts."""
+    """Kills a run (an exception, by default KeyError) when epoch `epoch` starts."""
 
-    def __init__(self, epoch: int):
+    def __init__(self, epoch: int, error: type[BaseException] = KeyError):
         self.epoch = epoch
+        self.error = error
 
     def on_train_epoch_start(self, trainer, pl_module) -> None:
         if trainer.current_epoch == self.epoch:
-            raise KeyError("killed")
+            raise self.error("killed")

@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import shutil
+import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -44,6 +46,7 @@ FINE_TUNE_LR = 5e-4         # a quarter of the recipe's: the network already wor
 SCORING_MINUTES = 1.5       # kept from --minutes for the export and the held-out scoring
 MIN_TRAINING_MINUTES = 0.5
 UNRELIABLE = "unreliable"
+CARD_SUFFIX = ".md"         # the model card beside the adapted .onnx
 
 
 @dataclass(frozen=True)
@@ -61,13 +64,17 @@ class AdaptRequest:
     scene_renders: int = 1000
     seed: int = 0
     overrides: tuple[str, ...] = ()
+    overwrite: bool = False
 
     def __post_init__(self) -> None:
         least = SCORING_MINUTES + MIN_TRAINING_MINUTES
         if not (self.minutes >= least and np.isfinite(self.minutes)):
             raise InputError(f"--minutes {self.minutes} leaves no time to train: the export and "
-                             f"the held-out scoring take {SCORING_MINUTES:g}", fix=f"give at "
-                             f"least {least:g}, e.g. 20")
+                             f"the held-out scoring take {SCORING_MINUTES:g}, training at least "
+                             f"{MIN_TRAINING_MINUTES:g}, and the labels and renders come first",
+                             fix=f"give more than {least:g}, e.g. 20")
+        if self.holdout_frames is not None:            # its form now, its range once read
+            holdout_range(self.holdout_frames, sys.maxsize)
         for flag, count in (("--renders", self.renders), ("--scene-renders",
                                                            self.scene_renders)):
             if count < 0:
@@ -237,20 +244,57 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
               ) -> dict:
     """`dream adapt` (module doc): returns the held-out report before and after, also written
     beside the model as its card (`ADAPTED.md`)."""
-    from dream.io import check_output_file
-    from dream.pipeline import robot_for
-    from export.onnx_export import export_model
-    from train.adapt_report import holdout_report, report_lines
-    from train.run import run_training
-    from train.scene_mix import render_scene_mix
+    from dream.io import check_output_file, outermost_missing
+    from train.adapt_report import worse_lines
 
     say = progress or (lambda line: None)
     target = check_output_file(request.out, parents_made=True)
     if target.resolve() == Path(request.model).resolve():
         raise InputError("--out names the model being adapted, which it would replace",
                          target, "give --out a file of its own, e.g. adapted.onnx")
-    training_config(request, [str(target.parent)], 1, request.minutes)  # recipe, --set: now
+    for path in (target, target.with_suffix(CARD_SUFFIX)):
+        if path.exists() and not request.overwrite:
+            raise InputError("exists (dream adapt --out writes it)", path,
+                             "give another --out, or --overwrite to replace it")
+    recipe = training_config(request, [str(target.parent)], 1, request.minutes)  # now
     seq, T, model, doc, recorded = teacher(request, out)
+    peaks = peak_change(model.metadata.peak_params, recipe.eval.peaks)
+    created = outermost_missing(target.parent)
+    try:
+        report = _adapt(request, target, seq, T, model, doc, recorded, say, peaks)
+    except BaseException:
+        if created is not None and not any(p.is_file() for p in created.rglob("*")):
+            shutil.rmtree(created, ignore_errors=True)     # the folder made for --out, empty
+        raise
+    report["peaks"] = peaks
+    report["lines"] += worse_lines(report["before"], report["after"], request.model)
+    write_card(target, report, doc)
+    return report
+
+
+def peak_change(model_peaks, recipe_peaks) -> str:
+    """In words, how the peak finder's constants the adapted model is exported with (the
+    recipe's `eval.peaks`) differ from the model's it starts from; "" where they agree or the
+    model has none."""
+    if model_peaks is None or model_peaks == recipe_peaks:
+        return ""
+    changed = [f"{k} {getattr(model_peaks, k):g} -> {v:g}"
+               for k, v in dataclasses.asdict(recipe_peaks).items()
+               if getattr(model_peaks, k) != v]
+    return ("peak finder: the recipe's eval.peaks are written into the adapted model, not the "
+            f"input model's ({', '.join(changed)}; --set eval.peaks.NAME=VALUE keeps a value)")
+
+
+def _adapt(request: AdaptRequest, target: Path, seq: Sequence, T: np.ndarray, model, doc: dict,
+           recorded: int, say: Callable[[str], None], peaks: str) -> dict:
+    """The labels, renders, fine-tune, export and held-out scores of `run_adapt` (`peaks`:
+    `peak_change`'s words, said once the inputs are checked)."""
+    from dream.pipeline import robot_for
+    from export.onnx_export import export_model
+    from train.adapt_report import holdout_report, report_lines
+    from train.run import run_training
+    from train.scene_mix import render_scene_mix
+
     made_from = (doc.get("data") or {}).get("num_frames", recorded)
     if not isinstance(made_from, int) or made_from > recorded:
         raise InputError(f"was calibrated on {made_from} frames, more than the {recorded} of "
@@ -272,6 +316,8 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
         raise InputError(f"{len(seq)} frames are too few to hold some out and score them",
                          request.data, f"record at least {HOLDOUT_SHARE} frames, or give "
                          "--holdout-frames START:STOP")
+    if peaks:
+        say(peaks)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -296,21 +342,27 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
         repeat = max(1, round((request.renders + request.scene_renders) / max(len(teach), 1)))
         minutes = training_minutes(request.minutes, time.perf_counter() - start)
         say(f"fine-tuning {request.model} for {minutes:.1f} minutes")
+        trained = time.perf_counter()
         run = run_training(training_config(request, folders, repeat, minutes), work / "run")
+        trained = (time.perf_counter() - trained) / 60
         export_model(run.best_checkpoint, target)
     minutes = (time.perf_counter() - start) / 60
     say("scoring the held-out frames before and after")
     held_seq = dataclasses.replace(seq, frames=tuple(seq.frames[i] for i in held))
     before = holdout_report(held_seq, robot, request.model, uv[list(held)], T)
     after = holdout_report(held_seq, robot, str(target), uv[list(held)], T)
-    report = {"data": str(request.data), "result": str(request.result),
-              "model": str(request.model), "teaching_frames": len(teach),
-              "holdout": [held.start, held.stop], "renders": request.renders,
-              "scene_renders": request.scene_renders,
-              "minutes": minutes, "before": before, "after": after,
-              "lines": report_lines(before, after)}
-    write_card(target, report, doc)
-    return report
+    return {"data": _absolute(request.data), "result": _absolute(request.result),
+            "model": _absolute(request.model), "recipe": _absolute(request.config),
+            "teaching_frames": len(teach), "holdout": [held.start, held.stop],
+            "renders": request.renders, "scene_renders": request.scene_renders,
+            "seed": request.seed, "overrides": list(request.overrides),
+            "steps": run.config.trainer.steps_trained, "training_minutes": trained,
+            "minutes": minutes, "before": before, "after": after,
+            "lines": report_lines(before, after)}
+
+
+def _absolute(path: str) -> str:
+    return str(Path(path).resolve())
 
 
 def write_card(target: Path, report: dict, doc: dict) -> Path:
@@ -318,16 +370,21 @@ def write_card(target: Path, report: dict, doc: dict) -> Path:
     from dream.io.atomic import write_bytes_atomic
 
     verdict = (doc.get("quality") or {}).get("verdict")
+    overrides = ", ".join(f"`{o}`" for o in report["overrides"]) or "none"
+    peaks = report["peaks"] or "Peak finder: the input model's constants."
     text = "\n".join([
         f"# {target.name}: adapted to one recording",
         "",
-        f"Fine-tuned from `{report['model']}` for {report['minutes']:.1f} minutes on "
-        f"{report['teaching_frames']} frames of `{report['data']}`, labelled by the calibrated "
-        f"extrinsic of `{report['result']}` (verdict `{verdict}`) and the joint readings, mixed "
-        f"with {report['renders']} renders of the robot and {report['scene_renders']} of it in "
-        "the recording's scene (its camera, its background). Frames "
-        f"{report['holdout'][0]}-"
-        f"{report['holdout'][1] - 1} were held out; on them, against the same labels "
-        "(before -> after):",
+        f"Fine-tuned from `{report['model']}` ({report['steps']} steps, "
+        f"{report['training_minutes']:.1f} minutes of training, {report['minutes']:.1f} in "
+        f"all) on {report['teaching_frames']} frames of `{report['data']}`, labelled by the "
+        f"calibrated extrinsic of `{report['result']}` (verdict `{verdict}`) and the joint "
+        f"readings, mixed with {report['renders']} renders of the robot and "
+        f"{report['scene_renders']} of it in the recording's scene (its camera, its "
+        f"background). Recipe `{report['recipe']}`, overrides {overrides}, seed "
+        f"{report['seed']}. {peaks}",
+        "",
+        f"Frames {report['holdout'][0]}-{report['holdout'][1] - 1} were held out; on them, "
+        "against the same labels (before -> after):",
         "", "```", *report["lines"], "```", ""])
-    return write_bytes_atomic(target.with_suffix(".md"), text.encode())
+    return write_bytes_atomic(target.with_suffix(CARD_SUFFIX), text.encode())

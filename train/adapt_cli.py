@@ -20,7 +20,7 @@ def cmd_adapt(args: argparse.Namespace) -> int:
                            **recipe, holdout_frames=args.holdout_frames,
                            minutes=args.minutes, renders=args.renders,
                            scene_renders=args.scene_renders, seed=args.seed,
-                           overrides=tuple(args.set or ()))
+                           overrides=tuple(args.set or ()), overwrite=args.overwrite)
     logging.getLogger("train").setLevel(logging.INFO)
     from train.adapt import run_adapt
 
@@ -63,4 +63,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="seed of the renders and the training (default: %(default)s)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a recipe key, e.g. data.batch_size=8")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing --out model and its card")
     p.set_defaults(func=cmd_adapt)

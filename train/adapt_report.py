@@ -92,3 +92,28 @@ def report_lines(before: dict, after: dict) -> list[str]:
                          f"solved, median {e['median_m'] * 1e3:.1f} mm, "
                          f"{np.rad2deg(e['median_rad']):.2f} deg from the calibrated one")
     return lines
+
+
+def worse_lines(before: dict, after: dict, model: str) -> list[str]:
+    """A warning where the adapted model scores worse than the one it started from on the
+    held-out frames (PCK@5 lower, or each frame's keypoint extrinsic farther from the
+    calibrated one); none where it does not.
+
+    >>> ok = {"pck": 0.5, "extrinsic_each": {"frames_solved": 3, "median_m": 0.03}}
+    >>> worse_lines(ok, {**ok, "pck": 0.6}, "m.onnx")
+    []
+    >>> worse_lines(ok, {**ok, "pck": 0.4}, "m.onnx")[0][:60]
+    'warning: the adapted model scores worse than m.onnx on the h'
+    """
+    worse = []
+    if before["pck"] is not None and after["pck"] is not None and after["pck"] < before["pck"]:
+        worse.append(f"PCK@5 {before['pck']:.3f} -> {after['pck']:.3f}")
+    b, a = before["extrinsic_each"], after["extrinsic_each"]
+    if b["frames_solved"] and a["frames_solved"] and a["median_m"] > b["median_m"]:
+        worse.append(f"each frame's extrinsic {b['median_m'] * 1e3:.1f} -> "
+                     f"{a['median_m'] * 1e3:.1f} mm from the calibrated one")
+    if not worse:
+        return []
+    return [f"warning: the adapted model scores worse than {model} on the held-out frames "
+            f"({'; '.join(worse)}): keep {model}, or adapt from a better calibration, with more "
+            "frames or more --minutes"]

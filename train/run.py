@@ -18,9 +18,13 @@ import math
 import os
 import re
 import shutil
+import signal
+import threading
 import time
 import warnings
+from collections.abc import Iterator
 from collections.abc import Sequence as SequenceOf
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -351,7 +355,26 @@ def _fit_quietly(trainer: L.Trainer, module: BeliefModule, train_loader: Any, va
         warnings.filterwarnings("ignore", message=r".*no `val_dataloader`")
         # Lightning 2.6 on torch 2.13, not ours to fix
         warnings.filterwarnings("ignore", message=r".*LeafSpec.*is deprecated")
-        trainer.fit(module, train_loader, val_loader, ckpt_path=ckpt_path)
+        with _ctrl_c_interrupts(trainer):
+            trainer.fit(module, train_loader, val_loader, ckpt_path=ckpt_path)
+
+
+@contextmanager
+def _ctrl_c_interrupts(trainer: L.Trainer) -> Iterator[None]:
+    """Ctrl-C stays a `KeyboardInterrupt` (the command says "interrupted", exit 130):
+    Lightning catches it, shuts the run down, exits 1 (`SystemExit`) and ignores Ctrl-C from
+    then on; the earlier handler is put back."""
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.getsignal(signal.SIGINT) if main_thread else None
+    try:
+        yield
+    except SystemExit:
+        if trainer.interrupted:
+            raise KeyboardInterrupt from None
+        raise
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
 
 
 def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | None = None,

@@ -118,7 +118,7 @@ def parse_frame_range(text: str, count: int, option: str) -> range:
         start, stop = (int(v) for v in text.split(":"))
     except ValueError:
         raise InputError(f"{option} {text!r} must be START:STOP (frame indices, STOP "
-                         "excluded)", fix="e.g. 0:15") from None
+                         "excluded)", fix="e.g. 10:20 (frames 10 to 19)") from None
     if not 0 <= start < stop <= count:
         where = ("holds no frame (STOP must exceed START)" if 0 <= stop <= start <= count
                  else f"lies outside the {count} frames")

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
+import re
 
 import numpy as np
 import pytest
@@ -88,16 +89,52 @@ def test_holding_out_every_frame_or_writing_over_the_model_is_refused(panda, mes
     base = ["adapt", "--data", str(tmp_path / "data"), "--result", str(tmp_path / "r.json"),
             "--model", str(model)]
     count = len(read_sequence(tmp_path / "data"))
+    (tmp_path / "old.onnx").write_bytes(b"a model in use")
+    (tmp_path / "new.md").write_text("notes")
     for extra, message in (
             (["--out", str(tmp_path / "a.onnx"), "--holdout-frames", f"0:{count}"],
              "none is left to teach"),
-            (["--out", str(model)], "would replace")):
+            (["--out", str(model)], "would replace"),
+            (["--out", str(tmp_path / "old.onnx")], "--overwrite to replace it"),
+            (["--out", str(tmp_path / "new.onnx")], "new.md: exists"),
+            (["--out", str(tmp_path / "a.onnx"), "--holdout-frames", "5-10"], "e.g. 10:20")):
         capsys.readouterr()
         code = main(base + extra)
         err = capsys.readouterr().err
         assert code == 2 and message in err and len(err.strip().splitlines()) == 1
-    assert not (tmp_path / "a.onnx").exists()
+    assert not (tmp_path / "a.onnx").exists() and not (tmp_path / "new.onnx").exists()
     assert model.read_bytes() == BUNDLED_MODEL.read_bytes()
+    assert (tmp_path / "old.onnx").read_bytes() == b"a model in use"
+    assert (tmp_path / "new.md").read_text() == "notes"
+
+
+def test_an_interrupted_adapt_leaves_no_folder_it_made(panda, meshes, tmp_path, capsys,
+                                                       monkeypatch):
+    """Ctrl-C once the work began: "interrupted", exit 130, and the folder made for --out
+    removed (it was left empty)."""
+    import train.adapt
+
+    calibrated(panda, meshes, tmp_path)
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(train.adapt, "teaching_set", interrupted)
+    capsys.readouterr()
+    code = main(["adapt", "--data", str(tmp_path / "data"), "--result", str(tmp_path / "r.json"),
+                 "--model", str(BUNDLED_MODEL), "--out", str(tmp_path / "new" / "a.onnx")])
+    assert code == 130 and "dream adapt: interrupted" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()
+
+
+def test_the_peak_finder_change_is_named():
+    from dream.peaks import PeakSettings
+    from train.adapt import peak_change
+
+    assert peak_change(PeakSettings(), PeakSettings()) == ""
+    assert peak_change(None, PeakSettings()) == ""
+    words = peak_change(PeakSettings(ambiguity_ratio=1.0), PeakSettings(ambiguity_ratio=0.5))
+    assert "ambiguity_ratio 1 -> 0.5" in words
 
 
 def test_a_result_of_another_robot_or_camera_or_shape_is_refused(panda, meshes, tmp_path,
@@ -195,6 +232,9 @@ def test_adapt_writes_a_model_that_calibrate_runs_unchanged(panda, meshes, tmp_p
     card = out.with_suffix(".md").read_text()
     assert "adapted to one recording" in card and "Frames 6-9 were held out" in card
     assert "and 6 of it in the recording's scene" in card
+    assert f"`{(tmp_path / 'data').resolve()}`" in card
+    assert re.search(r"\(\d+ steps, \d+\.\d minutes of training", card)
+    assert "ambiguity_ratio 1 -> 0.5" in card and "ambiguity_ratio 1 -> 0.5" in err
     assert not list(tmp_path.glob("dream-adapt-*"))          # the work folder is gone
     code = main(["calibrate", "--data", str(tmp_path / "data"), "--model", str(out),
                  "--refine", "none", "--out", str(tmp_path / "again.json")])

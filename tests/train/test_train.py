@@ -348,6 +348,18 @@ def test_checkpoint_rebuilds_the_same_model(trained):
     assert load_config(result.run_dir / "config.yaml") == config
 
 
+def test_ctrl_c_stops_a_run_as_an_interrupt(drawn, tmp_path):
+    """Lightning turns Ctrl-C into exit code 1 and ignores Ctrl-C afterwards; the commands
+    need the interrupt to say "interrupted" (exit 130)."""
+    import signal
+
+    before = signal.getsignal(signal.SIGINT)
+    config = tiny(drawn, "trainer.max_epochs=2", "data.val_fraction=0")
+    with pytest.raises(KeyboardInterrupt):
+        run_training(config, tmp_path, callbacks=[StopAtEpoch(1, KeyboardInterrupt)])
+    assert signal.getsignal(signal.SIGINT) is before
+
+
 @pytest.mark.slow
 def test_killed_run_resumes_from_its_last_epoch(drawn, tmp_path):
     config = tiny(drawn, "trainer.max_epochs=3", "data.val_fraction=0")
