@@ -12,6 +12,8 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+from train.model_config import RESNET
+
 CARD_SUFFIX = ".md"
 
 
@@ -37,11 +39,19 @@ def _training_lines(config: Any) -> list[str]:
     validation = (_folders(data.val) if data.val
                   else f"{data.val_fraction:.0%} of the training frames held out")
     start = (f"the weights of `{trainer.init_from}`" if trainer.init_from
-             else "the initialisation the model line states (encoder, pretrained)")
+             else _initialisation(config.model))
     return [f"- Trained: {trained}, {data.batch_size} images per step, learning rate "
             f"{config.optim.lr:g} ({config.optim.schedule}), from {start}.",
             f"- Training data: {_folders(data.train)}.",
             f"- Validation: {validation}."]
+
+
+def _initialisation(model: Any) -> str:
+    """Where the network's weights started without `trainer.init_from`: the resnet encoder is
+    always trained from scratch (`pretrained` applies to an EfficientNet-Lite only)."""
+    if model.encoder != RESNET and model.pretrained:
+        return f"the ImageNet weights of {model.encoder} (the decoder from scratch)"
+    return "scratch (random initialisation)"
 
 
 def model_card(report: Any, checkpoint: str | Path) -> str:
@@ -52,7 +62,8 @@ def model_card(report: Any, checkpoint: str | Path) -> str:
     peaks = ", ".join(f"{k} {v:g}" for k, v in dataclasses.asdict(meta.peak_params).items()
                       if isinstance(v, (int, float)))
     model = ", ".join(f"{k} {v}" for k, v in dataclasses.asdict(config.model).items()
-                      if isinstance(v, (str, int, float, bool)))
+                      if isinstance(v, (str, int, float, bool))
+                      and not (k == "pretrained" and config.model.encoder == RESNET))
     return "\n".join([
         f"# {report.path.name}: keypoint network for `{meta.robot}`", "",
         f"- Robot: `{meta.robot}` (URDF sha256 {meta.urdf_sha256 or 'unknown'}); "

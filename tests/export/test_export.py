@@ -530,6 +530,7 @@ def test_export_writes_the_model_card_beside_the_model(untrained_checkpoint, tmp
     assert ", ".join(meta.keypoint_names) in card
     assert "- Training data: " in card and str(untrained_checkpoint) in card
     assert "optimiser steps" in card or "not recorded" in card
+    assert "from scratch (random initialisation)" in card and "pretrained" not in card
     other = tmp_path / "n.onnx"
     (tmp_path / "n.md").write_text("my notes")
     line = _one_line_error(main(["export", "--checkpoint", str(untrained_checkpoint), "--out",
