@@ -28,7 +28,7 @@ from dream.io.fields import os_reason
 HASH_CHUNK_BYTES = 1 << 20
 
 
-def _file_digest(path: Path, cache: dict[Path, bytes]) -> bytes:
+def file_digest(path: Path, cache: dict[Path, bytes]) -> bytes:
     if path not in cache:
         digest = hashlib.sha256()
         try:
@@ -51,7 +51,7 @@ def content_hash(seq) -> str:
         digest.update(np.asarray(frame.joints, dtype="<f8").tobytes())
         digest.update(b"" if frame.timestamp is None else np.float64(frame.timestamp).tobytes())
         for path in (frame.image_path, frame.mask_path):
-            digest.update(b"-" if path is None else _file_digest(Path(path), files))
+            digest.update(b"-" if path is None else file_digest(Path(path), files))
         digest.update(str(frame.image_index).encode())
     return digest.hexdigest()
 

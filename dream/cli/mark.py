@@ -12,6 +12,9 @@ from typing import TextIO
 from dream.cli.options import DataOptions, add_command, add_data_args, read_data, request_from
 from dream.errors import InputError
 
+ANY_PORT = 0                  # --port 0: the system picks a free port
+MIN_PORT, MAX_PORT = 1024, 65535   # below 1024 only a system service may listen
+
 
 @dataclass(frozen=True)
 class MarkRequest(DataOptions):
@@ -22,20 +25,24 @@ class MarkRequest(DataOptions):
     port: int = 0
 
     def __post_init__(self) -> None:
-        if not 0 <= self.port <= 65535:
-            raise InputError(f"--port {self.port} is not a port", fix="give 1024-65535, or 0 "
-                             "for any free port")
+        if not (self.port == ANY_PORT or MIN_PORT <= self.port <= MAX_PORT):
+            raise InputError(f"--port {self.port} is not a port a user's server may take",
+                             fix=f"give {MIN_PORT}-{MAX_PORT}, or {ANY_PORT} for any free port")
 
 
 def run_mark(request: MarkRequest, out: TextIO | None = None,
              ready: Callable[[str], None] | None = None) -> int:
-    """Serve the page on 127.0.0.1 until its Done button (or Ctrl-C); the clicks go to
-    `request.out` after every change (an existing marks file of the recording is read first,
-    to go on marking). `ready(url)` is called once the page can be opened. Returns the number
-    of marks written."""
+    """Serve the page on 127.0.0.1 until its Done button (or Ctrl-C, the same); the clicks go
+    to `request.out` after every change, below a comment line naming the recording's marked
+    frames (`dream.io.marks`; an existing marks file of the recording is read first, to go
+    on marking; one of another recording is refused). `ready(url)` is called once the page
+    can be opened. Returns the number of marks written."""
+    from pathlib import Path
+
     from dream.coarse.mark import read_mark_rows
     from dream.io import check_output_file, load_image
     from dream.io.images import encode_png
+    from dream.io.marks import marked_frames_sha256, marks_comment
     from dream.io.recording_files import check_spares_recording
     from dream.mark_page.server import HOST, MarkBook, make_server
 
@@ -53,7 +60,10 @@ def run_mark(request: MarkRequest, out: TextIO | None = None,
         frames, uv = read_mark_rows(target, seq)
         marks = {names[int(i)]: (float(u), float(v)) for i, (u, v) in zip(frames, uv,
                                                                           strict=True)}
-    book = MarkBook(names, camera, target, marks)
+    digests: dict = {}            # image file -> its SHA-256, read once
+    source = str(Path(request.data).resolve())
+    book = MarkBook(names, camera, target, marks, lambda indices: marks_comment(
+        source, marked_frames_sha256(seq, indices, digests)))
 
     def image_png(i: int) -> bytes:
         return encode_png(load_image(seq.frames[i], camera), seq.frames[i].image_path)
@@ -68,6 +78,8 @@ def run_mark(request: MarkRequest, out: TextIO | None = None,
         ready(url)
     try:
         server.serve_forever()
+    except KeyboardInterrupt:     # Ctrl-C finishes as Done does: every click is written
+        print("", file=out)
     finally:
         server.server_close()
     count = len(book.marks())
@@ -86,7 +98,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = add_command(sub, "mark", cmd_mark, "click one point of the end effector in some frames "
                     "(a local web page) for dream calibrate --mark")
     add_data_args(p)
-    p.add_argument("--out", required=True, help="MARKS.csv to write (frame,u,v rows); an "
-                   "existing one of this recording is read first, to go on marking")
+    p.add_argument("--out", required=True, help="MARKS.csv to write (frame,u,v rows, below a "
+                   "'#' line naming the recording's marked frames); an existing one of this "
+                   "recording is read first, to go on marking, one of another is refused")
     p.add_argument("--port", type=int, default=0, help="port on 127.0.0.1 (default: any free "
                    "one, printed)")

@@ -131,13 +131,18 @@ def read_mark_rows(path: str | Path, sequence: Sequence) -> tuple[np.ndarray, np
 
     Raises:
         InputError: no such file, another header, a frame not in the data, a pixel outside the
-            image or not a number, a frame clicked twice.
+            image or not a number, a frame clicked twice, marks `dream mark` wrote for another
+            recording's frames (`dream.io.marks`).
     """
+    from dream.io.marks import COMMENT, check_marked_frames, comment_sha256
+
     path = Path(path)
     try:
-        rows = list(csv.reader(path.read_text().splitlines()))
+        lines = path.read_text().splitlines()
     except OSError as exc:
         raise InputError(f"cannot read the marks ({exc.strerror})", path, FIX_MARKS) from None
+    comments = [line for line in lines if line.startswith(COMMENT)]
+    rows = list(csv.reader(line for line in lines if not line.startswith(COMMENT)))
     if not rows or tuple(c.strip() for c in rows[0]) != MARK_COLUMNS:
         raise InputError(f"the marks' header must be {','.join(MARK_COLUMNS)}", path, FIX_MARKS)
     names = {f.name: i for i, f in enumerate(sequence.frames)}
@@ -164,6 +169,7 @@ def read_mark_rows(path: str | Path, sequence: Sequence) -> tuple[np.ndarray, np
         uv.append((u, v))
     if len(set(frames)) != len(frames):
         raise InputError("a frame is marked twice", path, "keep one row per frame")
+    check_marked_frames(path, comment_sha256(comments), sequence, frames)
     order = np.argsort(frames)
     return np.asarray(frames, int)[order], np.asarray(uv, float).reshape(-1, 2)[order]
 

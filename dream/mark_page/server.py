@@ -43,9 +43,13 @@ class MarkBook:
     every change (atomically: a killed server leaves the old file or the new one)."""
 
     def __init__(self, names: list[str], camera: CameraIntrinsics, out: Path,
-                 marks: dict[str, tuple[float, float]] | None = None) -> None:
+                 marks: dict[str, tuple[float, float]] | None = None,
+                 comment: Callable[[list[int]], str] | None = None) -> None:
+        """`comment(indices)`: the line written above the header for the marked frames'
+        indices (`dream.io.marks.marks_comment`), None: none."""
         self.names, self.camera, self.out = names, camera, out
         self._marks: dict[str, tuple[float, float]] = dict(marks or {})
+        self._comment = comment
         self._lock = threading.Lock()
 
     def marks(self) -> dict[str, list[float]]:
@@ -72,7 +76,9 @@ class MarkBook:
 
     def _write(self) -> None:
         order = {n: i for i, n in enumerate(self.names)}
-        rows = [",".join(MARK_COLUMNS)] + [
+        head = [] if self._comment is None else [
+            self._comment(sorted(order[name] for name in self._marks))]
+        rows = head + [",".join(MARK_COLUMNS)] + [
             f"{name},{u:.2f},{v:.2f}" for name, (u, v) in
             sorted(self._marks.items(), key=lambda item: order[item[0]])]
         write_bytes_atomic(self.out, ("\n".join(rows) + "\n").encode(), durable=False)

@@ -64,7 +64,8 @@ class Served:
 
 def rows(path) -> dict[str, tuple[float, float]]:
     with open(path) as f:
-        return {r["frame"]: (float(r["u"]), float(r["v"])) for r in csv.DictReader(f)}
+        lines = [line for line in f if not line.startswith("#")]   # the recording's line
+    return {r["frame"]: (float(r["u"]), float(r["v"])) for r in csv.DictReader(lines)}
 
 
 def click_pixel(browser: Browser, u: float, v: float) -> None:
@@ -107,7 +108,15 @@ def test_clicks_in_the_page_become_marks_and_done_stops_it(panda, meshes, tmp_pa
         browser.wait_for("document.body.dataset.shown === '4'")
         browser.click_element("#done")
         browser.wait_for("document.body.dataset.done === '1'")
+        after = browser.evaluate(        # nothing left to press, no click goes out
+            "(() => { document.getElementById('frame').dispatchEvent(new MouseEvent('click', "
+            "{clientX: 5, clientY: 5})); return [Array.from(document.querySelectorAll("
+            "'button, input')).every(c => c.disabled), "
+            "document.getElementById('status').textContent]; })()")
+        done_shot = browser.screenshot(tmp_path / "mark_page_done.png")
     served.thread.join(30)
+    assert after[0] and "the server has stopped" in after[1], after
+    assert done_shot.stat().st_size > 10_000
     assert not served.thread.is_alive() and served.count == 3
     assert "3 frames marked, saved to marks.csv" in status and "still loading" in refused
     assert shot.stat().st_size > 10_000
@@ -193,10 +202,67 @@ def test_the_page_goes_on_from_any_file_it_wrote(panda, meshes, tmp_path):
         assert again.error is None and rows(out) == {}
 
 
+def test_marks_of_another_recording_are_refused(panda, meshes, tmp_path):
+    """Recordings share frame names (000000...): the marks clicked on one were shown on, and
+    calibrated, another."""
+    from dream.coarse.mark import read_mark_rows
+    from dream.io import read_sequence
+
+    image_dataset(panda, meshes, tmp_path / "one")
+    image_dataset(panda, meshes, tmp_path / "two", blank=True)   # other images
+    out = tmp_path / "marks.csv"
+    served = Served(tmp_path / "one" / "data", out)
+    try:
+        served.request("POST", "/api/mark", b'{"frame": "000002", "u": 5, "v": 6}',
+                       {"Content-Type": "application/json"})
+    finally:
+        served.stop()
+    assert out.read_text().startswith(f"# dream mark: {(tmp_path / 'one' / 'data').resolve()}")
+    assert rows(out) == {"000002": (5.0, 6.0)}
+    frames, _ = read_mark_rows(out, read_sequence(tmp_path / "one" / "data"))
+    assert list(frames) == [2]
+    with pytest.raises(InputError, match="another recording's frames"):
+        read_mark_rows(out, read_sequence(tmp_path / "two" / "data"))
+    with pytest.raises(InputError, match="another recording's frames"):
+        run_mark(MarkRequest(data=str(tmp_path / "two" / "data"), out=str(out)))
+    out.write_text("frame,u,v\n000002,5,6\n")        # written by hand: taken as it is
+    assert list(read_mark_rows(out, read_sequence(tmp_path / "two" / "data"))[0]) == [2]
+
+
+def test_ctrl_c_finishes_as_done_does(panda, meshes, tmp_path):
+    """The command offers Ctrl-C as a way to finish: it said "interrupted" and exited 130."""
+    import signal
+    import subprocess
+    import sys
+
+    image_dataset(panda, meshes, tmp_path)
+    out = tmp_path / "marks.csv"
+    proc = subprocess.Popen([sys.executable, "-m", "dream.cli", "mark", "--data",
+                             str(tmp_path / "data"), "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        url = line.split("open ")[1].split(" ")[0]
+        host, port = url.split("//")[1].rstrip("/").split(":")
+        connection = http.client.HTTPConnection(host, int(port), timeout=10)
+        connection.request("POST", "/api/mark", b'{"frame": "000002", "u": 5, "v": 6}',
+                           {"Content-Type": "application/json"})
+        assert connection.getresponse().status == 200
+        connection.close()
+        proc.send_signal(signal.SIGINT)
+        printed, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    assert f"1 marks in {out}" in printed and "interrupted" not in err
+    assert rows(out) == {"000002": (5.0, 6.0)}
+
+
 def test_mark_options_and_files_fail_with_one_line(panda, meshes, tmp_path):
     image_dataset(panda, meshes, tmp_path)
-    with pytest.raises(InputError, match="port"):
-        MarkRequest(data=str(tmp_path / "data"), out=str(tmp_path / "m.csv"), port=70000)
+    for port in (70000, 80, -1):
+        with pytest.raises(InputError, match="port"):
+            MarkRequest(data=str(tmp_path / "data"), out=str(tmp_path / "m.csv"), port=port)
     bad = tmp_path / "bad.csv"
     bad.write_text("not,a,marks\n")
     with pytest.raises(InputError, match="header"):
