@@ -256,6 +256,9 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
         if path.exists() and not request.overwrite:
             raise InputError("exists (dream adapt --out writes it)", path,
                              "give another --out, or --overwrite to replace it")
+    if not Path(request.model).is_file():                 # before the recording is read
+        raise InputError("no such model file", request.model,
+                         "give --model the ONNX model to adapt (dream export writes one)")
     recipe = training_config(request, [str(target.parent)], 1, request.minutes)  # now
     seq, T, model, doc, recorded = teacher(request, out)
     peaks = peak_change(model.metadata.peak_params, recipe.eval.peaks)

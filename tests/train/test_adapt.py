@@ -97,7 +97,9 @@ def test_holding_out_every_frame_or_writing_over_the_model_is_refused(panda, mes
             (["--out", str(model)], "would replace"),
             (["--out", str(tmp_path / "old.onnx")], "--overwrite to replace it"),
             (["--out", str(tmp_path / "new.onnx")], "new.md: exists"),
-            (["--out", str(tmp_path / "a.onnx"), "--holdout-frames", "5-10"], "e.g. 10:20")):
+            (["--out", str(tmp_path / "a.onnx"), "--holdout-frames", "5-10"], "e.g. 10:20"),
+            (["--out", str(tmp_path / "a.onnx"), "--model", str(tmp_path / "none.onnx")],
+             "no such model file")):
         capsys.readouterr()
         code = main(base + extra)
         err = capsys.readouterr().err
