@@ -238,7 +238,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
                                   "camera": {"fx": seq.camera.fx, "fy": seq.camera.fy,
                                              "cx": seq.camera.cx, "cy": seq.camera.cy,
                                              "distortion": seq.camera.distortion}}
-    checked: list = [steadiness_record(motion, seq, doc)]
+    checked: list = [steadiness_record(motion, seq, doc), _focal_check(result, obs, seq, doc)]
     if refine == EDGES:
         add = add_edges if request.frames == "all" else add_frame_edges
         doc_keypoints = doc
@@ -259,6 +259,19 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     doc["quality"] = add_quality(result, obs, doc, out, checked)
     finish(request, seq, robot, obs, result, doc, paths, out)
     return doc
+
+
+def _focal_check(result, obs, seq, doc: dict):
+    """The keypoints' focal-length check of an all-frames result (`dream.focal_check`): its
+    RESULT.json record `keypoint_focal` and its finding (None where it agrees)."""
+    from dream.focal_check import keypoint_focal, keypoint_focal_finding
+
+    focal = keypoint_focal(result, obs, seq.camera)
+    if focal is None:
+        return None
+    finding = keypoint_focal_finding(focal, seq.camera)
+    doc["keypoint_focal"] = {**focal.to_dict(), "agrees": finding is None}
+    return finding
 
 
 def _read_extension(request: CalibrateRequest):

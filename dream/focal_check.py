@@ -1,0 +1,175 @@
+"""Whether the keypoints agree with the camera's focal length: a wrong fx, fy (a depth
+stream's intrinsics for the colour images, a datasheet's, an image resized after calibrating)
+moves a keypoint calibration's camera along its axis by as much, and the keypoint fit absorbs it
+with a small residual. A fixed camera that sees the arm at several depths tells the focal
+length apart from the distance: the pose and a focal-length scale are fitted together on the
+fit's inlier keypoints, and the scale's 1-sigma is the larger of the fit's and a jackknife over
+the keypoints (a detector's bias on one keypoint moves the scale more than its pixel noise
+says).
+
+    >>> from dream.camera import CameraIntrinsics, project
+    >>> from dream.transforms import look_at, transform_points
+    >>> rng = np.random.default_rng(0)
+    >>> camera = CameraIntrinsics(500.0, 500.0, 319.5, 239.5, 640, 480)
+    >>> T = look_at(np.array([1.5, 0.2, 0.8]), np.array([0.0, 0.0, 0.4]))
+    >>> P = rng.uniform([-0.4, -0.4, 0.0], [0.4, 0.4, 0.9], (60, 3))
+    >>> uv = project(camera, transform_points(T, P))
+    >>> wrong = CameraIntrinsics(550.0, 550.0, 319.5, 239.5, 640, 480)
+    >>> scale, _, _ = fit_focal_scale(P, uv, wrong, T)
+    >>> round(scale, 3)
+    0.909
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from dream.calibration import CalibrationResult, Observations
+from dream.camera import CameraIntrinsics
+from dream.errors import InputError
+from dream.pnp.reprojection import apply_increment, linearise
+from dream.quality import CHECK, Finding
+
+POSE_AND_SCALE = 7            # unknowns of the joint fit: the pose increment and log(scale)
+MAX_LOG_STEP = 1.0            # a Gauss-Newton step of log(scale) beyond this: no answer
+
+
+@dataclass(frozen=True)
+class FocalCheckSettings:
+    """The focal check's constants (set on renders: `benchmarks/focal_check.py`).
+
+    Attributes:
+        tolerance: a scale within this of 1 agrees, however significant (a lens's focal
+            length is known to a few per cent, and a few per cent moves the camera less than
+            the keypoints' own error does).
+        z: a scale farther from 1 than `tolerance` is a finding only this many 1-sigmas away.
+        iterations: Gauss-Newton steps of the joint fit.
+        min_keypoints: fewer inlier keypoints: no check.
+        min_groups: the jackknife leaves out one keypoint name at a time; fewer names seen:
+            the fit's 1-sigma alone.
+    """
+
+    tolerance: float = 0.04
+    z: float = 3.0
+    iterations: int = 20
+    min_keypoints: int = 20
+    min_groups: int = 3
+
+    def __post_init__(self) -> None:
+        if not (0 < self.tolerance < 1 and self.z > 0 and self.iterations > 0
+                and self.min_keypoints > POSE_AND_SCALE and self.min_groups >= 2):
+            raise InputError(f"invalid FocalCheckSettings {self}")
+
+
+@dataclass(frozen=True)
+class KeypointFocal:
+    """The focal-length scale the keypoints ask for (1: the given one) and its 1-sigma."""
+
+    scale: float
+    sigma: float
+    sigma_fit: float
+    sigma_jackknife: float | None
+    keypoints: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"scale": self.scale, "sigma": self.sigma, "sigma_fit": self.sigma_fit,
+                "sigma_jackknife": self.sigma_jackknife, "keypoints": self.keypoints}
+
+
+def fit_focal_scale(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
+                    T_cam_base: np.ndarray, iterations: int = 20
+                    ) -> tuple[float, float, np.ndarray]:
+    """The pose and focal-length scale s (fx, fy times s) that fit `uv` (N, 2) best, from
+    `T_cam_base`: returns (s, the fit's 1-sigma of log s, the pose).
+
+    The scale's column of the Jacobian is exact: d u / d log s = u - cx (and v - cy).
+    """
+    P_base, uv = np.asarray(P_base, float), np.asarray(uv, float)
+    if P_base.shape != (len(uv), 3) or uv.shape[-1:] != (2,):
+        raise InputError(f"P_base {P_base.shape} and uv {uv.shape} must be (N, 3) and (N, 2)")
+    T, log_s = np.asarray(T_cam_base, float), 0.0
+    sigma = math.inf
+    for _ in range(iterations):
+        scaled = _scaled(camera, math.exp(log_s))
+        lin = linearise(P_base, uv, scaled, T)
+        if lin is None:               # a keypoint behind the camera: no answer
+            return math.nan, math.inf, T
+        e, J = lin
+        J_s = (e + uv) - np.array([scaled.cx, scaled.cy])
+        A = np.concatenate([J.reshape(-1, 6), J_s.reshape(-1, 1)], axis=1)
+        H = A.T @ A
+        try:
+            step = np.linalg.solve(H, -A.T @ e.reshape(-1))
+        except np.linalg.LinAlgError:
+            return math.nan, math.inf, T
+        if not (np.all(np.isfinite(step)) and abs(step[6]) < MAX_LOG_STEP):
+            return math.nan, math.inf, T     # the scale runs away: no answer
+        T, log_s = apply_increment(T, step[:6]), log_s + step[6]
+        dof = max(A.shape[0] - POSE_AND_SCALE, 1)
+        variance = float(e.reshape(-1) @ e.reshape(-1)) / dof * np.linalg.pinv(H)[6, 6]
+        sigma = math.sqrt(variance) if variance > 0 else math.inf
+    return math.exp(log_s), sigma, T
+
+
+def keypoint_focal(result: CalibrationResult, obs: Observations, camera: CameraIntrinsics,
+                   settings: FocalCheckSettings = FocalCheckSettings()) -> KeypointFocal | None:
+    """The focal scale of an all-frames result's inlier keypoints (None: too few, or
+    another mode)."""
+    if result.mode != "all":
+        return None
+    inlier = result.inlier & obs.found
+    if inlier.sum() < settings.min_keypoints:
+        return None
+    P, uv = obs.P_base[inlier], obs.uv[inlier]
+    names = np.broadcast_to(np.arange(obs.uv.shape[1]), inlier.shape)[inlier]
+    scale, sigma_fit, _ = fit_focal_scale(P, uv, camera, result.T_cam_base,
+                                          settings.iterations)
+    if not math.isfinite(scale):
+        return None
+    groups = np.unique(names)
+    jackknife = None
+    if len(groups) >= settings.min_groups:
+        logs = np.log([fit_focal_scale(P[names != g], uv[names != g], camera,
+                                       result.T_cam_base, settings.iterations)[0]
+                       for g in groups])
+        if np.all(np.isfinite(logs)):
+            n = len(logs)
+            jackknife = float(math.sqrt((n - 1) / n * np.sum((logs - logs.mean()) ** 2)))
+    sigma = max(sigma_fit, jackknife or 0.0)
+    return KeypointFocal(float(scale), float(sigma), float(sigma_fit), jackknife,
+                         int(inlier.sum()))
+
+
+def keypoint_focal_finding(focal: KeypointFocal | None, camera: CameraIntrinsics,
+                           settings: FocalCheckSettings = FocalCheckSettings()
+                           ) -> Finding | None:
+    """`check` where the keypoints ask for a focal length more than `tolerance` and `z`
+    1-sigmas from the given one; None where they agree (or there was no check).
+
+    >>> camera = CameraIntrinsics(300.0, 300.0, 159.5, 119.5, 320, 240)
+    >>> keypoint_focal_finding(KeypointFocal(1.02, 0.004, 0.004, None, 200), camera) is None
+    True
+    >>> keypoint_focal_finding(KeypointFocal(0.91, 0.01, 0.005, 0.01, 200), camera)[0]
+    'check'
+    """
+    if focal is None:
+        return None
+    off = abs(math.log(focal.scale))
+    if off <= math.log1p(settings.tolerance) or off <= settings.z * focal.sigma:
+        return None
+    return CHECK, (f"the keypoints fit best with a focal length x{focal.scale:.3f} the given "
+                   f"one (+-{focal.sigma * 100:.1f} %): fx, fy {camera.fx * focal.scale:.1f}, "
+                   f"{camera.fy * focal.scale:.1f} instead of {camera.fx:.1f}, "
+                   f"{camera.fy:.1f}; a wrong focal length moves the camera along its axis "
+                   "by as much (centimetres): check the intrinsics (a depth stream's for the "
+                   "colour images? an image resized or cropped after calibrating?)")
+
+
+def _scaled(camera: CameraIntrinsics, scale: float) -> CameraIntrinsics:
+    from dream.coarse.focal import with_focal_scale
+
+    return with_focal_scale(camera, scale)
