@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import glob
 import hashlib
+import itertools
 import json
 import logging
 import re
@@ -237,12 +238,15 @@ def earlier_names(keys: list[tuple[str, str]], names: list[str],
     """`names` (`folder_names`), except that a recording an earlier batch into the same output
     folder wrote under another name keeps that name (`keys`: each recording's path and its
     list line's options; `earlier`: the same key -> the folder that holds its record), so that
-    adding a recording whose name clashes does not rename and redo a finished one. A name
-    that another recording of this batch takes is not given back.
+    adding a recording whose name clashes does not rename and redo a finished one; and that
+    the folder of a recording not in this batch is not written over (a name it holds gets
+    `-2`, `-3`...). A name that another recording of this batch takes is not given back.
 
     >>> earlier_names([("/a/rec", ""), ("/b/rec", "")], ["a-rec", "b-rec"],
     ...               {("/a/rec", ""): "rec"})
     ['rec', 'b-rec']
+    >>> earlier_names([("/b/rec", "")], ["rec"], {("/a/rec", ""): "rec"})
+    ['rec-2']
     """
     counts = Counter(keys)
     out = list(names)
@@ -250,6 +254,12 @@ def earlier_names(keys: list[tuple[str, str]], names: list[str],
         old = earlier.get(key)
         if old is not None and counts[key] == 1 and old not in out:
             out[i] = old
+    listed = {path for path, _ in keys}
+    held = {name for (path, _), name in earlier.items() if path not in listed}
+    for i, name in enumerate(out):
+        if name in held:
+            out[i] = next(f"{name}-{n}" for n in itertools.count(2)
+                          if f"{name}-{n}" not in held | set(out) | set(earlier.values()))
     return out
 
 

@@ -55,7 +55,8 @@ def with_refinement(doc: dict[str, Any], refined: Any, sequence: Sequence,
     `EdgeResult` or `PolishResult` of all frames, or a tuple of `FrameEdgeResult` /
     `PolishResult` (None: a frame not refined) of each frame; a kept refinement's pose,
     `rmse_px` and 1-sigma replace the keypoint fit's. `kind` ("edges" or "polish") names
-    the refinement of a tuple in which no frame was refined (default: from its types).
+    the refinement of a tuple in which no frame was refined (default: from its types; none
+    refined and no `kind`: the document as it was).
 
     Raises:
         InputError: `refined` is not a refinement of `result` (another kind, another mode, or
@@ -76,7 +77,13 @@ def with_refinement(doc: dict[str, Any], refined: Any, sequence: Sequence,
     if result.mode == "each" and isinstance(refined, SequenceOf) and not isinstance(refined, str):
         names = {FrameEdgeResult: "edges", PolishResult: "polish"}
         kinds = {names.get(type(r), "") for r in refined if r is not None} or {kind}
-        if len(refined) == len(result.frames) and len(kinds) == 1:
+        if len(refined) != len(result.frames):
+            raise InputError(f"refined holds {len(refined)} frames, the result "
+                             f"{len(result.frames)}", fix="pass what dream.refine_edges or "
+                             "dream.polish_result returned for this result")
+        if kinds == {None}:           # no frame was refined: the keypoint document
+            return dict(doc)
+        if len(kinds) == 1:
             _check_frames_started_at(refined, result)
             if kinds == {"edges"}:
                 index = {frame.name: i for i, frame in enumerate(sequence.frames)}

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import re
 import shutil
-import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -47,6 +47,7 @@ SCORING_MINUTES = 1.5       # kept from --minutes for the export and the held-ou
 MIN_TRAINING_MINUTES = 0.5
 UNRELIABLE = "unreliable"
 CARD_SUFFIX = ".md"         # the model card beside the adapted .onnx
+FRAME_RANGE = re.compile(r"\s*\d+\s*:\s*\d+\s*")     # START:STOP
 
 
 @dataclass(frozen=True)
@@ -73,8 +74,10 @@ class AdaptRequest:
                              f"the held-out scoring take {SCORING_MINUTES:g}, training at least "
                              f"{MIN_TRAINING_MINUTES:g}, and the labels and renders come first",
                              fix=f"give more than {least:g}, e.g. 20")
-        if self.holdout_frames is not None:            # its form now, its range once read
-            holdout_range(self.holdout_frames, sys.maxsize)
+        if self.holdout_frames is not None and not FRAME_RANGE.fullmatch(self.holdout_frames):
+            raise InputError(f"--holdout-frames {self.holdout_frames!r} must be START:STOP "
+                             "(frame indices, STOP excluded)", fix="e.g. 10:20 (frames 10 "
+                             "to 19)")
         for flag, count in (("--renders", self.renders), ("--scene-renders",
                                                            self.scene_renders)):
             if count < 0:
@@ -285,7 +288,8 @@ def peak_change(model_peaks, recipe_peaks) -> str:
                for k, v in dataclasses.asdict(recipe_peaks).items()
                if getattr(model_peaks, k) != v]
     return ("peak finder: the recipe's eval.peaks are written into the adapted model, not the "
-            f"input model's ({', '.join(changed)}; --set eval.peaks.NAME=VALUE keeps a value)")
+            f"input model's ({', '.join(changed)}; --set eval.peaks.NAME=VALUE keeps the input "
+            "model's value)")
 
 
 def _adapt(request: AdaptRequest, target: Path, seq: Sequence, T: np.ndarray, model, doc: dict,
@@ -374,7 +378,7 @@ def write_card(target: Path, report: dict, doc: dict) -> Path:
 
     verdict = (doc.get("quality") or {}).get("verdict")
     overrides = ", ".join(f"`{o}`" for o in report["overrides"]) or "none"
-    peaks = report["peaks"] or "Peak finder: the input model's constants."
+    peaks = report["peaks"] or "Peak finder: the recipe's eval.peaks."
     text = "\n".join([
         f"# {target.name}: adapted to one recording",
         "",

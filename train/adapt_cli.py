@@ -2,7 +2,7 @@
 run (`train.adapt`).
 
     dream adapt --data REC --result RESULT.json --model M.onnx --out ADAPTED.onnx \\
-        [--holdout-frames START:STOP] [--minutes 20]
+        [--holdout-frames START:STOP] [--minutes 20] [--overwrite]
 """
 
 from __future__ import annotations

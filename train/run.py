@@ -71,6 +71,7 @@ CHECKPOINT_SUFFIX = ".ckpt"
 CONFIG_FILE = "config.yaml"
 METRICS_FILE = "metrics.csv"
 _FALLBACK_MONITOR = "train/loss_epoch"  # when there is no validation data
+LIGHTNING_INTERRUPT_EXIT = 1            # Lightning's exit code after it caught a Ctrl-C
 
 
 @dataclass(frozen=True)
@@ -368,8 +369,8 @@ def _ctrl_c_interrupts(trainer: L.Trainer) -> Iterator[None]:
     previous = signal.getsignal(signal.SIGINT) if main_thread else None
     try:
         yield
-    except SystemExit:
-        if trainer.interrupted:
+    except SystemExit as exc:
+        if trainer.interrupted and exc.code == LIGHTNING_INTERRUPT_EXIT:
             raise KeyboardInterrupt from None
         raise
     finally:

@@ -91,7 +91,7 @@ def unrecognized_hint(extra: Sequence[str]) -> str:
     >>> unrecognized_hint(["--colour"])
     ''
     """
-    if not any(Path(token).exists() for token in extra if not token.startswith("-")):
+    if not any(Path(token).exists() for token in extra if token and not token.startswith("-")):
         return ""
     return (" (paths: did the shell expand an unquoted pattern? quote it, --data 'runs/*', "
             "or give one path)")

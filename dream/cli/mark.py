@@ -42,7 +42,7 @@ def run_mark(request: MarkRequest, out: TextIO | None = None,
     from dream.coarse.mark import read_mark_rows
     from dream.io import check_output_file, load_image
     from dream.io.images import encode_png
-    from dream.io.marks import marked_frames_sha256, marks_comment
+    from dream.io.marks import marks_comment
     from dream.io.recording_files import check_spares_recording
     from dream.mark_page.server import HOST, MarkBook, make_server
 
@@ -62,8 +62,8 @@ def run_mark(request: MarkRequest, out: TextIO | None = None,
                                                                           strict=True)}
     digests: dict = {}            # image file -> its SHA-256, read once
     source = str(Path(request.data).resolve())
-    book = MarkBook(names, camera, target, marks, lambda indices: marks_comment(
-        source, marked_frames_sha256(seq, indices, digests)))
+    book = MarkBook(names, camera, target, marks,
+                    lambda indices: marks_comment(source, seq, indices, digests))
 
     def image_png(i: int) -> bytes:
         return encode_png(load_image(seq.frames[i], camera), seq.frames[i].image_path)

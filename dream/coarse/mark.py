@@ -134,7 +134,7 @@ def read_mark_rows(path: str | Path, sequence: Sequence) -> tuple[np.ndarray, np
             image or not a number, a frame clicked twice, marks `dream mark` wrote for another
             recording's frames (`dream.io.marks`).
     """
-    from dream.io.marks import COMMENT, check_marked_frames, comment_sha256
+    from dream.io.marks import COMMENT, check_marked_frames, stated_digests
 
     path = Path(path)
     try:
@@ -169,7 +169,7 @@ def read_mark_rows(path: str | Path, sequence: Sequence) -> tuple[np.ndarray, np
         uv.append((u, v))
     if len(set(frames)) != len(frames):
         raise InputError("a frame is marked twice", path, "keep one row per frame")
-    check_marked_frames(path, comment_sha256(comments), sequence, frames)
+    check_marked_frames(path, stated_digests(comments), sequence, frames)
     order = np.argsort(frames)
     return np.asarray(frames, int)[order], np.asarray(uv, float).reshape(-1, 2)[order]
 

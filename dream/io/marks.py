@@ -1,17 +1,17 @@
 """Which recording a marks file (`frame,u,v`, `dream mark`) was clicked on: the comment line
-`dream mark` writes above the header holds a SHA-256 of the marked frames' names and image
-files, so that marks clicked on another recording whose frames share their names (000000,
-000001...) are refused instead of used. A file without the line (written by hand) is taken as
-it is.
+`dream mark` writes above the header gives each marked frame's name with a short SHA-256 of
+its image, so that marks clicked on another recording whose frames share their names (000000,
+000001...) are refused instead of used. Rows the line does not name (added by hand) and a file
+without the line are taken as they are.
 
-    # dream mark: /data/rec1; marked frames sha256 3f2a...
+    # dream mark: /data/rec1; frames sha256 000004=3f2a9c01d2e4b5a6 000019=...
     frame,u,v
     000004,312.50,201.00
 
->>> comment_sha256(["# dream mark: /d; marked frames sha256 " + "ab" * 32]) == "ab" * 32
-True
->>> comment_sha256(["# notes"]) is None
-True
+>>> stated_digests(["# dream mark: /d; frames sha256 000004=" + "ab" * 8])
+{'000004': 'abababababababab'}
+>>> stated_digests(["# notes"])
+{}
 """
 
 from __future__ import annotations
@@ -25,43 +25,48 @@ from dream.errors import InputError
 from dream.provenance import file_digest
 
 COMMENT = "#"
-_SHA256 = re.compile(r"marked frames sha256 ([0-9a-f]{64})")
+DIGEST_HEX = 16               # hex digits kept of each frame's SHA-256
+_FRAMES = re.compile(r"frames sha256 (.*)$")
+_PAIR = re.compile(rf"(\S+)=([0-9a-f]{{{DIGEST_HEX}}})")
 
 
-def marked_frames_sha256(sequence, indices: Iterable[int],
-                         cache: dict[Path, bytes] | None = None) -> str:
-    """SHA-256 (hex) of the frames `indices` of `sequence` in time order: each one's name,
-    image file content and index in that file (a video or bag)."""
-    digest, cache = hashlib.sha256(), {} if cache is None else cache
-    for i in sorted(int(i) for i in indices):
-        frame = sequence.frames[i]
-        digest.update(frame.name.encode())
-        digest.update(b"-" if frame.image_path is None
-                      else file_digest(Path(frame.image_path), cache))
-        digest.update(str(frame.image_index).encode())
-    return digest.hexdigest()
+def frame_sha256(sequence, index: int, cache: dict[Path, bytes] | None = None) -> str:
+    """The first `DIGEST_HEX` hex digits of the SHA-256 of frame `index`'s name, image file
+    content and index in that file (a video or bag)."""
+    frame = sequence.frames[int(index)]
+    digest = hashlib.sha256(frame.name.encode())
+    digest.update(b"-" if frame.image_path is None
+                  else file_digest(Path(frame.image_path), {} if cache is None else cache))
+    digest.update(str(frame.image_index).encode())
+    return digest.hexdigest()[:DIGEST_HEX]
 
 
-def marks_comment(source: str, sha256: str) -> str:
-    """The comment line above a marks file's header."""
-    return f"{COMMENT} dream mark: {source}; marked frames sha256 {sha256}"
+def marks_comment(source: str, sequence, indices: Iterable[int],
+                  cache: dict[Path, bytes] | None = None) -> str:
+    """The comment line above a marks file's header for the marked frames `indices`."""
+    pairs = " ".join(f"{sequence.frames[i].name}={frame_sha256(sequence, i, cache)}"
+                     for i in sorted(int(i) for i in indices))
+    return f"{COMMENT} dream mark: {source}; frames sha256 {pairs}"
 
 
-def comment_sha256(lines: Iterable[str]) -> str | None:
-    """The marked frames' SHA-256 a marks file's comment lines state, None without one."""
+def stated_digests(lines: Iterable[str]) -> dict[str, str]:
+    """Frame name -> digest, as a marks file's comment lines state them (none: {})."""
     for line in lines:
-        found = _SHA256.search(line)
+        found = _FRAMES.search(line)
         if found:
-            return found.group(1)
-    return None
+            return dict(_PAIR.findall(found.group(1)))
+    return {}
 
 
-def check_marked_frames(path: Path, stated: str | None, sequence, indices: Iterable[int]) -> None:
-    """Refuse marks whose comment states other marked frames than `sequence`'s of those names
-    (the marks of another recording)."""
-    if stated is None or stated == marked_frames_sha256(sequence, indices):
-        return
-    raise InputError(f"the marks were clicked on another recording's frames (other images "
-                     f"under the same frame names) than {sequence.source}'s", path,
-                     "give the marks clicked on this recording, or mark it anew: dream mark "
-                     "--data THIS_RECORDING --out NEW_MARKS.csv")
+def check_marked_frames(path: Path, stated: dict[str, str], sequence,
+                        indices: Iterable[int]) -> None:
+    """Refuse marks whose frames `indices` (of `sequence`) have other images than the comment
+    line states for those names (the marks of another recording)."""
+    other = [sequence.frames[i].name for i in indices
+             if sequence.frames[i].name in stated
+             and stated[sequence.frames[i].name] != frame_sha256(sequence, i)]
+    if other:
+        raise InputError(f"the marks of frames {', '.join(other[:3])} were clicked on other "
+                         f"images than {sequence.source}'s frames of those names (another "
+                         "recording)", path, "give the marks clicked on this recording, or "
+                         "mark it anew: dream mark --data THIS_RECORDING --out NEW_MARKS.csv")

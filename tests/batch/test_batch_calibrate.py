@@ -137,6 +137,13 @@ def test_a_recording_added_with_a_clashing_name_leaves_the_finished_one(recordin
     assert got["rec001"]["recording"] == str(recordings[1])
     assert got["other-rec001"]["recording"] == str(other)
     assert {p.name for p in out.iterdir() if p.is_dir()} == {"rec001", "other-rec001"}
+    listed.write_text(f"{tmp_path / 'third' / recordings[1].name}\n")   # alone: not over rec001
+    shutil.copytree(recordings[1], tmp_path / "third" / recordings[1].name)
+    before = (out / "rec001" / "batch.json").read_text()
+    assert main(["batch", "calibrate", "--data", str(listed), "--out", str(out), "--workers",
+                 "1", *OPTIONS]) == 0
+    assert (out / "rec001" / "batch.json").read_text() == before
+    assert rows(out)["rec001-2"]["recording"] == str(tmp_path / "third" / recordings[1].name)
 
 
 def test_an_unquoted_pattern_is_named(recordings, tmp_path, capsys):

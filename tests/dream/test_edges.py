@@ -294,6 +294,11 @@ def test_api_result_document_writes_the_refined_pose(panda, meshes, tmp_path):
     each = dream.calibrate(seq, obs, mode="each")
     with pytest.raises(dream.InputError, match="not a refinement of this each-frames"):
         dream.result_document(each, obs, robot, seq, refined=res)
+    unrefined = dream.result_document(each, obs, robot, seq, refined=(None,) * len(seq))
+    assert "edges" not in unrefined and unrefined["per_frame"] == dream.result_document(
+        each, obs, robot, seq)["per_frame"]
+    with pytest.raises(dream.InputError, match="refined holds 3 frames, the result 10"):
+        dream.result_document(each, obs, robot, seq, refined=(None,) * 3)
     frames = dream.refine_edges(seq, robot, each, obs)
     doc_each = dream.result_document(each, obs, robot, seq, refined=frames)
     kept = [e for e in doc_each["per_frame"] if e.get("edges", {}).get("kept")]
