@@ -5,8 +5,9 @@ folder), `timestamp` (optional: capture time, s) and one column per joint, named
 URDF's joints, in radians (prismatic joints in metres); one row per image. Without an `image`
 column the folder's images (`.png`, `.jpg`, `.jpeg`), sorted by name with numbers by value
 (frame_2 before frame_10), go with the rows in order. Another spelling of the two known columns
-(`Image`, `time`, `stamp_ns`...) is refused rather than taken for a joint, and timestamps that
-cannot be seconds (nanoseconds...) too. The camera: `camera_info.yaml` (ROS CameraInfo,
+(`Image`, `image_path`, `time`, `timestamps`, `header.stamp`...) is refused rather than taken
+for a joint, and so are a first line of numbers (no header) and timestamps that cannot be
+seconds (nanoseconds...). The camera: `camera_info.yaml` (ROS CameraInfo,
 `dream.io.camera_info`) or `K.txt` in the folder, or `--intrinsics` / `--camera-info`. Frames
 are named "000000"... in row order (in time order when the timestamps say another).
 """
@@ -48,6 +49,11 @@ IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg")
 # other names of the two known columns, refused so that neither passes as an unused joint
 TIME_ALIASES = ("time", "stamp", "t", "time_s", "timestamp_s", "stamp_s", "time_ns",
                 "timestamp_ns", "stamp_ns", "secs", "seconds")
+# and any name with a time word and unit suffixes (`timestamps`, `ts`, `time_sec`,
+# `header.stamp`, `rosbag_time`)
+TIME_LIKE = re.compile(r"(?:^|[._])(?:time(?:stamp)?s?|stamps?|ts|secs?|nsecs?)(?:$|[._])")
+IMAGE_ALIASES = ("image_path", "image_file", "images", "img", "filename", "file", "path",
+                 "rgb", "color", "colour")
 FIX_CSV = (f"write {CSV_FILE} with a header row: [image,] [timestamp,] then one column per "
            "joint (the URDF's joint names), radians, one row per image")
 
@@ -112,16 +118,34 @@ def natural_key(name: str) -> tuple:
 
 
 def _check_column_names(header: list[str], path: Path) -> None:
-    """Refuse another spelling of `image` or `timestamp` (module doc)."""
+    """Refuse a header of numbers (no header row) and another spelling of `image` or
+    `timestamp` (module doc)."""
+    if sum(_is_number(c) for c in header) * 2 > len(header):
+        raise InputError(f"its first line holds numbers ({', '.join(header[:3])}...), not the "
+                         "column names", path, FIX_CSV)
     for column in header:
         known = column.lower()
         if known == IMAGE_COLUMN and column != IMAGE_COLUMN:
             raise InputError(f"column {fields.quote(column)}: the image column is called "
                              f"{fields.quote(IMAGE_COLUMN)}", path, f"rename it to {IMAGE_COLUMN}")
-        if (known == TIME_COLUMN or known in TIME_ALIASES) and column != TIME_COLUMN:
+        if (known in IMAGE_ALIASES or known.startswith(f"{IMAGE_COLUMN}_")) \
+                and column != IMAGE_COLUMN:
+            raise InputError(f"column {fields.quote(column)} looks like the image column, which "
+                             f"is called {fields.quote(IMAGE_COLUMN)}", path,
+                             f"rename it to {IMAGE_COLUMN}")
+        if (known == TIME_COLUMN or known in TIME_ALIASES or TIME_LIKE.search(known)) \
+                and column != TIME_COLUMN:
             raise InputError(f"column {fields.quote(column)} looks like a time; the time column "
                              f"is called {fields.quote(TIME_COLUMN)}, in seconds", path,
                              f"rename it to {TIME_COLUMN} (in seconds), or remove it")
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _warn_repeated_times(times: list[float], joints: np.ndarray, path: Path) -> None:

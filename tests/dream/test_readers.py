@@ -312,7 +312,9 @@ def test_a_users_csv_is_read_as_a_spreadsheet_writes_it(imaged, tmp_path, capsys
     _same(read_sequence(folder), seq)
     header, *rows = text.splitlines()
     for renamed, message in (("time", "looks like a time"), ("Timestamp", "looks like a time"),
-                             ("stamp_ns", "looks like a time")):
+                             ("stamp_ns", "looks like a time"), ("timestamps", "looks like a "
+                             "time"), ("ts", "looks like a time"), ("time_sec", "looks like a "
+                             "time"), ("header.stamp", "looks like a time")):
         csv_path.write_text("\n".join([header.replace("timestamp", renamed), *rows]))
         with pytest.raises(InputError, match=message):
             read_sequence(folder)
@@ -321,6 +323,9 @@ def test_a_users_csv_is_read_as_a_spreadsheet_writes_it(imaged, tmp_path, capsys
     with caplog.at_level(logging.WARNING, logger="dream.io.csv_layout"):
         read_sequence(folder)
     assert "lines 2 and 3 share the timestamp" in caplog.text
+    csv_path.write_text("\n".join(rows))                  # no header row
+    with pytest.raises(InputError, match="first line holds numbers"):
+        read_sequence(folder)
     nanoseconds = [",".join([str(int(float(r.split(",")[0]) * 1e9)), *r.split(",")[1:]])
                    for r in rows]
     csv_path.write_text("\n".join([header, *nanoseconds]))
@@ -331,6 +336,10 @@ def test_a_users_csv_is_read_as_a_spreadsheet_writes_it(imaged, tmp_path, capsys
     named.write_text(named.read_text().replace("image,", "Image,", 1))
     with pytest.raises(InputError, match="the image column is called"):
         read_sequence(image_folder)
+    named.write_text(named.read_text().replace("Image,", "image_path,", 1))
+    with pytest.raises(InputError, match="looks like the image column"):
+        read_sequence(image_folder)
+    named.write_text(named.read_text().replace("image_path,", "Image,", 1))
     text = named.read_text().replace("Image,", "image,", 1)
     named.write_text(text.replace(",", ";"))           # a spreadsheet's locale
     with pytest.raises(InputError, match="separated by ';'.*Fix: save it as CSV with commas"):
