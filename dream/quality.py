@@ -50,6 +50,8 @@ DEPTH_AXIS_COS = 0.8          # a direction this close to the optical axis count
 DUPLICATE_JOINTS_M = 1e-6     # keypoints this close in the base frame: the same readings
 DUPLICATE_UV_PX = 0.05        # detections this close (median): the same image again
 STATIC_MOTION_M = 0.01        # keypoints moving less than this across frames: a static arm
+STILL_IMAGE_PX = 10.0         # a static arm's detections moving more than this (median over
+                              # the keypoints of each one's largest move): a frozen joint log
 MIN_AGREEMENT_FRAMES = 2      # other frames' poses below which a per-frame result's agreement
                               # with them is not judged
 GOOD, CHECK, UNRELIABLE = "good", "check", "unreliable"
@@ -175,6 +177,15 @@ def static_finding(obs: Observations) -> Finding | None:
     motion = float(np.max(np.linalg.norm(obs.P_base - obs.P_base[:1], axis=-1)))
     if motion >= STATIC_MOTION_M:
         return None
+    seen = np.linalg.norm(obs.uv - np.nanmedian(obs.uv, axis=0), axis=-1)
+    with np.errstate(all="ignore"):
+        image_px = float(np.nanmedian(np.nanmax(seen, axis=0))) if np.isfinite(seen).any() \
+            else 0.0
+    if image_px > STILL_IMAGE_PX:
+        return UNRELIABLE, (f"the joint readings hardly change (the keypoints move at most "
+                            f"{motion * 1e3:.1f} mm) but the keypoints move {image_px:.0f} px "
+                            "in the images: the joint log is frozen, or not the one of these "
+                            "images; check the readings and their timestamps")
     return CHECK, (f"the keypoints move at most {motion * 1e3:.1f} mm across the "
                    f"{len(obs.frame_names)} frames: they add no geometry to one view; record "
                    "10 or more configurations spread over the workspace")

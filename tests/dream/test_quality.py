@@ -109,8 +109,10 @@ def test_duplicate_and_static_frames():
     uv[3] = uv[1] + 20.0                                 # same readings, another image
     assert duplicate_finding(_observations(P, uv)) is None
     still = np.repeat(P[:1], 5, axis=0) + rng.normal(0, 1e-4, (5, 7, 3))
-    level, text = static_finding(_observations(still, uv))
+    level, text = static_finding(_observations(still, np.repeat(uv[:1], 5, axis=0) + 0.5))
     assert level == CHECK and "add no geometry" in text
+    level, text = static_finding(_observations(still, uv))   # the arm moves in the images
+    assert level == UNRELIABLE and "joint log is frozen" in text
 
 
 def test_calibrate_writes_the_verdict(tmp_path, capsys):
