@@ -54,6 +54,29 @@ def run_info(request: InfoRequest) -> None:
     print("joints (min .. max):")
     for name, lo, hi in zip(seq.joint_names, q.min(0), q.max(0), strict=True):
         print(f"  {name:24s} {lo:+.4f} .. {hi:+.4f}")
+    problem = _readings_problem(seq)
+    if problem:
+        print(f"warning:   {problem} (dream calibrate refuses them)")
+
+
+def _readings_problem(seq) -> str | None:
+    """Why the joint readings do not fit the robot the data names (degrees...), None where
+    they fit or the robot cannot be loaded (`_robot_words` says so)."""
+    from dream.errors import DreamError
+    from dream.plausibility import check_robot_readings
+    from dream.robot import load_robot
+
+    try:
+        robot = load_robot(seq.robot)
+    except DreamError:
+        return None
+    if any(n not in seq.joint_names for n in robot.joint_names):
+        return None
+    try:
+        check_robot_readings(seq, robot)
+    except DreamError as exc:
+        return str(exc.problem)
+    return None
 
 
 def _robot_words(seq) -> str:

@@ -85,7 +85,9 @@ def _number(text: str, what: str, path: Path) -> float:
     except ValueError:
         value = math.nan
     if not math.isfinite(value):
-        raise InputError(f"{what} is {fields.quote(text)}, not a finite number", path, FIX_CSV)
+        raise InputError(f"{what} is {fields.quote(text)}, not a finite number", path,
+                         "give every joint a reading (radians) and the timestamp in seconds "
+                         "in every row, or drop the row and its image")
     return value
 
 

@@ -124,6 +124,24 @@ def test_overlay_on_panda_teleop(realdata, tmp_path, capsys):
     assert len(list(tmp_path.glob("*.png"))) == 3
 
 
+def test_info_warns_of_joints_in_degrees(tmp_path, capsys):
+    """`dream info` listed readings in degrees without a word; calibrate refuses them."""
+    import dataclasses
+
+    from dream.inject import InjectionSettings, make_injected_sequence
+    from dream.io import write_dream
+
+    seq = make_injected_sequence(InjectionSettings(num_frames=5, seed=3))
+    write_dream(seq, tmp_path / "right")
+    write_dream(dataclasses.replace(seq, frames=tuple(dataclasses.replace(
+        f, joints=np.degrees(f.joints)) for f in seq.frames)), tmp_path / "degrees")
+    assert main(["info", str(tmp_path / "right")]) == 0
+    assert "warning" not in capsys.readouterr().out
+    assert main(["info", str(tmp_path / "degrees")]) == 0
+    printed = capsys.readouterr().out
+    assert "warning:" in printed and "are these degrees?" in printed
+
+
 def test_info_and_robots(realdata, capsys):
     code, out, _ = run(["info", realdata / "panda_teleop"], capsys)
     assert code == 0 and "275 frames" in out and "reference extrinsic: yes" in out
