@@ -326,6 +326,11 @@ def test_a_users_csv_is_read_as_a_spreadsheet_writes_it(imaged, tmp_path, capsys
     csv_path.write_text("\n".join(rows))                  # no header row
     with pytest.raises(InputError, match="first line holds numbers"):
         read_sequence(folder)
+    gap = rows[1].split(",")
+    gap[-1] = "nan"                                       # a reading the log lost
+    csv_path.write_text("\n".join([header, rows[0], ",".join(gap), *rows[2:]]))
+    with pytest.raises(InputError, match="not a finite number.*or drop the row"):
+        read_sequence(folder)
     nanoseconds = [",".join([str(int(float(r.split(",")[0]) * 1e9)), *r.split(",")[1:]])
                    for r in rows]
     csv_path.write_text("\n".join([header, *nanoseconds]))
