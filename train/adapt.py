@@ -247,7 +247,7 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
               ) -> dict:
     """`dream adapt` (module doc): returns the held-out report before and after, also written
     beside the model as its card (`ADAPTED.md`)."""
-    from dream.io import check_output_file, outermost_missing
+    from dream.io import check_output_file, outermost_missing, write_files_atomic
     from train.adapt_report import worse_lines
 
     say = progress or (lambda line: None)
@@ -267,14 +267,16 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
     peaks = peak_change(model.metadata.peak_params, recipe.eval.peaks)
     created = outermost_missing(target.parent)
     try:
-        report = _adapt(request, target, seq, T, model, doc, recorded, say, peaks)
+        report, model_bytes = _adapt(request, target, seq, T, model, doc, recorded, say,
+                                     peaks)
+        report["peaks"] = peaks
+        report["lines"] += worse_lines(report["before"], report["after"], request.model)
+        write_files_atomic({target: model_bytes,            # the model and its card together
+                            target.with_suffix(CARD_SUFFIX): card_text(target, report, doc)})
     except BaseException:
         if created is not None and not any(p.is_file() for p in created.rglob("*")):
             shutil.rmtree(created, ignore_errors=True)     # the folder made for --out, empty
         raise
-    report["peaks"] = peaks
-    report["lines"] += worse_lines(report["before"], report["after"], request.model)
-    write_card(target, report, doc)
     return report
 
 
@@ -293,9 +295,10 @@ def peak_change(model_peaks, recipe_peaks) -> str:
 
 
 def _adapt(request: AdaptRequest, target: Path, seq: Sequence, T: np.ndarray, model, doc: dict,
-           recorded: int, say: Callable[[str], None], peaks: str) -> dict:
+           recorded: int, say: Callable[[str], None], peaks: str) -> tuple[dict, bytes]:
     """The labels, renders, fine-tune, export and held-out scores of `run_adapt` (`peaks`:
-    `peak_change`'s words, said once the inputs are checked)."""
+    `peak_change`'s words, said once the inputs are checked): the report and the adapted
+    model's bytes, not yet placed at `target`."""
     from dream.pipeline import robot_for
     from export.onnx_export import export_model
     from train.adapt_report import holdout_report, report_lines
@@ -352,12 +355,13 @@ def _adapt(request: AdaptRequest, target: Path, seq: Sequence, T: np.ndarray, mo
         trained = time.perf_counter()
         run = run_training(training_config(request, folders, repeat, minutes), work / "run")
         trained = (time.perf_counter() - trained) / 60
-        export_model(run.best_checkpoint, target)
-    minutes = (time.perf_counter() - start) / 60
-    say("scoring the held-out frames before and after")
-    held_seq = dataclasses.replace(seq, frames=tuple(seq.frames[i] for i in held))
-    before = holdout_report(held_seq, robot, request.model, uv[list(held)], T)
-    after = holdout_report(held_seq, robot, str(target), uv[list(held)], T)
+        adapted = export_model(run.best_checkpoint, work / target.name).path
+        minutes = (time.perf_counter() - start) / 60
+        say("scoring the held-out frames before and after")
+        held_seq = dataclasses.replace(seq, frames=tuple(seq.frames[i] for i in held))
+        before = holdout_report(held_seq, robot, request.model, uv[list(held)], T)
+        after = holdout_report(held_seq, robot, str(adapted), uv[list(held)], T)
+        model_bytes = adapted.read_bytes()
     return {"data": _absolute(request.data), "result": _absolute(request.result),
             "model": _absolute(request.model), "recipe": _absolute(request.config),
             "teaching_frames": len(teach), "holdout": [held.start, held.stop],
@@ -365,17 +369,15 @@ def _adapt(request: AdaptRequest, target: Path, seq: Sequence, T: np.ndarray, mo
             "seed": request.seed, "overrides": list(request.overrides),
             "steps": run.config.trainer.steps_trained, "training_minutes": trained,
             "minutes": minutes, "before": before, "after": after,
-            "lines": report_lines(before, after)}
+            "lines": report_lines(before, after)}, model_bytes
 
 
 def _absolute(path: str) -> str:
     return str(Path(path).resolve())
 
 
-def write_card(target: Path, report: dict, doc: dict) -> Path:
+def card_text(target: Path, report: dict, doc: dict) -> bytes:
     """The adapted model's card: what it was adapted on and the held-out figures."""
-    from dream.io.atomic import write_bytes_atomic
-
     verdict = (doc.get("quality") or {}).get("verdict")
     overrides = ", ".join(f"`{o}`" for o in report["overrides"]) or "none"
     peaks = report["peaks"] or "Peak finder: the recipe's eval.peaks."
@@ -394,4 +396,4 @@ def write_card(target: Path, report: dict, doc: dict) -> Path:
         f"Frames {report['holdout'][0]}-{report['holdout'][1] - 1} were held out; on them, "
         "against the same labels (before -> after):",
         "", "```", *report["lines"], "```", ""])
-    return write_bytes_atomic(target.with_suffix(CARD_SUFFIX), text.encode())
+    return text.encode()

@@ -129,6 +129,30 @@ def test_an_interrupted_adapt_leaves_no_folder_it_made(panda, meshes, tmp_path, 
     assert not (tmp_path / "new").exists()
 
 
+def test_an_overwrite_stopped_while_scoring_keeps_the_old_model_and_card(panda, meshes,
+                                                                        tmp_path, capsys,
+                                                                        monkeypatch):
+    """The model and its card are placed together after the scoring: before, the new model
+    was already in place beside the old card."""
+    import train.adapt_report
+
+    calibrated(panda, meshes, tmp_path)
+    out = tmp_path / "a.onnx"
+    out.write_bytes(b"the model in use")
+    out.with_suffix(".md").write_text("its card")
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(train.adapt_report, "holdout_report", stopped)
+    code = main(["adapt", "--data", str(tmp_path / "data"), "--result", str(tmp_path / "r.json"),
+                 "--model", str(BUNDLED_MODEL), "--out", str(out), "--overwrite", *TINY])
+    assert code == 130, capsys.readouterr().err
+    assert out.read_bytes() == b"the model in use"
+    assert out.with_suffix(".md").read_text() == "its card"
+    assert not list(tmp_path.glob("dream-adapt-*"))
+
+
 def test_the_peak_finder_change_is_named():
     from dream.peaks import PeakSettings
     from train.adapt import peak_change
