@@ -3,7 +3,8 @@
 `info.json` holds `calibration_info.intrinsic` (3x3 K, pixels), `calibration_info.extrinsic`
 (`[[rx, ry, rz, tx, ty, tz]]`: Rodrigues vector and metres, X_cam = R X_base + t, the reference
 extrinsic) and `steps`, keyed by Unix capture time (s) as strings, in no guaranteed order, each
-with `img_file` and `joint_angles` (rad). Frames are named "000000"... in time order.
+with `img_file` and `joint_angles` (rad; values after the arm's joints, a gripper's, are left
+out). Frames are named "000000"... in time order.
 """
 
 from __future__ import annotations
@@ -86,10 +87,16 @@ def _parse_steps(steps: dict[str, Any], folder: Path, path: Path, n_joints: int
         step = fields.as_dict(step, what, path, FIX_INFO)
         img_file = fields.as_str(fields.require(step, "img_file", f"{what}.img_file", path,
                                                 FIX_INFO), f"{what}.img_file", path, FIX_INFO)
-        angles = fields.require(step, "joint_angles", f"{what}.joint_angles", path, FIX_INFO)
-        joints = fields.as_vector(angles, f"{what}.joint_angles", path, n_joints,
-                                  f"write {n_joints} joint angles in radians, or pass the "
-                                  f"joint names")
+        angles = fields.as_list(fields.require(step, "joint_angles", f"{what}.joint_angles",
+                                               path, FIX_INFO), f"{what}.joint_angles", path,
+                                FIX_INFO)
+        fix = (f"write the arm's {n_joints} joint angles in radians first (finger positions "
+               "may follow)")
+        if len(angles) < n_joints:
+            raise InputError(f"{what}.joint_angles has {len(angles)} values, fewer than the "
+                             f"arm's {n_joints} joints", path, fix)
+        joints = fields.as_vector(angles[:n_joints], f"{what}.joint_angles", path, n_joints,
+                                  fix)              # the gripper's values after them left out
         image = folder / img_file
         if not image.is_file():
             raise InputError(f"{what}.img_file {fields.quote(img_file)} not found in {folder}",

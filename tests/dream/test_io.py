@@ -503,10 +503,16 @@ def test_teleop_missing_image(tmp_path: Path) -> None:
 
 
 def test_teleop_wrong_joint_count(tmp_path: Path) -> None:
+    """Too few angles are refused; the gripper's two finger values after the arm's seven are
+    left out, as the other layouts do (they were refused with a fix naming no option)."""
     write_teleop(tmp_path, n=3)
-    _edit_json(tmp_path / "info.json",
-               lambda d: next(iter(d["steps"].values()))["joint_angles"].pop())
-    with pytest.raises(InputError) as exc:
+    arm = read_sequence(tmp_path).joints
+    _edit_json(tmp_path / "info.json", lambda d: [
+        step["joint_angles"].extend([0.04, 0.04]) for step in d["steps"].values()])
+    assert np.array_equal(read_sequence(tmp_path).joints, arm)
+    _edit_json(tmp_path / "info.json", lambda d: [
+        step["joint_angles"].__delitem__(slice(6, None)) for step in d["steps"].values()])
+    with pytest.raises(InputError, match="6 values, fewer than the arm's 7") as exc:
         read_sequence(tmp_path)
     _message_names(exc, "info.json")
 
