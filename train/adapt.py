@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import re
 import shutil
 import tempfile
 import time
@@ -47,7 +46,6 @@ SCORING_MINUTES = 1.5       # kept from --minutes for the export and the held-ou
 MIN_TRAINING_MINUTES = 0.5
 UNRELIABLE = "unreliable"
 CARD_SUFFIX = ".md"         # the model card beside the adapted .onnx
-FRAME_RANGE = re.compile(r"\s*\d+\s*:\s*\d+\s*")     # START:STOP
 
 
 @dataclass(frozen=True)
@@ -74,10 +72,10 @@ class AdaptRequest:
                              f"the held-out scoring take {SCORING_MINUTES:g}, training at least "
                              f"{MIN_TRAINING_MINUTES:g}, and the labels and renders come first",
                              fix=f"give more than {least:g}, e.g. 20")
-        if self.holdout_frames is not None and not FRAME_RANGE.fullmatch(self.holdout_frames):
-            raise InputError(f"--holdout-frames {self.holdout_frames!r} must be START:STOP "
-                             "(frame indices, STOP excluded)", fix="e.g. 10:20 (frames 10 "
-                             "to 19)")
+        if self.holdout_frames is not None:      # its form now, its range once read
+            from dream.cli.options import parse_frame_bounds
+
+            parse_frame_bounds(self.holdout_frames, "--holdout-frames")
         for flag, count in (("--renders", self.renders), ("--scene-renders",
                                                            self.scene_renders)):
             if count < 0:

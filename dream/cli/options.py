@@ -107,6 +107,21 @@ def parse_numbers(text: str, counts: tuple[int, ...], option: str, fix: str
     return values
 
 
+def parse_frame_bounds(text: str, option: str) -> tuple[int, int]:
+    """(START, STOP) of an option's `START:STOP`, its form alone (`parse_frame_range` checks
+    them against a recording); anything else is one `InputError` line naming `option`.
+
+    >>> parse_frame_bounds("2:5", "--frame-range")
+    (2, 5)
+    """
+    try:
+        start, stop = (int(v) for v in text.split(":"))
+    except ValueError:
+        raise InputError(f"{option} {text!r} must be START:STOP (frame indices, STOP "
+                         "excluded)", fix="e.g. 10:20 (frames 10 to 19)") from None
+    return start, stop
+
+
 def parse_frame_range(text: str, count: int, option: str) -> range:
     """`START:STOP` of an option naming frames of a recording of `count` (indices in time
     order, STOP excluded); anything else is one `InputError` line naming `option`.
@@ -114,11 +129,7 @@ def parse_frame_range(text: str, count: int, option: str) -> range:
     >>> parse_frame_range("2:5", 9, "--frame-range")
     range(2, 5)
     """
-    try:
-        start, stop = (int(v) for v in text.split(":"))
-    except ValueError:
-        raise InputError(f"{option} {text!r} must be START:STOP (frame indices, STOP "
-                         "excluded)", fix="e.g. 10:20 (frames 10 to 19)") from None
+    start, stop = parse_frame_bounds(text, option)
     if not 0 <= start < stop <= count:
         where = ("holds no frame (STOP must exceed START)" if 0 <= stop <= start <= count
                  else f"lies outside the {count} frames")
