@@ -45,7 +45,6 @@ FINE_TUNE_LR = 5e-4         # a quarter of the recipe's: the network already wor
 SCORING_MINUTES = 1.5       # kept from --minutes for the export and the held-out scoring
 MIN_TRAINING_MINUTES = 0.5
 UNRELIABLE = "unreliable"
-CARD_SUFFIX = ".md"         # the model card beside the adapted .onnx
 
 
 @dataclass(frozen=True)
@@ -246,6 +245,7 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
     """`dream adapt` (module doc): returns the held-out report before and after, also written
     beside the model as its card (`ADAPTED.md`)."""
     from dream.io import check_output_file, outermost_missing, write_files_atomic
+    from export.card import card_path
     from train.adapt_report import worse_lines
 
     say = progress or (lambda line: None)
@@ -253,7 +253,7 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
     if target.resolve() == Path(request.model).resolve():
         raise InputError("--out names the model being adapted, which it would replace",
                          target, "give --out a file of its own, e.g. adapted.onnx")
-    for path in (target, target.with_suffix(CARD_SUFFIX)):
+    for path in (target, card_path(target)):
         if path.exists() and not request.overwrite:
             raise InputError("exists (dream adapt --out writes it)", path,
                              "give another --out, or --overwrite to replace it")
@@ -267,10 +267,9 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
     try:
         report, model_bytes = _adapt(request, target, seq, T, model, doc, recorded, say,
                                      peaks)
-        report["peaks"] = peaks
         report["lines"] += worse_lines(report["before"], report["after"], request.model)
         write_files_atomic({target: model_bytes,            # the model and its card together
-                            target.with_suffix(CARD_SUFFIX): card_text(target, report, doc)})
+                            card_path(target): card_text(target, report, doc)})
     except BaseException:
         if created is not None and not any(p.is_file() for p in created.rglob("*")):
             shutil.rmtree(created, ignore_errors=True)     # the folder made for --out, empty
@@ -364,7 +363,7 @@ def _adapt(request: AdaptRequest, target: Path, seq: Sequence, T: np.ndarray, mo
             "model": _absolute(request.model), "recipe": _absolute(request.config),
             "teaching_frames": len(teach), "holdout": [held.start, held.stop],
             "renders": request.renders, "scene_renders": request.scene_renders,
-            "seed": request.seed, "overrides": list(request.overrides),
+            "seed": request.seed, "overrides": list(request.overrides), "peaks": peaks,
             "steps": run.config.trainer.steps_trained, "training_minutes": trained,
             "minutes": minutes, "before": before, "after": after,
             "lines": report_lines(before, after)}, model_bytes
