@@ -62,9 +62,10 @@ def check_marked_frames(path: Path, stated: dict[str, str], sequence,
                         indices: Iterable[int]) -> None:
     """Refuse marks whose frames `indices` (of `sequence`) have other images than the comment
     line states for those names (the marks of another recording)."""
+    cache: dict[Path, bytes] = {}          # a video or bag holds every frame: read it once
     other = [sequence.frames[i].name for i in indices
              if sequence.frames[i].name in stated
-             and stated[sequence.frames[i].name] != frame_sha256(sequence, i)]
+             and stated[sequence.frames[i].name] != frame_sha256(sequence, i, cache)]
     if other:
         raise InputError(f"the marks of frames {', '.join(other[:3])} were clicked on other "
                          f"images than {sequence.source}'s frames of those names (another "
