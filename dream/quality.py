@@ -26,6 +26,7 @@ RESULT.json's `quality` object: `detections`, `kept`, `kept_share`, `verdict` an
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -177,8 +178,9 @@ def static_finding(obs: Observations) -> Finding | None:
     motion = float(np.max(np.linalg.norm(obs.P_base - obs.P_base[:1], axis=-1)))
     if motion >= STATIC_MOTION_M:
         return None
-    seen = np.linalg.norm(obs.uv - np.nanmedian(obs.uv, axis=0), axis=-1)
-    with np.errstate(all="ignore"):
+    with warnings.catch_warnings():     # a keypoint never found: its median is NaN
+        warnings.simplefilter("ignore", RuntimeWarning)
+        seen = np.linalg.norm(obs.uv - np.nanmedian(obs.uv, axis=0), axis=-1)
         image_px = float(np.nanmedian(np.nanmax(seen, axis=0))) if np.isfinite(seen).any() \
             else 0.0
     if image_px > STILL_IMAGE_PX:
@@ -240,18 +242,21 @@ def result_quality(result: CalibrationResult, obs: Observations,
                    refined_by: str | None = None, covariance: np.ndarray | None = None,
                    T_cam_base: np.ndarray | None = None,
                    T_frames: np.ndarray | None = None,
-                   extra: tuple[Finding | None, ...] | list[Finding] = ()) -> Quality:
+                   extra: tuple[Finding | None, ...] | list[Finding] = (),
+                   leading: tuple[Finding | None, ...] | list[Finding] = ()) -> Quality:
     """The verdict on a calibration: its detections found and kept, the condition of the pose
     written (`T_cam_base` and its `covariance`: a kept image refinement's own; default the
     keypoint fit's), and, for the one extrinsic of all frames, duplicate frames and a static
     arm; for a per-frame result (`--frames each`), how the frames' poses `T_frames` (F, 4, 4,
     NaN where none; default the keypoint fits') agree with the reported one; `extra`: more
-    findings (the silhouettes' cross-check of an edge alignment, `dream.coarse.verdict`)."""
+    findings (the silhouettes' cross-check of an edge alignment, `dream.coarse.verdict`);
+    `leading`: findings that may cause the others (a mistake in the joint readings), listed
+    first."""
     found = obs.found
     detections, kept = int(found.sum()), int(np.sum(result.inlier & found))
     covariance = result.covariance if covariance is None else np.asarray(covariance, float)
     T = result.T_cam_base if T_cam_base is None else np.asarray(T_cam_base, float)
-    findings = [kept_finding(detections, kept, refined_by)]
+    findings = list(leading) + [kept_finding(detections, kept, refined_by)]
     findings += condition_findings(covariance, T)
     if result.mode == "all":
         findings += [duplicate_finding(obs), static_finding(obs)]

@@ -98,16 +98,18 @@ def with_refinement(doc: dict[str, Any], refined: Any, sequence: Sequence,
 
 
 def written_quality(result: CalibrationResult, obs: Observations, doc: dict[str, Any],
-                    extra: SequenceOf[Any] = ()) -> Any:
+                    extra: SequenceOf[Any] = (), leading: SequenceOf[Any] = ()) -> Any:
     """The verdict (`dream.quality.Quality`) on the pose a RESULT.json document holds: the
-    keypoint fit's, or a kept refinement's with its own 1-sigma; `extra`: more findings."""
+    keypoint fit's, or a kept refinement's with its own 1-sigma; `extra`: more findings;
+    `leading`: findings listed first (`dream.quality.result_quality`)."""
     from dream.quality import result_quality
     from dream.result import written_poses
 
     return result_quality(result, obs, pose_refined_by(doc),
                           covariance=np.asarray(doc["covariance_xi"], dtype=float),
                           T_cam_base=np.asarray(doc["T_cam_base"], dtype=float),
-                          T_frames=written_poses(doc), extra=list(extra))
+                          T_frames=written_poses(doc), extra=list(extra),
+                          leading=list(leading))
 
 
 def _check_started_at(T_before: np.ndarray, T_result: np.ndarray | None, what: str) -> None:

@@ -239,6 +239,8 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
                                              "cx": seq.camera.cx, "cy": seq.camera.cy,
                                              "distortion": seq.camera.distortion}}
     checked: list = [steadiness_record(motion, seq, doc), _focal_check(result, obs, seq, doc)]
+    readings = None if extension is not None else \
+        _readings_check(result, obs, seq, robot, settings, doc, out)   # its readings corrected
     if refine == EDGES:
         add = add_edges if request.frames == "all" else add_frame_edges
         doc_keypoints = doc
@@ -256,7 +258,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
         doc = add_polish(seq, robot, result, obs, model, doc, out, frames=request.frames,
                          mask_head=request.mask_head, motion_masks=request.motion_masks,
                          link_geometry=() if extension is None else extension.link_geometry)
-    doc["quality"] = add_quality(result, obs, doc, out, checked)
+    doc["quality"] = add_quality(result, obs, doc, out, checked, leading=(readings,))
     finish(request, seq, robot, obs, result, doc, paths, out)
     return doc
 
@@ -271,6 +273,25 @@ def _focal_check(result, obs, seq, doc: dict):
         return None
     finding = keypoint_focal_finding(focal, seq.camera)
     doc["keypoint_focal"] = {**focal.to_dict(), "agrees": finding is None}
+    return finding
+
+
+def _readings_check(result, obs, seq, robot, settings, doc: dict, out: TextIO):
+    """Whether a mistake in the joint readings explains the keypoints far better
+    (`dream.readings_check`): RESULT.json's `readings_check` and its finding."""
+    from dream.pipeline import joints_in_robot_order
+    from dream.readings_check import check_readings, readings_finding
+
+    check = check_readings(result, obs, robot, joints_in_robot_order(seq, robot), seq.camera,
+                           solver=settings)
+    if check is None:
+        return None
+    if check.tried:
+        print(f"readings check: {len(check.tried)} mistakes in the joint readings tried "
+              f"against the {check.detections - check.explained} detections the fit leaves "
+              "unexplained", file=out)
+    finding = readings_finding(check)
+    doc["readings_check"] = {**check.to_dict(), "agrees": finding is None}
     return finding
 
 

@@ -205,10 +205,11 @@ def _keypoints_or_aligned(doc: dict, doc_keypoints: dict, check: Crosscheck,
     return {**doc_keypoints, "edges": undone}, check.at_keypoints(T_keypoints)
 
 
-def add_quality(result, obs, doc: dict, out: TextIO, extra: list | tuple = ()) -> dict:
-    """The quality verdict (`dream.quality`) on the pose written, with the `extra` findings:
-    printed, with its reasons; RESULT.json's `quality` object."""
-    quality = written_quality(result, obs, doc, extra)
+def add_quality(result, obs, doc: dict, out: TextIO, extra: list | tuple = (),
+                leading: list | tuple = ()) -> dict:
+    """The quality verdict (`dream.quality`) on the pose written, with the `extra` findings
+    (the `leading` ones first): printed, with its reasons; RESULT.json's `quality` object."""
+    quality = written_quality(result, obs, doc, extra, leading)
     print(f"quality: {quality.verdict}", file=out)
     for warning in quality.warnings:
         print(f"  - {warning}", file=out)

@@ -68,8 +68,10 @@ def search_findings(best_iou: float, rival_iou: float | None, rival_distance_m: 
     if found_iou < settings.min_found_iou:
         out.append((UNRELIABLE, f"the robot's silhouettes at the pose found overlap the masks by "
                     f"IoU {found_iou:.2f} only (below {settings.min_found_iou}): the robot was "
-                    "not found in the images, or much else moves with it (a person guiding "
-                    "it?); check the overlays, give a camera guess closer to the truth "
+                    "not found in the images, much else moves with it (a person guiding "
+                    "it?), or the joint readings are not those of the images (a joint's sign, "
+                    "the columns' order, images and readings paired a frame apart); check the "
+                    "overlays, give a camera guess closer to the truth "
                     "(--camera-guess, --look-at) or a keypoint model, or record the arm "
                     "driven with nothing else moving in view"))
     if rival_iou is not None and best_iou - rival_iou < settings.min_gap:
