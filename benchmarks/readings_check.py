@@ -1,15 +1,15 @@
 """Does the readings check (`dream.readings_check`) name a mistake in the joint readings, and
 does it stay quiet on right ones?
 
-Renders fixed-camera `real_world.yaml` scenes of each `--robots` arm (clutter, a second robot,
-a held object; seeds from `--first-seed`), takes their keypoints from the bundled model (the
+Renders fixed-camera `real_world.yaml` scenes of each `--robots` arm (clutter, a second robot, a
+held object; seeds from `--first-seed`), takes their keypoints from the bundled model (the
 Panda) or from the labels plus `--label-noise-px` of noise (`--labels`, any arm), and for each
 scene calibrates all frames (keypoints only) from the readings as rendered and from copies with
-one mistake each: every joint negated, every two neighbouring joints swapped, and each image
-paired with the next frame's readings. Prints per mistake whether the check flags it and names
-the right fix, the camera error of the keypoint fit it misled, and whether the verdict without
-the check had called that fit `good`; then the false flags on right readings and the share of
-mistakes caught.
+one mistake each: every joint negated, every two neighbouring joints swapped, each image given
+the previous frame's readings (late) and each given the next frame's (early). Prints per mistake
+whether the check flags it and names the right fix, the camera error of the keypoint fit it
+misled, and whether the verdict without the check had called that fit `good`; then the false
+flags on right readings and the share of mistakes caught.
 
     python benchmarks/readings_check.py [--robots panda] [--scenes 12] [--frames 30]
         [--first-seed 7000] [--labels --label-noise-px 2] [--work DIR]
@@ -58,6 +58,7 @@ def mistakes(joints: np.ndarray, names: tuple[str, ...]) -> list[tuple[str, str,
         out.append((f"{names[j]}, {names[j + 1]} swapped",
                     f"joints '{names[j]}' and '{names[j + 1]}' swapped", wrong))
     out.append(("previous readings", LAGS[-1][0], np.roll(joints, 1, axis=0)))
+    out.append(("next readings", LAGS[1][0], np.roll(joints, -1, axis=0)))
     return out
 
 

@@ -7,8 +7,9 @@ off with a small residual (a base joint negated: a metre off, and called `good`)
 Each such mistake is a hypothesis: the keypoints are moved by the readings so corrected and the
 pose fitted again from scratch. A hypothesis is named in the verdict where it explains (within
 `explained_px` of its fit) `min_gain` more of the detections than the readings as given and at
-least `min_resolved` of those they leave unexplained. Readings that leave no more than
-`min_unexplained` of the detections unexplained are not questioned.
+least `min_resolved` of those they leave unexplained, on the same frames (at most
+`max_frames` of them). Readings that leave no more than `min_unexplained` of the detections
+unexplained are not questioned.
 
     >>> joints = np.array([[0.3, -1.0, 0.0], [0.5, -1.2, 0.0], [0.4, -1.1, 0.0]])
     >>> for mistake in reading_hypotheses(joints, ("a", "b", "c")):
@@ -17,8 +18,8 @@ least `min_resolved` of those they leave unexplained. Readings that leave no mor
     joint 'b' negated
     joints 'a' and 'b' swapped
     joints 'b' and 'c' swapped
-    the readings one frame early (each image's are the previous frame's)
-    the readings one frame late (each image's are the next frame's)
+    the readings one frame early (each image carries the next frame's readings)
+    the readings one frame late (each image carries the previous frame's readings)
 """
 
 from __future__ import annotations
@@ -40,9 +41,9 @@ log = logging.getLogger(__name__)
 SAME_POINT_M = 1e-6      # keypoints of the readings and of the observations agree within this
 # frames the readings are shifted by (reading of image i := reading of image i - lag): the
 # mistake that shift corrects, and what to do
-LAGS = {1: ("the readings one frame early (each image's are the previous frame's)",
+LAGS = {1: ("the readings one frame early (each image carries the next frame's readings)",
             "pair each image with the reading before it"),
-        -1: ("the readings one frame late (each image's are the next frame's)",
+        -1: ("the readings one frame late (each image carries the previous frame's readings)",
              "pair each image with the reading after it")}
 
 
@@ -58,7 +59,10 @@ class ReadingsCheckSettings:
             than the readings as given,
         min_resolved: and this share of the detections they leave unexplained.
         min_change_rad: a hypothesis that changes no reading by more than this is not tried
-            (negating a joint that stays near zero, swapping two that read alike).
+            (negating a joint that stays near zero, swapping two that read alike; metres for
+            a prismatic joint).
+        max_frames: the hypotheses are compared on at most this many frames, evenly spaced
+            (each is a fit from scratch: the cost grows with the frames).
     """
 
     explained_px: float = 10.0
@@ -66,11 +70,12 @@ class ReadingsCheckSettings:
     min_gain: float = 0.03
     min_resolved: float = 0.5
     min_change_rad: float = 0.05
+    max_frames: int = 100
 
     def __post_init__(self) -> None:
         if not (self.explained_px > 0 and 0 <= self.min_unexplained < 1
                 and 0 < self.min_gain < 1 and 0 < self.min_resolved <= 1
-                and self.min_change_rad >= 0):
+                and self.min_change_rad >= 0 and self.max_frames >= 3):
             raise InputError(f"invalid ReadingsCheckSettings {self}")
 
 
@@ -89,7 +94,7 @@ class Mistake:
 class ReadingsCheck:
     """The outcome: the detections the readings as given explain, the hypotheses tried, and the
     one that explains the most more than they do (None: none tried, or none explains more),
-    with its count and theirs over the detections of the frames it covers."""
+    with its count and theirs over the detections of the frames compared that it covers."""
 
     detections: int
     explained: int
@@ -186,12 +191,14 @@ def check_readings(result: CalibrationResult, obs: Observations, robot: Any,
     log.info("readings check: %d of %d detections explained; trying %d mistakes in the "
              "readings", count, detections, len(hypotheses))
     best = ReadingsCheck(detections, count, tuple(m.what for m in hypotheses))
+    compared = np.unique(np.linspace(0, len(joints) - 1, settings.max_frames).round()
+                         ).astype(int)
     for mistake in hypotheses:
-        seen = found & mistake.frames[:, None]
-        moved = Observations(robot.forward_kinematics(mistake.joints),
-                             np.where(seen[..., None], obs.uv, np.nan),
-                             np.where(seen, obs.confidence, 0.0), obs.frame_names,
-                             obs.keypoint_names)
+        seen = found[compared] & mistake.frames[compared, None]
+        moved = Observations(robot.forward_kinematics(mistake.joints[compared]),
+                             np.where(seen[..., None], obs.uv[compared], np.nan),
+                             np.where(seen, obs.confidence[compared], 0.0),
+                             tuple(obs.frame_names[i] for i in compared), obs.keypoint_names)
         try:
             fit = calibrate_all(moved, camera, solver)
         except DreamError:
@@ -199,7 +206,7 @@ def check_readings(result: CalibrationResult, obs: Observations, robot: Any,
         tried = ReadingsCheck(detections, count, best.tried, mistake, int(seen.sum()),
                               int(explained(fit.residuals_px, seen,
                                             settings.explained_px).sum()),
-                              int((given & seen).sum()))
+                              int((given[compared] & seen).sum()))
         if tried.gain > best.gain:
             best = tried
     return best
