@@ -227,8 +227,7 @@ def readings_finding(check: ReadingsCheck | None,
             or check.resolved < settings.min_resolved:
         return None
     return UNRELIABLE, (
-        f"the joint readings look wrong: the keypoints agree far better with {check.best.what} "
-        f"({check.best_explained} of {check.best_detections} detections within "
-        f"{settings.explained_px:g} px of the fit, against {check.given_explained_there} within "
-        f"{settings.explained_px:g} px with the readings as given); {check.best.fix}, then "
-        "calibrate again")
+        f"the joint readings look wrong: the keypoints agree far better with {check.best.what}: "
+        f"{check.best_explained} of {check.best_detections} detections lie within "
+        f"{settings.explained_px:g} px of the fit, against {check.given_explained_there} with "
+        f"the readings as given; {check.best.fix}, then calibrate again")
