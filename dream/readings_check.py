@@ -34,6 +34,7 @@ from dream.calibration import CalibrationResult, Observations, calibrate_all
 from dream.camera import CameraIntrinsics
 from dream.errors import DreamError, InputError
 from dream.pnp.settings import SolverSettings
+from dream.polish.objective import evenly_spaced
 from dream.quality import UNRELIABLE, Finding
 
 log = logging.getLogger(__name__)
@@ -191,8 +192,7 @@ def check_readings(result: CalibrationResult, obs: Observations, robot: Any,
     log.info("readings check: %d of %d detections explained; trying %d mistakes in the "
              "readings", count, detections, len(hypotheses))
     best = ReadingsCheck(detections, count, tuple(m.what for m in hypotheses))
-    compared = np.unique(np.linspace(0, len(joints) - 1, settings.max_frames).round()
-                         ).astype(int)
+    compared = evenly_spaced(np.arange(len(joints)), settings.max_frames)
     for mistake in hypotheses:
         seen = found[compared] & mistake.frames[compared, None]
         moved = Observations(robot.forward_kinematics(mistake.joints[compared]),
