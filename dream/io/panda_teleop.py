@@ -1,8 +1,8 @@
 """The panda_teleop layout: `info.json` and PNG images (docs/data_format.md#panda_teleop).
 
-`info.json` holds `calibration_info.intrinsic` (3x3 K, pixels), `calibration_info.extrinsic`
-(`[[rx, ry, rz, tx, ty, tz]]`: Rodrigues vector and metres, X_cam = R X_base + t, the reference
-extrinsic) and `steps`, keyed by Unix capture time (s) as strings, in no guaranteed order, each
+`info.json` holds `calibration_info.intrinsic` (3x3 K, pixels), optionally
+`calibration_info.extrinsic` (`[[rx, ry, rz, tx, ty, tz]]`: Rodrigues vector and metres,
+X_cam = R X_base + t, a reference extrinsic that only scores; a recording to calibrate has none) and `steps`, keyed by Unix capture time (s) as strings, in no guaranteed order, each
 with `img_file` and `joint_angles` (rad; values after the arm's joints, a gripper's, are left
 out). Frames are named "000000"... in time order.
 """
@@ -111,9 +111,12 @@ def _parse_steps(steps: dict[str, Any], folder: Path, path: Path, n_joints: int
     return out
 
 
-def _reference(calibration: dict[str, Any], path: Path) -> np.ndarray:
+def _reference(calibration: dict[str, Any], path: Path) -> np.ndarray | None:
+    """The reference extrinsic, or None where the file gives none (or gives null)."""
     what = "calibration_info.extrinsic"
-    value = fields.require(calibration, "extrinsic", what, path, FIX_INFO)
+    value = calibration.get("extrinsic")
+    if value is None:
+        return None
     if isinstance(value, list) and len(value) == 1 and isinstance(value[0], list):
         value = value[0]  # the published form wraps the six numbers in a list
     rt = fields.as_vector(value, what, path, EXTRINSIC_SIZE, FIX_INFO)
@@ -123,7 +126,7 @@ def _reference(calibration: dict[str, Any], path: Path) -> np.ndarray:
 def read_panda_teleop(path: str | Path, *, joint_names: SequenceOf[str] | None = None,
                       intrinsics: IntrinsicsArg | None = None,
                       robot: str | None = None) -> Sequence:
-    """Read a panda_teleop episode into a `Sequence` (reference extrinsic included).
+    """Read a panda_teleop episode into a `Sequence` (its reference extrinsic where it has one).
 
     Args:
         path: the episode folder, its parent holding one episode, or `info.json`.

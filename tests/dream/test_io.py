@@ -298,6 +298,22 @@ def test_panda_teleop_sorts_steps_by_time(tmp_path: Path) -> None:
     assert read_sequence(tmp_path / "episode", joint_names=names).joint_names == names
 
 
+def test_panda_teleop_without_reference_extrinsic(tmp_path: Path) -> None:
+    """A recording to calibrate has no reference: it reads without one, null or absent."""
+    write_teleop(tmp_path, n=3)
+    info = json.loads((tmp_path / "info.json").read_text())
+    del info["calibration_info"]["extrinsic"]
+    (tmp_path / "info.json").write_text(json.dumps(info))
+    assert read_sequence(tmp_path).T_cam_base_reference is None
+    info["calibration_info"]["extrinsic"] = None
+    (tmp_path / "info.json").write_text(json.dumps(info))
+    assert read_sequence(tmp_path).T_cam_base_reference is None
+    info["calibration_info"]["extrinsic"] = [[0.1, 0.2]]
+    (tmp_path / "info.json").write_text(json.dumps(info))
+    with pytest.raises(InputError, match="calibration_info.extrinsic"):
+        read_sequence(tmp_path)
+
+
 def test_franka_offline_drops_finger_values(tmp_path: Path) -> None:
     write_franka(tmp_path, n=3)
     sequence = read_sequence(tmp_path)
