@@ -227,16 +227,21 @@ def training_config(request: AdaptRequest, folders: list[str], repeat: int, minu
 
 def training_minutes(total: float, spent_s: float) -> float:
     """The training's share of the `--minutes` budget: what the labels and renders left,
-    less the export and scoring's.
+    less the export and scoring's; at least `MIN_TRAINING_MINUTES`, so that a budget the
+    renders overran still ends in an adapted model (a warning says by how much it runs over).
 
     >>> training_minutes(20.0, 60.0)
     17.5
+    >>> training_minutes(2.5, 60.0)
+    0.5
     """
     left = total - spent_s / 60 - SCORING_MINUTES
     if left < MIN_TRAINING_MINUTES:
-        raise InputError(f"--minutes {total:g} leaves {left:.1f} minutes to train after the "
-                         f"labels and renders ({spent_s / 60:.1f} minutes)",
-                         fix="give more --minutes, or fewer --renders")
+        log.warning("the labels and renders took %.1f of the %g minutes: training %g minutes, "
+                    "%.1f beyond the budget (give more --minutes, or fewer --renders and "
+                    "--scene-renders)", spent_s / 60, total, MIN_TRAINING_MINUTES,
+                    MIN_TRAINING_MINUTES - left)
+        return MIN_TRAINING_MINUTES
     return left
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
+import logging
 import re
 
 import numpy as np
@@ -191,6 +192,18 @@ def test_a_result_of_another_robot_or_camera_or_shape_is_refused(panda, meshes, 
     with pytest.raises(InputError, match="no time to train"):
         AdaptRequest(data="d", result="r.json", model="m.onnx", out="a.onnx", minutes=1.0)
     assert not out.parent.exists()
+
+
+def test_a_budget_the_renders_overran_still_trains_and_says_so(caplog):
+    """Renders that eat the budget leave the least training, with a warning, not a failure
+    after the work is done."""
+    from train.adapt import MIN_TRAINING_MINUTES, SCORING_MINUTES, training_minutes
+
+    with caplog.at_level(logging.WARNING, logger="train.adapt"):
+        assert training_minutes(2.5, 10.0) == pytest.approx(2.5 - 10 / 60 - SCORING_MINUTES)
+        assert not caplog.records
+        assert training_minutes(2.5, 60.0) == MIN_TRAINING_MINUTES
+    assert "beyond the budget" in caplog.text and "fewer --renders" in caplog.text
 
 
 def test_the_labels_go_through_the_focal_length_the_search_adopted(panda, meshes, tmp_path):
