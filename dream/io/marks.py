@@ -41,6 +41,17 @@ def frame_sha256(sequence, index: int, cache: dict[Path, bytes] | None = None) -
     return digest.hexdigest()[:DIGEST_HEX]
 
 
+def read_shared_files(sequence, cache: dict[Path, bytes]) -> list[Path]:
+    """Hash into `cache` every image file that several frames share (a bag or a video), so that
+    the first click of `dream mark` does not wait for a whole recording to be read; returns
+    those files."""
+    paths = [Path(f.image_path) for f in sequence.frames if f.image_path is not None]
+    shared = sorted({p for p in paths if paths.count(p) > 1})
+    for path in shared:
+        file_digest(path, cache)
+    return shared
+
+
 def marks_comment(source: str, sequence, indices: Iterable[int],
                   cache: dict[Path, bytes] | None = None) -> str:
     """The comment line above a marks file's header for the marked frames `indices`."""

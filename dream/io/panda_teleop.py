@@ -2,9 +2,10 @@
 
 `info.json` holds `calibration_info.intrinsic` (3x3 K, pixels), optionally
 `calibration_info.extrinsic` (`[[rx, ry, rz, tx, ty, tz]]`: Rodrigues vector and metres,
-X_cam = R X_base + t, a reference extrinsic that only scores; a recording to calibrate has none) and `steps`, keyed by Unix capture time (s) as strings, in no guaranteed order, each
-with `img_file` and `joint_angles` (rad; values after the arm's joints, a gripper's, are left
-out). Frames are named "000000"... in time order.
+X_cam = R X_base + t, a reference extrinsic that only scores; a recording to calibrate has
+none) and `steps`, keyed by Unix capture time (s) as strings, in no guaranteed order, each with
+`img_file` and `joint_angles` (rad; values after the arm's joints, a gripper's, are left out).
+Frames are named "000000"... in time order.
 """
 
 from __future__ import annotations

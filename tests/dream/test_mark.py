@@ -239,3 +239,25 @@ def test_mark_options_are_checked_before_any_work(tmp_path, capsys):
                      str(tmp_path / "r.json"), *extra])
         _, err = capsys.readouterr()
         assert code == 2 and message in err, (extra, err)
+
+
+def test_a_file_the_frames_share_is_read_once_before_the_page_serves(tmp_path):
+    """An image stack (or bag) holding every frame is hashed up front: the marks file's
+    comment then needs no read of it (here: it is gone)."""
+    from dream.io.marks import marks_comment, read_shared_files
+    from dream.sequence import Frame, Sequence
+
+    stack, alone = tmp_path / "frames.npz", tmp_path / "alone.png"
+    stack.write_bytes(b"stack bytes")
+    alone.write_bytes(b"png bytes")
+    frames = tuple(Frame(name=f"{i:06d}", joints=np.zeros(7), image_path=stack, image_index=i)
+                   for i in range(3)) + (Frame(name="000003", joints=np.zeros(7),
+                                               image_path=alone),)
+    seq = Sequence(robot="panda", camera=CameraIntrinsics(100, 100, 31.5, 23.5, 64, 48),
+                   joint_names=tuple(f"j{i}" for i in range(7)), keypoint_names=(),
+                   frames=frames)
+    expected = marks_comment("/d", seq, [0, 2])
+    cache: dict = {}
+    assert read_shared_files(seq, cache) == [stack] and list(cache) == [stack]
+    stack.unlink()
+    assert marks_comment("/d", seq, [0, 2], cache) == expected
