@@ -27,9 +27,10 @@ class InfoRequest(DataOptions):
 def run_info(request: InfoRequest) -> None:
     """The summary of `request.data`, printed."""
     seq = read_data(request)
+    robot = _load_robot(seq)
     cam = seq.camera
     print(f"data:      {request.data} ({len(seq)} frames)")
-    print(f"robot:     {_robot_words(seq)}")
+    print(f"robot:     {_robot_words(seq, robot)}")
     dist = "none" if cam.distortion is None else ", ".join(f"{c:.4g}" for c in cam.distortion)
     print(f"camera:    {cam.width}x{cam.height} fx={cam.fx:.2f} fy={cam.fy:.2f} cx={cam.cx:.2f} "
           f"cy={cam.cy:.2f} distortion: {dist}")
@@ -54,22 +55,28 @@ def run_info(request: InfoRequest) -> None:
     print("joints (min .. max):")
     for name, lo, hi in zip(seq.joint_names, q.min(0), q.max(0), strict=True):
         print(f"  {name:24s} {lo:+.4f} .. {hi:+.4f}")
-    problem = _readings_problem(seq)
+    problem = None if isinstance(robot, str) else _readings_problem(seq, robot)
     if problem:
         print(f"warning:   {problem} (dream calibrate refuses them)")
 
 
-def _readings_problem(seq) -> str | None:
-    """Why the joint readings do not fit the robot the data names (degrees...), None where
-    they fit or the robot cannot be loaded (`_robot_words` says so)."""
+def _load_robot(seq):
+    """The robot the data names (or its layout's default), or why it cannot be loaded."""
     from dream.errors import DreamError
-    from dream.plausibility import check_robot_readings
     from dream.robot import load_robot
 
     try:
-        robot = load_robot(seq.robot)
-    except DreamError:
-        return None
+        return load_robot(seq.robot)
+    except DreamError as exc:
+        return str(exc)
+
+
+def _readings_problem(seq, robot) -> str | None:
+    """Why the joint readings do not fit `robot` (degrees...), None where they fit or the
+    data lacks some of its joints (`_robot_words` says so)."""
+    from dream.errors import DreamError
+    from dream.plausibility import check_robot_readings
+
     if any(n not in seq.joint_names for n in robot.joint_names):
         return None
     try:
@@ -79,15 +86,11 @@ def _readings_problem(seq) -> str | None:
     return None
 
 
-def _robot_words(seq) -> str:
-    """The robot the data names (or its layout's default), and whether its joints fit."""
-    from dream.errors import DreamError
-    from dream.robot import load_robot
-
-    try:
-        robot = load_robot(seq.robot)
-    except DreamError as exc:
-        return f"{seq.robot} (cannot be loaded: {exc})"
+def _robot_words(seq, robot) -> str:
+    """The robot's name, and whether the data's joints fit it (`robot`: the loaded robot, or
+    why it could not be loaded)."""
+    if isinstance(robot, str):
+        return f"{seq.robot} (cannot be loaded: {robot})"
     missing = [n for n in robot.joint_names if n not in seq.joint_names]
     if not missing:
         return seq.robot

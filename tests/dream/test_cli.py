@@ -147,6 +147,10 @@ def test_info_and_robots(realdata, capsys):
     assert code == 0 and "275 frames" in out and "reference extrinsic: yes" in out
     code, out, _ = run(["info", realdata / "panda_teleop", "--robot", "ur5"], capsys)
     assert code == 0 and "ur5, but the data has no joint shoulder_pan_joint" in out
+    code, out, _ = run(["info", realdata / "panda_teleop", "--robot", "no_such_arm.urdf"],
+                       capsys)
+    assert code == 0 and "no_such_arm.urdf (cannot be loaded: " in out
+    assert "warning:" not in out
     code, out, _ = run(["robots"], capsys)
     assert code == 0 and all(name in out for name in ("panda", "ur5", "xarm7"))
     assert out.count("  why: ") == 3 and "link5 = link6" in out       # the rationale of each
