@@ -6,7 +6,7 @@ off with a small residual (a base joint negated: a metre off, and called `good`)
 
 Each such mistake is a hypothesis: the keypoints are moved by the readings so corrected and the
 pose fitted again from scratch. A hypothesis is named in the verdict where it explains (within
-`explained_px` of its fit) `min_gain` more of the detections than the readings as given and at
+`explained_width` of the image's width of its fit) `min_gain` more of the detections than the readings as given and at
 least `min_resolved` of those they leave unexplained, on the same frames (at most
 `max_frames` of them). Readings that leave no more than `min_unexplained` of the detections
 unexplained are not questioned.
@@ -53,7 +53,9 @@ class ReadingsCheckSettings:
     """The readings check's constants (set on renders: `benchmarks/readings_check.py`).
 
     Attributes:
-        explained_px: a detection within this of its projection at a fit is explained by it.
+        explained_width: a detection within this share of the image's width of its
+            projection at a fit is explained by it (10 px of the 320-pixel-wide renders the
+            constants were set on: a network's keypoints err in proportion to the image).
         min_unexplained: readings that leave no more than this share of the detections
             unexplained are not questioned.
         min_gain: a finding needs a hypothesis that explains this share of the detections more
@@ -66,7 +68,7 @@ class ReadingsCheckSettings:
             (each is a fit from scratch: the cost grows with the frames).
     """
 
-    explained_px: float = 10.0
+    explained_width: float = 10.0 / 320.0
     min_unexplained: float = 0.03
     min_gain: float = 0.03
     min_resolved: float = 0.5
@@ -74,7 +76,7 @@ class ReadingsCheckSettings:
     max_frames: int = 100
 
     def __post_init__(self) -> None:
-        if not (self.explained_px > 0 and 0 <= self.min_unexplained < 1
+        if not (0 < self.explained_width < 1 and 0 <= self.min_unexplained < 1
                 and 0 < self.min_gain < 1 and 0 < self.min_resolved <= 1
                 and self.min_change_rad >= 0 and self.max_frames >= 3):
             raise InputError(f"invalid ReadingsCheckSettings {self}")
@@ -104,6 +106,7 @@ class ReadingsCheck:
     best_detections: int = 0
     best_explained: int = 0
     given_explained_there: int = 0
+    explained_px: float = 0.0
 
     @property
     def gain(self) -> float:
@@ -125,7 +128,8 @@ class ReadingsCheck:
         return {"detections": self.detections, "explained": self.explained,
                 "tried": list(self.tried), "best": None if self.best is None else self.best.what,
                 "best_detections": self.best_detections, "best_explained": self.best_explained,
-                "given_explained_there": self.given_explained_there, "gain": self.gain,
+                "given_explained_there": self.given_explained_there,
+                "explained_within_px": self.explained_px, "gain": self.gain,
                 "resolved": self.resolved}
 
 
@@ -183,15 +187,16 @@ def check_readings(result: CalibrationResult, obs: Observations, robot: Any,
         raise InputError("the joint readings given to the readings check are not those of the "
                          "observations' keypoints", fix="pass the readings, in the robot's "
                          "joint order, that made observations.P_base")
-    found = obs.found
-    given = explained(result.residuals_px, found, settings.explained_px)
+    found, within_px = obs.found, settings.explained_width * camera.width
+    given = explained(result.residuals_px, found, within_px)
     detections, count = int(found.sum()), int(given.sum())
     if not detections or count >= (1 - settings.min_unexplained) * detections:
-        return ReadingsCheck(detections, count, ())
+        return ReadingsCheck(detections, count, (), explained_px=within_px)
     hypotheses = reading_hypotheses(joints, tuple(robot.joint_names), settings.min_change_rad)
     log.info("readings check: %d of %d detections explained; trying %d mistakes in the "
              "readings", count, detections, len(hypotheses))
-    best = ReadingsCheck(detections, count, tuple(m.what for m in hypotheses))
+    best = ReadingsCheck(detections, count, tuple(m.what for m in hypotheses),
+                         explained_px=within_px)
     compared = evenly_spaced(np.arange(len(joints)), settings.max_frames)
     for mistake in hypotheses:
         seen = found[compared] & mistake.frames[compared, None]
@@ -204,9 +209,8 @@ def check_readings(result: CalibrationResult, obs: Observations, robot: Any,
         except DreamError:
             continue
         tried = ReadingsCheck(detections, count, best.tried, mistake, int(seen.sum()),
-                              int(explained(fit.residuals_px, seen,
-                                            settings.explained_px).sum()),
-                              int((given[compared] & seen).sum()))
+                              int(explained(fit.residuals_px, seen, within_px).sum()),
+                              int((given[compared] & seen).sum()), within_px)
         if tried.gain > best.gain:
             best = tried
     return best
@@ -218,9 +222,9 @@ def readings_finding(check: ReadingsCheck | None,
     """`unreliable` where a mistake in the readings explains the images far better (pure).
 
     >>> late = reading_hypotheses(np.arange(8.0).reshape(4, 2), ("a", "b"))[-1]
-    >>> readings_finding(ReadingsCheck(100, 60, ("x",), late, 100, 98, 60))[0]
+    >>> readings_finding(ReadingsCheck(100, 60, ("x",), late, 100, 98, 60, 10.0))[0]
     'unreliable'
-    >>> readings_finding(ReadingsCheck(100, 60, ("x",), late, 100, 66, 60)) is None
+    >>> readings_finding(ReadingsCheck(100, 60, ("x",), late, 100, 66, 60, 10.0)) is None
     True
     """
     if check is None or check.best is None or check.gain < settings.min_gain \
@@ -229,5 +233,5 @@ def readings_finding(check: ReadingsCheck | None,
     return UNRELIABLE, (
         f"the joint readings look wrong: the keypoints agree far better with {check.best.what}: "
         f"{check.best_explained} of {check.best_detections} detections lie within "
-        f"{settings.explained_px:g} px of the fit, against {check.given_explained_there} with "
+        f"{check.explained_px:.3g} px of the fit, against {check.given_explained_there} with "
         f"the readings as given; {check.best.fix}, then calibrate again")

@@ -158,3 +158,20 @@ def test_the_benchmark_names_each_mistake_as_the_check_names_its_fix():
     names = ("a", "b", "c")
     fixes = {fix for _, fix, _ in load_benchmark("readings_check").mistakes(joints, names)}
     assert fixes == {m.what for m in reading_hypotheses(joints, names)}
+
+
+def test_what_counts_as_explained_scales_with_the_image_width():
+    """A network's keypoints err in proportion to the image: 10 px at 320 wide, 20 at 640."""
+    import dataclasses
+
+    seq, robot, joints = _scene(mistake=_negate_base, frames=20)
+    obs = observations_from_labels(seq, robot)
+    result = calibrate(seq, obs, "all")
+    narrow = check_readings(result, obs, robot, joints, seq.camera)
+    wide_camera = dataclasses.replace(seq.camera, width=2 * seq.camera.width)
+    wide = check_readings(result, obs, robot, joints, wide_camera)
+    assert narrow.explained_px == pytest.approx(seq.camera.width / 32)
+    assert wide.explained_px == pytest.approx(2 * narrow.explained_px)
+    assert wide.explained >= narrow.explained
+    assert f"{narrow.explained_px:.3g} px of the fit" in readings_finding(narrow)[1]
+    assert narrow.to_dict()["explained_within_px"] == narrow.explained_px
