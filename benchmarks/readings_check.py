@@ -143,7 +143,8 @@ def main() -> None:
     model = None if args.labels else dream.load_keypoint_model(dream.BUNDLED_MODEL)
     settings = ReadingsCheckSettings(min_unexplained=args.min_unexplained,
                                      min_gain=args.min_gain, min_resolved=args.min_resolved)
-    print(f"readings check: explained within {settings.explained_width:.4g} of the width, questioned beyond "
+    print(f"readings check: explained within {settings.explained_width:.4g} of the width, "
+          f"questioned beyond "
           f"{settings.min_unexplained:g} unexplained, min gain {settings.min_gain:g}, min "
           f"resolved {settings.min_resolved:g}; keypoints from "
           f"{f'labels + {args.label_noise_px:g} px' if args.labels else 'the bundled model'}")

@@ -27,6 +27,7 @@ from dream.errors import InputError
 
 JOINT_LIMIT_MARGIN_RAD = 0.1     # readings this far beyond a revolute limit are refused
 JOINT_LIMIT_MARGIN_M = 0.01      # ... and this far beyond a prismatic one
+MILLIMETRES_PER_METRE = 1000.0
 MAX_PRINCIPAL_OFFSET = 0.25      # the principal point lies within this share of the size
                                  # from the image's centre (the middle half of each axis)
 SWAPPED_TOLERANCE_PX = 1.0       # cx, cy this near the other axis's centre look swapped
@@ -47,7 +48,8 @@ def check_joint_readings(joints: np.ndarray, joint_names: SequenceOf[str], lower
 
     Raises:
         InputError: the first reading out of bounds, with the frame, the joint, its limits and
-            "are these degrees?" (or millimetres).
+            "are these degrees?" (or millimetres), or, where the joint's readings in those
+            units would be out of bounds too, whether the columns are in another order.
     """
     joints = np.atleast_2d(np.asarray(joints, dtype=float))
     margin = np.where(prismatic, JOINT_LIMIT_MARGIN_M, JOINT_LIMIT_MARGIN_RAD)
@@ -59,11 +61,19 @@ def check_joint_readings(joints: np.ndarray, joint_names: SequenceOf[str], lower
     value, name = joints[i, j], joint_names[j]
     count = len(np.unique(bad[:, 0]))
     if prismatic[j]:
-        unit, guess, fix = "m", "are these millimetres?", "give prismatic joints in metres"
+        unit, units, fix = "m", "millimetres", "give prismatic joints in metres"
+        as_base, shown = joints[:, j] / MILLIMETRES_PER_METRE, ""
     else:
-        unit = "rad"
-        guess = f"are these degrees? ({value:g} deg = {np.deg2rad(value):.3f} rad)"
-        fix = "give joint readings in radians (degrees x pi / 180)"
+        unit, units, fix = "rad", "degrees", "give joint readings in radians (degrees x pi / 180)"
+        as_base = np.deg2rad(joints[:, j])
+        shown = f" ({value:g} deg = {np.deg2rad(value):.3f} rad)"
+    column = "another joint's column (the columns in another order), or another robot's readings"
+    if np.any(as_base < lower[j] - margin[j]) or np.any(as_base > upper[j] + margin[j]):
+        guess = f"not in {units} either: is it {column}?"
+    elif np.max(np.abs(joints[:, j])) <= max(abs(lower[j]), abs(upper[j])) + margin[j]:
+        guess = f"are these {units}{shown}, or {column}?"   # small enough for either
+    else:
+        guess = f"are these {units}?{shown}"
     raise InputError(f"frame {frame_names[i]}: joint {name} = {value:g} lies outside its URDF "
                      f"limits [{lower[j]:.3f}, {upper[j]:.3f}] {unit} ({count} of {len(joints)} "
                      f"frames are out of bounds); {guess}", where,

@@ -6,10 +6,10 @@ off with a small residual (a base joint negated: a metre off, and called `good`)
 
 Each such mistake is a hypothesis: the keypoints are moved by the readings so corrected and the
 pose fitted again from scratch. A hypothesis is named in the verdict where it explains (within
-`explained_width` of the image's width of its fit) `min_gain` more of the detections than the readings as given and at
-least `min_resolved` of those they leave unexplained, on the same frames (at most
-`max_frames` of them). Readings that leave no more than `min_unexplained` of the detections
-unexplained are not questioned.
+`explained_width` of the image's width of its fit) `min_gain` more of the detections than the
+readings as given and at least `min_resolved` of those they leave unexplained, on the same
+frames (at most `max_frames` of them). Readings that leave no more than `min_unexplained` of
+the detections unexplained are not questioned.
 
     >>> joints = np.array([[0.3, -1.0, 0.0], [0.5, -1.2, 0.0], [0.4, -1.1, 0.0]])
     >>> for mistake in reading_hypotheses(joints, ("a", "b", "c")):

@@ -92,6 +92,25 @@ def test_limits_margin_continuous_and_prismatic_joints():
                              prismatic, frames)
 
 
+def test_readings_no_unit_explains_are_asked_about_the_column_order():
+    """A swapped column (Panda joint4 only bends one way) is not "degrees": no unit puts the
+    readings inside the limits; a reading that could be either is asked about both."""
+    lower, upper = np.array([-2.9, -3.07]), np.array([2.9, -0.07])
+    names, frames, revolute = ("j1", "j4"), ("000000", "000001"), np.array([False, False])
+    swapped = np.array([[-2.2, 0.4], [-2.0, 1.9]])     # j1's column and j4's exchanged
+    with pytest.raises(InputError) as info:
+        check_joint_readings(swapped, names, lower, upper, revolute, frames)
+    assert "not in degrees either: is it another joint's column" in str(info.value)
+    small = np.array([[0.0, -2.0], [0.0, 0.5]])        # 0.5: radians of another joint, or degrees
+    with pytest.raises(InputError) as info:
+        check_joint_readings(small, names, lower, upper, revolute, frames)
+    assert "are these degrees (0.5 deg = 0.009 rad), or another joint's column" in str(info.value)
+    degrees = np.array([[0.0, -120.0], [10.0, -30.0]])
+    with pytest.raises(InputError) as info:
+        check_joint_readings(degrees, names, lower, upper, revolute, frames)
+    assert "are these degrees? (-120 deg = -2.094 rad)" in str(info.value)
+
+
 def test_clean_inputs_pass(labels, tmp_path):
     robot = load_robot("panda")
     q = np.stack([robot.joint_lower, robot.joint_upper, robot.rest_joints])
