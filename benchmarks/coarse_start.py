@@ -76,28 +76,33 @@ VIDEO_CODECS = {"vp9": ("VP90", ".mkv"), "mpeg4": ("mp4v", ".mp4")}   # FourCC, 
 VIDEO_FPS = 10.0          # the rate written in the file; the encoder's default bit rate is kept
 
 
-def robot_keypoints(robot: str) -> tuple[str, ...] | None:
-    """None for a built-in robot; the suggested keypoints of a URDF (the renders' labels need
-    some; calibrating without keypoints never reads them)."""
+def robot_keypoints(robot: str, given: tuple[str, ...] | None = None
+                    ) -> tuple[str, ...] | None:
+    """None for a built-in robot; the `given` or else the suggested keypoints of a URDF (the
+    renders move the joints up to them and label them; calibrating without keypoints never
+    reads the labels)."""
     from dream.robot import builtin_robots, parse_urdf
     from dream.robot.keypoint_choice import analyse_keypoints
 
     if robot.strip().lower() in {entry.name for entry in builtin_robots()}:
         return None
+    if given:
+        return given
     return analyse_keypoints(parse_urdf(Path(robot))).suggested
 
 
-def robot_size(robot: str) -> float:
+def robot_size(robot: str, keypoints: tuple[str, ...] | None = None) -> float:
     """The robot's size (m): the median over random joint vectors of the largest extent of its
     keypoints (Panda 0.68, SO-101 0.28)."""
     from dream.robot import load_robot
 
-    model = load_robot(robot, robot_keypoints(robot))
+    model = load_robot(robot, robot_keypoints(robot, keypoints))
     P = model.forward_kinematics(model.sample_joints(np.random.default_rng(0), (SIZE_SAMPLES,)))
     return float(np.median(np.ptp(P, axis=1).max(axis=-1)))
 
 
-def randomisation(robot: str, scale_to_robot: bool, overrides: tuple[str, ...] = ()):
+def randomisation(robot: str, scale_to_robot: bool, overrides: tuple[str, ...] = (),
+                  keypoints: tuple[str, ...] | None = None):
     """`real_world.yaml` for fixed-camera scenes with `overrides` (`KEY=VALUE`, as `dream synth
     --set`); with `scale_to_robot` the camera's and the distractors' distances and sizes
     (`SCALED_KEYS`; the lights stay where they are) times the robot's size over the Panda's,
@@ -108,7 +113,7 @@ def randomisation(robot: str, scale_to_robot: bool, overrides: tuple[str, ...] =
     if not scale_to_robot:
         return config
     full = config.to_dict()
-    factor = robot_size(robot) / robot_size(SIZE_REFERENCE)
+    factor = robot_size(robot, keypoints) / robot_size(SIZE_REFERENCE)
     for section, key in SCALED_KEYS:
         full[section][key] = (np.asarray(full[section][key], float) * factor).tolist()
     return config_from_dict(full)
@@ -116,7 +121,7 @@ def randomisation(robot: str, scale_to_robot: bool, overrides: tuple[str, ...] =
 
 def render_scene(robot: str, out: Path, seed: int, frames: int,
                  scale_to_robot: bool = False, overrides: tuple[str, ...] = (),
-                 reuse: bool = False) -> Path:
+                 reuse: bool = False, keypoints: tuple[str, ...] | None = None) -> Path:
     """A fixed-camera `real_world.yaml` scene of `robot` (a built-in name or a URDF), its robot
     masks deleted; with `reuse`, a scene already rendered in `out` is taken as it is."""
     from synth.generate import SynthJob, generate
@@ -125,8 +130,8 @@ def render_scene(robot: str, out: Path, seed: int, frames: int,
         return out
 
     generate(SynthJob(robot=robot, out_dir=out, num_frames=frames,
-                      config=randomisation(robot, scale_to_robot, overrides), seed=seed,
-                      keypoints=robot_keypoints(robot)),
+                      config=randomisation(robot, scale_to_robot, overrides, keypoints),
+                      seed=seed, keypoints=robot_keypoints(robot, keypoints)),
              overwrite=True, on_progress=lambda done: None)
     for mask in out.glob("*.seg.png"):
         mask.unlink()
@@ -303,7 +308,9 @@ def run_renders(args: argparse.Namespace) -> None:
             name = Path(robot).stem
             for seed in range(args.first_seed, args.first_seed + args.scenes):
                 data = render_scene(robot, tmp / f"{name}_{seed}", seed, args.frames,
-                                    args.scale_to_robot, tuple(args.set), args.reuse_scenes)
+                                    args.scale_to_robot, tuple(args.set), args.reuse_scenes,
+                                    tuple(args.render_keypoints.split(","))
+                                    if args.render_keypoints else None)
                 if args.video_codec:
                     data = video_coded(data, args.video_codec,
                                        tmp / f"{name}_{seed}_{args.video_codec}")
@@ -395,6 +402,9 @@ def main() -> None:
     r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a randomisation key (repeatable), e.g. "
                    "intrinsics.width=960 distractors.robot_prob=1")
+    r.add_argument("--render-keypoints", metavar="LINKS", help="a URDF's keypoint links for the "
+                   "renders (they move every joint up to them: two arms of a torso); default "
+                   "its suggested ones")
     r.add_argument("--scale-to-robot", action="store_true", help="the randomisation's "
                    "camera and distractor distances and sizes times the robot's size over "
                    "the Panda's (a small arm seen from as near as a user would put the camera)")

@@ -105,27 +105,6 @@ def camera_guess(camera_guess: str | None, look_at: str | None, guess_sigma: str
                        user_given=True, look_at_base_m=np.asarray(target, float))
 
 
-def robot_for_search(seq, request):
-    """The robot of the data or `--robot`; a user URDF without `--keypoints` gets the suggested
-    keypoint links (`dream robots --urdf`), which the search does not use."""
-    from dream.errors import RobotError
-    from dream.pipeline import robot_for
-    from dream.plausibility import check_robot_readings
-
-    keypoints = request.keypoint_links
-    try:
-        robot = robot_for(seq, request.robot, option_keypoints=keypoints)
-    except RobotError:
-        from dream.robot.keypoint_choice import analyse_keypoints
-        from dream.robot.urdf import parse_urdf
-
-        name = request.robot or seq.robot
-        robot = robot_for(seq, request.robot, analyse_keypoints(parse_urdf(Path(name)))
-                          .suggested)
-    check_robot_readings(seq, robot)
-    return robot
-
-
 def keypoint_hypothesis(request, seq, out: TextIO) -> tuple:
     """The robot and the keypoint pose of `--model` (or the labels) over all frames, as one
     more source of the search's hypotheses ({} where the keypoints give no pose)."""
@@ -152,6 +131,8 @@ def search_start(request, seq, out: TextIO):
     from dream.coarse.focal import FocalSettings
 
     guess = camera_guess(request.camera_guess, request.look_at, request.guess_sigma)
+    from dream.cli.search_robot import robot_for_search
+
     robot, extra = (keypoint_hypothesis(request, seq, out) if request.keypoints_given
                     else (robot_for_search(seq, request), {}))
     marked = None

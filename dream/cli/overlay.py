@@ -81,7 +81,7 @@ def _robot(seq, request: OverlayRequest):
     except RobotError:
         if request.keypoint_links is not None:
             raise
-    from dream.cli.calibrate_start import robot_for_search
+    from dream.cli.search_robot import robot_for_search
     from dream.silhouette import load_robot_meshes
 
     robot = robot_for_search(seq, request)

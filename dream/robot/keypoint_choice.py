@@ -312,6 +312,30 @@ def suggest_keypoints(tree: KinematicTree, base_link: str,
     return tuple(chain[i] for i in chosen)
 
 
+def logged_joint_links(tree: KinematicTree, base_link: str, logged: Sequence[str],
+                       driven: Sequence[str]) -> tuple[str, ...]:
+    """Links that, added to the keypoint links `driven`, make a robot move every joint named in
+    `logged` (the data's joint columns) below `base_link`: the child link of each such joint
+    that moves, follows no other and is not driven yet, where no other of them lies below it
+    (a second arm's last logged joint, a head's). Joints behind a floating or planar joint are
+    left out. The silhouettes then draw those links at their readings instead of at rest."""
+    depth = len(tree.path(base_link))
+    on_chain = {i for link in driven for i in tree.path(link)[depth:]}
+    found = []
+    for name in logged:
+        i = tree.joint_index.get(name)
+        if i is None or i in on_chain:
+            continue
+        joint = tree.joints[i]
+        if joint.type not in MOVING_TYPES or joint.mimic is not None \
+                or not tree.is_ancestor(base_link, joint.child):
+            continue
+        if all(tree.joints[k].type in SUPPORTED_TYPES for k in tree.path(joint.child)[depth:]):
+            found.append(joint.child)
+    return tuple(link for link in found
+                 if not any(other != link and tree.is_ancestor(link, other) for other in found))
+
+
 def analyse_keypoints(tree: KinematicTree, base_link: str | None = None,
                       given: Sequence[str] = ()) -> KeypointAdvice:
     """Coincident origins, the suggested keypoints and, for `given` keypoint links, which of
