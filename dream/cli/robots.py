@@ -95,8 +95,9 @@ def _print_columns(tree, path, advice, out: TextIO) -> None:
     held = [j.name for j in tree.joints if j.moves and j.mimic is None
             and j.name not in robot.joint_names]
     if held:
-        _wrapped(f"{INDENT}held at rest in the model (they move no keypoint; the silhouettes "
-                 "draw their links at rest, so keep them still while you record): ", held, out)
+        _wrapped(f"{INDENT}move no keypoint (the silhouette search moves their links where the "
+                 "recording logs them, and draws them at rest where it does not: then keep "
+                 "them still while you record): ", held, out)
 
 
 def describe_robot(name_or_urdf: str, keypoints: tuple[str, ...] | None = None,

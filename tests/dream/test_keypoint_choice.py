@@ -20,6 +20,7 @@ from dream.robot.keypoint_choice import (
     arm_chain,
     coincident_groups,
     collinear_sets,
+    logged_joint_links,
     perpendicular_spread,
     sample_link_origins,
     stays_collinear,
@@ -119,6 +120,24 @@ def test_a_mobile_manipulators_arm_is_followed_past_its_wheels_legs_and_head() -
     assert "arm_left_1_link, arm_right_1_link" in " ".join(out.getvalue().split())
 
 
+def test_logged_joints_off_the_keypoints_chain_name_the_links_that_move_them() -> None:
+    """A second arm, a head and a gripper the data logs are moved by adding the link after each
+    branch's last logged joint; joints already driven, mimics and unknown names add nothing."""
+    dual = parse_urdf(robot_data_dir() / TIAGO_DUAL)
+    arm = ("base_footprint", "torso_lift_link", "arm_left_7_link")
+    logged = ["torso_lift_joint", *(f"arm_{side}_{i}_joint" for side in ("left", "right")
+                                    for i in range(1, 8)), "head_1_joint", "head_2_joint",
+              "no_such_joint"]
+    assert logged_joint_links(dual, "base_footprint", logged, arm) == (
+        "arm_right_7_link", "head_2_link")
+    assert logged_joint_links(dual, "base_footprint", logged[:8], arm) == ()
+    panda = builtin_robot("panda")
+    tree = parse_urdf(panda.urdf_path)
+    assert logged_joint_links(tree, panda.base_link, ["panda_finger_joint1",
+                                                      "panda_finger_joint2"],
+                              panda.keypoints) == ("panda_leftfinger",)   # joint2 mimics joint1
+
+
 def test_the_robots_command_names_the_joints_a_recording_logs() -> None:
     """`dream robots --urdf` lists the joints the suggested keypoints need (the recording's
     columns) and the moving joints the model holds at rest."""
@@ -126,9 +145,9 @@ def test_the_robots_command_names_the_joints_a_recording_logs() -> None:
     with contextlib.redirect_stdout(out):
         assert main(["robots", "--urdf", str(robot_data_dir() / TIAGO)]) == 0
     text = " ".join(out.getvalue().split())
-    logged = text.split("joints a recording logs for them")[1].split("held at rest")[0]
+    logged = text.split("joints a recording logs for them")[1].split("move no keypoint")[0]
     assert "torso_lift_joint, arm_1_joint" in logged and "arm_7_joint" in logged
-    held = text.split("held at rest in the model")[1]
+    held = text.split("move no keypoint")[1]
     assert "head_1_joint" in held and "wheel_left_joint" in held and "arm_1_joint" not in held
 
 
@@ -184,3 +203,28 @@ def test_sampling_is_seeded_and_shapes_are_checked() -> None:
         LinkOrigins(("a", "b"), np.zeros((3, 1, 3)))
     with pytest.raises(RobotError, match="no sampled origin"):
         a.of(["world"])
+
+
+def test_the_search_robot_moves_both_arms_the_data_logs() -> None:
+    """A dual-arm URDF without keypoints: the suggestion stops at the torso, but the search's
+    robot drives every logged joint (before: none, and the search found no motion)."""
+    from types import SimpleNamespace
+
+    from dream.camera import CameraIntrinsics
+    from dream.cli.search_robot import robot_for_search
+    from dream.sequence import Frame, Sequence
+
+    names = tuple(f"{side}_{j}" for side in ("right", "left")
+                  for j in ("s0", "s1", "e0", "e1", "w0", "w1", "w2"))
+    camera = CameraIntrinsics(300.0, 300.0, 159.5, 119.5, 320, 240)
+    urdf = str(robot_data_dir() / "robots/baxter_description/urdf/baxter.urdf")
+    seq = Sequence(robot=urdf, camera=camera, joint_names=names, keypoint_names=(),
+                   frames=(Frame(name="000000", joints=np.full(len(names), 0.1)),))
+    request = SimpleNamespace(robot=None, keypoint_links=None)
+    robot = robot_for_search(seq, request)
+    assert sorted(robot.joint_names) == sorted(names)
+    assert robot.keypoint_names == ("base", "right_wrist", "left_wrist")
+    panda = Sequence(robot="panda", camera=camera,
+                     joint_names=tuple(f"panda_joint{i}" for i in range(1, 8)), keypoint_names=(),
+                     frames=(Frame(name="000000", joints=np.zeros(7)),))
+    assert robot_for_search(panda, request).keypoint_names == builtin_robot("panda").keypoints
