@@ -299,7 +299,19 @@ def summary(rows: list[dict], right_mm: float, right_deg: float, label: str) -> 
           f"median time {np.median([r['seconds'] for r in rows]):.0f} s")
 
 
+def render_keypoints(args: argparse.Namespace) -> tuple[str, ...] | None:
+    """`--render-keypoints` as link names; it names one URDF's links, so one URDF only."""
+    if not args.render_keypoints:
+        return None
+    robots = args.robots.split(",")
+    if len(robots) != 1 or robot_keypoints(robots[0]) is None:
+        raise InputError(f"--render-keypoints names the links of one URDF, and --robots is "
+                         f"{args.robots!r}", fix="give --robots one URDF file")
+    return tuple(name.strip() for name in args.render_keypoints.split(",") if name.strip())
+
+
 def run_renders(args: argparse.Namespace) -> None:
+    keypoints = render_keypoints(args)
     rng = np.random.default_rng(args.seed)
     by_mode: dict[str, list[dict]] = {"guess": [], "auto": [], "mark": [], "fooled": []}
     with tempfile.TemporaryDirectory() as tmp:
@@ -309,8 +321,7 @@ def run_renders(args: argparse.Namespace) -> None:
             for seed in range(args.first_seed, args.first_seed + args.scenes):
                 data = render_scene(robot, tmp / f"{name}_{seed}", seed, args.frames,
                                     args.scale_to_robot, tuple(args.set), args.reuse_scenes,
-                                    tuple(args.render_keypoints.split(","))
-                                    if args.render_keypoints else None)
+                                    keypoints)
                 if args.video_codec:
                     data = video_coded(data, args.video_codec,
                                        tmp / f"{name}_{seed}_{args.video_codec}")

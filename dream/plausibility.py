@@ -68,17 +68,18 @@ def check_joint_readings(joints: np.ndarray, joint_names: SequenceOf[str], lower
         as_base = np.deg2rad(joints[:, j])
         shown = f" ({value:g} deg = {np.deg2rad(value):.3f} rad)"
     column = "another joint's column (the columns in another order), or another robot's readings"
+    order = f"check that the readings are in the robot's joint order ({', '.join(joint_names)})"
     if np.any(as_base < lower[j] - margin[j]) or np.any(as_base > upper[j] + margin[j]):
-        guess = f"not in {units} either: is it {column}?"
-    elif np.max(np.abs(joints[:, j])) <= max(abs(lower[j]), abs(upper[j])) + margin[j]:
-        guess = f"are these {units}{shown}, or {column}?"   # small enough for either
+        guess, fix = f"not in {units} either: is it {column}?", \
+            f"{order} and of the robot the data names (--robot)"
     else:
-        guess = f"are these {units}?{shown}"
+        fix = f"{fix}, and {order}"
+        small = np.nanmax(np.abs(joints[:, j])) <= max(abs(lower[j]), abs(upper[j])) + margin[j]
+        guess = (f"are these {units}{shown}, or {column}?" if small    # either could be it
+                 else f"are these {units}?{shown}")
     raise InputError(f"frame {frame_names[i]}: joint {name} = {value:g} lies outside its URDF "
                      f"limits [{lower[j]:.3f}, {upper[j]:.3f}] {unit} ({count} of {len(joints)} "
-                     f"frames are out of bounds); {guess}", where,
-                     f"{fix}, and check that the readings are in the robot's joint order "
-                     f"({', '.join(joint_names)})")
+                     f"frames are out of bounds); {guess}", where, fix)
 
 
 def check_robot_readings(seq, robot) -> None:

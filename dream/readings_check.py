@@ -106,7 +106,7 @@ class ReadingsCheck:
     best_detections: int = 0
     best_explained: int = 0
     given_explained_there: int = 0
-    explained_px: float = 0.0
+    explained_px: float | None = None
 
     @property
     def gain(self) -> float:

@@ -238,7 +238,7 @@ def training_minutes(total: float, spent_s: float) -> float:
     left = total - spent_s / 60 - SCORING_MINUTES
     if left < MIN_TRAINING_MINUTES:
         log.warning("the labels and renders took %.1f of the %g minutes: training %g minutes, "
-                    "%.1f beyond the budget (give more --minutes, or fewer --renders and "
+                    "%.2f beyond the budget (give more --minutes, or fewer --renders and "
                     "--scene-renders)", spent_s / 60, total, MIN_TRAINING_MINUTES,
                     MIN_TRAINING_MINUTES - left)
         return MIN_TRAINING_MINUTES

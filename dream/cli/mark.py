@@ -42,7 +42,7 @@ def run_mark(request: MarkRequest, out: TextIO | None = None,
     from dream.coarse.mark import read_mark_rows
     from dream.io import check_output_file, load_image
     from dream.io.images import encode_png
-    from dream.io.marks import marks_comment, read_shared_files
+    from dream.io.marks import marks_comment, read_shared_files, shared_files
     from dream.io.recording_files import check_spares_recording
     from dream.mark_page.server import HOST, MarkBook, make_server
 
@@ -61,10 +61,10 @@ def run_mark(request: MarkRequest, out: TextIO | None = None,
         marks = {names[int(i)]: (float(u), float(v)) for i, (u, v) in zip(frames, uv,
                                                                           strict=True)}
     digests: dict = {}            # image file -> its SHA-256, read once
-    shared = {f.image_path for f in seq.frames}
-    if len(shared) < len(seq.frames):
-        print(f"reading {', '.join(str(p) for p in sorted(shared, key=str))} once (the marks "
-              "file names the frames by their content)", file=out, flush=True)
+    shared = shared_files(seq)
+    if shared:
+        print(f"reading {', '.join(map(str, shared))} once (the marks file names the frames "
+              "by their content)", file=out, flush=True)
         read_shared_files(seq, digests)
     source = str(Path(request.data).resolve())
     book = MarkBook(names, camera, target, marks,

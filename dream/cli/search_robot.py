@@ -19,7 +19,7 @@ def robot_for_search(seq, request):
     from dream.errors import RobotError
     from dream.pipeline import robot_for
     from dream.plausibility import check_robot_readings
-    from dream.robot.keypoint_choice import analyse_keypoints, logged_joint_links
+    from dream.robot.keypoint_choice import analyse_keypoints
 
     try:
         robot = robot_for(seq, request.robot, option_keypoints=request.keypoint_links)
@@ -29,10 +29,29 @@ def robot_for_search(seq, request):
         name = request.robot or seq.robot
         robot = robot_for(seq, request.robot, analyse_keypoints(parse_urdf(Path(name)))
                           .suggested)
-    extra = logged_joint_links(robot.tree, robot.base_link, seq.joint_names,
-                               robot.keypoint_names)
-    if extra:
-        robot = dataclasses.replace(robot, keypoint_names=robot.keypoint_names + extra)
-        log.info("the silhouettes also move the logged joints up to %s", ", ".join(extra))
     check_robot_readings(seq, robot)
+    return with_logged_joints(seq, robot)
+
+
+def with_logged_joints(seq, robot):
+    """`robot` with the links of the joints `seq` logs off its keypoints' chains added as
+    keypoints, each branch only where its readings lie within the URDF's limits (else it is
+    drawn at rest, with a warning: a gripper's width logged for a finger's travel)."""
+    from dream.errors import InputError
+    from dream.plausibility import check_robot_readings
+    from dream.robot.keypoint_choice import logged_joint_links
+
+    added: list[str] = []
+    for link in logged_joint_links(robot.tree, robot.base_link, seq.joint_names,
+                                   robot.keypoint_names):
+        trial = dataclasses.replace(robot, keypoint_names=robot.keypoint_names + (link,))
+        try:
+            check_robot_readings(seq, trial)
+        except InputError as exc:
+            log.warning("the logged joints up to %s are drawn at rest: %s", link, exc.problem)
+            continue
+        robot = trial
+        added.append(link)
+    if added:
+        log.info("the silhouettes also move the logged joints up to %s", ", ".join(added))
     return robot

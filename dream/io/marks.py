@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+from collections import Counter
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -41,12 +42,16 @@ def frame_sha256(sequence, index: int, cache: dict[Path, bytes] | None = None) -
     return digest.hexdigest()[:DIGEST_HEX]
 
 
+def shared_files(sequence) -> list[Path]:
+    """The image files that several frames share (a bag, a video, an image stack)."""
+    counts = Counter(Path(f.image_path) for f in sequence.frames if f.image_path is not None)
+    return sorted(path for path, count in counts.items() if count > 1)
+
+
 def read_shared_files(sequence, cache: dict[Path, bytes]) -> list[Path]:
-    """Hash into `cache` every image file that several frames share (a bag or a video), so that
-    the first click of `dream mark` does not wait for a whole recording to be read; returns
-    those files."""
-    paths = [Path(f.image_path) for f in sequence.frames if f.image_path is not None]
-    shared = sorted({p for p in paths if paths.count(p) > 1})
+    """Hash into `cache` every file of `shared_files`, so that the first click of `dream mark`
+    does not wait for a whole recording to be read; returns those files."""
+    shared = shared_files(sequence)
     for path in shared:
         file_digest(path, cache)
     return shared

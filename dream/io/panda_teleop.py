@@ -36,9 +36,9 @@ logger = logging.getLogger(__name__)
 
 INFO_FILE = "info.json"
 EXTRINSIC_SIZE = 6  # rx, ry, rz (Rodrigues, rad), tx, ty, tz (m)
-FIX_INFO = ('write info.json with "calibration_info": {"intrinsic": 3x3, "extrinsic": '
-            '[[rx, ry, rz, tx, ty, tz]]} and "steps": {"<unix time>": {"img_file", '
-            '"joint_angles"}}')
+FIX_INFO = ('write info.json with "calibration_info": {"intrinsic": 3x3} (and, to score the '
+            'result, "extrinsic": [[rx, ry, rz, tx, ty, tz]]) and "steps": {"<unix time>": '
+            '{"img_file", "joint_angles"}}')
 
 
 def find_episode(path: Path) -> Path:

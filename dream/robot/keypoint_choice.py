@@ -314,23 +314,29 @@ def suggest_keypoints(tree: KinematicTree, base_link: str,
 
 def logged_joint_links(tree: KinematicTree, base_link: str, logged: Sequence[str],
                        driven: Sequence[str]) -> tuple[str, ...]:
-    """Links that, added to the keypoint links `driven`, make a robot move every joint named in
+    """Links that, added to the keypoint links `driven`, make a robot move the joints named in
     `logged` (the data's joint columns) below `base_link`: the child link of each such joint
-    that moves, follows no other and is not driven yet, where no other of them lies below it
-    (a second arm's last logged joint, a head's). Joints behind a floating or planar joint are
-    left out. The silhouettes then draw those links at their readings instead of at rest."""
+    that moves, follows no other and is not driven yet, where every moving joint from the base
+    to it is logged or driven (a joint the data lacks would be needed, so a branch stops before
+    it) and no other of them lies below it (a second arm's last logged joint, a head's). Joints
+    behind a floating or planar joint are left out. The silhouettes then draw those links at
+    their readings instead of at rest."""
     depth = len(tree.path(base_link))
     on_chain = {i for link in driven for i in tree.path(link)[depth:]}
+    known = set(logged) | {tree.joints[i].name for i in on_chain}
     found = []
-    for name in logged:
+    for name in dict.fromkeys(logged):
         i = tree.joint_index.get(name)
         if i is None or i in on_chain:
             continue
         joint = tree.joints[i]
-        if joint.type not in MOVING_TYPES or joint.mimic is not None \
-                or not tree.is_ancestor(base_link, joint.child):
+        if joint.type not in MOVING_TYPES or joint.mimic is not None or joint.child in driven \
+                or joint.child == base_link or not tree.is_ancestor(base_link, joint.child):
             continue
-        if all(tree.joints[k].type in SUPPORTED_TYPES for k in tree.path(joint.child)[depth:]):
+        path = [tree.joints[k] for k in tree.path(joint.child)[depth:]]
+        if all(j.type in SUPPORTED_TYPES and (j.type not in MOVING_TYPES
+                                              or tree.resolve_mimic(j.name)[0] in known)
+               for j in path):
             found.append(joint.child)
     return tuple(link for link in found
                  if not any(other != link and tree.is_ancestor(link, other) for other in found))

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import contextlib
 import io
+import logging
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -131,6 +133,11 @@ def test_logged_joints_off_the_keypoints_chain_name_the_links_that_move_them() -
     assert logged_joint_links(dual, "base_footprint", logged, arm) == (
         "arm_right_7_link", "head_2_link")
     assert logged_joint_links(dual, "base_footprint", logged[:8], arm) == ()
+    # a joint the data lacks ends its branch before it: no robot may need a missing column
+    gap = [n for n in logged if n not in ("arm_right_4_joint", "head_1_joint")]
+    assert logged_joint_links(dual, "base_footprint", gap, arm) == ("arm_right_3_link",)
+    assert logged_joint_links(dual, "base_footprint", logged, arm + ("head_2_link",)) == (
+        "arm_right_7_link",)                              # a link already driven is not added
     panda = builtin_robot("panda")
     tree = parse_urdf(panda.urdf_path)
     assert logged_joint_links(tree, panda.base_link, ["panda_finger_joint1",
@@ -205,7 +212,7 @@ def test_sampling_is_seeded_and_shapes_are_checked() -> None:
         a.of(["world"])
 
 
-def test_the_search_robot_moves_both_arms_the_data_logs() -> None:
+def test_the_search_robot_moves_both_arms_the_data_logs(caplog) -> None:
     """A dual-arm URDF without keypoints: the suggestion stops at the torso, but the search's
     robot drives every logged joint (before: none, and the search found no motion)."""
     from types import SimpleNamespace
@@ -228,3 +235,15 @@ def test_the_search_robot_moves_both_arms_the_data_logs() -> None:
                      joint_names=tuple(f"panda_joint{i}" for i in range(1, 8)), keypoint_names=(),
                      frames=(Frame(name="000000", joints=np.zeros(7)),))
     assert robot_for_search(panda, request).keypoint_names == builtin_robot("panda").keypoints
+    # a branch whose readings lie beyond its limits (a gripper's width for a finger's travel)
+    # is drawn at rest, with a warning, instead of refusing the recording
+    fingers = Sequence(robot="panda", camera=camera,
+                       joint_names=panda.joint_names + ("panda_finger_joint1",),
+                       keypoint_names=(),
+                       frames=(Frame(name="000000", joints=np.r_[np.zeros(7), 0.08]),))
+    with caplog.at_level(logging.WARNING, logger="dream.cli.search_robot"):
+        robot = robot_for_search(fingers, request)
+    assert robot.keypoint_names == builtin_robot("panda").keypoints
+    assert "panda_leftfinger are drawn at rest" in caplog.text
+    inside = replace(fingers, frames=(Frame(name="000000", joints=np.r_[np.zeros(7), 0.03]),))
+    assert robot_for_search(inside, request).keypoint_names[-1] == "panda_leftfinger"

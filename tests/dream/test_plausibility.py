@@ -97,10 +97,11 @@ def test_readings_no_unit_explains_are_asked_about_the_column_order():
     readings inside the limits; a reading that could be either is asked about both."""
     lower, upper = np.array([-2.9, -3.07]), np.array([2.9, -0.07])
     names, frames, revolute = ("j1", "j4"), ("000000", "000001"), np.array([False, False])
-    swapped = np.array([[-2.2, 0.4], [-2.0, 1.9]])     # j1's column and j4's exchanged
+    swapped = np.array([[-2.2, 0.4], [-2.0, 2.5]])     # j1's column and j4's exchanged
     with pytest.raises(InputError) as info:
         check_joint_readings(swapped, names, lower, upper, revolute, frames)
     assert "not in degrees either: is it another joint's column" in str(info.value)
+    assert "radians" not in str(info.value) and "joint order (j1, j4)" in str(info.value)
     small = np.array([[0.0, -2.0], [0.0, 0.5]])        # 0.5: radians of another joint, or degrees
     with pytest.raises(InputError) as info:
         check_joint_readings(small, names, lower, upper, revolute, frames)

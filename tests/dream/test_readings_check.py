@@ -124,9 +124,9 @@ def test_readings_must_be_those_of_the_observations():
 
 def test_a_small_gain_is_no_finding():
     mistake = reading_hypotheses(np.array([[0.5, 1.0]] * 3), ("a", "b"))[0]
-    assert readings_finding(ReadingsCheck(100, 70, ("x",), mistake, 100, 80, 70)) is None
-    assert readings_finding(ReadingsCheck(100, 70, ("x",), mistake, 100, 73, 70)) is None
-    assert readings_finding(ReadingsCheck(100, 90, ("x",), mistake, 100, 96, 90))[0] \
+    assert readings_finding(ReadingsCheck(100, 70, ("x",), mistake, 100, 80, 70, 10.0)) is None
+    assert readings_finding(ReadingsCheck(100, 70, ("x",), mistake, 100, 73, 70, 10.0)) is None
+    assert readings_finding(ReadingsCheck(100, 90, ("x",), mistake, 100, 96, 90, 10.0))[0] \
         == UNRELIABLE
     assert readings_finding(ReadingsCheck(100, 100, ())) is None
 
