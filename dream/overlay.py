@@ -271,9 +271,11 @@ class _Outliner:
 
     def __init__(self, sequence, robot):
         from dream.errors import DreamError
+        from dream.outline_robot import with_logged_joints
         from dream.pipeline import joints_in_robot_order
         from dream.silhouette import load_robot_meshes
 
+        self.robot = robot = with_logged_joints(sequence, robot)   # as the images show it
         self.joints = joints_in_robot_order(sequence, robot)
         try:
             self.meshes = load_robot_meshes(robot)
@@ -318,7 +320,7 @@ def write_skeleton_overlays(sequence, robot, T_cam_base: np.ndarray, out_dir,
     chosen = frames[:limit]
     P_base = robot.forward_kinematics(joints_in_robot_order(sequence, robot))
     outliner = _Outliner(sequence, robot)
-    corners = carried_corners(robot, outliner.joints, carried or {})
+    corners = carried_corners(outliner.robot, outliner.joints, carried or {})
     with staged_directory(out_dir) as stage:
         for n, (i, frame) in enumerate(chosen):
             camera = sequence.frame_camera(i)

@@ -66,7 +66,7 @@ def write_search_overlays(sequence, robot, poses: list, out_dir, doc: dict,
     compared = {index[name] for name in start.get("frames", ()) if name in index}
     outliner = _Outliner(sequence, robot)
     carried = start.get("carried") or {}
-    corners = carried_corners(robot, outliner.joints, carried)
+    corners = carried_corners(outliner.robot, outliner.joints, carried)
     away = away_pixels(sequence, robot, doc)
     summary = None
     with staged_directory(out_dir) as stage:

@@ -14,7 +14,7 @@ import pytest
 
 from dream.cli import main
 from dream.errors import RobotError
-from dream.robot import builtin_robot, parse_urdf, robot_data_dir
+from dream.robot import builtin_robot, load_robot, parse_urdf, robot_data_dir
 from dream.robot.keypoint_choice import (
     COLLINEAR_TOL_M,
     LinkOrigins,
@@ -241,9 +241,14 @@ def test_the_search_robot_moves_both_arms_the_data_logs(caplog) -> None:
                        joint_names=panda.joint_names + ("panda_finger_joint1",),
                        keypoint_names=(),
                        frames=(Frame(name="000000", joints=np.r_[np.zeros(7), 0.08]),))
-    with caplog.at_level(logging.WARNING, logger="dream.cli.search_robot"):
+    with caplog.at_level(logging.WARNING, logger="dream.outline_robot"):
         robot = robot_for_search(fingers, request)
     assert robot.keypoint_names == builtin_robot("panda").keypoints
     assert "panda_leftfinger are drawn at rest" in caplog.text
     inside = replace(fingers, frames=(Frame(name="000000", joints=np.r_[np.zeros(7), 0.03]),))
     assert robot_for_search(inside, request).keypoint_names[-1] == "panda_leftfinger"
+    # the overlays' outline is that of the same robot, whichever robot drew the keypoints
+    from dream.overlay import _Outliner
+
+    keypoint_robot = load_robot("panda")
+    assert _Outliner(inside, keypoint_robot).robot.keypoint_names[-1] == "panda_leftfinger"
