@@ -167,10 +167,7 @@ def _stack_image(path: Path, index: int | None) -> np.ndarray:
     if index is None:
         raise InputError("the frame refers to an .npz image stack but gives no image index",
                          path, "set image_index")
-    header = npz.read_header(path, STACK_KEY)
-    if header.dtype != np.uint8 or len(header.shape) != 4 or header.shape[3] != RGB_CHANNELS:
-        raise InputError(f'"{STACK_KEY}" must be an (N, H, W, 3) uint8 array, got '
-                         f"{header.shape} {header.dtype}", path, "store RGB images as uint8")
+    npz.check_rgb_stack(npz.read_header(path, STACK_KEY), STACK_KEY, path)
     return npz.read_stack_item(path, STACK_KEY, index)
 
 

@@ -25,7 +25,7 @@ from dream.io.common import (
     check_robot,
     frame_name,
 )
-from dream.io.images import NPZ_SUFFIX, RGB_CHANNELS, STACK_KEY
+from dream.io.images import NPZ_SUFFIX, STACK_KEY
 from dream.io.intrinsics import (
     FIX_K_TXT,
     IntrinsicsArg,
@@ -43,7 +43,6 @@ TIMESTAMPS_KEY = "timestamps"
 SIDE_JSON_SUFFIX = ".intrinsics.json"
 SHARED_JSON = "intrinsics.json"
 K_FILE = "K.txt"
-STACK_NDIM = 4
 NUMERIC_KINDS = "iuf"
 FIX_INTRINSICS = (f"pass --intrinsics fx,fy,cx,cy or write <name>{SIDE_JSON_SUFFIX} / "
                   f'{SHARED_JSON} ({{"fx": ..., "fy": ..., "cx": ..., "cy": ...}}, pixels) '
@@ -128,10 +127,7 @@ def read_maniunicon(path: str | Path, *, joint_names: SequenceOf[str] | None = N
     names = check_joint_names(joint_names, PANDA_ARM_JOINTS)
     robot = check_robot(robot, PANDA_ROBOT)
     stack = npz.read_header(npz_path, STACK_KEY)
-    if stack.dtype != np.uint8 or len(stack.shape) != STACK_NDIM \
-            or stack.shape[3] != RGB_CHANNELS:
-        raise InputError(f'"{STACK_KEY}" must be an (N, H, W, 3) uint8 array, got {stack.shape} '
-                         f"{stack.dtype}", npz_path, "store RGB images as uint8")
+    npz.check_rgb_stack(stack, STACK_KEY, npz_path)
     n_frames, height, width = stack.shape[:3]
     if n_frames == 0 or height == 0 or width == 0:
         raise InputError(f'"{STACK_KEY}" is empty (shape {stack.shape})', npz_path,

@@ -33,6 +33,8 @@ _HEADER_READERS = {
 _ARCHIVE_ERRORS = (OSError, EOFError, ValueError, TypeError, KeyError, IndexError,
                    zipfile.BadZipFile, zlib.error, NotImplementedError, RuntimeError,
                    struct.error, lzma.LZMAError, OverflowError, UnicodeDecodeError)
+STACK_NDIM = 4              # an image stack: (N, H, W, channels)
+RGB_CHANNELS = 3
 _FIX = "write the file with numpy.savez / numpy.savez_compressed (no pickled objects)"
 
 
@@ -133,3 +135,28 @@ def read_stack_item(path: Path, key: str, index: int) -> np.ndarray:
         fp.seek(index * item_bytes, 1)
         data = _read_exact(fp, item_bytes, key, path)
     return np.frombuffer(data, dtype=header.dtype).reshape(item_shape).copy()
+
+
+def check_rgb_stack(header: ArrayHeader, key: str, path: Path) -> None:
+    """Refuse an image stack that is not (N, H, W, 3) uint8, with the fix its shape suggests
+    (channels first: move them last; floats: scale to 0-255).
+
+    >>> check_rgb_stack(ArrayHeader((2, 3, 4, 5), np.dtype(np.uint8), False, 120), "x",
+    ...                 Path("a.npz"))
+    Traceback (most recent call last):
+    ...
+    dream.errors.InputError: a.npz: "x" must be an (N, H, W, 3) uint8 array, got (2, 3, 4, 5) \
+uint8. Fix: store the channels last: numpy.moveaxis(x, 1, -1)
+    """
+    shape, dtype = tuple(header.shape), np.dtype(header.dtype)
+    if dtype == np.uint8 and len(shape) == STACK_NDIM and shape[-1] == RGB_CHANNELS:
+        return
+    if len(shape) == STACK_NDIM and shape[1] == RGB_CHANNELS and shape[-1] != RGB_CHANNELS:
+        fix = f"store the channels last: numpy.moveaxis({key}, 1, -1)"
+    elif dtype.kind == "f":
+        fix = ("store 8-bit colours: (numpy.clip(x, 0, 1) * 255).round().astype(numpy.uint8) "
+               "for values in 0..1, x.astype(numpy.uint8) for 0..255")
+    else:
+        fix = "store the images as one (N, H, W, 3) uint8 RGB array"
+    raise InputError(f'"{key}" must be an (N, H, W, 3) uint8 array, got {shape} {dtype}', path,
+                     fix)

@@ -29,7 +29,8 @@ DOCTEST_MODULES = ("dream.api", "dream.arrays", "dream.readings", "dream.optim.l
                    "dream.coarse.away", "dream.coarse.crosscheck", "dream.steadiness",
                    "dream.cli.options", "export.card", "dream.robot.identity",
                    "dream.refinement_document", "batch.recordings", "dream.cli.app",
-                   "dream.io.marks", "dream.focal_check", "dream.readings_check")
+                   "dream.io.marks", "dream.focal_check", "dream.readings_check",
+                   "dream.io.npz")
 API = ("read_sequence", "load_robot", "load_keypoint_model", "detect", "labels", "calibrate",
        "polish_result", "refine_edges", "evaluate", "diagnose", "result_document", "read_result",
        "BUNDLED_MODEL")

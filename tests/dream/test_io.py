@@ -584,6 +584,24 @@ def test_maniunicon_wrong_intrinsics_size(tmp_path: Path) -> None:
     _message_names(exc, "ep.npz")
 
 
+@pytest.mark.parametrize(("layout", "fix"), [
+    ("channels_first", "numpy.moveaxis(rgb_images, 1, -1)"),
+    ("float", "(numpy.clip(x, 0, 1) * 255).round().astype(numpy.uint8)"),
+    ("gray", "one (N, H, W, 3) uint8 RGB array")])
+def test_maniunicon_image_stack_of_another_layout_names_its_fix(tmp_path: Path, layout: str,
+                                                               fix: str) -> None:
+    images = write_npz(tmp_path / "ep.npz")
+    stack = {"channels_first": np.moveaxis(images, -1, 1), "float": images / 255.0,
+             "gray": images[..., 0]}[layout]
+    with np.load(tmp_path / "ep.npz") as archive:
+        arrays = dict(archive)
+    np.savez(tmp_path / "ep.npz", **{**arrays, "rgb_images": stack})
+    with pytest.raises(InputError) as exc:
+        read_sequence(tmp_path / "ep.npz", intrinsics=(30, 30, 16, 12))
+    _message_names(exc, "ep.npz")
+    assert fix in str(exc.value)
+
+
 def test_maniunicon_not_an_archive(tmp_path: Path) -> None:
     (tmp_path / "ep.npz").write_bytes(b"PK\x03\x04 not really a zip")
     with pytest.raises(InputError) as exc:
