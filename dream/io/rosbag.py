@@ -150,6 +150,12 @@ def _camera_info(msg: Any, path: Path):
                          tuple(distortion))
 
 
+def _span(times) -> str:
+    """A stamp range in words: its first and last value and how long it lasts."""
+    times = np.asarray(times, float)
+    return f"{times.min():.3f}..{times.max():.3f} s ({np.ptp(times):.2f} s)"
+
+
 def _cache_file(bag: Path, topics: tuple[str, str]) -> Path:
     digest = hashlib.sha256("|".join(topics).encode())
     files = [bag] if bag.is_file() else sorted(p for p in bag.iterdir() if p.is_file())
@@ -266,8 +272,12 @@ def read_rosbag(path: str | Path, *, joint_names: SequenceOf[str] | None = None,
         logger.warning("%s: %d of %d images have no joint state within %.2f s and are left out",
                        path, len(images) - len(pairs), len(images), MAX_JOINT_GAP_S)
     if not pairs:
-        raise InputError(f"no image has a joint state within {MAX_JOINT_GAP_S} s", path,
-                         "record the joint states with the images (and check their stamps)")
+        offset = float(np.median(image_t) - np.median(joint_t))
+        raise InputError(f"no image has a joint state within {MAX_JOINT_GAP_S} s: the images "
+                         f"span {_span(image_t)}, the joint states {_span(joint_t)} (medians "
+                         f"{offset:+.3f} s apart)", path, "record the joint states with the "
+                         "images, and check their stamps: header stamps of one clock (a "
+                         "camera's own clock or sim time gives another)")
     stack = _cache_file(path, used)
     size = _cached_stack(stack, len(pairs)) if images[0] is None else None
     if images[0] is None and size is None:   # a stale stack: decode the images again

@@ -114,9 +114,14 @@ def bag_messages(seq, compressed: bool, ts):
     return out
 
 
-def write_bag(seq, path: Path, compressed: bool = True, ros1: bool = False) -> Path:
+def write_bag(seq, path: Path, compressed: bool = True, ros1: bool = False,
+              joints_seq=None) -> Path:
+    """A bag of `seq` (its joint states those of `joints_seq` where given: other stamps)."""
     ts = get_typestore(Stores.ROS2_HUMBLE if not ros1 else Stores.ROS1_NOETIC)
     messages = bag_messages(seq, compressed, ts)
+    if joints_seq is not None:
+        messages = [m for m in messages if m[0] != "/joint_states"] + [
+            m for m in bag_messages(joints_seq, compressed, ts) if m[0] == "/joint_states"]
     writer = Writer1(path) if ros1 else Writer2(path, version=9)
     with writer:
         connections = {}
@@ -214,6 +219,20 @@ def test_bag_topics_and_problems(imaged, tmp_path):
         read_sequence(bag, topics=BagTopics(image="/joint_states"))
     with pytest.raises(InputError, match="topics are for ROS bags"):
         read_sequence(write_csv_layout(seq, tmp_path / "csv"), topics=BagTopics(image="/x"))
+
+
+def test_joint_states_on_another_clock_are_shown_with_both_spans(imaged, tmp_path):
+    seq, _ = imaged
+    later = replace(seq, frames=tuple(replace(f, timestamp=f.timestamp + 100.0)
+                                      for f in seq.frames))
+    bag = write_bag(seq, tmp_path / "run", joints_seq=later)
+    with pytest.raises(InputError) as exc:
+        read_sequence(bag, joint_names=seq.joint_names)
+    message = str(exc.value)
+    assert "no image has a joint state within" in message
+    assert "(medians -100.000 s apart)" in message
+    t0 = seq.frames[0].timestamp
+    assert f"the images span {t0:.3f}.." in message and f"joint states {t0 + 100:.3f}.." in message
 
 
 def _teleop_subset(teleop: Path, dest: Path) -> Path:
