@@ -194,6 +194,7 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     software (`dream.ros`). Every output location is checked before the work, and the files
     and the --overlays folder appear together or not at all."""
     from dream.io.recording_files import check_spares_recording
+    from dream.outline_robot import with_logged_joints
     from dream.pipeline import calibrate
     from dream.provenance import data_record
 
@@ -241,21 +242,22 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     checked: list = [steadiness_record(motion, seq, doc), _focal_check(result, obs, seq, doc)]
     readings = None if extension is not None else \
         _readings_check(result, obs, seq, robot, settings, doc, out)   # its readings corrected
+    imaged = with_logged_joints(seq, robot)    # the refinements draw each logged joint too
     if refine == EDGES:
         add = add_edges if request.frames == "all" else add_frame_edges
         doc_keypoints = doc
         doc = refined_or_kept(request, lambda: add(
-            seq, robot, result, obs, doc, out, request.exclude_links,
+            seq, imaged, result, obs, doc, out, request.exclude_links,
             () if extension is None else extension.link_geometry), doc, out)
         if request.frames == "all":
-            doc, silhouettes = add_silhouette_check(seq, robot, result, doc, out,
+            doc, silhouettes = add_silhouette_check(seq, imaged, result, doc, out,
                                                     doc_keypoints)
             checked += silhouettes
     elif extension is not None and extension.link_geometry and refine != POLISH:
         print("note: the model extension's link_geometry changes only the image refinements "
               "(--refine edges, --polish), and neither runs here", file=out)
     if refine == POLISH:
-        doc = add_polish(seq, robot, result, obs, model, doc, out, frames=request.frames,
+        doc = add_polish(seq, imaged, result, obs, model, doc, out, frames=request.frames,
                          mask_head=request.mask_head, motion_masks=request.motion_masks,
                          link_geometry=() if extension is None else extension.link_geometry)
     doc["quality"] = add_quality(result, obs, doc, out, checked, leading=(readings,))

@@ -9,6 +9,7 @@ are measured by `benchmarks/edge_align.py`.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -212,6 +213,38 @@ def test_calibrate_aligns_edges_by_default_without_masks(panda, meshes, tmp_path
     assert sum(g.startswith("frames ") for g in unc["jackknife_left_out"]) == 5
     assert not np.allclose(doc["covariance_xi"], unc["covariance_xi_keypoint_pose"])
     assert t_edges < 5 * np.linalg.norm(doc["sigma_camera_position_base_m"]) + 1e-3
+
+
+def test_the_refinements_draw_the_joints_the_data_logs_off_the_keypoints(panda, meshes,
+                                                                        tmp_path, monkeypatch):
+    """A finger the joint log records moves in the edge alignment's and the silhouette
+    check's outline (drawn at its reading, here closed as imaged); the keypoint fit and the
+    readings check keep the keypoint robot."""
+    import dream.cli.calibrate as cli_calibrate
+    from dream.io import read_sequence
+
+    T_true = image_dataset(panda, meshes, tmp_path)
+    seq = read_sequence(tmp_path / "data")
+    frames = tuple(dataclasses.replace(f, joints=np.r_[f.joints, 0.0]) for f in seq.frames)
+    write_dream(dataclasses.replace(seq, joint_names=seq.joint_names + ("panda_finger_joint1",),
+                                    frames=frames), tmp_path / "fingers")
+    drawn = {}
+    for name in ("add_edges", "add_silhouette_check"):
+        real = getattr(cli_calibrate, name)
+
+        def spy(seq, robot, *args, real=real, name=name, **kwargs):
+            drawn[name] = robot.keypoint_names
+            return real(seq, robot, *args, **kwargs)
+
+        monkeypatch.setattr(cli_calibrate, name, spy)
+    out = tmp_path / "result.json"
+    assert main(["calibrate", "--data", str(tmp_path / "fingers"), "--use-labels", "--out",
+                 str(out)]) == 0
+    assert drawn["add_edges"] == drawn["add_silhouette_check"] == panda.keypoint_names + (
+        "panda_leftfinger",)
+    doc = json.loads(out.read_text())
+    assert doc["edges"]["kept"] and doc["readings_check"]["tried"] == []
+    assert pose_errors(np.array(doc["T_cam_base"]), T_true)[0] < 0.002
 
 
 @pytest.mark.parametrize("extra, message", [
