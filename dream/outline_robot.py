@@ -33,3 +33,10 @@ def with_logged_joints(seq, robot):
     if added:
         log.info("the silhouettes also move the logged joints up to %s", ", ".join(added))
     return robot
+
+
+def joints_at_rest(robot) -> list[str]:
+    """The URDF's moving joints (none that follows another) that `robot` does not drive: its
+    links are drawn at rest."""
+    return [j.name for j in robot.tree.joints if j.moves and j.mimic is None
+            and j.name not in robot.joint_names]

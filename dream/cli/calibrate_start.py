@@ -186,6 +186,7 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
     """RESULT.json's `start` object: how the pose was searched and how clearly it won."""
     from dream.coarse.calibration import CARRIED
     from dream.metrics import pose_errors
+    from dream.outline_robot import joints_at_rest
     from dream.pnp import increment_between
 
     rival = outcome.rival
@@ -194,6 +195,8 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
     return {"method": "silhouette search", "hypotheses": guess.description,
             "hypotheses_scored": outcome.hypotheses, "evidence": inputs.source,
             "frames": [seq.frames[int(i)].name for i in inputs.frames],
+            "joints_moved": list(inputs.meshes.robot.joint_names),
+            "joints_at_rest": joints_at_rest(inputs.meshes.robot),
             "left_out_links": list(inputs.left_out), "motion_masks": inputs.motion,
             "carried": carried_doc(inputs.carried, CARRIED in outcome.hypotheses),
             "focal": None if inputs.focal is None else inputs.focal.to_dict(),

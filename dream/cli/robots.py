@@ -85,15 +85,15 @@ def _print_lines(lines: list[str], out: TextIO) -> None:
 
 def _print_columns(tree, path, advice, out: TextIO) -> None:
     """The joints a recording must log for the suggested keypoints, and the moving joints the
-    model holds at rest (no keypoint moves with them; their links are drawn at rest)."""
+    keypoints do not drive (the search moves their links where a recording logs them)."""
+    from dream.outline_robot import joints_at_rest
     from dream.robot import Robot
 
     robot = Robot(name=tree.name or "urdf", urdf_path=str(path), base_link=advice.base_link,
                   keypoint_names=advice.suggested, tree=tree)
     _wrapped(f"{INDENT}joints a recording logs for them (joints.csv columns, radians or "
              "metres): ", robot.joint_names, out)
-    held = [j.name for j in tree.joints if j.moves and j.mimic is None
-            and j.name not in robot.joint_names]
+    held = joints_at_rest(robot)
     if held:
         _wrapped(f"{INDENT}move no keypoint (the silhouette search moves their links where the "
                  "recording logs them, and draws them at rest where it does not: then keep "

@@ -290,6 +290,8 @@ def test_calibrate_without_keypoints_from_a_camera_guess(panda, meshes, tmp_path
         assert t_err < 0.01 and r_err < np.deg2rad(0.5), (t_err, np.rad2deg(r_err))
         start = doc["start"]
         assert start["evidence"] == "motion masks" and "panda_link0" in start["left_out_links"]
+        assert start["joints_moved"] == [f"panda_joint{i}" for i in range(1, 8)]
+        assert start["joints_at_rest"] == ["panda_finger_joint1"]   # not logged
         assert start["iou"] > 0.8 and doc["keypoints_used"] == 0 and doc["rmse_px"] is None
         assert start["finish_left_out_frames"] == []   # nothing carried: no frame left out
         assert start["away"]["share"] < SearchSettings().max_away_share   # nothing else moves
