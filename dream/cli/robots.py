@@ -152,6 +152,10 @@ def describe_robot(name_or_urdf: str, keypoints: tuple[str, ...] | None = None,
                  f"{len(advice.branches)} alike branches (two arms?), so the suggestion stops "
                  "there; name the base and one arm's links with --keypoints (the arm that "
                  "moves in your recording), starting at one of: ", advice.branches, out)
+        for branch, links in zip(advice.branches, advice.branch_keypoints, strict=True):
+            print(f"{INDENT}along {branch}: --keypoints {','.join(links)}", file=out)
+        print(f"{INDENT}(the silhouette search, without a network, needs no keypoints: it "
+              "moves every joint the recording logs)", file=out)
     if keypoints:
         _print_given(advice, out)
 

@@ -111,6 +111,8 @@ class KeypointAdvice:
         skipped: links not analysed (above the base, or below an unsupported joint).
         branches: where the chain branches into alike branches before the arm began (two arms
             on a torso), the first link of each: the suggestion stops there (`arm_branches`).
+        branch_keypoints: for each of `branches`, the suggestion carried on along that arm
+            (the keypoints of a network for that arm).
     """
 
     base_link: str
@@ -122,6 +124,7 @@ class KeypointAdvice:
     given_collinear: tuple[CollinearSet, ...] = ()
     skipped: tuple[str, ...] = ()
     branches: tuple[str, ...] = ()
+    branch_keypoints: tuple[tuple[str, ...], ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("coincident", "suggested", "suggested_collinear", "given",
@@ -360,10 +363,26 @@ def analyse_keypoints(tree: KinematicTree, base_link: str | None = None,
             raise RobotError(f"keypoint link '{link}' is not below base link '{base}' through "
                              f"{', '.join(SUPPORTED_TYPES)} joints")
     suggested = suggest_keypoints(tree, base, origins)
+    branches = arm_branches(tree, base)
     return KeypointAdvice(
         base_link=base, coincident=coincident_groups(origins), suggested=suggested,
         suggested_collinear=collinear_sets(origins, suggested), given=given,
         given_coincident=coincident_groups(origins, given) if given else (),
         given_collinear=collinear_sets(origins, given) if given else (),
         skipped=tuple(link for link in tree.links if link not in origins.links),
-        branches=arm_branches(tree, base))
+        branches=branches,
+        branch_keypoints=tuple(along_branch(tree, origins, suggested, b) for b in branches))
+
+
+def along_branch(tree: KinematicTree, origins: LinkOrigins, suggested: Sequence[str],
+                 branch: str) -> tuple[str, ...]:
+    """`suggested` (which stops where alike branches begin) carried on along `branch` (the
+    first link of one arm): its links as `suggest_keypoints` picks them from there, less those
+    whose origin coincides with one already chosen."""
+    chosen = list(suggested)
+    for link in suggest_keypoints(tree, branch, origins):
+        p = origins.of([link, *chosen])
+        if all(np.linalg.norm(p[:, 0] - p[:, k], axis=-1).max() >= COINCIDENT_TOL_M
+               for k in range(1, p.shape[1])):
+            chosen.append(link)
+    return tuple(chosen)

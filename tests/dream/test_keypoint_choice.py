@@ -120,6 +120,13 @@ def test_a_mobile_manipulators_arm_is_followed_past_its_wheels_legs_and_head() -
         assert main(["robots", "--urdf", str(robot_data_dir() / TIAGO_DUAL)]) == 0
     assert "branches at torso_lift_link" in out.getvalue()
     assert "arm_left_1_link, arm_right_1_link" in " ".join(out.getvalue().split())
+    # each arm's suggestion, ready to use: the torso's links, then that arm's
+    left, right = dual.branch_keypoints
+    assert left[:len(dual.suggested)] == dual.suggested and "arm_left_7_link" in left
+    assert not any("right" in n for n in left) and "arm_right_7_link" in right
+    assert f"along arm_left_1_link: --keypoints {','.join(left)}" in out.getvalue()
+    arm = load_robot(str(robot_data_dir() / TIAGO_DUAL), left)
+    assert arm.joint_names == ("torso_lift_joint", *(f"arm_left_{i}_joint" for i in range(1, 8)))
 
 
 def test_logged_joints_off_the_keypoints_chain_name_the_links_that_move_them() -> None:
