@@ -164,10 +164,14 @@ def polish_result(sequence: Sequence, robot: Robot, result: CalibrationResult,
     that agree (its `kept` attribute; a frame alone: without spoiling its keypoint fit), and a
     kept pose's 1-sigma is its `jackknife` (`dream.refined_uncertainty`). `link_geometry` (a
     `dream.extension.ModelExtension`'s) corrects the rendered links: a tool the URDF lacks.
+    The silhouettes draw each joint the data logs at its reading, also those off `robot`'s
+    keypoints (`dream.outline_robot.with_logged_joints`).
     """
+    from dream.outline_robot import with_logged_joints
     from dream.polish import check_polish_input, polish_calibration, polish_frames
 
     check_polish_input(sequence, result.mode)
+    robot = with_logged_joints(sequence, robot)
     if result.mode == "all":
         return polish_calibration(sequence, robot, result, observations,
                                   link_geometry=link_geometry)
@@ -182,11 +186,14 @@ def refine_edges(sequence: Sequence, robot: Robot, result: CalibrationResult,
     the aligned one when `kept`; `mismatched_links` names links whose outline disagrees with
     the images. Each frame (mode "each"): a tuple of `FrameEdgeResult` (`dream.edges.frames`),
     None for frames without a pose or an image. `exclude_links` leaves links out;
-    `link_geometry` (a `dream.extension.ModelExtension`'s) corrects links' geometry.
+    `link_geometry` (a `dream.extension.ModelExtension`'s) corrects links' geometry. The
+    outline draws each joint the data logs at its reading (`dream.outline_robot`).
     """
     from dream.edges import refine_with_edges
     from dream.edges.frames import refine_frames_with_edges
+    from dream.outline_robot import with_logged_joints
 
+    robot = with_logged_joints(sequence, robot)
     if result.mode == "each":
         return refine_frames_with_edges(sequence, robot, result, observations,
                                         exclude_links=exclude_links,

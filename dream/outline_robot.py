@@ -36,7 +36,13 @@ def with_logged_joints(seq, robot):
 
 
 def joints_at_rest(robot) -> list[str]:
-    """The URDF's moving joints (none that follows another) that `robot` does not drive: its
+    """The URDF's moving joints below the base (none that follows another, none behind a
+    floating or planar joint: their links are not drawn) that `robot` does not drive: their
     links are drawn at rest."""
-    return [j.name for j in robot.tree.joints if j.moves and j.mimic is None
-            and j.name not in robot.joint_names]
+    from dream.robot.tree import SUPPORTED_TYPES
+
+    tree, depth = robot.tree, len(robot.tree.path(robot.base_link))
+    return [j.name for j in tree.joints if j.moves and j.mimic is None
+            and j.name not in robot.joint_names and tree.is_ancestor(robot.base_link, j.child)
+            and all(tree.joints[k].type in SUPPORTED_TYPES
+                    for k in tree.path(j.child)[depth:])]

@@ -242,7 +242,10 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     checked: list = [steadiness_record(motion, seq, doc), _focal_check(result, obs, seq, doc)]
     readings = None if extension is not None else \
         _readings_check(result, obs, seq, robot, settings, doc, out)   # its readings corrected
-    imaged = with_logged_joints(seq, robot)    # the refinements draw each logged joint too
+    # the refinements draw each logged joint too (not under a model extension, whose timing
+    # and offsets correct the keypoint robot's joints alone)
+    imaged = robot if extension is not None or refine not in (EDGES, POLISH) else \
+        with_logged_joints(seq, robot)
     if refine == EDGES:
         add = add_edges if request.frames == "all" else add_frame_edges
         doc_keypoints = doc

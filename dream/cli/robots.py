@@ -155,7 +155,8 @@ def describe_robot(name_or_urdf: str, keypoints: tuple[str, ...] | None = None,
         for branch, links in zip(advice.branches, advice.branch_keypoints, strict=True):
             print(f"{INDENT}along {branch}: --keypoints {','.join(links)}", file=out)
         print(f"{INDENT}(the silhouette search, without a network, needs no keypoints: it "
-              "moves every joint the recording logs)", file=out)
+              "moves the joints the recording logs, both arms' where both are logged)",
+              file=out)
     if keypoints:
         _print_given(advice, out)
 

@@ -138,25 +138,51 @@ def read_stack_item(path: Path, key: str, index: int) -> np.ndarray:
 
 
 def check_rgb_stack(header: ArrayHeader, key: str, path: Path) -> None:
-    """Refuse an image stack that is not (N, H, W, 3) uint8, with the fix its shape suggests
-    (channels first: move them last; floats: scale to 0-255).
+    """Refuse an image stack that is not (N, H, W, 3) uint8, with the fixes its shape and its
+    type ask for (channels first, RGBA, one channel, a single image; floats, 16 bits). A
+    channels-first uint8 stack of images 3 pixels wide cannot be told from the right layout.
 
     >>> check_rgb_stack(ArrayHeader((2, 3, 4, 5), np.dtype(np.uint8), False, 120), "x",
     ...                 Path("a.npz"))
     Traceback (most recent call last):
     ...
     dream.errors.InputError: a.npz: "x" must be an (N, H, W, 3) uint8 array, got (2, 3, 4, 5) \
-uint8. Fix: store the channels last: numpy.moveaxis(x, 1, -1)
+uint8. Fix: store the channels last: x = numpy.moveaxis(x, 1, -1)
     """
     shape, dtype = tuple(header.shape), np.dtype(header.dtype)
     if dtype == np.uint8 and len(shape) == STACK_NDIM and shape[-1] == RGB_CHANNELS:
         return
-    if len(shape) == STACK_NDIM and shape[1] == RGB_CHANNELS and shape[-1] != RGB_CHANNELS:
-        fix = f"store the channels last: numpy.moveaxis({key}, 1, -1)"
-    elif dtype.kind == "f":
-        fix = ("store 8-bit colours: (numpy.clip(x, 0, 1) * 255).round().astype(numpy.uint8) "
-               "for values in 0..1, x.astype(numpy.uint8) for 0..255")
-    else:
-        fix = "store the images as one (N, H, W, 3) uint8 RGB array"
+    fixes = [fix for fix in (_shape_fix(shape, key), _dtype_fix(dtype, key)) if fix]
     raise InputError(f'"{key}" must be an (N, H, W, 3) uint8 array, got {shape} {dtype}', path,
-                     fix)
+                     "; then ".join(fixes) or f"store the images as one (N, H, W, 3) uint8 RGB "
+                     f"array under {key!r}")
+
+
+def _shape_fix(shape: tuple[int, ...], key: str) -> str | None:
+    """How to bring `shape` to (N, H, W, 3); None where it is that already."""
+    if len(shape) == STACK_NDIM and shape[-1] == RGB_CHANNELS:
+        return None
+    if len(shape) == STACK_NDIM and shape[1] == RGB_CHANNELS:
+        return f"store the channels last: {key} = numpy.moveaxis({key}, 1, -1)"
+    if len(shape) == STACK_NDIM and shape[-1] == RGB_CHANNELS + 1:
+        return f"drop the alpha channel: {key} = {key}[..., :3]"
+    if len(shape) == STACK_NDIM and shape[-1] == 1 or len(shape) == STACK_NDIM - 1 \
+            and shape[-1] != RGB_CHANNELS:
+        return f"repeat the one channel: {key} = numpy.repeat({key}.reshape({key}.shape[:3] " \
+               "+ (1,)), 3, axis=-1)"
+    if len(shape) == STACK_NDIM - 1:
+        return f"store a stack, not one image: {key} = {key}[None]"
+    return f"store the images as one (N, H, W, 3) array under {key!r}"
+
+
+def _dtype_fix(dtype: np.dtype, key: str) -> str | None:
+    """How to bring `dtype` to uint8 colours; None where it is uint8."""
+    if dtype == np.uint8:
+        return None
+    if dtype.kind == "f":
+        return (f"store 8-bit colours: (numpy.clip({key}, 0, 1) * 255).round()"
+                f".astype(numpy.uint8) for values in 0..1, numpy.clip({key}, 0, 255).round()"
+                ".astype(numpy.uint8) for 0..255")
+    if dtype.kind in "ui" and dtype.itemsize == 2:
+        return f"store 8-bit colours: ({key} >> 8).astype(numpy.uint8) for 16-bit values"
+    return f"store 8-bit colours (numpy.uint8, 0..255), not {dtype}"

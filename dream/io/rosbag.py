@@ -156,6 +156,19 @@ def _span(times) -> str:
     return f"{times.min():.3f}..{times.max():.3f} s ({np.ptp(times):.2f} s)"
 
 
+def _stamp_spans(image_t, joint_t) -> str:
+    """Why no image found a joint state, in words: both stamp spans, and how far apart they lie
+    where they do not overlap, else the longest wait between two joint states."""
+    image_t, joint_t = np.sort(np.asarray(image_t, float)), np.sort(np.asarray(joint_t, float))
+    spans = f"the images span {_span(image_t)}, the joint states {_span(joint_t)}"
+    if image_t[-1] < joint_t[0] or joint_t[-1] < image_t[0]:
+        ahead = float(np.median(joint_t) - np.median(image_t))
+        return (f"{spans}: the images' median lies {abs(ahead):.3f} s "
+                f"{'before' if ahead > 0 else 'after'} the joint states' (two clocks?)")
+    gap = float(np.diff(joint_t).max()) if len(joint_t) > 1 else 0.0
+    return f"{spans}; the joint states are up to {gap:.3f} s apart"
+
+
 def _cache_file(bag: Path, topics: tuple[str, str]) -> Path:
     digest = hashlib.sha256("|".join(topics).encode())
     files = [bag] if bag.is_file() else sorted(p for p in bag.iterdir() if p.is_file())
@@ -272,12 +285,11 @@ def read_rosbag(path: str | Path, *, joint_names: SequenceOf[str] | None = None,
         logger.warning("%s: %d of %d images have no joint state within %.2f s and are left out",
                        path, len(images) - len(pairs), len(images), MAX_JOINT_GAP_S)
     if not pairs:
-        offset = float(np.median(image_t) - np.median(joint_t))
-        raise InputError(f"no image has a joint state within {MAX_JOINT_GAP_S} s: the images "
-                         f"span {_span(image_t)}, the joint states {_span(joint_t)} (medians "
-                         f"{offset:+.3f} s apart)", path, "record the joint states with the "
-                         "images, and check their stamps: header stamps of one clock (a "
-                         "camera's own clock or sim time gives another)")
+        raise InputError(f"no image has a joint state within {MAX_JOINT_GAP_S} s: "
+                         f"{_stamp_spans(image_t, joint_t)}", path, "record the joint states "
+                         "with the images, stamped by one clock (a camera's own clock, sim "
+                         "time or a zero header stamp, which falls back to the receive time, "
+                         "gives another)")
     stack = _cache_file(path, used)
     size = _cached_stack(stack, len(pairs)) if images[0] is None else None
     if images[0] is None and size is None:   # a stale stack: decode the images again

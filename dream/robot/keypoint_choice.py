@@ -130,6 +130,8 @@ class KeypointAdvice:
         for name in ("coincident", "suggested", "suggested_collinear", "given",
                      "given_coincident", "given_collinear", "skipped", "branches"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
+        object.__setattr__(self, "branch_keypoints",
+                           tuple(tuple(links) for links in self.branch_keypoints))
         if not self.suggested or self.suggested[0] != self.base_link:
             raise RobotError(f"the suggested keypoints must start at base link "
                              f"'{self.base_link}', got {self.suggested}")

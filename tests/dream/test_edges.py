@@ -229,12 +229,13 @@ def test_the_refinements_draw_the_joints_the_data_logs_off_the_keypoints(panda, 
     write_dream(dataclasses.replace(seq, joint_names=seq.joint_names + ("panda_finger_joint1",),
                                     frames=frames), tmp_path / "fingers")
     drawn = {}
-    for name in ("add_edges", "add_silhouette_check"):
+    for name in ("add_edges", "add_silhouette_check", "_readings_check"):
         real = getattr(cli_calibrate, name)
 
-        def spy(seq, robot, *args, real=real, name=name, **kwargs):
+        def spy(*args, real=real, name=name, **kwargs):
+            robot = args[3] if name == "_readings_check" else args[1]   # (result, obs, seq, robot)
             drawn[name] = robot.keypoint_names
-            return real(seq, robot, *args, **kwargs)
+            return real(*args, **kwargs)
 
         monkeypatch.setattr(cli_calibrate, name, spy)
     out = tmp_path / "result.json"
@@ -242,6 +243,7 @@ def test_the_refinements_draw_the_joints_the_data_logs_off_the_keypoints(panda, 
                  str(out)]) == 0
     assert drawn["add_edges"] == drawn["add_silhouette_check"] == panda.keypoint_names + (
         "panda_leftfinger",)
+    assert drawn["_readings_check"] == panda.keypoint_names    # the fit's robot
     doc = json.loads(out.read_text())
     assert doc["edges"]["kept"] and doc["readings_check"]["tried"] == []
     assert pose_errors(np.array(doc["T_cam_base"]), T_true)[0] < 0.002

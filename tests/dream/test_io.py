@@ -585,14 +585,16 @@ def test_maniunicon_wrong_intrinsics_size(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(("layout", "fix"), [
-    ("channels_first", "numpy.moveaxis(rgb_images, 1, -1)"),
-    ("float", "(numpy.clip(x, 0, 1) * 255).round().astype(numpy.uint8)"),
-    ("gray", "one (N, H, W, 3) uint8 RGB array")])
+    ("channels_first", "rgb_images = numpy.moveaxis(rgb_images, 1, -1)"),
+    ("float", "(numpy.clip(rgb_images, 0, 1) * 255).round().astype(numpy.uint8)"),
+    ("gray", "repeat the one channel"),
+    ("float_channels_first", "numpy.moveaxis(rgb_images, 1, -1); then store 8-bit colours")])
 def test_maniunicon_image_stack_of_another_layout_names_its_fix(tmp_path: Path, layout: str,
                                                                fix: str) -> None:
     images = write_npz(tmp_path / "ep.npz")
     stack = {"channels_first": np.moveaxis(images, -1, 1), "float": images / 255.0,
-             "gray": images[..., 0]}[layout]
+             "gray": images[..., 0],
+             "float_channels_first": np.moveaxis(images, -1, 1) / 255.0}[layout]
     with np.load(tmp_path / "ep.npz") as archive:
         arrays = dict(archive)
     np.savez(tmp_path / "ep.npz", **{**arrays, "rgb_images": stack})
