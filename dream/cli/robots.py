@@ -83,14 +83,14 @@ def _print_lines(lines: list[str], out: TextIO) -> None:
         print(textwrap.fill(line, WRAP_COLUMNS, subsequent_indent=INDENT * 2), file=out)
 
 
-def _print_columns(tree, path, advice, out: TextIO) -> None:
-    """The joints a recording must log for the suggested keypoints, and the moving joints the
-    keypoints do not drive (the search moves their links where a recording logs them)."""
+def _print_columns(tree, path, advice, keypoints, out: TextIO) -> None:
+    """The joints a recording must log for `keypoints` (the suggestion, or one arm's), and
+    the moving joints they do not drive (the search moves their links where logged)."""
     from dream.outline_robot import joints_at_rest
     from dream.robot import Robot
 
     robot = Robot(name=tree.name or "urdf", urdf_path=str(path), base_link=advice.base_link,
-                  keypoint_names=advice.suggested, tree=tree)
+                  keypoint_names=keypoints, tree=tree)
     _wrapped(f"{INDENT}joints a recording logs for them (joints.csv columns, radians or "
              "metres): ", robot.joint_names, out)
     held = joints_at_rest(robot)
@@ -143,9 +143,11 @@ def describe_robot(name_or_urdf: str, keypoints: tuple[str, ...] | None = None,
         same = builtin.keypoints == advice.suggested
         _wrapped(f"{INDENT}built-in keypoints{' (the same)' if same else ''}: ",
                  builtin.keypoints, out)
-    print(f"{INDENT}use: --robot {name_or_urdf} --keypoints {','.join(advice.suggested)}",
+    ready = advice.branch_keypoints[0] if advice.branch_keypoints else advice.suggested
+    print(f"{INDENT}use: --robot {name_or_urdf} --keypoints {','.join(ready)}"
+          f"{' (one arm: see below)' if advice.branch_keypoints else ''}",
           file=out)
-    _print_columns(tree, path, advice, out)
+    _print_columns(tree, path, advice, ready, out)
     _print_lines(_collinear_lines(advice.suggested_collinear, "the suggested keypoints"), out)
     if advice.branches:
         _wrapped(f"warning: the chain branches at {advice.suggested[-1]} into "

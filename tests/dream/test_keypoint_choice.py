@@ -125,6 +125,7 @@ def test_a_mobile_manipulators_arm_is_followed_past_its_wheels_legs_and_head() -
     assert left[:len(dual.suggested)] == dual.suggested and "arm_left_7_link" in left
     assert not any("right" in n for n in left) and "arm_right_7_link" in right
     assert f"along arm_left_1_link: --keypoints {','.join(left)}" in out.getvalue()
+    assert f"--keypoints {','.join(left)} (one arm: see below)" in out.getvalue()   # use: line
     arm = load_robot(str(robot_data_dir() / TIAGO_DUAL), left)
     assert arm.joint_names == ("torso_lift_joint", *(f"arm_left_{i}_joint" for i in range(1, 8)))
 
