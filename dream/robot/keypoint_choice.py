@@ -181,6 +181,12 @@ def sample_link_origins(tree: KinematicTree, base_link: str, num_samples: int = 
     return LinkOrigins(links, robot.forward_kinematics(q))
 
 
+def stay_together(a: np.ndarray, b: np.ndarray, tol_m: float = COINCIDENT_TOL_M) -> bool:
+    """Whether two origins (S, 3), sampled over the same configurations, stay within `tol_m`
+    of each other in every one (they coincide)."""
+    return bool(np.linalg.norm(a - b, axis=-1).max() < tol_m)
+
+
 def coincident_groups(origins: LinkOrigins, names: Sequence[str] | None = None,
                       tol_m: float = COINCIDENT_TOL_M) -> tuple[tuple[str, ...], ...]:
     """Groups of two or more of `names` (default: every link) whose origins stay within `tol_m`
@@ -190,7 +196,7 @@ def coincident_groups(origins: LinkOrigins, names: Sequence[str] | None = None,
     groups: list[list[int]] = []
     for i in range(len(names)):
         for group in groups:
-            if np.linalg.norm(p[:, i] - p[:, group[0]], axis=-1).max() < tol_m:
+            if stay_together(p[:, i], p[:, group[0]], tol_m):
                 group.append(i)
                 break
         else:
@@ -304,15 +310,14 @@ def suggest_keypoints(tree: KinematicTree, base_link: str,
     p = origins.of(chain)
     runs: list[list[int]] = []
     for i in range(len(chain)):
-        if runs and np.linalg.norm(p[:, i] - p[:, runs[-1][0]], axis=-1).max() < COINCIDENT_TOL_M:
+        if runs and stay_together(p[:, i], p[:, runs[-1][0]]):
             runs[-1].append(i)
         else:
             runs.append([i])
     chosen: list[int] = []
     for run in runs:
         pick = run[0] if run[0] == 0 else run[-1]      # the base keeps its name
-        if all(np.linalg.norm(p[:, pick] - p[:, c], axis=-1).max() >= COINCIDENT_TOL_M
-               for c in chosen):
+        if not any(stay_together(p[:, pick], p[:, c]) for c in chosen):
             chosen.append(pick)
     return tuple(chain[i] for i in chosen)
 
@@ -384,7 +389,6 @@ def along_branch(tree: KinematicTree, origins: LinkOrigins, suggested: Sequence[
     chosen = list(suggested)
     for link in suggest_keypoints(tree, branch, origins):
         p = origins.of([link, *chosen])
-        if all(np.linalg.norm(p[:, 0] - p[:, k], axis=-1).max() >= COINCIDENT_TOL_M
-               for k in range(1, p.shape[1])):
+        if not any(stay_together(p[:, 0], p[:, k]) for k in range(1, p.shape[1])):
             chosen.append(link)
     return tuple(chosen)
