@@ -127,12 +127,11 @@ def keypoint_hypothesis(request, seq, out: TextIO) -> tuple:
 def search_start(request, seq, out: TextIO):
     """The search (module doc): robot, the stand-in result and observations at its pose, its
     outcome and masks, and the guess."""
+    from dream.cli.search_robot import robot_for_search
     from dream.coarse.calibration import coarse_start, search_covariance, stand_in_result
     from dream.coarse.focal import FocalSettings
 
     guess = camera_guess(request.camera_guess, request.look_at, request.guess_sigma)
-    from dream.cli.search_robot import robot_for_search
-
     robot, extra = (keypoint_hypothesis(request, seq, out) if request.keypoints_given
                     else (robot_for_search(seq, request), {}))
     marked = None
