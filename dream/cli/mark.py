@@ -55,17 +55,17 @@ def run_mark(request: MarkRequest, out: TextIO | None = None,
         raise InputError("some frames have no image, and the page shows the images",
                          request.data, "give a recording with an image in every frame")
     names = [f.name for f in seq.frames]
-    marks = {}
-    if target.exists():
-        frames, uv = read_mark_rows(target, seq)
-        marks = {names[int(i)]: (float(u), float(v)) for i, (u, v) in zip(frames, uv,
-                                                                          strict=True)}
     digests: dict = {}            # image file -> its SHA-256, read once
     shared = shared_files(seq)
     if shared:
         print(f"reading {', '.join(map(str, shared))} once (the marks file names the frames "
               "by their content)", file=out, flush=True)
-        read_shared_files(seq, digests)
+        read_shared_files(shared, digests)
+    marks = {}
+    if target.exists():
+        frames, uv = read_mark_rows(target, seq, digests)
+        marks = {names[int(i)]: (float(u), float(v)) for i, (u, v) in zip(frames, uv,
+                                                                          strict=True)}
     source = str(Path(request.data).resolve())
     book = MarkBook(names, camera, target, marks,
                     lambda indices: marks_comment(source, seq, indices, digests))

@@ -125,9 +125,11 @@ def read_marks(path: str | Path, sequence: Sequence) -> tuple[np.ndarray, np.nda
     return frames, uv
 
 
-def read_mark_rows(path: str | Path, sequence: Sequence) -> tuple[np.ndarray, np.ndarray]:
+def read_mark_rows(path: str | Path, sequence: Sequence, digests: dict[Path, bytes] | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """The rows of a `frame,u,v` CSV as `read_marks` gives them, none or any (as `dream mark`
-    goes on from the file it wrote).
+    goes on from the file it wrote). `digests`: image files' digests already read
+    (`dream.io.marks.read_shared_files`; filled with those read here).
 
     Raises:
         InputError: no such file, another header, a frame not in the data, a pixel outside the
@@ -169,7 +171,7 @@ def read_mark_rows(path: str | Path, sequence: Sequence) -> tuple[np.ndarray, np
         uv.append((u, v))
     if len(set(frames)) != len(frames):
         raise InputError("a frame is marked twice", path, "keep one row per frame")
-    check_marked_frames(path, stated_digests(comments), sequence, frames)
+    check_marked_frames(path, stated_digests(comments), sequence, frames, digests)
     order = np.argsort(frames)
     return np.asarray(frames, int)[order], np.asarray(uv, float).reshape(-1, 2)[order]
 

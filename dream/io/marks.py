@@ -48,13 +48,11 @@ def shared_files(sequence) -> list[Path]:
     return sorted(path for path, count in counts.items() if count > 1)
 
 
-def read_shared_files(sequence, cache: dict[Path, bytes]) -> list[Path]:
-    """Hash into `cache` every file of `shared_files`, so that the first click of `dream mark`
-    does not wait for a whole recording to be read; returns those files."""
-    shared = shared_files(sequence)
+def read_shared_files(shared: Iterable[Path], cache: dict[Path, bytes]) -> None:
+    """Hash into `cache` every file of `shared` (`shared_files`), so that the first click of
+    `dream mark` does not wait for a whole recording to be read."""
     for path in shared:
         file_digest(path, cache)
-    return shared
 
 
 def marks_comment(source: str, sequence, indices: Iterable[int],
@@ -75,10 +73,11 @@ def stated_digests(lines: Iterable[str]) -> dict[str, str]:
 
 
 def check_marked_frames(path: Path, stated: dict[str, str], sequence,
-                        indices: Iterable[int]) -> None:
+                        indices: Iterable[int], cache: dict[Path, bytes] | None = None) -> None:
     """Refuse marks whose frames `indices` (of `sequence`) have other images than the comment
-    line states for those names (the marks of another recording)."""
-    cache: dict[Path, bytes] = {}          # a video or bag holds every frame: read it once
+    line states for those names (the marks of another recording). `cache`: file digests
+    already read (`read_shared_files`), filled with those read here."""
+    cache = {} if cache is None else cache     # a video or bag holds every frame: read it once
     other = [sequence.frames[i].name for i in indices
              if sequence.frames[i].name in stated
              and stated[sequence.frames[i].name] != frame_sha256(sequence, i, cache)]

@@ -244,7 +244,8 @@ def test_mark_options_are_checked_before_any_work(tmp_path, capsys):
 def test_a_file_the_frames_share_is_read_once_before_the_page_serves(tmp_path):
     """An image stack (or bag) holding every frame is hashed up front: the marks file's
     comment then needs no read of it (here: it is gone)."""
-    from dream.io.marks import marks_comment, read_shared_files
+    from dream.coarse.mark import read_mark_rows
+    from dream.io.marks import marks_comment, read_shared_files, shared_files
     from dream.sequence import Frame, Sequence
 
     stack, alone = tmp_path / "frames.npz", tmp_path / "alone.png"
@@ -258,6 +259,11 @@ def test_a_file_the_frames_share_is_read_once_before_the_page_serves(tmp_path):
                    frames=frames)
     expected = marks_comment("/d", seq, [0, 2])
     cache: dict = {}
-    assert read_shared_files(seq, cache) == [stack] and list(cache) == [stack]
+    read_shared_files(shared_files(seq), cache)
+    assert shared_files(seq) == [stack] and list(cache) == [stack]
     stack.unlink()
     assert marks_comment("/d", seq, [0, 2], cache) == expected
+    marks = tmp_path / "marks.csv"
+    marks.write_text(f"{expected}\nframe,u,v\n000000,10,10\n000002,20,20\n")
+    frames, _ = read_mark_rows(marks, seq, cache)    # a resumed page: the stack is not read
+    assert list(frames) == [0, 2]
