@@ -27,7 +27,8 @@ one chosen, and how clearly the images chose it (pure).
    lengths scaled down for a camera nearer the robot than `basin_reference_m`).
 4. The winner's precision: its finish repeated from it with each of `jackknife_groups` groups
    of frames left out in turn (every G-th frame, `dream.refined_uncertainty.frame_groups`),
-   and with each link in view left out in turn; the increments to those poses are the
+   and with each link in view left out in turn (at most `jackknife_link_groups` groups of
+   neighbouring links on a robot of many); the increments to those poses are the
    jackknives of `dream.coarse.calibration`'s 1-sigma (not run where the winner's IoU is
    below `min_found_iou`: the robot was not found, and the basin check's spread says so).
    A mask error of one frame (a shadow) or of one link (a link the colour of the floor, a
@@ -92,8 +93,9 @@ class SearchOutcome:
         basin_ends: (basin_starts, 4, 4) where the restarts ended.
         frames_xi: (G, 6) the winner's finish with each frame group left out, as increments
             from the winner (`dream.pnp.increment_between`); (0, 6) where it did not run.
-        links_xi: (L, 6) the same with each link in view left out; jackknife_links: those
-            links.
+        links_xi: (L, 6) the same with each link in view (or group of neighbouring links,
+            `jackknife_link_groups`) left out; jackknife_links: those links, a group's
+            names joined by "+".
         seconds: wall time.
         basin_m, basin_return_m: how far the restarts started and within what they counted
             as returned (`SearchSettings.basin_lengths` at the winner's camera distance).
