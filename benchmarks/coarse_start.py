@@ -35,6 +35,7 @@ frames that agree.
         [--fooled] [--skip-guess] [--only panda_1003,xarm7_1010] [--work DIR]
         [--robots URDF,... --scale-to-robot] [--set intrinsics.width=960 ...]
         [--given-focal 0.96 [--fixed-focal]] [--video-codec vp9] [--reuse-scenes]
+        [--set sequence.mode=trajectory --frames 150 [--time-offset 0.05]]
     python benchmarks/coarse_start.py real --data ../shared/realdata/panda_teleop [--guesses 10]
     python benchmarks/coarse_start.py real --data ../shared/realdata/franka_offline --center R.json
     python benchmarks/coarse_start.py real --data ../shared/realdata/panda_teleop \
@@ -119,19 +120,34 @@ def randomisation(robot: str, scale_to_robot: bool, overrides: tuple[str, ...] =
     return config_from_dict(full)
 
 
+def rendered_for(out: Path, keypoints: tuple[str, ...] | None) -> bool:
+    """Whether `out` holds a finished scene (its masks deleted) rendered with `keypoints`
+    (None or () for a built-in robot's own)."""
+    record = out / "_synth.json"
+    if not record.is_file() or any(out.glob("*.seg.png")):
+        return False
+    return list(keypoints or ()) == json.loads(record.read_text())["keypoints"]
+
+
 def render_scene(robot: str, out: Path, seed: int, frames: int,
                  scale_to_robot: bool = False, overrides: tuple[str, ...] = (),
-                 reuse: bool = False, keypoints: tuple[str, ...] | None = None) -> Path:
+                 reuse: bool = False, keypoints: tuple[str, ...] | None = None,
+                 time_offset_s: float = 0.0) -> Path:
     """A fixed-camera `real_world.yaml` scene of `robot` (a built-in name or a URDF), its robot
-    masks deleted; with `reuse`, a scene already rendered in `out` is taken as it is."""
+    masks deleted; with `reuse`, a scene already rendered in `out` for the same keypoints (the
+    joints it moved) is taken as it is. `time_offset_s`: the written joint readings lag the
+    images by this (a `trajectory` scene, `synth.extension`)."""
+    from dream.extension import ModelExtension
     from synth.generate import SynthJob, generate
 
-    if reuse and (out / "_synth.json").is_file() and not any(out.glob("*.seg.png")):
+    if reuse and rendered_for(out, robot_keypoints(robot, keypoints)):
         return out
 
     generate(SynthJob(robot=robot, out_dir=out, num_frames=frames,
                       config=randomisation(robot, scale_to_robot, overrides, keypoints),
-                      seed=seed, keypoints=robot_keypoints(robot, keypoints)),
+                      seed=seed, keypoints=robot_keypoints(robot, keypoints),
+                      extension=ModelExtension(time_offset_s=time_offset_s)
+                      if time_offset_s else None),
              overwrite=True, on_progress=lambda done: None)
     for mask in out.glob("*.seg.png"):
         mask.unlink()
@@ -264,8 +280,11 @@ def calibrate(data: Path, out: Path, guess: Path | None,
     sigma = float(np.linalg.norm(doc["sigma_camera_position_base_m"]))
     focal = (doc.get("start") or {}).get("focal")
     away = (doc.get("start") or {}).get("away") or {"share": 0.0}
+    timing = (doc.get("start") or {}).get("timing") or {"adopted": False}
     return {"focal": ("" if focal is None else f", focal x{focal['scale']:.3f} "
                       f"{'adopted' if focal['adopted'] else 'kept as given'}")
+            + ("" if not timing["adopted"] else f", the readings {1000 * timing['seconds']:+.0f}"
+               f" ms on ({timing['rounds']} searches again)")
             + ("" if not away["share"] else f", {100 * away['share']:.1f} % of the moving "
                f"pixels away from the robot (IoU without them {away['iou_without']:.3f})"),
             "mm": t_err * 1e3, "deg": float(np.rad2deg(r_err)), "verdict":
@@ -321,7 +340,7 @@ def run_renders(args: argparse.Namespace) -> None:
             for seed in range(args.first_seed, args.first_seed + args.scenes):
                 data = render_scene(robot, tmp / f"{name}_{seed}", seed, args.frames,
                                     args.scale_to_robot, tuple(args.set), args.reuse_scenes,
-                                    keypoints)
+                                    keypoints, args.time_offset)
                 if args.video_codec:
                     data = video_coded(data, args.video_codec,
                                        tmp / f"{name}_{seed}_{args.video_codec}")
@@ -425,6 +444,8 @@ def main() -> None:
                    "this video codec and back before calibrating (a recording kept as video)")
     r.add_argument("--reuse-scenes", action="store_true", help="take a scene already "
                    "rendered in --work as it is (the same seed and settings render the same)")
+    r.add_argument("--time-offset", type=float, default=0.0, metavar="S", help="the joint "
+                   "readings lag the images by S seconds (with --set sequence.mode=trajectory)")
     r.add_argument("--scenes", type=int, default=3)
     r.add_argument("--first-seed", type=int, default=1000)
     r.add_argument("--frames", type=int, default=30)

@@ -74,6 +74,7 @@ class CalibrateRequest(DataOptions):
     mark_link: str | None = None
     mark_offset: str | None = None
     fixed_focal: bool = False
+    stamped_timing: bool = False
     frame_range: str | None = None
     loaded_model: Any = None
 
@@ -411,6 +412,11 @@ def add_calibrate_args(p: argparse.ArgumentParser) -> None:
                    help="without keypoints: keep the data's fx, fy as given (by default the "
                         "search fits their scale where the robot's outlines determine it and "
                         "the overlap agrees, and reports it)")
+    p.add_argument("--stamped-timing", action="store_true",
+                   help="without keypoints: take the joint readings at their timestamps (by "
+                        "default the search reads a lag of the joint log behind the images off "
+                        "the moving arm's silhouettes, shifts the readings by it where it is "
+                        "clear, and reports it)")
     p.add_argument("--frame-range", metavar="START:STOP",
                    help="calibrate only these frames (indices in time order, STOP excluded): "
                         "one still stretch of a recording whose camera moved")

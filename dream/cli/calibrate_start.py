@@ -130,6 +130,7 @@ def search_start(request, seq, out: TextIO):
     from dream.cli.search_robot import robot_for_search
     from dream.coarse.calibration import coarse_start, search_covariance, stand_in_result
     from dream.coarse.focal import FocalSettings
+    from dream.coarse.timing import TimingSettings
 
     guess = camera_guess(request.camera_guess, request.look_at, request.guess_sigma)
     robot, extra = (keypoint_hypothesis(request, seq, out) if request.keypoints_given
@@ -154,9 +155,11 @@ def search_start(request, seq, out: TextIO):
           f"{guess.description}", file=out)
 
     outcome, inputs = coarse_start(seq, robot, guess, progress=_progress, extra=extra,
-                                   focal=FocalSettings(fit=not request.fixed_focal))
+                                   focal=FocalSettings(fit=not request.fixed_focal),
+                                   timing=TimingSettings(fit=not request.stamped_timing))
     result, obs = stand_in_result(seq, outcome.best.T_cam_base,
-                                  search_covariance(outcome, focal=inputs.focal))
+                                  search_covariance(outcome, focal=inputs.focal,
+                                                    timing=inputs.timing))
     print(f"search ({outcome.seconds:.1f} s, {inputs.source} of {len(inputs.frames)} frames): "
           f"best IoU {outcome.best.iou:.3f}, best rival "
           f"{'none' if outcome.rival is None else f'{outcome.rival.iou:.3f}'}, "
@@ -199,6 +202,7 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
             "left_out_links": list(inputs.left_out), "motion_masks": inputs.motion,
             "carried": carried_doc(inputs.carried, CARRIED in outcome.hypotheses),
             "focal": None if inputs.focal is None else inputs.focal.to_dict(),
+            "timing": None if inputs.timing is None else inputs.timing.to_dict(),
             "T_cam_base": outcome.best.T_cam_base.tolist(), "iou": outcome.best.iou,
             "away": away_doc(outcome, inputs, seq),
             "rival_iou": None if rival is None else rival.iou,
@@ -262,6 +266,7 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
     mark's clicks at the pose written (with `--mark`), the condition of the pose written
     (`dream.quality`) and the `extra` findings (a camera that moved)."""
     from dream.coarse.settings import SearchSettings
+    from dream.coarse.timing import timing_finding
     from dream.coarse.verdict import (
         away_finding,
         carried_finding,
@@ -281,9 +286,8 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
         findings.append(away_finding(away["share"], settings))
     if cue_move is not None:
         findings.append(cues_finding(*cue_move))
-    focal = focal_finding(s.get("focal"))
-    if focal is not None:
-        findings.append(focal)
+    findings += [f for f in (focal_finding(s.get("focal")), timing_finding(s.get("timing")))
+                 if f is not None]
     carried = s.get("carried") or {}
     if carried.get("named"):
         findings.append(carried_finding(carried["named"],
@@ -310,6 +314,7 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
     the camera's, where it was measured (`measure_steadiness`)."""
     from dream.cli.calibrate_report import add_polish, steadiness_record
     from dream.cli.calibrate_write import finish
+    from dream.coarse.timing import with_lag
     from dream.refined_uncertainty import with_cue_term
 
     if request.model_extension:
@@ -319,6 +324,7 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
                          "--mark")
     robot, result, obs, outcome, inputs, guess, marked = search_start(request, seq, out)
     seq = with_fitted_focal(seq, inputs, out)
+    seq = with_lag(seq, inputs.timing)         # the refinements draw the arm as the search did
     found = (seq, outcome, inputs, guess, marked)
     doc = search_document(request, data_doc, readings_doc, result, obs, found)
     T_other = T_own = None
@@ -381,7 +387,8 @@ def _challenged(request, data_doc: dict, readings_doc: dict | None, found: tuple
               f"the edge alignment's (IoU {challenge.iou_between:.3f})", file=out)
     if challenge.won or challenge.share > 0:
         result, obs = stand_in_result(seq, challenge.T_cam_base_between,
-                                      search_covariance(outcome, focal=inputs.focal))
+                                      search_covariance(outcome, focal=inputs.focal,
+                                                        timing=inputs.timing))
         doc = {**search_document(request, data_doc, readings_doc, result, obs,
                                  (seq, outcome, inputs, guess, marked)), "edges": doc["edges"]}
     doc["start"]["challenge"] = challenge.to_dict()

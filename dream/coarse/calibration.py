@@ -3,21 +3,19 @@
 the coarse search (`dream.coarse.search`), and a stand-in keypoint result at its pose so that
 the image refinements (`--refine`) and RESULT.json take it from there.
 
-With motion masks, the links that never move over the recording are left out of the model (they
-are in the background model, so not in the masks), the pixels the robot covers in most frames
-at a hypothesis are not compared (`dream.coarse.evidence.held_pixels`: a shoulder turning in
-place stays in the background model), and the search uses the frames whose masks show motion,
-drawn as the background model's are (where the arm rests in one pose for most of the recording,
-each pose once: `dream.edges.background.median_frames`). The hypotheses are scored on a few
-frames (`search_frames`); the winner is finished on up to `finish_frames` (on rendered scenes,
-one frame's mask error, a shadow or a link the colour of the floor, moves the optimum of 8
-frames by 1-2 cm, of 30 by a few millimetres). What the arm carries that the URDF lacks (a
-tool, a held object) is carved at the winner (`dream.coarse.carried`), reported, and its pixels
-left out of the search run again from there, whose finishes also leave out the frames that pull
-the pose far harder than the others (`dream.coarse.scales`). Then the focal-length scale the
-robot's outlines ask for is fitted at the winner (`dream.coarse.focal`); where adopted, the
-search runs again from there through the camera with that focal length, and the callers go on
-with that camera.
+With motion masks, the links that never move are left out of the model (they are in the
+background model, so not in the masks), the pixels the robot covers in most frames at a
+hypothesis are not compared (`dream.coarse.evidence.held_pixels`: a shoulder turning in place
+stays in the background model), and the search uses the frames whose masks show motion, drawn
+as the background model's are (`dream.edges.background.median_frames`). The hypotheses are
+scored on a few frames (`search_frames`); the winner is finished on up to `finish_frames` (on
+rendered scenes, one frame's mask error moves the optimum of 8 frames by 1-2 cm, of 30 by a few
+millimetres). At the winner, in turn: the joint log's lag behind the images is read
+(`dream.coarse.timing`), what the arm carries that the URDF lacks is carved
+(`dream.coarse.carried`) and its pixels left out (the finishes then also leave out the frames
+that pull the pose far harder than the others, `dream.coarse.scales`), and the focal-length
+scale the robot's outlines ask for is fitted (`dream.coarse.focal`); each that is adopted runs
+the search again from the winner, and the callers go on with what it adopted.
 The search's 1-sigma is the spread of its finish over frame groups and links left out
 (jackknives) and of its basin check's restarts around the winner: where they do not return, it
 is large and says so.
@@ -48,8 +46,10 @@ from dream.coarse.mark import (
 )
 from dream.coarse.search import SearchOutcome, Winner, find_winner, within
 from dream.coarse.settings import SearchSettings
+from dream.coarse.timing import LagEstimate, TimingSettings, with_timing
 from dream.diagnosis.attached import AttachedSettings, CarvingOutcome
 from dream.errors import InputError
+from dream.pipeline import joints_in_robot_order
 from dream.pnp import MIN_KEYPOINTS, NoSolution, PoseFit, increment_between
 from dream.polish.objective import evenly_spaced
 from dream.refined_uncertainty import MIN_GROUPS, jackknife_covariance
@@ -65,7 +65,8 @@ from dream.silhouette import (
 
 log = logging.getLogger(__name__)
 
-GUESS, SHELL, CARRIED, FOCAL, MARK = "guess", "shell", "carried", "focal", "mark"
+GUESS, SHELL, CARRIED, FOCAL, MARK, TIMING = ("guess", "shell", "carried", "focal", "mark",
+                                             "timing")
 DATA_MASKS, MOTION_MASKS = "the data's masks", "motion masks"
 RESOLUTION_FRACTION = 0.5   # of the basin check's return limits: its 1-sigma without a jackknife
 JACKKNIFE_SHRINKAGE = 0.25  # of the search's jackknife covariance towards its diagonal (set
@@ -106,7 +107,8 @@ class SearchMasks:
     being off, and how many of the frames had their exposure matched; None with the data's
     masks), and the focal-length scale fitted at the winner (`focal`; None where it was not
     fitted; `dream.coarse.focal`: where adopted, the search's pose is the one through
-    `focal.camera`)."""
+    `focal.camera`), and the joint log's lag read there (`timing`; `dream.coarse.timing`:
+    where adopted, `joints` are the readings shifted by it)."""
 
     meshes: RobotMeshes
     frames: np.ndarray
@@ -119,6 +121,7 @@ class SearchMasks:
     region: CarriedRegion | None = None
     motion: dict | None = None
     focal: FocalEstimate | None = None
+    timing: LagEstimate | None = None
 
 
 def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> SearchMasks:
@@ -138,7 +141,6 @@ def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> 
         sequence_motion_model,
     )
     from dream.io import load_image, load_mask
-    from dream.pipeline import joints_in_robot_order
 
     camera = sequence.fixed_camera("search for one camera pose from the robot's silhouettes")
     joints = joints_in_robot_order(sequence, robot)
@@ -223,10 +225,12 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
                  settings: SearchSettings | None = None,
                  progress: Callable[[str], None] | None = None,
                  extra: dict[str, np.ndarray] | None = None,
-                 focal: FocalSettings | None = None) -> tuple[SearchOutcome, SearchMasks]:
+                 focal: FocalSettings | None = None, timing: TimingSettings | None = None
+                 ) -> tuple[SearchOutcome, SearchMasks]:
     """The coarse search of a fixed-camera `sequence` (module doc); `extra`: more hypotheses
     by source (the keypoint pose of a detector), scored beside the guess's; `focal`: whether
-    and how the focal-length scale is fitted at the winner (`with_focal`)."""
+    and how the focal-length scale is fitted at the winner (`with_focal`); `timing`: the same
+    for the joint log's lag, read there first (`dream.coarse.timing`)."""
     settings = settings or SearchSettings()
     inputs = search_masks(sequence, robot, settings)
     if progress is not None:
@@ -241,6 +245,13 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
                          search_frames=inputs.search)
     if winner.best.iou < settings.min_found_iou:
         return winner.checked(), inputs
+    def again(moved: SearchMasks, last: Winner) -> Winner:
+        return searched_again(sequence.camera, moved, last, last.best.T_cam_base, TIMING,
+                              settings, progress)
+
+    winner, inputs = with_timing(sequence, joints_in_robot_order(sequence, robot), inputs,
+                                 winner, settings, timing or TimingSettings(), again,
+                                 inputs.source == MOTION_MASKS, progress)
     if settings.find_carried:
         winner, inputs = with_carried(sequence.camera, inputs, winner, settings, progress)
     return with_focal(sequence.camera, inputs, winner, settings, focal, progress)
@@ -347,7 +358,6 @@ def mark_start(sequence: Sequence, robot: Robot, mark: Mark,
     import cv2
 
     from dream.io import load_image
-    from dream.pipeline import joints_in_robot_order
 
     settings = settings or SearchSettings()
     mark_settings = mark_settings or MarkSettings()
@@ -388,7 +398,8 @@ def shell_orientations(settings: SearchSettings) -> np.ndarray:
 
 
 def search_covariance(outcome: SearchOutcome, settings: SearchSettings | None = None,
-                      focal: FocalEstimate | None = None) -> np.ndarray:
+                      focal: FocalEstimate | None = None, timing: LagEstimate | None = None
+                      ) -> np.ndarray:
     """(6, 6) the search's own 1-sigma (xi of `dream.pnp` at the winner): the jackknives of
     its finish over frame groups and over links (`SearchOutcome.frames_xi`, `links_xi`;
     `dream.refined_uncertainty.jackknife_covariance`; their sum shrunk towards its diagonal by
@@ -401,7 +412,8 @@ def search_covariance(outcome: SearchOutcome, settings: SearchSettings | None = 
     (`SearchSettings.basin_lengths`), so the check
     alone does not resolve the pose below that. The restarts that ended elsewhere are the
     verdict's basin finding, not spread of this pose. An adopted focal-length scale (`focal`)
-    adds its own uncertainty (`FocalEstimate.pose_covariance`)."""
+    adds its own uncertainty (`FocalEstimate.pose_covariance`), and so does an adopted lag of
+    the joint log (`LagEstimate.pose_covariance`)."""
     settings = settings or SearchSettings()
     T_best = outcome.best.T_cam_base
     ends = outcome.basin_ends
@@ -418,8 +430,8 @@ def search_covariance(outcome: SearchOutcome, settings: SearchSettings | None = 
     else:
         precision = np.diag((np.repeat([settings.basin_return_rad, outcome.basin_return_m], 3)
                              * RESOLUTION_FRACTION) ** 2)
-    return xi.T @ xi / len(xi) + precision + (np.zeros((6, 6)) if focal is None
-                                              else focal.pose_covariance)
+    extras = [extra.pose_covariance for extra in (focal, timing) if extra is not None]
+    return xi.T @ xi / len(xi) + precision + sum(extras, np.zeros((6, 6)))
 
 
 def stand_in_result(sequence: Sequence, T_cam_base: np.ndarray, covariance: np.ndarray

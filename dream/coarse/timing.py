@@ -1,0 +1,254 @@
+"""The joint log's lag behind the images, read off the robot's silhouettes.
+
+A joint log stamped by another clock than the camera's (a driver's latency, a second machine)
+shows the arm where it was some milliseconds before or after each image. A still arm does not
+care; a moving one is drawn behind (or ahead of) itself along its motion, and the search's pose
+takes up what it can of the difference: on renders of smooth 30 frames/s trajectories, readings
+50 ms late left the search 15-163 mm off where it is 1-9 mm on time.
+
+At the search's winner the silhouettes are compared with the masks with the readings
+interpolated at each image time plus a lag (`dream.extended.effective_joints`: the state at
+image time t is the reading stamped t + lag, the `time_offset` convention) over a grid of lags;
+where the best lag fits clearly better than the readings as stamped, the search runs again from
+the winner with the readings shifted by it, and the lag is read again there, until it stays.
+A pose error cannot mimic a lag: it moves the silhouettes alike whichever way the arm moves.
+
+Frames without timestamps, or data with its own robot masks, are not examined (`reason`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from dream.errors import InputError
+from dream.extended import effective_joints
+from dream.quality import CHECK, Finding
+from dream.settings_checks import check_fields
+
+if TYPE_CHECKING:
+    from dream.coarse.calibration import SearchMasks
+    from dream.coarse.search import Winner
+    from dream.coarse.settings import SearchSettings
+    from dream.sequence import Sequence
+
+
+@dataclass(frozen=True)
+class TimingSettings:
+    """How the lag is read (module doc).
+
+    Attributes:
+        fit: read the lag at all (False: the readings as stamped).
+        max_lag_s: the lags tried lie within this of 0 (s).
+        step_s: the grid of lags tried (s); the best is refined between its neighbours, and
+            one within a quarter of it from the lag in use is that lag.
+        min_gain: the mean IoU at the best lag must exceed the IoU at the lag in use by this
+            to adopt it (on the lag-free renders of 30 frames/s trajectories, the best lag
+            lay at 0 within 10 ms, gaining at most 0.002; readings 50 ms late gained 0.016 at
+            the first winner, 0.15 at the truth).
+        rounds: at most this many searches again with a new lag.
+        sigma_fraction: an adopted lag's 1-sigma, of the lag (or the last round's gap between
+            the lag read and the lag in use, where larger), whose effect on the pose enters its
+            covariance (`LagEstimate.pose_covariance`; set on renders of 30 frames/s
+            trajectories with readings 50 ms late: the lags adopted lay 3-7 ms short).
+    """
+
+    fit: bool = True
+    max_lag_s: float = 0.3
+    step_s: float = 0.02
+    min_gain: float = 0.005
+    rounds: int = 3
+    sigma_fraction: float = 0.15
+
+    def __post_init__(self) -> None:
+        check_fields(self, "timing", positive=("max_lag_s", "step_s", "min_gain",
+                                               "sigma_fraction"),
+                     positive_ints=("rounds",))
+        if self.step_s > self.max_lag_s:
+            raise InputError(f"timing: step_s {self.step_s} exceeds max_lag_s {self.max_lag_s}")
+
+
+@dataclass(frozen=True)
+class LagEstimate:
+    """The lag found (module doc): `seconds` (0 where none was adopted), the mean IoU with the
+    readings as stamped and at the lag adopted (at the last winner), the last profile read
+    (`lags_s`, `ious`), the searches run again, why, and where adopted its 1-sigma and the
+    pose's change per second of lag (`xi_per_second`, `dream.pnp` increments: between the
+    last two winners)."""
+
+    seconds: float
+    iou_as_stamped: float
+    iou_at_lag: float
+    lags_s: np.ndarray
+    ious: np.ndarray
+    rounds: int
+    reason: str
+    sigma_s: float = 0.0
+    xi_per_second: np.ndarray = field(default_factory=lambda: np.zeros(6))
+
+    @property
+    def adopted(self) -> bool:
+        return self.seconds != 0.0
+
+    @property
+    def pose_covariance(self) -> np.ndarray:
+        """(6, 6) what the adopted lag's uncertainty adds to the pose's covariance."""
+        return self.sigma_s ** 2 * np.outer(self.xi_per_second, self.xi_per_second)
+
+    def to_dict(self) -> dict:
+        return {"seconds": self.seconds, "adopted": self.adopted, "sigma_s": self.sigma_s,
+                "iou_as_stamped": self.iou_as_stamped, "iou_at_lag": self.iou_at_lag,
+                "lags_s": self.lags_s.tolist(), "ious": self.ious.tolist(),
+                "xi_per_second": self.xi_per_second.tolist(), "rounds": self.rounds,
+                "reason": self.reason}
+
+
+def best_lag(lags_s: np.ndarray, ious: np.ndarray) -> float:
+    """The lag of the largest IoU, refined by the parabola through it and its neighbours.
+
+    >>> lags = np.array([-0.04, -0.02, 0.0, 0.02, 0.04])
+    >>> round(best_lag(lags, 1 - (lags - 0.025) ** 2), 4)
+    0.025
+    """
+    k = int(np.argmax(ious))
+    if k == 0 or k == len(ious) - 1:
+        return float(lags_s[k])
+    left, mid, right = ious[k - 1], ious[k], ious[k + 1]
+    curvature = left - 2 * mid + right
+    offset = 0.0 if curvature >= 0 else 0.5 * (left - right) / curvature
+    return float(lags_s[k] + offset * (lags_s[k + 1] - lags_s[k]))
+
+
+def lag_profile(iou_at: Callable[[float], float], settings: TimingSettings
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(lags (n,), mean IoUs (n,)) over the grid of `settings`; `iou_at(lag)`: the IoU of the
+    silhouettes with the readings shifted by `lag`."""
+    half = int(round(settings.max_lag_s / settings.step_s))
+    lags = np.arange(-half, half + 1) * settings.step_s
+    return lags, np.array([iou_at(float(lag)) for lag in lags])
+
+
+def shifted_joints(joints: np.ndarray, times_s: np.ndarray, lag_s: float) -> np.ndarray:
+    """(F, J) the readings at each image time plus `lag_s` (`effective_joints`); the readings
+    as they are at 0."""
+    joints = np.asarray(joints, float)
+    return joints if lag_s == 0.0 else effective_joints(joints, times_s, lag_s)
+
+
+def read_lag(iou_at: Callable[[float], float], search_from: Callable[[float], None],
+             settings: TimingSettings, say: Callable[[str], None]) -> LagEstimate:
+    """The lag (module doc): `iou_at(lag)` scores the current winner with the readings shifted
+    by `lag`; `search_from(lag)` searches again with them and makes its winner the current one.
+
+    The pose found with a lag takes up part of what remains of it, so the lag read at a winner
+    lies between the one in use and the true one; the lags in use and read are extrapolated to
+    where they agree (the secant method on read - in use), and searched again there."""
+    in_use, previous, rounds = 0.0, None, 0
+    while True:
+        lags, ious = lag_profile(iou_at, settings)
+        read = best_lag(lags, ious)
+        here, there = iou_at(in_use), iou_at(read)
+        if there - here < settings.min_gain or abs(read - in_use) < settings.step_s / 4:
+            reason = (f"the readings fit best {1000 * read:+.0f} ms from their stamps, the "
+                      f"lag in use {1000 * in_use:+.0f} ms (IoU {here:.3f} -> {there:.3f}: "
+                      f"less than {settings.min_gain} better, or within a quarter step)")
+            break
+        if rounds == settings.rounds:
+            reason = (f"{rounds} searches again, the last with the readings "
+                      f"{1000 * in_use:+.0f} ms on")
+            break
+        following = _extrapolated(in_use, read, previous, settings.max_lag_s)
+        say(f"timing: the joint readings fit the images best {1000 * read:+.0f} ms from their "
+            f"stamps (IoU {here:.3f} -> {there:.3f}): searching again with them "
+            f"{1000 * following:+.0f} ms on")
+        previous, in_use, rounds = (in_use, read - in_use), following, rounds + 1
+        search_from(in_use)
+    sigma = max(settings.sigma_fraction * abs(in_use), abs(read - in_use)) if rounds else 0.0
+    return LagEstimate(in_use, iou_at(0.0), iou_at(in_use), lags, ious, rounds, reason, sigma)
+
+
+def _extrapolated(in_use: float, read: float, previous: tuple[float, float] | None,
+                  most: float) -> float:
+    """The next lag to search with: where read - in use reaches 0 on the line through this
+    round's and the previous round's (`previous`: its lag in use and read - in use), within
+    `most`; the lag read where there is no previous round or the line does not cross."""
+    gap = read - in_use
+    if previous is None or previous[1] == gap:
+        return read
+    step = -gap * (in_use - previous[0]) / (gap - previous[1])
+    following = in_use + step
+    ahead = np.sign(step) == np.sign(gap)
+    return float(following) if ahead and abs(following) <= most else read
+
+
+def with_lag(sequence: Sequence, estimate: LagEstimate | None) -> Sequence:
+    """`sequence` with every frame's readings shifted by an adopted lag (`shifted_joints`),
+    so that what runs after the search draws the arm as it saw it; else unchanged."""
+    if estimate is None or not estimate.adopted:
+        return sequence
+    times = np.array([f.timestamp for f in sequence.frames], float)
+    q = shifted_joints(sequence.joints, times, estimate.seconds)
+    return replace(sequence, frames=tuple(replace(f, joints=q[i])
+                                          for i, f in enumerate(sequence.frames)))
+
+
+def timing_finding(timing: dict | None) -> Finding | None:
+    """The verdict's timing finding of RESULT.json's `start.timing` (`LagEstimate.to_dict`):
+    `check` where a lag was adopted.
+
+    >>> timing_finding({"adopted": True, "seconds": 0.05, "iou_as_stamped": 0.6,
+    ...                 "iou_at_lag": 0.75})[0]
+    'check'
+    >>> timing_finding({"adopted": False, "seconds": 0.0}) is None
+    True
+    """
+    if timing is None or not timing["adopted"]:
+        return None
+    ms = 1000 * timing["seconds"]
+    return CHECK, (f"the joint readings fit the images best {abs(ms):.0f} ms "
+                   f"{'later' if ms > 0 else 'earlier'} than stamped (the silhouettes' IoU "
+                   f"{timing['iou_as_stamped']:.2f} -> {timing['iou_at_lag']:.2f}): the pose "
+                   "was found with the readings shifted by that; stamp the images and the "
+                   "joint log by one clock (or synchronise the clocks) and record again, or "
+                   "check the overlays")
+
+
+def with_timing(sequence: Sequence, joints: np.ndarray, inputs: SearchMasks, winner: Winner,
+                settings: SearchSettings, timing: TimingSettings,
+                again: Callable[[SearchMasks, Winner], Winner], held: bool,
+                progress: Callable[[str], None] | None = None) -> tuple[Winner, SearchMasks]:
+    """The lag read at the winner (`read_lag`) in the inputs (`SearchMasks.timing`), their
+    joints shifted by it, and the winner of the last search again (the first where none ran);
+    `joints`: (F, J) every frame's readings in the robot's order; `again(inputs, winner)`: the
+    search again from the winner with those inputs; `held`: motion masks (`pose_iou`).
+    Unchanged without timestamps or with `timing.fit` off."""
+    from dream.coarse.search import pose_iou
+    from dream.pnp import increment_between
+
+    times = [f.timestamp for f in sequence.frames]
+    if not timing.fit or any(t is None for t in times):
+        return winner, inputs
+    t = np.asarray(times, float)
+    state = {"winner": winner, "inputs": inputs}
+    found = [(0.0, winner.best.T_cam_base)]            # (lag, winner's pose) of each search
+
+    def at(lag: float) -> np.ndarray:
+        return shifted_joints(joints, t, lag)[inputs.frames]
+
+    def iou_at(lag: float) -> float:
+        return pose_iou(inputs.meshes, at(lag), inputs.masks, sequence.camera,
+                        state["winner"].best.T_cam_base, settings, held)
+
+    def search_from(lag: float) -> None:
+        state["inputs"] = replace(state["inputs"], joints=at(lag))
+        state["winner"] = again(state["inputs"], state["winner"])
+        found.append((lag, state["winner"].best.T_cam_base))
+
+    estimate = read_lag(iou_at, search_from, timing, progress or (lambda line: None))
+    if estimate.adopted:
+        (lag_a, T_a), (lag_b, T_b) = found[-2:]
+        estimate = replace(estimate, xi_per_second=increment_between(T_b, T_a) / (lag_a - lag_b))
+    return state["winner"], replace(state["inputs"], timing=estimate)

@@ -1,0 +1,122 @@
+"""The joint log's lag read off the silhouettes (`dream.coarse.timing`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dream.coarse.calibration import DATA_MASKS, TIMING, SearchMasks, searched_again
+from dream.coarse.search import find_winner
+from dream.coarse.timing import (
+    LagEstimate,
+    TimingSettings,
+    best_lag,
+    read_lag,
+    shifted_joints,
+    timing_finding,
+    with_lag,
+    with_timing,
+)
+from dream.errors import InputError
+from dream.metrics import pose_errors
+from dream.sequence import Frame, Sequence
+from dream.silhouette import render_silhouette
+from dream.transforms import look_at
+from tests.dream.test_coarse import SMALL, off_by
+from tests.dream.test_edges import CAMERA, TARGET
+
+LAG_S = 0.06          # the readings lag the images by this in the rendered trajectory
+FPS = 10.0
+FRAMES = 20
+GRID = TimingSettings(max_lag_s=0.16, step_s=0.02)
+
+
+def absorbing(true_lag: float, share: float):
+    """A search whose pose takes up `share` of the lag it is not given: the IoU at a lag peaks
+    between the true lag and the lag the pose was found with; returns (iou_at, search_from,
+    the lags searched with)."""
+    searched = [0.0]
+
+    def iou_at(lag: float) -> float:
+        peak = share * searched[-1] + (1 - share) * true_lag
+        return 0.8 - 60 * (lag - peak) ** 2      # 0.15 lost 50 ms off, as on renders
+
+    return iou_at, searched.append, searched
+
+
+def test_read_lag_follows_a_lag_the_pose_took_up_in_part() -> None:
+    iou_at, search_from, searched = absorbing(0.05, share=0.6)    # as seen on renders
+    estimate = read_lag(iou_at, search_from, GRID, lambda line: None)
+    assert estimate.adopted and abs(estimate.seconds - 0.05) < 0.01, estimate
+    assert estimate.rounds == len(searched) - 1 >= 2
+    assert estimate.iou_at_lag > estimate.iou_as_stamped
+    assert estimate.sigma_s >= GRID.sigma_fraction * estimate.seconds > 0
+
+
+def test_read_lag_adopts_nothing_where_the_stamps_fit() -> None:
+    iou_at, search_from, searched = absorbing(0.004, share=0.0)
+    estimate = read_lag(iou_at, search_from, GRID, lambda line: None)
+    assert not estimate.adopted and estimate.seconds == 0.0 and searched == [0.0]
+    assert "less than" in estimate.reason and timing_finding(estimate.to_dict()) is None
+
+
+def test_best_lag_keeps_a_peak_at_the_grids_end_and_settings_are_checked() -> None:
+    lags = np.array([0.0, 0.02, 0.04])
+    assert best_lag(lags, np.array([0.1, 0.2, 0.3])) == 0.04
+    with pytest.raises(InputError, match="step_s"):
+        TimingSettings(max_lag_s=0.01, step_s=0.02)
+    with pytest.raises(InputError, match="rounds"):
+        TimingSettings(rounds=0)
+
+
+def trajectory(panda, seed: int = 0) -> np.ndarray:
+    """(FRAMES, J) every joint swinging back and forth about its middle at FPS (a pose
+    cannot take up a lag of motions that reverse)."""
+    rng = np.random.default_rng(seed)
+    middle = 0.5 * (panda.joint_lower + panda.joint_upper)
+    dof = len(middle)
+    phase, speed = rng.uniform(0, 2 * np.pi, dof), rng.uniform(3.0, 5.0, dof)
+    t = np.arange(FRAMES)[:, None] / FPS
+    return middle + 0.3 * np.sin(speed * t + phase)
+
+
+def test_a_lagging_joint_log_is_read_off_the_silhouettes_and_the_pose_follows(panda, meshes):
+    """Masks of a swinging arm, readings stamped LAG_S late: the lag is found within a
+    hundredth of a second, the pose searched again with it lands nearer the truth, and the
+    finding names it; the readings on time leave the search alone."""
+    T_true = look_at(TARGET + np.array([1.3, 0.5, 0.6]), TARGET)
+    t = np.arange(FRAMES) / FPS
+    q_image = trajectory(panda)
+    masks = np.stack([render_silhouette(meshes, q, T_true, CAMERA) for q in q_image])
+    # a reading stamped s shows the arm at s - LAG_S
+    readings = shifted_joints(q_image, t, -LAG_S)
+    frames = tuple(Frame(name=f"{i:06d}", joints=readings[i], timestamp=float(t[i]))
+                   for i in range(FRAMES))
+    seq = Sequence(robot="panda", camera=CAMERA, joint_names=panda.joint_names,
+                   keypoint_names=(), frames=frames)
+    start = {"guess": off_by(T_true, 0.02, 0.02, 3)[None]}
+    everything = np.arange(FRAMES)
+
+    def again(moved: SearchMasks, last):
+        return searched_again(CAMERA, moved, last, last.best.T_cam_base, TIMING, SMALL)
+
+    def found(joints):
+        winner = find_winner(meshes, joints, masks, CAMERA, start, SMALL)
+        inputs = SearchMasks(meshes, everything, joints, masks, DATA_MASKS, (), everything)
+        return winner, with_timing(seq, joints, inputs, winner, SMALL, GRID, again, False)
+
+    first, (winner, inputs) = found(readings)
+    assert isinstance(inputs.timing, LagEstimate)
+    assert abs(inputs.timing.seconds - LAG_S) < 0.01, inputs.timing
+    assert TIMING in winner.hypotheses
+    before = pose_errors(first.best.T_cam_base, T_true)[0]
+    after = pose_errors(winner.best.T_cam_base, T_true)[0]
+    assert after < before, (before, after)
+    assert timing_finding(inputs.timing.to_dict())[0] == "check"
+    assert np.linalg.norm(inputs.timing.xi_per_second) > 0
+    assert np.trace(inputs.timing.pose_covariance) > 0
+    shifted = with_lag(seq, inputs.timing).joints
+    assert np.allclose(shifted[2:-2], q_image[2:-2], atol=0.01)   # the arm as the images show
+    _, (_, on_time) = found(q_image)
+    assert not on_time.timing.adopted and abs(best_lag(on_time.timing.lags_s,
+                                                       on_time.timing.ious)) < 0.01
