@@ -43,12 +43,13 @@ class TimingSettings:
     Attributes:
         fit: read the lag at all (False: the readings as stamped).
         max_lag_s: the lags tried lie within this of 0 (s).
-        step_s: the grid of lags tried (s); the best is refined between its neighbours, and
-            one within a quarter of it from the lag in use is that lag.
-        min_gain: the mean IoU at the best lag must exceed the IoU at the lag in use by this
-            to adopt it (on the lag-free renders of 30 frames/s trajectories, the best lag
-            lay at 0 within 10 ms, gaining at most 0.002; readings 50 ms late gained 0.016 at
-            the first winner, 0.15 at the truth).
+        step_s: the grid of lags tried (s); the best is refined between its neighbours.
+        min_gain: the mean IoU at the best lag must exceed the IoU with the readings as
+            stamped by this to adopt a lag (on renders of 30 frames/s trajectories: lag-free,
+            the best lag lay within 0.5 ms of 0, gaining nothing; readings 50 ms late gained
+            0.016 at the first winner, 0.15 at the truth).
+        resolution_s: once a lag is adopted, the searches again go on until the lag read
+            lies this close to the lag in use (or `rounds` ran).
         rounds: at most this many searches again with a new lag.
         sigma_fraction: an adopted lag's 1-sigma, of the lag (or the last round's gap between
             the lag read and the lag in use, where larger), whose effect on the pose enters its
@@ -60,12 +61,13 @@ class TimingSettings:
     max_lag_s: float = 0.3
     step_s: float = 0.02
     min_gain: float = 0.005
-    rounds: int = 3
+    resolution_s: float = 0.002
+    rounds: int = 4
     sigma_fraction: float = 0.15
 
     def __post_init__(self) -> None:
         check_fields(self, "timing", positive=("max_lag_s", "step_s", "min_gain",
-                                               "sigma_fraction"),
+                                               "resolution_s", "sigma_fraction"),
                      positive_ints=("rounds",))
         if self.step_s > self.max_lag_s:
             raise InputError(f"timing: step_s {self.step_s} exceeds max_lag_s {self.max_lag_s}")
@@ -151,10 +153,10 @@ def read_lag(iou_at: Callable[[float], float], search_from: Callable[[float], No
         lags, ious = lag_profile(iou_at, settings)
         read = best_lag(lags, ious)
         here, there = iou_at(in_use), iou_at(read)
-        if there - here < settings.min_gain or abs(read - in_use) < settings.step_s / 4:
-            reason = (f"the readings fit best {1000 * read:+.0f} ms from their stamps, the "
-                      f"lag in use {1000 * in_use:+.0f} ms (IoU {here:.3f} -> {there:.3f}: "
-                      f"less than {settings.min_gain} better, or within a quarter step)")
+        if (not rounds and there - here < settings.min_gain) \
+                or abs(read - in_use) < settings.resolution_s:
+            reason = (f"the readings fit best {1000 * read:+.1f} ms from their stamps, the "
+                      f"lag in use {1000 * in_use:+.1f} ms (IoU {here:.3f} -> {there:.3f})")
             break
         if rounds == settings.rounds:
             reason = (f"{rounds} searches again, the last with the readings "

@@ -57,7 +57,7 @@ def test_read_lag_adopts_nothing_where_the_stamps_fit() -> None:
     iou_at, search_from, searched = absorbing(0.004, share=0.0)
     estimate = read_lag(iou_at, search_from, GRID, lambda line: None)
     assert not estimate.adopted and estimate.seconds == 0.0 and searched == [0.0]
-    assert "less than" in estimate.reason and timing_finding(estimate.to_dict()) is None
+    assert "+4.0 ms" in estimate.reason and timing_finding(estimate.to_dict()) is None
 
 
 def test_best_lag_keeps_a_peak_at_the_grids_end_and_settings_are_checked() -> None:
