@@ -40,6 +40,7 @@ class OverlayRequest(DataOptions):
 def run_overlay(request: OverlayRequest) -> int:
     """The overlays of `request.data` drawn with `request.extrinsic` (default: the data's
     reference) into `request.out`; returns how many were written."""
+    from dream.coarse.timing import with_lag
     from dream.io import check_output_folder
     from dream.overlay import write_skeleton_overlays
     from dream.readings import solved_readings
@@ -54,6 +55,7 @@ def run_overlay(request: OverlayRequest) -> int:
         seq = solved_readings(seq, doc)
         poses = _result_poses(doc, seq)
         seq = _with_result_focal(doc, seq)
+        seq = with_lag(seq, _result_lag(doc))
         carried = _carried(doc, robot)
         away = _away(doc, seq, robot)
     else:
@@ -116,6 +118,18 @@ def _away(doc: dict, seq, robot) -> dict | None:
         print(f"orange: moving pixels away from the robot in the {len(away)} frames the search "
               f"compared, not counted as robot")
     return away
+
+
+def _result_lag(doc: dict):
+    """The joint log's lag a result's search adopted (RESULT.json `start.timing`), or None."""
+    from dream.coarse.timing import LagEstimate
+
+    timing = (doc.get("start") or {}).get("timing")
+    if not timing or not timing.get("adopted"):
+        return None
+    return LagEstimate(float(timing["seconds"]), timing["iou_as_stamped"],
+                       timing["iou_at_lag"], np.zeros(0), np.zeros(0), timing["rounds"],
+                       timing["reason"])
 
 
 def _with_result_focal(doc: dict, seq):

@@ -129,6 +129,8 @@ def link_groups(counts: dict[int, int], most: int) -> list[list[int]]:
     [[0], [1], [2]]
     >>> link_groups({0: 40, 1: 5, 2: 5, 3: 30, 4: 20}, 3)
     [[0], [1, 2, 3], [4]]
+    >>> link_groups({0: 1000, 1: 5, 2: 5, 3: 5}, 3)        # never fewer than MIN_GROUPS
+    [[0, 1], [2], [3]]
     """
     links = list(counts)
     if len(links) <= most:
@@ -138,8 +140,12 @@ def link_groups(counts: dict[int, int], most: int) -> list[list[int]]:
     # the group of each link: which of `most` equal shares its points' middle falls in
     middle = share - np.array([counts[k] for k in links]) / cumulative[-1] / 2
     which = np.minimum((middle * most).astype(int), most - 1)
-    return [[k for k, g in zip(links, which, strict=True) if g == group]
-            for group in np.unique(which)]
+    groups = [[k for k, g in zip(links, which, strict=True) if g == group]
+              for group in np.unique(which)]
+    if len(groups) >= MIN_GROUPS:
+        return groups
+    # one link holds most of the points: as many groups of as many links each instead
+    return [[int(k) for k in part] for part in np.array_split(np.array(links), most)]
 
 
 def links_in_view(P: np.ndarray, meshes: RobotMeshes, usable: np.ndarray,

@@ -30,7 +30,8 @@ DOCTEST_MODULES = ("dream.api", "dream.arrays", "dream.readings", "dream.optim.l
                    "dream.cli.options", "export.card", "dream.robot.identity",
                    "dream.refinement_document", "batch.recordings", "dream.cli.app",
                    "dream.io.marks", "dream.focal_check", "dream.readings_check",
-                   "dream.io.npz", "dream.coarse.checks")
+                   "dream.io.npz", "dream.coarse.checks",
+                   "dream.coarse.timing")
 API = ("read_sequence", "load_robot", "load_keypoint_model", "detect", "labels", "calibrate",
        "polish_result", "refine_edges", "evaluate", "diagnose", "result_document", "read_result",
        "BUNDLED_MODEL")

@@ -11,6 +11,7 @@ from dream.coarse.timing import (
     LagEstimate,
     TimingSettings,
     best_lag,
+    increasing,
     read_lag,
     shifted_joints,
     timing_finding,
@@ -120,3 +121,15 @@ def test_a_lagging_joint_log_is_read_off_the_silhouettes_and_the_pose_follows(pa
     _, (_, on_time) = found(q_image)
     assert not on_time.timing.adopted and abs(best_lag(on_time.timing.lags_s,
                                                        on_time.timing.ious)) < 0.01
+
+
+def test_a_rest_stays_a_rest_and_unordered_stamps_are_not_read() -> None:
+    """A repeated reading is the arm at rest: shifted by a millisecond it does not ramp
+    towards the next one; stamps that repeat or go back leave the lag unread."""
+    t = np.arange(5) / 30
+    q = np.array([0.0, 0.0, 0.0, 0.1, 0.2])[:, None]
+    assert abs(shifted_joints(q, t, 0.001)[1, 0]) < 1e-12
+    assert np.allclose(shifted_joints(q, t, 0.0), q)
+    assert increasing([0.0, 0.1, 0.1]) is None and increasing([0.1, 0.0]) is None
+    assert increasing([0.0, None]) is None and increasing([0.0]) is None
+    assert increasing([0.0, 0.1]) is not None
