@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -145,12 +145,9 @@ def with_robot_joints(sequence: Sequence, robot: Robot, joints: np.ndarray) -> S
         raise InputError(f"joints of shape {joints.shape} for {len(sequence)} frames of robot "
                          f"'{robot.name}' ({len(robot.joint_names)} joints)")
     columns = [list(sequence.joint_names).index(n) for n in robot.joint_names]
-    frames = []
-    for frame, q in zip(sequence.frames, joints, strict=True):
-        values = np.array(frame.joints, dtype=float)
-        values[columns] = q
-        frames.append(replace(frame, joints=values))
-    return replace(sequence, frames=tuple(frames))
+    values = sequence.joints
+    values[:, columns] = joints
+    return sequence.with_joints(values)
 
 
 def observations_from_labels(sequence: Sequence, robot: Robot) -> Observations:

@@ -23,7 +23,6 @@ where the arm stops; the last reading is held).
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 from dataclasses import dataclass
 from typing import Any
@@ -340,10 +339,8 @@ def sequence_updates(sequence: Sequence, settings: HeldReadingsSettings | None =
                      ) -> ReadingUpdates | None:
     """`reading_updates` of a sequence; None where its frames have no timestamps or are not
     in time order (nothing to tell)."""
-    if len(sequence) < 2 or any(f.timestamp is None for f in sequence.frames):
-        return None
-    t = np.array([f.timestamp for f in sequence.frames])
-    if np.any(np.diff(t) < 0):
+    t = sequence.timestamps
+    if len(sequence) < 2 or t is None or np.any(np.diff(t) < 0):
         return None
     return reading_updates(t, sequence.joints, settings)
 
@@ -357,12 +354,10 @@ def with_interpolated_readings(sequence: Sequence, settings: HeldReadingsSetting
     updates = sequence_updates(sequence, settings)
     if updates is None or not updates.held:
         return sequence, updates
-    t = np.array([f.timestamp for f in sequence.frames])
-    q = interpolated_joints(t, sequence.joints, updates, use_clock)
-    frames = tuple(dataclasses.replace(f, joints=q[i]) for i, f in enumerate(sequence.frames))
+    q = interpolated_joints(sequence.timestamps, sequence.joints, updates, use_clock)
     log.info("joint readings held between %d updates: interpolated in time",
              len(updates.update_index))
-    return dataclasses.replace(sequence, frames=frames), updates
+    return sequence.with_joints(q), updates
 
 
 def without_frames_after_last_update(sequence: Sequence, updates: ReadingUpdates | None,
@@ -371,8 +366,8 @@ def without_frames_after_last_update(sequence: Sequence, updates: ReadingUpdates
     whose joints are not known, and their names; unchanged where the log is not held."""
     if updates is None or not updates.held:
         return sequence, ()
-    t = np.array([f.timestamp for f in sequence.frames], dtype=float)
-    late = after_last_update(t, updates, use_clock)   # never frame 0: it has the first reading
+    # never frame 0: it has the first reading
+    late = after_last_update(sequence.timestamps, updates, use_clock)
     names = tuple(f.name for f, drop in zip(sequence.frames, late, strict=True) if drop)
     if names:
         log.info("%d frames after the joint log's last update left out: %s", len(names),
@@ -412,14 +407,11 @@ def held_log(sequence: Sequence, hold_frames: int, rng: np.random.Generator) -> 
     and that frame, then held. The frames must have increasing timestamps."""
     if hold_frames < 1:
         raise InputError(f"hold_frames must be >= 1, got {hold_frames}")
-    if any(f.timestamp is None for f in sequence.frames):
+    if sequence.timestamps is None:
         raise InputError("a held log needs the frames' timestamps", sequence.source)
-    t, q = _check(np.array([f.timestamp for f in sequence.frames]), sequence.joints)
+    t, q = _check(sequence.timestamps, sequence.joints)
     starts = np.arange(0, len(q), hold_frames)
     gaps = np.diff(t, prepend=t[0])[starts]
     t_sample = t[starts] - rng.uniform(0.0, 1.0, len(starts)) * gaps
     samples = np.stack([np.interp(t_sample, t, q[:, j]) for j in range(q.shape[1])], axis=1)
-    block = np.arange(len(q)) // hold_frames
-    frames = tuple(dataclasses.replace(f, joints=samples[block[i]])
-                   for i, f in enumerate(sequence.frames))
-    return dataclasses.replace(sequence, frames=frames)
+    return sequence.with_joints(samples[np.arange(len(q)) // hold_frames])

@@ -172,6 +172,30 @@ class Sequence:
         """(F, J) joint positions of every frame."""
         return np.stack([f.joints for f in self.frames])
 
+    def with_joints(self, joints: np.ndarray) -> Sequence:
+        """The same frames with their joints replaced by `joints` ((F, J), ordered as
+        `joint_names`): readings interpolated in time or shifted by a lag."""
+        joints = np.asarray(joints, dtype=float)
+        if joints.shape != (len(self.frames), len(self.joint_names)):
+            raise InputError(f"joints of shape {joints.shape} for {len(self.frames)} frames of "
+                             f"{len(self.joint_names)} joints", self.source)
+        return replace(self, frames=tuple(replace(f, joints=q)
+                                          for f, q in zip(self.frames, joints, strict=True)))
+
+    @property
+    def timestamps(self) -> np.ndarray | None:
+        """(F,) every frame's capture time (s); None where some frame has none."""
+        if any(f.timestamp is None for f in self.frames):
+            return None
+        return np.array([f.timestamp for f in self.frames], dtype=float)
+
+    @property
+    def increasing_timestamps(self) -> np.ndarray | None:
+        """(F,) `timestamps` where there are at least two and they increase strictly; else
+        None (nothing can be interpolated in time)."""
+        t = self.timestamps
+        return t if t is not None and len(t) >= 2 and np.all(np.diff(t) > 0) else None
+
     def frame_camera(self, index: int) -> CameraIntrinsics:
         """The intrinsics of frame `index`: its own, else the sequence's."""
         own = self.frames[index].camera

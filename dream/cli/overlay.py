@@ -120,16 +120,10 @@ def _away(doc: dict, seq, robot) -> dict | None:
     return away
 
 
-def _result_lag(doc: dict):
-    """The joint log's lag a result's search adopted (RESULT.json `start.timing`), or None."""
-    from dream.coarse.timing import LagEstimate
-
+def _result_lag(doc: dict) -> float:
+    """The joint log's lag a result's search adopted (RESULT.json `start.timing`; s), or 0."""
     timing = (doc.get("start") or {}).get("timing")
-    if not timing or not timing.get("adopted"):
-        return None
-    return LagEstimate(float(timing["seconds"]), timing["iou_as_stamped"],
-                       timing["iou_at_lag"], np.zeros(0), np.zeros(0), timing["rounds"],
-                       timing["reason"])
+    return float(timing["seconds"]) if timing and timing.get("adopted") else 0.0
 
 
 def _with_result_focal(doc: dict, seq):

@@ -11,7 +11,8 @@ as the background model's are (`dream.edges.background.median_frames`). The hypo
 scored on a few frames (`search_frames`); the winner is finished on up to `finish_frames` (on
 rendered scenes, one frame's mask error moves the optimum of 8 frames by 1-2 cm, of 30 by a few
 millimetres). At the winner, in turn: the joint log's lag behind the images is read
-(`dream.coarse.timing`), what the arm carries that the URDF lacks is carved
+(`dream.coarse.timing`; also where the found test fails, which a late log can fail at the
+right pose), and where the robot was found what the arm carries that the URDF lacks is carved
 (`dream.coarse.carried`) and its pixels left out (the finishes then also leave out the frames
 that pull the pose far harder than the others, `dream.coarse.scales`), and the focal-length
 scale the robot's outlines ask for is fitted (`dream.coarse.focal`); each that is adopted runs
@@ -228,9 +229,8 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
                  focal: FocalSettings | None = None, timing: TimingSettings | None = None
                  ) -> tuple[SearchOutcome, SearchMasks]:
     """The coarse search of a fixed-camera `sequence` (module doc); `extra`: more hypotheses
-    by source (the keypoint pose of a detector), scored beside the guess's; `focal`: whether
-    and how the focal-length scale is fitted at the winner (`with_focal`); `timing`: the same
-    for the joint log's lag, read there first (`dream.coarse.timing`)."""
+    by source (the keypoint pose of a detector), scored beside the guess's; `focal`, `timing`:
+    whether and how the focal-length scale (`with_focal`) and, first, the lag are fitted."""
     settings = settings or SearchSettings()
     inputs = search_masks(sequence, robot, settings)
     if progress is not None:
@@ -243,8 +243,6 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
                          hypotheses, settings, aimed_only=aimed_only,
                          held=inputs.source == MOTION_MASKS, progress=progress,
                          search_frames=inputs.search)
-    if winner.best.iou < settings.min_found_iou:
-        return winner.checked(), inputs
     def again(moved: SearchMasks, last: Winner) -> Winner:
         return searched_again(sequence.camera, moved, last, last.best.T_cam_base, TIMING,
                               settings, progress)
@@ -252,6 +250,8 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
     winner, inputs = with_timing(sequence, joints_in_robot_order(sequence, robot), inputs,
                                  winner, settings, timing or TimingSettings(), again,
                                  inputs.source == MOTION_MASKS, progress)
+    if winner.best.iou < settings.min_found_iou:
+        return winner.checked(), inputs
     if settings.find_carried:
         winner, inputs = with_carried(sequence.camera, inputs, winner, settings, progress)
     return with_focal(sequence.camera, inputs, winner, settings, focal, progress)

@@ -45,13 +45,11 @@ MAX_SILHOUETTE_PANELS = 4   # frames with masks drawn in the report
 
 def frame_times(sequence: Sequence) -> np.ndarray | None:
     """(F,) timestamps when every frame has one and they increase strictly; else None."""
-    times = [f.timestamp for f in sequence.frames]
-    if any(t is None for t in times):
-        return None
-    t = np.asarray(times, dtype=float)
-    if np.any(np.diff(t) <= 0):
+    if sequence.timestamps is None or len(sequence) < 2:
+        return sequence.timestamps
+    t = sequence.increasing_timestamps
+    if t is None:
         log.warning("frame timestamps do not increase strictly: time effects are not tested")
-        return None
     return t
 
 

@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-from dream.coarse.calibration import DATA_MASKS, TIMING, SearchMasks, searched_again
+from dream.coarse import calibration
+from dream.coarse.calibration import DATA_MASKS, TIMING, CameraGuess, SearchMasks, searched_again
+from dream.coarse.focal import FocalSettings
 from dream.coarse.search import find_winner
 from dream.coarse.timing import (
     LagEstimate,
     TimingSettings,
     best_lag,
-    increasing,
     read_lag,
     shifted_joints,
     timing_finding,
@@ -81,10 +84,12 @@ def trajectory(panda, seed: int = 0) -> np.ndarray:
     return middle + 0.3 * np.sin(speed * t + phase)
 
 
-def test_a_lagging_joint_log_is_read_off_the_silhouettes_and_the_pose_follows(panda, meshes):
+def test_a_lagging_joint_log_is_read_off_the_silhouettes_and_the_pose_follows(panda, meshes,
+                                                                             monkeypatch):
     """Masks of a swinging arm, readings stamped LAG_S late: the lag is found within a
     hundredth of a second, the pose searched again with it lands nearer the truth, and the
-    finding names it; the readings on time leave the search alone."""
+    finding names it, also where the first winner fails the found test; the readings on time
+    leave the search alone."""
     T_true = look_at(TARGET + np.array([1.3, 0.5, 0.6]), TARGET)
     t = np.arange(FRAMES) / FPS
     q_image = trajectory(panda)
@@ -116,11 +121,37 @@ def test_a_lagging_joint_log_is_read_off_the_silhouettes_and_the_pose_follows(pa
     assert timing_finding(inputs.timing.to_dict())[0] == "check"
     assert np.linalg.norm(inputs.timing.xi_per_second) > 0
     assert np.trace(inputs.timing.pose_covariance) > 0
-    shifted = with_lag(seq, inputs.timing).joints
+    shifted = with_lag(seq, inputs.timing.seconds).joints
     assert np.allclose(shifted[2:-2], q_image[2:-2], atol=0.01)   # the arm as the images show
     _, (_, on_time) = found(q_image)
     assert not on_time.timing.adopted and abs(best_lag(on_time.timing.lags_s,
                                                        on_time.timing.ious)) < 0.01
+    # a late log can keep the right pose's first winner below the found test: the lag is read
+    # there all the same, and the search goes on from the winner with it
+    found_iou = 0.5 * (first.best.iou + winner.best.iou)
+    searched = searched_below_the_found_test(monkeypatch, seq, panda, first, SearchMasks(
+        meshes, everything, readings, masks, DATA_MASKS, (), everything), found_iou)
+    outcome, inputs = searched
+    assert inputs.timing is not None and inputs.timing.adopted, inputs.timing
+    assert TIMING in outcome.hypotheses and outcome.best.iou >= found_iou
+    assert pose_errors(outcome.best.T_cam_base, T_true)[0] < before
+
+
+def searched_below_the_found_test(monkeypatch, seq, robot, first, inputs, found_iou):
+    """`coarse_start` whose masks are `inputs` and whose first winner is `first`, with the
+    found test at `found_iou` (nothing carried sought, the focal length as given)."""
+    calls = []
+
+    def first_then_searched(*args, **kwargs):
+        calls.append(args)
+        return first if len(calls) == 1 else find_winner(*args, **kwargs)
+
+    monkeypatch.setattr(calibration, "search_masks", lambda *args: inputs)
+    monkeypatch.setattr(calibration, "find_winner", first_then_searched)
+    guess = CameraGuess(first.best.T_cam_base, 0.05, 0.05, "the first winner")
+    settings = replace(SMALL, min_found_iou=found_iou, find_carried=False)
+    return calibration.coarse_start(seq, robot, guess, settings,
+                                     focal=FocalSettings(fit=False), timing=GRID)
 
 
 def test_a_rest_stays_a_rest_and_unordered_stamps_are_not_read() -> None:
@@ -130,6 +161,21 @@ def test_a_rest_stays_a_rest_and_unordered_stamps_are_not_read() -> None:
     q = np.array([0.0, 0.0, 0.0, 0.1, 0.2])[:, None]
     assert abs(shifted_joints(q, t, 0.001)[1, 0]) < 1e-12
     assert np.allclose(shifted_joints(q, t, 0.0), q)
-    assert increasing([0.0, 0.1, 0.1]) is None and increasing([0.1, 0.0]) is None
-    assert increasing([0.0, None]) is None and increasing([0.0]) is None
-    assert increasing([0.0, 0.1]) is not None
+    assert np.allclose(shifted_joints(q, t, 0.001, np.array([1, 4])), q[[1, 4]])
+
+    def stamped(*times) -> Sequence:
+        return Sequence(robot="panda", camera=CAMERA, joint_names=("j",), keypoint_names=(),
+                        frames=tuple(Frame(name=str(i), joints=np.zeros(1), timestamp=s)
+                                     for i, s in enumerate(times)))
+
+    for times in ((0.0, 0.1, 0.1), (0.1, 0.0), (0.0, None), (0.0,)):
+        assert stamped(*times).increasing_timestamps is None, times
+    assert np.array_equal(stamped(0.0, 0.1).increasing_timestamps, [0.0, 0.1])
+    assert stamped(0.0, None).timestamps is None
+    unordered = stamped(0.1, 0.0)
+    assert with_lag(unordered, 0.0) is unordered
+    with pytest.raises(InputError, match="timestamps"):
+        with_lag(unordered, 0.05)
+    with pytest.raises(InputError, match="shape"):
+        unordered.with_joints(np.zeros((3, 1)))
+    assert np.array_equal(unordered.with_joints([[1.0], [2.0]]).joints, [[1.0], [2.0]])
