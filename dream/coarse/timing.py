@@ -53,8 +53,8 @@ class TimingSettings:
             stamped by this to adopt a lag (on renders of 30 frames/s trajectories: lag-free,
             the best lag lay within 0.5 ms of 0, gaining nothing; readings 50 ms late gained
             0.016 at the first winner, 0.15 at the truth).
-        resolution_s: once a lag is adopted, the searches again go on until the lag read
-            lies this close to the lag in use (or `rounds` ran).
+        resolution_s: once a lag is adopted, the searches again go on until the next step
+            (`read_lag`) is below this (or `rounds` ran).
         rounds: at most this many searches again with a new lag.
         sigma_fraction: an adopted lag's 1-sigma, of the lag (or the last round's gap between
             the lag read and the lag in use, where larger), whose effect on the pose enters its
@@ -157,14 +157,18 @@ def read_lag(iou_at: Callable[[float], float], search_from: Callable[[float], No
 
     The pose found with a lag takes up part of what remains of it, so the lag read at a winner
     lies between the one in use and the true one; the lags in use and read are extrapolated to
-    where they agree (the secant method on read - in use), and searched again there."""
+    where they agree (the secant method on read - in use), and searched again there, until
+    that step is below `resolution_s` (where the pose takes up most of the lag, the lag read
+    lies within the resolution of the one in use while the true one is several times as far:
+    on renders a stop at that gap left the lag 7 ms short)."""
     in_use, previous, rounds = 0.0, None, 0
     while True:
         lags, ious = lag_profile(iou_at, settings)
         read = best_lag(lags, ious)
         here, there = iou_at(in_use), iou_at(read)
+        following = _extrapolated(in_use, read, previous, settings.max_lag_s)
         if (not rounds and there - here < settings.min_gain) \
-                or abs(read - in_use) < settings.resolution_s:
+                or abs(following - in_use) < settings.resolution_s:
             reason = (f"the readings fit best {1000 * read:+.1f} ms from their stamps, the "
                       f"lag in use {1000 * in_use:+.1f} ms (IoU {here:.3f} -> {there:.3f})")
             break
@@ -172,7 +176,6 @@ def read_lag(iou_at: Callable[[float], float], search_from: Callable[[float], No
             reason = (f"{rounds} searches again, the last with the readings "
                       f"{1000 * in_use:+.0f} ms on")
             break
-        following = _extrapolated(in_use, read, previous, settings.max_lag_s)
         say(f"timing: the joint readings fit the images best {1000 * read:+.0f} ms from their "
             f"stamps (IoU {here:.3f} -> {there:.3f}): searching again with them "
             f"{1000 * following:+.0f} ms on")
