@@ -120,13 +120,16 @@ def randomisation(robot: str, scale_to_robot: bool, overrides: tuple[str, ...] =
     return config_from_dict(full)
 
 
-def rendered_for(out: Path, keypoints: tuple[str, ...] | None) -> bool:
-    """Whether `out` holds a finished scene (its masks deleted) rendered with `keypoints`
-    (None or () for a built-in robot's own)."""
+def rendered_for(out: Path, keypoints: tuple[str, ...] | None, frames: int) -> bool:
+    """Whether `out` holds a finished scene of `frames` frames (its masks deleted) rendered
+    with `keypoints` (None or () for a built-in robot's own); not one whose rendering was
+    stopped."""
     record = out / "_synth.json"
     if not record.is_file() or any(out.glob("*.seg.png")):
         return False
-    return list(keypoints or ()) == json.loads(record.read_text())["keypoints"]
+    written = sum(1 for path in out.glob("*.json") if path.stem.isdigit())
+    return written == frames and list(keypoints or ()) == json.loads(
+        record.read_text())["keypoints"]
 
 
 def render_scene(robot: str, out: Path, seed: int, frames: int,
@@ -140,7 +143,7 @@ def render_scene(robot: str, out: Path, seed: int, frames: int,
     from dream.extension import ModelExtension
     from synth.generate import SynthJob, generate
 
-    if reuse and rendered_for(out, robot_keypoints(robot, keypoints)):
+    if reuse and rendered_for(out, robot_keypoints(robot, keypoints), frames):
         return out
 
     generate(SynthJob(robot=robot, out_dir=out, num_frames=frames,
