@@ -220,9 +220,11 @@ def guess_file(T_true: np.ndarray, offset_m: float, offset_rad: float,
 
 def mark_file(data: Path, T_true: np.ndarray, count: int, noise_px: float,
               rng: np.random.Generator, folder: Path) -> tuple[Path, str]:
-    """Marks of the robot's last keypoint link's origin (the end effector), projected with
-    `T_true` plus `noise_px` per axis, in `count` frames evenly spaced among those showing it
-    (all of them where fewer show it)."""
+    """Marks of the robot's last keypoint link's origin (the end effector) where the images
+    show it (its labels; without them projected with `T_true` from the readings) plus
+    `noise_px` per axis, in `count` frames evenly spaced among those showing it (all of them
+    where fewer show it). Where the readings lag the images (`--time-offset`) only the labels
+    are where a user clicks."""
     from dream.camera import project
     from dream.pipeline import joints_in_robot_order, robot_for
     from dream.transforms import transform_points
@@ -231,7 +233,9 @@ def mark_file(data: Path, T_true: np.ndarray, count: int, noise_px: float,
     robot = robot_for(seq, None, tuple(seq.keypoint_names) or None)
     link = robot.keypoint_names[-1]
     P = robot.link_poses(joints_in_robot_order(seq, robot), (link,))[:, 0, :3, 3]
-    uv = project(seq.camera, transform_points(T_true, P)) + rng.normal(0, noise_px, (len(P), 2))
+    uv = (seq.uv_labels()[:, seq.keypoint_names.index(link)] if link in seq.keypoint_names
+          else project(seq.camera, transform_points(T_true, P)))
+    uv = uv + rng.normal(0, noise_px, (len(P), 2))
     seen = np.flatnonzero(seq.camera.in_image(uv))
     chosen = seen[np.unique(np.round(np.linspace(0, len(seen) - 1, count)).astype(int))]
     path = folder / f"marks_{data.name}.csv"

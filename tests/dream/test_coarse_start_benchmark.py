@@ -100,3 +100,28 @@ def test_a_scene_through_a_video_codec_keeps_its_frames_and_truth(bench, tmp_pat
             b = cv2.imread(str(after.image_path)).astype(int)
             assert a.shape == b.shape and 0 < np.abs(a - b).mean() < 10
             np.testing.assert_allclose(after.T_cam_base_true, before.T_cam_base_true)
+
+
+def test_marks_are_where_the_images_show_the_end_effector_also_with_a_late_log(bench,
+                                                                                tmp_path):
+    """`--mark-frames` with `--time-offset`: the marks are the end effector's labels (where the
+    images show it), not its projection from the late readings."""
+    from dream.camera import project
+    from dream.pipeline import joints_in_robot_order, robot_for
+    from dream.transforms import transform_points
+
+    so101 = str(robot_data_dir() / SO101)
+    data = bench.render_scene(so101, tmp_path / "late", 7, 4, True, ("sequence.mode=trajectory",),
+                              time_offset_s=0.05)
+    seq = read_sequence(data)
+    T_true = seq.frames[0].T_cam_base_true
+    marks, link = bench.mark_file(data, T_true, 4, 0.0, np.random.default_rng(0), tmp_path)
+    rows = [line.split(",") for line in marks.read_text().splitlines()[1:]]
+    index = [[f.name for f in seq.frames].index(name) for name, _, _ in rows]
+    clicked = np.array([[float(u), float(v)] for _, u, v in rows])
+    labels = seq.uv_labels()[index, seq.keypoint_names.index(link)]
+    np.testing.assert_allclose(clicked, labels, atol=0.01)
+    robot = robot_for(seq, None, tuple(seq.keypoint_names))
+    P = robot.link_poses(joints_in_robot_order(seq, robot), (link,))[index, 0, :3, 3]
+    late = project(seq.camera, transform_points(T_true, P))
+    assert np.abs(late - labels).max() > 0.05       # the readings do lag the images
