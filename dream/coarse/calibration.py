@@ -246,12 +246,12 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
     def again(moved: SearchMasks, last: Winner) -> Winner:
         return searched_again(sequence.camera, moved, last, last.best.T_cam_base, TIMING,
                               settings, progress)
-
+    first = (winner, inputs)      # kept where the robot stays unfound even with a lag
     winner, inputs = with_timing(sequence, joints_in_robot_order(sequence, robot), inputs,
                                  winner, settings, timing or TimingSettings(), again,
                                  inputs.source == MOTION_MASKS, progress)
     if winner.best.iou < settings.min_found_iou:
-        return winner.checked(), inputs
+        return first[0].checked(), first[1]
     if settings.find_carried:
         winner, inputs = with_carried(sequence.camera, inputs, winner, settings, progress)
     return with_focal(sequence.camera, inputs, winner, settings, focal, progress)

@@ -59,7 +59,7 @@ class TimingSettings:
         sigma_fraction: an adopted lag's 1-sigma, of the lag (or the last round's gap between
             the lag read and the lag in use, where larger), whose effect on the pose enters its
             covariance (`LagEstimate.pose_covariance`; set on renders of 30 frames/s
-            trajectories with readings 50 ms late: the lags adopted lay 7 ms short to 2 ms long).
+            trajectories with readings 50 ms late: the lags adopted lay 5 ms short to 2 ms long).
     """
 
     fit: bool = True
@@ -181,7 +181,9 @@ def read_lag(iou_at: Callable[[float], float], search_from: Callable[[float], No
             f"{1000 * following:+.0f} ms on")
         previous, in_use, rounds = (in_use, read - in_use), following, rounds + 1
         search_from(in_use)
-    sigma = max(settings.sigma_fraction * abs(in_use), abs(read - in_use)) if rounds else 0.0
+    if rounds and iou_at(in_use) - iou_at(0.0) < settings.min_gain:   # noise stepped away
+        reason, in_use = f"{reason}; the stamps fit as well at the last winner: none adopted", 0.0
+    sigma = max(settings.sigma_fraction * abs(in_use), abs(read - in_use)) if in_use else 0.0
     return LagEstimate(in_use, iou_at(0.0), iou_at(in_use), lags, ious, rounds, reason, sigma)
 
 
@@ -206,7 +208,7 @@ def with_lag(sequence: Sequence, lag_s: float) -> Sequence:
     """`sequence` with every frame's readings shifted by the lag a search adopted
     (`LagEstimate.seconds`; `shifted_joints`), so that what runs after the search draws the
     arm as it saw it; unchanged at 0."""
-    if lag_s == 0.0:
+    if lag_s == 0.0 or len(sequence) < 2:    # one frame: its reading is all there is
         return sequence
     t = sequence.increasing_timestamps
     if t is None:
@@ -272,7 +274,8 @@ def with_timing(sequence: Sequence, joints: np.ndarray, inputs: SearchMasks, win
         scored.clear()
 
     estimate = read_lag(iou_at, search_from, timing, progress or (lambda line: None))
-    if estimate.adopted:
-        (lag_a, T_a), (lag_b, T_b) = found[0], found[-1]
-        estimate = replace(estimate, xi_per_second=increment_between(T_b, T_a) / (lag_a - lag_b))
+    if not estimate.adopted:              # the first winner stands
+        return winner, replace(inputs, timing=estimate)
+    (lag_a, T_a), (lag_b, T_b) = found[0], found[-1]
+    estimate = replace(estimate, xi_per_second=increment_between(T_b, T_a) / (lag_a - lag_b))
     return state["winner"], replace(state["inputs"], timing=estimate)

@@ -185,3 +185,17 @@ def test_a_rest_stays_a_rest_and_unordered_stamps_are_not_read() -> None:
     with pytest.raises(InputError, match="shape"):
         unordered.with_joints(np.zeros((3, 1)))
     assert np.array_equal(unordered.with_joints([[1.0], [2.0]]).joints, [[1.0], [2.0]])
+
+
+def test_a_lag_the_last_winner_does_not_fit_better_than_the_stamps_is_not_adopted() -> None:
+    """The first winner asks for 50 ms, but once searched with it the stamps fit best (noise,
+    a wrong pose): nothing is adopted."""
+    searched = [0.0]
+
+    def iou_at(lag: float) -> float:
+        peak = 0.05 if len(searched) == 1 else 0.0
+        return 0.8 - 60 * (lag - peak) ** 2
+
+    estimate = read_lag(iou_at, searched.append, GRID, lambda line: None)
+    assert len(searched) > 1 and not estimate.adopted and estimate.sigma_s == 0.0
+    assert "none adopted" in estimate.reason and timing_finding(estimate.to_dict()) is None
