@@ -120,16 +120,20 @@ def randomisation(robot: str, scale_to_robot: bool, overrides: tuple[str, ...] =
     return config_from_dict(full)
 
 
-def rendered_for(out: Path, keypoints: tuple[str, ...] | None, frames: int) -> bool:
-    """Whether `out` holds a finished scene of `frames` frames (its masks deleted) rendered
-    with `keypoints` (None or () for a built-in robot's own); not one whose rendering was
-    stopped."""
-    record = out / "_synth.json"
-    if not record.is_file() or any(out.glob("*.seg.png")):
+def rendered_for(job) -> bool:
+    """Whether `job.out_dir` holds a finished scene of that `synth.generate.SynthJob`: its
+    record (`_synth.json`: robot, keypoints, seed, randomisation with every override, the
+    joint log's lag) the job's, its `num_frames` frames written and its masks deleted; not one
+    whose rendering was stopped or that was rendered with other settings."""
+    from synth.generate import SYNTH_INFO, without_retired_keys
+
+    record = job.out_dir / SYNTH_INFO
+    if not record.is_file() or any(job.out_dir.glob("*.seg.png")):
         return False
-    written = sum(1 for path in out.glob("*.json") if path.stem.isdigit())
-    return written == frames and list(keypoints or ()) == json.loads(
-        record.read_text())["keypoints"]
+    written = sum(1 for path in job.out_dir.glob("*.json") if path.stem.isdigit())
+    asked = json.loads(json.dumps(job.info()))
+    return written == job.num_frames and \
+        without_retired_keys(json.loads(record.read_text())) == asked
 
 
 def render_scene(robot: str, out: Path, seed: int, frames: int,
@@ -137,24 +141,31 @@ def render_scene(robot: str, out: Path, seed: int, frames: int,
                  reuse: bool = False, keypoints: tuple[str, ...] | None = None,
                  time_offset_s: float = 0.0) -> Path:
     """A fixed-camera `real_world.yaml` scene of `robot` (a built-in name or a URDF), its robot
-    masks deleted; with `reuse`, a scene already rendered in `out` for the same keypoints (the
-    joints it moved) is taken as it is. `time_offset_s`: the written joint readings lag the
+    masks deleted; with `reuse`, a scene already rendered in `out` with the same settings
+    (`rendered_for`) is taken as it is. `time_offset_s`: the written joint readings lag the
     images by this (a `trajectory` scene, `synth.extension`)."""
     from dream.extension import ModelExtension
-    from synth.generate import SynthJob, generate
+    from synth.generate import generate
 
-    if reuse and rendered_for(out, robot_keypoints(robot, keypoints), frames):
+    job = scene_job(robot, out, seed, frames, scale_to_robot, overrides, keypoints,
+                    ModelExtension(time_offset_s=time_offset_s) if time_offset_s else None)
+    if reuse and rendered_for(job):
         return out
-
-    generate(SynthJob(robot=robot, out_dir=out, num_frames=frames,
-                      config=randomisation(robot, scale_to_robot, overrides, keypoints),
-                      seed=seed, keypoints=robot_keypoints(robot, keypoints),
-                      extension=ModelExtension(time_offset_s=time_offset_s)
-                      if time_offset_s else None),
-             overwrite=True, on_progress=lambda done: None)
+    generate(job, overwrite=True, on_progress=lambda done: None)
     for mask in out.glob("*.seg.png"):
         mask.unlink()
     return out
+
+
+def scene_job(robot: str, out: Path, seed: int, frames: int, scale_to_robot: bool = False,
+              overrides: tuple[str, ...] = (), keypoints: tuple[str, ...] | None = None,
+              extension=None):
+    """The `synth.generate.SynthJob` of a `render_scene` scene."""
+    from synth.generate import SynthJob
+
+    return SynthJob(robot=robot, out_dir=out, num_frames=frames,
+                    config=randomisation(robot, scale_to_robot, overrides, keypoints),
+                    seed=seed, keypoints=robot_keypoints(robot, keypoints), extension=extension)
 
 
 def given_focal(data: Path, scale: float, out: Path) -> Path:

@@ -407,9 +407,10 @@ def held_log(sequence: Sequence, hold_frames: int, rng: np.random.Generator) -> 
     and that frame, then held. The frames must have increasing timestamps."""
     if hold_frames < 1:
         raise InputError(f"hold_frames must be >= 1, got {hold_frames}")
-    if sequence.timestamps is None:
+    stamps = sequence.timestamps
+    if stamps is None:
         raise InputError("a held log needs the frames' timestamps", sequence.source)
-    t, q = _check(sequence.timestamps, sequence.joints)
+    t, q = _check(stamps, sequence.joints)
     starts = np.arange(0, len(q), hold_frames)
     gaps = np.diff(t, prepend=t[0])[starts]
     t_sample = t[starts] - rng.uniform(0.0, 1.0, len(starts)) * gaps

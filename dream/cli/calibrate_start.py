@@ -314,9 +314,7 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
     the camera's, where it was measured (`measure_steadiness`)."""
     from dream.cli.calibrate_report import add_polish, steadiness_record
     from dream.cli.calibrate_write import finish
-    from dream.coarse.mark import mark_points
-    from dream.coarse.timing import with_lag
-    from dream.pipeline import joints_in_robot_order
+    from dream.coarse.timing import lag_applied
     from dream.refined_uncertainty import with_cue_term
 
     if request.model_extension:
@@ -326,12 +324,7 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
                          "--mark")
     robot, result, obs, outcome, inputs, guess, marked = search_start(request, seq, out)
     seq = with_fitted_focal(seq, inputs, out)
-    if inputs.timing is not None and inputs.timing.adopted:
-        seq = with_lag(seq, inputs.timing.seconds)   # what follows draws the arm as found
-        if marked is not None:     # its clicks checked with the readings shifted too
-            marked = replace(marked, P_clicked_base=mark_points(
-                robot, joints_in_robot_order(seq, robot)[marked.mark.frames], marked.mark.link,
-                marked.mark.offset_link_m))
+    seq, marked = lag_applied(seq, robot, inputs.timing, marked)
     found = (seq, outcome, inputs, guess, marked)
     doc = search_document(request, data_doc, readings_doc, result, obs, found)
     T_other = T_own = None

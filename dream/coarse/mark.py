@@ -191,6 +191,12 @@ def mark_points(robot: Robot, joints: np.ndarray, link: str, offset_link_m: np.n
     return T_base_link[:, :3, :3] @ np.asarray(offset_link_m, float) + T_base_link[:, :3, 3]
 
 
+def clicked_points(robot: Robot, joints: np.ndarray, mark: Mark) -> np.ndarray:
+    """(clicks, 3) the mark in the base frame at its clicked frames (`mark.frames`), from
+    `joints` (F, J): every frame's readings in the robot's order."""
+    return mark_points(robot, np.asarray(joints)[mark.frames], mark.link, mark.offset_link_m)
+
+
 def check_mark_offset(robot: Robot, joints: np.ndarray, link: str, offset_link_m: np.ndarray,
                       max_reach: float) -> None:
     """Refuse an offset that cannot be metres: the mark farther from its link than `max_reach`

@@ -35,9 +35,10 @@ from dream.quality import CHECK, Finding
 from dream.settings_checks import check_fields
 
 if TYPE_CHECKING:
-    from dream.coarse.calibration import SearchMasks
+    from dream.coarse.calibration import MarkStart, SearchMasks
     from dream.coarse.search import Winner
     from dream.coarse.settings import SearchSettings
+    from dream.robot import Robot
     from dream.sequence import Sequence
 
 
@@ -216,6 +217,24 @@ def with_lag(sequence: Sequence, lag_s: float) -> Sequence:
                          "are missing or do not increase", sequence.source,
                          "give the recording the search was run on")
     return sequence.with_joints(shifted_joints(sequence.joints, t, lag_s))
+
+
+def lag_applied(sequence: Sequence, robot: Robot, estimate: LagEstimate | None,
+                marked: MarkStart | None) -> tuple[Sequence, MarkStart | None]:
+    """The sequence with the lag a search adopted applied (`with_lag`), so that what runs
+    after the search draws the arm as it found it, and the mark's clicked points at the
+    shifted readings (its clicks are checked at the pose found); both as given where no lag
+    was adopted."""
+    from dream.coarse.mark import clicked_points
+    from dream.pipeline import joints_in_robot_order
+
+    if estimate is None or not estimate.adopted:
+        return sequence, marked
+    sequence = with_lag(sequence, estimate.seconds)
+    if marked is not None:
+        marked = replace(marked, P_clicked_base=clicked_points(
+            robot, joints_in_robot_order(sequence, robot), marked.mark))
+    return sequence, marked
 
 
 def timing_finding(timing: dict | None) -> Finding | None:

@@ -45,8 +45,9 @@ MAX_SILHOUETTE_PANELS = 4   # frames with masks drawn in the report
 
 def frame_times(sequence: Sequence) -> np.ndarray | None:
     """(F,) timestamps when every frame has one and they increase strictly; else None."""
-    if sequence.timestamps is None or len(sequence) < 2:
-        return sequence.timestamps
+    stamps = sequence.timestamps
+    if stamps is None or len(sequence) < 2:
+        return stamps
     t = sequence.increasing_timestamps
     if t is None:
         log.warning("frame timestamps do not increase strictly: time effects are not tested")

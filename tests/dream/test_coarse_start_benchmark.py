@@ -4,8 +4,6 @@ robot's size."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 
@@ -61,20 +59,27 @@ def test_randomisation_overrides_apply_before_the_scaling(bench):
 
 def test_a_scene_given_the_wrong_focal_length_and_a_rendered_scene_reused(bench, tmp_path):
     """`--given-focal`: a copy whose fx, fy are scaled, the truth and images as rendered;
-    `--reuse-scenes`: a scene already rendered is taken as it is, not rendered again; one
-    whose rendering stopped part way is rendered again."""
+    `--reuse-scenes`: a scene already rendered with the same settings is taken as it is, not
+    rendered again; one whose rendering stopped part way, or rendered with another seed,
+    length, override or lag, is rendered again."""
+    from dream.extension import ModelExtension
+
     data = bench.render_scene(str(robot_data_dir() / SO101), tmp_path / "so101", 7, 2, True)
     stamp = (data / "_synth.json").stat().st_mtime_ns
     again = bench.render_scene(str(robot_data_dir() / SO101), tmp_path / "so101", 7, 2, True,
                                reuse=True)
     assert again == data and (data / "_synth.json").stat().st_mtime_ns == stamp
-    keypoints = tuple(json.loads((data / "_synth.json").read_text())["keypoints"])
-    assert bench.rendered_for(data, keypoints, 2)
-    assert not bench.rendered_for(data, keypoints, 3)     # another length: rendered anew
+    so101 = str(robot_data_dir() / SO101)
+    assert bench.rendered_for(bench.scene_job(so101, data, 7, 2, True))
+    for other in (bench.scene_job(so101, data, 7, 3, True),         # another length
+                  bench.scene_job(so101, data, 8, 2, True),         # another seed
+                  bench.scene_job(so101, data, 7, 2, True, ("sequence.mode=trajectory",)),
+                  bench.scene_job(so101, data, 7, 2, True,
+                                  extension=ModelExtension(time_offset_s=0.05))):
+        assert not bench.rendered_for(other)                       # rendered anew
     (data / "000001.json").unlink()                       # a rendering stopped part way
-    assert not bench.rendered_for(data, keypoints, 2)
-    bench.render_scene(str(robot_data_dir() / SO101), tmp_path / "so101", 7, 2, True,
-                       reuse=True)
+    assert not bench.rendered_for(bench.scene_job(so101, data, 7, 2, True))
+    bench.render_scene(so101, tmp_path / "so101", 7, 2, True, reuse=True)
     assert (data / "000001.json").is_file()
     given = read_sequence(bench.given_focal(data, 0.96, tmp_path / "short"))
     rendered = read_sequence(data)

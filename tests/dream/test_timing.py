@@ -8,13 +8,23 @@ import numpy as np
 import pytest
 
 from dream.coarse import calibration
-from dream.coarse.calibration import DATA_MASKS, TIMING, CameraGuess, SearchMasks, searched_again
+from dream.coarse.calibration import (
+    DATA_MASKS,
+    TIMING,
+    CameraGuess,
+    MarkStart,
+    SearchMasks,
+    searched_again,
+)
 from dream.coarse.focal import FocalSettings
+from dream.coarse.mark import Mark, mark_points
 from dream.coarse.search import find_winner
 from dream.coarse.timing import (
     LagEstimate,
     TimingSettings,
     best_lag,
+    lag_applied,
+    lag_profile,
     read_lag,
     shifted_joints,
     timing_finding,
@@ -199,3 +209,71 @@ def test_a_lag_the_last_winner_does_not_fit_better_than_the_stamps_is_not_adopte
     estimate = read_lag(iou_at, searched.append, GRID, lambda line: None)
     assert len(searched) > 1 and not estimate.adopted and estimate.sigma_s == 0.0
     assert "none adopted" in estimate.reason and timing_finding(estimate.to_dict()) is None
+
+
+def test_an_adopted_lag_shifts_the_readings_and_the_marks_clicked_points(panda) -> None:
+    """After a search that adopted a lag, what follows sees the readings shifted by it, and
+    the mark's clicked points (checked against the clicks at the pose found) are the mark at
+    those readings, not at the readings as stamped; nothing changes where none was adopted."""
+    t = np.arange(FRAMES) / FPS
+    q = trajectory(panda)
+    seq = Sequence(robot="panda", camera=CAMERA, joint_names=panda.joint_names,
+                   keypoint_names=(), frames=tuple(
+                       Frame(name=f"{i:06d}", joints=q[i], timestamp=float(t[i]))
+                       for i in range(FRAMES)))
+    mark = Mark("panda_link8", np.array([0.0, 0.0, 0.1]), np.array([3, 9, 14]),
+                np.zeros((3, 2)))
+    stamped = mark_points(panda, q[mark.frames], mark.link, mark.offset_link_m)
+    marked = MarkStart(mark, CameraGuess(None, 0.3, 0.3, "a guess"), None, mark.frames, 3,
+                       stamped, {})
+    flat = np.zeros(3)
+    for none in (None, LagEstimate(0.0, 0.5, 0.5, flat, flat, 0, "none")):
+        assert lag_applied(seq, panda, none, marked) == (seq, marked)
+    adopted = LagEstimate(LAG_S, 0.5, 0.6, flat, flat, 1, "read", sigma_s=0.01)
+    shifted_seq, shifted_mark = lag_applied(seq, panda, adopted, marked)
+    q_late = shifted_joints(q, t, LAG_S)
+    assert np.allclose(shifted_seq.joints, q_late)
+    assert np.allclose(shifted_mark.P_clicked_base,
+                       mark_points(panda, q_late[mark.frames], mark.link, mark.offset_link_m))
+    assert np.linalg.norm(shifted_mark.P_clicked_base - stamped, axis=1).min() > 1e-3
+    assert lag_applied(seq, panda, adopted, None)[1] is None
+
+
+def test_the_lags_scores_are_read_again_at_each_new_winner(monkeypatch) -> None:
+    """`with_timing` scores each lag once per winner: after a search again the new winner's
+    IoUs are computed afresh (a pose that took up 60 % of the lag peaks elsewhere than the
+    first winner), so the lag read reaches the true one; scores kept from the first winner
+    would stop it where the first read lay."""
+    from types import SimpleNamespace
+
+    from dream.coarse import search
+
+    t = np.arange(FRAMES) / FPS
+    middle = np.arange(5, 15)                     # shifted within the log by up to 0.16 s
+    seq = Sequence(robot="panda", camera=CAMERA, joint_names=("j",), keypoint_names=(),
+                   frames=tuple(Frame(name=str(i), joints=np.array([t[i]]),
+                                      timestamp=float(t[i])) for i in range(FRAMES)))
+    calls = []
+
+    def pose_iou(meshes, joints, masks, camera, T_cam_base, settings, held):
+        lag = float(np.mean(joints[:, 0] - t[middle]))      # the readings' shift
+        searched_with = T_cam_base[0, 3]                    # the lag the pose was found with
+        peak = 0.6 * searched_with + 0.4 * LAG_S
+        calls.append(lag)
+        return 0.8 - 60 * (lag - peak) ** 2
+
+    def winner(lag: float):
+        T = np.eye(4)
+        T[0, 3] = lag
+        return SimpleNamespace(best=SimpleNamespace(T_cam_base=T))
+
+    def again(inputs: SearchMasks, last):
+        return winner(float(np.mean(inputs.joints[:, 0] - t[middle])))
+
+    monkeypatch.setattr(search, "pose_iou", pose_iou)
+    inputs = SearchMasks(None, middle, t[middle, None], None, DATA_MASKS, (), middle)
+    last, found = with_timing(seq, t[:, None], inputs, winner(0.0), SMALL, GRID, again, False)
+    assert found.timing.adopted and abs(found.timing.seconds - LAG_S) < 2 * GRID.resolution_s
+    assert last.best.T_cam_base[0, 3] == pytest.approx(found.timing.seconds)
+    grid = len(lag_profile(lambda lag: 0.0, GRID)[0])
+    assert len(calls) <= (found.timing.rounds + 1) * (grid + 2) + 1    # once per winner
