@@ -17,6 +17,7 @@ in mm divided by the pixel pitch in mm), as ROS CameraInfo's K does
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence as SequenceOf
 from pathlib import Path
 
@@ -24,6 +25,8 @@ import numpy as np
 
 from dream.camera import CameraIntrinsics
 from dream.errors import InputError
+
+logger = logging.getLogger(__name__)
 
 JOINT_LIMIT_MARGIN_RAD = 0.1     # readings this far beyond a revolute limit are refused
 JOINT_LIMIT_MARGIN_M = 0.01      # ... and this far beyond a prismatic one
@@ -33,6 +36,8 @@ MAX_PRINCIPAL_OFFSET = 0.25      # the principal point lies within this share of
 SWAPPED_TOLERANCE_PX = 1.0       # cx, cy this near the other axis's centre look swapped
 MAX_TIMESTAMP_S = 1e11           # seconds since 1970 reach this in the year 5138
 MAX_FRAME_STEP_S = 3600.0        # a recording's frames lie less than an hour apart
+MS_FRAME_STEP_S = (5.0, 1000.0)  # a camera's frame interval at 1-200 frames/s, in ms, read as s
+STEADY_STEP_SPREAD = 0.05        # steps whose median deviation is within this share: a frame rate
 MIN_HFOV_DEG = 2.0               # a pinhole camera's horizontal field of view, plausible range
 MAX_HFOV_DEG = 160.0
 MAX_FOCAL_ASPECT = 1.5           # fx / fy (or fy / fx): pixels are nearly square
@@ -195,7 +200,8 @@ def check_sequence_cameras(seq) -> None:
 
 def check_seconds(times: SequenceOf[float], path: Path | None) -> None:
     """Refuse timestamps that cannot be seconds: beyond `MAX_TIMESTAMP_S`, or frames more
-    than `MAX_FRAME_STEP_S` apart (median), as milli-, micro- or nanoseconds are.
+    than `MAX_FRAME_STEP_S` apart (median), as milli-, micro- or nanoseconds are; warn of
+    frames a steady 5-1000 s apart (a video's frame interval in milliseconds, from 0).
 
     >>> check_seconds([1.7e9, 1.7e9 + 0.033], Path("joints.csv"))
     >>> check_seconds([0, 33_333_333, 66_666_666], Path("joints.csv"))
@@ -213,6 +219,13 @@ by 1e9, microseconds by 1e6, milliseconds by 1e3)
                          f"{np.abs(t).max():g} s: they are not seconds", path,
                          "give the timestamps in seconds (nanoseconds divided by 1e9, "
                          "microseconds by 1e6, milliseconds by 1e3)")
+    if MS_FRAME_STEP_S[0] <= step <= MS_FRAME_STEP_S[1] and \
+            np.median(np.abs(steps - step)) <= STEADY_STEP_SPREAD * step:
+        logger.warning("%s: the frames lie a steady %.4g s apart (%.3g frames an hour): a "
+                       "camera's frame interval in milliseconds? Give the timestamps in seconds "
+                       "(milliseconds divided by 1e3); read as seconds, a joint log's lag "
+                       "behind the images is not found", path or "timestamps", step,
+                       3600.0 / step)
 
 
 def check_sequence_times(seq) -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import doctest
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -243,3 +244,19 @@ def test_timestamps_that_cannot_be_seconds_are_refused_in_any_layout(labels, tmp
     assert "they are not seconds" in line and "divided by 1e9" in line
     assert not (tmp_path / "r.json").exists()
 
+
+
+def test_a_steady_frame_interval_in_milliseconds_is_warned_of(caplog) -> None:
+    """Stamps of a 30 frames/s video in milliseconds from 0 can be seconds (a frame every
+    33 s): warned of, not refused; irregular stamps of a sparse capture and seconds pass
+    quietly."""
+    from dream.plausibility import check_seconds
+
+    with caplog.at_level(logging.WARNING, logger="dream.plausibility"):
+        check_seconds(np.arange(30) * 1000 / 30, Path("joints.csv"))
+    assert "milliseconds" in caplog.text and "joints.csv" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="dream.plausibility"):
+        check_seconds(np.arange(30) / 30, Path("joints.csv"))
+        check_seconds(np.cumsum(np.random.default_rng(0).uniform(5, 60, 30)), None)
+    assert not caplog.text
