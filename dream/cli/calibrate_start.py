@@ -270,9 +270,11 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
     from dream.coarse.verdict import (
         away_finding,
         carried_finding,
+        cue_refuted,
         cues_finding,
         focal_finding,
         mark_finding,
+        refuted_finding,
         search_findings,
     )
     from dream.quality import condition_findings, quality_from
@@ -286,6 +288,8 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
         findings.append(away_finding(away["share"], settings))
     if cue_move is not None:
         findings.append(cues_finding(*cue_move))
+    if cue_refuted(s.get("challenge"), settings):
+        findings.append(refuted_finding(s["challenge"]))
     findings += [f for f in (focal_finding(s.get("focal")), timing_finding(s.get("timing")))
                  if f is not None]
     carried = s.get("carried") or {}
@@ -314,7 +318,9 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
     the camera's, where it was measured (`measure_steadiness`)."""
     from dream.cli.calibrate_report import add_polish, steadiness_record
     from dream.cli.calibrate_write import finish
+    from dream.coarse.settings import SearchSettings
     from dream.coarse.timing import lag_applied
+    from dream.coarse.verdict import cue_refuted
     from dream.refined_uncertainty import with_cue_term
 
     if request.model_extension:
@@ -336,6 +342,8 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
         if request.refine == AUTO and T_other is not None:
             result, obs, doc, T_own = _challenged(request, data_doc, readings_doc, found,
                                                   T_other, (result, obs, doc), out)
+    if cue_refuted(doc["start"].get("challenge"), SearchSettings()):
+        T_other = None                   # it ran off: its distance measures nothing
     doc, cue_move = with_cue_term(doc, T_other, T_own)
     moved = steadiness_record(motion, seq, doc)
     doc["quality"] = search_quality(doc, cue_move, out, marked, seq.camera, (moved,))

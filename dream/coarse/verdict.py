@@ -20,7 +20,9 @@ Each finding is (level, one sentence with what to do), as in `dream.quality`:
   `check`); its silhouettes overlap the masks below `min_found_iou` (the images cannot confirm
   it: `check`); the basin finding as above.
 - **cues**: the written pose (the edge alignment's) and the masks' optimum differ by more than
-  a centimetre or a degree: one cue is pulled by something the model lacks (`check`).
+  a centimetre or a degree: one cue is pulled by something the model lacks (`check`); where
+  the masks refute the other cue's optimum (`cue_refuted`: it ran off), it says so instead,
+  and the disagreement stays out of the 1-sigma (`check`).
 - **carried**: the carving at the pose found names something a link carries that the URDF
   lacks (`dream.coarse.carried`): the search leaves its pixels out, but it hides part of the
   arm and its carving is only as good as the pose it was carved at (`check`; on the rendered
@@ -108,6 +110,35 @@ def cues_finding(distance_m: float, angle_rad: float) -> Finding | None:
                    f"mm and {np.rad2deg(angle_rad):.2f} deg: something the model lacks (a tool, "
                    "a cable, a shadow) pulls one of them; the 1-sigma includes the disagreement; "
                    "check the overlays, or leave the suspect links out (--exclude-links)")
+
+
+def cue_refuted(challenge: dict | None, settings: SearchSettings) -> bool:
+    """Whether the masks refute the other cue's optimum (RESULT.json's `start.challenge`,
+    `dream.coarse.challenge`): finished on them, its silhouettes fail the found test
+    (`min_found_iou`) where the winner's pass it. It ran off rather than disagreeing: its
+    distance is no measure of the pose's error (on a rendered TIAGo Pro scene the edge
+    alignment ended 3.2 m away at IoU 0.09 against the winner's 0.44, 13 mm off the truth).
+
+    >>> s = SearchSettings()
+    >>> cue_refuted({"iou_winner": 0.44, "iou_challenger": 0.09}, s), cue_refuted(None, s)
+    (True, False)
+    >>> cue_refuted({"iou_winner": 0.39, "iou_challenger": 0.09}, s)
+    False
+    """
+    return challenge is not None and \
+        challenge["iou_challenger"] < settings.min_found_iou <= challenge["iou_winner"]
+
+
+def refuted_finding(challenge: dict) -> Finding:
+    """The cues finding where the masks refute the other cue's optimum (`cue_refuted`): the
+    images' edges do not hold the pose (`check`)."""
+    return CHECK, (f"{challenge['source']} ran off to {challenge['distance_m'] * 1e3:.0f} mm and "
+                   f"{np.rad2deg(challenge['angle_rad']):.1f} deg from the pose written, where "
+                   f"the robot's silhouettes overlap the masks by IoU "
+                   f"{challenge['iou_challenger']:.2f} against {challenge['iou_winner']:.2f}: "
+                   "the images' edges do not hold the robot (thin or dark links, a busy "
+                   "background?), so the pose and its 1-sigma rest on the masks alone; check "
+                   "the overlays")
 
 
 def away_finding(share: float, settings: SearchSettings) -> Finding | None:

@@ -756,3 +756,31 @@ def test_tree_order_keeps_a_chain_together_whatever_the_urdfs_order() -> None:
     rank = tree_order(tree)
     assert sorted(rank.values()) == list(range(len(tree.links)))
     assert rank["right_wrist"] < rank["right_gripper_base_link"] < rank["left_upper_shoulder"]
+
+
+def test_an_edge_alignment_the_masks_refute_is_named_not_read_as_a_disagreement():
+    """The edge alignment ran off 3 m (finished on the masks, IoU 0.09 against the winner's
+    0.44): the verdict names it at `check` and no cues finding reads its distance; one that
+    explains the masks about as well is no refutation."""
+    import io
+
+    from dream.cli.calibrate_start import search_quality
+
+    T = look_at(TARGET + np.array([1.3, 0.5, 0.6]), TARGET)
+
+    def quality(iou_challenger: float) -> dict:
+        challenge = {"source": "the edge alignment", "iou_winner": 0.44,
+                     "iou_challenger": iou_challenger, "distance_m": 3.19, "angle_rad": 1.06,
+                     "won": False, "share_towards_other": 0.0, "iou_between": 0.44}
+        start = {"iou": 0.42, "rival_iou": None, "rival_distance_m": None,
+                 "basin_returned": 4, "basin_starts": 4, "basin_m": 0.05,
+                 "challenge": challenge}
+        doc = {"start": start, "T_cam_base": T.tolist(),
+               "covariance_xi": (np.eye(6) * 1e-6).tolist()}
+        return search_quality(doc, None, io.StringIO())
+
+    refuted = quality(0.09)
+    assert refuted["verdict"] == "check"
+    assert any("ran off" in w for w in refuted["warnings"])
+    assert not any("disagree" in w for w in refuted["warnings"])
+    assert not any("ran off" in w for w in quality(0.43)["warnings"])
