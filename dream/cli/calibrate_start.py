@@ -375,8 +375,8 @@ def _challenged(request, data_doc: dict, readings_doc: dict | None, found: tuple
     between the two that the masks choose (`dream.coarse.challenge`): the stand-in result,
     observations and document of that pose (of the search run again where the alignment's
     optimum won; the alignment's object kept), else `written` (the result, observations and
-    document as they were); and the masks' own optimum (the search's winner), None where it
-    is the pose written. RESULT.json's `start.challenge` says what happened."""
+    document as they were); and the masks' own optimum (`Challenge.masks_optimum`), None
+    where the pose written is the winner. RESULT.json's `start.challenge` says what happened."""
     from dream.coarse.calibration import search_covariance, stand_in_result
     from dream.coarse.challenge import challenged
 
@@ -401,7 +401,8 @@ def _challenged(request, data_doc: dict, readings_doc: dict | None, found: tuple
                                  (seq, outcome, inputs, guess, marked)), "edges": doc["edges"]}
     doc["start"]["challenge"] = challenge.to_dict()
     doc["start"]["seconds"] = outcome.seconds
-    return result, obs, doc, outcome.best.T_cam_base if challenge.share > 0 else None
+    return result, obs, doc, (challenge.masks_optimum(outcome.best.T_cam_base)
+                              if challenge.share > 0 else None)
 
 
 def _edges_after_search(request, seq, robot, result, obs, doc: dict,

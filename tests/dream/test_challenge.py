@@ -11,6 +11,7 @@ import numpy as np
 from dream.coarse.calibration import DATA_MASKS, SearchMasks
 from dream.coarse.challenge import Challenge, between, challenged
 from dream.coarse.search import Candidate, SearchOutcome, pose_iou
+from dream.coarse.settings import SearchSettings
 from dream.metrics import pose_errors
 from dream.transforms import make_T
 from tests.dream.test_coarse import SMALL, off_by, rendered_masks
@@ -73,3 +74,23 @@ def test_the_masks_choose_the_pose_between_the_two_optima():
     assert between(PeakAt(0.5), T_a, T_b)[0] == 1.0
     flat = between(PeakAt(0.0), T_a, T_a)
     assert flat[0] == 0.0 and np.allclose(flat[1], T_a)     # equals: the winner
+
+
+def test_the_masks_own_optimum_is_the_finished_challenger_where_every_frame_prefers_it():
+    """The search run again returned to the winner, but the other cue's optimum finished on
+    the masks explains every frame clearly better: that is the masks' optimum the cues'
+    disagreement is measured from; a challenger about as good, one that won, or one never
+    finished leaves it the winner."""
+    T_winner, T_finished = np.eye(4), np.eye(4)
+    T_finished[0, 3] = 0.04
+
+    def challenge(iou_challenger: float, won: bool = False, finished=T_finished) -> Challenge:
+        return Challenge("the edge alignment", 0.73, iou_challenger, 0.042, 0.03, won, 1.0,
+                         iou_challenger, T_finished, finished)
+
+    settings = SearchSettings()
+    clearly = 0.73 + 2 * settings.min_gap
+    assert challenge(clearly).masks_optimum(T_winner, settings) is T_finished
+    for same in (challenge(0.731), challenge(clearly, won=True),
+                 challenge(clearly, finished=None)):
+        assert same.masks_optimum(T_winner, settings) is T_winner
