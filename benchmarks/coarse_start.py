@@ -81,7 +81,8 @@ def robot_keypoints(robot: str, given: tuple[str, ...] | None = None
                     ) -> tuple[str, ...] | None:
     """None for a built-in robot; the `given` or else the suggested keypoints of a URDF (the
     renders move the joints up to them and label them; calibrating without keypoints never
-    reads the labels)."""
+    reads the labels). Where the suggestion stops at alike branches (two arms on a torso) it
+    is carried on along every one of them, so that the renders move every arm."""
     from dream.robot import builtin_robots, parse_urdf
     from dream.robot.keypoint_choice import analyse_keypoints
 
@@ -89,7 +90,9 @@ def robot_keypoints(robot: str, given: tuple[str, ...] | None = None
         return None
     if given:
         return given
-    return analyse_keypoints(parse_urdf(Path(robot))).suggested
+    advice = analyse_keypoints(parse_urdf(Path(robot)))
+    return tuple(dict.fromkeys(link for links in (advice.suggested, *advice.branch_keypoints)
+                               for link in links))
 
 
 def robot_size(robot: str, keypoints: tuple[str, ...] | None = None) -> float:
@@ -451,8 +454,8 @@ def main() -> None:
                    help="override a randomisation key (repeatable), e.g. "
                    "intrinsics.width=960 distractors.robot_prob=1")
     r.add_argument("--render-keypoints", metavar="LINKS", help="a URDF's keypoint links for the "
-                   "renders (they move every joint up to them: two arms of a torso); default "
-                   "its suggested ones")
+                   "renders (they move every joint up to them); default its suggested ones, "
+                   "carried along every arm of a robot with two")
     r.add_argument("--scale-to-robot", action="store_true", help="the randomisation's "
                    "camera and distractor distances and sizes times the robot's size over "
                    "the Panda's (a small arm seen from as near as a user would put the camera)")

@@ -12,6 +12,7 @@ from dream.robot import robot_data_dir
 from tests.benchmark_scripts import load_benchmark
 
 SO101 = "robots/so_arm_description/urdf/so101.urdf"     # a small arm (about 0.4 of a Panda)
+TIAGO_DUAL = "robots/tiago_description/robots/tiago_dual.urdf"      # two arms on a torso
 
 
 @pytest.fixture(scope="module")
@@ -36,6 +37,17 @@ def test_a_small_arms_scenes_are_seen_from_nearer(bench):
         np.testing.assert_allclose(scaled[section][key],
                                    np.asarray(as_written[section][key]) * factor)
     assert scaled["intrinsics"] == as_written["intrinsics"]
+
+
+def test_a_two_armed_robots_scenes_move_both_arms(bench):
+    from dream.robot import load_robot
+
+    tiago_dual = str(robot_data_dir() / TIAGO_DUAL)
+    keypoints = bench.robot_keypoints(tiago_dual)
+    assert keypoints[0] == "base_footprint" and len(set(keypoints)) == len(keypoints)
+    moved = load_robot(tiago_dual, keypoints).joint_names
+    for side in ("left", "right"):
+        assert {f"arm_{side}_{k}_joint" for k in range(1, 8)} <= set(moved)
 
 
 def test_a_urdf_scene_renders_without_masks_and_takes_marks(bench, tmp_path):
