@@ -11,8 +11,6 @@ keypoints must be those of the checkpoint.
 
 from __future__ import annotations
 
-import csv
-import io
 import logging
 import math
 import os
@@ -20,7 +18,6 @@ import re
 import shutil
 import signal
 import threading
-import time
 import warnings
 from collections.abc import Iterator
 from collections.abc import Sequence as SequenceOf
@@ -32,7 +29,6 @@ from typing import Any
 import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint
-from lightning.pytorch.trainer.states import TrainerStatus
 from torch.utils.data import DataLoader
 
 from dream.errors import InputError
@@ -45,6 +41,7 @@ from train.budget import (
     resolve_time_budget,
     steps_per_epoch,
 )
+from train.callbacks import Checkpointed, EpochCsv, LogLines, scalar
 from train.checkpoint import checkpoint_config, read_checkpoint
 from train.config import AUTO_PRECISION, TrainConfig, dump_config
 from train.data import (
@@ -85,82 +82,6 @@ class TrainResult:
     config: TrainConfig
     metrics: dict[str, float]
     epochs: int
-
-
-def _scalar(value: Any) -> float:
-    return float(value.detach().cpu()) if isinstance(value, torch.Tensor) else float(value)
-
-
-class EpochCsv(Callback):
-    """Appends one row per epoch to `metrics.csv`: epoch, step, wall time, learning rate and every
-    logged epoch metric. A resumed run keeps the rows of the epochs before its start."""
-
-    def __init__(self, path: Path):
-        self.path = path
-        self.rows: list[dict[str, Any]] = []
-        self.elapsed_before = 0.0
-        self._start = time.perf_counter()
-
-    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        self._start = time.perf_counter()
-        start_epoch = trainer.current_epoch
-        if self.path.exists():
-            with open(self.path, newline="", encoding="utf-8") as fh:
-                self.rows = [r for r in csv.DictReader(fh) if int(r["epoch"]) < start_epoch]
-            if self.rows:
-                self.elapsed_before = float(self.rows[-1]["wall_s"])
-
-    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        if trainer.sanity_checking or not trainer.is_global_zero:
-            return
-        row: dict[str, Any] = {"epoch": trainer.current_epoch, "step": trainer.global_step,
-                               "wall_s": round(self.elapsed_before + time.perf_counter()
-                                               - self._start, 2),
-                               "lr": trainer.optimizers[0].param_groups[0]["lr"]}
-        for key, value in sorted(trainer.callback_metrics.items()):
-            if not key.endswith("_step"):
-                row[key.removesuffix("_epoch")] = _scalar(value)
-        self.rows.append(row)
-        columns: list[str] = []
-        for r in self.rows:
-            columns += [c for c in r if c not in columns]
-        out = io.StringIO()
-        writer = csv.DictWriter(out, fieldnames=columns, restval="")
-        writer.writeheader()
-        writer.writerows(self.rows)
-        write_bytes_atomic(self.path, out.getvalue().encode("utf-8"), durable=False)
-
-
-class LogLines(Callback):
-    """Progress as logging lines (when the progress bar is off): every `every` steps and at each
-    epoch end, with the throughput in images per second."""
-
-    def __init__(self, every: int):
-        self.every = every
-        self._t0 = time.perf_counter()
-        self._images = 0
-
-    def on_train_epoch_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        self._t0, self._images = time.perf_counter(), 0
-
-    def on_train_batch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, outputs: Any,
-                           batch: Any, batch_idx: int) -> None:
-        self._images += int(batch["image"].shape[0])
-        if trainer.global_step % self.every == 0 and trainer.is_global_zero:
-            rate = self._images / max(time.perf_counter() - self._t0, 1e-9)
-            loss = trainer.callback_metrics.get("train/loss_step")
-            logger.info("epoch %d step %d loss %.5f lr %.2e %.1f images/s", trainer.current_epoch,
-                        trainer.global_step, math.nan if loss is None else _scalar(loss),
-                        trainer.optimizers[0].param_groups[0]["lr"], rate)
-
-    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        if not trainer.is_global_zero:
-            return
-        metrics = {k.removesuffix("_epoch"): _scalar(v)
-                   for k, v in trainer.callback_metrics.items() if not k.endswith("_step")}
-        text = "  ".join(f"{k} {v:.4g}" for k, v in sorted(metrics.items()))
-        rate = self._images / max(time.perf_counter() - self._t0, 1e-9)
-        logger.info("epoch %d done (%.1f images/s): %s", trainer.current_epoch, rate, text)
 
 
 def _check_resumable(config: TrainConfig, checkpoint: Path,
@@ -302,19 +223,6 @@ def _make_run_dir(run_dir: Path) -> Path | None:
     return created
 
 
-class _Checkpointed(Callback):
-    """Whether the run wrote a checkpoint in the course of training (not the one Lightning
-    writes when an exception stops it)."""
-
-    def __init__(self) -> None:
-        self.saved = False
-
-    def on_save_checkpoint(self, trainer: L.Trainer, pl_module: L.LightningModule,
-                           checkpoint: dict[str, Any]) -> None:
-        if trainer.state.status != TrainerStatus.INTERRUPTED:
-            self.saved = True
-
-
 _WORKER_ERROR = re.compile(r"^(?:dream\.errors\.)?InputError: (.+)$", re.MULTILINE)
 
 
@@ -416,7 +324,7 @@ def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | 
     if val_loader is None:
         logger.info("no validation data (set data.val, or data.val_fraction for more frames): "
                     "no validation metrics, best.ckpt follows %s", _FALLBACK_MONITOR)
-    checkpointed = _Checkpointed()
+    checkpointed = Checkpointed()
     trainer, best = _trainer(config, run_dir, val_loader is not None,
                              [checkpointed, *callbacks])
     budgeted = config.trainer.time_budget_minutes is not None
@@ -443,7 +351,7 @@ def run_training(config: TrainConfig, run_dir: str | Path, resume: str | Path | 
         raise error from None
     config = with_steps_trained(module.config, trainer.global_step)   # the plan as revised
     write_bytes_atomic(run_dir / CONFIG_FILE, dump_config(config).encode("utf-8"), durable=False)
-    metrics = {k.removesuffix("_epoch"): _scalar(v) for k, v in trainer.callback_metrics.items()
+    metrics = {k.removesuffix("_epoch"): scalar(v) for k, v in trainer.callback_metrics.items()
                if not k.endswith("_step")}
     best_path = Path(best.best_model_path) if best.best_model_path else last_path
     return TrainResult(run_dir, last_path, best_path, config, metrics, trainer.current_epoch)

@@ -128,8 +128,9 @@ def search_start(request, seq, out: TextIO):
     """The search (module doc): robot, the stand-in result and observations at its pose, its
     outcome and masks, and the guess."""
     from dream.cli.search_robot import robot_for_search
-    from dream.coarse.calibration import coarse_start, search_covariance, stand_in_result
+    from dream.coarse.calibration import coarse_start
     from dream.coarse.focal import FocalSettings
+    from dream.coarse.result import search_covariance, stand_in_result
     from dream.coarse.timing import TimingSettings
 
     guess = camera_guess(request.camera_guess, request.look_at, request.guess_sigma)
@@ -182,82 +183,6 @@ def with_fitted_focal(seq, inputs, out: TextIO):
 
 def _progress(line: str) -> None:
     print(f"  search: {line}", file=sys.stderr)
-
-
-def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
-    """RESULT.json's `start` object: how the pose was searched and how clearly it won."""
-    from dream.coarse.calibration import CARRIED
-    from dream.metrics import pose_errors
-    from dream.outline_robot import joints_at_rest
-    from dream.pnp import increment_between
-
-    rival = outcome.rival
-    distance = None if rival is None else [float(v) for v in pose_errors(
-        rival.T_cam_base, outcome.best.T_cam_base)]
-    return {"method": "silhouette search", "hypotheses": guess.description,
-            "hypotheses_scored": outcome.hypotheses, "evidence": inputs.source,
-            "frames": [seq.frames[int(i)].name for i in inputs.frames],
-            "joints_moved": list(inputs.meshes.robot.joint_names),
-            "joints_at_rest": joints_at_rest(inputs.meshes.robot),
-            "left_out_links": list(inputs.left_out), "motion_masks": inputs.motion,
-            "carried": carried_doc(inputs.carried, CARRIED in outcome.hypotheses),
-            "focal": None if inputs.focal is None else inputs.focal.to_dict(),
-            "timing": None if inputs.timing is None else inputs.timing.to_dict(),
-            "T_cam_base": outcome.best.T_cam_base.tolist(), "iou": outcome.best.iou,
-            "away": away_doc(outcome, inputs, seq),
-            "rival_iou": None if rival is None else rival.iou,
-            "rival_distance_m": None if distance is None else distance[0],
-            "rival_angle_rad": None if distance is None else distance[1],
-            "finish_left_out_frames": [seq.frames[int(inputs.frames[i])].name
-                                       for i in outcome.best.left_out_frames],
-            "gap": outcome.gap, "basin_returned": outcome.basin_returned,
-            "basin_starts": outcome.basin_starts, "basin_m": outcome.basin_m,
-            "basin_return_m": outcome.basin_return_m,
-            "basin_ends_xi": [increment_between(outcome.best.T_cam_base, T).tolist()
-                              for T in outcome.basin_ends],
-            "frames_jackknife_xi": outcome.frames_xi.tolist(),
-            "links_jackknife_xi": outcome.links_xi.tolist(),
-            "jackknife_links": list(outcome.jackknife_links),
-            "candidates": [{"source": c.source, "iou": c.iou, "coarse_iou": c.coarse_iou}
-                           for c in outcome.candidates],
-            "seconds": outcome.seconds, "challenge": None,
-            "mark": None if marked is None else mark_doc(marked, seq)}
-
-
-def away_doc(outcome, inputs, seq) -> dict:
-    """RESULT.json's `start.away`: the masks' moving pixels away from the robot at the
-    search's winner (`dream.coarse.away`) and its IoU without them (the found test's)."""
-    from dream.coarse.away import away_at_pose
-    from dream.coarse.settings import SearchSettings
-
-    away = away_at_pose(inputs.meshes, inputs.joints, inputs.masks, seq.camera,
-                        outcome.best.T_cam_base, SearchSettings().away_margin_px)
-    return {**away.to_dict(), "iou_without": away.iou_without(outcome.best.iou)}
-
-
-def carried_doc(carving, left_out: bool) -> dict | None:
-    """RESULT.json's `start.carried`: what the carving at the search's winner found the arm
-    carrying, whether its pixels were `left_out` (the search ran again without them), or why
-    nothing; None where it did not run."""
-    if carving is None:
-        return None
-    finding = carving.finding
-    return {**carving.to_dict(), "left_out_of_search": left_out,
-            "box_around_hull": None if finding is None else finding.geometry.to_params()}
-
-
-def mark_doc(marked, seq) -> dict:
-    """RESULT.json's `start.mark`: the mark's frames, its PnP pose and fit (None where it is
-    known in too few frames for one) and how many cameras it placed for the search."""
-    fit = marked.fit
-    return {"clicked_frames": marked.clicked,
-            "tracked_frames": len(marked.frames) - marked.clicked,
-            "frames": [seq.frames[int(i)].name for i in marked.frames],
-            "T_cam_base": None if fit is None else fit.T_cam_base.tolist(),
-            "rmse_px": None if fit is None else fit.rmse_px,
-            "placed_hypotheses": marked.placed,
-            "search_sigma_m": None if fit is None else marked.guess.sigma_m,
-            "search_sigma_rad": None if fit is None else marked.guess.sigma_rad}
 
 
 def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
@@ -356,6 +281,7 @@ def search_document(request, data_doc: dict, readings_doc: dict | None, result, 
     """RESULT.json's document of the search's stand-in `result`, with its `start` object;
     `found`: the sequence, the search's outcome, its masks, the guess and the mark."""
     from dream.cli.calibrate_write import result_document
+    from dream.cli.start_record import start_doc
 
     seq, outcome, inputs, guess, marked = found
     doc = result_document(request, seq, result, obs, data_doc, readings_doc)
@@ -377,8 +303,8 @@ def _challenged(request, data_doc: dict, readings_doc: dict | None, found: tuple
     optimum won; the alignment's object kept), else `written` (the result, observations and
     document as they were); and the masks' own optimum (`Challenge.masks_optimum`), None
     where the pose written is the winner. RESULT.json's `start.challenge` says what happened."""
-    from dream.coarse.calibration import search_covariance, stand_in_result
     from dream.coarse.challenge import challenged
+    from dream.coarse.result import search_covariance, stand_in_result
 
     seq, outcome, inputs, guess, marked = found
     result, obs, doc = written

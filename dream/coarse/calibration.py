@@ -1,7 +1,8 @@
 """The detector-free start of a fixed-camera calibration: the robot's masks of the recording
 (the data's own, or motion masks), camera hypotheses from a guess or a shell around the robot,
-the coarse search (`dream.coarse.search`), and a stand-in keypoint result at its pose so that
-the image refinements (`--refine`) and RESULT.json take it from there.
+and the coarse search (`dream.coarse.search`); `dream.coarse.result` makes of its winner a
+stand-in keypoint result, so that the image refinements (`--refine`) and RESULT.json take it
+from there.
 
 With motion masks, the links that never move are left out of the model (they are in the
 background model, so not in the masks), the pixels the robot covers in most frames at a
@@ -17,9 +18,6 @@ right pose), and where the robot was found what the arm carries that the URDF la
 that pull the pose far harder than the others, `dream.coarse.scales`), and the focal-length
 scale the robot's outlines ask for is fitted (`dream.coarse.focal`); each that is adopted runs
 the search again from the winner, and the callers go on with what it adopted.
-The search's 1-sigma is the spread of its finish over frame groups and links left out
-(jackknives) and of its basin check's restarts around the winner: where they do not return, it
-is large and says so.
 """
 
 from __future__ import annotations
@@ -30,7 +28,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from dream.calibration import CalibrationResult, FrameSolution, Observations
 from dream.camera import CameraIntrinsics
 from dream.coarse.carried import CarriedRegion, carried_geometry, carried_region
 from dream.coarse.focal import FocalEstimate, FocalSettings, fit_focal
@@ -45,15 +42,14 @@ from dream.coarse.mark import (
     placed_by_mark,
     track_mark,
 )
-from dream.coarse.search import SearchOutcome, Winner, find_winner, within
+from dream.coarse.search import SearchOutcome, Winner, find_winner
 from dream.coarse.settings import SearchSettings
 from dream.coarse.timing import LagEstimate, TimingSettings, with_timing
 from dream.diagnosis.attached import AttachedSettings, CarvingOutcome
 from dream.errors import InputError
 from dream.pipeline import joints_in_robot_order
-from dream.pnp import MIN_KEYPOINTS, NoSolution, PoseFit, increment_between
+from dream.pnp import MIN_KEYPOINTS, PoseFit
 from dream.polish.objective import evenly_spaced
-from dream.refined_uncertainty import MIN_GROUPS, jackknife_covariance
 from dream.robot import Robot
 from dream.sequence import Sequence
 from dream.silhouette import (
@@ -69,9 +65,6 @@ log = logging.getLogger(__name__)
 GUESS, SHELL, CARRIED, FOCAL, MARK, TIMING = ("guess", "shell", "carried", "focal", "mark",
                                              "timing")
 DATA_MASKS, MOTION_MASKS = "the data's masks", "motion masks"
-RESOLUTION_FRACTION = 0.5   # of the basin check's return limits: its 1-sigma without a jackknife
-JACKKNIFE_SHRINKAGE = 0.25  # of the search's jackknife covariance towards its diagonal (set
-#   on rendered scenes: a winner 4.7 mm off lay at chi-square 62 under the raw sum, 4.7 here)
 MOTION_CANDIDATES = 3   # frames tried for motion masks per search frame (evenly spaced)
 
 
@@ -395,56 +388,3 @@ def shell_orientations(settings: SearchSettings) -> np.ndarray:
     of its shell's directions, with each of its rolls (`shell`)."""
     directions = fibonacci_directions(settings.shell_directions, settings.min_elevation_sin)
     return shell(np.zeros(3), 1.0, directions, (1.0,), settings.shell_rolls)[:, :3, :3]
-
-
-def search_covariance(outcome: SearchOutcome, settings: SearchSettings | None = None,
-                      focal: FocalEstimate | None = None, timing: LagEstimate | None = None
-                      ) -> np.ndarray:
-    """(6, 6) the search's own 1-sigma (xi of `dream.pnp` at the winner): the jackknives of
-    its finish over frame groups and over links (`SearchOutcome.frames_xi`, `links_xi`;
-    `dream.refined_uncertainty.jackknife_covariance`; their sum shrunk towards its diagonal by
-    `JACKKNIFE_SHRINKAGE`, since some 15 leave-out poses estimate the correlations of six
-    axes poorly), plus the second moment about the winner
-    of the basin check's restarts that returned to it (of all of them where none did: then the
-    pose is not resolved). Without a jackknife (too few frames and links),
-    (`RESOLUTION_FRACTION` x the return limits)^2 stands in for it on the diagonal: a restart
-    that ends within the outcome's `basin_return_m` / `basin_return_rad` counts as returned
-    (`SearchSettings.basin_lengths`), so the check
-    alone does not resolve the pose below that. The restarts that ended elsewhere are the
-    verdict's basin finding, not spread of this pose. An adopted focal-length scale (`focal`)
-    adds its own uncertainty (`FocalEstimate.pose_covariance`), and so does an adopted lag of
-    the joint log (`LagEstimate.pose_covariance`)."""
-    settings = settings or SearchSettings()
-    T_best = outcome.best.T_cam_base
-    ends = outcome.basin_ends
-    if not len(ends):
-        raise InputError("the coarse search ran no basin check, so it has no 1-sigma",
-                         fix="set basin_starts above 0")
-    returned = [T for T in ends
-                if within(T, T_best, outcome.basin_return_m, settings.basin_return_rad)]
-    xi = np.array([increment_between(T_best, T) for T in (returned or ends)])
-    jackknives = [xis for xis in (outcome.frames_xi, outcome.links_xi) if len(xis) >= MIN_GROUPS]
-    if jackknives:
-        J = sum(jackknife_covariance(xis) for xis in jackknives)
-        precision = (1 - JACKKNIFE_SHRINKAGE) * J + JACKKNIFE_SHRINKAGE * np.diag(np.diag(J))
-    else:
-        precision = np.diag((np.repeat([settings.basin_return_rad, outcome.basin_return_m], 3)
-                             * RESOLUTION_FRACTION) ** 2)
-    extras = [extra.pose_covariance for extra in (focal, timing) if extra is not None]
-    return xi.T @ xi / len(xi) + precision + sum(extras, np.zeros((6, 6)))
-
-
-def stand_in_result(sequence: Sequence, T_cam_base: np.ndarray, covariance: np.ndarray
-                    ) -> tuple[CalibrationResult, Observations]:
-    """A keypoint-free "all" result at `T_cam_base` with `covariance`, and observations with
-    no keypoints, for the image refinements and RESULT.json."""
-    F = len(sequence)
-    names = tuple(f.name for f in sequence.frames)
-    obs = Observations(np.zeros((F, 0, 3)), np.zeros((F, 0, 2)), np.zeros((F, 0)), names, ())
-    fit = PoseFit(np.asarray(T_cam_base, float), np.zeros((0, 2)), np.zeros(0, bool),
-                  np.zeros(0), np.asarray(covariance, float), float("nan"), 0)
-    frames = tuple(FrameSolution(name, NoSolution("no keypoints: the camera pose was found "
-                                                  "from the robot's silhouettes"), 0)
-                   for name in names)
-    return CalibrationResult("all", fit, frames, np.zeros((F, 0, 2)), np.zeros((F, 0), bool)), \
-        obs

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from batch.calibrate import _recording_options, line_options, plan_batch
+from batch.calibrate import _recording_options, plan_batch
 from batch.engine import (
     EngineSettings,
     LocalEngine,
@@ -21,6 +21,7 @@ from batch.engine import (
     WorkerLost,
     make_engine,
 )
+from batch.options import line_options
 from batch.recordings import (
     folder_names,
     input_hash,

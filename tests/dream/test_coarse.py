@@ -14,7 +14,6 @@ import pytest
 
 from dream.camera import project
 from dream.cli import main
-from dream.coarse.calibration import RESOLUTION_FRACTION, search_covariance
 from dream.coarse.checks import link_groups, tree_order
 from dream.coarse.evidence import (
     hypothesis_hits,
@@ -32,6 +31,7 @@ from dream.coarse.hypotheses import (
     guess_pose,
     shell,
 )
+from dream.coarse.result import RESOLUTION_FRACTION, search_covariance
 from dream.coarse.search import pose_iou, search
 from dream.coarse.settings import SearchSettings
 from dream.coarse.verdict import search_findings
