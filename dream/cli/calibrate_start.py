@@ -197,7 +197,9 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
         carried_finding,
         cue_refuted,
         cues_finding,
+        edges_lost,
         focal_finding,
+        lost_finding,
         mark_finding,
         refuted_finding,
         search_findings,
@@ -215,6 +217,8 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
         findings.append(cues_finding(*cue_move))
     if cue_refuted(s.get("challenge"), settings):
         findings.append(refuted_finding(s["challenge"]))
+    elif edges_lost(doc.get("edges"), settings):
+        findings.append(lost_finding(doc["edges"]))
     findings += [f for f in (focal_finding(s.get("focal")), timing_finding(s.get("timing")))
                  if f is not None]
     carried = s.get("carried") or {}
@@ -243,9 +247,7 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
     the camera's, where it was measured (`measure_steadiness`)."""
     from dream.cli.calibrate_report import add_polish, steadiness_record
     from dream.cli.calibrate_write import finish
-    from dream.coarse.settings import SearchSettings
     from dream.coarse.timing import lag_applied
-    from dream.coarse.verdict import cue_refuted
     from dream.refined_uncertainty import with_cue_term
 
     if request.model_extension:
@@ -267,13 +269,30 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
         if request.refine == AUTO and T_other is not None:
             result, obs, doc, T_own = _challenged(request, data_doc, readings_doc, found,
                                                   T_other, (result, obs, doc), out)
-    if cue_refuted(doc["start"].get("challenge"), SearchSettings()):
-        T_other = None                   # it ran off: its distance measures nothing
-    doc, cue_move = with_cue_term(doc, T_other, T_own)
+    doc, cue_move = with_cue_term(doc, counted_cue(doc, T_other), T_own)
     moved = steadiness_record(motion, seq, doc)
     doc["quality"] = search_quality(doc, cue_move, out, marked, seq.camera, (moved,))
     finish(request, seq, robot, obs, result, doc, paths, out)
     return doc
+
+
+def counted_cue(doc: dict, T_other: np.ndarray | None) -> np.ndarray | None:
+    """The other image cue's optimum whose distance enters the 1-sigma and the cues finding:
+    `T_other`, or None where it ran off (the masks refute it, `cue_refuted`, or the edge
+    alignment lost the image edges on its way, `edges_lost`): its distance measures nothing.
+
+    >>> counted_cue({"start": {"challenge": None}, "edges": {"cross_check": True,
+    ...     "agreement_before": 0.36, "agreement_after": 0.07}}, np.eye(4)) is None
+    True
+    """
+    from dream.coarse.settings import SearchSettings
+    from dream.coarse.verdict import cue_refuted, edges_lost
+
+    settings = SearchSettings()
+    if T_other is None or cue_refuted(doc["start"].get("challenge"), settings) \
+            or edges_lost(doc.get("edges"), settings):
+        return None
+    return T_other
 
 
 def search_document(request, data_doc: dict, readings_doc: dict | None, result, obs,

@@ -101,6 +101,11 @@ class SearchSettings:
             the robot (`dream.coarse.away.away_from_robot`: something else that moves).
         max_away_share: where more of the moving pixels than this lie away from the robot,
             the verdict is at most `check` (`dream.coarse.verdict.away_finding`).
+        min_edges_kept_share: the edge alignment's optimum cross-checks the masks' only where
+            the outline's agreement with the image edges there is at least this share of what
+            it was at the start (`dream.coarse.verdict.edges_lost`; set on rendered scenes:
+            the alignments that ran off, 46 mm to 4.5 m, ended at 0.03-0.28 of their start,
+            those that stayed within 4 cm at 0.64-1.12).
     """
 
     guess_sigma_m: float = 0.3
@@ -149,6 +154,7 @@ class SearchSettings:
     max_outlying_share: float = 0.2
     away_margin_px: float = 3.0
     max_away_share: float = 0.05
+    min_edges_kept_share: float = 0.5
 
     def __post_init__(self) -> None:
         check_fields(self, "coarse search",
@@ -164,14 +170,16 @@ class SearchSettings:
                      non_negative=("min_gap", "basin_starts", "min_found_iou", "carried_margin_px",
                                    "round_iou_tolerance", "frame_influence", "in_view_starts",
                                    "min_basin_share", "jackknife_groups", "max_outlying_share",
-                                   "away_margin_px", "max_away_share", "keypoint_side_ratio"))
+                                   "away_margin_px", "max_away_share", "keypoint_side_ratio",
+                                   "min_edges_kept_share"))
         if not self.shell_distances or min(self.shell_distances) <= 0:
             raise InputError("coarse search: shell_distances must be positive")
         if not self.local_widths_px or min(self.local_widths_px) < 8:
             raise InputError("coarse search: local_widths_px must be at least 8 px")
         if not -1 <= self.min_elevation_sin <= 1:
             raise InputError("coarse search: min_elevation_sin must lie in [-1, 1]")
-        for name in ("min_found_iou", "min_basin_share", "max_outlying_share", "max_away_share"):
+        for name in ("min_found_iou", "min_basin_share", "max_outlying_share", "max_away_share",
+                     "min_edges_kept_share"):
             if getattr(self, name) > 1:
                 raise InputError(f"coarse search: {name} must not exceed 1")
 
