@@ -36,6 +36,8 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
             "basin_return_m": outcome.basin_return_m,
             "basin_ends_xi": [increment_between(outcome.best.T_cam_base, T).tolist()
                               for T in outcome.basin_ends],
+            "basin_ends_iou": None if outcome.basin_ious is None
+            else [float(v) for v in outcome.basin_ious],
             "frames_jackknife_xi": outcome.frames_xi.tolist(),
             "links_jackknife_xi": outcome.links_xi.tolist(),
             "jackknife_links": list(outcome.jackknife_links),

@@ -38,6 +38,7 @@ class Checks:
     jackknife_links: tuple[str, ...]
     basin_m: float
     basin_return_m: float
+    basin_ious: np.ndarray | None = None
 
 
 def basin_ends(refine: Callable[[np.ndarray], np.ndarray], T_best: np.ndarray,

@@ -99,6 +99,8 @@ class SearchOutcome:
         seconds: wall time.
         basin_m, basin_return_m: how far the restarts started and within what they counted
             as returned (`SearchSettings.basin_lengths` at the winner's camera distance).
+        basin_ious: (basin_starts,) the IoU where each restart ended, as the winner's `iou`
+            is measured (None: not scored).
     """
 
     best: Candidate
@@ -114,6 +116,7 @@ class SearchOutcome:
     seconds: float
     basin_m: float = SearchSettings.basin_m
     basin_return_m: float = SearchSettings.basin_return_m
+    basin_ious: np.ndarray | None = None
 
     @property
     def gap(self) -> float:
@@ -207,7 +210,7 @@ class Winner:
                              c.basin_returned, len(c.basin_ends), c.basin_ends, c.frames_xi,
                              c.links_xi, c.jackknife_links,
                              self.seconds + time.perf_counter() - start, c.basin_m,
-                             c.basin_return_m)
+                             c.basin_return_m, c.basin_ious)
 
 
 def find_winner(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
@@ -310,7 +313,8 @@ def find_winner(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
         if len(frames_xi) or len(links_xi):
             say(f"jackknife: the finish without each of {len(frames_xi)} frame groups and "
                 f"{len(links_xi)} links")
-        return Checks(ends, returned, frames_xi, links_xi, links, start_m, return_m)
+        return Checks(ends, returned, frames_xi, links_xi, links, start_m, return_m,
+                      np.array([scales.iou(T) for T in ends]))
 
     return Winner(best, rival, tuple(candidates), counts, time.perf_counter() - start,
                   run_checks)

@@ -843,3 +843,28 @@ def test_a_challenge_that_found_the_robot_elsewhere_leaves_the_alignments_end_ou
     assert counted_cue(doc, T_end) is None
     warnings = search_quality(doc, None, io.StringIO())["warnings"]
     assert any("ran off" in w and "0.33 against 0.73" in w for w in warnings)
+
+
+def test_restarts_that_end_where_the_masks_fit_clearly_worse_do_not_spread_the_pose():
+    """None of the basin check's restarts came back, all ending 20-25 cm away: where the masks
+    fit them about as well as the winner the pose is not resolved and the 1-sigma says so;
+    where they fit clearly worse (IoU 0.51 against 0.79, beyond `min_gap`) they are rivals
+    the winner beat, and the 1-sigma is the finish's own."""
+    from dream.coarse.search import Candidate, SearchOutcome
+
+    T = look_at(TARGET + np.array([1.3, 0.5, 0.6]), TARGET)
+    ends = np.stack([off_by(T, 0.2 + 0.01 * k, np.deg2rad(15.0), k) for k in range(4)])
+    rng = np.random.default_rng(0)
+    frames_xi = rng.normal(scale=1e-3, size=(5, 6))
+
+    def sigma_m(ious) -> float:
+        best = Candidate(T, "shell", 0.79, 0.79)
+        outcome = SearchOutcome(best, None, (best,), {"shell": 1}, 0, 4, ends, frames_xi,
+                                np.zeros((0, 6)), (), 1.0, basin_ious=ious)
+        cov = search_covariance(outcome, SMALL)
+        return float(np.sqrt(np.linalg.eigvalsh(cov[3:, 3:])[-1]))
+
+    assert sigma_m(np.full(4, 0.77)) > 0.1                 # alike: the pose is not resolved
+    assert sigma_m(None) > 0.1                             # not scored: every end counts
+    assert sigma_m(np.full(4, 0.51)) < 0.01                # clearly worse: rivals, not spread
+    assert sigma_m(np.array([0.51, 0.51, 0.51, 0.77])) > 0.1
