@@ -210,7 +210,8 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
     away = s.get("away")
     findings = search_findings(s["iou"], s["rival_iou"], s["rival_distance_m"],
                                s["basin_returned"], s["basin_starts"], settings,
-                               s["basin_m"], None if away is None else away["iou_without"])
+                               s["basin_m"], None if away is None else away["iou_without"],
+                               s.get("basin_ends_iou"))
     if away is not None:
         findings.append(away_finding(away["share"], settings))
     if cue_move is not None:

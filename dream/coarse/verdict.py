@@ -61,11 +61,20 @@ from dream.quality import (
 def search_findings(best_iou: float, rival_iou: float | None, rival_distance_m: float | None,
                     basin_returned: int, basin_starts: int,
                     settings: SearchSettings, basin_m: float | None = None,
-                    found_iou: float | None = None) -> list[Finding]:
+                    found_iou: float | None = None,
+                    basin_ious: list[float] | None = None) -> list[Finding]:
     """The found, gap and basin findings (module doc); `basin_m`: how far the restarts
     started (default `settings.basin_m`; `SearchOutcome.basin_m`); `found_iou`: the IoU the
     found test reads (default `best_iou`; without the pixels away from the robot: the away
-    finding)."""
+    finding); `basin_ious`: the IoU where each restart ended (`SearchOutcome.basin_ious`),
+    which tells a narrow basin (the restarts that did not come back ended where the masks fit
+    clearly worse) from a flat one.
+
+    >>> s = SearchSettings()
+    >>> search_findings(0.79, None, None, 0, 4, s, basin_ious=[0.39, 0.33, 0.33, 0.35])[0][1]
+    ... # doctest: +ELLIPSIS
+    'only 0 of 4 ... return to it, ending where the masks fit clearly worse ...'
+    """
     out: list[Finding] = []
     found_iou = best_iou if found_iou is None else found_iou
     if found_iou < settings.min_found_iou:
@@ -83,11 +92,15 @@ def search_findings(best_iou: float, rival_iou: float | None, rival_distance_m: 
                     f"{best_iou:.3f}): the images cannot tell them apart; record the arm "
                     "moving through more of the view, or give a closer camera guess"))
     if basin_starts and basin_returned < settings.min_basin_share * basin_starts:
+        worse = [] if basin_ious is None else \
+            [iou for iou in basin_ious if best_iou - iou > settings.min_gap]
+        how = ("the images constrain it weakly" if len(worse) < basin_starts - basin_returned
+               else f"ending where the masks fit clearly worse (IoU {min(worse):.2f}-"
+                    f"{max(worse):.2f} against {best_iou:.2f}): its basin is narrow")
         out.append((CHECK, f"only {basin_returned} of {basin_starts} refinements started "
                     f"{(settings.basin_m if basin_m is None else basin_m) * 100:.1f} cm / "
                     f"{np.rad2deg(settings.basin_rad):.0f} "
-                    "deg from the pose found return to it: the images constrain it weakly; "
-                    "check the overlays"))
+                    f"deg from the pose found return to it, {how}; check the overlays"))
     return out
 
 

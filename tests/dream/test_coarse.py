@@ -868,3 +868,16 @@ def test_restarts_that_end_where_the_masks_fit_clearly_worse_do_not_spread_the_p
     assert sigma_m(None) > 0.1                             # not scored: every end counts
     assert sigma_m(np.full(4, 0.51)) < 0.01                # clearly worse: rivals, not spread
     assert sigma_m(np.array([0.51, 0.51, 0.51, 0.77])) > 0.1
+
+
+def test_the_basin_finding_tells_a_narrow_basin_from_a_flat_one():
+    """Restarts that did not come back and ended where the masks fit clearly worse make a
+    narrow basin; ends the masks fit about as well (or not scored) a weakly constrained pose.
+    Either way the verdict is `check`."""
+    s = SearchSettings()
+    narrow = search_findings(0.79, None, None, 0, 4, s, basin_ious=[0.39, 0.33, 0.33, 0.35])
+    flat = search_findings(0.79, None, None, 0, 4, s, basin_ious=[0.78, 0.33, 0.33, 0.35])
+    unscored = search_findings(0.79, None, None, 0, 4, s)
+    assert [f[0] for f in narrow + flat + unscored] == ["check"] * 3
+    assert "narrow" in narrow[0][1] and "0.33-0.39 against 0.79" in narrow[0][1]
+    assert "constrain it weakly" in flat[0][1] and "constrain it weakly" in unscored[0][1]
