@@ -195,13 +195,10 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
     from dream.coarse.verdict import (
         away_finding,
         carried_finding,
-        cue_refuted,
         cues_finding,
-        edges_lost,
         focal_finding,
-        lost_finding,
         mark_finding,
-        refuted_finding,
+        ran_off_finding,
         search_findings,
     )
     from dream.quality import condition_findings, quality_from
@@ -216,10 +213,7 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
         findings.append(away_finding(away["share"], settings))
     if cue_move is not None:
         findings.append(cues_finding(*cue_move))
-    if cue_refuted(s.get("challenge"), settings):
-        findings.append(refuted_finding(s["challenge"]))
-    elif edges_lost(doc.get("edges"), settings):
-        findings.append(lost_finding(doc["edges"]))
+    findings.append(ran_off_finding(doc, settings))
     findings += [f for f in (focal_finding(s.get("focal")), timing_finding(s.get("timing")))
                  if f is not None]
     carried = s.get("carried") or {}
@@ -279,19 +273,17 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
 
 def counted_cue(doc: dict, T_other: np.ndarray | None) -> np.ndarray | None:
     """The other image cue's optimum whose distance enters the 1-sigma and the cues finding:
-    `T_other`, or None where it ran off (the masks refute it, `cue_refuted`, or the edge
-    alignment lost the image edges on its way, `edges_lost`): its distance measures nothing.
+    `T_other`, or None where it ran off (`dream.coarse.verdict.cue_ran_off`): its distance
+    measures nothing.
 
     >>> counted_cue({"start": {"challenge": None}, "edges": {"cross_check": True,
     ...     "agreement_before": 0.36, "agreement_after": 0.07}}, np.eye(4)) is None
     True
     """
     from dream.coarse.settings import SearchSettings
-    from dream.coarse.verdict import cue_refuted, edges_lost
+    from dream.coarse.verdict import cue_ran_off
 
-    settings = SearchSettings()
-    if T_other is None or cue_refuted(doc["start"].get("challenge"), settings) \
-            or edges_lost(doc.get("edges"), settings):
+    if T_other is None or cue_ran_off(doc, SearchSettings()):
         return None
     return T_other
 

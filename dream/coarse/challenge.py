@@ -76,8 +76,8 @@ class Challenge:
         frame better by more than `settings.min_gap` (the search's frames and all frames
         disagree; on a rendered Unitree B1 with a Z1 arm: IoU 0.81 against 0.73, the winner
         42 mm from the pose written, that 4 mm from the truth); else the winner."""
-        min_gap = (settings or SearchSettings()).min_gap
-        better = self.iou_challenger - self.iou_winner > min_gap
+        better = (settings or SearchSettings()).fits_clearly_better(self.iou_challenger,
+                                                                    self.iou_winner)
         if self.won or not better or self.T_cam_base_finished is None:
             return T_winner
         return self.T_cam_base_finished

@@ -36,10 +36,10 @@ def search_covariance(outcome: SearchOutcome, settings: SearchSettings | None = 
     (`RESOLUTION_FRACTION` x the return limits)^2 stands in for it on the diagonal: a restart
     that ends within the outcome's `basin_return_m` / `basin_return_rad` counts as returned
     (`SearchSettings.basin_lengths`), so the check alone does not resolve the pose below
-    that. The restarts that ended elsewhere are the
-    verdict's basin finding, not spread of this pose. An adopted focal-length scale (`focal`)
-    adds its own uncertainty (`FocalEstimate.pose_covariance`), and so does an adopted lag of
-    the joint log (`LagEstimate.pose_covariance`)."""
+    that. The restarts that ended elsewhere are the verdict's basin finding, not spread of
+    this pose. An adopted focal-length scale (`focal`) adds its own uncertainty
+    (`FocalEstimate.pose_covariance`), and so does an adopted lag of the joint log
+    (`LagEstimate.pose_covariance`)."""
     settings = settings or SearchSettings()
     T_best = outcome.best.T_cam_base
     ends = outcome.basin_ends
@@ -73,7 +73,7 @@ def alike_ends(outcome: SearchOutcome, settings: SearchSettings) -> list[np.ndar
     if ious is None:
         return list(ends)
     return [T for T, iou in zip(ends, ious, strict=True)
-            if outcome.best.iou - iou <= settings.min_gap]
+            if not settings.fits_clearly_better(outcome.best.iou, iou)]
 
 
 def stand_in_result(sequence: Sequence, T_cam_base: np.ndarray, covariance: np.ndarray

@@ -183,6 +183,16 @@ class SearchSettings:
             if getattr(self, name) > 1:
                 raise InputError(f"coarse search: {name} must not exceed 1")
 
+    def fits_clearly_better(self, iou: float, other_iou: float) -> bool:
+        """Whether a pose whose silhouettes overlap the masks by `iou` explains them clearly
+        better than one at `other_iou`: by more than `min_gap`.
+
+        >>> s = SearchSettings()
+        >>> s.fits_clearly_better(0.79, 0.51), s.fits_clearly_better(0.79, 0.77)
+        (True, False)
+        """
+        return iou - other_iou > self.min_gap
+
     def basin_lengths(self, distance_m: float) -> tuple[float, float]:
         """(start, return) distances of the basin check for a camera `distance_m` from the
         robot's centre: `basin_m` and `basin_return_m`, scaled down where the camera is

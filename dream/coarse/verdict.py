@@ -93,7 +93,7 @@ def search_findings(best_iou: float, rival_iou: float | None, rival_distance_m: 
                     "moving through more of the view, or give a closer camera guess"))
     if basin_starts and basin_returned < settings.min_basin_share * basin_starts:
         worse = [] if basin_ious is None else \
-            [iou for iou in basin_ious if best_iou - iou > settings.min_gap]
+            [iou for iou in basin_ious if settings.fits_clearly_better(best_iou, iou)]
         how = ("the images constrain it weakly" if len(worse) < basin_starts - basin_returned
                else f"ending where the masks fit clearly worse (IoU {min(worse):.2f}-"
                     f"{max(worse):.2f} against {best_iou:.2f}): its basin is narrow")
@@ -195,6 +195,23 @@ def lost_finding(edges: dict) -> Finding:
                    f"{edges['agreement_after']:.0%}): something the model lacks, thin or dark "
                    "links or a busy background lead it astray, so the pose and its 1-sigma "
                    "rest on the masks alone; check the overlays")
+
+
+def cue_ran_off(doc: dict, settings: SearchSettings) -> bool:
+    """Whether the other cue ran off (RESULT.json's `start.challenge` and `edges`): the masks
+    refute its optimum (`cue_refuted`) or the edge alignment lost the image edges on its way
+    (`edges_lost`). Its distance then stays out of the 1-sigma and the cues finding."""
+    return cue_refuted(doc["start"].get("challenge"), settings) \
+        or edges_lost(doc.get("edges"), settings)
+
+
+def ran_off_finding(doc: dict, settings: SearchSettings) -> Finding | None:
+    """The cues finding where the other cue ran off (`cue_ran_off`), None where it did not."""
+    if not cue_ran_off(doc, settings):
+        return None
+    challenge = doc["start"].get("challenge")
+    return refuted_finding(challenge) if cue_refuted(challenge, settings) \
+        else lost_finding(doc["edges"])
 
 
 def away_finding(share: float, settings: SearchSettings) -> Finding | None:
