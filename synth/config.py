@@ -353,15 +353,21 @@ class Sensor:
     exposure, the 8-bit channels times one gain whose log has this standard deviation (in linear
     light the same gain). `noise_std`: read noise, Gaussian, this standard deviation in 8-bit
     levels, anew for every pixel and frame. `blur_px`: the lens's and demosaicing's blur, a
-    Gaussian of this standard deviation in pixels, before the gain and noise. Clipped 0-255."""
+    Gaussian of this standard deviation in pixels, before the gain and noise. `exposure_s`
+    (sequence mode `trajectory` only): the shutter's exposure, the arm smeared along its path
+    over it, drawn as the mean of `exposure_samples` renders (`synth.exposure`). Clipped 0-255."""
 
     gain_sigma: float = 0.0
     noise_std: float = 0.0
     blur_px: float = 0.0
+    exposure_s: float = 0.0
+    exposure_samples: int = 7
 
     def __post_init__(self) -> None:
-        for name in ("gain_sigma", "noise_std", "blur_px"):
+        for name in ("gain_sigma", "noise_std", "blur_px", "exposure_s"):
             non_negative(f"sensor.{name}", getattr(self, name))
+        whole_number("sensor.exposure_samples", self.exposure_samples,
+                     "set how many renders draw one exposure (e.g. 7)")
 
 
 @dataclass(frozen=True)
@@ -389,6 +395,17 @@ class SynthConfig:
     sequence: SequenceConfig = field(default_factory=SequenceConfig)
     sensor: Sensor = field(default_factory=Sensor)
     output: Output = field(default_factory=Output)
+
+    def __post_init__(self) -> None:
+        exposure, sequence = self.sensor.exposure_s, self.sequence
+        if exposure and sequence.mode != "trajectory":
+            raise InputError(f"sensor.exposure_s needs sequence.mode trajectory (the arm's "
+                             f"joints over time), not '{sequence.mode}'",
+                             fix="set sequence.mode=trajectory, or sensor.exposure_s=0")
+        if exposure > 1.0 / sequence.fps:
+            raise InputError(f"sensor.exposure_s {exposure} s is longer than a frame at "
+                             f"{sequence.fps} frames/s", fix="give the exposure in seconds, at "
+                             "most 1 / sequence.fps (e.g. 0.01)")
 
     def to_dict(self) -> dict[str, Any]:
         return plain(dataclasses.asdict(self))

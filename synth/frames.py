@@ -17,6 +17,7 @@ from dream.robot import Robot, load_robot
 from dream.transforms import R_from_quaternion_xyzw, invert_T, quaternion_xyzw_from_R
 from synth.cable import cable_in_base
 from synth.config import SynthConfig
+from synth.exposure import exposure_times, mean_exposure
 from synth.extension import (
     held_reading_time,
     normalised,
@@ -41,7 +42,7 @@ from synth.randomize import (
 )
 from synth.rays import keypoint_ray_hits
 from synth.realism import sensor_effects
-from synth.render import BACKGROUND_GEOM, RenderSettings, SceneRenderer
+from synth.render import BACKGROUND_GEOM, RenderOutput, RenderSettings, SceneRenderer
 from synth.rendered import RenderedFrame
 from synth.scene import RobotScene, build_scene
 from synth.scene_settings import MAX_LIGHTS, SceneSettings
@@ -307,27 +308,55 @@ class FrameMaker:
         p = dataclasses.replace(p, scene=dataclasses.replace(p.scene, T_cam_base=T_true))
         return p, p.joints + self.joint_offsets, readings
 
+    def _joints_at(self, t: float) -> np.ndarray:
+        """The true joints (J,) of the trajectory at time `t`, s."""
+        return trajectory_joints_at(self.seed, t, self.robot, self.config,
+                                    self.joint_log) + self.joint_offsets
+
+    def _render_rgb(self, p: FrameDraw, q_true: np.ndarray,
+                    depth: bool = False) -> tuple[RenderOutput, np.ndarray]:
+        """Render at joints `q_true` (the held, carried and attached shapes with them): the
+        output and its (H, W, 3) colours with the background filled in."""
+        self._apply_distractors(p, q_true)
+        extra = {name: self.config.joints.extra for name in self.scene.extra_joint_names}
+        self.renderer.set_state(q_true, p.scene.T_cam_base, extra)
+        out = self.renderer.render(rgb=True, segmentation=True, depth=depth)
+        rgb = out.rgb.copy()
+        background = out.geom_ids == BACKGROUND_GEOM
+        if background.any():
+            camera = p.scene.camera
+            bg = self.plate if self.plate is not None else random_texture(
+                np.random.default_rng(p.scene.background_seed), camera.height, camera.width,
+                self.config.background.kinds, self.photos)
+            rgb[background] = bg[background]
+        return out, rgb
+
+    def _exposed(self, p: FrameDraw, q_true: np.ndarray, rgb: np.ndarray) -> np.ndarray:
+        """The frame's colours over the shutter's exposure (`synth.exposure`): `rgb`, rendered
+        at the middle, where the recipe sets no exposure."""
+        sensor = self.config.sensor
+        if not sensor.exposure_s:
+            return rgb
+        times = exposure_times(float(p.timestamp), sensor.exposure_s, sensor.exposure_samples)
+        images = [rgb if t == p.timestamp else self._render_rgb(p, self._joints_at(t))[1]
+                  for t in times]
+        # leave the scene at the middle of the exposure, where the labels' rays are cast
+        self._apply_distractors(p, q_true)
+        extra = {name: self.config.joints.extra for name in self.scene.extra_joint_names}
+        self.renderer.set_state(q_true, p.scene.T_cam_base, extra)
+        return mean_exposure(images)
+
     def make(self, index: int) -> RenderedFrame:
         p, q_true, readings = self._true_state(self.params(index))
         self._apply_lights(p)
         self._apply_robot(p)
         self._apply_textures(p)
-        self._apply_distractors(p, q_true)
         self._apply_floor(p)
         camera = p.scene.camera                       # the written (nominal) intrinsics
         render_camera = true_camera(camera, self.extension)
         self.renderer.set_camera(render_camera)
-        extra = {name: self.config.joints.extra for name in self.scene.extra_joint_names}
-        self.renderer.set_state(q_true, p.scene.T_cam_base, extra)
-        out = self.renderer.render(rgb=True, segmentation=True, depth=self.config.output.depth)
-        rgb = out.rgb.copy()
-        background = out.geom_ids == BACKGROUND_GEOM
-        if background.any():
-            bg = self.plate if self.plate is not None else random_texture(
-                np.random.default_rng(p.scene.background_seed), camera.height, camera.width,
-                self.config.background.kinds, self.photos)
-            rgb[background] = bg[background]
-        rgb = sensor_effects(rgb, self.seed, index, self.config)
+        out, rgb = self._render_rgb(p, q_true, depth=self.config.output.depth)
+        rgb = sensor_effects(self._exposed(p, q_true, rgb), self.seed, index, self.config)
         P_cam = true_keypoints_cam(self.true_robot, q_true, p.scene.T_cam_base, self.extension)
         hits = keypoint_ray_hits(self.scene, self.renderer.data, P_cam, p.scene.T_cam_base,
                                  self.ray_groups, self.distractor_set)

@@ -239,7 +239,8 @@ RETIRED_CONFIG_KEYS = (("appearance", "reflectance"),)
 ADDED_CONFIG_KEYS = tuple((section, key) for section, keys in (
     ("camera", ("closeup_prob", "closeup_radius_m", "T_cam_base")),
     ("appearance", ("white_plastic_prob", "metal_prob", "hide_hand_prob")),
-    ("background", ("plate",)), ("sensor", ("blur_px", "gain_sigma", "noise_std")),
+    ("background", ("plate",)), ("sensor", ("blur_px", "gain_sigma", "noise_std", "exposure_s",
+                 "exposure_samples")),
     ("distractors", ("held_parts", "held_checker_prob", "robot_prob", "robot_name",
                      "robot_distance_m", "robot_moves", "loose_prob", "loose_keypoints",
                      "loose_distance_m", "loose_height_m", "cable_prob", "cable_radius_m",

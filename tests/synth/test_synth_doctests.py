@@ -8,7 +8,7 @@ import importlib
 import pytest
 
 DOCTEST_MODULES = ("synth.cable", "synth.hand", "synth.person", "synth.config_fields",
-                   "synth.contact_sheet", "synth.realism")
+                   "synth.contact_sheet", "synth.realism", "synth.exposure")
 
 
 @pytest.mark.parametrize("module", DOCTEST_MODULES)
