@@ -313,13 +313,17 @@ class FrameMaker:
         return trajectory_joints_at(self.seed, t, self.robot, self.config,
                                     self.joint_log) + self.joint_offsets
 
-    def _render_rgb(self, p: FrameDraw, q_true: np.ndarray,
-                    depth: bool = False) -> tuple[RenderOutput, np.ndarray]:
-        """Render at joints `q_true` (the held, carried and attached shapes with them): the
-        output and its (H, W, 3) colours with the background filled in."""
+    def _pose_scene(self, p: FrameDraw, q_true: np.ndarray) -> None:
+        """The arm at joints `q_true`, the held, carried and attached shapes with it."""
         self._apply_distractors(p, q_true)
         extra = {name: self.config.joints.extra for name in self.scene.extra_joint_names}
         self.renderer.set_state(q_true, p.scene.T_cam_base, extra)
+
+    def _render_rgb(self, p: FrameDraw, q_true: np.ndarray,
+                    depth: bool = False) -> tuple[RenderOutput, np.ndarray]:
+        """Render at joints `q_true` (`_pose_scene`): the output and its (H, W, 3) colours
+        with the background filled in."""
+        self._pose_scene(p, q_true)
         out = self.renderer.render(rgb=True, segmentation=True, depth=depth)
         rgb = out.rgb.copy()
         background = out.geom_ids == BACKGROUND_GEOM
@@ -340,10 +344,7 @@ class FrameMaker:
         times = exposure_times(float(p.timestamp), sensor.exposure_s, sensor.exposure_samples)
         images = [rgb if t == p.timestamp else self._render_rgb(p, self._joints_at(t))[1]
                   for t in times]
-        # leave the scene at the middle of the exposure, where the labels' rays are cast
-        self._apply_distractors(p, q_true)
-        extra = {name: self.config.joints.extra for name in self.scene.extra_joint_names}
-        self.renderer.set_state(q_true, p.scene.T_cam_base, extra)
+        self._pose_scene(p, q_true)   # back at the middle, where the labels' rays are cast
         return mean_exposure(images)
 
     def make(self, index: int) -> RenderedFrame:
