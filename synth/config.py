@@ -28,6 +28,7 @@ from synth.config_fields import (
 from synth.scene_settings import MAX_LIGHTS
 
 DISTORTION_COEFFS = ("k1", "k2", "p1", "p2", "k3")  # plumb_bob order
+CLOSEUP_AIMS = ("middle", "start")   # `CameraShell.closeup_aim`
 CABLE_MIN_RADIUS_M = 1e-4   # a thinner cable is not drawn by any camera
 
 
@@ -45,6 +46,10 @@ class CameraShell:
     # aimed at it, so that links leave the frame (as when the flange fills a real view).
     closeup_prob: float = 0.0
     closeup_radius_m: Range = (0.3, 0.8)
+    # Where a sequence's close-up aims (the `random` mode aims at each frame's own joints):
+    # `middle`, the keypoints at the middle of the joint ranges; `start`, those at the
+    # sequence's first frame (where a `trajectory` starts, so that its arm is in view).
+    closeup_aim: str = "middle"
     # One camera pose for every frame instead of the shell (4x4 rows, the base frame into the
     # camera frame), e.g. a calibrated camera whose own scene the renders show.
     T_cam_base: tuple[tuple[float, ...], ...] | None = None
@@ -54,6 +59,10 @@ class CameraShell:
         object.__setattr__(self, "closeup_radius_m",
                            value_range("camera.closeup_radius_m", self.closeup_radius_m, 1e-3))
         probability("camera.closeup_prob", self.closeup_prob)
+        if self.closeup_aim not in CLOSEUP_AIMS:
+            raise InputError(f"camera.closeup_aim '{self.closeup_aim}' must be one of "
+                             f"{', '.join(CLOSEUP_AIMS)}",
+                             fix="set camera.closeup_aim: start to aim at the first frame's arm")
         object.__setattr__(self, "azimuth_rad", value_range("camera.azimuth_rad", self.azimuth_rad))
         object.__setattr__(self, "elevation_rad",
                            value_range("camera.elevation_rad", self.elevation_rad, -1.5, 1.5))

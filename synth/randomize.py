@@ -349,6 +349,17 @@ def trajectory_joints_at(seed: int, t: float, robot: Robot, config: SynthConfig,
     return a + (b - a) * (1 - np.cos(np.pi * s)) / 2
 
 
+def closeup_aim_joints(seed: int, robot: Robot, config: SynthConfig,
+                       joint_log: np.ndarray | None) -> np.ndarray:
+    """(J,) joints whose keypoints a sequence's close-up aims at (`camera.closeup_aim`): the
+    middle of the joint ranges, or the joints of the sequence's first frame."""
+    if config.camera.closeup_aim == "middle":
+        return (robot.joint_lower + robot.joint_upper) / 2
+    if config.sequence.mode == "trajectory":
+        return trajectory_joints(seed, 0, robot, config, joint_log)
+    return sample_joints(frame_rng(seed, 0), robot, config, joint_log)
+
+
 def sample_frame(seed: int, index: int, robot: Robot, config: SynthConfig,
                  default_rgba: np.ndarray, num_lights_max: int, num_distractors_max: int,
                  num_textures: int, joint_log: np.ndarray | None = None,
@@ -371,8 +382,7 @@ def sample_frame(seed: int, index: int, robot: Robot, config: SynthConfig,
         scene = sample_scene(sequence_rng(seed), config, *limits)
         joints = sample_joints(rng, robot, config, joint_log) if mode == "fixed_camera" else \
             trajectory_joints(seed, index, robot, config, joint_log)
-    # a sequence's close-up aims at where the keypoints are in the middle of the joint ranges
-    aim = joints if mode == "random" else (robot.joint_lower + robot.joint_upper) / 2
+    aim = joints if mode == "random" else closeup_aim_joints(seed, robot, config, joint_log)
     scene = with_realism(dataclasses.replace(scene, held=held, cable=cable), seed, index,
                          config, robot, aim, default_rgba, other_robot)
     person = sample_scene_person(np.random.default_rng(

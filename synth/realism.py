@@ -45,6 +45,10 @@ METAL_SATURATION = (0.0, 0.08)
 METAL_SPECULAR = (0.6, 1.0)
 METAL_SHININESS = (0.1, 0.5)           # broad highlights, as on a brushed surface
 OTHER_ROBOT_AZIMUTH_SPREAD_RAD = 1.0   # around the direction from the camera through the base
+FLOOR_Z_M = 0.0                        # the floor's plane (`synth.scene_spec`), base frame
+FLOOR_TOLERANCE_M = 0.01               # a link origin this little below it lies in a link
+                                       # resting on it
+CLOSEUP_MIN_HEIGHT_M = 0.05            # a close-up camera at least this high above the floor
 LOOSE_AZIMUTH_SPREAD_RAD = 1.0         # loose parts: around the direction from the base to the
                                        # camera
 
@@ -57,13 +61,27 @@ def stream(seed: int, key: int, index: int, mode: str) -> np.random.Generator:
 def closeup_pose(rng: np.random.Generator, config: SynthConfig,
                  P_base_keypoints: np.ndarray) -> np.ndarray | None:
     """With `camera.closeup_prob`, T_cam_base aimed at one of the keypoints (K, 3) from
-    `camera.closeup_radius_m`, on the shell's elevation range; else None."""
+    `camera.closeup_radius_m`, on the shell's elevation range; else None. A keypoint below
+    the floor (z = 0) is not aimed at (another is drawn among those above it), and the camera
+    stays `CLOSEUP_MIN_HEIGHT_M` above the floor (its elevation drawn again, above that
+    height's bound, where the first draw lies below): a real camera stands on the floor or a
+    table, not under them. None where no keypoint is above the floor."""
     s = config.camera
     if rng.random() >= s.closeup_prob:
         return None
-    target = P_base_keypoints[int(rng.integers(len(P_base_keypoints)))]
+    P = np.asarray(P_base_keypoints, float)
+    target = P[int(rng.integers(len(P)))]
+    if target[2] < FLOOR_Z_M - FLOOR_TOLERANCE_M:
+        above = P[P[:, 2] >= FLOOR_Z_M - FLOOR_TOLERANCE_M]
+        if not len(above):
+            return None
+        target = above[int(rng.integers(len(above)))]
     radius = rng.uniform(*s.closeup_radius_m)
     azimuth, elevation = rng.uniform(-np.pi, np.pi), rng.uniform(*s.elevation_rad)
+    if target[2] + radius * np.sin(elevation) < FLOOR_Z_M + CLOSEUP_MIN_HEIGHT_M:
+        lowest = np.arcsin(np.clip((FLOOR_Z_M + CLOSEUP_MIN_HEIGHT_M - target[2]) / radius,
+                                   -1.0, 1.0))
+        elevation = rng.uniform(min(lowest, s.elevation_rad[1]), s.elevation_rad[1])
     position = target + radius * np.array([np.cos(elevation) * np.cos(azimuth),
                                            np.cos(elevation) * np.sin(azimuth),
                                            np.sin(elevation)])

@@ -6,17 +6,20 @@ import numpy as np
 import pytest
 
 from dream.camera import project
+from dream.errors import InputError
 from dream.robot import load_robot
 from dream.transforms import invert_T, transform_points
 from synth.config import config_from_dict
 from synth.randomize import HELD_PART_OVERLAP, sample_frame
 from synth.realism import (
+    CLOSEUP_MIN_HEIGHT_M,
     LOOSE_AZIMUTH_SPREAD_RAD,
     METAL_SPECULAR,
     OTHER_ROBOT_AZIMUTH_SPREAD_RAD,
     WHITE_PLASTIC_SATURATION,
     WHITE_PLASTIC_SPECULAR,
     WHITE_PLASTIC_VALUE,
+    closeup_pose,
 )
 from synth.textures import calibration_board
 
@@ -31,8 +34,8 @@ ALL_ON = {"camera": {"closeup_prob": 0.5}, "intrinsics": {"hfov_rad": [0.9, 1.75
                           "robot_prob": 0.5, "loose_prob": 0.5}}
 
 
-def frame(seed, index, values, other=None):
-    return sample_frame(seed, index, PANDA, config_from_dict(values), RGBA, 4, 6, 4,
+def frame(seed, index, values, other=None, robot=PANDA):
+    return sample_frame(seed, index, robot, config_from_dict(values), RGBA, 4, 6, 4,
                         other_robot=other)
 
 
@@ -65,6 +68,50 @@ def test_closeup_cameras_aim_at_a_keypoint_from_close():
     shares = [frame(9, i, {"camera": {"closeup_prob": 0.3}}).scene.T_cam_base for i in range(200)]
     close = sum(np.linalg.norm(invert_T(T)[:3, 3] - [0, 0, 0.4]) < 0.95 for T in shares)
     assert 35 <= close <= 85
+
+
+@pytest.mark.parametrize("mode", ["fixed_camera", "trajectory"])
+def test_a_sequence_closeup_aimed_at_the_start_sees_the_first_frames_arm(mode):
+    """`camera.closeup_aim: start` aims a sequence's one close-up at a keypoint of its first
+    frame, wherever the joint ranges' middle is; the default aims at that middle."""
+    values = {"camera": {"closeup_prob": 1.0, "closeup_aim": "start"},
+              "sequence": {"mode": mode}}
+    for seed in range(5):
+        first, later = frame(seed, 0, values, None, UR5), frame(seed, 7, values, None, UR5)
+        assert np.array_equal(first.scene.T_cam_base, later.scene.T_cam_base)
+        camera = first.scene.camera
+        P_cam = transform_points(first.scene.T_cam_base, UR5.forward_kinematics(first.joints))
+        centred = np.all(np.abs(project(camera, P_cam) - [camera.cx, camera.cy]) < 1e-6, axis=1)
+        assert centred.any() and np.all(P_cam[centred, 2] > 0)
+        middle = frame(seed, 0, {**values, "camera": {"closeup_prob": 1.0}}, None, UR5)
+        P_mid = transform_points(middle.scene.T_cam_base, UR5.forward_kinematics(
+            (UR5.joint_lower + UR5.joint_upper) / 2))
+        assert np.any(np.all(np.abs(project(camera, P_mid) - [camera.cx, camera.cy]) < 1e-6,
+                             axis=1))
+
+
+def test_closeups_stay_above_the_floor_and_aim_at_keypoints_above_it():
+    """A close-up never aims at a keypoint under the floor, nor stands under it: over many
+    draws with one keypoint at the floor, one above and one through it, every camera is at
+    least `CLOSEUP_MIN_HEIGHT_M` high and aimed at one of the first two, the low elevations
+    drawn again; with every keypoint under the floor, no close-up."""
+    config = config_from_dict({"camera": {"closeup_prob": 1.0, "closeup_radius_m": [0.3, 0.8],
+                                          "elevation_rad": [-0.5, 1.1]}})
+    P = np.array([[0.4, 0.0, 0.0], [0.0, 0.5, 0.3], [0.2, 0.2, -0.2]])
+    heights, aimed = [], set()
+    for i in range(300):
+        T = closeup_pose(np.random.default_rng(i), config, P)
+        heights.append(invert_T(T)[2, 3])
+        P_cam = transform_points(T, P)
+        aimed.add(int(np.argmin(np.linalg.norm(P_cam[:, :2] / P_cam[:, 2:], axis=1))))
+    assert min(heights) >= CLOSEUP_MIN_HEIGHT_M - 1e-9 and aimed == {0, 1}
+    assert sum(h < 0.1 for h in heights) > 0      # as low as allowed, not pushed far up
+    assert closeup_pose(np.random.default_rng(0), config, P[2:]) is None
+
+
+def test_an_unknown_closeup_aim_is_refused():
+    with pytest.raises(InputError, match="camera.closeup_aim 'end' must be one of middle, start"):
+        config_from_dict({"camera": {"closeup_aim": "end"}})
 
 
 def test_white_plastic_keeps_dark_parts_and_metal_greys_every_part():
