@@ -145,11 +145,17 @@ class Joints:
     log: str | None = None
     log_noise_rad: float = 0.05
     extra: float = 0.0                  # value of joints that move no keypoint (e.g. fingers)
+    # a draw that puts a keypoint under the floor (the base frame's z = 0) is drawn again, as a
+    # real arm never reaches through its table (a trajectory's waypoints; the path between
+    # two may still dip)
+    above_floor: bool = False
 
     def __post_init__(self) -> None:
         if not 0.0 < self.range_fraction <= 1.0:
             raise InputError("joints.range_fraction must be in (0, 1]")
         non_negative("joints.log_noise_rad", self.log_noise_rad)
+        if not isinstance(self.above_floor, bool):
+            raise InputError(f"joints.above_floor must be true or false, got {self.above_floor!r}")
 
 
 @dataclass(frozen=True)

@@ -238,6 +238,7 @@ RETIRED_CONFIG_KEYS = (("appearance", "reflectance"),)
 # recipe keys added later, filled in with their defaults (rendering as before): old folders resume
 ADDED_CONFIG_KEYS = tuple((section, key) for section, keys in (
     ("camera", ("closeup_prob", "closeup_radius_m", "closeup_aim", "T_cam_base")),
+    ("joints", ("above_floor",)),
     ("appearance", ("white_plastic_prob", "metal_prob", "hide_hand_prob")),
     ("background", ("plate",)), ("sensor", ("blur_px", "gain_sigma", "noise_std", "exposure_s",
                  "exposure_samples")),

@@ -24,7 +24,7 @@ from synth.config import SynthConfig
 from synth.hand import HandDraw, sample_hand
 from synth.other_robot import OtherRobotDraw
 from synth.person import PersonDraw, sample_person
-from synth.realism import with_realism
+from synth.realism import FLOOR_TOLERANCE_M, FLOOR_Z_M, with_realism
 
 SEQUENCE_STREAM = 0x5E0     # spawn key of the per-sequence random stream
 FRAME_STREAM = 0xF4A        # spawn key of the per-frame random streams
@@ -33,6 +33,7 @@ HELD_STREAM = 0x4E1D        # spawn key of the held object's stream (held_prob =
 CABLE_STREAM = 0xCAB1E      # spawn key of the cable's stream (cable_prob = 0: nothing drawn)
 PERSON_STREAM = 0x9E450     # spawn key of the person's stream (person_prob = 0: nothing drawn)
 HAND_STREAM = 0x4A4D        # spawn key of the dexterous hand's stream (hand_prob = 0: none)
+FLOOR_REDRAWS = 20          # `joints.above_floor`: at most this many joint draws again
 SHADOW_STREAM = 0x5AD0      # spawn key, with the scene's texture seed, of whether it has shadows
 HELD_BOARD_THICKNESS_M = (0.004, 0.02)  # full thickness of a held plate
 HELD_MIN_SIDE_FRACTION = 0.3           # a held object's other sides: 0.3-1 x its largest
@@ -320,7 +321,26 @@ def load_joint_log(path: str | Path, robot: Robot) -> np.ndarray:
 
 def sample_joints(rng: np.random.Generator, robot: Robot, config: SynthConfig,
                   joint_log: np.ndarray | None) -> np.ndarray:
-    """(J,) joints uniform within limits, or around a random configuration of the log."""
+    """(J,) joints uniform within limits, or around a random configuration of the log. With
+    `joints.above_floor`, a draw with a keypoint more than `FLOOR_TOLERANCE_M` under the floor
+    is drawn again, up to `FLOOR_REDRAWS` times (the draw whose lowest keypoint is highest
+    kept); a first draw above it is the draw without the option."""
+    q = _joint_draw(rng, robot, config, joint_log)
+    if not config.joints.above_floor:
+        return q
+    lowest = robot.forward_kinematics(q)[:, 2].min()
+    for _ in range(FLOOR_REDRAWS):
+        if lowest >= FLOOR_Z_M - FLOOR_TOLERANCE_M:
+            break
+        again = _joint_draw(rng, robot, config, joint_log)
+        low = robot.forward_kinematics(again)[:, 2].min()
+        if low > lowest:
+            q, lowest = again, low
+    return q
+
+
+def _joint_draw(rng: np.random.Generator, robot: Robot, config: SynthConfig,
+                joint_log: np.ndarray | None) -> np.ndarray:
     lo, hi = robot.joint_lower, robot.joint_upper
     if joint_log is not None:
         q = joint_log[int(rng.integers(len(joint_log)))]

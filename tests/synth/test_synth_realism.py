@@ -13,6 +13,7 @@ from synth.config import config_from_dict
 from synth.randomize import HELD_PART_OVERLAP, sample_frame
 from synth.realism import (
     CLOSEUP_MIN_HEIGHT_M,
+    FLOOR_TOLERANCE_M,
     LOOSE_AZIMUTH_SPREAD_RAD,
     METAL_SPECULAR,
     OTHER_ROBOT_AZIMUTH_SPREAD_RAD,
@@ -107,6 +108,31 @@ def test_closeups_stay_above_the_floor_and_aim_at_keypoints_above_it():
     assert min(heights) >= CLOSEUP_MIN_HEIGHT_M - 1e-9 and aimed == {0, 1}
     assert sum(h < 0.1 for h in heights) > 0      # as low as allowed, not pushed far up
     assert closeup_pose(np.random.default_rng(0), config, P[2:]) is None
+
+
+def test_joints_above_the_floor_are_drawn_again_only_where_a_keypoint_is_under_it():
+    """`joints.above_floor`: a UR5, whose full joint ranges reach under its base in about half
+    the draws, keeps every keypoint above the floor (within `FLOOR_TOLERANCE_M`) in every
+    frame of a fixed-camera sequence and at every waypoint of a trajectory; frames whose first
+    draw was above it keep that draw."""
+    plain = {"sequence": {"mode": "fixed_camera"}}
+    above = {"sequence": {"mode": "fixed_camera"}, "joints": {"above_floor": True}}
+    lows, kept = [], 0
+    for i in range(60):
+        q0, q1 = frame(3, i, plain, None, UR5).joints, frame(3, i, above, None, UR5).joints
+        low0, low1 = UR5.forward_kinematics(q0)[:, 2].min(), UR5.forward_kinematics(q1)[:, 2].min()
+        lows.append(low0)
+        assert low1 >= -FLOOR_TOLERANCE_M
+        if low0 >= -FLOOR_TOLERANCE_M:
+            assert np.array_equal(q0, q1)
+            kept += 1
+    assert min(lows) < -0.1 and 10 < kept < 50
+    waypoint_s = 1.5
+    trajectory = {"sequence": {"mode": "trajectory", "fps": 2.0, "waypoint_period_s": waypoint_s},
+                  "joints": {"above_floor": True}}
+    for k in range(8):   # frame 3k is waypoint k
+        q = frame(4, 3 * k, trajectory, None, UR5).joints
+        assert UR5.forward_kinematics(q)[:, 2].min() >= -FLOOR_TOLERANCE_M
 
 
 def test_an_unknown_closeup_aim_is_refused():
