@@ -24,7 +24,7 @@ from synth.config import SynthConfig
 from synth.hand import HandDraw, sample_hand
 from synth.other_robot import OtherRobotDraw
 from synth.person import PersonDraw, sample_person
-from synth.realism import FLOOR_TOLERANCE_M, FLOOR_Z_M, with_realism
+from synth.realism import on_floor_or_above, with_realism
 
 SEQUENCE_STREAM = 0x5E0     # spawn key of the per-sequence random stream
 FRAME_STREAM = 0xF4A        # spawn key of the per-frame random streams
@@ -322,15 +322,16 @@ def load_joint_log(path: str | Path, robot: Robot) -> np.ndarray:
 def sample_joints(rng: np.random.Generator, robot: Robot, config: SynthConfig,
                   joint_log: np.ndarray | None) -> np.ndarray:
     """(J,) joints uniform within limits, or around a random configuration of the log. With
-    `joints.above_floor`, a draw with a keypoint more than `FLOOR_TOLERANCE_M` under the floor
-    is drawn again, up to `FLOOR_REDRAWS` times (the draw whose lowest keypoint is highest
-    kept); a first draw above it is the draw without the option."""
+    `joints.above_floor`, a draw with a keypoint under the floor (not
+    `synth.realism.on_floor_or_above`) is drawn again, up to `FLOOR_REDRAWS` times (the draw
+    whose lowest keypoint is highest kept); a first draw above it is the draw without the
+    option."""
     q = _joint_draw(rng, robot, config, joint_log)
     if not config.joints.above_floor:
         return q
     lowest = robot.forward_kinematics(q)[:, 2].min()
     for _ in range(FLOOR_REDRAWS):
-        if lowest >= FLOOR_Z_M - FLOOR_TOLERANCE_M:
+        if on_floor_or_above(lowest):
             break
         again = _joint_draw(rng, robot, config, joint_log)
         low = robot.forward_kinematics(again)[:, 2].min()

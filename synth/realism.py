@@ -58,6 +58,16 @@ def stream(seed: int, key: int, index: int, mode: str) -> np.random.Generator:
     return np.random.default_rng([seed, key] + ([index] if mode == "random" else []))
 
 
+def on_floor_or_above(z_base_m: np.ndarray) -> np.ndarray:
+    """Whether points at heights `z_base_m` (base frame, m) lie on the floor or above it
+    (at most `FLOOR_TOLERANCE_M` under it).
+
+    >>> on_floor_or_above(np.array([0.2, -0.005, -0.05])).tolist()
+    [True, True, False]
+    """
+    return np.asarray(z_base_m, float) >= FLOOR_Z_M - FLOOR_TOLERANCE_M
+
+
 def closeup_pose(rng: np.random.Generator, config: SynthConfig,
                  P_base_keypoints: np.ndarray) -> np.ndarray | None:
     """With `camera.closeup_prob`, T_cam_base aimed at one of the keypoints (K, 3) from
@@ -71,8 +81,8 @@ def closeup_pose(rng: np.random.Generator, config: SynthConfig,
         return None
     P = np.asarray(P_base_keypoints, float)
     target = P[int(rng.integers(len(P)))]
-    if target[2] < FLOOR_Z_M - FLOOR_TOLERANCE_M:
-        above = P[P[:, 2] >= FLOOR_Z_M - FLOOR_TOLERANCE_M]
+    if not on_floor_or_above(target[2]):
+        above = P[on_floor_or_above(P[:, 2])]
         if not len(above):
             return None
         target = above[int(rng.integers(len(above)))]
