@@ -103,8 +103,7 @@ def calibrate_one(task: CalibrateTask) -> dict[str, Any]:
         command = calibrate_command(task, result_path, tmp / OVERLAYS_NAME)
         with (tmp / LOG_NAME).open("w", encoding="utf-8") as log_file:
             print("$ " + " ".join(command), file=log_file, flush=True)
-            run = subprocess.run(command, stdout=log_file, stderr=subprocess.PIPE, text=True,
-                                 check=False)
+            run = _run_to_the_end(command, log_file)
             log_file.write(run.stderr)
         seconds = time.perf_counter() - start
         if run.returncode == 0:
@@ -115,6 +114,21 @@ def calibrate_one(task: CalibrateTask) -> dict[str, Any]:
                              task.line_options)
         write_json_atomic(tmp / RECORD_NAME, task.record(row))
     return row
+
+
+def _run_to_the_end(command: list[str], log_file: Any) -> subprocess.CompletedProcess:
+    """`command` run with its output into `log_file` and its errors kept; interrupted
+    (Ctrl-C, SIGTERM: KeyboardInterrupt), it is killed and waited for before the interrupt goes
+    on, so a stopped batch leaves no `dream calibrate` still running (`subprocess.run` kills it
+    but does not wait on an interrupt)."""
+    with subprocess.Popen(command, stdout=log_file, stderr=subprocess.PIPE, text=True) as proc:
+        try:
+            _, stderr = proc.communicate()
+        except BaseException:
+            proc.kill()
+            proc.wait()
+            raise
+    return subprocess.CompletedProcess(command, proc.returncode, None, stderr)
 
 
 def _error_line(run: subprocess.CompletedProcess) -> str:
