@@ -40,6 +40,10 @@ def _check_xml(path: Path) -> None:
         raise InputError(f"cannot read the URDF ({e.strerror})", path) from e
     if root.tag != "robot":
         raise InputError(f"the root element is <{root.tag}>, not <robot>", path, fix=_URDF_FIX)
+    if not root.get("name"):
+        raise InputError("the <robot> element has no name (an empty or unfinished file?)", path,
+                         fix="give <robot name=...> its links and joints, e.g. the URDF xacro "
+                             "makes: xacro robot.urdf.xacro > robot.urdf")
 
 
 def _limits(joint, path: Path) -> tuple[float, float]:
@@ -57,17 +61,31 @@ def _limits(joint, path: Path) -> tuple[float, float]:
     return float(limit.lower), float(limit.upper)
 
 
-def _joint_model(joint, path: Path) -> JointModel:
+def _joint_model(joint, path: Path, joint_names: frozenset[str]) -> JointModel:
     lower, upper = _limits(joint, path)
     mimic = None
-    if joint.mimic is not None:
-        mimic = Mimic(master=joint.mimic.joint or "",
+    if joint.mimic is not None and (joint.mimic.joint or "") in joint_names:
+        mimic = Mimic(master=joint.mimic.joint,
                       multiplier=1.0 if joint.mimic.multiplier is None else joint.mimic.multiplier,
                       offset=0.0 if joint.mimic.offset is None else joint.mimic.offset)
     origin = np.eye(4) if joint.origin is None else joint.origin
     axis = np.zeros(3) if joint.type == FIXED else joint.axis
     return JointModel(name=joint.name, type=joint.type, parent=joint.parent, child=joint.child,
                       origin=origin, axis=axis, lower=lower, upper=upper, mimic=mimic)
+
+
+def _warn_broken_mimics(joints, joint_names: frozenset[str], path: Path) -> None:
+    """Log once which joints mimic a joint the URDF lacks; they are read as independent joints.
+
+    Shipped URDFs have such tags (a hand's finger mimicking a name its side's prefix was not added
+    to); they must not stop a calibration that never moves the finger.
+    """
+    broken = [f"{j.name} -> {j.mimic.joint}" for j in joints
+              if j.mimic is not None and (j.mimic.joint or "") not in joint_names]
+    if broken:
+        _log.warning("%s: <mimic> names a joint the URDF does not have (%s); read as "
+                     "independent joints, held at 0 unless the recording logs them. Correct "
+                     "the <mimic joint=...> names to make them follow.", path, ", ".join(broken))
 
 
 def parse_urdf(path: str | Path) -> KinematicTree:
@@ -101,7 +119,9 @@ def _parse_cached(path: Path, mtime_ns: int) -> KinematicTree:
     if not robot.links:
         raise InputError("the URDF has no <link>", path, fix=_URDF_FIX)
     try:
-        joints = tuple(_joint_model(j, path) for j in robot.joints)
+        names = frozenset(j.name for j in robot.joints)
+        _warn_broken_mimics(robot.joints, names, path)
+        joints = tuple(_joint_model(j, path, names) for j in robot.joints)
     except InputError as e:
         if e.path is not None:
             raise

@@ -166,6 +166,16 @@ def test_the_robots_command_names_the_joints_a_recording_logs() -> None:
     assert "head_1_joint" in held and "wheel_left_joint" in held and "arm_1_joint" not in held
 
 
+def test_the_robots_command_describes_a_urdf_without_joints(tmp_path: Path) -> None:
+    rigid = tmp_path / "rigid.urdf"
+    rigid.write_text("<robot name='box'><link name='body'/></robot>")
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main(["robots", "--urdf", str(rigid)]) == 0
+    assert "joints (0):" in out.getvalue() and "nothing for a recording" in out.getvalue()
+    assert "suggested keypoints" not in out.getvalue()
+
+
 def test_links_on_the_base_axis_are_useless_alone(tmp_path: Path) -> None:
     tree = parse_urdf(lbr_urdf(tmp_path))
     advice = analyse_keypoints(tree, given=("lbr_link_0", "lbr_link_1", "lbr_link_2"))

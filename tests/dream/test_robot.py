@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import logging
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -373,6 +374,27 @@ def test_bad_urdf_files_raise(tmp_path: Path) -> None:
                    "<parent link='a'/><child link='b'/></joint></robot>")
     with pytest.raises(InputError, match="odd.urdf.*type 'ball'"):
         load_robot(str(odd), keypoints=["a"])
+    nameless = tmp_path / "nameless.urdf"  # as a xacro-generated file left empty ships
+    nameless.write_text("<?xml version='1.0'?><robot xmlns:xacro='http://wiki.ros.org/xacro'>"
+                        "</robot>")
+    with pytest.raises(InputError, match="nameless.urdf.*<robot> element has no name"):
+        load_robot(str(nameless), keypoints=["a"])
+
+
+def test_mimic_of_a_missing_joint_is_read_as_independent(toy_urdf: Path, caplog) -> None:
+    broken = toy_urdf.with_name("broken_mimic.urdf")
+    broken.write_text(TWO_LINK_URDF.replace('mimic joint="spin"', 'mimic joint="spinner_joint"'))
+    with caplog.at_level(logging.WARNING, logger="dream.robot.urdf"):
+        robot = load_robot(broken, keypoints=["upper", "tip", "twin"])
+    assert "twin_spin -> spinner_joint" in caplog.text and "broken_mimic.urdf" in caplog.text
+    assert "twin_spin" in robot.joint_names  # drives a keypoint now, as any joint would
+    q = robot.sample_joints(np.random.default_rng(0), (3,))
+    moved = q.copy()
+    moved[:, robot.joint_names.index("spin")] += 0.5  # no longer turns the twin
+    np.testing.assert_allclose(robot.link_poses(moved, "twin"), robot.link_poses(q, "twin"),
+                               atol=ROTATION_TOL)
+    moved[:, robot.joint_names.index("twin_spin")] += 0.5  # the twin's own joint does
+    assert not np.allclose(robot.link_poses(moved, "twin"), robot.link_poses(q, "twin"))
 
 
 def test_package_uri_resolves_to_example_robot_data() -> None:
