@@ -314,6 +314,7 @@ def calibrate(data: Path, out: Path, guess: Path | None,
             "polish_iou": doc.get("polish", {}).get("iou_after"),
             "iou": (doc.get("start") or {}).get("iou", (doc.get("silhouette_check") or {}).get(
                 "iou_silhouettes", float("nan"))),
+            "found_iou": (doc.get("start") or {}).get("found_iou"),
             "mark_mm": mark_error_mm(doc, T_true) if mark is not None else None}
 
 
@@ -398,8 +399,10 @@ def run_renders(args: argparse.Namespace) -> None:
                     by_mode[mode].append(row)
                     print(f"{name} {seed} {mode}: {row['mm']:.1f} mm {row['deg']:.2f} deg, "
                           f"{row['verdict']}, 1-sigma {row['sigma_mm']:.1f} mm (truth at "
-                          f"chi2 {row['chi2']:.1f}), IoU {row['iou']:.3f}, "
-                          f"{row['seconds']:.0f} s{row['focal']}"
+                          f"chi2 {row['chi2']:.1f}), IoU {row['iou']:.3f}"
+                          + ("" if row["found_iou"] is None
+                             else f" ({row['found_iou']:.3f} with the held pixels kept)")
+                          + f", {row['seconds']:.0f} s{row['focal']}"
                           + ("" if mark is None else ", the mark too few for a pose"
                              if row["mark_mm"] is None else f", the mark's own pose "
                              f"{row['mark_mm']:.0f} mm off"), flush=True)

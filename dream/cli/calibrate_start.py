@@ -205,10 +205,11 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
 
     s, settings = doc["start"], SearchSettings()
     away = s.get("away")
+    found = s.get("found_iou") if away is None else away.get("found_iou_without")
     findings = search_findings(s["iou"], s["rival_iou"], s["rival_distance_m"],
                                s["basin_returned"], s["basin_starts"], settings,
                                s["basin_m"], None if away is None else away["iou_without"],
-                               s.get("basin_ends_iou"))
+                               s.get("basin_ends_iou"), found)
     if away is not None:
         findings.append(away_finding(away["share"], settings))
     if cue_move is not None:

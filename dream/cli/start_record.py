@@ -25,7 +25,7 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
             "focal": None if inputs.focal is None else inputs.focal.to_dict(),
             "timing": None if inputs.timing is None else inputs.timing.to_dict(),
             "T_cam_base": outcome.best.T_cam_base.tolist(), "iou": outcome.best.iou,
-            "away": away_doc(outcome, inputs, seq),
+            "found_iou": outcome.best.found_iou, "away": away_doc(outcome, inputs, seq),
             "rival_iou": None if rival is None else rival.iou,
             "rival_distance_m": None if distance is None else distance[0],
             "rival_angle_rad": None if distance is None else distance[1],
@@ -49,13 +49,16 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
 
 def away_doc(outcome, inputs, seq) -> dict:
     """RESULT.json's `start.away`: the masks' moving pixels away from the robot at the
-    search's winner (`dream.coarse.away`) and its IoU without them (the found test's)."""
+    search's winner (`dream.coarse.away`) and its IoUs without them (`iou` and `found_iou`
+    without them: the found test's)."""
     from dream.coarse.away import away_at_pose
     from dream.coarse.settings import SearchSettings
 
     away = away_at_pose(inputs.meshes, inputs.joints, inputs.masks, seq.camera,
                         outcome.best.T_cam_base, SearchSettings().away_margin_px)
-    return {**away.to_dict(), "iou_without": away.iou_without(outcome.best.iou)}
+    found = outcome.best.found_iou
+    return {**away.to_dict(), "iou_without": away.iou_without(outcome.best.iou),
+            "found_iou_without": None if found is None else away.iou_without(found)}
 
 
 def carried_doc(carving, left_out: bool) -> dict | None:

@@ -243,7 +243,7 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
     winner, inputs = with_timing(sequence, joints_in_robot_order(sequence, robot), inputs,
                                  winner, settings, timing or TimingSettings(), again,
                                  inputs.source == MOTION_MASKS, progress)
-    if winner.best.iou < settings.min_found_iou:
+    if not settings.robot_found(winner.best.iou, winner.best.found_iou):
         return first[0].checked(), first[1]
     if settings.find_carried:
         winner, inputs = with_carried(sequence.camera, inputs, winner, settings, progress)

@@ -72,13 +72,16 @@ log = logging.getLogger(__name__)
 class Candidate:
     """A refined hypothesis: its pose, where it came from, its coarse score and the mean IoU
     of its rendered silhouettes after the local refinement; once finished, the positions among
-    the search's frames of those its finish left out (`Scales.refine_reporting`)."""
+    the search's frames of those its finish left out (`Scales.refine_reporting`) and its
+    `Scales.found_iou` at the finish's scale on every frame (`found_iou`; None: not
+    finished)."""
 
     T_cam_base: np.ndarray
     source: str
     coarse_iou: float
     iou: float
     left_out_frames: tuple[int, ...] = ()
+    found_iou: float | None = None
 
 
 @dataclass(frozen=True)
@@ -284,9 +287,10 @@ def find_winner(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
 
     def finished_candidate(c: Candidate) -> Candidate:
         if finish is None:
-            return replace(c, iou=scales.iou(c.T_cam_base))
+            return replace(c, iou=scales.iou(c.T_cam_base),
+                           found_iou=scales.found_iou(c.T_cam_base))
         T, left_out = finish.refine_reporting(c.T_cam_base)
-        return replace(c, T_cam_base=T, iou=scales.iou(T),
+        return replace(c, T_cam_base=T, iou=scales.iou(T), found_iou=finish.found_iou(T),
                        left_out_frames=tuple(int(i) for i in left_out))
 
     candidates, best, rival = _winner_and_rival(candidates, finished_candidate, settings)
@@ -308,7 +312,7 @@ def find_winner(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
             "returned")
         frames_xi, links_xi, links = jackknife(
             P_all, meshes, masks_all, camera, settings, usable, held, best.T_cam_base,
-            region) if best.iou >= settings.min_found_iou \
+            region) if settings.robot_found(best.iou, best.found_iou) \
             else (np.zeros((0, 6)), np.zeros((0, 6)), ())
         if len(frames_xi) or len(links_xi):
             say(f"jackknife: the finish without each of {len(frames_xi)} frame groups and "

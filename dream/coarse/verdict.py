@@ -5,7 +5,9 @@ refinement started near it come back, and do the image cues agree.
 Each finding is (level, one sentence with what to do), as in `dream.quality`:
 
 - **found**: the mean IoU of the chosen pose's silhouettes with the masks is below
-  `min_found_iou`: the robot was not found (`unreliable`).
+  `min_found_iou`, and with the pixels they cover in most frames kept in them
+  (`dream.coarse.scales.Scales.found_iou`) below `min_found_iou_held_kept`: the robot was not
+  found (`unreliable`).
 - **gap**: a candidate farther than `rival_m` / `rival_rad` explains the masks within
   `min_gap` of the chosen one's IoU: the images cannot tell the two apart (`unreliable`).
 - **basin**: fewer than `min_basin_share` of the restarts around the chosen pose return to it
@@ -62,13 +64,15 @@ def search_findings(best_iou: float, rival_iou: float | None, rival_distance_m: 
                     basin_returned: int, basin_starts: int,
                     settings: SearchSettings, basin_m: float | None = None,
                     found_iou: float | None = None,
-                    basin_ious: list[float] | None = None) -> list[Finding]:
+                    basin_ious: list[float] | None = None,
+                    found_held_kept_iou: float | None = None) -> list[Finding]:
     """The found, gap and basin findings (module doc); `basin_m`: how far the restarts
     started (default `settings.basin_m`; `SearchOutcome.basin_m`); `found_iou`: the IoU the
     found test reads (default `best_iou`; without the pixels away from the robot: the away
     finding); `basin_ious`: the IoU where each restart ended (`SearchOutcome.basin_ious`),
     which tells a narrow basin (the restarts that did not come back ended where the masks fit
-    clearly worse) from a flat one.
+    clearly worse) from a flat one; `found_held_kept_iou`: the winner's `found_iou` the found
+    test also reads (`SearchSettings.robot_found`; None: not known).
 
     >>> s = SearchSettings()
     >>> search_findings(0.79, None, None, 0, 4, s, basin_ious=[0.39, 0.33, 0.33, 0.35])[0][1]
@@ -77,13 +81,16 @@ def search_findings(best_iou: float, rival_iou: float | None, rival_distance_m: 
     """
     out: list[Finding] = []
     found_iou = best_iou if found_iou is None else found_iou
-    if found_iou < settings.min_found_iou:
+    if not settings.robot_found(found_iou, found_held_kept_iou):
+        finish = "" if found_held_kept_iou is None else (
+            f", {found_held_kept_iou:.2f} with the pixels they cover in most frames kept "
+            f"(below {settings.min_found_iou_held_kept})")
         out.append((UNRELIABLE, f"the robot's silhouettes at the pose found overlap the masks by "
-                    f"IoU {found_iou:.2f} only (below {settings.min_found_iou}): the robot was "
-                    "not found in the images, much else moves with it (a person guiding "
-                    "it?), or the joint readings are not those of the images (a joint's sign, "
-                    "the columns' order, images and readings paired a frame apart); check the "
-                    "overlays, give a camera guess closer to the truth "
+                    f"IoU {found_iou:.2f} only (below {settings.min_found_iou}){finish}: the "
+                    "robot was not found in the images, much else moves with it (a person "
+                    "guiding it?), or the joint readings are not those of the images (a joint's "
+                    "sign, the columns' order, images and readings paired a frame apart); check "
+                    "the overlays, give a camera guess closer to the truth "
                     "(--camera-guess, --look-at) or a keypoint model, or record the arm "
                     "driven with nothing else moving in view"))
     if rival_iou is not None and best_iou - rival_iou < settings.min_gap:

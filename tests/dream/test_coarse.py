@@ -16,6 +16,7 @@ from dream.camera import project
 from dream.cli import main
 from dream.coarse.checks import link_groups, tree_order
 from dream.coarse.evidence import (
+    held_pixels,
     hypothesis_hits,
     pixel_hits,
     points_of,
@@ -43,6 +44,7 @@ from dream.polish.objective import scaled_camera, shrink_mask
 from dream.polish.refine import refine_pose
 from dream.polish.settings import PolishSettings
 from dream.quality import POSITION_SIGMA_CHECK_M
+from dream.refined_uncertainty import MIN_GROUPS
 from dream.sample import random_joints
 from dream.silhouette import render_silhouette, vertices_in_base
 from dream.transforms import R_from_rotvec, invert_T, look_at
@@ -452,6 +454,41 @@ def test_the_found_test_reads_the_iou_without_the_pixels_away_from_the_robot():
     settings = SearchSettings()
     assert search_findings(0.35, None, None, 4, 4, settings)[0][0] == "unreliable"
     assert search_findings(0.35, None, None, 4, 4, settings, found_iou=0.6) == []
+
+
+def test_the_found_test_reads_the_iou_with_the_held_pixels_kept_too():
+    """Where the motion masks hold what the silhouettes cover in most frames, the IoU that
+    leaves those pixels out of the silhouettes is low at the right pose: the robot was found
+    where the IoU with them kept reaches `min_found_iou_held_kept`."""
+    settings = SearchSettings()
+    low, high = settings.min_found_iou - 0.1, settings.min_found_iou_held_kept + 0.2
+    assert search_findings(low, None, None, 4, 4, settings, found_held_kept_iou=high) == []
+    below = settings.min_found_iou_held_kept - 0.05
+    missed = search_findings(low, None, None, 4, 4, settings, found_held_kept_iou=below)
+    assert missed[0][0] == "unreliable" and f"{below:.2f} with the pixels" in missed[0][1]
+    assert search_findings(low, None, None, 4, 4, settings)[0][0] == "unreliable"
+
+
+def test_masks_that_hold_the_held_pixels_find_the_robot_and_get_its_jackknife(panda, meshes):
+    """Masks of the whole silhouette, read as motion masks (`held`): the pixels covered in most
+    frames are in them, so the found IoU (those pixels kept) exceeds the IoU that leaves them
+    out of the silhouettes. The search's own gates read the same found test: a winner found
+    only by it is checked by its jackknife, one found by neither is not. Masks that miss the
+    held pixels, as a median background makes them, count them against the pose."""
+    T_true, joints, masks = rendered_masks(panda, meshes)
+    start = {"guess": around(T_true, 0.01, 0.01, SMALL.guess_samples, np.random.default_rng(0))}
+    unreachable = replace(SMALL, min_found_iou=1.0, jackknife_groups=MIN_GROUPS,
+                          jackknife_link_groups=MIN_GROUPS)
+    found = search(meshes, joints, masks, CAMERA, start, unreachable, held=True)
+    assert found.best.found_iou > 0.9 and found.best.found_iou > found.best.iou
+    assert len(found.frames_xi) == unreachable.jackknife_groups
+    unfound = search(meshes, joints, masks, CAMERA, start,
+                     replace(unreachable, min_found_iou_held_kept=1.0), held=True)
+    assert len(unfound.frames_xi) == 0 and len(unfound.links_xi) == 0
+    held = held_pixels(masks)
+    missing = search(meshes, joints, masks & ~held[None], CAMERA, start, unreachable,
+                     held=True)
+    assert missing.best.found_iou < missing.best.iou
 
 
 def test_refine_auto_keeps_the_keypoint_result_where_edges_cannot_run(panda, meshes, tmp_path,

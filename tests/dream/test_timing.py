@@ -165,7 +165,8 @@ def searched_below_the_found_test(monkeypatch, seq, robot, first, inputs, found_
     monkeypatch.setattr(calibration, "search_masks", lambda *args: inputs)
     monkeypatch.setattr(calibration, "find_winner", first_then_searched)
     guess = CameraGuess(first.best.T_cam_base, 0.05, 0.05, "the first winner")
-    settings = replace(SMALL, min_found_iou=found_iou, find_carried=False)
+    settings = replace(SMALL, min_found_iou=found_iou, min_found_iou_held_kept=1.0,
+                       find_carried=False)
     return calibration.coarse_start(seq, robot, guess, settings,
                                      focal=FocalSettings(fit=False), timing=GRID)
 
