@@ -53,10 +53,6 @@ def _limits(joint) -> str:
 
 def _print_joints(tree, out: TextIO) -> None:
     print(f"joints ({len(tree.joints)}):", file=out)
-    if not tree.joints:
-        print(f"{INDENT}none: one rigid body, nothing for a recording of joints to move",
-              file=out)
-        return
     name_w = max(len(j.name) for j in tree.joints)
     type_w = max(len(j.type) for j in tree.joints)
     link_w = max(len(f"{j.parent} -> {j.child}") for j in tree.joints)
@@ -135,9 +131,11 @@ def describe_robot(name_or_urdf: str, keypoints: tuple[str, ...] | None = None,
     if advice.skipped:
         _wrapped("  not analysed (above the base, or below a floating or planar joint): ",
                  advice.skipped, out)
-    _print_joints(tree, out)
     if not tree.joints:
+        print(f"joints (0):\n{INDENT}none: one rigid body, nothing for a recording of joints to "
+              "move", file=out)
         return
+    _print_joints(tree, out)
     if advice.coincident:
         _wrapped("warning: link origins that coincide for every joint value (they cannot be "
                  "told apart: one keypoint of each group at most): ",

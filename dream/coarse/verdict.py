@@ -82,11 +82,11 @@ def search_findings(best_iou: float, rival_iou: float | None, rival_distance_m: 
     out: list[Finding] = []
     found_iou = best_iou if found_iou is None else found_iou
     if not settings.robot_found(found_iou, found_held_kept_iou):
-        finish = "" if found_held_kept_iou is None else (
+        kept = "" if found_held_kept_iou is None else (
             f", {found_held_kept_iou:.2f} with the pixels they cover in most frames kept "
             f"(below {settings.min_found_iou_held_kept})")
         out.append((UNRELIABLE, f"the robot's silhouettes at the pose found overlap the masks by "
-                    f"IoU {found_iou:.2f} only (below {settings.min_found_iou}){finish}: the "
+                    f"IoU {found_iou:.2f} only (below {settings.min_found_iou}){kept}: the "
                     "robot was not found in the images, much else moves with it (a person "
                     "guiding it?), or the joint readings are not those of the images (a joint's "
                     "sign, the columns' order, images and readings paired a frame apart); check "

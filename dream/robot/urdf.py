@@ -61,10 +61,10 @@ def _limits(joint, path: Path) -> tuple[float, float]:
     return float(limit.lower), float(limit.upper)
 
 
-def _joint_model(joint, path: Path, joint_names: frozenset[str]) -> JointModel:
+def _joint_model(joint, path: Path, broken_mimic: bool = False) -> JointModel:
     lower, upper = _limits(joint, path)
     mimic = None
-    if joint.mimic is not None and (joint.mimic.joint or "") in joint_names:
+    if joint.mimic is not None and not broken_mimic:
         mimic = Mimic(master=joint.mimic.joint,
                       multiplier=1.0 if joint.mimic.multiplier is None else joint.mimic.multiplier,
                       offset=0.0 if joint.mimic.offset is None else joint.mimic.offset)
@@ -74,18 +74,21 @@ def _joint_model(joint, path: Path, joint_names: frozenset[str]) -> JointModel:
                       origin=origin, axis=axis, lower=lower, upper=upper, mimic=mimic)
 
 
-def _warn_broken_mimics(joints, joint_names: frozenset[str], path: Path) -> None:
-    """Log once which joints mimic a joint the URDF lacks; they are read as independent joints.
+def _broken_mimics(joints, path: Path) -> frozenset[str]:
+    """The joints whose <mimic> names a joint the URDF lacks, logged once; they are read as
+    independent joints.
 
     Shipped URDFs have such tags (a hand's finger mimicking a name its side's prefix was not added
     to); they must not stop a calibration that never moves the finger.
     """
-    broken = [f"{j.name} -> {j.mimic.joint}" for j in joints
-              if j.mimic is not None and (j.mimic.joint or "") not in joint_names]
+    names = {j.name for j in joints}
+    broken = [j for j in joints if j.mimic is not None and (j.mimic.joint or "") not in names]
     if broken:
         _log.warning("%s: <mimic> names a joint the URDF does not have (%s); read as "
                      "independent joints, held at 0 unless the recording logs them. Correct "
-                     "the <mimic joint=...> names to make them follow.", path, ", ".join(broken))
+                     "the <mimic joint=...> names to make them follow.", path,
+                     ", ".join(f"{j.name} -> {j.mimic.joint}" for j in broken))
+    return frozenset(j.name for j in broken)
 
 
 def parse_urdf(path: str | Path) -> KinematicTree:
@@ -119,9 +122,8 @@ def _parse_cached(path: Path, mtime_ns: int) -> KinematicTree:
     if not robot.links:
         raise InputError("the URDF has no <link>", path, fix=_URDF_FIX)
     try:
-        names = frozenset(j.name for j in robot.joints)
-        _warn_broken_mimics(robot.joints, names, path)
-        joints = tuple(_joint_model(j, path, names) for j in robot.joints)
+        broken = _broken_mimics(robot.joints, path)
+        joints = tuple(_joint_model(j, path, j.name in broken) for j in robot.joints)
     except InputError as e:
         if e.path is not None:
             raise
