@@ -163,3 +163,27 @@ def test_calibrate_fits_a_focal_length_given_short_and_fixed_focal_keeps_it(
     doc = json.loads(fixed.read_text())
     assert doc["start"]["focal"] is None
     assert pose_errors(np.asarray(doc["T_cam_base"]), T_true)[0] > 0.02
+
+
+def test_no_focal_fit_where_the_robot_was_found_only_with_the_held_pixels_kept(panda, meshes):
+    """Masks of the whole silhouette read as motion masks hold the pixels the silhouettes cover
+    in most frames, which the fit leaves out of them. Where the robot is found only with those
+    pixels kept, the focal length is not fitted; found without them, it is."""
+    from dream.coarse.calibration import MOTION_MASKS, SearchMasks, with_focal
+    from dream.coarse.search import find_winner
+    from tests.dream.test_coarse import SMALL
+
+    T_true, joints, masks = rendered_masks(panda, meshes, frames=FRAMES)
+    given = with_focal_scale(CAMERA, GIVEN_SHORT)
+    frames = np.arange(len(joints))
+    inputs = SearchMasks(meshes, frames, joints, masks, MOTION_MASKS, (), frames)
+    held_kept_only = replace(SMALL, min_found_iou=1.0)
+    winner = find_winner(meshes, joints, masks, given, {"guess": T_true[None]},
+                         held_kept_only, held=True)
+    assert held_kept_only.robot_found(winner.best.iou, winner.best.found_iou)
+    assert not held_kept_only.robot_found(winner.best.iou)
+    lines: list[str] = []
+    _, unfitted = with_focal(given, inputs, winner, held_kept_only, progress=lines.append)
+    assert unfitted.focal is None and "not fitted" in lines[-1]
+    _, fitted = with_focal(given, inputs, winner, replace(held_kept_only, min_found_iou=0.0))
+    assert fitted.focal is not None
