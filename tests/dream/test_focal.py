@@ -14,8 +14,10 @@ import pytest
 
 from dream.camera import CameraIntrinsics
 from dream.cli import main
+from dream.coarse.calibration import MOTION_MASKS, SearchMasks, with_focal
 from dream.coarse.focal import FocalSettings, _decision, _sigma, fit_focal, with_focal_scale
 from dream.coarse.scales import finish_scale
+from dream.coarse.search import find_winner
 from dream.coarse.settings import SearchSettings
 from dream.coarse.verdict import focal_finding
 from dream.errors import InputError
@@ -24,7 +26,7 @@ from dream.metrics import pose_errors
 from dream.polish.objective import Contour, Objective, signed_distance
 from dream.polish.settings import PolishSettings
 from dream.silhouette import vertices_in_base
-from tests.dream.test_coarse import GUESS_M, GUESS_RAD, off_by, rendered_masks
+from tests.dream.test_coarse import GUESS_M, GUESS_RAD, SMALL, off_by, rendered_masks
 from tests.dream.test_edges import CAMERA, TARGET, image_dataset
 
 GIVEN_SHORT = 1 / 1.05      # fx, fy given 5 % short of those the masks were rendered with
@@ -169,10 +171,6 @@ def test_no_focal_fit_where_the_robot_was_found_only_with_the_held_pixels_kept(p
     """Masks of the whole silhouette read as motion masks hold the pixels the silhouettes cover
     in most frames, which the fit leaves out of them. Where the robot is found only with those
     pixels kept, the focal length is not fitted; found without them, it is."""
-    from dream.coarse.calibration import MOTION_MASKS, SearchMasks, with_focal
-    from dream.coarse.search import find_winner
-    from tests.dream.test_coarse import SMALL
-
     T_true, joints, masks = rendered_masks(panda, meshes, frames=FRAMES)
     given = with_focal_scale(CAMERA, GIVEN_SHORT)
     frames = np.arange(len(joints))
