@@ -20,7 +20,7 @@ of the frames it never saw.
 
     python benchmarks/adapt_render.py [--robot xarm7] [--train-minutes 45] [--minutes 10]
         [--model M.onnx] [--train-frames 4000] [--frames 90] [--teach 60] [--seed 1000]
-        [--scene-renders 1000] [--adapt-seed 0] [--work DIR]
+        [--scene-renders 1000] [--adapt-seed 0] [--zoom] [--set KEY=VALUE ...] [--work DIR]
 """
 
 from __future__ import annotations
@@ -132,6 +132,9 @@ def main() -> None:
                    help="dream adapt's renders in the recording's own scene (0: none)")
     p.add_argument("--adapt-seed", type=int, default=0,
                    help="dream adapt's --seed (its renders and training order)")
+    p.add_argument("--zoom", action="store_true", help="dream adapt --zoom")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="dream adapt's recipe overrides (repeatable)")
     p.add_argument("--work", type=Path, help="keep the files here (default: a temporary folder)")
     args = p.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
@@ -147,7 +150,8 @@ def main() -> None:
         run(["adapt", "--data", data, "--result", result, "--model", model, "--out", adapted,
              "--holdout-frames", f"{args.teach}:{args.frames}", "--minutes", args.minutes,
              "--config", RECIPE, "--scene-renders", args.scene_renders, "--seed",
-             args.adapt_seed, "--overwrite"])
+             args.adapt_seed, "--overwrite", *(["--zoom"] if args.zoom else []),
+             *[a for kv in args.set for a in ("--set", kv)]])
         timed("dream adapt", start)
         for label, m in (("trained", model), ("adapted", adapted)):
             line = score(held, args.robot, m, work, label)

@@ -12,7 +12,9 @@ file through the `dream.model_loaders` entry points, so `dream` imports nothing 
 Per batch of frames: `dream.io.load_image` -> `Preprocess.apply` -> `model.run` ->
 `dream.peaks.find_peaks_batch`, then per frame `to_input(stride)` -> `to_image(transform)`. A
 keypoint's confidence is its belief-map peak value; a keypoint not found (or found outside the
-image) has NaN pixels and confidence 0.
+image) has NaN pixels and confidence 0. A model trained on zoomed inputs (its `zoom` settings,
+`dream.zoom`) looks a second time at the box around each frame's keypoints; what that pass
+finds replaces the first pass's.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from dream.calibration import Observations
+from dream.camera import CameraIntrinsics
 from dream.errors import InputError, RobotError
 from dream.io import load_image
 from dream.peaks import PeakSettings, find_peaks_batch
@@ -35,6 +38,7 @@ from dream.pipeline import check_option_agrees, joints_in_robot_order, robot_for
 from dream.preprocess import InputTransform, Preprocess
 from dream.robot import Robot
 from dream.sequence import Sequence
+from dream.zoom import ZoomSettings, warp_to_input, zoom_transform
 
 log = logging.getLogger(__name__)
 
@@ -54,6 +58,9 @@ class KeypointModel(Protocol):
         keypoint_names: K URDF link names, in belief-map order.
         preprocess: how an RGB image becomes the network input.
         stride: input pixels per belief-map pixel (1, 2 or 4).
+
+    A model may also have `zoom` (`dream.zoom.ZoomSettings` or None): it was trained on inputs
+    cut around the keypoints, and detection runs it a second time on such a cut.
     """
 
     keypoint_names: tuple[str, ...]
@@ -203,29 +210,63 @@ def detect_keypoints(sequence: Sequence, robot: Robot, model: KeypointModel,
     params = settings.peak_params or getattr(model, "peak_params", None) or PeakSettings()
     robot = robot_for_model(robot, model)
     check_images(sequence)
-    stride = int(model.stride)
     P_base = robot.forward_kinematics(joints_in_robot_order(sequence, robot))
     F, K = len(sequence), robot.num_keypoints
     uv = np.full((F, K, 2), np.nan)
     confidence = np.full((F, K), NOT_FOUND_CONFIDENCE)
     camera = sequence.camera
+    zoom = getattr(model, "zoom", None)
     for start in range(0, F, settings.batch_size):
         frames = sequence.frames[start:start + settings.batch_size]
-        batch, transforms = prepare_batch([load_image(f, camera) for f in frames],
-                                          model.preprocess)
-        belief = _belief_of(model.run(batch), len(frames), K, model)
-        for i, (in_map, transform) in enumerate(zip(find_peaks_batch(belief, params), transforms,
-                                                    strict=True)):
-            peaks = in_map.to_input(stride).to_image(transform)
-            ok = peaks.found & (peaks.confidence > 0) & camera.in_image(peaks.uv_image)
-            uv[start + i] = np.where(ok[:, None], peaks.uv_image, np.nan)
-            confidence[start + i] = np.where(ok, peaks.confidence, NOT_FOUND_CONFIDENCE)
+        images = [load_image(f, camera) for f in frames]
+        batch, transforms = prepare_batch(images, model.preprocess)
+        found = _found_in(model, batch, transforms, params, camera)
+        if zoom is not None:
+            found = _zoomed(model, images, found, zoom, params, camera)
+        for i, (uv_i, confidence_i) in enumerate(found):
+            uv[start + i], confidence[start + i] = uv_i, confidence_i
         if progress is not None:
             progress(start + len(frames), F)
     found = np.isfinite(uv[..., 0])
     log.info("detected %d of %d keypoints in %d frames", int(found.sum()), F * K, F)
     return Observations(P_base, uv, confidence, tuple(f.name for f in sequence.frames),
                         robot.keypoint_names)
+
+
+def _found_in(model: KeypointModel, batch: np.ndarray,
+              transforms: SequenceOf[InputTransform], params: PeakSettings,
+              camera: CameraIntrinsics) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per image of `batch`: (K, 2) image pixels (NaN: not found) and (K,) confidences."""
+    K, stride = len(model.keypoint_names), int(model.stride)
+    belief = _belief_of(model.run(batch), len(batch), K, model)
+    found = []
+    for in_map, transform in zip(find_peaks_batch(belief, params), transforms, strict=True):
+        peaks = in_map.to_input(stride).to_image(transform)
+        ok = peaks.found & (peaks.confidence > 0) & camera.in_image(peaks.uv_image)
+        found.append((np.where(ok[:, None], peaks.uv_image, np.nan),
+                      np.where(ok, peaks.confidence, NOT_FOUND_CONFIDENCE)))
+    return found
+
+
+def _zoomed(model: KeypointModel, images: SequenceOf[np.ndarray],
+            found: list[tuple[np.ndarray, np.ndarray]], zoom: ZoomSettings,
+            params: PeakSettings, camera: CameraIntrinsics) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The second pass: each image cut around its first-pass keypoints; a keypoint the cut does
+    not find keeps the first pass's pixel and confidence."""
+    pre = model.preprocess
+    cuts = [zoom_transform(pre, camera.width, camera.height, uv, zoom) for uv, _ in found]
+    todo = [i for i, t in enumerate(cuts) if t is not None]
+    if not todo:
+        return found
+    batch = np.stack([pre.normalize(warp_to_input(images[i], cuts[i], pre.pad_value))
+                      for i in todo]).astype(np.float32, copy=False)
+    second = _found_in(model, batch, [cuts[i] for i in todo], params, camera)
+    out = list(found)
+    for i, (uv, confidence) in zip(todo, second, strict=True):
+        hit = np.isfinite(uv[:, 0])
+        out[i] = (np.where(hit[:, None], uv, found[i][0]),
+                  np.where(hit, confidence, found[i][1]))
+    return out
 
 
 def predict_masks(sequence: Sequence, model: KeypointModel, indices: SequenceOf[int],

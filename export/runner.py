@@ -7,8 +7,8 @@ install runs it).
 
 The model file carries its own description as ONNX metadata (`ModelMetadata`, written by
 `dream export`): robot, keypoint names, input size, preprocessing, output stride, project
-version, config hash, belief sigma, the peak finder's defaults and the SHA-256 of the robot's
-URDF.
+version, config hash, belief sigma, the peak finder's defaults, the SHA-256 of the robot's
+URDF and, for a model trained on zoomed inputs, its zoom settings (`dream.zoom`).
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from dream.errors import InputError
 from dream.io.fields import one_line
 from dream.peaks import PeakSettings
 from dream.preprocess import RGB_CHANNELS, Preprocess
+from dream.zoom import ZoomSettings
 
 log = logging.getLogger(__name__)
 
@@ -54,6 +55,7 @@ KEY_CONFIG_HASH = "dream.config_sha256"
 KEY_BELIEF_SIGMA = "dream.belief_sigma"
 KEY_PEAK_PARAMS = "dream.peak_params"
 KEY_URDF_HASH = "dream.urdf_sha256"   # optional: models exported before it lack it
+KEY_ZOOM = "dream.zoom"               # optional: only a model trained on zoomed inputs has it
 REQUIRED_KEYS = (KEY_FORMAT, KEY_ROBOT, KEY_KEYPOINTS, KEY_INPUT_WIDTH, KEY_INPUT_HEIGHT,
                  KEY_PREPROCESS, KEY_STRIDE, KEY_VERSION, KEY_CONFIG_HASH, KEY_BELIEF_SIGMA)
 
@@ -81,6 +83,7 @@ class ModelMetadata:
         belief_sigma: Gaussian sigma of the training targets, map pixels.
         peak_params: the peak finder's constants of the training config, or None.
         urdf_sha256: sha256 of the robot's URDF file at export, or None (unknown).
+        zoom: the zoomed second pass the network was trained for (`dream.zoom`), or None.
     """
 
     robot: str
@@ -92,6 +95,7 @@ class ModelMetadata:
     belief_sigma: float
     peak_params: PeakSettings | None = None
     urdf_sha256: str | None = None
+    zoom: ZoomSettings | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.robot, str) or not self.robot:
@@ -118,6 +122,8 @@ class ModelMetadata:
         if self.urdf_sha256 is not None and (not isinstance(self.urdf_sha256, str)
                                              or not _SHA256.fullmatch(self.urdf_sha256)):
             raise InputError(f"URDF hash must be 64 hex digits, got {self.urdf_sha256!r}")
+        if self.zoom is not None and not isinstance(self.zoom, ZoomSettings):
+            raise InputError("zoom must be a dream.zoom.ZoomSettings or None")
 
     def to_props(self) -> dict[str, str]:
         """metadata_props: string keys -> string values (numbers as text, lists as JSON)."""
@@ -137,6 +143,8 @@ class ModelMetadata:
             props[KEY_PEAK_PARAMS] = json.dumps(asdict(self.peak_params), sort_keys=True)
         if self.urdf_sha256 is not None:
             props[KEY_URDF_HASH] = self.urdf_sha256
+        if self.zoom is not None:
+            props[KEY_ZOOM] = json.dumps(self.zoom.to_dict(), sort_keys=True)
         return props
 
     @classmethod
@@ -158,13 +166,15 @@ class ModelMetadata:
         preprocess = _field(props, KEY_PREPROCESS, _preprocess, path)
         peak_params = _field(props, KEY_PEAK_PARAMS, _peak_params, path) \
             if KEY_PEAK_PARAMS in props else None
+        zoom = _field(props, KEY_ZOOM, _zoom, path) if KEY_ZOOM in props else None
         stride = _field(props, KEY_STRIDE, int, path)
         sigma = _field(props, KEY_BELIEF_SIGMA, float, path)
         size = (_field(props, KEY_INPUT_WIDTH, int, path),
                 _field(props, KEY_INPUT_HEIGHT, int, path))
         try:
             meta = cls(props[KEY_ROBOT], tuple(names), preprocess, stride, props[KEY_VERSION],
-                       props[KEY_CONFIG_HASH], sigma, peak_params, props.get(KEY_URDF_HASH))
+                       props[KEY_CONFIG_HASH], sigma, peak_params, props.get(KEY_URDF_HASH),
+                       zoom)
         except InputError as exc:
             raise InputError(f"corrupt dream metadata: {exc.problem}", path, FIX) from None
         if size != (preprocess.input_width, preprocess.input_height):
@@ -193,6 +203,10 @@ def _peak_params(text: str) -> PeakSettings:
     if not isinstance(doc, dict):
         raise InputError(f"expected a JSON object, got {text[:40]!r}")
     return PeakSettings(**doc)
+
+
+def _zoom(text: str) -> ZoomSettings:
+    return ZoomSettings.from_dict(json.loads(text))
 
 
 def _field(props: Mapping[str, str], key: str, parse: Callable[[str], Any],
@@ -324,6 +338,11 @@ class OnnxKeypointModel:
     @property
     def peak_params(self) -> PeakSettings | None:
         return self.metadata.peak_params
+
+    @property
+    def zoom(self) -> ZoomSettings | None:
+        """The zoomed second pass the network was trained for, or None (one pass)."""
+        return self.metadata.zoom
 
     @property
     def urdf_sha256(self) -> str | None:

@@ -44,6 +44,7 @@ BUNDLED_RECIPE = Path(__file__).resolve().parents[1] / "configs" / "train" / "pa
 FINE_TUNE_LR = 5e-4         # a quarter of the recipe's: the network already works on renders
 SCORING_MINUTES = 1.5       # kept from --minutes for the export and the held-out scoring
 MIN_TRAINING_MINUTES = 0.5
+ZOOM_SHARE = 0.5            # --zoom: the share of training samples cut around their keypoints
 UNRELIABLE = "unreliable"
 
 
@@ -61,6 +62,7 @@ class AdaptRequest:
     renders: int = 1000
     scene_renders: int = 1000
     seed: int = 0
+    zoom: bool = False
     overrides: tuple[str, ...] = ()
     overwrite: bool = False
 
@@ -222,7 +224,7 @@ def training_config(request: AdaptRequest, folders: list[str], repeat: int, minu
         f"data.train=[{train}]", f"trainer.init_from={request.model}",
         f"trainer.time_budget_minutes={minutes}", f"optim.lr={FINE_TUNE_LR}",
         f"trainer.seed={request.seed}", "trainer.checkpoint_every_n_steps=0",
-        *request.overrides))
+        *([f"augment.zoom_p={ZOOM_SHARE}"] if request.zoom else []), *request.overrides))
 
 
 def training_minutes(total: float, spent_s: float) -> float:
@@ -267,6 +269,10 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
                          "give --model the ONNX model to adapt (dream export writes one)")
     recipe = training_config(request, [str(target.parent)], 1, request.minutes)  # now
     seq, T, model, doc, recorded = teacher(request, out)
+    if model.zoom is not None and not request.zoom:
+        say("the model looks a second time at the keypoints' region (its zoom); the adapted "
+            "model is trained to as well")
+        request = dataclasses.replace(request, zoom=True)
     peaks = peak_change(model.metadata.peak_params, recipe.eval.peaks)
     created = outermost_missing(target.parent)
     try:
@@ -368,10 +374,15 @@ def _adapt(request: AdaptRequest, target: Path, seq: Sequence, T: np.ndarray, mo
             "model": _absolute(request.model), "recipe": _absolute(request.config),
             "teaching_frames": len(teach), "holdout": [held.start, held.stop],
             "renders": request.renders, "scene_renders": request.scene_renders,
-            "seed": request.seed, "overrides": list(request.overrides), "peaks": peaks,
+            "seed": request.seed, "zoom": request.zoom, "overrides": list(request.overrides),
+            "peaks": peaks,
             "steps": run.config.trainer.steps_trained, "training_minutes": trained,
             "minutes": minutes, "before": before, "after": after,
             "lines": report_lines(before, after)}, model_bytes
+
+
+ZOOM_WORDS = (" Zoom: trained on inputs cut around the keypoints too; detection looks a "
+              "second time at each frame's keypoints (`dream.zoom`).")
 
 
 def _absolute(path: str) -> str:
@@ -393,7 +404,7 @@ def card_text(target: Path, report: dict, doc: dict) -> bytes:
         f"readings, mixed with {report['renders']} renders of the robot and "
         f"{report['scene_renders']} of it in the recording's scene (its camera, its "
         f"background). Recipe `{report['recipe']}`, overrides {overrides}, seed "
-        f"{report['seed']}. {peaks}",
+        f"{report['seed']}. {peaks}{ZOOM_WORDS if report.get('zoom') else ''}",
         "",
         f"Frames {report['holdout'][0]}-{report['holdout'][1] - 1} were held out; on them, "
         "against the same labels (before -> after):",

@@ -2,7 +2,7 @@
 run (`train.adapt`).
 
     dream adapt --data REC --result RESULT.json --model M.onnx --out ADAPTED.onnx \\
-        [--holdout-frames START:STOP] [--minutes 20] [--overwrite]
+        [--holdout-frames START:STOP] [--minutes 20] [--zoom] [--overwrite]
 """
 
 from __future__ import annotations
@@ -20,7 +20,8 @@ def cmd_adapt(args: argparse.Namespace) -> int:
                            **recipe, holdout_frames=args.holdout_frames,
                            minutes=args.minutes, renders=args.renders,
                            scene_renders=args.scene_renders, seed=args.seed,
-                           overrides=tuple(args.set or ()), overwrite=args.overwrite)
+                           zoom=args.zoom, overrides=tuple(args.set or ()),
+                           overwrite=args.overwrite)
     logging.getLogger("train").setLevel(logging.INFO)
     from train.adapt import run_adapt
 
@@ -61,6 +62,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "%(default)s; 0: none)")
     p.add_argument("--seed", type=int, default=0,
                    help="seed of the renders and the training (default: %(default)s)")
+    p.add_argument("--zoom", action="store_true",
+                   help="train on inputs cut around the keypoints too, and detect a second time "
+                        "on such a cut of each frame (for an arm that fills a small part of the "
+                        "image; twice the network time)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a recipe key, e.g. data.batch_size=8")
     p.add_argument("--overwrite", action="store_true",

@@ -14,6 +14,10 @@ border is filled with a constant (a reflecting border would mirror the robot wit
 keypoints), and motion blur is centred (`allow_shifted=False`), which would otherwise shift the
 image under the keypoints.
 
+Zoom (`zoom_p`): after the rest, a sample may be cut around its labelled keypoints in the image
+(`dream.zoom`, the cut detection makes around a first pass's keypoints), its margin and centre
+drawn around detection's; `Augment.zoom` draws it and `train.data` applies it.
+
 Random state: albumentations' `Compose(seed=...)` seeds every transform with the same seed,
 which makes their random draws identical; `Augment` hands one shared generator to all of them
 instead (`reseed`), and the data loader reseeds it in every worker.
@@ -33,6 +37,8 @@ import cv2
 import numpy as np
 
 from dream.errors import InputError
+from dream.preprocess import InputTransform, Preprocess
+from dream.zoom import ZoomSettings, zoom_transform
 from train.config import AugmentConfig
 
 FILL_VALUE = 0  # image and mask value where the affine transform uncovers the border
@@ -89,8 +95,22 @@ class Augment:
 
     def reseed(self, seed: int) -> None:
         """One generator for every transform (see the module docstring)."""
+        self.rng = np.random.default_rng(seed)
         if self.compose is not None:
-            self.compose.set_random_state(np.random.default_rng(seed), random.Random(seed))
+            self.compose.set_random_state(self.rng, random.Random(seed))
+
+    def zoom(self, uv: np.ndarray, width: int, height: int, preprocess: Preprocess
+             ) -> InputTransform | None:
+        """With probability `zoom_p`, the input map of a cut around the keypoints of `uv`
+        (K, 2) inside the width x height image, its margin and centre drawn; else None."""
+        c = self.config
+        if not c.enabled or c.zoom_p <= 0 or self.rng.random() >= c.zoom_p:
+            return None
+        inside = inside_image(np.nan_to_num(uv, nan=-1.0), width, height)
+        margin = c.zoom_margin + self.rng.uniform(-1.0, 1.0) * c.zoom_margin_jitter
+        shift = self.rng.uniform(-1.0, 1.0, 2) * c.zoom_shift
+        return zoom_transform(preprocess, width, height, uv[inside],
+                              ZoomSettings(c.zoom_margin, c.zoom_max), margin, shift)
 
     def __call__(self, image: np.ndarray, uv: np.ndarray, mask: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:

@@ -113,6 +113,14 @@ class AugmentConfig:
         blur_p, blur_limit: box blur, odd kernel sizes.
         motion_blur_p, motion_blur_limit: motion blur, odd kernel sizes (centred).
         jpeg_p, jpeg_quality: JPEG re-compression quality range.
+        zoom_p: the share of samples cut around their labelled keypoints instead of the whole
+            image (`dream.zoom`); above 0 the exported model carries `zoom_margin` and
+            `zoom_max`, and detection looks a second time at each frame's keypoints.
+        zoom_margin, zoom_max: the cut's widening (a fraction of the keypoints' extent, every
+            side) and its most magnification (times the whole image's), as detection uses them.
+        zoom_margin_jitter, zoom_shift: training draws the margin within +- zoom_margin_jitter
+            and moves the box's centre up to +- zoom_shift of its size (the first pass's
+            keypoints are not the labels).
     """
 
     enabled: bool = True
@@ -138,6 +146,11 @@ class AugmentConfig:
     motion_blur_limit: tuple[int, int] = (3, 7)
     jpeg_p: float = 0.3
     jpeg_quality: tuple[int, int] = (40, 95)
+    zoom_p: float = 0.0
+    zoom_margin: float = 0.25
+    zoom_max: float = 4.0
+    zoom_margin_jitter: float = 0.1
+    zoom_shift: float = 0.1
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -156,8 +169,12 @@ class AugmentConfig:
         _ordered_pair(self.jpeg_quality, "augment.jpeg_quality", low=1)
         _require(self.jpeg_quality[1] <= 100, "augment.jpeg_quality", "must be <= 100")
         for name in ("rotate_rad", "brightness", "contrast", "hue_shift", "saturation_shift",
-                     "value_shift"):
+                     "value_shift", "zoom_shift"):
             _require(getattr(self, name) >= 0, f"augment.{name}", "must be >= 0")
+        _require(0 <= self.zoom_margin_jitter <= self.zoom_margin, "augment.zoom_margin_jitter",
+                 "must be in [0, zoom_margin] (the drawn margin stays >= 0)")
+        _require(self.zoom_max > 1, "augment.zoom_max", "must be > 1 (times the whole image's "
+                 "magnification)")
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,8 @@
 """Training data: DREAM-layout folders -> augmented, preprocessed tensors with belief targets.
 
 One sample: image -> augmentation (keypoints and mask carried along) -> preprocessing (resize or
-letterbox to the network input) -> targets built from the keypoints after both. Keypoints are
+letterbox to the network input, or for a zoomed sample the cut around its keypoints,
+`train.augment`) -> targets built from the keypoints after both. Keypoints are
 taken from each frame's `uv_labels` (image pixels, NaN where absent), reordered to the config's
 keypoint names (a name a dataset lacks is absent in all its frames). Frames without an image or
 without labels are skipped. A keypoint outside the image that the letterbox brings into the
@@ -39,6 +40,7 @@ from dream.io.images import (
 from dream.preprocess import Preprocess
 from dream.robot.identity import same_robot_name
 from dream.sequence import Frame, Sequence
+from dream.zoom import warp_to_input
 from train.augment import Augment, inside_image
 from train.config import TrainConfig
 from train.targets import belief_maps, map_size, mask_map
@@ -175,17 +177,24 @@ class KeypointDataset(Dataset):
         image = load_image(frame, seq.camera)
         uv = self.labels(index)
         mask = load_mask(frame, seq.camera) if self.use_masks and frame.mask_path else None
+        pre = self.preprocess
+        cut = None
         if self.augment is not None:
             image, uv, mask = self.augment(image, uv, mask)
-        x, transform = self.preprocess.apply(image)
+            cut = self.augment.zoom(uv, image.shape[1], image.shape[0], pre)
+        if cut is None:
+            x, transform = pre.apply(image)
+        else:
+            x, transform = pre.normalize(warp_to_input(image, cut, pre.pad_value)), cut
         uv_input = transform.image_to_input(uv)
-        pre = self.preprocess
         on_padding = (~inside_image(uv, image.shape[1], image.shape[0])
                       & inside_image(uv_input, pre.input_width, pre.input_height))
         uv_input[on_padding] = np.nan  # outside the image, on the letterbox padding
         belief = belief_maps(uv_input, pre.input_width, pre.input_height, self.stride, self.sigma)
         if mask is not None:
-            mask_target = mask_map(pre.apply_mask(mask), self.stride)
+            in_input = pre.apply_mask(mask) if cut is None else \
+                warp_to_input(mask.astype(np.float32), cut, 0.0)
+            mask_target = mask_map(in_input, self.stride)
         else:
             mask_target = np.zeros((1,) + belief.shape[1:], np.float32)
         return {"image": torch.from_numpy(x), "belief": torch.from_numpy(belief),

@@ -23,7 +23,14 @@ from dream.models import BUNDLED_MODEL
 from dream.provenance import check_same_data
 from dream.transforms import transform_points
 from tests.dream.test_edges import image_dataset
-from train.adapt import AdaptRequest, holdout_range, pseudo_labels, teacher
+from train.adapt import (
+    ZOOM_SHARE,
+    AdaptRequest,
+    holdout_range,
+    pseudo_labels,
+    teacher,
+    training_config,
+)
 from train.adapt_report import keypoint_scores
 
 TINY = ["--renders", "8", "--scene-renders", "6", "--set",
@@ -254,17 +261,30 @@ def test_frames_a_held_log_leaves_out_still_count_as_the_recordings(tmp_path):
     assert 30 < len(taught) < recorded
 
 
+def test_zoom_is_asked_for_and_a_set_override_still_wins(tmp_path):
+    base = AdaptRequest(data="d", result="r.json", model="m.onnx", out="a.onnx")
+    assert training_config(base, [str(tmp_path)], 1, 5.0).augment.zoom_p == 0.0
+    zoomed = dataclasses.replace(base, zoom=True)
+    assert training_config(zoomed, [str(tmp_path)], 1, 5.0).augment.zoom_p == ZOOM_SHARE
+    mine = dataclasses.replace(zoomed, overrides=("augment.zoom_p=0.2",))
+    assert training_config(mine, [str(tmp_path)], 1, 5.0).augment.zoom_p == 0.2
+
+
 @pytest.mark.slow
+@pytest.mark.parametrize("zoom", [False, True])
 def test_adapt_writes_a_model_that_calibrate_runs_unchanged(panda, meshes, tmp_path, capsys,
-                                                            monkeypatch):
+                                                            monkeypatch, zoom):
     """Run from another folder than the repository's, without --config: the bundled model's
-    recipe is found all the same."""
+    recipe is found all the same. With --zoom the adapted model carries its zoom, and adapting
+    it again keeps it."""
+    from export.runner import OnnxKeypointModel
+
     calibrated(panda, meshes, tmp_path)
     monkeypatch.chdir(tmp_path)
     out = tmp_path / "adapted.onnx"
     code = main(["adapt", "--data", str(tmp_path / "data"), "--result", str(tmp_path / "r.json"),
                  "--model", str(BUNDLED_MODEL), "--out", str(out), "--holdout-frames", "6:10",
-                 *TINY])
+                 *TINY, *(["--zoom"] if zoom else [])])
     printed, err = capsys.readouterr()
     assert code == 0, err
     assert "PCK@5" in printed and "each frame's keypoint extrinsic" in printed
@@ -281,6 +301,17 @@ def test_adapt_writes_a_model_that_calibrate_runs_unchanged(panda, meshes, tmp_p
     assert code == 0, err
     doc = json.loads((tmp_path / "again.json").read_text())
     assert doc["keypoints_used"] > 0
+    assert (OnnxKeypointModel(out).zoom is not None) == zoom
+    assert ("Zoom: trained on inputs cut around the keypoints" in card) == zoom
+    if zoom:
+        again = tmp_path / "again.onnx"
+        code = main(["adapt", "--data", str(tmp_path / "data"), "--result",
+                     str(tmp_path / "r.json"), "--model", str(out), "--out", str(again),
+                     "--holdout-frames", "6:10", *TINY])
+        _, err = capsys.readouterr()
+        assert code == 0, err
+        assert "the adapted model is trained to as well" in err
+        assert OnnxKeypointModel(again).zoom is not None
 
 
 def test_docstring_examples_run():

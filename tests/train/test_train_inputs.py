@@ -255,6 +255,37 @@ def test_keypoints_outside_the_image_on_the_letterbox_padding_are_absent(drawn):
     assert not scored[0] and not scored[1] and scored[2]
 
 
+# ---------------------------------------------------------------- zoomed samples
+
+def test_a_zoomed_sample_cuts_image_mask_and_labels_alike(drawn):
+    """`augment.zoom_p` 1, nothing else: every sample is cut around its keypoints, magnified
+    over the whole image's letterbox, every keypoint in the image stays in the input, and the
+    robot mask (discs around the keypoints) is warped with the image: it covers each keypoint's
+    target."""
+    from train.augment import Augment, inside_image
+    from train.config import AugmentConfig
+
+    off = {name: 0.0 for name in AugmentConfig.__dataclass_fields__ if name.endswith("_p")}
+    seq = read_sequence(drawn)
+    pre = Preprocess(128, 96)
+    dataset = KeypointDataset([seq], seq.keypoint_names, pre, 2, 1.5,
+                              augment=Augment(AugmentConfig(**{**off, "zoom_p": 1.0}), seed=4))
+    whole = pre.transform_for(seq.camera.width, seq.camera.height)
+    gains = []
+    for index in range(8):
+        sample = dataset[index]
+        labels = dataset.labels(index)
+        inside = inside_image(labels, seq.camera.width, seq.camera.height)
+        uv_input = sample["uv_input"].numpy()[inside]
+        assert ((uv_input >= -0.5) & (uv_input <= [127.5, 95.5])).all()
+        gains.append(np.ptp(uv_input, axis=0).max()
+                     / np.ptp(whole.image_to_input(labels[inside]), axis=0).max())
+        rows, cols = np.round((uv_input + 0.5) / 2 - 0.5).astype(int).T[::-1]
+        assert (sample["mask"].numpy()[0, rows, cols] > 0.5).all()
+        assert (sample["belief"].numpy()[inside].max(axis=(1, 2)) > 0.9).all()
+    assert min(gains) > 0.99 and max(gains) > 1.2, gains
+
+
 # ---------------------------------------------------------------- held-out frames
 
 def test_held_out_frames_are_the_exact_fraction_spread_evenly():
