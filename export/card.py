@@ -54,6 +54,14 @@ def _initialisation(model: Any) -> str:
     return "scratch (random initialisation)"
 
 
+def _zoom_lines(zoom: Any) -> list[str]:
+    if zoom is None:
+        return []
+    return [f"- Detection: a second pass on each frame's cut around its keypoints (margin "
+            f"{zoom.margin:g} of their extent, at most {zoom.max_zoom:g} times the whole "
+            "image's magnification; `dream.zoom`): twice the network time."]
+
+
 def model_card(report: Any, checkpoint: str | Path) -> str:
     """The card's text for an `export.onnx_export.ExportReport` of `checkpoint`."""
     meta, config = report.metadata, report.config
@@ -75,6 +83,6 @@ def model_card(report: Any, checkpoint: str | Path) -> str:
         f"- Exported from `{Path(checkpoint)}` (config sha256 {meta.config_sha256}) by "
         f"dream-calib {meta.dream_version}; onnxruntime against torch, max |difference|: "
         f"{diffs}.",
-        f"- Peak finder: {peaks}.", "",
+        f"- Peak finder: {peaks}.", *_zoom_lines(meta.zoom), "",
         "Measure it on held-out data before use: `dream eval`, or "
         "`python benchmarks/model_eval.py` (docs/benchmarks.md).", ""])

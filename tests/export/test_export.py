@@ -518,6 +518,28 @@ def test_a_lite_encoder_exports_with_the_same_interface(tmp_path):
     assert out["belief"].shape == (2, 3, 32, 32) and model.keypoint_names == ("a", "b", "c")
 
 
+def test_a_network_trained_on_cuts_exports_its_zoom(tmp_path):
+    """A recipe with augment.zoom_p > 0: the model carries its zoom and its card says so."""
+    from dataclasses import replace
+
+    from export.card import model_card
+    from train.model import build_model
+
+    config = TrainConfig(model=ModelConfig(num_keypoints=3, base_width=8, num_stages=3,
+                                           blocks_per_stage=1, decoder_width=16),
+                         input=Preprocess(64, 48),
+                         data=DataConfig(keypoints=("a", "b", "c"), robot="panda"))
+    config = config.replace(augment=replace(config.augment, zoom_p=0.5, zoom_margin=0.3))
+    net = build_model(config.model)
+    checkpoint = tmp_path / "zoom.ckpt"
+    torch.save({"state_dict": {"model." + k: v for k, v in net.state_dict().items()},
+                CHECKPOINT_KEY: checkpoint_payload(config)}, checkpoint)
+    result = export_model(checkpoint, tmp_path / "zoom.onnx")
+    zoom = OnnxKeypointModel(result.path, threads=1).zoom
+    assert (zoom.margin, zoom.max_zoom) == (0.3, config.augment.zoom_max)
+    assert "- Detection: a second pass on each frame's cut" in model_card(result, checkpoint)
+
+
 def test_export_writes_the_model_card_beside_the_model(untrained_checkpoint, tmp_path, capsys):
     """`dream export` says what the file is beside it (robot, keypoints, training data and
     steps, where it came from); a card already there is replaced only with --overwrite."""
