@@ -38,7 +38,7 @@ from dream.pipeline import check_option_agrees, joints_in_robot_order, robot_for
 from dream.preprocess import InputTransform, Preprocess
 from dream.robot import Robot
 from dream.sequence import Sequence
-from dream.zoom import ZoomSettings, warp_to_input, zoom_transform
+from dream.zoom import ZoomSettings, cut_input, zoom_transform
 
 log = logging.getLogger(__name__)
 
@@ -258,8 +258,8 @@ def _zoomed(model: KeypointModel, images: SequenceOf[np.ndarray],
     todo = [i for i, t in enumerate(cuts) if t is not None]
     if not todo:
         return found
-    batch = np.stack([pre.normalize(warp_to_input(images[i], cuts[i], pre.pad_value))
-                      for i in todo]).astype(np.float32, copy=False)
+    batch = np.stack([cut_input(pre, images[i], cuts[i]) for i in todo]).astype(np.float32,
+                                                                                 copy=False)
     second = _found_in(model, batch, [cuts[i] for i in todo], params, camera)
     out = list(found)
     for i, (uv, confidence) in zip(todo, second, strict=True):

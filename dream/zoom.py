@@ -13,7 +13,7 @@ what it is trained on.
 
     settings = ZoomSettings(margin=0.25, max_zoom=4.0)
     t = zoom_transform(preprocess, 640, 480, uv_found, settings)   # None: no gain
-    x = preprocess.normalize(warp_to_input(image, t, preprocess.pad_value))
+    x = cut_input(preprocess, image, t)        # (3, h, w) float32, as `Preprocess.apply`
 """
 
 from __future__ import annotations
@@ -107,6 +107,14 @@ def zoom_transform(preprocess: Preprocess, image_width: int, image_height: int,
         return None
     offset = np.array([w, h]) / 2.0 - (centre + 0.5) * scale
     return InputTransform(image_width, image_height, w, h, scale, scale, offset[0], offset[1])
+
+
+def cut_input(preprocess: Preprocess, image_rgb: np.ndarray, transform: InputTransform
+              ) -> np.ndarray:
+    """(H, W, 3) uint8 RGB -> the (3, h, w) float32 normalised network input of the cut
+    `transform` (the letterbox padding's grey outside the image), as training and detection
+    feed it."""
+    return preprocess.normalize(warp_to_input(image_rgb, transform, preprocess.pad_value))
 
 
 def warp_to_input(image: np.ndarray, transform: InputTransform, fill: float,

@@ -46,7 +46,6 @@ from dream.io import check_output_file
 from dream.io.fields import one_line, os_reason
 from dream.peaks import PeakSettings, peak_params_from_overrides
 from dream.robot.identity import robot_urdf_sha256
-from dream.zoom import ZoomSettings
 from export.runner import INPUT_NAME, ModelMetadata, OnnxKeypointModel
 from train.checkpoint import load_checkpoint
 from train.config import TrainConfig
@@ -126,15 +125,7 @@ def metadata_for(config: TrainConfig, checkpoint: str | Path | None = None) -> M
                          dream_version=__version__, config_sha256=config_sha256(config),
                          belief_sigma=config.data.belief_sigma, peak_params=config.eval.peaks,
                          urdf_sha256=robot_urdf_sha256(config.data.robot),
-                         zoom=zoom_of(config))
-
-
-def zoom_of(config: TrainConfig) -> ZoomSettings | None:
-    """The zoomed second pass a config trains for (`augment.zoom_p` > 0), else None."""
-    augment = config.augment
-    if not augment.enabled or augment.zoom_p <= 0:
-        return None
-    return ZoomSettings(augment.zoom_margin, augment.zoom_max)
+                         zoom=config.augment.zoom_settings())
 
 
 @contextmanager

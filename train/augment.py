@@ -38,7 +38,7 @@ import numpy as np
 
 from dream.errors import InputError
 from dream.preprocess import InputTransform, Preprocess
-from dream.zoom import ZoomSettings, zoom_transform
+from dream.zoom import zoom_transform
 from train.config import AugmentConfig
 
 FILL_VALUE = 0  # image and mask value where the affine transform uncovers the border
@@ -87,6 +87,7 @@ class Augment:
 
     def __init__(self, config: AugmentConfig, seed: int = 0):
         self.config = config
+        self.zoom_settings = config.zoom_settings()
         self.compose = A.Compose(
             build_transforms(config),
             keypoint_params=A.KeypointParams(format="xy", remove_invisible=False)
@@ -104,13 +105,13 @@ class Augment:
         """With probability `zoom_p`, the input map of a cut around the keypoints of `uv`
         (K, 2) inside the width x height image, its margin and centre drawn; else None."""
         c = self.config
-        if not c.enabled or c.zoom_p <= 0 or self.rng.random() >= c.zoom_p:
+        if self.zoom_settings is None or self.rng.random() >= c.zoom_p:
             return None
         inside = inside_image(np.nan_to_num(uv, nan=-1.0), width, height)
         margin = c.zoom_margin + self.rng.uniform(-1.0, 1.0) * c.zoom_margin_jitter
         shift = self.rng.uniform(-1.0, 1.0, 2) * c.zoom_shift
-        return zoom_transform(preprocess, width, height, uv[inside],
-                              ZoomSettings(c.zoom_margin, c.zoom_max), margin, shift)
+        return zoom_transform(preprocess, width, height, uv[inside], self.zoom_settings, margin,
+                              shift)
 
     def __call__(self, image: np.ndarray, uv: np.ndarray, mask: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:

@@ -29,6 +29,7 @@ import yaml
 from dream.peaks import PeakSettings
 from dream.preprocess import Preprocess
 from dream.recipe import load_recipe, plain, recipe_from_dict
+from dream.zoom import ZoomSettings
 from train.model_config import (  # noqa: F401  (re-exported)
     BELIEF_ACTIVATIONS,
     ENCODERS,
@@ -151,6 +152,13 @@ class AugmentConfig:
     zoom_max: float = 4.0
     zoom_margin_jitter: float = 0.1
     zoom_shift: float = 0.1
+
+    def zoom_settings(self) -> ZoomSettings | None:
+        """The cut detection makes where this recipe trains on cuts (`zoom_p` > 0), else
+        None."""
+        if not self.enabled or self.zoom_p <= 0:
+            return None
+        return ZoomSettings(self.zoom_margin, self.zoom_max)
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):

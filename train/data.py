@@ -40,7 +40,7 @@ from dream.io.images import (
 from dream.preprocess import Preprocess
 from dream.robot.identity import same_robot_name
 from dream.sequence import Frame, Sequence
-from dream.zoom import warp_to_input
+from dream.zoom import cut_input, warp_to_input
 from train.augment import Augment, inside_image
 from train.config import TrainConfig
 from train.targets import belief_maps, map_size, mask_map
@@ -185,7 +185,7 @@ class KeypointDataset(Dataset):
         if cut is None:
             x, transform = pre.apply(image)
         else:
-            x, transform = pre.normalize(warp_to_input(image, cut, pre.pad_value)), cut
+            x, transform = cut_input(pre, image, cut), cut
         uv_input = transform.image_to_input(uv)
         on_padding = (~inside_image(uv, image.shape[1], image.shape[0])
                       & inside_image(uv_input, pre.input_width, pre.input_height))
