@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from batch.engine import WorkerLost
+from batch.interrupt import held_interrupts
 from batch.lock import out_lock
 from batch.options import (
     KEYPOINT_SOURCES,
@@ -120,14 +121,18 @@ def _run_to_the_end(command: list[str], log_file: Any) -> subprocess.CompletedPr
     """`command` run with its output into `log_file` and its errors kept; interrupted
     (Ctrl-C, SIGTERM: KeyboardInterrupt), it is killed and waited for before the interrupt goes
     on, so a stopped batch leaves no `dream calibrate` still running (`subprocess.run` kills it
-    but does not wait on an interrupt)."""
-    with subprocess.Popen(command, stdout=log_file, stderr=subprocess.PIPE, text=True) as proc:
-        try:
+    but does not wait on an interrupt). A stop while it starts comes once `proc` holds it."""
+    proc: subprocess.Popen | None = None
+    try:
+        with held_interrupts():
+            proc = subprocess.Popen(command, stdout=log_file, stderr=subprocess.PIPE, text=True)
+        with proc:
             _, stderr = proc.communicate()
-        except BaseException:
+    except BaseException:
+        if proc is not None:
             proc.kill()
             proc.wait()
-            raise
+        raise
     return subprocess.CompletedProcess(command, proc.returncode, None, stderr)
 
 

@@ -29,6 +29,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
+from batch.interrupt import interrupt
 from batch.parent_watch import ParentWatch, watch_parent
 from dream.errors import InputError
 from dream.threads import THREADS_ENV
@@ -122,15 +123,16 @@ def _init_local_worker(setup: Callable[..., None] | None, setup_args: tuple,
 
 def _stop_worker(signum: int, frame: Any) -> None:
     """A local worker told to stop (its batch stops: Ctrl-C, SIGTERM): where no item runs it
-    exits at once; else the item is interrupted (KeyboardInterrupt, once: `calibrate_one`
-    then kills its `dream calibrate` and removes its temporary folder) and the worker exits
-    after it (`_call`), taking no other item."""
+    exits at once; else the item is interrupted (KeyboardInterrupt, once; `calibrate_one`
+    then kills its `dream calibrate`, a stop while it starts one held until it has it, and
+    removes its temporary folder) and the worker exits after it (`_call`), taking no other
+    item."""
     first = not _STOP["requested"]
     _STOP["requested"] = True
     if not _STOP["in_item"]:
         os._exit(STOPPED_EXIT_STATUS)
     if first:
-        raise KeyboardInterrupt
+        interrupt()
 
 
 def _call(fn: Callable[[Any], Any], item: Any) -> Any:
@@ -213,6 +215,7 @@ class LocalEngine:
         pending, suspects = deque(range(len(items))), deque()
         pool = self._pool(setup, setup_args)
         in_flight: dict[Future, tuple[int, bool]] = {}     # future -> (item, run alone)
+        ended = False
         try:
             while pending or suspects or in_flight:
                 source, window = (suspects, 1) if suspects else (pending, self.workers)
@@ -236,10 +239,14 @@ class LocalEngine:
                     in_flight.clear()
                     pool.shutdown(wait=False, cancel_futures=True)
                     pool = self._pool(setup, setup_args)
+            ended = True
         finally:
-            if in_flight:       # stopped early (Ctrl-C, SIGTERM, an item's exception)
+            # stopped early (Ctrl-C, SIGTERM, an item's exception): an item may be running
+            # that `in_flight` does not hold yet (interrupted in `submit`), so every worker is
+            # told to stop, and waited for
+            if not ended:
                 _stop_workers(pool)
-            pool.shutdown(wait=bool(in_flight), cancel_futures=True)
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _lost_or_retry(index: int, tries: int, pending: deque) -> WorkerLost | None:

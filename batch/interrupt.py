@@ -12,6 +12,20 @@ running.
     ...     except KeyboardInterrupt:
     ...         print("interrupted")
     interrupted
+
+A stop handler in a worker calls `interrupt()`: where a step must not be cut in two (a child
+process started but not yet owned by its `Popen`, which would leave it running unowned), the
+step runs in `held_interrupts()` and the interrupt comes when it ends.
+
+    >>> steps = []
+    >>> try:
+    ...     with held_interrupts():
+    ...         interrupt()             # held: the step goes on
+    ...         steps.append("done")
+    ... except KeyboardInterrupt:
+    ...     steps.append("interrupted")
+    >>> steps
+    ['done', 'interrupted']
 """
 
 from __future__ import annotations
@@ -37,6 +51,33 @@ def sigterm_interrupts() -> Iterator[None]:
     finally:
         # None: a handler not installed from Python (Ray's); the default is the closest
         signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+
+
+_HELD = {"depth": 0, "pending": False}   # open `held_interrupts` blocks; an interrupt held
+
+
+def interrupt() -> None:
+    """Raise KeyboardInterrupt now, or at the end of the `held_interrupts` block running."""
+    if _HELD["depth"]:
+        _HELD["pending"] = True
+        return
+    raise KeyboardInterrupt
+
+
+@contextmanager
+def held_interrupts() -> Iterator[None]:
+    """An `interrupt()` while the block runs is raised as the block ends (not where the block
+    has its own exception: that one goes on, the interrupt is dropped with it)."""
+    _HELD["depth"] += 1
+    try:
+        yield
+    finally:
+        _HELD["depth"] -= 1
+        stop = not _HELD["depth"] and _HELD["pending"]
+        if not _HELD["depth"]:
+            _HELD["pending"] = False
+    if stop:
+        raise KeyboardInterrupt
 
 
 def interrupt_once() -> Callable[[int, Any], None]:

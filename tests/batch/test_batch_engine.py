@@ -159,6 +159,44 @@ def test_a_stopped_local_run_stops_its_workers_items(tmp_path):
             os.kill(pid, 0)
 
 
+def pid_then_sleep(item: tuple[str, float]) -> None:
+    path, seconds = item
+    Path(path).write_text(str(os.getpid()))
+    time.sleep(seconds)
+
+
+@pytest.mark.slow
+def test_a_run_interrupted_while_handing_out_an_item_stops_and_waits_for_that_item(
+        tmp_path, monkeypatch):
+    """Ctrl-C or SIGTERM can land in `submit`, after the item went to a worker and before the
+    run holds its future: that item's worker is stopped and waited for too, not left running
+    after the batch ends."""
+    original = LocalEngine._pool
+
+    def pool_interrupted_at_second_submit(self, setup, setup_args):
+        pool, submitted = original(self, setup, setup_args), []
+        submit = pool.submit
+
+        def submit_then_interrupt(*args, **kwargs):
+            submitted.append(submit(*args, **kwargs))
+            if len(submitted) == 2:
+                raise KeyboardInterrupt
+            return submitted[-1]
+
+        pool.submit = submit_then_interrupt
+        return pool
+
+    monkeypatch.setattr(LocalEngine, "_pool", pool_interrupted_at_second_submit)
+    items = [(str(tmp_path / "quick"), 0.0), (str(tmp_path / "long"), LONG_ITEM_S)]
+    started = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        for _ in LocalEngine(1).run(pid_then_sleep, items):
+            pass
+    assert time.monotonic() - started < STOP_DEADLINE_S
+    with pytest.raises(ProcessLookupError):         # stopped and reaped, not left running
+        os.kill(int((tmp_path / "quick").read_text()), 0)
+
+
 def test_the_engine_help_says_ray_opens_ports_for_a_trusted_network_only(capsys):
     from dream.cli import main
 

@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from batch.interrupt import sigterm_interrupts
+from batch.interrupt import held_interrupts, interrupt, sigterm_interrupts
 
 WAIT_S = 5.0       # a signal to this process is handled well within this
 SETTLE_S = 0.1     # time for a second signal to be handled (and ignored)
@@ -46,6 +46,28 @@ def test_outside_the_main_thread_nothing_changes():
     thread.start()
     thread.join()
     assert seen == [before]
+
+
+def test_an_interrupt_is_held_to_the_end_of_the_outermost_held_block():
+    steps = []
+    with pytest.raises(KeyboardInterrupt):
+        with held_interrupts():
+            with held_interrupts():
+                interrupt()
+                steps.append("inner")
+            steps.append("outer")
+    assert steps == ["inner", "outer"]
+    with pytest.raises(KeyboardInterrupt):
+        interrupt()                     # not held: at once
+
+
+def test_a_held_blocks_own_exception_goes_on_and_drops_the_interrupt():
+    with pytest.raises(ValueError):
+        with held_interrupts():
+            interrupt()
+            raise ValueError("the step failed")
+    with held_interrupts():             # nothing left over from the block before
+        pass
 
 
 def test_the_interrupt_doctests():
