@@ -270,9 +270,12 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
     recipe = training_config(request, [str(target.parent)], 1, request.minutes)  # now
     seq, T, model, doc, recorded = teacher(request, out)
     if model.zoom is not None and not request.zoom:
-        say("the model looks a second time at the keypoints' region (its zoom); the adapted "
-            "model is trained to as well")
         request = dataclasses.replace(request, zoom=True)
+        recipe = training_config(request, [str(target.parent)], 1, request.minutes)
+        say("the model looks a second time at the keypoints' region (its zoom); the adapted "
+            "model is trained to as well" if recipe.augment.zoom_settings() is not None else
+            "the model looks a second time at the keypoints' region (its zoom); the adapted "
+            "model will not (augment.zoom_p is 0)")
     peaks = peak_change(model.metadata.peak_params, recipe.eval.peaks)
     created = outermost_missing(target.parent)
     try:
@@ -374,7 +377,8 @@ def _adapt(request: AdaptRequest, target: Path, seq: Sequence, T: np.ndarray, mo
             "model": _absolute(request.model), "recipe": _absolute(request.config),
             "teaching_frames": len(teach), "holdout": [held.start, held.stop],
             "renders": request.renders, "scene_renders": request.scene_renders,
-            "seed": request.seed, "zoom": request.zoom, "overrides": list(request.overrides),
+            "seed": request.seed, "zoom": run.config.augment.zoom_settings() is not None,
+            "overrides": list(request.overrides),
             "peaks": peaks,
             "steps": run.config.trainer.steps_trained, "training_minutes": trained,
             "minutes": minutes, "before": before, "after": after,

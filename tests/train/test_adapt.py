@@ -276,7 +276,7 @@ def test_adapt_writes_a_model_that_calibrate_runs_unchanged(panda, meshes, tmp_p
                                                             monkeypatch, zoom):
     """Run from another folder than the repository's, without --config: the bundled model's
     recipe is found all the same. With --zoom the adapted model carries its zoom, and adapting
-    it again keeps it."""
+    it again keeps it unless `--set augment.zoom_p=0` says not to."""
     from export.runner import OnnxKeypointModel
 
     calibrated(panda, meshes, tmp_path)
@@ -312,6 +312,15 @@ def test_adapt_writes_a_model_that_calibrate_runs_unchanged(panda, meshes, tmp_p
         assert code == 0, err
         assert "the adapted model is trained to as well" in err
         assert OnnxKeypointModel(again).zoom is not None
+        plain = tmp_path / "plain.onnx"             # unless the recipe is told otherwise
+        code = main(["adapt", "--data", str(tmp_path / "data"), "--result",
+                     str(tmp_path / "r.json"), "--model", str(out), "--out", str(plain),
+                     "--holdout-frames", "6:10", *TINY, "--set", "augment.zoom_p=0"])
+        _, err = capsys.readouterr()
+        assert code == 0, err
+        assert "the adapted model will not (augment.zoom_p is 0)" in err
+        assert OnnxKeypointModel(plain).zoom is None
+        assert "Zoom:" not in plain.with_suffix(".md").read_text()
 
 
 def test_docstring_examples_run():
