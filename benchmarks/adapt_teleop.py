@@ -14,7 +14,7 @@
 The reference is read only to score. Prints the figures and the time of each step.
 
     python benchmarks/adapt_teleop.py [--realdata ../shared/realdata] [--minutes 20]
-        [--result TEACHER.json] [--scene-renders 1000] [--work DIR]
+        [--result TEACHER.json] [--scene-renders 1000] [--work DIR] [--zoom]
 """
 
 from __future__ import annotations
@@ -97,6 +97,7 @@ def main() -> None:
     p.add_argument("--scene-renders", type=int, default=1000,
                    help="dream adapt's renders in the recording's own scene (0: none)")
     p.add_argument("--work", type=Path, help="keep the files here (default: a temporary folder)")
+    p.add_argument("--zoom", action="store_true", help="dream adapt --zoom")
     args = p.parse_args()
     data = args.realdata / "panda_teleop"
     with tempfile.TemporaryDirectory() as tmp:
@@ -111,7 +112,8 @@ def main() -> None:
         run(["adapt", "--data", data, "--result", teacher, "--model", BUNDLED_MODEL, "--out",
              adapted, "--holdout-frames", f"{HOLDOUT[0]}:{HOLDOUT[1]}", "--minutes",
              args.minutes, "--config", REPO / "configs" / "train" / "panda_cpu.yaml",
-             "--scene-renders", args.scene_renders, "--overwrite"])
+             "--scene-renders", args.scene_renders, "--overwrite",
+             *(["--zoom"] if args.zoom else [])])
         print(f"dream adapt: {(time.perf_counter() - start) / 60:.1f} minutes in all")
         print(adapted.with_suffix(".md").read_text())
         for frames in (HOLDOUT, TAUGHT_CLOSE):
