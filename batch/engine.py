@@ -215,7 +215,6 @@ class LocalEngine:
         pending, suspects = deque(range(len(items))), deque()
         pool = self._pool(setup, setup_args)
         in_flight: dict[Future, tuple[int, bool]] = {}     # future -> (item, run alone)
-        ended = False
         try:
             while pending or suspects or in_flight:
                 source, window = (suspects, 1) if suspects else (pending, self.workers)
@@ -239,13 +238,13 @@ class LocalEngine:
                     in_flight.clear()
                     pool.shutdown(wait=False, cancel_futures=True)
                     pool = self._pool(setup, setup_args)
-            ended = True
+        except BaseException:
+            # stopped early (Ctrl-C, SIGTERM, an item's exception, the run closed): an item may
+            # be running that `in_flight` does not hold yet (interrupted in `submit`), so every
+            # worker is told to stop
+            _stop_workers(pool)
+            raise
         finally:
-            # stopped early (Ctrl-C, SIGTERM, an item's exception): an item may be running
-            # that `in_flight` does not hold yet (interrupted in `submit`), so every worker is
-            # told to stop, and waited for
-            if not ended:
-                _stop_workers(pool)
             pool.shutdown(wait=True, cancel_futures=True)
 
 

@@ -272,10 +272,10 @@ def run_adapt(request: AdaptRequest, out, progress: Callable[[str], None] | None
     if model.zoom is not None and not request.zoom:
         request = dataclasses.replace(request, zoom=True)
         recipe = training_config(request, [str(target.parent)], 1, request.minutes)
-        say("the model looks a second time at the keypoints' region (its zoom); the adapted "
-            "model is trained to as well" if recipe.augment.zoom_settings() is not None else
-            "the model looks a second time at the keypoints' region (its zoom); the adapted "
-            "model will not (augment.zoom_p is 0)")
+        will = ("is trained to as well" if recipe.augment.zoom_settings() is not None else
+                "will not (augment.zoom_p is 0)")
+        say(f"the model looks a second time at the keypoints' region (its zoom); the adapted "
+            f"model {will}")
     peaks = peak_change(model.metadata.peak_params, recipe.eval.peaks)
     created = outermost_missing(target.parent)
     try:
