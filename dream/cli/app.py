@@ -85,16 +85,25 @@ def joined_negative_values(argv: Sequence[str]) -> list[str]:
 
 
 def unrecognized_hint(extra: Sequence[str]) -> str:
-    """What to do about arguments no option took: where they are existing paths, the shell
-    most likely expanded an unquoted pattern (`--data runs/*`) into several.
+    """What to do about arguments no option took: an option the command lacks is named with
+    where to look; where the others are existing paths (not an unknown option's value), the
+    shell most likely expanded an unquoted pattern (`--data runs/*`) into several.
 
-    >>> unrecognized_hint(["--colour"])
-    ''
+    >>> unrecognized_hint(["--colour", "red"])
+    ' (options this command does not take: --colour; its --help lists them)'
     """
-    if not any(Path(token).exists() for token in extra if token and not token.startswith("-")):
-        return ""
-    return (" (paths: did the shell expand an unquoted pattern? quote it, --data 'runs/*', "
-            "or give one path)")
+    unknown = [token for token in extra if token.startswith("--")]
+    values = {i + 1 for i, token in enumerate(extra) if token.startswith("--") and "=" not in token}
+    paths = [token for i, token in enumerate(extra)
+             if token and not token.startswith("-") and i not in values and Path(token).exists()]
+    hints = []
+    if unknown:
+        hints.append(f"options this command does not take: {', '.join(unknown)}; its --help "
+                     "lists them")
+    if paths:
+        hints.append("paths: did the shell expand an unquoted pattern? quote it, --data "
+                     "'runs/*', or give one path")
+    return f" ({'; '.join(hints)})" if hints else ""
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -8,12 +8,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from dream.cli.options import (
-    DATA_FILE_HELP,
     DataOptions,
     add_command,
+    add_data_positional,
     add_intrinsics_args,
     read_data,
     request_from,
+    with_data,
 )
 
 
@@ -99,7 +100,7 @@ def _robot_words(seq, robot) -> str:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    run_info(request_from(InfoRequest, args))
+    run_info(request_from(InfoRequest, with_data(args)))
     return 0
 
 
@@ -107,7 +108,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """The `dream info` parser."""
     p = add_command(sub, "info", cmd_info,
                     "summarise a dataset: frames, robot, camera, labels, truth")
-    p.add_argument("data", help=DATA_FILE_HELP)
+    add_data_positional(p)
     add_intrinsics_args(p)
     p.add_argument("--robot", help="the arm the data was recorded on (built-in name or URDF "
                    "path; default: the data's): says whether the joints fit it")

@@ -288,6 +288,32 @@ def add_command(sub: argparse._SubParsersAction, name: str,
     return p
 
 
+def add_data_positional(p: argparse.ArgumentParser, data_help: str = DATA_FILE_HELP) -> None:
+    """The recording as the command's first argument (`dream info DATA`) or as `--data DATA`,
+    as every other command takes it; `with_data` reads the one given."""
+    p.add_argument("data_arg", nargs="?", metavar="DATA", help=f"{data_help} (or --data DATA)")
+    p.add_argument("--data", help="the same as DATA")
+
+
+def with_data(args: argparse.Namespace) -> argparse.Namespace:
+    """`args` with `data` the recording given first or as `--data` (`add_data_positional`).
+
+    >>> with_data(argparse.Namespace(command="info", data_arg=None, data="rec")).data
+    'rec'
+
+    Raises:
+        InputError: neither given, or two different ones.
+    """
+    first, option = args.data_arg, args.data
+    if first is None and option is None:
+        raise InputError("no recording given",
+                         fix=f"name it first, dream {args.command} DATA, or give --data DATA")
+    if first is not None and option is not None and first != option:
+        raise InputError(f"two recordings given, {first} and --data {option}", fix="give one")
+    args.data = option if option is not None else first
+    return args
+
+
 DATA_HELP = ("the recording: a dataset folder (DREAM layout, panda_teleop, franka_offline, "
              "images + joints.csv), a ROS bag, or a ManiUniCon .npz")
 

@@ -10,14 +10,15 @@ from pathlib import Path
 import numpy as np
 
 from dream.cli.options import (
-    DATA_FILE_HELP,
     ROBOT_HELP,
     DataOptions,
     add_command,
+    add_data_positional,
     add_intrinsics_args,
     add_keypoints_arg,
     read_data,
     request_from,
+    with_data,
 )
 from dream.errors import InputError
 
@@ -155,7 +156,7 @@ def _result_poses(doc: dict, seq) -> np.ndarray:
 
 
 def cmd_overlay(args: argparse.Namespace) -> int:
-    run_overlay(request_from(OverlayRequest, args))
+    run_overlay(request_from(OverlayRequest, with_data(args)))
     return 0
 
 
@@ -163,9 +164,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     """The `dream overlay` parser."""
     p = add_command(sub, "overlay", cmd_overlay,
                     "draw the robot's outline, projected keypoints and skeleton on the images")
-    p.add_argument("data", help=DATA_FILE_HELP)
+    add_data_positional(p)
     p.add_argument("--out", required=True, help="folder for the overlay PNGs")
-    p.add_argument("--extrinsic", help="RESULT.json to draw with (default: the data's reference)")
+    p.add_argument("--extrinsic", "--result", dest="extrinsic",
+                   help="RESULT.json to draw with (default: the data's reference)")
     p.add_argument("--robot", help=ROBOT_HELP)
     add_keypoints_arg(p)
     add_intrinsics_args(p)

@@ -124,6 +124,42 @@ def test_overlay_on_panda_teleop(realdata, tmp_path, capsys):
     assert len(list(tmp_path.glob("*.png"))) == 3
 
 
+def test_overlay_takes_data_and_result_as_calibrate_and_eval_name_them(realdata, tmp_path,
+                                                                      capsys):
+    """`dream overlay --data D --result R.json`, as `dream eval` is called, was refused with
+    a hint about the shell expanding a pattern."""
+    T_ref = read_sequence(realdata / "panda_teleop").T_cam_base_reference
+    result = tmp_path / "r.json"
+    result.write_text(json.dumps({"T_cam_base": np.asarray(T_ref).tolist(), "robot": "panda",
+                                  "frames_mode": "all"}))
+    code, out, err = run(["overlay", "--data", realdata / "panda_teleop", "--result", result,
+                          "--out", tmp_path / "ov", "--limit", "2"], capsys)
+    assert code == 0, err
+    assert len(list((tmp_path / "ov").glob("*.png"))) == 2
+
+
+def test_info_takes_the_recording_first_or_as_data(sample_dir, tmp_path, capsys):
+    code, first, err = run(["info", sample_dir], capsys)
+    assert code == 0, err
+    code, option, err = run(["info", "--data", sample_dir], capsys)
+    assert code == 0, err
+    assert option == first
+    code, _, err = run(["info"], capsys)
+    assert code == 2 and "no recording given" in err and "--data DATA" in err
+    code, _, err = run(["info", sample_dir, "--data", tmp_path], capsys)
+    assert code == 2 and "two recordings given" in err
+    assert not list(tmp_path.iterdir())
+
+
+def test_an_option_the_command_lacks_is_named(sample_dir, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["info", str(sample_dir), "--result", str(sample_dir)])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "options this command does not take: --result; its --help lists them" in err
+    assert "quote it" not in err                # the path is the unknown option's value
+
+
 def test_info_warns_of_joints_in_degrees(tmp_path, capsys):
     """`dream info` listed readings in degrees without a word; calibrate refuses them."""
     import dataclasses
