@@ -13,7 +13,8 @@ the end effector (the last keypoint link's origin) clicked in N frames: its labe
 `--mark-noise-px`; with `--fooled` the keypoint path (`--use-labels`) from labels projected at
 a camera that far off, so that its refinements and their verdict are tested from a wrong start;
 with `--given-focal F` the calibration is given fx, fy F times those rendered with (the search
-fits the focal length where the outlines tell it: `dream.coarse.focal`); with `--video-codec`
+fits the focal length where the outlines tell it: `dream.coarse.focal`); with
+`--given-principal DU,DV` a principal point DU, DV pixels off; with `--video-codec`
 the frames go through a video codec and back first (OpenCV's FFmpeg encoder at its default
 rate: `vp9`, transforms of several sizes with a loop filter, as a modern video file or stream;
 `mpeg4`, MPEG-4 part 2 in 8x8 blocks); `--reuse-scenes` takes scenes already rendered in
@@ -34,7 +35,8 @@ frames that agree.
         [--first-seed 1000] [--frames 30] [--auto] [--mark-frames 5 --mark-noise-px 2]
         [--fooled] [--skip-guess] [--only panda_1003,xarm7_1010] [--work DIR]
         [--robots URDF,... --scale-to-robot] [--set intrinsics.width=960 ...]
-        [--given-focal 0.96 [--fixed-focal]] [--video-codec vp9] [--reuse-scenes]
+        [--given-focal 0.96 [--fixed-focal]] [--given-principal 12,-8] [--video-codec vp9]
+        [--reuse-scenes]
         [--set sequence.mode=trajectory --frames 150 [--time-offset 0.05]]
     python benchmarks/coarse_start.py real --data ../shared/realdata/panda_teleop [--guesses 10]
     python benchmarks/coarse_start.py real --data ../shared/realdata/franka_offline --center R.json
@@ -171,6 +173,16 @@ def scene_job(robot: str, out: Path, seed: int, frames: int, scale_to_robot: boo
                     seed=seed, keypoints=robot_keypoints(robot, keypoints), extension=extension)
 
 
+def given_principal(data: Path, shift_px: tuple[float, float], out: Path) -> Path:
+    """A copy of `data` whose principal point lies `shift_px` (du, dv) from the one it was
+    rendered with (the image centre given for a calibrated cx, cy), written anew."""
+    from dataclasses import replace
+
+    seq = read_sequence(data)
+    camera = replace(seq.camera, cx=seq.camera.cx + shift_px[0], cy=seq.camera.cy + shift_px[1])
+    return write_dream(seq.with_fixed_camera(camera), out, overwrite=True)
+
+
 def given_focal(data: Path, scale: float, out: Path) -> Path:
     """A copy of `data` whose fx, fy are `scale` times those it was rendered with (intrinsics
     given wrong, as after resizing an image without its K), written anew over an earlier one."""
@@ -302,8 +314,13 @@ def calibrate(data: Path, out: Path, guess: Path | None,
     focal = (doc.get("start") or {}).get("focal")
     away = (doc.get("start") or {}).get("away") or {"share": 0.0}
     timing = (doc.get("start") or {}).get("timing") or {"adopted": False}
+    principal = (doc.get("start") or {}).get("principal")
     return {"focal": ("" if focal is None else f", focal x{focal['scale']:.3f} "
                       f"{'adopted' if focal['adopted'] else 'kept as given'}")
+            + ("" if principal is None else ", principal point asked {:+.1f}, {:+.1f} px "
+               "({:.2f} deg){}".format(*principal["shift_px"],
+                                       np.rad2deg(principal["angle_rad"]),
+                                       ", flagged" if principal["flagged"] else ""))
             + ("" if not timing["adopted"] else f", the readings {1000 * timing['seconds']:+.0f}"
                f" ms on ({timing['rounds']} searches again)")
             + ("" if not away["share"] else f", {100 * away['share']:.1f} % of the moving "
@@ -351,6 +368,14 @@ def render_keypoints(args: argparse.Namespace) -> tuple[str, ...] | None:
     return tuple(name.strip() for name in args.render_keypoints.split(",") if name.strip())
 
 
+def _pixel_pair(text: str) -> tuple[float, float]:
+    try:
+        du, dv = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected DU,DV in pixels, got {text!r}") from None
+    return du, dv
+
+
 def run_renders(args: argparse.Namespace) -> None:
     keypoints = render_keypoints(args)
     rng = np.random.default_rng(args.seed)
@@ -369,6 +394,10 @@ def run_renders(args: argparse.Namespace) -> None:
                 if args.given_focal != 1.0:
                     data = given_focal(data, args.given_focal,
                                        tmp / f"{name}_{seed}_focal{args.given_focal:g}")
+                if args.given_principal is not None:
+                    du, dv = args.given_principal
+                    data = given_principal(data, (du, dv),
+                                           tmp / f"{name}_{seed}_principal{du:g}_{dv:g}")
                 T_true = truth_poses(read_sequence(data))[0]
                 modes = [] if args.skip_guess else [("guess", guess_file(
                     T_true, args.guess_m, np.deg2rad(args.guess_deg), rng, tmp))]
@@ -464,6 +493,9 @@ def main() -> None:
                    "the Panda's (a small arm seen from as near as a user would put the camera)")
     r.add_argument("--given-focal", type=float, default=1.0, help="give the calibration fx, "
                    "fy this many times those rendered with (default 1: as rendered)")
+    r.add_argument("--given-principal", type=_pixel_pair, default=None, metavar="DU,DV",
+                   help="give the calibration a principal point DU, DV pixels from the one "
+                   "rendered with")
     r.add_argument("--video-codec", choices=sorted(VIDEO_CODECS), help="the frames through "
                    "this video codec and back before calibrating (a recording kept as video)")
     r.add_argument("--reuse-scenes", action="store_true", help="take a scene already "

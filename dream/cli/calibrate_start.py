@@ -160,7 +160,8 @@ def search_start(request, seq, out: TextIO):
                                    timing=TimingSettings(fit=not request.stamped_timing))
     result, obs = stand_in_result(seq, outcome.best.T_cam_base,
                                   search_covariance(outcome, focal=inputs.focal,
-                                                    timing=inputs.timing))
+                                                    timing=inputs.timing,
+                                                    principal=inputs.principal))
     print(f"search ({outcome.seconds:.1f} s, {inputs.source} of {len(inputs.frames)} frames): "
           f"best IoU {outcome.best.iou:.3f}, best rival "
           f"{'none' if outcome.rival is None else f'{outcome.rival.iou:.3f}'}, "
@@ -198,6 +199,7 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
         cues_finding,
         focal_finding,
         mark_finding,
+        principal_finding,
         ran_off_finding,
         search_findings,
     )
@@ -215,8 +217,8 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
     if cue_move is not None:
         findings.append(cues_finding(*cue_move))
     findings.append(ran_off_finding(doc, settings))
-    findings += [f for f in (focal_finding(s.get("focal")), timing_finding(s.get("timing")))
-                 if f is not None]
+    findings += [f for f in (focal_finding(s.get("focal")), timing_finding(s.get("timing")),
+                             principal_finding(s.get("principal"))) if f is not None]
     carried = s.get("carried") or {}
     if carried.get("named"):
         findings.append(carried_finding(carried["named"],
@@ -335,7 +337,8 @@ def _challenged(request, data_doc: dict, readings_doc: dict | None, found: tuple
     if challenge.won or challenge.share > 0:
         result, obs = stand_in_result(seq, challenge.T_cam_base_between,
                                       search_covariance(outcome, focal=inputs.focal,
-                                                        timing=inputs.timing))
+                                                        timing=inputs.timing,
+                                                        principal=inputs.principal))
         doc = {**search_document(request, data_doc, readings_doc, result, obs,
                                  (seq, outcome, inputs, guess, marked)), "edges": doc["edges"]}
     doc["start"]["challenge"] = challenge.to_dict()

@@ -24,6 +24,7 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
             "carried": carried_doc(inputs.carried, CARRIED in outcome.hypotheses),
             "focal": None if inputs.focal is None else inputs.focal.to_dict(),
             "timing": None if inputs.timing is None else inputs.timing.to_dict(),
+            "principal": None if inputs.principal is None else inputs.principal.to_dict(),
             "T_cam_base": outcome.best.T_cam_base.tolist(), "iou": outcome.best.iou,
             "found_iou": outcome.best.found_iou, "away": away_doc(outcome, inputs, seq),
             "rival_iou": None if rival is None else rival.iou,

@@ -43,6 +43,7 @@ from dream.coarse.mark import (
     placed_by_mark,
     track_mark,
 )
+from dream.coarse.principal import PrincipalEstimate, PrincipalSettings, fit_principal
 from dream.coarse.search import SearchOutcome, Winner, find_winner
 from dream.coarse.settings import SearchSettings
 from dream.coarse.timing import LagEstimate, TimingSettings, with_timing
@@ -103,7 +104,9 @@ class SearchMasks:
     masks), and the focal-length scale fitted at the winner (`focal`; None where it was not
     fitted; `dream.coarse.focal`: where adopted, the search's pose is the one through
     `focal.camera`), and the joint log's lag read there (`timing`; `dream.coarse.timing`:
-    where adopted, `joints` are the readings shifted by it)."""
+    where adopted, `joints` are the readings shifted by it), and the principal point the
+    outlines ask for at the final winner (`principal`; None where it was not fitted;
+    `dream.coarse.principal`: a check, never adopted)."""
 
     meshes: RobotMeshes
     frames: np.ndarray
@@ -117,6 +120,7 @@ class SearchMasks:
     motion: dict | None = None
     focal: FocalEstimate | None = None
     timing: LagEstimate | None = None
+    principal: PrincipalEstimate | None = None
 
 
 def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> SearchMasks:
@@ -220,11 +224,13 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
                  settings: SearchSettings | None = None,
                  progress: Callable[[str], None] | None = None,
                  extra: dict[str, np.ndarray] | None = None,
-                 focal: FocalSettings | None = None, timing: TimingSettings | None = None
+                 focal: FocalSettings | None = None, timing: TimingSettings | None = None,
+                 principal: PrincipalSettings | None = None
                  ) -> tuple[SearchOutcome, SearchMasks]:
     """The coarse search of a fixed-camera `sequence` (module doc); `extra`: more hypotheses
     by source (the keypoint pose of a detector), scored beside the guess's; `focal`, `timing`:
-    whether and how the focal-length scale (`with_focal`) and, first, the lag are fitted."""
+    whether and how the focal-length scale (`with_focal`) and, first, the lag are fitted;
+    `principal`: whether and how the principal point is checked (`with_principal`)."""
     settings = settings or SearchSettings()
     inputs = search_masks(sequence, robot, settings)
     if progress is not None:
@@ -248,7 +254,28 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
         return first[0].checked(), first[1]
     if settings.find_carried:
         winner, inputs = with_carried(sequence.camera, inputs, winner, settings, progress)
-    return with_focal(sequence.camera, inputs, winner, settings, focal, progress)
+    outcome, inputs = with_focal(sequence.camera, inputs, winner, settings, focal, progress)
+    return outcome, with_principal(sequence.camera, inputs, outcome, settings, principal,
+                                   progress)
+
+
+def with_principal(camera: CameraIntrinsics, inputs: SearchMasks, outcome: SearchOutcome,
+                   settings: SearchSettings, principal: PrincipalSettings | None = None,
+                   progress: Callable[[str], None] | None = None) -> SearchMasks:
+    """The inputs with the principal point the outlines ask for at the outcome's winner
+    (`dream.coarse.principal`), through the focal length the search adopted where it did; as
+    they were where the robot was found only with the held pixels kept (as `with_focal`)."""
+    principal = principal or PrincipalSettings()
+    if not principal.fit or not settings.robot_found(outcome.best.iou):
+        return inputs
+    if inputs.focal is not None and inputs.focal.adopted:
+        camera = inputs.focal.camera
+    estimate = fit_principal(vertices_in_base(inputs.meshes, inputs.joints), inputs.meshes,
+                             inputs.masks, camera, outcome.best.T_cam_base, settings,
+                             principal, inputs.source == MOTION_MASKS, inputs.region)
+    if progress is not None:
+        progress(f"principal point ({estimate.seconds:.1f} s): {estimate.reason}")
+    return replace(inputs, principal=estimate)
 
 
 def with_carried(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,

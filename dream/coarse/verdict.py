@@ -37,6 +37,9 @@ Each finding is (level, one sentence with what to do), as in `dream.quality`:
   given one (`dream.coarse.focal`): the pose was found with it, and the user's intrinsics need
   correcting (`check`); both ask for more than its `max_change` off: the intrinsics or the
   pose are wrong (`unreliable`).
+- **principal**: the robot's outlines ask for a principal point that turns the camera by more
+  than the check's limit (`dream.coarse.principal`): the pose rests on the given cx, cy and
+  its rotation may be off by that much (`check`; the move enters the 1-sigma).
 
     >>> from dream.coarse.settings import SearchSettings
     >>> s = SearchSettings()
@@ -277,6 +280,28 @@ def focal_finding(focal: dict | None) -> Finding | None:
                             "size they belong to, their units) or the pose found are wrong; "
                             "check both")
     return None
+
+
+def principal_finding(principal: dict | None) -> Finding | None:
+    """The principal finding (module doc) of RESULT.json's `start.principal`
+    (`dream.coarse.principal.PrincipalEstimate.to_dict`).
+
+    >>> principal_finding({"flagged": True, "shift_px": [12.0, -8.0], "angle_rad": 0.06,
+    ...                    "given": {"cx": 160.0, "cy": 120.0}})[0]
+    'check'
+    >>> principal_finding({"flagged": False}) is None
+    True
+    """
+    if principal is None or not principal["flagged"]:
+        return None
+    du, dv = principal["shift_px"]
+    given = principal["given"]
+    return CHECK, (f"the robot's outlines ask for a principal point {du:+.1f}, {dv:+.1f} px "
+                   f"from the given cx, cy {given['cx']:.1f}, {given['cy']:.1f}: the pose "
+                   f"rests on the given one, and its rotation may be off by up to "
+                   f"{np.rad2deg(principal['angle_rad']):.1f} deg (in the 1-sigma); give the "
+                   "camera's calibrated cx, cy (not the image centre, and for this image "
+                   "size)")
 
 
 def mark_finding(click_residuals_px: np.ndarray, max_px: float) -> Finding | None:

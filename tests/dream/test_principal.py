@@ -1,0 +1,136 @@
+"""The principal point the robot's outlines ask for (`dream.coarse.principal`): on masks rendered
+through the camera, given cx, cy off the fit asks for the shift back, its pose returns near the
+truth and the verdict says so; given them right, nothing is flagged."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from dream.cli import main
+from dream.coarse.principal import (
+    PrincipalSettings,
+    _decision,
+    fit_principal,
+    with_principal_shift,
+)
+from dream.coarse.scales import finish_scale
+from dream.coarse.settings import SearchSettings
+from dream.coarse.verdict import principal_finding
+from dream.errors import InputError
+from dream.metrics import pose_errors
+from dream.silhouette import vertices_in_base
+from tests.dream.test_coarse import GUESS_M, GUESS_RAD, off_by, rendered_masks
+from tests.dream.test_edges import CAMERA, TARGET, image_dataset
+
+GIVEN_OFF_PX = np.array([12.0, -8.0])   # the principal point given this far from the rendered
+CLI_OFF_PX = np.array([24.0, -16.0])    # the same through the motion masks of a few grey frames
+FRAMES = 12
+
+
+def turned(T_cam_base: np.ndarray, shift_px: np.ndarray, f: float) -> np.ndarray:
+    """The camera turned so that its image moves by -shift_px: to first order what a principal
+    point `shift_px` off asks of the pose (the search's optimum lies near it)."""
+    du, dv = shift_px
+    R = Rotation.from_euler("yx", [-np.arctan(du / f), np.arctan(dv / f)]).as_matrix()
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R @ T_cam_base[:3, :3], R @ T_cam_base[:3, 3]
+    return T
+
+
+@pytest.fixture(scope="module")
+def scene(panda, meshes):
+    T_true, joints, masks = rendered_masks(panda, meshes, frames=FRAMES)
+    return T_true, vertices_in_base(meshes, joints), masks
+
+
+def test_a_principal_point_given_off_is_asked_back_and_flagged(meshes, scene):
+    """Through the camera as given, the finish turns the camera by about atan(shift / f); the
+    joint fit asks for the shift back within a pixel, its pose lies near the truth, and the
+    move enters the covariance."""
+    T_true, P, masks = scene
+    given = with_principal_shift(CAMERA, GIVEN_OFF_PX)
+    T_given = finish_scale(P, meshes, masks, given, SearchSettings()).refine(
+        turned(T_true, GIVEN_OFF_PX, CAMERA.fx))
+    assert np.rad2deg(pose_errors(T_given, T_true)[1]) > 2.0
+    estimate = fit_principal(P, meshes, masks, given, T_given, SearchSettings())
+    np.testing.assert_allclose(estimate.shift_px, -GIVEN_OFF_PX, atol=1.0)
+    assert estimate.flagged, estimate.reason
+    assert np.all(estimate.sigma_px > 0) and np.all(estimate.sigma_px < 1.0)
+    assert np.rad2deg(pose_errors(estimate.T_cam_base, T_true)[1]) < 0.5
+    covariance = estimate.pose_covariance
+    np.testing.assert_allclose(covariance, np.outer(estimate.xi, estimate.xi))
+    assert np.sqrt(covariance[:3, :3].trace()) > np.deg2rad(2.0)   # the turn, in the 1-sigma
+    doc = estimate.to_dict()
+    assert doc["asked"]["cx"] == pytest.approx(given.cx + estimate.shift_px[0])
+    level, warning = principal_finding(doc)
+    assert level == "check" and "calibrated cx, cy" in warning
+
+
+def test_a_principal_point_given_right_stands(meshes, scene):
+    T_true, P, masks = scene
+    estimate = fit_principal(P, meshes, masks, CAMERA, T_true, SearchSettings())
+    assert np.all(np.abs(estimate.shift_px) < 1.0), estimate.shift_px
+    assert not estimate.flagged and "stand" in estimate.reason
+    assert not estimate.pose_covariance.any()
+    assert principal_finding(estimate.to_dict()) is None
+
+
+def test_the_decision_needs_a_turn_beyond_the_limit_and_the_noise_and_nothing_carried():
+    settings = PrincipalSettings()
+    big = np.deg2rad(3.0)
+    off, tight = np.array([12.0, -8.0]), np.array([0.3, 0.3])
+    assert _decision(off, tight, big, False, settings)[0]
+    assert not _decision(np.array([2.0, 1.0]), np.full(2, np.nan), np.deg2rad(0.5), False,
+                         settings)[0]                          # within the angle limit
+    flagged, reason = _decision(off, np.array([5.0, 5.0]), big, False, settings)
+    assert not flagged and "within 3 sigma" in reason          # within the noise
+    assert not _decision(off, np.full(2, np.nan), big, False, settings)[0]
+    flagged, reason = _decision(off, tight, big, True, settings)
+    assert not flagged and reason.startswith("not judged")     # something carried pulls it
+
+
+@pytest.mark.parametrize("field, value", [("rounds", 0), ("min_sigmas", -1.0),
+                                          ("min_angle_rad", 0.0), ("derivative_step_px", -1.0)])
+def test_settings_out_of_range_are_refused(field, value):
+    with pytest.raises(InputError, match=field):
+        PrincipalSettings(**{field: value})
+
+
+def test_calibrate_records_the_check_and_a_flag_reaches_the_verdict_and_1_sigma(
+        panda, meshes, tmp_path, capsys, monkeypatch):
+    """Images only (motion masks of a few grey frames, too few to resolve the principal
+    point): RESULT.json records the check, nothing flagged; with the check's estimate flagged,
+    the verdict names it and the covariance holds its move."""
+    T_true = image_dataset(panda, meshes, tmp_path)
+    position = np.linalg.inv(off_by(T_true, GUESS_M, GUESS_RAD, 3))[:3, 3]
+    argv = ["calibrate", "--data", str(tmp_path / "data"), "--camera-guess",
+            ",".join(f"{v:.3f}" for v in position),
+            "--look-at", ",".join(f"{v:.3f}" for v in TARGET), "--out"]
+    assert main(argv + [str(tmp_path / "r.json")]) == 0, capsys.readouterr()[1]
+    doc = json.loads((tmp_path / "r.json").read_text())
+    principal = doc["start"]["principal"]
+    assert not principal["flagged"] and len(principal["shift_px"]) == 2
+    assert principal["given"] == {"cx": CAMERA.cx, "cy": CAMERA.cy}
+    assert not any("principal point" in w for w in doc["quality"]["warnings"])
+    capsys.readouterr()
+
+    from dream.coarse import calibration
+
+    fitted = []
+
+    def flagged(*args, **kwargs):
+        estimate = fit_principal(*args, **kwargs)
+        fitted.append(replace(estimate, flagged=True, xi=np.array([0.03, 0, 0, 0, 0, 0.0])))
+        return fitted[-1]
+
+    monkeypatch.setattr(calibration, "fit_principal", flagged)
+    assert main(argv + [str(tmp_path / "f.json")]) == 0, capsys.readouterr()[1]
+    doc = json.loads((tmp_path / "f.json").read_text())
+    assert doc["start"]["principal"]["flagged"] and doc["quality"]["verdict"] != "good"
+    assert any("principal point" in w for w in doc["quality"]["warnings"])
+    assert np.asarray(doc["covariance_xi"])[0, 0] >= 0.03 ** 2
