@@ -6,19 +6,19 @@ alike. A few per cent off in the given fx, fy moves the camera centimetres along
 
 From the search's winner at the given intrinsics, up to `rounds` of: the finish at the current
 scale s (fx and fy times s: `dream.coarse.scales.finish_scale`), its contour points there
-(`Scales.contour`), and Levenberg-Marquardt over (pose, log s) on those points (the finish's
-objective, `dream.polish.objective.Objective`, its derivative in log s by central
-differences), until the step in log s falls below `step_tolerance`. Its 1-sigma: the same fit
-on the last round's points with each of `jackknife_groups` frame groups left out in turn (the
-leave-out fits' spread); where the search left out something the arm carries that the model
-lacks (`region`), also with each link's points left out in turn, the two spreads in
-quadrature: what the arm carries pulls the outline of the link it moves with alike in every
-frame, which the frame groups do not see (a Kinova holding an object about 19 x 15 x 16 cm,
-given its own fx, fy: the outlines asked for x1.015 at a frame-group 1-sigma of 0.45 %, and
-adopted it, the camera 15.6 mm off; the links' spread makes it 0.7 %, and kept as given the
-camera lies 6.2 mm off). Elsewhere the links differ in how well they tell the scale, not in
-what pulls them, and their spread would refuse scales that are right (ur5 seed 1003 given
-fx, fy 4 % short: 26.6 mm off and `good` with it). The fitted scale is adopted only where
+(`Scales.contour`), and Levenberg-Marquardt over (pose, log s) on those points
+(`dream.coarse.camera_fit.CameraFit` on the finish's objective), until the step in log s falls
+below `step_tolerance`. Its 1-sigma: the same fit on the last round's points with each of
+`jackknife_groups` frame groups left out in turn (the leave-out fits' spread); where the search
+left out something the arm carries that the model lacks (`region`), also with each link's points
+left out in turn, the two spreads in quadrature: what the arm carries pulls the outline of the
+link it moves with alike in every frame, which the frame groups do not see (a Kinova holding an
+object about 19 x 15 x 16 cm, given its own fx, fy: the outlines asked for x1.015 at a
+frame-group 1-sigma of 0.45 %, and adopted it, the camera 15.6 mm off; the links' spread makes
+it 0.7 %, and kept as given the camera lies 6.2 mm off). Elsewhere the links differ in how well
+they tell the scale, not in what pulls them, and their spread would refuse scales that are right
+(ur5 seed 1003 given fx, fy 4 % short: 26.6 mm off and `good` with it). The fitted scale is
+adopted only where
 
 - it differs from 1 by more than `min_sigmas` 1-sigmas and by more than `min_change`;
 - the finish-scale IoU at it (the pose refined there) beats the IoU at the given focal length
@@ -36,20 +36,19 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, replace
-from typing import Any
 
 import numpy as np
 
 from dream.camera import CameraIntrinsics
+from dream.coarse.camera_fit import CameraFit, finest_objective, frame_group_keeps
 from dream.coarse.carried import CarriedRegion
 from dream.coarse.scales import Scales, finish_scale
 from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
-from dream.optim import levenberg_marquardt
-from dream.pnp import apply_increment, increment_between
+from dream.pnp import increment_between
 from dream.polish.objective import Contour, Objective
-from dream.polish.refine import JACKKNIFE_MIN_CONTOUR_POINTS, inner_lm_settings
-from dream.refined_uncertainty import MIN_GROUPS, frame_groups, links_with_points
+from dream.polish.refine import JACKKNIFE_MIN_CONTOUR_POINTS
+from dream.refined_uncertainty import MIN_GROUPS, links_with_points
 from dream.settings_checks import check_fields
 from dream.silhouette import RobotMeshes
 
@@ -166,60 +165,14 @@ def with_focal_scale(camera: CameraIntrinsics, scale: float) -> CameraIntrinsics
     return replace(camera, fx=camera.fx * scale, fy=camera.fy * scale)
 
 
-class _FocalProblem:
-    """`dream.optim.lm`'s view of the finish's objective on fixed contour points over
-    (T_cam_base, log s), s scaling the objective's camera's fx, fy; `keep` (N,) weighs each
-    point (0: its frame left out)."""
-
-    def __init__(self, objective: Objective, contour: Contour, keep: np.ndarray, step: float):
-        self.objective, self.contour, self.keep, self.step = objective, contour, keep, step
-
-    def _at(self, log_s: float) -> Objective:
-        return self.objective.with_camera(with_focal_scale(self.objective.camera,
-                                                           float(np.exp(log_s))))
-
-    def evaluate(self, x: tuple[np.ndarray, float]) -> tuple[float, Any]:
-        T, log_s = x
-        objective = self._at(log_s)
-        out = objective.residuals(self.contour, T, jacobian=False)
-        return (float("inf") if out is None
-                else float(np.sum(self.keep * objective.rho(out[0])))), None
-
-    def normal_equations(self, x: tuple[np.ndarray, float], state: Any
-                         ) -> tuple[np.ndarray, np.ndarray]:
-        T, log_s = x
-        objective = self._at(log_s)
-        r, J = objective.residuals(self.contour, T, jacobian=True)
-        plus = self._at(log_s + self.step).residuals(self.contour, T, jacobian=False)
-        minus = self._at(log_s - self.step).residuals(self.contour, T, jacobian=False)
-        if plus is None or minus is None:
-            J_s = np.zeros(len(r))
-        else:
-            J_s = (plus[0] - minus[0]) / (2 * self.step)
-        J = np.column_stack([J, J_s])
-        w = self.keep * objective.weight(r)
-        return J.T @ (w[:, None] * J), J.T @ (w * r)
-
-    def retract(self, x: tuple[np.ndarray, float], dx: np.ndarray
-                ) -> tuple[np.ndarray, float]:
-        return apply_increment(x[0], dx[:6]), x[1] + float(dx[6])
+def _scaled(camera: CameraIntrinsics, p: np.ndarray) -> CameraIntrinsics:
+    """`camera` with fx, fy times exp(p[0]): the focal fit's parameter is log s."""
+    return with_focal_scale(camera, float(np.exp(p[0])))
 
 
-def finest_objective(scales: Scales) -> Objective:
-    """The finish's objective at the finest level of `scales` (its camera and masks)."""
-    return Objective(scales.distances(-1), scales.levels[-1][0], scales.params)
-
-
-def joint_fit(objective: Objective, contour: Contour, T: np.ndarray, settings: FocalSettings,
-              initial_damping: float, keep: np.ndarray | None = None
-              ) -> tuple[np.ndarray, float]:
-    """(the pose, the step in log s) of the joint fit on `contour` (at `objective`'s camera),
-    from T, Levenberg-Marquardt starting at `initial_damping` (the polish's); `keep` (N,)
-    weighs the points (default all 1)."""
-    weights = np.ones(len(contour.s)) if keep is None else np.asarray(keep, float)
-    problem = _FocalProblem(objective, contour, weights, settings.derivative_step)
-    lm = inner_lm_settings(initial_damping, settings.lm_iterations)
-    return levenberg_marquardt(problem, (np.asarray(T, float), 0.0), lm).x
+def camera_fit(settings: FocalSettings) -> CameraFit:
+    """The joint fit over (pose, log s) that `settings` ask for."""
+    return CameraFit(_scaled, 1, settings.derivative_step, settings.lm_iterations)
 
 
 def fit_focal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray, camera: CameraIntrinsics,
@@ -230,6 +183,7 @@ def fit_focal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray, camera: Cam
     for, from the search's winner `T_cam_base` at `camera` (module doc); `held`, `region`: as
     the search's `Scales`."""
     settings = settings or FocalSettings()
+    fit = camera_fit(settings)
 
     def scales_at(s: float) -> Scales:
         return finish_scale(P, meshes, masks, with_focal_scale(camera, s), search, None, held,
@@ -246,7 +200,8 @@ def fit_focal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray, camera: Cam
         objective = (finest_objective(scales) if objective is None
                      else objective.with_camera(scales.levels[-1][0]))
         contour = scales.contour(T)
-        T, step = joint_fit(objective, contour, T, settings, scales.params.initial_damping)
+        T, p = fit.fit(objective, contour, T, scales.params.initial_damping)
+        step = float(p[0])
         log_s += step
         log.debug("focal fit round %d: scale %.4f (step %+.4f)", rounds, np.exp(log_s), step)
         if abs(step) < settings.step_tolerance or abs(log_s) > 2 * settings.max_change:
@@ -271,31 +226,20 @@ def _sigma(objective: Objective, contour: Contour, T: np.ndarray, settings: Foca
     round's contour points, with `by_links` in quadrature with that over the links with at
     least `JACKKNIFE_MIN_CONTOUR_POINTS` of them (NaN with fewer than `MIN_GROUPS` frame
     groups; the links' left out where fewer than `MIN_GROUPS` links have points)."""
-    groups = list(frame_groups(frames, settings.jackknife_groups).values())
-    if len(groups) < MIN_GROUPS:
+    keeps = frame_group_keeps(contour, frames, settings.jackknife_groups)
+    if keeps is None:
         return float("nan")
-    keeps = [~np.isin(contour.frame, group) for group in groups]
-    variance = _jackknife_variance(objective, contour, T, settings, initial_damping, keeps)
+    fit = camera_fit(settings)
+    variance = fit.jackknife_variance(objective, contour, T, initial_damping, keeps)
     if by_links and contour.vertex is not None:
         link = meshes.vertex_link[contour.vertex]
         links = links_with_points(meshes.vertex_link, contour.vertex, meshes.links,
                                   JACKKNIFE_MIN_CONTOUR_POINTS)
         if len(links) >= MIN_GROUPS:
-            variance += _jackknife_variance(
-                objective, contour, T, settings, initial_damping,
+            variance = variance + fit.jackknife_variance(
+                objective, contour, T, initial_damping,
                 [link != meshes.links.index(name) for name in links])
-    return float(np.sqrt(variance))
-
-
-def _jackknife_variance(objective: Objective, contour: Contour, T: np.ndarray,
-                        settings: FocalSettings, initial_damping: float,
-                        keeps: list[np.ndarray]) -> float:
-    """The delete-one-group jackknife variance of log s over the joint fits that keep the
-    contour points `keeps` (G of (N,) bool) in turn."""
-    steps = np.array([joint_fit(objective, contour, T, settings, initial_damping, keep)[1]
-                      for keep in keeps])
-    G = len(steps)
-    return float((G - 1) / G * np.sum((steps - steps.mean()) ** 2))
+    return float(np.sqrt(variance[0]))
 
 
 def _decision(log_s: float, sigma: float, iou_given: float, iou_fitted: float,

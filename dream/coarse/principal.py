@@ -7,18 +7,17 @@ cx, cy 12 and -8 px off at 320x240: 2.3-4.8 deg off, the truth at chi-square 4 0
 three of nine `good`). A rotation and a shifted principal point move the outline alike only to
 first order; across a wide view and the arm's depth they differ, so the outlines fix both.
 
-From the search's pose at the given camera, up to `rounds` of: the finish through the
-current principal point (`dream.coarse.scales.finish_scale`), its contour points there
-(`Scales.contour`), and Levenberg-Marquardt over (pose, du, dv) on those points (the finish's
-objective, `dream.polish.objective.Objective`, its derivatives in du, dv by central
-differences), until the step falls below `step_tolerance_px`. Where the shift could be a
-finding, its 1-sigma: the same fit with each of `jackknife_groups` frame groups left out in
-turn. Where the search left out something the arm carries that the model lacks (`region`), the
-shift is reported and not judged: what the arm carries pulls the outline of the link it moves
-with alike in every frame, which no leave-out of frames or links bounds (on a rendered UR5
-holding an object, given its own cx, cy, the outlines asked for 6.6 px, 2.5 deg, beyond 3 of
-the frame groups' 1-sigmas, and with the links' in quadrature still beyond), and the carried
-finding already says the pose may be off.
+From the search's pose at the given camera, up to `rounds` of: the finish through the current
+principal point (`dream.coarse.scales.finish_scale`), its contour points there
+(`Scales.contour`), and Levenberg-Marquardt over (pose, du, dv) on those points
+(`dream.coarse.camera_fit.CameraFit` on the finish's objective), until the step falls below
+`step_tolerance_px`. Where the shift could be a finding, its 1-sigma: the same fit with each of
+`jackknife_groups` frame groups left out in turn. Where the search left out something the arm
+carries that the model lacks (`region`), the shift is reported and not judged: what the arm
+carries pulls the outline of the link it moves with alike in every frame, which no leave-out of
+frames or links bounds (on a rendered UR5 holding an object, given its own cx, cy, the outlines
+asked for 6.6 px, 2.5 deg, beyond 3 of the frame groups' 1-sigmas, and with the links' in
+quadrature still beyond), and the carried finding already says the pose may be off.
 
 The outlines alone can be pulled (something the model lacks beside a link, the masks' own
 errors), and their jackknife understates that: on 30 rendered scenes given their own cx, cy
@@ -39,20 +38,16 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, replace
-from typing import Any
 
 import numpy as np
 
 from dream.camera import CameraIntrinsics
+from dream.coarse.camera_fit import CameraFit, finest_objective, frame_group_keeps
 from dream.coarse.carried import CarriedRegion
-from dream.coarse.focal import finest_objective
 from dream.coarse.scales import Scales, finish_scale
 from dream.coarse.settings import SearchSettings
-from dream.optim import levenberg_marquardt
-from dream.pnp import apply_increment, increment_between
-from dream.polish.objective import Contour, Objective
-from dream.polish.refine import inner_lm_settings
-from dream.refined_uncertainty import MIN_GROUPS, frame_groups
+from dream.pnp import increment_between
+from dream.polish.objective import Objective
 from dream.settings_checks import check_fields
 from dream.silhouette import RobotMeshes
 
@@ -150,53 +145,11 @@ def with_principal_shift(camera: CameraIntrinsics, shift_px: np.ndarray) -> Came
     return replace(camera, cx=camera.cx + du, cy=camera.cy + dv)
 
 
-class _PrincipalProblem:
-    """`dream.optim.lm`'s view of the finish's objective on fixed contour points over
-    (T_cam_base, (du, dv)), moving the objective's camera's principal point; `keep` (N,)
-    weighs each point (0: its frame left out)."""
-
-    def __init__(self, objective: Objective, contour: Contour, keep: np.ndarray, step: float):
-        self.objective, self.contour, self.keep, self.step = objective, contour, keep, step
-
-    def _at(self, shift: np.ndarray) -> Objective:
-        return self.objective.with_camera(with_principal_shift(self.objective.camera, shift))
-
-    def evaluate(self, x: tuple[np.ndarray, np.ndarray]) -> tuple[float, Any]:
-        T, shift = x
-        objective = self._at(shift)
-        out = objective.residuals(self.contour, T, jacobian=False)
-        return (float("inf") if out is None
-                else float(np.sum(self.keep * objective.rho(out[0])))), None
-
-    def normal_equations(self, x: tuple[np.ndarray, np.ndarray], state: Any
-                         ) -> tuple[np.ndarray, np.ndarray]:
-        T, shift = x
-        objective = self._at(shift)
-        r, J = objective.residuals(self.contour, T, jacobian=True)
-        columns = []
-        for axis in np.eye(2) * self.step:
-            plus = self._at(shift + axis).residuals(self.contour, T, jacobian=False)
-            minus = self._at(shift - axis).residuals(self.contour, T, jacobian=False)
-            columns.append(np.zeros(len(r)) if plus is None or minus is None
-                           else (plus[0] - minus[0]) / (2 * self.step))
-        J = np.column_stack([J, *columns])
-        w = self.keep * objective.weight(r)
-        return J.T @ (w[:, None] * J), J.T @ (w * r)
-
-    def retract(self, x: tuple[np.ndarray, np.ndarray], dx: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:
-        return apply_increment(x[0], dx[:6]), x[1] + dx[6:8]
-
-
-def joint_fit(objective: Objective, contour: Contour, T: np.ndarray,
-              settings: PrincipalSettings, initial_damping: float,
-              keep: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(the pose, the shift (du, dv) in `objective`'s pixels) of the joint fit on `contour`
-    from T; `keep` (N,) weighs the points (default all 1)."""
-    weights = np.ones(len(contour.s)) if keep is None else np.asarray(keep, float)
-    problem = _PrincipalProblem(objective, contour, weights, settings.derivative_step_px)
-    lm = inner_lm_settings(initial_damping, settings.lm_iterations)
-    return levenberg_marquardt(problem, (np.asarray(T, float), np.zeros(2)), lm).x
+def camera_fit(settings: PrincipalSettings) -> CameraFit:
+    """The joint fit over (pose, du, dv) that `settings` ask for (du, dv in the fitted
+    objective's pixels)."""
+    return CameraFit(with_principal_shift, 2, settings.derivative_step_px,
+                     settings.lm_iterations)
 
 
 def fit_principal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
@@ -213,44 +166,42 @@ def fit_principal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
         return finish_scale(P, meshes, masks, with_principal_shift(camera, shift), search,
                             None, held, region)
 
-    T_start, shift, rounds = np.asarray(T_cam_base, float), np.zeros(2), 0
+    fit, shift, rounds = camera_fit(settings), np.zeros(2), 0
     scales = scales_at(shift)
-    T = scales.refine(T_start)
-    T_given = T
+    T = T_given = scales.refine(np.asarray(T_cam_base, float))
+    # the finest level's masks, so their distance fields, are the same at every shift
+    objective = finest_objective(scales)
+    to_image = camera.width / objective.camera.width
     for rounds in range(1, settings.rounds + 1):
-        objective = finest_objective(scales)
-        to_image = camera.width / objective.camera.width
-        T, step = joint_fit(objective, scales.contour(T), T, settings,
-                            scales.params.initial_damping)
+        T, step = fit.fit(objective, scales.contour(T), T, scales.params.initial_damping)
         shift = shift + step * to_image
         log.debug("principal point round %d: shift %s px", rounds, np.round(shift, 2))
         scales = scales_at(shift)
+        objective = objective.with_camera(scales.levels[-1][0])
         if np.max(np.abs(step)) * to_image < settings.step_tolerance_px:
             break
     T = scales.refine(T)
     angle = float(np.arctan(np.hypot(shift[0] / camera.fx, shift[1] / camera.fy)))
     carried = region is not None
     judged = angle > settings.min_angle_rad and not carried
-    sigma = (_sigma(scales, T, settings, len(P), camera.width) if judged
+    sigma = (_sigma(objective, scales, T, settings, len(P)) * to_image if judged
              else np.full(2, np.nan))
     flagged, reason = _decision(shift, sigma, angle, carried, settings)
     return PrincipalEstimate(shift, sigma, angle, rounds, flagged, reason, camera, T,
                              increment_between(T_given, T), time.perf_counter() - start)
 
 
-def _sigma(scales: Scales, T: np.ndarray, settings: PrincipalSettings, frames: int,
-           width: int) -> np.ndarray:
-    """(2,) the 1-sigma of the shift (image pixels): the delete-one-group jackknife over frame
-    groups of the contour points at T (NaN with fewer than `MIN_GROUPS` groups)."""
-    groups = list(frame_groups(frames, settings.jackknife_groups).values())
-    if len(groups) < MIN_GROUPS:
+def _sigma(objective: Objective, scales: Scales, T: np.ndarray, settings: PrincipalSettings,
+           frames: int) -> np.ndarray:
+    """(2,) the 1-sigma of the shift in `objective`'s pixels: the delete-one-group jackknife
+    over frame groups of the contour points of `scales` at T (NaN with fewer than
+    `MIN_GROUPS` groups)."""
+    contour = scales.contour(T)
+    keeps = frame_group_keeps(contour, frames, settings.jackknife_groups)
+    if keeps is None:
         return np.full(2, np.nan)
-    objective, contour = finest_objective(scales), scales.contour(T)
-    steps = np.array([joint_fit(objective, contour, T, settings, scales.params.initial_damping,
-                                ~np.isin(contour.frame, group))[1] for group in groups])
-    G = len(steps)
-    variance = (G - 1) / G * np.sum((steps - steps.mean(axis=0)) ** 2, axis=0)
-    return np.sqrt(variance) * width / objective.camera.width
+    return np.sqrt(camera_fit(settings).jackknife_variance(
+        objective, contour, T, scales.params.initial_damping, keeps))
 
 
 def _decision(shift: np.ndarray, sigma: np.ndarray, angle_rad: float, carried: bool,

@@ -102,10 +102,10 @@ def test_a_pull_on_one_link_in_every_frame_widens_the_scale_s_1_sigma(monkeypatc
     contour = Contour(np.zeros((len(vertex), 3)), frame, np.zeros(len(vertex)), vertex)
     hand = vertex_link[vertex] == links.index("hand")
 
-    def fit(objective, contour, T, settings, damping, keep):     # the hand asks for +2 %
-        return T, 0.02 * keep[hand].sum() / hand.sum()
+    def fit(self, objective, contour, T, damping, keep):        # the hand asks for +2 %
+        return T, np.array([0.02 * keep[hand].sum() / hand.sum()])
 
-    monkeypatch.setattr("dream.coarse.focal.joint_fit", fit)
+    monkeypatch.setattr("dream.coarse.camera_fit.CameraFit.fit", fit)
     meshes = SimpleNamespace(vertex_link=vertex_link, links=links)
     sigma = _sigma(None, contour, np.eye(4), FocalSettings(), 1e-3, frames, meshes, True)
     # the frame groups' steps are all 0.016 (each keeps 4 of 5 frames); the links' 0.02

@@ -1,0 +1,139 @@
+"""The robot's outlines fitted with the pose over a few camera parameters (pure): the common
+part of the focal-length fit (`dream.coarse.focal`) and the principal-point check
+(`dream.coarse.principal`).
+
+`CameraFit` holds how a parameter vector p (`size` entries, 0 at the camera as given) moves
+the camera (`camera_at`); `CameraFit.fit` is Levenberg-Marquardt over (T_cam_base, p) on fixed
+contour points of the finish's objective (`dream.polish.objective.Objective`), its derivatives
+in p by central differences, and `CameraFit.jackknife_variance` the delete-one-group jackknife
+of p over fits that leave groups of those points out in turn.
+
+    >>> from dream.coarse.focal import with_focal_scale
+    >>> fit = CameraFit(lambda camera, p: with_focal_scale(camera, float(np.exp(p[0]))), 1,
+    ...                 derivative_step=1e-4, lm_iterations=10)
+    >>> fit.size
+    1
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from dream.camera import CameraIntrinsics
+from dream.coarse.scales import Scales
+from dream.errors import InputError
+from dream.optim import levenberg_marquardt
+from dream.pnp import apply_increment
+from dream.polish.objective import Contour, Objective
+from dream.polish.refine import inner_lm_settings
+from dream.refined_uncertainty import MIN_GROUPS, frame_groups
+
+CameraMap = Callable[[CameraIntrinsics, np.ndarray], CameraIntrinsics]
+
+
+def finest_objective(scales: Scales) -> Objective:
+    """The finish's objective at the finest level of `scales` (its camera and masks)."""
+    return Objective(scales.distances(-1), scales.levels[-1][0], scales.params)
+
+
+def frame_group_keeps(contour: Contour, frames: int, groups: int) -> list[np.ndarray] | None:
+    """For each of `groups` frame groups of `frames` frames, (N,) which contour points lie
+    outside it (the points a delete-one-group fit keeps); None with fewer than `MIN_GROUPS`
+    groups.
+
+    >>> c = Contour(np.zeros((6, 3)), np.arange(6), np.zeros(6), None)
+    >>> frame_group_keeps(c, 6, 3)[0].tolist()               # frames 0 and 3 left out
+    [False, True, True, False, True, True]
+    >>> frame_group_keeps(c, 6, 2) is None
+    True
+    """
+    found = list(frame_groups(frames, groups).values())
+    if len(found) < MIN_GROUPS:
+        return None
+    return [~np.isin(contour.frame, group) for group in found]
+
+
+@dataclass(frozen=True)
+class CameraFit:
+    """The joint fit of the pose and the camera parameters p (module doc).
+
+    Attributes:
+        camera_at: (camera, p (size,)) -> the camera p moves it to (p = 0: unchanged).
+        size: how many parameters.
+        derivative_step: the central differences' step in each parameter.
+        lm_iterations: Levenberg-Marquardt linearisations per fit.
+    """
+
+    camera_at: CameraMap
+    size: int
+    derivative_step: float
+    lm_iterations: int
+
+    def __post_init__(self) -> None:
+        if self.size < 1 or self.lm_iterations < 1:
+            raise InputError("camera fit: size and lm_iterations must be at least 1")
+        if not self.derivative_step > 0:
+            raise InputError("camera fit: derivative_step must be positive")
+
+    def fit(self, objective: Objective, contour: Contour, T: np.ndarray,
+            initial_damping: float, keep: np.ndarray | None = None
+            ) -> tuple[np.ndarray, np.ndarray]:
+        """(the pose, p (size,)) of the joint fit on `contour` through `objective`'s camera,
+        from T and p = 0, Levenberg-Marquardt starting at `initial_damping`; `keep` (N,)
+        weighs the points (default all 1)."""
+        weights = np.ones(len(contour.s)) if keep is None else np.asarray(keep, float)
+        problem = _Problem(self, objective, contour, weights)
+        lm = inner_lm_settings(initial_damping, self.lm_iterations)
+        return levenberg_marquardt(problem, (np.asarray(T, float), np.zeros(self.size)), lm).x
+
+    def jackknife_variance(self, objective: Objective, contour: Contour, T: np.ndarray,
+                           initial_damping: float, keeps: list[np.ndarray]) -> np.ndarray:
+        """(size,) the delete-one-group jackknife variance of p over the fits that keep the
+        contour points `keeps` (G of (N,) bool) in turn."""
+        p = np.array([self.fit(objective, contour, T, initial_damping, keep)[1]
+                      for keep in keeps])
+        G = len(p)
+        return (G - 1) / G * np.sum((p - p.mean(axis=0)) ** 2, axis=0)
+
+
+class _Problem:
+    """`dream.optim.lm`'s view of a `CameraFit` on fixed contour points; `keep` (N,) weighs
+    each point (0: left out)."""
+
+    def __init__(self, fit: CameraFit, objective: Objective, contour: Contour,
+                 keep: np.ndarray):
+        self.fit, self.objective, self.contour, self.keep = fit, objective, contour, keep
+
+    def _at(self, p: np.ndarray) -> Objective:
+        return self.objective.with_camera(self.fit.camera_at(self.objective.camera, p))
+
+    def evaluate(self, x: tuple[np.ndarray, np.ndarray]) -> tuple[float, Any]:
+        T, p = x
+        objective = self._at(p)
+        out = objective.residuals(self.contour, T, jacobian=False)
+        return (float("inf") if out is None
+                else float(np.sum(self.keep * objective.rho(out[0])))), None
+
+    def normal_equations(self, x: tuple[np.ndarray, np.ndarray], state: Any
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        T, p = x
+        objective = self._at(p)
+        r, J = objective.residuals(self.contour, T, jacobian=True)
+        step = self.fit.derivative_step
+        columns = []
+        for axis in np.eye(self.fit.size) * step:
+            plus = self._at(p + axis).residuals(self.contour, T, jacobian=False)
+            minus = self._at(p - axis).residuals(self.contour, T, jacobian=False)
+            columns.append(np.zeros(len(r)) if plus is None or minus is None
+                           else (plus[0] - minus[0]) / (2 * step))
+        J = np.column_stack([J, *columns])
+        w = self.keep * objective.weight(r)
+        return J.T @ (w[:, None] * J), J.T @ (w * r)
+
+    def retract(self, x: tuple[np.ndarray, np.ndarray], dx: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+        return apply_increment(x[0], dx[:6]), x[1] + dx[6:]
