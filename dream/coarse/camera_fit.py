@@ -27,7 +27,7 @@ from dream.camera import CameraIntrinsics
 from dream.coarse.scales import Scales
 from dream.errors import InputError
 from dream.optim import levenberg_marquardt
-from dream.pnp import apply_increment
+from dream.pnp import apply_increment, increment_between
 from dream.polish.objective import Contour, Objective
 from dream.polish.refine import inner_lm_settings
 from dream.refined_uncertainty import MIN_GROUPS, frame_groups
@@ -90,14 +90,34 @@ class CameraFit:
         lm = inner_lm_settings(initial_damping, self.lm_iterations)
         return levenberg_marquardt(problem, (np.asarray(T, float), np.zeros(self.size)), lm).x
 
+    def leave_outs(self, objective: Objective, contour: Contour, T: np.ndarray,
+                   initial_damping: float, keeps: list[np.ndarray]
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """(G, 6) the poses (xi of `dream.pnp` from T) and (G, size) the parameters of the fits
+        from T that keep the contour points `keeps` (G of (N,) bool) in turn."""
+        fits = [self.fit(objective, contour, T, initial_damping, keep) for keep in keeps]
+        return (np.array([increment_between(T, T_k) for T_k, _ in fits]).reshape(-1, 6),
+                np.array([p for _, p in fits]).reshape(-1, self.size))
+
     def jackknife_variance(self, objective: Objective, contour: Contour, T: np.ndarray,
                            initial_damping: float, keeps: list[np.ndarray]) -> np.ndarray:
-        """(size,) the delete-one-group jackknife variance of p over the fits that keep the
-        contour points `keeps` (G of (N,) bool) in turn."""
-        p = np.array([self.fit(objective, contour, T, initial_damping, keep)[1]
-                      for keep in keeps])
-        G = len(p)
-        return (G - 1) / G * np.sum((p - p.mean(axis=0)) ** 2, axis=0)
+        """(size,) the delete-one-group jackknife variance of p over `leave_outs`."""
+        return jackknife_variance(self.leave_outs(objective, contour, T, initial_damping,
+                                                  keeps)[1])
+
+
+def jackknife_variance(samples: np.ndarray) -> np.ndarray:
+    """(n,) the delete-one-group jackknife variance of each column of G leave-out estimates
+    (G, n).
+
+    >>> round(float(jackknife_variance(np.array([[0.0], [0.0], [0.0], [0.004]]))[0]) ** 0.5, 4)
+    0.003
+    """
+    samples = np.asarray(samples, float)
+    if samples.ndim != 2 or len(samples) < 2:
+        raise InputError(f"leave-out estimates have shape {samples.shape}, expected (G >= 2, n)")
+    G = len(samples)
+    return (G - 1) / G * np.sum((samples - samples.mean(axis=0)) ** 2, axis=0)
 
 
 class _Problem:

@@ -26,8 +26,9 @@ out, some of them beyond 3 of their 1-sigmas; given cx, cy 12, -8 px off, for 2.
 the shift is a finding only where it turns the camera by more than `min_angle_rad` and lies
 beyond `min_sigmas` 1-sigmas; it is never adopted: the given intrinsics are the user's to
 check. Where it is a finding, the pose through the asked principal point is how far the
-written pose may lie off, and that enters its covariance (`PrincipalEstimate.pose_covariance`)
-as the image cues' disagreement does.
+written pose may lie off, and that move enters its covariance as the image cues' disagreement
+does, with the spread of that pose over the frame groups (`PrincipalEstimate.pose_covariance`):
+with the shift free the outlines fix the pose less well than through the given camera.
 
     >>> PrincipalSettings().min_sigmas
     3.0
@@ -37,17 +38,23 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from dream.camera import CameraIntrinsics
-from dream.coarse.camera_fit import CameraFit, finest_objective, frame_group_keeps
+from dream.coarse.camera_fit import (
+    CameraFit,
+    finest_objective,
+    frame_group_keeps,
+    jackknife_variance,
+)
 from dream.coarse.carried import CarriedRegion
 from dream.coarse.scales import Scales, finish_scale
 from dream.coarse.settings import SearchSettings
 from dream.pnp import increment_between
 from dream.polish.objective import Objective
+from dream.refined_uncertainty import jackknife_covariance
 from dream.settings_checks import check_fields
 from dream.silhouette import RobotMeshes
 
@@ -103,6 +110,9 @@ class PrincipalEstimate:
         given: the camera as given. T_cam_base: (4, 4) the finish through the asked point.
         xi: (6,) from the search's pose to `T_cam_base` (xi of `dream.pnp`).
         seconds: how long the check took.
+        spread: (6, 6) the frame-group jackknife covariance of the joint fit's pose (xi at
+            `T_cam_base`; zero where it was not judged): how well the outlines fix the pose
+            through the asked point, the shift free.
     """
 
     shift_px: np.ndarray
@@ -115,14 +125,17 @@ class PrincipalEstimate:
     T_cam_base: np.ndarray
     xi: np.ndarray
     seconds: float = 0.0
+    spread: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
 
     @property
     def pose_covariance(self) -> np.ndarray:
         """(6, 6) what a flagged shift adds to the pose's covariance: the move to the pose
-        through the asked principal point, as a disagreement of two cues (zero unflagged)."""
+        through the asked principal point, as a disagreement of two cues, and that pose's own
+        spread (the truth lies near it, and the two free parameters of the shift loosen the
+        pose along more than the move: `spread`); zero unflagged."""
         if not self.flagged:
             return np.zeros((6, 6))
-        return np.outer(self.xi, self.xi)
+        return np.outer(self.xi, self.xi) + self.spread
 
     def to_dict(self) -> dict:
         given = self.given
@@ -184,24 +197,26 @@ def fit_principal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
     angle = float(np.arctan(np.hypot(shift[0] / camera.fx, shift[1] / camera.fy)))
     carried = region is not None
     judged = angle > settings.min_angle_rad and not carried
-    sigma = (_sigma(objective, scales, T, settings, len(P)) * to_image if judged
-             else np.full(2, np.nan))
-    flagged, reason = _decision(shift, sigma, angle, carried, settings)
-    return PrincipalEstimate(shift, sigma, angle, rounds, flagged, reason, camera, T,
-                             increment_between(T_given, T), time.perf_counter() - start)
+    sigma, spread = (_jackknife(objective, scales, T, settings, len(P)) if judged
+                     else (np.full(2, np.nan), np.zeros((6, 6))))
+    flagged, reason = _decision(shift, sigma * to_image, angle, carried, settings)
+    return PrincipalEstimate(shift, sigma * to_image, angle, rounds, flagged, reason, camera, T,
+                             increment_between(T_given, T), time.perf_counter() - start,
+                             spread)
 
 
-def _sigma(objective: Objective, scales: Scales, T: np.ndarray, settings: PrincipalSettings,
-           frames: int) -> np.ndarray:
-    """(2,) the 1-sigma of the shift in `objective`'s pixels: the delete-one-group jackknife
-    over frame groups of the contour points of `scales` at T (NaN with fewer than
-    `MIN_GROUPS` groups)."""
+def _jackknife(objective: Objective, scales: Scales, T: np.ndarray,
+               settings: PrincipalSettings, frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """(the 1-sigma (2,) of the shift in `objective`'s pixels, the covariance (6, 6) of the
+    pose): the delete-one-group jackknife over frame groups of the contour points of `scales`
+    at T (NaN and zero with fewer than `MIN_GROUPS` groups)."""
     contour = scales.contour(T)
     keeps = frame_group_keeps(contour, frames, settings.jackknife_groups)
     if keeps is None:
-        return np.full(2, np.nan)
-    return np.sqrt(camera_fit(settings).jackknife_variance(
-        objective, contour, T, scales.params.initial_damping, keeps))
+        return np.full(2, np.nan), np.zeros((6, 6))
+    xis, shifts = camera_fit(settings).leave_outs(objective, contour, T,
+                                                 scales.params.initial_damping, keeps)
+    return np.sqrt(jackknife_variance(shifts)), jackknife_covariance(xis)
 
 
 def _decision(shift: np.ndarray, sigma: np.ndarray, angle_rad: float, carried: bool,

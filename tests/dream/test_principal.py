@@ -23,6 +23,7 @@ from dream.coarse.settings import SearchSettings
 from dream.coarse.verdict import principal_finding
 from dream.errors import InputError
 from dream.metrics import pose_errors
+from dream.pnp import increment_between
 from dream.silhouette import vertices_in_base
 from tests.dream.test_coarse import GUESS_M, GUESS_RAD, off_by, rendered_masks
 from tests.dream.test_edges import CAMERA, TARGET, image_dataset
@@ -63,7 +64,14 @@ def test_a_principal_point_given_off_is_asked_back_and_flagged(meshes, scene):
     assert np.all(estimate.sigma_px > 0) and np.all(estimate.sigma_px < 1.0)
     assert np.rad2deg(pose_errors(estimate.T_cam_base, T_true)[1]) < 0.5
     covariance = estimate.pose_covariance
-    np.testing.assert_allclose(covariance, np.outer(estimate.xi, estimate.xi))
+    np.testing.assert_allclose(covariance, np.outer(estimate.xi, estimate.xi) + estimate.spread)
+    assert np.all(np.linalg.eigvalsh(estimate.spread) > -1e-12) and estimate.spread.trace() > 0
+    # the truth lies one move along xi from the given camera's pose, little beside it
+    offset = increment_between(T_given, T_true)
+    along = offset @ estimate.xi / np.linalg.norm(estimate.xi)
+    beside = offset - along * estimate.xi / np.linalg.norm(estimate.xi)
+    assert along / np.linalg.norm(estimate.xi) == pytest.approx(1.0, abs=0.1)
+    assert np.linalg.norm(beside) < 0.1 * np.linalg.norm(estimate.xi)
     assert np.sqrt(covariance[:3, :3].trace()) > np.deg2rad(2.0)   # the turn, in the 1-sigma
     doc = estimate.to_dict()
     assert doc["asked"]["cx"] == pytest.approx(given.cx + estimate.shift_px[0])
