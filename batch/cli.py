@@ -36,6 +36,7 @@ def cmd_batch_calibrate(args: argparse.Namespace) -> int:
     from batch.interrupt import sigterm_interrupts
     from batch.progress import BatchProgress
     from batch.summary import FAILED, SUMMARY_CSV, SUMMARY_JSON, summary_counts
+    from dream.cli.require import below_required
 
     engine = make_engine(_engine_settings(args))
     plan = plan_batch(args.data, _out_path(args.out), _calibrate_options(args), args.overlays)
@@ -61,7 +62,13 @@ def cmd_batch_calibrate(args: argparse.Namespace) -> int:
     for row in rows:
         if row["status"] == FAILED:
             print(f"  {row['name']}: {row['error']}")
-    return EXIT_SOME_FAILED if failed else 0
+    below = [row for row in rows if row["status"] != FAILED and row["verdict"] is not None
+             and below_required(row["verdict"], args.require)]
+    if below:
+        print(f"{len(below)} calibrated below --require {args.require}:")
+        for row in below:
+            print(f"  {row['name']}: {row['verdict']}")
+    return EXIT_SOME_FAILED if failed or below else 0
 
 
 def _out_path(out: str):
@@ -116,6 +123,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """The `dream batch` parser and its two commands."""
     from dream.cli.calibrate import add_calibrate_args
     from dream.cli.options import add_data_args
+    from dream.cli.require import add_require_arg
     from synth.cli import add_synth_args
 
     help_ = "calibrate many recordings, or render one data set, on a process pool or Ray"
@@ -131,6 +139,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "summary.json (a re-run skips what is done)")
     c.add_argument("--overlays", action="store_true",
                    help="draw each recording's overlays into its folder")
+    add_require_arg(c, "exit with status 1 where some recording's verdict falls below this "
+                       "(as where some failed), naming them")
     _add_engine_args(c)
     add_calibrate_args(c)
     c.set_defaults(func=cmd_batch_calibrate)

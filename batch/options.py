@@ -22,7 +22,8 @@ FIX_LINE_FILE = "name the file relative to the list's folder, or give its absolu
 FIX_OPTION_FILE = ("give the path of an existing file (a relative one from the working "
                    "folder)")
 FIX_LINE = ("give a list line the recording's path, then dream calibrate options of its own "
-            "(dream calibrate --help lists them; the batch sets --data, --out and --overlays)")
+            "(dream calibrate --help lists them; the batch sets --data, --out, --overlays "
+            "and --require)")
 
 
 def option_files(options: Mapping[str, Any]) -> list[Path]:

@@ -37,6 +37,7 @@ from dream.cli.options import (
     read_data,
     request_from,
 )
+from dream.cli.require import add_require_arg, required_exit
 from dream.errors import InputError
 from dream.pnp import RobustLoss, SolverSettings
 from dream.ros import CAMERA_OPTICAL_FRAME
@@ -334,8 +335,9 @@ def _apply_extension(request: CalibrateRequest, extension, seq, robot, obs, out:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    run_calibrate(request_from(CalibrateRequest, args))
-    return 0
+    request = request_from(CalibrateRequest, args)
+    doc = run_calibrate(request)
+    return required_exit(doc["quality"]["verdict"], args.require, request.out)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -345,6 +347,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_data_args(p)
     p.add_argument("--out", required=True, help="RESULT.json to write")
     p.add_argument("--overlays", help="folder for per-frame overlays and a summary image")
+    add_require_arg(p, "exit with status 3 where the verdict falls below this (the result is "
+                       "written all the same): for scripts that must not go on with a "
+                       "calibration to be checked or an unreliable one")
     add_calibrate_args(p)
 
 

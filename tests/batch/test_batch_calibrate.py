@@ -116,6 +116,28 @@ def test_overlays_on_request_land_in_each_folder(recordings, tmp_path):
     assert rows(out)["rec001"]["status"] == "ok"
 
 
+def test_require_fails_the_batch_where_a_verdict_falls_below_it(recordings, tmp_path,
+                                                               capsys):
+    """The good recordings' verdicts against `--require`: exit 1 naming each below it, as
+    where some failed; 0 where none is below."""
+    good = [r for r in recordings if r.name not in FAULTS]
+    out = tmp_path / "batch"
+    argv = ["batch", "calibrate", "--data", str(good[0].parent / "rec00[012]"), "--out",
+            str(out), "--workers", "2", *OPTIONS]
+    assert main(argv) == 0
+    verdicts = {name: row["verdict"] for name, row in rows(out).items()}
+    assert {"check", "unreliable"} <= set(verdicts.values()), verdicts   # 4 frames each
+    capsys.readouterr()
+    for required in ("good", "check"):
+        allowed = ("good",) if required == "good" else ("good", "check")
+        below = sorted(name for name, v in verdicts.items() if v not in allowed)
+        assert main([*argv, "--require", required]) == (1 if below else 0)
+        printed = capsys.readouterr().out
+        assert (f"calibrated below --require {required}" in printed) == bool(below)
+        for name in below:
+            assert f"  {name}: {verdicts[name]}" in printed
+
+
 def test_a_recording_added_with_a_clashing_name_leaves_the_finished_one(recordings, tmp_path,
                                                                         capsys):
     """A finished recording keeps its folder when a later run adds one of the same name from
@@ -265,6 +287,7 @@ def test_list_lines_give_their_recordings_options_of_their_own(recordings, tmp_p
     ("{rec} --refine bogus", "argument --refine: invalid choice"),
     ("{rec} --data elsewhere", "--data is the batch's to set"),
     ("{rec} --out R.json", "unrecognized arguments: --out"),
+    ("{rec} --require good", "the batch sets --data, --out, --overlays and --require"),
     ("{rec} --frame-range '0:2", "cannot split it"),
     ("{rec} --mask-head", "--polish was not given"),
     ("{rec} --model /nonexistent/model.onnx", "--model /nonexistent/model.onnx: no such file"),

@@ -54,3 +54,26 @@ def test_calibrate_says_the_focal_length_is_off(tmp_path, capsys):
         else:
             assert doc["quality"]["verdict"] == "check"
             assert "keypoints fit best with a focal length x0.9" in printed
+
+
+def test_require_makes_a_verdict_below_it_a_failed_exit_with_the_result_written(tmp_path,
+                                                                                 capsys):
+    """A script asks for `good`: the scene with fx, fy 10 % off (verdict `check`) exits 3 and
+    says why on stderr, its RESULT.json written all the same; `--require check` lets it
+    pass, and the right scene passes `--require good`."""
+    for name, scale in (("right", 1.0), ("wrong", 1.1)):
+        write_dream(_scene(scale), tmp_path / name)
+    runs = (("right", "good", 0), ("wrong", "good", 3), ("wrong", "check", 0))
+    for name, required, expected in runs:
+        out = tmp_path / f"{name}_{required}.json"
+        code = main(["calibrate", "--data", str(tmp_path / name), "--use-labels", "--refine",
+                     "none", "--out", str(out), "--require", required])
+        err = capsys.readouterr().err
+        assert code == expected, err
+        assert json.loads(out.read_text())["quality"]["verdict"] == ("good" if name == "right"
+                                                                     else "check")
+        assert ("the verdict is check, below --require good" in err) == (expected == 3)
+    with pytest.raises(SystemExit):                 # unreliable is nothing to require
+        main(["calibrate", "--data", str(tmp_path / "right"), "--use-labels", "--out",
+              str(tmp_path / "x.json"), "--require", "unreliable"])
+    assert "invalid choice" in capsys.readouterr().err
