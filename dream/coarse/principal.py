@@ -48,6 +48,7 @@ from dream.coarse.camera_fit import (
     finest_objective,
     frame_group_keeps,
     jackknife_variance,
+    principal_turn,
 )
 from dream.coarse.carried import CarriedRegion
 from dream.coarse.scales import Scales, finish_scale
@@ -68,10 +69,10 @@ class PrincipalSettings:
     Attributes:
         fit: fit it at all (False: no check, nothing reported).
         rounds: finish / contour / joint-fit rounds at most.
-        lm_iterations: Levenberg-Marquardt linearisations per joint fit (a turn of the camera
-            and a shift of the principal point move the outline nearly alike, so the fit
-            crawls along that valley: on a rendered scene given cx, cy 12, -8 px off, 10 a fit
-            asked for 10.5, -6.3 px after 6 rounds, 30 for 12.0, -8.0).
+        lm_iterations: Levenberg-Marquardt linearisations per joint fit (the shift carries the
+            turn that undoes its move at the image centre, `dream.coarse.camera_fit`: on a
+            rendered scene given cx, cy 12, -8 px off, 3 asked for 12.04, -7.93 px, 5 for
+            11.98, -8.00).
         step_tolerance_px: the rounds stop after a step below this (image pixels).
         jackknife_groups: frame groups of the 1-sigma.
         min_sigmas: a finding only beyond this many 1-sigmas of the shift.
@@ -83,7 +84,7 @@ class PrincipalSettings:
 
     fit: bool = True
     rounds: int = 6
-    lm_iterations: int = 30
+    lm_iterations: int = 5
     step_tolerance_px: float = 0.1
     jackknife_groups: int = 5
     min_sigmas: float = 3.0
@@ -162,7 +163,7 @@ def camera_fit(settings: PrincipalSettings) -> CameraFit:
     """The joint fit over (pose, du, dv) that `settings` ask for (du, dv in the fitted
     objective's pixels)."""
     return CameraFit(with_principal_shift, 2, settings.derivative_step_px,
-                     settings.lm_iterations)
+                     settings.lm_iterations, turn_at=principal_turn)
 
 
 def fit_principal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
