@@ -16,13 +16,13 @@ principal point (`dream.coarse.scales.finish_scale`), its contour points there
 carries that the model lacks (`region`), the shift is reported and not judged: what the arm
 carries pulls the outline of the link it moves with alike in every frame, which no leave-out of
 frames or links bounds (on a rendered UR5 holding an object, given its own cx, cy, the outlines
-asked for 6.6 px, 2.5 deg, beyond 3 of the frame groups' 1-sigmas, and with the links' in
+asked for a turn of 2.5-3.3 deg, beyond 3 of the frame groups' 1-sigmas, and with the links' in
 quadrature still beyond), and the carried finding already says the pose may be off.
 
 The outlines alone can be pulled (something the model lacks beside a link, the masks' own
 errors), and their jackknife understates that: on 30 rendered scenes given their own cx, cy
-they asked for turns of a median 0.18 deg, at most 0.92 deg where nothing carried was left
-out, some of them beyond 3 of their 1-sigmas; given cx, cy 12, -8 px off, for 2.0-4.9 deg. So
+they asked for turns of a median 0.31 deg, at most 1.22 deg where nothing carried was left
+out, some of them beyond 3 of their 1-sigmas; given cx, cy 12, -8 px off, for 2.2-5.2 deg. So
 the shift is a finding only where it turns the camera by more than `min_angle_rad` and lies
 beyond `min_sigmas` 1-sigmas; it is never adopted: the given intrinsics are the user's to
 check. Where it is a finding, the pose through the asked principal point is how far the
@@ -78,7 +78,7 @@ class PrincipalSettings:
         min_sigmas: a finding only beyond this many 1-sigmas of the shift.
         min_angle_rad: a finding only where the shift turns the camera by more than this
             (atan(shift / f); set on rendered scenes: given their own cx, cy the outlines asked
-            for at most 0.92 deg, given them 12, -8 px off at least 2.0 deg).
+            for at most 1.22 deg, given them 12, -8 px off at least 2.2 deg).
         derivative_step_px: the central differences' step in du, dv (the finish's pixels).
     """
 
