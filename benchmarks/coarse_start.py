@@ -176,11 +176,11 @@ def scene_job(robot: str, out: Path, seed: int, frames: int, scale_to_robot: boo
 def given_principal(data: Path, shift_px: tuple[float, float], out: Path) -> Path:
     """A copy of `data` whose principal point lies `shift_px` (du, dv) from the one it was
     rendered with (the image centre given for a calibrated cx, cy), written anew."""
-    from dataclasses import replace
+    from dream.coarse.principal import with_principal_shift
 
     seq = read_sequence(data)
-    camera = replace(seq.camera, cx=seq.camera.cx + shift_px[0], cy=seq.camera.cy + shift_px[1])
-    return write_dream(seq.with_fixed_camera(camera), out, overwrite=True)
+    return write_dream(seq.with_fixed_camera(with_principal_shift(seq.camera, shift_px)), out,
+                       overwrite=True)
 
 
 def given_focal(data: Path, scale: float, out: Path) -> Path:

@@ -36,6 +36,7 @@ from dream.pnp import (
     refine_best,
     solve_pnp_batch,
 )
+from dream.refined_uncertainty import jackknife_covariance
 from dream.transforms import camera_position_covariance
 
 log = logging.getLogger(__name__)
@@ -314,9 +315,7 @@ def _jackknife(xis: list[np.ndarray], left_out: list[str]) -> KeypointJackknife 
     """The jackknife of the G leave-out solutions xi_k (6,) (None when G is too small)."""
     if len(xis) < MIN_JACKKNIFE_GROUPS:
         return None
-    d = np.array(xis) - np.mean(xis, axis=0)
-    G = len(xis)
-    return KeypointJackknife((G - 1) / G * (d.T @ d), tuple(left_out))
+    return KeypointJackknife(jackknife_covariance(np.array(xis)), tuple(left_out))
 
 
 def frame_leave_outs(obs: Observations, frames: tuple[FrameSolution, ...],

@@ -33,6 +33,7 @@ from dream.camera import CameraIntrinsics
 from dream.errors import InputError
 from dream.pnp.reprojection import apply_increment, linearise
 from dream.quality import CHECK, Finding
+from dream.refined_uncertainty import jackknife_spread
 
 POSE_AND_SCALE = 7            # unknowns of the joint fit: the pose increment and log(scale)
 MAX_LOG_STEP = 1.0            # a Gauss-Newton step of log(scale) beyond this: no answer
@@ -137,8 +138,7 @@ def keypoint_focal(result: CalibrationResult, obs: Observations, camera: CameraI
                                        result.T_cam_base, settings.iterations)[0]
                        for g in groups])
         if np.all(np.isfinite(logs)):
-            n = len(logs)
-            jackknife = float(math.sqrt((n - 1) / n * np.sum((logs - logs.mean()) ** 2)))
+            jackknife = float(math.sqrt(jackknife_spread(logs[:, None])[0, 0]))
     sigma = max(sigma_fit, jackknife or 0.0)
     return KeypointFocal(float(scale), float(sigma), float(sigma_fit), jackknife,
                          int(inlier.sum()))

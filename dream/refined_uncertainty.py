@@ -68,8 +68,24 @@ class RefinementJackknife:
         object.__setattr__(self, "left_out", tuple(self.left_out))
 
 
+def jackknife_spread(samples: np.ndarray) -> np.ndarray:
+    """(n, n) delete-one-group jackknife covariance of G leave-out estimates (G, n) of any n
+    quantities: (G - 1) / G * sum_k (x_k - mean)(x_k - mean)^T.
+
+    >>> round(float(jackknife_spread(np.array([[0.0], [0.0], [0.0], [0.004]]))[0, 0]) ** 0.5, 4)
+    0.003
+    """
+    samples = np.asarray(samples, dtype=float)
+    if samples.ndim != 2 or len(samples) < 2:
+        raise InputError(f"leave-out estimates have shape {samples.shape}, expected (G >= 2, n)")
+    d = samples - samples.mean(axis=0)
+    G = len(samples)
+    return (G - 1) / G * (d.T @ d)
+
+
 def jackknife_covariance(xis: np.ndarray) -> np.ndarray:
-    """(6, 6) delete-one-group jackknife covariance of G leave-out increments xis (G, 6).
+    """(6, 6) delete-one-group jackknife covariance of G leave-out increments xis (G, 6)
+    (`jackknife_spread`).
 
     >>> xis = np.zeros((4, 6)); xis[0, 3] = 0.004
     >>> round(float(np.sqrt(jackknife_covariance(xis)[3, 3])), 4)
@@ -78,9 +94,7 @@ def jackknife_covariance(xis: np.ndarray) -> np.ndarray:
     xis = np.asarray(xis, dtype=float)
     if xis.ndim != 2 or xis.shape[1] != 6 or len(xis) < 2:
         raise InputError(f"leave-out increments have shape {xis.shape}, expected (G >= 2, 6)")
-    d = xis - xis.mean(axis=0)
-    G = len(xis)
-    return (G - 1) / G * (d.T @ d)
+    return jackknife_spread(xis)
 
 
 def group_jackknife(T_refined: np.ndarray, groups: SequenceOf[str],

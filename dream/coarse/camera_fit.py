@@ -39,7 +39,7 @@ from dream.optim import levenberg_marquardt
 from dream.pnp import apply_increment, increment_between
 from dream.polish.objective import Contour, Objective
 from dream.polish.refine import inner_lm_settings
-from dream.refined_uncertainty import MIN_GROUPS, frame_groups
+from dream.refined_uncertainty import MIN_GROUPS, frame_groups, jackknife_spread
 from dream.transforms import R_from_rotvec
 
 CameraMap = Callable[[CameraIntrinsics, np.ndarray], CameraIntrinsics]
@@ -137,23 +137,10 @@ class CameraFit:
 
     def jackknife_variance(self, objective: Objective, contour: Contour, T: np.ndarray,
                            initial_damping: float, keeps: list[np.ndarray]) -> np.ndarray:
-        """(size,) the delete-one-group jackknife variance of p over `leave_outs`."""
-        return jackknife_variance(self.leave_outs(objective, contour, T, initial_damping,
-                                                  keeps)[1])
-
-
-def jackknife_variance(samples: np.ndarray) -> np.ndarray:
-    """(n,) the delete-one-group jackknife variance of each column of G leave-out estimates
-    (G, n).
-
-    >>> round(float(jackknife_variance(np.array([[0.0], [0.0], [0.0], [0.004]]))[0]) ** 0.5, 4)
-    0.003
-    """
-    samples = np.asarray(samples, float)
-    if samples.ndim != 2 or len(samples) < 2:
-        raise InputError(f"leave-out estimates have shape {samples.shape}, expected (G >= 2, n)")
-    G = len(samples)
-    return (G - 1) / G * np.sum((samples - samples.mean(axis=0)) ** 2, axis=0)
+        """(size,) the delete-one-group jackknife variance of p over `leave_outs`
+        (`dream.refined_uncertainty.jackknife_spread`)."""
+        return np.diag(jackknife_spread(self.leave_outs(objective, contour, T, initial_damping,
+                                                        keeps)[1]))
 
 
 class _Problem:

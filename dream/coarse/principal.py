@@ -47,7 +47,6 @@ from dream.coarse.camera_fit import (
     CameraFit,
     finest_objective,
     frame_group_keeps,
-    jackknife_variance,
     principal_turn,
 )
 from dream.coarse.carried import CarriedRegion
@@ -55,7 +54,7 @@ from dream.coarse.scales import Scales, finish_scale
 from dream.coarse.settings import SearchSettings
 from dream.pnp import increment_between
 from dream.polish.objective import Objective
-from dream.refined_uncertainty import jackknife_covariance
+from dream.refined_uncertainty import jackknife_covariance, jackknife_spread
 from dream.settings_checks import check_fields
 from dream.silhouette import RobotMeshes
 
@@ -220,7 +219,7 @@ def _jackknife(objective: Objective, scales: Scales, T: np.ndarray,
         return np.full(2, np.nan), np.zeros((6, 6))
     xis, shifts = camera_fit(settings).leave_outs(objective, contour, T,
                                                  scales.params.initial_damping, keeps)
-    return np.sqrt(jackknife_variance(shifts)), jackknife_covariance(xis)
+    return np.sqrt(np.diag(jackknife_spread(shifts))), jackknife_covariance(xis)
 
 
 def _decision(shift: np.ndarray, sigma: np.ndarray, angle_rad: float, carried: bool,

@@ -87,7 +87,7 @@ def test_the_turn_a_shift_carries_changes_the_fit_s_speed_not_its_answer(meshes,
     turn reaches in 5 linearisations what the plain fit reaches in 60."""
     T_true, P, masks = scene
     given = with_principal_shift(CAMERA, GIVEN_SHIFT_PX)
-    T_given = turned(T_true, GIVEN_SHIFT_PX, CAMERA.fx)
+    T_given = turned(T_true, GIVEN_SHIFT_PX, CAMERA)
     scales = finish_scale(P, meshes, masks, given, SearchSettings())
     objective, contour = finest_objective(scales), scales.contour(T_given)
     damping = scales.params.initial_damping

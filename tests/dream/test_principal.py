@@ -9,9 +9,9 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 from dream.cli import main
+from dream.coarse.camera_fit import principal_turn
 from dream.coarse.principal import (
     PrincipalSettings,
     _decision,
@@ -33,14 +33,13 @@ CLI_OFF_PX = np.array([24.0, -16.0])    # the same through the motion masks of a
 FRAMES = 12
 
 
-def turned(T_cam_base: np.ndarray, shift_px: np.ndarray, f: float) -> np.ndarray:
-    """The camera turned so that its image moves by -shift_px: to first order what a principal
-    point `shift_px` off asks of the pose (the search's optimum lies near it)."""
-    du, dv = shift_px
-    R = Rotation.from_euler("yx", [-np.arctan(du / f), np.arctan(dv / f)]).as_matrix()
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R @ T_cam_base[:3, :3], R @ T_cam_base[:3, 3]
-    return T
+def turned(T_cam_base: np.ndarray, shift_px: np.ndarray, camera) -> np.ndarray:
+    """The camera turned so that its image centre moves by -shift_px (`principal_turn`): to
+    first order what a principal point `shift_px` off asks of the pose (the search's optimum
+    lies near it)."""
+    C = np.eye(4)
+    C[:3, :3] = principal_turn(camera, shift_px)
+    return C @ T_cam_base
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +55,7 @@ def test_a_principal_point_given_off_is_asked_back_and_flagged(meshes, scene):
     T_true, P, masks = scene
     given = with_principal_shift(CAMERA, GIVEN_OFF_PX)
     T_given = finish_scale(P, meshes, masks, given, SearchSettings()).refine(
-        turned(T_true, GIVEN_OFF_PX, CAMERA.fx))
+        turned(T_true, GIVEN_OFF_PX, CAMERA))
     assert np.rad2deg(pose_errors(T_given, T_true)[1]) > 2.0
     estimate = fit_principal(P, meshes, masks, given, T_given, SearchSettings())
     np.testing.assert_allclose(estimate.shift_px, -GIVEN_OFF_PX, atol=1.0)
