@@ -31,9 +31,8 @@ import numpy as np
 from dream.calibration import CalibrationResult, Observations
 from dream.camera import CameraIntrinsics
 from dream.errors import InputError
-from dream.pnp.reprojection import apply_increment, linearise
+from dream.keypoint_camera_fit import KeypointCameraFit, focal_columns
 from dream.quality import CHECK, Finding
-from dream.refined_uncertainty import jackknife_spread
 
 POSE_AND_SCALE = 7            # unknowns of the joint fit: the pose increment and log(scale)
 MAX_LOG_STEP = 1.0            # a Gauss-Newton step of log(scale) beyond this: no answer
@@ -85,35 +84,18 @@ def fit_focal_scale(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics
                     T_cam_base: np.ndarray, iterations: int = 20
                     ) -> tuple[float, float, np.ndarray]:
     """The pose and focal-length scale s (fx, fy times s) that fit `uv` (N, 2) best, from
-    `T_cam_base`: returns (s, the fit's 1-sigma of log s, the pose).
+    `T_cam_base`: returns (s, the fit's 1-sigma of log s, the pose); (NaN, inf, the start)
+    where the fit has no answer (`KeypointCameraFit.fit`)."""
+    fitted = focal_fit(iterations).fit(P_base, uv, camera, T_cam_base)
+    if fitted is None:
+        return math.nan, math.inf, np.asarray(T_cam_base, float)
+    log_s, covariance, T = fitted
+    return math.exp(float(log_s[0])), math.sqrt(float(covariance[0, 0])), T
 
-    The scale's column of the Jacobian is exact: d u / d log s = u - cx (and v - cy).
-    """
-    P_base, uv = np.asarray(P_base, float), np.asarray(uv, float)
-    if P_base.shape != (len(uv), 3) or uv.shape[-1:] != (2,):
-        raise InputError(f"P_base {P_base.shape} and uv {uv.shape} must be (N, 3) and (N, 2)")
-    T, log_s = np.asarray(T_cam_base, float), 0.0
-    sigma = math.inf
-    for _ in range(iterations):
-        scaled = _scaled(camera, math.exp(log_s))
-        lin = linearise(P_base, uv, scaled, T)
-        if lin is None:               # a keypoint behind the camera: no answer
-            return math.nan, math.inf, T
-        e, J = lin
-        J_s = (e + uv) - np.array([scaled.cx, scaled.cy])
-        A = np.concatenate([J.reshape(-1, 6), J_s.reshape(-1, 1)], axis=1)
-        H = A.T @ A
-        try:
-            step = np.linalg.solve(H, -A.T @ e.reshape(-1))
-        except np.linalg.LinAlgError:
-            return math.nan, math.inf, T
-        if not (np.all(np.isfinite(step)) and abs(step[6]) < MAX_LOG_STEP):
-            return math.nan, math.inf, T     # the scale runs away: no answer
-        T, log_s = apply_increment(T, step[:6]), log_s + step[6]
-        dof = max(A.shape[0] - POSE_AND_SCALE, 1)
-        variance = float(e.reshape(-1) @ e.reshape(-1)) / dof * np.linalg.pinv(H)[6, 6]
-        sigma = math.sqrt(variance) if variance > 0 else math.inf
-    return math.exp(log_s), sigma, T
+
+def focal_fit(iterations: int = 20) -> KeypointCameraFit:
+    """The joint fit over (pose, log s)."""
+    return KeypointCameraFit(_scaled, 1, focal_columns, MAX_LOG_STEP, iterations)
 
 
 def keypoint_focal(result: CalibrationResult, obs: Observations, camera: CameraIntrinsics,
@@ -131,14 +113,9 @@ def keypoint_focal(result: CalibrationResult, obs: Observations, camera: CameraI
                                           settings.iterations)
     if not math.isfinite(scale):
         return None
-    groups = np.unique(names)
-    jackknife = None
-    if len(groups) >= settings.min_groups:
-        logs = np.log([fit_focal_scale(P[names != g], uv[names != g], camera,
-                                       result.T_cam_base, settings.iterations)[0]
-                       for g in groups])
-        if np.all(np.isfinite(logs)):
-            jackknife = float(math.sqrt(jackknife_spread(logs[:, None])[0, 0]))
+    spread = focal_fit(settings.iterations).jackknife(P, uv, names, camera, result.T_cam_base,
+                                                      settings.min_groups)
+    jackknife = None if spread is None else float(math.sqrt(spread[0, 0]))
     sigma = max(sigma_fit, jackknife or 0.0)
     return KeypointFocal(float(scale), float(sigma), float(sigma_fit), jackknife,
                          int(inlier.sum()))
@@ -169,7 +146,7 @@ def keypoint_focal_finding(focal: KeypointFocal | None, camera: CameraIntrinsics
                    "colour images? an image resized or cropped after calibrating?)")
 
 
-def _scaled(camera: CameraIntrinsics, scale: float) -> CameraIntrinsics:
+def _scaled(camera: CameraIntrinsics, log_s: np.ndarray) -> CameraIntrinsics:
     from dream.coarse.focal import with_focal_scale
 
-    return with_focal_scale(camera, scale)
+    return with_focal_scale(camera, math.exp(float(log_s[0])))

@@ -18,6 +18,7 @@ from dream.cli.calibrate_report import (
     steadiness_record,
 )
 from dream.cli.calibrate_write import check_outputs, finish, refined_or_kept, result_document
+from dream.cli.intrinsics_records import intrinsics_checks
 from dream.cli.observe import observe
 from dream.cli.options import (
     AUTO,
@@ -241,7 +242,8 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
                                   "camera": {"fx": seq.camera.fx, "fy": seq.camera.fy,
                                              "cx": seq.camera.cx, "cy": seq.camera.cy,
                                              "distortion": seq.camera.distortion}}
-    checked: list = [steadiness_record(motion, seq, doc), _focal_check(result, obs, seq, doc)]
+    checked: list = [steadiness_record(motion, seq, doc),
+                      *intrinsics_checks(result, obs, seq, doc)]
     readings = None if extension is not None else \
         _readings_check(result, obs, seq, robot, settings, doc, out)   # its readings corrected
     # the refinements draw each logged joint too (not under a model extension, whose timing
@@ -268,19 +270,6 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     doc["quality"] = add_quality(result, obs, doc, out, checked, leading=(readings,))
     finish(request, seq, robot, obs, result, doc, paths, out)
     return doc
-
-
-def _focal_check(result, obs, seq, doc: dict):
-    """The keypoints' focal-length check of an all-frames result (`dream.focal_check`): its
-    RESULT.json record `keypoint_focal` and its finding (None where it agrees)."""
-    from dream.focal_check import keypoint_focal, keypoint_focal_finding
-
-    focal = keypoint_focal(result, obs, seq.camera)
-    if focal is None:
-        return None
-    finding = keypoint_focal_finding(focal, seq.camera)
-    doc["keypoint_focal"] = {**focal.to_dict(), "agrees": finding is None}
-    return finding
 
 
 def _readings_check(result, obs, seq, robot, settings, doc: dict, out: TextIO):

@@ -174,10 +174,38 @@ def add_silhouette_check(seq, robot, result, doc: dict, out: TextIO,
           f"{check.iou_written:.3f} there, {o.best.iou:.3f} at the optimum)", file=out)
     doc, _ = with_cue_term({**doc, "silhouette_check": {"ran": True, **check.to_dict()}},
                            o.best.T_cam_base)
-    return doc, crosscheck_findings(check.iou_written, o.best.iou, check.distance_m,
-                                    check.angle_rad, o.basin_returned, o.basin_starts,
-                                    check.source, SearchSettings(), o.basin_m,
-                                    doc["silhouette_check"]["away"])
+    findings = crosscheck_findings(check.iou_written, o.best.iou, check.distance_m,
+                                   check.angle_rad, o.basin_returned, o.basin_starts,
+                                   check.source, SearchSettings(), o.basin_m,
+                                   doc["silhouette_check"]["away"])
+    return _with_intrinsics(doc, check, out), findings + _intrinsics_findings(check)
+
+
+def _with_intrinsics(doc: dict, check, out: TextIO) -> dict:
+    """The document whose covariance holds what the intrinsics the outlines ask for at the
+    silhouettes' optimum move the pose by (`Crosscheck.intrinsics_covariance`), where they
+    are a finding."""
+    from dream.refined_uncertainty import set_covariance
+
+    if check.focal is None or check.principal is None:
+        return doc
+    print(f"intrinsics on the outlines: {check.focal.reason}; {check.principal.reason}",
+          file=out)
+    added = check.intrinsics_covariance
+    if np.any(added):
+        set_covariance(doc, np.asarray(doc["covariance_xi"]) + added)
+        doc["uncertainty"]["method"] += " + the move through the intrinsics the outlines ask for"
+    return doc
+
+
+def _intrinsics_findings(check) -> list:
+    from dream.coarse.verdict import crosscheck_focal_finding, principal_finding
+
+    if check.focal is None or check.principal is None:
+        return []
+    record = check.to_dict()
+    findings = (crosscheck_focal_finding(record["focal"]), principal_finding(record["principal"]))
+    return [f for f in findings if f is not None]
 
 
 def _keypoints_or_aligned(doc: dict, doc_keypoints: dict, check: Crosscheck,

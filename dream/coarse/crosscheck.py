@@ -10,6 +10,15 @@ keypoint pose it started from (`undoes_alignment`): an optimum much nearer the k
 says the alignment slid off along what the edges hardly constrain (the camera's depth), and the
 keypoint pose is written instead; not where their optimum agrees with the aligned pose
 anyway.
+
+At the silhouettes' optimum the outlines also check the given intrinsics, as after the search:
+the focal length (`dream.coarse.focal`: a scale the outlines ask for and the overlap agrees
+with) and then, through it where it was asked for, the principal point
+(`dream.coarse.principal`). A wrong fx, fy slides the camera along its axis and a wrong cx, cy
+turns it, and the keypoints, the edges and the silhouettes all follow with a pose that their
+1-sigmas do not hold (on rendered scenes given cx, cy 12, -8 px off, `good` up to 4.9 deg
+off). Neither is adopted here: the pose written stays the keypoints' or the edges', and the
+verdict and its 1-sigma say how far the asked intrinsics move it.
 """
 
 from __future__ import annotations
@@ -19,13 +28,17 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from dream.coarse.away import AwayPixels, away_at_pose
-from dream.coarse.calibration import MOTION_MASKS, search_masks
+from dream.coarse.calibration import MOTION_MASKS, SearchMasks, search_masks
+from dream.coarse.focal import FocalEstimate, FocalSettings, fit_focal
+from dream.coarse.principal import PrincipalEstimate, PrincipalSettings, fit_principal
 from dream.coarse.search import SearchOutcome, pose_iou, search
 from dream.coarse.settings import SearchSettings
 from dream.coarse.verdict import cues_agree
 from dream.metrics import pose_errors
+from dream.pnp import increment_between
 from dream.robot import Robot
 from dream.sequence import Sequence
+from dream.silhouette import vertices_in_base
 
 CROSSCHECK_STARTS = 4   # the given poses, as given and aimed at the robot's masks
 
@@ -35,8 +48,9 @@ class Crosscheck:
     """The silhouettes' optimum near a written pose: the search's outcome, the IoU of the
     written pose's silhouettes (scored as the search scores its optimum), the distance (m,
     rad) from the written pose to the optimum, the masks' source and how many frames, the
-    masks' pixels away from the robot at the optimum (`dream.coarse.away`), and the keypoint
-    pose's IoU."""
+    masks' pixels away from the robot at the optimum (`dream.coarse.away`), the keypoint
+    pose's IoU, and the focal length and principal point the outlines ask for at the optimum
+    (None where the robot was not found there)."""
 
     outcome: SearchOutcome
     iou_written: float
@@ -46,6 +60,22 @@ class Crosscheck:
     frames: int
     away: AwayPixels
     iou_keypoints: float
+    focal: FocalEstimate | None = None
+    principal: PrincipalEstimate | None = None
+
+    @property
+    def intrinsics_covariance(self) -> np.ndarray:
+        """(6, 6) what the intrinsics the outlines ask for add to the written pose's covariance:
+        where a focal scale is asked for (`FocalEstimate.adopted`), the move to the pose through
+        it and its own 1-sigma's share; where the principal point is flagged, its
+        `PrincipalEstimate.pose_covariance`; zero where they agree with the given ones."""
+        covariance = np.zeros((6, 6))
+        if self.focal is not None and self.focal.adopted:
+            move = increment_between(self.outcome.best.T_cam_base, self.focal.T_cam_base)
+            covariance += np.outer(move, move) + self.focal.pose_covariance
+        if self.principal is not None:
+            covariance += self.principal.pose_covariance
+        return covariance
 
     @property
     def found_iou(self) -> float:
@@ -67,6 +97,9 @@ class Crosscheck:
                 "basin_returned": o.basin_returned, "basin_starts": o.basin_starts,
                 "basin_m": o.basin_m, "basin_return_m": o.basin_return_m,
                 "away": {**self.away.to_dict(), "iou_without": self.found_iou},
+                "focal": None if self.focal is None else {
+                    **replace(self.focal, adopted=False).to_dict(), "asked": self.focal.adopted},
+                "principal": None if self.principal is None else self.principal.to_dict(),
                 "seconds": o.seconds}
 
 
@@ -99,8 +132,30 @@ def silhouette_crosscheck(sequence: Sequence, robot: Robot, T_written: np.ndarra
     m, rad = pose_errors(np.asarray(T_written), outcome.best.T_cam_base)
     away = away_at_pose(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
                         outcome.best.T_cam_base, settings.away_margin_px)
+    focal, principal = intrinsics_at_optimum(sequence, inputs, outcome, settings, progress)
     return Crosscheck(outcome, iou, float(m), float(rad), inputs.source, len(inputs.frames),
-                      away, iou_keypoints)
+                      away, iou_keypoints, focal, principal)
+
+
+def intrinsics_at_optimum(sequence: Sequence, inputs: SearchMasks, outcome: SearchOutcome,
+                          settings: SearchSettings, progress=None
+                          ) -> tuple[FocalEstimate | None, PrincipalEstimate | None]:
+    """The focal length, then the principal point (through the asked focal length where it is
+    asked for), that the outlines ask for at the local search's optimum (module doc); (None,
+    None) where the robot was not found there."""
+    if not settings.robot_found(outcome.best.iou):
+        return None, None
+    P = vertices_in_base(inputs.meshes, inputs.joints)
+    held = inputs.source == MOTION_MASKS
+    focal = fit_focal(P, inputs.meshes, inputs.masks, sequence.camera, outcome.best.T_cam_base,
+                      settings, FocalSettings(), held, inputs.region)
+    camera, T = ((focal.camera, focal.T_cam_base) if focal.adopted
+                 else (sequence.camera, outcome.best.T_cam_base))
+    principal = fit_principal(P, inputs.meshes, inputs.masks, camera, T, settings,
+                              PrincipalSettings(), held, inputs.region)
+    if progress is not None:
+        progress(f"intrinsics: {focal.reason}; {principal.reason}")
+    return focal, principal
 
 
 def sides_with_keypoints(T_keypoints: np.ndarray, T_aligned: np.ndarray,

@@ -36,10 +36,12 @@ Each finding is (level, one sentence with what to do), as in `dream.quality`:
 - **focal**: the robot's outlines and their overlap ask for another focal length than the
   given one (`dream.coarse.focal`): the pose was found with it, and the user's intrinsics need
   correcting (`check`); both ask for more than its `max_change` off: the intrinsics or the
-  pose are wrong (`unreliable`).
+  pose are wrong (`unreliable`). In the silhouettes' cross-check of a pose found another way,
+  the same ask is a `check` whose move enters the 1-sigma (`crosscheck_focal_finding`).
 - **principal**: the robot's outlines ask for a principal point that turns the camera by more
   than the check's limit (`dream.coarse.principal`): the pose rests on the given cx, cy and
-  its rotation may be off by that much (`check`; the move enters the 1-sigma).
+  its rotation may be off by that much (`check`; the move enters the 1-sigma); the same at the
+  silhouettes' cross-check's optimum.
 
     >>> from dream.coarse.settings import SearchSettings
     >>> s = SearchSettings()
@@ -280,6 +282,28 @@ def focal_finding(focal: dict | None) -> Finding | None:
                             "size they belong to, their units) or the pose found are wrong; "
                             "check both")
     return None
+
+
+def crosscheck_focal_finding(focal: dict | None) -> Finding | None:
+    """The focal finding of the silhouettes' cross-check (RESULT.json's
+    `silhouette_check.focal`, where nothing is adopted and `asked` says the outlines and the
+    overlap ask for the scale): as `focal_finding`, but the pose written was not found again
+    with it.
+
+    >>> crosscheck_focal_finding({"asked": True, "adopted": False, "scale": 0.95,
+    ...                           "reason": "r", "given": {"fx": 100.0, "fy": 100.0}})[0]
+    'check'
+    """
+    if focal is None or not focal["asked"]:
+        return focal_finding(focal)         # beyond its range: unreliable; else None
+    given = focal["given"]
+    return CHECK, (f"the robot's outlines ask for a focal length x{focal['scale']:.3f} the "
+                   f"given one (fx, fy {given['fx'] * focal['scale']:.1f}, "
+                   f"{given['fy'] * focal['scale']:.1f} instead of {given['fx']:.1f}, "
+                   f"{given['fy']:.1f}), and their overlap agrees: with the given ones the "
+                   "pose written may lie centimetres off along the camera's axis (in the "
+                   "1-sigma); correct the camera's intrinsics (an image resized or cropped "
+                   "after calibrating? a depth stream's intrinsics for the colour images?)")
 
 
 def principal_finding(principal: dict | None) -> Finding | None:

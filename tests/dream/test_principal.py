@@ -143,3 +143,69 @@ def test_calibrate_records_the_check_and_a_flag_reaches_the_verdict_and_1_sigma(
     assert doc["start"]["principal"]["flagged"] and doc["quality"]["verdict"] != "good"
     assert any("principal point" in w for w in doc["quality"]["warnings"])
     assert np.asarray(doc["covariance_xi"])[0, 0] >= 0.03 ** 2
+
+
+def test_the_keypoint_paths_crosscheck_checks_the_principal_point_on_the_outlines(
+        panda, meshes, tmp_path, capsys, monkeypatch):
+    """The keypoint path (labels, the default refinement): the silhouettes' cross-check
+    records the principal point the outlines ask for at its optimum, nothing flagged; with
+    the estimate flagged, the verdict names it and the written covariance holds its move."""
+    image_dataset(panda, meshes, tmp_path)
+    argv = ["calibrate", "--data", str(tmp_path / "data"), "--use-labels", "--out"]
+    assert main(argv + [str(tmp_path / "r.json")]) == 0, capsys.readouterr()[1]
+    doc = json.loads((tmp_path / "r.json").read_text())
+    principal = doc["silhouette_check"]["principal"]
+    assert not principal["flagged"] and principal["given"] == {"cx": CAMERA.cx, "cy": CAMERA.cy}
+    assert not any("principal point" in w for w in doc["quality"]["warnings"])
+    printed = capsys.readouterr()[0]
+    assert "intrinsics on the outlines: the given fx, fy stand" in printed
+    assert "the given cx, cy stand" in printed
+
+    from dream.coarse import crosscheck
+
+    def flagged(*args, **kwargs):
+        estimate = fit_principal(*args, **kwargs)
+        return replace(estimate, flagged=True, xi=np.array([0.03, 0, 0, 0, 0, 0.0]))
+
+    monkeypatch.setattr(crosscheck, "fit_principal", flagged)
+    assert main(argv + [str(tmp_path / "f.json")]) == 0, capsys.readouterr()[1]
+    flagged_doc = json.loads((tmp_path / "f.json").read_text())
+    assert flagged_doc["silhouette_check"]["principal"]["flagged"]
+    assert flagged_doc["quality"]["verdict"] != "good"
+    assert any("principal point" in w for w in flagged_doc["quality"]["warnings"])
+    assert (np.asarray(flagged_doc["covariance_xi"])[0, 0]
+            >= np.asarray(doc["covariance_xi"])[0, 0] + 0.03 ** 2 - 1e-12)
+    assert "intrinsics the outlines ask for" in flagged_doc["uncertainty"]["method"]
+
+
+def test_the_keypoint_paths_crosscheck_names_a_focal_length_the_outlines_ask_for(
+        panda, meshes, tmp_path, capsys, monkeypatch):
+    """Where the outlines at the cross-check's optimum ask for another focal length (and the
+    overlap agrees), the verdict names it, the pose written stays, and the covariance holds the
+    move to the pose through the asked focal length."""
+    image_dataset(panda, meshes, tmp_path)
+    argv = ["calibrate", "--data", str(tmp_path / "data"), "--use-labels", "--out"]
+    assert main(argv + [str(tmp_path / "r.json")]) == 0, capsys.readouterr()[1]
+    doc = json.loads((tmp_path / "r.json").read_text())
+    assert not doc["silhouette_check"]["focal"]["asked"]
+    assert not any("focal length" in w for w in doc["quality"]["warnings"])
+
+    from dream.coarse import crosscheck
+    from dream.coarse.focal import fit_focal
+
+    def asked(*args, **kwargs):
+        estimate = fit_focal(*args, **kwargs)
+        T = estimate.T_cam_base.copy()
+        T[2, 3] += 0.03                         # the pose through it 3 cm along the axis
+        return replace(estimate, adopted=True, scale=0.95, T_cam_base=T)
+
+    monkeypatch.setattr(crosscheck, "fit_focal", asked)
+    assert main(argv + [str(tmp_path / "f.json")]) == 0, capsys.readouterr()[1]
+    asked_doc = json.loads((tmp_path / "f.json").read_text())
+    focal = asked_doc["silhouette_check"]["focal"]
+    assert focal["asked"] and not focal["adopted"] and focal["used"] == focal["given"]
+    assert asked_doc["T_cam_base"] == doc["T_cam_base"]
+    assert asked_doc["quality"]["verdict"] != "good"
+    assert any("ask for a focal length x0.950" in w for w in asked_doc["quality"]["warnings"])
+    assert (np.asarray(asked_doc["covariance_xi"])[5, 5]
+            >= np.asarray(doc["covariance_xi"])[5, 5] + 0.02 ** 2)

@@ -1,0 +1,134 @@
+"""The keypoint path's principal-point check: given cx, cy 24, -16 px off (640x480, fx 600),
+exact labels calibrated `good` 2.9 deg off; the right principal point passes without a word."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from dream.camera import CameraIntrinsics, project
+from dream.cli import main
+from dream.coarse.focal import with_focal_scale
+from dream.coarse.principal import with_principal_shift
+from dream.focal_check import focal_fit
+from dream.inject import InjectionSettings, make_injected_sequence
+from dream.io import write_dream
+from dream.keypoint_camera_fit import focal_columns, principal_columns
+from dream.metrics import pose_errors
+from dream.pipeline import calibrate, observations_from_labels, robot_for, truth_poses
+from dream.principal_check import keypoint_principal, keypoint_principal_finding, principal_fit
+from dream.quality import result_quality
+from dream.transforms import look_at, transform_points
+
+CAMERA = CameraIntrinsics(600.0, 600.0, 319.5, 239.5, 640, 480)
+
+
+def _scene(shift):
+    seq = make_injected_sequence(InjectionSettings(num_frames=40, seed=12))
+    return seq.with_fixed_camera(with_principal_shift(seq.camera, shift))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_random_pose_project_and_fit_asks_for_the_shift_back(seed):
+    """Random pose and shift -> project through the shifted camera -> fit from the given
+    camera at a pose a little off -> the shift and the pose back."""
+    rng = np.random.default_rng(seed)
+    T = look_at(rng.uniform([1.0, -1.0, 0.3], [2.0, 1.0, 1.2]),
+                rng.uniform([-0.1, -0.1, 0.2], [0.1, 0.1, 0.5]))
+    P = rng.uniform([-0.4, -0.4, 0.0], [0.4, 0.4, 0.9], (80, 3))
+    shift = rng.uniform(-30.0, 30.0, 2)
+    uv = project(with_principal_shift(CAMERA, shift), transform_points(T, P))
+    T_start = T.copy()
+    T_start[:3, 3] += rng.normal(0.0, 0.02, 3)
+    fitted, covariance, T_fit = principal_fit().fit(P, uv, CAMERA, T_start)
+    assert fitted == pytest.approx(shift, abs=1e-6)
+    assert np.all(np.diag(covariance) < 1e-12)
+    m, rad = pose_errors(T_fit, T)
+    assert m < 1e-8 and rad < 1e-8
+
+
+@pytest.mark.parametrize("fit, columns, p", [
+    (principal_fit(), principal_columns, np.array([5.0, -3.0])),
+    (focal_fit(), focal_columns, np.array([0.05])),
+])
+def test_the_parameter_columns_are_the_projections_derivatives(fit, columns, p):
+    """The exact columns against central differences of the projection through camera_at."""
+    rng = np.random.default_rng(3)
+    P_cam = rng.uniform([-0.5, -0.4, 1.0], [0.5, 0.4, 2.5], (20, 3))
+    step = 1e-5
+    numeric = np.stack([(project(fit.camera_at(CAMERA, p + step * e), P_cam)
+                         - project(fit.camera_at(CAMERA, p - step * e), P_cam)) / (2 * step)
+                        for e in np.eye(len(p))], axis=-1)
+    at = fit.camera_at(CAMERA, p)
+    assert columns(project(at, P_cam), at) == pytest.approx(numeric, abs=1e-5)
+
+
+def test_the_jackknife_needs_enough_names():
+    rng = np.random.default_rng(0)
+    T = look_at(np.array([1.5, 0.2, 0.8]), np.array([0.0, 0.0, 0.4]))
+    P = rng.uniform([-0.4, -0.4, 0.0], [0.4, 0.4, 0.9], (60, 3))
+    uv = project(CAMERA, transform_points(T, P)) + rng.normal(0.0, 1.0, (60, 2))
+    names = np.arange(60) % 6
+    fit = principal_fit()
+    assert fit.jackknife(P, uv, names, CAMERA, T, min_groups=7) is None
+    spread = fit.jackknife(P, uv, names, CAMERA, T, min_groups=3)
+    assert spread.shape == (2, 2) and np.all(np.diag(spread) > 0)
+
+
+def test_a_point_behind_the_camera_gives_no_answer():
+    P = np.array([[0.0, 0.0, -1.0]] * 10)
+    assert principal_fit().fit(P, np.zeros((10, 2)), CAMERA, np.eye(4)) is None
+
+
+@pytest.mark.parametrize("shift", [(0.0, 0.0), (24.0, -16.0)])
+def test_the_keypoints_ask_for_the_principal_point_they_were_seen_with(shift):
+    seq = _scene(shift)
+    robot = robot_for(seq, None)
+    obs = observations_from_labels(seq, robot)
+    result = calibrate(seq, obs, "all")
+    principal = keypoint_principal(result, obs, seq.camera)
+    assert principal.shift_px == pytest.approx(-np.array(shift), abs=3.0)
+    assert principal.sigma_jackknife_px is not None
+    assert np.all(principal.sigma_px >= principal.sigma_fit_px)
+    finding = keypoint_principal_finding(principal, seq.camera)
+    assert (finding is None) == (shift == (0.0, 0.0))
+    if finding is not None:        # the fit alone: `good`, the camera turned about 2.9 deg
+        assert result_quality(result, obs).verdict == "good"
+        assert np.rad2deg(pose_errors(result.T_cam_base, truth_poses(seq)[0])[1]) > 2.0
+
+
+def test_a_wrong_focal_length_is_not_read_as_a_wrong_principal_point():
+    seq = make_injected_sequence(InjectionSettings(num_frames=40, seed=12))
+    seq = seq.with_fixed_camera(with_focal_scale(seq.camera, 1.1))
+    robot = robot_for(seq, None)
+    obs = observations_from_labels(seq, robot)
+    principal = keypoint_principal(calibrate(seq, obs, "all"), obs, seq.camera)
+    assert keypoint_principal_finding(principal, seq.camera) is None
+
+
+def test_calibrate_says_the_principal_point_is_off(tmp_path, capsys):
+    for name, shift in (("right", (0.0, 0.0)), ("wrong", (24.0, -16.0))):
+        write_dream(_scene(shift), tmp_path / name)
+        out = tmp_path / f"{name}.json"
+        assert main(["calibrate", "--data", str(tmp_path / name), "--use-labels", "--refine",
+                     "none", "--out", str(out)]) == 0
+        printed = capsys.readouterr().out
+        doc = json.loads(out.read_text())
+        assert doc["keypoint_principal"]["agrees"] == (name == "right")
+        assert doc["quality"]["verdict"] == ("good" if name == "right" else "check")
+        assert ("the principal point moved by" in printed) == (name == "wrong")
+
+
+def test_detections_that_fix_nothing_beyond_the_pose_give_no_check(tmp_path):
+    """Three distinct points seen again and again (a detector that finds the same few pixels
+    in every frame, as on a rendered scene whose keypoint fit lay 1.6 m off) fix fewer
+    unknowns than the fit has and leave no residual: no 1-sigma, so neither check answers
+    (`dream calibrate` wrote an infinite focal 1-sigma into RESULT.json there and failed)."""
+    rng = np.random.default_rng(1)
+    T = look_at(np.array([1.5, 0.2, 0.8]), np.array([0.0, 0.0, 0.4]))
+    P = np.repeat(rng.uniform([-0.4, -0.4, 0.0], [0.4, 0.4, 0.9], (3, 3)), 16, axis=0)
+    uv = project(with_principal_shift(CAMERA, [4.0, -3.0]), transform_points(T, P))
+    assert principal_fit().fit(P, uv, CAMERA, T) is None
+    assert focal_fit().fit(P, uv, with_focal_scale(CAMERA, 1.05), T) is None
