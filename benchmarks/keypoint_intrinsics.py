@@ -231,12 +231,26 @@ def main() -> None:
     render = _coarse_start().render_scene
     model = (dream.load_keypoint_model(dream.BUNDLED_MODEL) if args.labels_noise is None
              else None)
-    if args.refined:
-        refined(args, render, model)
-        return
     focal, principal = FocalCheckSettings(), PrincipalCheckSettings()
     print(f"focal check: tolerance {focal.tolerance:g}, z {focal.z:g}; principal check: "
           f"turn above {np.rad2deg(principal.min_angle_rad):g} deg, z {principal.z:g}")
+    if args.refined:
+        def rows_of(data: Path, k: int, work: Path) -> list[dict]:
+            (work / "results").mkdir(exist_ok=True)
+            return refined_rows(data, args.scales, args.shifts, model, work / "results")
+
+        run_scenes(args, render, rows_of, _refined_text, refined_summary)
+    else:
+        def rows_of(data: Path, k: int, work: Path) -> list[dict]:
+            return scene_rows(data, args.scales, args.shifts, model, args.labels_noise,
+                              args.first_seed + k)
+
+        run_scenes(args, render, rows_of, _row_text, summary)
+
+
+def run_scenes(args, render, rows_of, text_of, summary_of) -> None:
+    """Render (or reuse) each scene, print its rows as they come, then one summary line per
+    camera given."""
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work or Path(tmp)
         rows: list[dict] = []
@@ -244,32 +258,13 @@ def main() -> None:
             start = time.perf_counter()
             data = render("panda", work / f"scene{k}", args.first_seed + k, args.frames,
                           reuse=True)
-            got = scene_rows(data, args.scales, args.shifts, model, args.labels_noise,
-                             args.first_seed + k)
+            got = rows_of(data, k, work)
             rows += got
             print(f"scene {k} ({time.perf_counter() - start:.0f} s):", flush=True)
             for r in got:
-                print("    " + _row_text(r), flush=True)
+                print("    " + text_of(r), flush=True)
     for name in dict.fromkeys(r["given"] for r in rows):
-        print(summary(rows, name))
-
-
-def refined(args, render, model) -> None:
-    """The `--refined` runs (module doc)."""
-    with tempfile.TemporaryDirectory() as tmp:
-        work = args.work or Path(tmp)
-        rows: list[dict] = []
-        for k in range(args.scenes):
-            data = render("panda", work / f"scene{k}", args.first_seed + k, args.frames,
-                          reuse=True)
-            (work / "results").mkdir(exist_ok=True)
-            got = refined_rows(data, args.scales, args.shifts, model, work / "results")
-            rows += got
-            print(f"scene {k}:", flush=True)
-            for r in got:
-                print("    " + _refined_text(r), flush=True)
-    for name in dict.fromkeys(r["given"] for r in rows):
-        print(refined_summary(rows, name))
+        print(summary_of(rows, name))
 
 
 if __name__ == "__main__":

@@ -31,7 +31,7 @@ import numpy as np
 from dream.calibration import CalibrationResult, Observations
 from dream.camera import CameraIntrinsics
 from dream.errors import InputError
-from dream.keypoint_camera_fit import KeypointCameraFit, focal_columns
+from dream.keypoint_camera_fit import KeypointCameraFit, focal_columns, inlier_keypoints
 from dream.quality import CHECK, Finding
 
 POSE_AND_SCALE = 7            # unknowns of the joint fit: the pose increment and log(scale)
@@ -102,13 +102,10 @@ def keypoint_focal(result: CalibrationResult, obs: Observations, camera: CameraI
                    settings: FocalCheckSettings = FocalCheckSettings()) -> KeypointFocal | None:
     """The focal scale of an all-frames result's inlier keypoints (None: too few, or
     another mode)."""
-    if result.mode != "all":
+    points = inlier_keypoints(result, obs, settings.min_keypoints)
+    if points is None:
         return None
-    inlier = result.inlier & obs.found
-    if inlier.sum() < settings.min_keypoints:
-        return None
-    P, uv = obs.P_base[inlier], obs.uv[inlier]
-    names = np.broadcast_to(np.arange(obs.uv.shape[1]), inlier.shape)[inlier]
+    P, uv, names = points
     scale, sigma_fit, _ = fit_focal_scale(P, uv, camera, result.T_cam_base,
                                           settings.iterations)
     if not math.isfinite(scale):
@@ -118,7 +115,7 @@ def keypoint_focal(result: CalibrationResult, obs: Observations, camera: CameraI
     jackknife = None if spread is None else float(math.sqrt(spread[0, 0]))
     sigma = max(sigma_fit, jackknife or 0.0)
     return KeypointFocal(float(scale), float(sigma), float(sigma_fit), jackknife,
-                         int(inlier.sum()))
+                         len(P))
 
 
 def keypoint_focal_finding(focal: KeypointFocal | None, camera: CameraIntrinsics,

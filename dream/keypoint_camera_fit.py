@@ -113,6 +113,20 @@ class KeypointCameraFit:
         return jackknife_spread(np.array(values))
 
 
+def inlier_keypoints(result, obs, min_keypoints: int
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(P_base (N, 3), uv (N, 2), each one's keypoint index (N,)) of an all-frames
+    `CalibrationResult`'s inlier detections in `Observations`; None in another mode or with
+    fewer than `min_keypoints`."""
+    if result.mode != "all":
+        return None
+    inlier = result.inlier & obs.found
+    if inlier.sum() < min_keypoints:
+        return None
+    names = np.broadcast_to(np.arange(obs.uv.shape[1]), inlier.shape)[inlier]
+    return obs.P_base[inlier], obs.uv[inlier], names
+
+
 def principal_columns(uv: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
     """d uv / d (du, dv) of a principal point moved by (du, dv) pixels: the identity."""
     return np.broadcast_to(np.eye(2), (*uv.shape[:-1], 2, 2))

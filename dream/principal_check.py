@@ -29,7 +29,7 @@ import numpy as np
 from dream.calibration import CalibrationResult, Observations
 from dream.camera import CameraIntrinsics
 from dream.errors import InputError
-from dream.keypoint_camera_fit import KeypointCameraFit, principal_columns
+from dream.keypoint_camera_fit import KeypointCameraFit, inlier_keypoints, principal_columns
 from dream.quality import CHECK, Finding
 
 MAX_STEP_PX = 1000.0          # a Gauss-Newton step of the shift beyond this: no answer
@@ -107,13 +107,10 @@ def keypoint_principal(result: CalibrationResult, obs: Observations, camera: Cam
                        ) -> KeypointPrincipal | None:
     """The principal-point shift an all-frames result's inlier keypoints ask for (None: too
     few, another mode, or no answer)."""
-    if result.mode != "all":
+    points = inlier_keypoints(result, obs, settings.min_keypoints)
+    if points is None:
         return None
-    inlier = result.inlier & obs.found
-    if inlier.sum() < settings.min_keypoints:
-        return None
-    P, uv = obs.P_base[inlier], obs.uv[inlier]
-    names = np.broadcast_to(np.arange(obs.uv.shape[1]), inlier.shape)[inlier]
+    P, uv, names = points
     fit = principal_fit(settings.iterations)
     fitted = fit.fit(P, uv, camera, result.T_cam_base)
     if fitted is None:
@@ -124,7 +121,7 @@ def keypoint_principal(result: CalibrationResult, obs: Observations, camera: Cam
     jackknife = None if spread is None else np.sqrt(np.clip(np.diag(spread), 0.0, None))
     sigma = sigma_fit if jackknife is None else np.maximum(sigma_fit, jackknife)
     return KeypointPrincipal(shift, sigma, sigma_fit, jackknife, turn_angle(shift, camera),
-                             int(inlier.sum()))
+                             len(P))
 
 
 def keypoint_principal_finding(principal: KeypointPrincipal | None, camera: CameraIntrinsics,
