@@ -100,8 +100,8 @@ def focal_fit(iterations: int = 20) -> KeypointCameraFit:
 
 def keypoint_focal(result: CalibrationResult, obs: Observations, camera: CameraIntrinsics,
                    settings: FocalCheckSettings = FocalCheckSettings()) -> KeypointFocal | None:
-    """The focal scale of an all-frames result's inlier keypoints (None: too few, or
-    another mode)."""
+    """The focal scale of an all-frames result's inlier keypoints (None: too few, another
+    mode, or no answer from the fit or from one of its leave-one-name-out fits)."""
     points = inlier_keypoints(result, obs, settings.min_keypoints)
     if points is None:
         return None
@@ -112,6 +112,8 @@ def keypoint_focal(result: CalibrationResult, obs: Observations, camera: CameraI
         return None
     spread = focal_fit(settings.iterations).jackknife(P, uv, names, camera, result.T_cam_base,
                                                       settings.min_groups)
+    if spread is None and len(np.unique(names)) >= settings.min_groups:
+        return None                   # a fit without one keypoint failed: no 1-sigma to trust
     jackknife = None if spread is None else float(math.sqrt(spread[0, 0]))
     sigma = max(sigma_fit, jackknife or 0.0)
     return KeypointFocal(float(scale), float(sigma), float(sigma_fit), jackknife,

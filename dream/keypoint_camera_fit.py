@@ -64,9 +64,9 @@ class KeypointCameraFit:
     def fit(self, P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
             T_cam_base: np.ndarray) -> Fitted | None:
         """(p (k,), its covariance (k, k), the pose) that fit `uv` (N, 2) best from p = 0 and
-        `T_cam_base`; None where a point falls behind the camera, the normal equations are
-        singular, a step runs away, or the fit leaves no residual to measure p's 1-sigma by
-        (as many distinct points as unknowns: the same few detections in every frame)."""
+        `T_cam_base`; None where a point falls behind the camera, the points fix fewer
+        directions than there are unknowns (the same few detections in every frame), a step
+        runs away, or the fit leaves no residual to measure p's 1-sigma by."""
         P_base, uv = np.asarray(P_base, float), np.asarray(uv, float)
         if P_base.shape != (len(uv), 3) or uv.shape[-1:] != (2,):
             raise InputError(f"P_base {P_base.shape} and uv {uv.shape} must be (N, 3) and "
@@ -81,6 +81,8 @@ class KeypointCameraFit:
             e, J = lin
             A = np.concatenate([J.reshape(-1, POSE),
                                 self.columns(e + uv, at).reshape(-1, self.size)], axis=1)
+            if np.linalg.matrix_rank(A) < POSE + self.size:
+                return None           # too few distinct points for the unknowns
             H = A.T @ A
             try:
                 step = np.linalg.solve(H, -A.T @ e.reshape(-1))

@@ -106,7 +106,8 @@ def keypoint_principal(result: CalibrationResult, obs: Observations, camera: Cam
                        settings: PrincipalCheckSettings = PrincipalCheckSettings()
                        ) -> KeypointPrincipal | None:
     """The principal-point shift an all-frames result's inlier keypoints ask for (None: too
-    few, another mode, or no answer)."""
+    few, another mode, or no answer from the fit or from one of its leave-one-name-out fits:
+    the fit's own 1-sigma alone would flag a detector's bias on one keypoint)."""
     points = inlier_keypoints(result, obs, settings.min_keypoints)
     if points is None:
         return None
@@ -118,6 +119,8 @@ def keypoint_principal(result: CalibrationResult, obs: Observations, camera: Cam
     shift, covariance, _ = fitted
     sigma_fit = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     spread = fit.jackknife(P, uv, names, camera, result.T_cam_base, settings.min_groups)
+    if spread is None and len(np.unique(names)) >= settings.min_groups:
+        return None                   # a fit without one keypoint failed: no 1-sigma to trust
     jackknife = None if spread is None else np.sqrt(np.clip(np.diag(spread), 0.0, None))
     sigma = sigma_fit if jackknife is None else np.maximum(sigma_fit, jackknife)
     return KeypointPrincipal(shift, sigma, sigma_fit, jackknife, turn_angle(shift, camera),

@@ -66,16 +66,19 @@ class Crosscheck:
     @property
     def intrinsics_covariance(self) -> np.ndarray:
         """(6, 6) what the intrinsics the outlines ask for add to the written pose's covariance:
-        where a focal scale is asked for (`FocalEstimate.adopted`), the move to the pose through
-        it and its own 1-sigma's share; where the principal point is flagged, its
-        `PrincipalEstimate.pose_covariance`; zero where they agree with the given ones."""
-        covariance = np.zeros((6, 6))
+        the move from the optimum to the pose through them (the asked focal length's, where
+        one is asked for: `FocalEstimate.adopted`; then the flagged principal point's, fitted
+        from there), and the spreads of those poses (`FocalEstimate.pose_covariance`,
+        `PrincipalEstimate.spread`); zero where they agree with the given ones."""
+        covariance, T_asked = np.zeros((6, 6)), self.outcome.best.T_cam_base
         if self.focal is not None and self.focal.adopted:
-            move = increment_between(self.outcome.best.T_cam_base, self.focal.T_cam_base)
-            covariance += np.outer(move, move) + self.focal.pose_covariance
-        if self.principal is not None:
-            covariance += self.principal.pose_covariance
-        return covariance
+            covariance += self.focal.pose_covariance
+            T_asked = self.focal.T_cam_base
+        if self.principal is not None and self.principal.flagged:
+            covariance += self.principal.spread
+            T_asked = self.principal.T_cam_base
+        move = increment_between(self.outcome.best.T_cam_base, T_asked)
+        return covariance + np.outer(move, move)
 
     @property
     def found_iou(self) -> float:

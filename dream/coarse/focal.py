@@ -144,7 +144,8 @@ class FocalEstimate:
 
     def to_dict(self) -> dict:
         given = self.given
-        return {"scale": self.scale, "sigma_relative": self.sigma,
+        return {"scale": self.scale,
+                "sigma_relative": self.sigma if np.isfinite(self.sigma) else None,
                 "iou_given": self.iou_given, "iou_fitted": self.iou_fitted,
                 "rounds": self.rounds, "adopted": self.adopted, "reason": self.reason,
                 "sigma_used": self.sigma_used,

@@ -3,6 +3,8 @@ pose it started from (`dream.coarse.crosscheck.undoes_alignment`)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -51,3 +53,38 @@ def test_an_optimum_nearer_the_aligned_pose_keeps_it():
     undo, _, _ = undoes_alignment(check_at(T_aligned, along_depth(0.028), FOUND), T_keypoints,
                                   T_aligned, SETTINGS)
     assert not undo
+
+
+def test_the_intrinsics_move_runs_from_the_optimum_to_the_pose_through_all_they_ask():
+    """A focal length asked for (the pose through it 3 cm along the axis) and a principal point
+    flagged from there (2 cm further): the covariance holds the whole 5 cm move, not the two
+    parts apart; where the outlines agree with the given intrinsics, nothing."""
+    from dream.camera import CameraIntrinsics
+    from dream.coarse.focal import FocalEstimate
+    from dream.coarse.principal import PrincipalEstimate
+    from dream.pnp import increment_between
+
+    camera = CameraIntrinsics(300.0, 300.0, 159.5, 119.5, 320, 240)
+    T_optimum, T_focal, T_principal = along_depth(0.0), along_depth(0.03), along_depth(0.05)
+    check = check_at(T_optimum, T_optimum, FOUND)
+    focal = FocalEstimate(0.95, 0.01, 0.60, 0.62, 2, True, "asked", camera, camera, T_focal,
+                          np.zeros(6), 0.0)
+    principal = PrincipalEstimate(np.array([12.0, -8.0]), np.ones(2), 0.05, 2, True, "flagged",
+                                  camera, T_principal, increment_between(T_focal, T_principal))
+    asked = replace(check, focal=focal, principal=principal).intrinsics_covariance
+    assert asked[5, 5] == pytest.approx(0.05 ** 2)
+    agreeing = replace(check, focal=replace(focal, adopted=False),
+                       principal=replace(principal, flagged=False))
+    assert not np.any(agreeing.intrinsics_covariance)
+
+
+def test_a_focal_1_sigma_without_enough_frame_groups_is_written_as_null():
+    import json
+
+    from dream.camera import CameraIntrinsics
+    from dream.coarse.focal import FocalEstimate
+
+    camera = CameraIntrinsics(300.0, 300.0, 159.5, 119.5, 320, 240)
+    focal = FocalEstimate(1.01, float("nan"), 0.6, 0.6, 1, False, "r", camera, camera,
+                          np.eye(4), np.zeros(6), 0.01)
+    assert json.loads(json.dumps(focal.to_dict(), allow_nan=False))["sigma_relative"] is None

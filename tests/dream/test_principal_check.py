@@ -130,5 +130,6 @@ def test_detections_that_fix_nothing_beyond_the_pose_give_no_check(tmp_path):
     T = look_at(np.array([1.5, 0.2, 0.8]), np.array([0.0, 0.0, 0.4]))
     P = np.repeat(rng.uniform([-0.4, -0.4, 0.0], [0.4, 0.4, 0.9], (3, 3)), 16, axis=0)
     uv = project(with_principal_shift(CAMERA, [4.0, -3.0]), transform_points(T, P))
-    assert principal_fit().fit(P, uv, CAMERA, T) is None
-    assert focal_fit().fit(P, uv, with_focal_scale(CAMERA, 1.05), T) is None
+    for detections in (uv, uv + rng.normal(0.0, 3.0, uv.shape)):    # exact, and scattered
+        assert principal_fit().fit(P, detections, CAMERA, T) is None
+        assert focal_fit().fit(P, detections, with_focal_scale(CAMERA, 1.05), T) is None
