@@ -162,10 +162,14 @@ def test_the_keypoint_paths_crosscheck_checks_the_principal_point_on_the_outline
     assert "the given cx, cy stand" in printed
 
     from dream.coarse import crosscheck
+    from dream.pnp import apply_increment
 
-    def flagged(*args, **kwargs):
+    turn = np.array([0.03, 0, 0, 0, 0, 0.0])
+
+    def flagged(*args, **kwargs):       # the pose through the asked point 0.03 rad away
         estimate = fit_principal(*args, **kwargs)
-        return replace(estimate, flagged=True, xi=np.array([0.03, 0, 0, 0, 0, 0.0]))
+        return replace(estimate, flagged=True, xi=turn,
+                       T_cam_base=apply_increment(args[4], turn))
 
     monkeypatch.setattr(crosscheck, "fit_principal", flagged)
     assert main(argv + [str(tmp_path / "f.json")]) == 0, capsys.readouterr()[1]
