@@ -106,18 +106,15 @@ def keypoint_focal(result: CalibrationResult, obs: Observations, camera: CameraI
     if points is None:
         return None
     P, uv, names = points
-    scale, sigma_fit, _ = fit_focal_scale(P, uv, camera, result.T_cam_base,
-                                          settings.iterations)
-    if not math.isfinite(scale):
+    estimate = focal_fit(settings.iterations).estimate(P, uv, names, camera, result.T_cam_base,
+                                                       settings.min_groups)
+    if estimate is None:
         return None
-    spread = focal_fit(settings.iterations).jackknife(P, uv, names, camera, result.T_cam_base,
-                                                      settings.min_groups)
-    if spread is None and len(np.unique(names)) >= settings.min_groups:
-        return None                   # a fit without one keypoint failed: no 1-sigma to trust
-    jackknife = None if spread is None else float(math.sqrt(spread[0, 0]))
-    sigma = max(sigma_fit, jackknife or 0.0)
-    return KeypointFocal(float(scale), float(sigma), float(sigma_fit), jackknife,
-                         len(P))
+    log_s, sigma_fit, jackknife = estimate
+    sigma_jackknife = None if jackknife is None else float(jackknife[0])
+    return KeypointFocal(math.exp(float(log_s[0])), max(float(sigma_fit[0]),
+                                                        sigma_jackknife or 0.0),
+                         float(sigma_fit[0]), sigma_jackknife, len(P))
 
 
 def keypoint_focal_finding(focal: KeypointFocal | None, camera: CameraIntrinsics,

@@ -98,6 +98,25 @@ class KeypointCameraFit:
             return None               # the points fix nothing beyond the pose: no 1-sigma
         return p, covariance, T
 
+    def estimate(self, P_base: np.ndarray, uv: np.ndarray, names: np.ndarray,
+                 camera: CameraIntrinsics, T_cam_base: np.ndarray, min_groups: int
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
+        """(p (k,), the fit's 1-sigma (k,), the delete-one-name jackknife's (k,); None with
+        fewer than `min_groups` names); None where the fit or one of its leave-one-name-out
+        fits has no answer (the fit's own 1-sigma alone would flag a detector's bias on one
+        keypoint)."""
+        fitted = self.fit(P_base, uv, camera, T_cam_base)
+        if fitted is None:
+            return None
+        p, covariance, _ = fitted
+        sigma_fit = np.sqrt(np.diag(covariance))
+        if len(np.unique(names)) < min_groups:
+            return p, sigma_fit, None
+        spread = self.jackknife(P_base, uv, names, camera, T_cam_base, min_groups)
+        if spread is None:
+            return None
+        return p, sigma_fit, np.sqrt(np.clip(np.diag(spread), 0.0, None))
+
     def jackknife(self, P_base: np.ndarray, uv: np.ndarray, names: np.ndarray,
                   camera: CameraIntrinsics, T_cam_base: np.ndarray,
                   min_groups: int) -> np.ndarray | None:

@@ -112,16 +112,12 @@ def keypoint_principal(result: CalibrationResult, obs: Observations, camera: Cam
     if points is None:
         return None
     P, uv, names = points
-    fit = principal_fit(settings.iterations)
-    fitted = fit.fit(P, uv, camera, result.T_cam_base)
-    if fitted is None:
+    estimate = principal_fit(settings.iterations).estimate(P, uv, names, camera,
+                                                           result.T_cam_base,
+                                                           settings.min_groups)
+    if estimate is None:
         return None
-    shift, covariance, _ = fitted
-    sigma_fit = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
-    spread = fit.jackknife(P, uv, names, camera, result.T_cam_base, settings.min_groups)
-    if spread is None and len(np.unique(names)) >= settings.min_groups:
-        return None                   # a fit without one keypoint failed: no 1-sigma to trust
-    jackknife = None if spread is None else np.sqrt(np.clip(np.diag(spread), 0.0, None))
+    shift, sigma_fit, jackknife = estimate
     sigma = sigma_fit if jackknife is None else np.maximum(sigma_fit, jackknife)
     return KeypointPrincipal(shift, sigma, sigma_fit, jackknife, turn_angle(shift, camera),
                              len(P))

@@ -178,34 +178,28 @@ def add_silhouette_check(seq, robot, result, doc: dict, out: TextIO,
                                    check.angle_rad, o.basin_returned, o.basin_starts,
                                    check.source, SearchSettings(), o.basin_m,
                                    doc["silhouette_check"]["away"])
-    return _with_intrinsics(doc, check, out), findings + _intrinsics_findings(check)
+    doc, intrinsics = _with_intrinsics(doc, check, out)
+    return doc, findings + intrinsics
 
 
-def _with_intrinsics(doc: dict, check, out: TextIO) -> dict:
+def _with_intrinsics(doc: dict, check, out: TextIO) -> tuple[dict, list]:
     """The document whose covariance holds what the intrinsics the outlines ask for at the
-    silhouettes' optimum move the pose by (`Crosscheck.intrinsics_covariance`), where they
-    are a finding."""
+    silhouettes' optimum move the pose by (`Crosscheck.intrinsics_covariance`), and their
+    findings (none where the robot was not found there: no fits)."""
+    from dream.coarse.verdict import crosscheck_focal_finding, principal_finding
     from dream.refined_uncertainty import set_covariance
 
-    if check.focal is None or check.principal is None:
-        return doc
+    record = doc["silhouette_check"]
+    if record["focal"] is None:
+        return doc, []
     print(f"intrinsics on the outlines: {check.focal.reason}; {check.principal.reason}",
           file=out)
     added = check.intrinsics_covariance
     if np.any(added):
         set_covariance(doc, np.asarray(doc["covariance_xi"]) + added)
         doc["uncertainty"]["method"] += " + the move through the intrinsics the outlines ask for"
-    return doc
-
-
-def _intrinsics_findings(check) -> list:
-    from dream.coarse.verdict import crosscheck_focal_finding, principal_finding
-
-    if check.focal is None or check.principal is None:
-        return []
-    record = check.to_dict()
     findings = (crosscheck_focal_finding(record["focal"]), principal_finding(record["principal"]))
-    return [f for f in findings if f is not None]
+    return doc, [f for f in findings if f is not None]
 
 
 def _keypoints_or_aligned(doc: dict, doc_keypoints: dict, check: Crosscheck,
