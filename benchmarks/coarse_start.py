@@ -11,7 +11,8 @@ calibrating, so only the images are read. Each scene is calibrated from a guess 
 T_cam_base), with `--auto` by the automatic search, and with `--mark-frames N` from a mark on
 the end effector (the last keypoint link's origin) clicked in N frames: its labels plus
 `--mark-noise-px`; with `--fooled` the keypoint path (`--use-labels`) from labels projected at
-a camera that far off, so that its refinements and their verdict are tested from a wrong start;
+a camera that far off (through the intrinsics rendered with, whatever the calibration is given),
+so that its refinements and their verdict are tested from a wrong start;
 with `--given-focal F` the calibration is given fx, fy F times those rendered with (the search
 fits the focal length where the outlines tell it: `dream.coarse.focal`); with
 `--given-principal DU,DV` a principal point DU, DV pixels off; with `--video-codec`
@@ -271,9 +272,10 @@ def mark_file(data: Path, T_true: np.ndarray, count: int, noise_px: float,
 
 
 def fooled_labels(data: Path, T_true: np.ndarray, offset_m: float, offset_rad: float,
-                  rng: np.random.Generator, out: Path) -> Path:
+                  rng: np.random.Generator, out: Path, camera=None) -> Path:
     """A copy of `data` whose keypoint labels are the projections at a camera `offset_m` /
-    `offset_rad` off `T_true` (a detector fooled the same way in every frame)."""
+    `offset_rad` off `T_true` (a detector fooled the same way in every frame), through
+    `camera` (the one the images were rendered with; default: the data's)."""
     import dataclasses
 
     from dream.camera import project
@@ -283,7 +285,8 @@ def fooled_labels(data: Path, T_true: np.ndarray, offset_m: float, offset_rad: f
     seq = read_sequence(data)
     robot = robot_for(seq, None, tuple(seq.keypoint_names) or None)
     T_off = read_result(guess_file(T_true, offset_m, offset_rad, rng, out.parent))["T_cam_base"]
-    frames = tuple(dataclasses.replace(f, uv_labels=project(seq.camera, transform_points(
+    camera = camera or seq.camera
+    frames = tuple(dataclasses.replace(f, uv_labels=project(camera, transform_points(
         np.asarray(T_off), robot.forward_kinematics(f.joints)))) for f in seq.frames)
     return write_dream(dataclasses.replace(seq, frames=frames), out)
 
@@ -324,7 +327,8 @@ def calibrate(data: Path, out: Path, guess: Path | None,
             + ("" if not timing["adopted"] else f", the readings {1000 * timing['seconds']:+.0f}"
                f" ms on ({timing['rounds']} searches again)")
             + ("" if not away["share"] else f", {100 * away['share']:.1f} % of the moving "
-               f"pixels away from the robot (IoU without them {away['iou_without']:.3f})"),
+               f"pixels away from the robot (IoU without them {away['iou_without']:.3f})")
+            + _adopted_on_keypoint_path(doc),
             "mm": t_err * 1e3, "deg": float(np.rad2deg(r_err)), "verdict":
             doc["quality"]["verdict"], "sigma_mm": sigma * 1e3,
             "inside95": chi2 <= CHI2_6DOF_95, "chi2": chi2, "seconds": seconds,
@@ -391,6 +395,7 @@ def run_renders(args: argparse.Namespace) -> None:
                 if args.video_codec:
                     data = video_coded(data, args.video_codec,
                                        tmp / f"{name}_{seed}_{args.video_codec}")
+                rendered = read_sequence(data).camera     # the labels' camera
                 if args.given_focal != 1.0:
                     data = given_focal(data, args.given_focal,
                                        tmp / f"{name}_{seed}_focal{args.given_focal:g}")
@@ -412,7 +417,7 @@ def run_renders(args: argparse.Namespace) -> None:
                     if mode == "fooled":
                         source = fooled_labels(data, T_true, args.guess_m,
                                                np.deg2rad(args.guess_deg), rng,
-                                               tmp / f"{name}_{seed}_fooled")
+                                               tmp / f"{name}_{seed}_fooled", rendered)
                     if mode == "mark":
                         path, link = mark_file(data, T_true, args.mark_frames,
                                                args.mark_noise_px, rng, tmp)
@@ -437,6 +442,21 @@ def run_renders(args: argparse.Namespace) -> None:
                              f"{row['mark_mm']:.0f} mm off"), flush=True)
     for mode, rows in by_mode.items():
         summary(rows, args.right_mm, args.right_deg, mode)
+
+
+def _adopted_on_keypoint_path(doc: dict) -> str:
+    """What the keypoint path's cross-check asked of the intrinsics and what was adopted."""
+    check = doc.get("silhouette_check") or {}
+    if not check.get("ran") or check.get("principal") is None:
+        return ""
+    p = check["principal"]
+    text = (", outlines ask x{:.3f}, {:+.1f}, {:+.1f} px ({:.2f} deg)".format(
+        check["focal"]["scale"], *p["shift_px"], np.rad2deg(p["angle_rad"])))
+    for key, what in (("focal", "fx, fy {fx:.1f}, {fy:.1f}"), ("principal", "cx, cy {cx:.1f}, "
+                                                                          "{cy:.1f}")):
+        if doc.get(key):
+            text += f", adopted {what.format(**doc[key]['used'])}"
+    return text
 
 
 def run_real(args: argparse.Namespace) -> None:

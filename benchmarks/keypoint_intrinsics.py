@@ -14,9 +14,9 @@ camera's error against the truth.
 With `--refined`, each scene is calibrated as a user does (`dream calibrate --model` with the
 bundled model, the default `--refine auto`: the edge alignment, then the silhouettes'
 cross-check, which checks the focal length and the principal point on the robot's outlines at
-its optimum), through the rendered camera and each of `--scales` and `--shifts`; prints the
-verdict, whether each check flagged, the error, and whether the truth lies inside the written
-95 % ellipsoid.
+its optimum, and calibrates again through those they ask for), through the rendered camera and
+each of `--scales` and `--shifts`; prints the verdict, whether each check flagged and what was
+adopted, the error, and whether the truth lies inside the written 95 % ellipsoid.
 
     python benchmarks/keypoint_intrinsics.py [--scenes 10] [--frames 30] [--first-seed 7000]
         [--scales 1.05 1.1 0.92] [--shifts 6,-4 12,-8 24,-16] [--labels-noise PX] [--work DIR]
@@ -144,6 +144,8 @@ def refined_rows(data: Path, scales, shifts, model, work: Path) -> list[dict]:
             "outlines_flagged": bool(outlines and outlines["flagged"]),
             "outlines": outlines, "focal": focal,
             "focal_asked": bool(focal and focal["asked"]),
+            "adopted": (doc.get("focal") or {}).get("scale"),
+            "shift_adopted": (doc.get("principal") or {}).get("shift_px"),
             "seconds": time.perf_counter() - start})
     return rows
 
@@ -157,6 +159,10 @@ def _refined_text(r: dict) -> str:
     f = r["focal"]
     focal = ("" if f is None else
              f"; outlines ask x{f['scale']:.3f}{' (ASKED)' if f['asked'] else ''}")
+    again = ([f"x{r['adopted']:.3f}"] if r["adopted"] is not None else []) + (
+        ["{:+.1f}, {:+.1f} px".format(*r["shift_adopted"])] if r["shift_adopted"] else [])
+    if again:
+        asked = f"calibrated again at {' and '.join(again)}; there {asked}"
     return (f"{r['given']}: {r['verdict']}, {r['error_mm']:.1f} mm, {r['error_deg']:.2f} deg, "
             f"chi2 {r['chi2']:.1f}; {asked}{focal}; keypoints "
             f"{'FLAGGED' if r['keypoints_flagged'] else 'agree'}; {r['seconds']:.0f} s")
@@ -168,7 +174,9 @@ def refined_summary(rows: list[dict], name: str) -> str:
                          for level in ("good", "check", "unreliable"))
     return (f"{name}: {verdicts} of {len(mine)}; outlines flagged the principal point "
             f"{sum(r['outlines_flagged'] for r in mine)}, asked for a focal length "
-            f"{sum(r['focal_asked'] for r in mine)}, keypoints flagged "
+            f"{sum(r['focal_asked'] for r in mine)}; adopted a focal length "
+            f"{sum(r['adopted'] is not None for r in mine)}, a principal point "
+            f"{sum(r['shift_adopted'] is not None for r in mine)}; keypoints flagged "
             f"{sum(r['keypoints_flagged'] for r in mine)}; inside {sum(r['inside'] for r in mine)}"
             f"; error median {np.median([r['error_mm'] for r in mine]):.1f} mm, "
             f"{np.median([r['error_deg'] for r in mine]):.2f} deg (max "

@@ -35,7 +35,7 @@ from dream.sequence import Sequence
 
 log = logging.getLogger(__name__)
 
-RESULT_OBJECTS = ("quality", "joint_readings", "data", "start")
+RESULT_OBJECTS = ("quality", "joint_readings", "data", "start", "focal", "principal")
 CAMERA_RTOL = 1e-6          # the result's record of the camera against the recording's
 HOLDOUT_SHARE = 3           # default: the last 1/3 of the frames by time are held out
 PCK_PX = 5.0                # PCK threshold of the report, pixels
@@ -179,8 +179,9 @@ def teacher(request: AdaptRequest, out) -> tuple:
 def _teachers_camera(doc: dict, seq: Sequence, request: AdaptRequest) -> Sequence:
     """`seq` through the camera its extrinsic was solved with: refused where the result was
     made for another robot or through other intrinsics than the recording's own; with the
-    focal length the search adopted (`start.focal`)."""
+    intrinsics the calibration adopted (`dream.result.adopted_intrinsics`)."""
     from dream.provenance import camera_record
+    from dream.result import adopted_intrinsics
 
     robot = doc.get("robot")
     if robot and seq.robot and not same_robot_name(robot, seq.robot):
@@ -196,11 +197,9 @@ def _teachers_camera(doc: dict, seq: Sequence, request: AdaptRequest) -> Sequenc
                          f"than --data {request.data} holds ({_camera_words(own)})",
                          request.result, "calibrate the recording with its own intrinsics "
                          "(or write the intrinsics used into it), then adapt")
-    focal = (doc.get("start") or {}).get("focal") or {}
-    if focal.get("adopted"):
-        fitted = focal["used"]
-        seq = seq.with_fixed_camera(dataclasses.replace(
-            seq.camera, fx=float(fitted["fx"]), fy=float(fitted["fy"])))
+    fitted = adopted_intrinsics(doc)
+    if fitted:
+        seq = seq.with_fixed_camera(dataclasses.replace(seq.camera, **fitted))
     return seq
 
 

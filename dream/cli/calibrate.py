@@ -8,17 +8,9 @@ import sys
 from dataclasses import dataclass
 from typing import Any, TextIO
 
-from dream.cli.calibrate_report import (
-    add_edges,
-    add_frame_edges,
-    add_polish,
-    add_quality,
-    add_silhouette_check,
-    measure_steadiness,
-    steadiness_record,
-)
-from dream.cli.calibrate_write import check_outputs, finish, refined_or_kept, result_document
-from dream.cli.intrinsics_records import intrinsics_checks
+from dream.cli.calibrate_report import add_polish, add_quality, measure_steadiness
+from dream.cli.calibrate_write import check_outputs, finish
+from dream.cli.keypoint_pass import PassInputs, keypoint_calibration
 from dream.cli.observe import observe
 from dream.cli.options import (
     AUTO,
@@ -76,6 +68,7 @@ class CalibrateRequest(DataOptions):
     mark_link: str | None = None
     mark_offset: str | None = None
     fixed_focal: bool = False
+    fixed_principal: bool = False
     stamped_timing: bool = False
     frame_range: str | None = None
     loaded_model: Any = None
@@ -197,8 +190,6 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     software (`dream.ros`). Every output location is checked before the work, and the files
     and the --overlays folder appear together or not at all."""
     from dream.io.recording_files import check_spares_recording
-    from dream.outline_robot import with_logged_joints
-    from dream.pipeline import calibrate
     from dream.provenance import data_record
 
     out = out or sys.stdout
@@ -234,61 +225,17 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
                                 loaded_model=request.loaded_model, keypoints=request.keypoint_links)
     if extension is not None:
         seq, robot, obs = _apply_extension(request, extension, seq, robot, obs, out)
-    result = calibrate(seq, obs, request.frames, settings)
-    doc = result_document(request, seq, result, obs, data_doc, readings_doc)
-    if extension is not None:
-        doc["model_extension"] = {"file": str(request.model_extension),
-                                  "effects": extension.to_dict()["effects"],
-                                  "camera": {"fx": seq.camera.fx, "fy": seq.camera.fy,
-                                             "cx": seq.camera.cx, "cy": seq.camera.cy,
-                                             "distortion": seq.camera.distortion}}
-    checked: list = [steadiness_record(motion, seq, doc),
-                      *intrinsics_checks(result, obs, seq, doc)]
-    readings = None if extension is not None else \
-        _readings_check(result, obs, seq, robot, settings, doc, out)   # its readings corrected
-    # the refinements draw each logged joint too (not under a model extension, whose timing
-    # and offsets correct the keypoint robot's joints alone)
-    imaged = robot if extension is not None or refine not in (EDGES, POLISH) else \
-        with_logged_joints(seq, robot)
-    if refine == EDGES:
-        add = add_edges if request.frames == "all" else add_frame_edges
-        doc_keypoints = doc
-        doc = refined_or_kept(request, lambda: add(
-            seq, imaged, result, obs, doc, out, request.exclude_links,
-            () if extension is None else extension.link_geometry), doc, out)
-        if request.frames == "all":
-            doc, silhouettes = add_silhouette_check(seq, imaged, result, doc, out,
-                                                    doc_keypoints)
-            checked += silhouettes
-    elif extension is not None and extension.link_geometry and refine != POLISH:
-        print("note: the model extension's link_geometry changes only the image refinements "
-              "(--refine edges, --polish), and neither runs here", file=out)
+    inputs = PassInputs(request, robot, obs, extension, refine, settings, data_doc,
+                        readings_doc, motion)
+    kp = keypoint_calibration(inputs, seq, out)
+    seq, result, doc = kp.seq, kp.result, kp.doc
     if refine == POLISH:
-        doc = add_polish(seq, imaged, result, obs, model, doc, out, frames=request.frames,
+        doc = add_polish(seq, kp.imaged, result, obs, model, doc, out, frames=request.frames,
                          mask_head=request.mask_head, motion_masks=request.motion_masks,
                          link_geometry=() if extension is None else extension.link_geometry)
-    doc["quality"] = add_quality(result, obs, doc, out, checked, leading=(readings,))
+    doc["quality"] = add_quality(result, obs, doc, out, kp.checked, leading=(kp.readings,))
     finish(request, seq, robot, obs, result, doc, paths, out)
     return doc
-
-
-def _readings_check(result, obs, seq, robot, settings, doc: dict, out: TextIO):
-    """Whether a mistake in the joint readings explains the keypoints far better
-    (`dream.readings_check`): RESULT.json's `readings_check` and its finding."""
-    from dream.pipeline import joints_in_robot_order
-    from dream.readings_check import check_readings, readings_finding
-
-    check = check_readings(result, obs, robot, joints_in_robot_order(seq, robot), seq.camera,
-                           solver=settings)
-    if check is None:
-        return None
-    if check.tried:
-        print(f"readings check: {len(check.tried)} mistakes in the joint readings tried "
-              f"against the {check.detections - check.explained} detections the fit leaves "
-              "unexplained", file=out)
-    finding = readings_finding(check)
-    doc["readings_check"] = {**check.to_dict(), "agrees": finding is None}
-    return finding
 
 
 def _read_extension(request: CalibrateRequest):
@@ -403,9 +350,15 @@ def add_calibrate_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mark-offset", metavar="X,Y,Z",
                    help="with --mark: the point in --mark-link's frame, metres (default 0,0,0)")
     p.add_argument("--fixed-focal", action="store_true",
-                   help="without keypoints: keep the data's fx, fy as given (by default the "
-                        "search fits their scale where the robot's outlines determine it and "
-                        "the overlap agrees, and reports it)")
+                   help="keep the data's fx, fy as given (by default, on images without "
+                        "masks, the scale the robot's outlines determine and their overlap "
+                        "agrees with is fitted, the calibration made through it, and reported)")
+    p.add_argument("--fixed-principal", action="store_true",
+                   help="with keypoints: keep the data's cx, cy as given (by default a "
+                        "principal point the robot's outlines ask for at the silhouettes' "
+                        "cross-check, turning the camera by more than 1.5 deg, is adopted and "
+                        "the calibration made again through it; without keypoints it is "
+                        "reported, never adopted)")
     p.add_argument("--stamped-timing", action="store_true",
                    help="without keypoints: take the joint readings at their timestamps (by "
                         "default the search reads a lag of the joint log behind the images off "

@@ -55,7 +55,7 @@ def run_overlay(request: OverlayRequest) -> int:
         doc = read_result(request.extrinsic)
         seq = solved_readings(seq, doc)
         poses = _result_poses(doc, seq)
-        seq = _with_result_focal(doc, seq)
+        seq = _with_result_intrinsics(doc, seq)
         seq = with_lag(seq, _result_lag(doc))
         carried = _carried(doc, robot)
         away = _away(doc, seq, robot)
@@ -127,16 +127,18 @@ def _result_lag(doc: dict) -> float:
     return float(timing["seconds"]) if timing and timing.get("adopted") else 0.0
 
 
-def _with_result_focal(doc: dict, seq):
-    """The sequence through the camera whose focal length the result's search fitted and
-    adopted (RESULT.json `start.focal`, `dream.coarse.focal`): its pose was found with it."""
-    focal = (doc.get("start") or {}).get("focal")
-    if not focal or not focal["adopted"]:
+def _with_result_intrinsics(doc: dict, seq):
+    """The sequence through the intrinsics the result's calibration fitted and adopted
+    (`dream.result.adopted_intrinsics`): its pose was found with them."""
+    from dream.result import adopted_intrinsics
+
+    used = adopted_intrinsics(doc)
+    if not used:
         return seq
-    used = focal["used"]
-    print(f"drawn with fx, fy {used['fx']:.2f}, {used['fy']:.2f}: fitted by the calibration "
-          f"(the data's {seq.camera.fx:.2f}, {seq.camera.fy:.2f})")
-    return seq.with_fixed_camera(replace(seq.camera, fx=used["fx"], fy=used["fy"]))
+    data = ", ".join(f"{getattr(seq.camera, k):.2f}" for k in used)
+    print(f"drawn with {', '.join(used)} {', '.join(f'{v:.2f}' for v in used.values())}: "
+          f"fitted by the calibration (the data's {data})")
+    return seq.with_fixed_camera(replace(seq.camera, **used))
 
 
 def _result_poses(doc: dict, seq) -> np.ndarray:

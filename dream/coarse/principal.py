@@ -79,6 +79,12 @@ class PrincipalSettings:
             (atan(shift / f); set on rendered scenes: given their own cx, cy the outlines asked
             for at most 1.22 deg, given them 12, -8 px off at least 2.2 deg).
         derivative_step_px: the central differences' step in du, dv (the finish's pixels).
+        adopted_floor_rad: where a principal point is adopted (`dream.cli.keypoint_pass`),
+            the turn its error leaves, per image axis, at least (`adopted_covariance`): the
+            outlines' jackknife understates it (given 12, -8 px off, rendered scenes' asked
+            points lay 0.7 px from the truth at a 1-sigma of 0.1-0.2 px); given their own cx, cy
+            the outlines asked for turns of a median 0.3 deg (12 rendered scenes, keypoint
+            path).
     """
 
     fit: bool = True
@@ -89,12 +95,13 @@ class PrincipalSettings:
     min_sigmas: float = 3.0
     min_angle_rad: float = float(np.deg2rad(1.5))
     derivative_step_px: float = 0.05
+    adopted_floor_rad: float = float(np.deg2rad(0.3))
 
     def __post_init__(self) -> None:
         check_fields(self, "principal point check",
                      positive_ints=("rounds", "lm_iterations", "jackknife_groups"),
                      positive=("step_tolerance_px", "min_angle_rad", "derivative_step_px"),
-                     non_negative=("min_sigmas",))
+                     non_negative=("min_sigmas", "adopted_floor_rad"))
 
 
 @dataclass(frozen=True)
@@ -148,7 +155,32 @@ class PrincipalEstimate:
                 "reason": self.reason, "given": {"cx": given.cx, "cy": given.cy},
                 "asked": {"cx": given.cx + float(self.shift_px[0]),
                           "cy": given.cy + float(self.shift_px[1])},
-                "T_cam_base_asked": self.T_cam_base.tolist(), "seconds": self.seconds}
+                "T_cam_base_asked": self.T_cam_base.tolist(),
+                "spread_xi": self.spread.tolist(), "seconds": self.seconds}
+
+
+def adopted_covariance(camera: CameraIntrinsics, T_cam_base: np.ndarray,
+                       sigma_px: np.ndarray) -> np.ndarray:
+    """(6, 6) what a principal point adopted with 1-sigma `sigma_px` (du, dv; image pixels of
+    `camera`) leaves uncertain in the pose `T_cam_base` calibrated through it (xi of
+    `dream.pnp`): each component's turn of the camera about its centre (`principal_turn`; the
+    translation moves with it), J diag(sigma^2) J^T.
+
+    >>> camera = CameraIntrinsics(300.0, 300.0, 160.0, 120.0, 320, 240)
+    >>> T = np.eye(4); T[2, 3] = 1.5
+    >>> C = adopted_covariance(camera, T, np.array([3.0, 0.0]))
+    >>> round(float(np.rad2deg(np.sqrt(C[1, 1]))), 3), round(float(np.sqrt(C[3, 3])), 4)
+    (0.573, 0.015)
+    """
+    sigma_px = np.asarray(sigma_px, dtype=float)
+    if sigma_px.shape != (2,):
+        raise ValueError(f"sigma_px must have shape (2,), got {sigma_px.shape}")
+    J = np.zeros((6, 2))
+    for k in range(2):
+        turned = np.eye(4)
+        turned[:3, :3] = principal_turn(camera, np.eye(2)[k])
+        J[:, k] = increment_between(T_cam_base, turned @ T_cam_base)
+    return J @ np.diag(sigma_px ** 2) @ J.T
 
 
 def with_principal_shift(camera: CameraIntrinsics, shift_px: np.ndarray) -> CameraIntrinsics:

@@ -306,6 +306,26 @@ def crosscheck_focal_finding(focal: dict | None) -> Finding | None:
                    "after calibrating? a depth stream's intrinsics for the colour images?)")
 
 
+def adopted_principal_finding(principal: dict) -> Finding:
+    """The finding of a principal point the keypoint path adopted (RESULT.json's `principal`:
+    the cross-check's record with `used`).
+
+    >>> adopted_principal_finding({"shift_px": [12.0, -8.0], "angle_rad": 0.06,
+    ...                            "given": {"cx": 160.0, "cy": 120.0},
+    ...                            "used": {"cx": 172.0, "cy": 112.0}})[0]
+    'check'
+    """
+    du, dv = principal["shift_px"]
+    given, used = principal["given"], principal["used"]
+    return CHECK, (f"the robot's outlines ask for a principal point {du:+.1f}, {dv:+.1f} px "
+                   f"from the given one, turning the camera by "
+                   f"{np.rad2deg(principal['angle_rad']):.1f} deg: the pose was found with cx, "
+                   f"cy {used['cx']:.1f}, {used['cy']:.1f} (given {given['cx']:.1f}, "
+                   f"{given['cy']:.1f}), and with the given ones it lies degrees off; give the "
+                   "camera's calibrated cx, cy (not the image centre, and for this image "
+                   "size), or pass --fixed-principal to keep them")
+
+
 def principal_finding(principal: dict | None) -> Finding | None:
     """The principal finding (module doc) of RESULT.json's `start.principal`
     (`dream.coarse.principal.PrincipalEstimate.to_dict`).

@@ -220,7 +220,7 @@ def test_the_refinements_draw_the_joints_the_data_logs_off_the_keypoints(panda, 
     """A finger the joint log records moves in the edge alignment's and the silhouette
     check's outline (drawn at its reading, here closed as imaged); the keypoint fit and the
     readings check keep the keypoint robot."""
-    import dream.cli.calibrate as cli_calibrate
+    import dream.cli.keypoint_pass as cli_keypoint_pass
     from dream.io import read_sequence
 
     T_true = image_dataset(panda, meshes, tmp_path)
@@ -230,14 +230,14 @@ def test_the_refinements_draw_the_joints_the_data_logs_off_the_keypoints(panda, 
                                     frames=frames), tmp_path / "fingers")
     drawn = {}
     for name in ("add_edges", "add_silhouette_check", "_readings_check"):
-        real = getattr(cli_calibrate, name)
+        real = getattr(cli_keypoint_pass, name)
 
         def spy(*args, real=real, name=name, **kwargs):
             robot = args[3] if name == "_readings_check" else args[1]   # (result, obs, seq, robot)
             drawn[name] = robot.keypoint_names
             return real(*args, **kwargs)
 
-        monkeypatch.setattr(cli_calibrate, name, spy)
+        monkeypatch.setattr(cli_keypoint_pass, name, spy)
     out = tmp_path / "result.json"
     assert main(["calibrate", "--data", str(tmp_path / "fingers"), "--use-labels", "--out",
                  str(out)]) == 0

@@ -149,7 +149,8 @@ def test_the_keypoint_paths_crosscheck_checks_the_principal_point_on_the_outline
         panda, meshes, tmp_path, capsys, monkeypatch):
     """The keypoint path (labels, the default refinement): the silhouettes' cross-check
     records the principal point the outlines ask for at its optimum, nothing flagged; with
-    the estimate flagged, the verdict names it and the written covariance holds its move."""
+    the estimate flagged and `--fixed-principal`, the verdict names it and the written
+    covariance holds its move."""
     image_dataset(panda, meshes, tmp_path)
     argv = ["calibrate", "--data", str(tmp_path / "data"), "--use-labels", "--out"]
     assert main(argv + [str(tmp_path / "r.json")]) == 0, capsys.readouterr()[1]
@@ -172,8 +173,10 @@ def test_the_keypoint_paths_crosscheck_checks_the_principal_point_on_the_outline
                        T_cam_base=apply_increment(args[4], turn))
 
     monkeypatch.setattr(crosscheck, "fit_principal", flagged)
-    assert main(argv + [str(tmp_path / "f.json")]) == 0, capsys.readouterr()[1]
+    assert main(argv + [str(tmp_path / "f.json"), "--fixed-principal"]) == 0, \
+        capsys.readouterr()[1]
     flagged_doc = json.loads((tmp_path / "f.json").read_text())
+    assert "principal" not in flagged_doc      # kept as given: a finding, not adopted
     assert flagged_doc["silhouette_check"]["principal"]["flagged"]
     assert flagged_doc["quality"]["verdict"] != "good"
     assert any("principal point" in w for w in flagged_doc["quality"]["warnings"])
@@ -185,8 +188,9 @@ def test_the_keypoint_paths_crosscheck_checks_the_principal_point_on_the_outline
 def test_the_keypoint_paths_crosscheck_names_a_focal_length_the_outlines_ask_for(
         panda, meshes, tmp_path, capsys, monkeypatch):
     """Where the outlines at the cross-check's optimum ask for another focal length (and the
-    overlap agrees), the verdict names it, the pose written stays, and the covariance holds the
-    move to the pose through the asked focal length."""
+    overlap agrees) and `--fixed-focal` keeps the given one, the verdict names it, the pose
+    written stays, and the covariance holds the move to the pose through the asked focal
+    length."""
     image_dataset(panda, meshes, tmp_path)
     argv = ["calibrate", "--data", str(tmp_path / "data"), "--use-labels", "--out"]
     assert main(argv + [str(tmp_path / "r.json")]) == 0, capsys.readouterr()[1]
@@ -204,8 +208,10 @@ def test_the_keypoint_paths_crosscheck_names_a_focal_length_the_outlines_ask_for
         return replace(estimate, adopted=True, scale=0.95, T_cam_base=T)
 
     monkeypatch.setattr(crosscheck, "fit_focal", asked)
-    assert main(argv + [str(tmp_path / "f.json")]) == 0, capsys.readouterr()[1]
+    assert main(argv + [str(tmp_path / "f.json"), "--fixed-focal"]) == 0, \
+        capsys.readouterr()[1]
     asked_doc = json.loads((tmp_path / "f.json").read_text())
+    assert "focal" not in asked_doc            # kept as given: a finding, not adopted
     focal = asked_doc["silhouette_check"]["focal"]
     assert focal["asked"] and not focal["adopted"] and focal["used"] == focal["given"]
     assert asked_doc["T_cam_base"] == doc["T_cam_base"]
@@ -213,3 +219,22 @@ def test_the_keypoint_paths_crosscheck_names_a_focal_length_the_outlines_ask_for
     assert any("ask for a focal length x0.950" in w for w in asked_doc["quality"]["warnings"])
     assert (np.asarray(asked_doc["covariance_xi"])[5, 5]
             >= np.asarray(doc["covariance_xi"])[5, 5] + 0.02 ** 2)
+
+
+def test_an_adopted_principal_point_s_1_sigma_turns_the_pose_about_the_camera_centre():
+    """`adopted_covariance`: a 1-sigma in du alone turns the camera about its y axis by
+    atan(sigma / fx), and about its centre: the camera's position in the base frame keeps no
+    variance, its translation in camera axes does."""
+    from dream.coarse.principal import adopted_covariance
+    from dream.transforms import camera_position_covariance
+
+    T = np.eye(4)
+    T[:3, 3] = [0.1, -0.2, 1.4]
+    C = adopted_covariance(CAMERA, T, np.array([2.0, 0.0]))
+    assert np.sqrt(C[1, 1]) == pytest.approx(np.arctan(2.0 / CAMERA.fx), rel=1e-3)
+    assert C[0, 0] == pytest.approx(0.0, abs=1e-15) and np.linalg.matrix_rank(C) == 1
+    assert np.sqrt(C[3, 3]) == pytest.approx(1.4 * np.arctan(2.0 / CAMERA.fx), rel=1e-2)
+    position = camera_position_covariance(T, C)       # to first order in the turn: none
+    assert np.sqrt(np.max(np.diag(position))) < 0.01 * np.sqrt(C[3, 3])
+    with pytest.raises(ValueError, match="shape"):
+        adopted_covariance(CAMERA, T, np.array([1.0, 2.0, 3.0]))
