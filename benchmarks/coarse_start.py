@@ -15,7 +15,8 @@ a camera that far off (through the intrinsics rendered with, whatever the calibr
 so that its refinements and their verdict are tested from a wrong start;
 with `--given-focal F` the calibration is given fx, fy F times those rendered with (the search
 fits the focal length where the outlines tell it: `dream.coarse.focal`); with
-`--given-principal DU,DV` a principal point DU, DV pixels off; with `--video-codec`
+`--given-principal DU,DV` a principal point DU, DV pixels off (adopted where the outlines
+ask for it; `--fixed-principal` keeps it); with `--video-codec`
 the frames go through a video codec and back first (OpenCV's FFmpeg encoder at its default
 rate: `vp9`, transforms of several sizes with a loop filter, as a modern video file or stream;
 `mpeg4`, MPEG-4 part 2 in 8x8 blocks); `--reuse-scenes` takes scenes already rendered in
@@ -36,7 +37,8 @@ frames that agree.
         [--first-seed 1000] [--frames 30] [--auto] [--mark-frames 5 --mark-noise-px 2]
         [--fooled] [--skip-guess] [--only panda_1003,xarm7_1010] [--work DIR]
         [--robots URDF,... --scale-to-robot] [--set intrinsics.width=960 ...]
-        [--given-focal 0.96 [--fixed-focal]] [--given-principal 12,-8] [--video-codec vp9]
+        [--given-focal 0.96 [--fixed-focal]] [--given-principal 12,-8 [--fixed-principal]]
+        [--video-codec vp9]
         [--reuse-scenes]
         [--set sequence.mode=trajectory --frames 150 [--time-offset 0.05]]
     python benchmarks/coarse_start.py real --data ../shared/realdata/panda_teleop [--guesses 10]
@@ -293,7 +295,7 @@ def fooled_labels(data: Path, T_true: np.ndarray, offset_m: float, offset_rad: f
 
 def calibrate(data: Path, out: Path, guess: Path | None,
               T_true: np.ndarray | None = None, mark: tuple[Path, str, str] | None = None,
-              fixed_focal: bool = False) -> dict:
+              fixed_focal: bool = False, fixed_principal: bool = False) -> dict:
     """One `dream calibrate` without keypoints (from `guess`, or from `mark`: the marks file,
     its link and offset): its error against `T_true` (default the data's reference), time,
     verdict, 1-sigma and IoUs."""
@@ -305,6 +307,7 @@ def calibrate(data: Path, out: Path, guess: Path | None,
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
         doc = run_calibrate(CalibrateRequest(data=str(data), out=str(out),
                                              fixed_focal=fixed_focal,
+                                             fixed_principal=fixed_principal,
                                              camera_guess=None if guess is None else str(guess),
                                              **marks))
     seconds = time.perf_counter() - start
@@ -323,7 +326,8 @@ def calibrate(data: Path, out: Path, guess: Path | None,
             + ("" if principal is None else ", principal point asked {:+.1f}, {:+.1f} px "
                "({:.2f} deg){}".format(*principal["shift_px"],
                                        np.rad2deg(principal["angle_rad"]),
-                                       ", flagged" if principal["flagged"] else ""))
+                                       (", adopted" if principal.get("adopted") else
+                                        ", flagged" if principal["flagged"] else "")))
             + ("" if not timing["adopted"] else f", the readings {1000 * timing['seconds']:+.0f}"
                f" ms on ({timing['rounds']} searches again)")
             + ("" if not away["share"] else f", {100 * away['share']:.1f} % of the moving "
@@ -426,7 +430,8 @@ def run_renders(args: argparse.Namespace) -> None:
                         continue    # its guesses and marks drawn all the same
                     try:
                         row = calibrate(source, tmp / f"{name}_{seed}_{mode}.json", guess,
-                                        T_true, mark=mark, fixed_focal=args.fixed_focal)
+                                        T_true, mark=mark, fixed_focal=args.fixed_focal,
+                                        fixed_principal=args.fixed_principal)
                     except DreamError as exc:
                         print(f"{name} {seed} {mode}: failed: {exc}", flush=True)
                         continue
@@ -473,7 +478,8 @@ def run_real(args: argparse.Namespace) -> None:
         if mark is not None:
             guesses = [None]
         for k, guess in enumerate(guesses):
-            row = calibrate(data, tmp / f"r{k}.json", guess, T_true, mark, args.fixed_focal)
+            row = calibrate(data, tmp / f"r{k}.json", guess, T_true, mark, args.fixed_focal,
+                            args.fixed_principal)
             rows.append(row)
             polish = ("" if row["polish_iou"] is None else
                       f", polish IoU {row['polish_iou']:.3f}")
@@ -497,6 +503,8 @@ def main() -> None:
         s.add_argument("--seed", type=int, default=0)
         s.add_argument("--fixed-focal", action="store_true", help="calibrate with the data's "
                        "fx, fy as given (no focal-length fit)")
+        s.add_argument("--fixed-principal", action="store_true", help="keep the data's cx, "
+                       "cy as given (a principal point the outlines ask for is reported)")
         s.add_argument("--right-mm", type=float, default=10.0 if name == "renders" else 10.0)
         s.add_argument("--right-deg", type=float, default=0.5 if name == "renders" else 1.0)
     r = sub.choices["renders"]

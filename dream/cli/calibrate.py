@@ -354,11 +354,10 @@ def add_calibrate_args(p: argparse.ArgumentParser) -> None:
                         "masks, the scale the robot's outlines determine and their overlap "
                         "agrees with is fitted, the calibration made through it, and reported)")
     p.add_argument("--fixed-principal", action="store_true",
-                   help="with keypoints: keep the data's cx, cy as given (by default a "
-                        "principal point the robot's outlines ask for at the silhouettes' "
-                        "cross-check, turning the camera by more than 1.5 deg, is adopted and "
-                        "the calibration made again through it; without keypoints it is "
-                        "reported, never adopted)")
+                   help="keep the data's cx, cy as given (by default a principal point "
+                        "the robot's outlines ask for, turning the camera by more than 1.5 "
+                        "deg beyond their noise, is adopted and the calibration made again "
+                        "through it; kept, it is reported and its move enters the 1-sigma)")
     p.add_argument("--stamped-timing", action="store_true",
                    help="without keypoints: take the joint readings at their timestamps (by "
                         "default the search reads a lag of the joint log behind the images off "

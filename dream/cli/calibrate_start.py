@@ -130,6 +130,7 @@ def search_start(request, seq, out: TextIO):
     from dream.cli.search_robot import robot_for_search
     from dream.coarse.calibration import coarse_start
     from dream.coarse.focal import FocalSettings
+    from dream.coarse.principal import PrincipalSettings
     from dream.coarse.result import search_covariance, stand_in_result
     from dream.coarse.timing import TimingSettings
 
@@ -157,6 +158,8 @@ def search_start(request, seq, out: TextIO):
 
     outcome, inputs = coarse_start(seq, robot, guess, progress=_progress, extra=extra,
                                    focal=FocalSettings(fit=not request.fixed_focal),
+                                   principal=PrincipalSettings(
+                                       adopt=not request.fixed_principal),
                                    timing=TimingSettings(fit=not request.stamped_timing))
     result, obs = stand_in_result(seq, outcome.best.T_cam_base,
                                   search_covariance(outcome, focal=inputs.focal,
@@ -169,17 +172,21 @@ def search_start(request, seq, out: TextIO):
     return robot, result, obs, outcome, inputs, guess, marked
 
 
-def with_fitted_focal(seq, inputs, out: TextIO):
-    """The sequence through the camera whose focal length the search fitted and adopted
-    (`dream.coarse.focal`), so that the refinements after it see what it saw; else as given."""
-    focal = inputs.focal
-    if focal is None or not focal.adopted:
+def with_fitted_intrinsics(seq, inputs, out: TextIO):
+    """The sequence through the camera whose principal point or focal length the search
+    fitted and adopted (`dream.coarse.intrinsics`), so that the refinements after it see what
+    it saw; else as given."""
+    from dream.coarse.intrinsics import adopted_camera
+
+    given, camera = seq.camera, adopted_camera(seq.camera, inputs)
+    if camera == given:
         return seq
-    print(f"focal length: fx, fy {seq.camera.fx:.2f}, {seq.camera.fy:.2f} -> "
-          f"{focal.camera.fx:.2f}, {focal.camera.fy:.2f} (x{focal.scale:.3f}), fitted to the "
-          "robot's outlines; the pose and every refinement after the search use them",
+    print(f"intrinsics: fx, fy, cx, cy {given.fx:.2f}, {given.fy:.2f}, {given.cx:.2f}, "
+          f"{given.cy:.2f} -> {camera.fx:.2f}, {camera.fy:.2f}, {camera.cx:.2f}, "
+          f"{camera.cy:.2f}, fitted to the robot's outlines; the pose and every refinement "
+          "after the search use them (--fixed-focal, --fixed-principal keep the given ones)",
           file=out)
-    return seq.with_fixed_camera(focal.camera)
+    return seq.with_fixed_camera(camera)
 
 
 def _progress(line: str) -> None:
@@ -254,7 +261,7 @@ def run_search(request, seq, data_doc: dict, readings_doc: dict | None, refine: 
                          "drop --model-extension, or give --model without --camera-guess and "
                          "--mark")
     robot, result, obs, outcome, inputs, guess, marked = search_start(request, seq, out)
-    seq = with_fitted_focal(seq, inputs, out)
+    seq = with_fitted_intrinsics(seq, inputs, out)
     seq, marked = lag_applied(seq, robot, inputs.timing, marked)
     found = (seq, outcome, inputs, guess, marked)
     doc = search_document(request, data_doc, readings_doc, result, obs, found)

@@ -14,7 +14,7 @@ or flag a principal point (a turn of the camera beyond 1.5 deg and 3 of its 1-si
 (`keypoint_calibration`): a wrong focal length slides the keypoint pose, its alignment and the
 silhouettes together along the camera's axis, a wrong principal point turns them, and only
 through the right intrinsics do they land where the camera is. Nothing is adopted where the
-outlines leave the principal point unresolved (`unresolved_principal`). What the adopted
+outlines leave the principal point unresolved (`asked_intrinsics`). What the adopted
 intrinsics leave uncertain enters the covariance (the focal scale's 1-sigma through how the
 pose moves with it; the spread over frame groups of the pose fitted with the principal point
 free, and a floor of the point's error), RESULT.json's `focal` and `principal` say what was
@@ -111,11 +111,15 @@ def asked_intrinsics(doc: dict, fixed_focal: bool = False, fixed_principal: bool
                      ) -> tuple[dict | None, dict | None]:
     """The cross-check's focal record (`silhouette_check.focal`) where its outlines ask for
     the scale and its principal record where they flag the point, each None where not or
-    where kept fixed; neither where the principal point is unresolved
-    (`unresolved_principal`).
+    where kept fixed; neither where the principal point is unresolved (a turn beyond the
+    limit within the noise, `dream.coarse.principal.PrincipalEstimate.unresolved`: the
+    outlines then do not tell the camera's intrinsics, and a focal length they ask for may
+    only make up for a principal point given wrong; ten rendered grey frames given cx, cy
+    24, -16 px off asked for fx, fy x0.918 beyond 6 of its 1-sigmas, the principal point a
+    turn of 3.8 deg within 3: adopted, the pose went from 17 to 125 mm off).
 
     >>> doc = {"silhouette_check": {"ran": True, "focal": {"asked": True, "scale": 0.95},
-    ...                             "principal": {"flagged": False, "angle_rad": 0.004}}}
+    ...                             "principal": {"flagged": False, "unresolved": False}}}
     >>> asked_intrinsics(doc)
     ({'asked': True, 'scale': 0.95}, None)
     >>> asked_intrinsics(doc, fixed_focal=True)
@@ -125,29 +129,10 @@ def asked_intrinsics(doc: dict, fixed_focal: bool = False, fixed_principal: bool
     """
     check = doc.get("silhouette_check") or {}
     focal, principal = check.get("focal"), check.get("principal")
-    if principal is None or unresolved_principal(principal):
+    if principal is None or principal["unresolved"]:
         return None, None
     return (focal if focal and focal.get("asked") and not fixed_focal else None,
             principal if principal.get("flagged") and not fixed_principal else None)
-
-
-def unresolved_principal(principal: dict,
-                         settings: PrincipalSettings | None = None) -> bool:
-    """Whether the principal point the outlines ask for turns the camera beyond the limit
-    (`PrincipalSettings.min_angle_rad`) without lying beyond its noise (not flagged): the
-    outlines then do not tell the camera's intrinsics, and a focal length they ask for may
-    only make up for a principal point given wrong (ten rendered grey frames given cx, cy
-    24, -16 px off asked for fx, fy x0.918 beyond 6 of its 1-sigmas, the principal point a
-    turn of 3.8 deg within 3: adopted, the pose went from 17 to 125 mm off), so nothing is
-    adopted.
-
-    >>> unresolved_principal({"flagged": False, "angle_rad": 0.065})
-    True
-    >>> unresolved_principal({"flagged": False, "angle_rad": 0.01})
-    False
-    """
-    settings = settings or PrincipalSettings()
-    return not principal["flagged"] and principal["angle_rad"] > settings.min_angle_rad
 
 
 def asked_camera(camera, focal: dict | None, principal: dict | None):
@@ -188,8 +173,7 @@ def with_adopted(second: KeypointPass, focal: dict | None, principal: dict | Non
         added += focal["sigma_used"] ** 2 * np.outer(xi, xi)
         findings.append(focal_finding(doc["focal"]))
     if principal is not None:
-        floor_px = np.tan(PrincipalSettings().adopted_floor_rad) * np.array([camera.fx,
-                                                                             camera.fy])
+        floor_px = PrincipalSettings().floor_px(camera)
         doc["principal"] = {**principal, **adopted, "given": {"cx": given.cx, "cy": given.cy},
                             "used": {"cx": camera.cx, "cy": camera.cy},
                             "sigma_floor_px": floor_px.tolist()}

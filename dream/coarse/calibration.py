@@ -15,10 +15,11 @@ millimetres). At the winner, in turn: the joint log's lag behind the images is r
 (`dream.coarse.timing`; also where the found test fails, which a late log can fail at the
 right pose), and where the robot was found what the arm carries that the URDF lacks is carved
 (`dream.coarse.carried`) and its pixels left out (the finishes then also leave out the frames
-that pull the pose far harder than the others, `dream.coarse.scales`), and the focal-length
-scale the robot's outlines ask for is fitted (`dream.coarse.focal`; only where the robot was
-found with the held pixels left out of its silhouettes, as the fit scores them); each that is
-adopted runs the search again from the winner, and the callers go on with what it adopted.
+that pull the pose far harder than the others, `dream.coarse.scales`), and the principal
+point and the focal length the robot's outlines ask for are fitted (`dream.coarse.intrinsics`;
+only where the robot was found with the held pixels left out of its silhouettes, as the fits
+score them); each that is adopted runs the search again from the winner, and the callers go
+on with what it adopted.
 """
 
 from __future__ import annotations
@@ -31,8 +32,9 @@ import numpy as np
 
 from dream.camera import CameraIntrinsics
 from dream.coarse.carried import CarriedRegion, carried_geometry, carried_region
-from dream.coarse.focal import FocalEstimate, FocalSettings, fit_focal
+from dream.coarse.focal import FocalEstimate, FocalSettings
 from dream.coarse.hypotheses import around, check_guess_scale, fibonacci_directions, shell
+from dream.coarse.intrinsics import with_asked_intrinsics
 from dream.coarse.mark import (
     Mark,
     MarkSettings,
@@ -43,8 +45,8 @@ from dream.coarse.mark import (
     placed_by_mark,
     track_mark,
 )
-from dream.coarse.principal import PrincipalEstimate, PrincipalSettings, fit_principal
-from dream.coarse.search import SearchOutcome, Winner, find_winner
+from dream.coarse.principal import PrincipalEstimate, PrincipalSettings
+from dream.coarse.search import SearchOutcome, Winner, find_winner, searched_again
 from dream.coarse.settings import SearchSettings
 from dream.coarse.timing import LagEstimate, TimingSettings, with_timing
 from dream.diagnosis.attached import AttachedSettings, CarvingOutcome
@@ -64,8 +66,7 @@ from dream.silhouette import (
 
 log = logging.getLogger(__name__)
 
-GUESS, SHELL, CARRIED, FOCAL, MARK, TIMING = ("guess", "shell", "carried", "focal", "mark",
-                                             "timing")
+GUESS, SHELL, CARRIED, MARK, TIMING = "guess", "shell", "carried", "mark", "timing"
 DATA_MASKS, MOTION_MASKS = "the data's masks", "motion masks"
 MOTION_CANDIDATES = 3   # frames tried for motion masks per search frame (evenly spaced)
 
@@ -101,12 +102,11 @@ class SearchMasks:
     pixels of it left out of the search (`region`; None where none are), and with motion
     masks how they were made (`motion`: the hysteresis on or off, a block-compressed recording's
     being off, and how many of the frames had their exposure matched; None with the data's
-    masks), and the focal-length scale fitted at the winner (`focal`; None where it was not
-    fitted; `dream.coarse.focal`: where adopted, the search's pose is the one through
-    `focal.camera`), and the joint log's lag read there (`timing`; `dream.coarse.timing`:
-    where adopted, `joints` are the readings shifted by it), and the principal point the
-    outlines ask for at the final winner (`principal`; None where it was not fitted;
-    `dream.coarse.principal`: a check, never adopted)."""
+    masks), and the joint log's lag read at the winner (`timing`; `dream.coarse.timing`:
+    where adopted, `joints` are the readings shifted by it), and the principal point and the
+    focal-length scale the outlines ask for (`principal`, `focal`; None where not fitted;
+    `dream.coarse.intrinsics`: where adopted, the search's pose is the one through
+    `focal.camera`, or through `principal.camera` where only that was)."""
 
     meshes: RobotMeshes
     frames: np.ndarray
@@ -121,6 +121,12 @@ class SearchMasks:
     focal: FocalEstimate | None = None
     timing: LagEstimate | None = None
     principal: PrincipalEstimate | None = None
+
+    @property
+    def held(self) -> bool:
+        """Whether the masks are motion masks, which miss what the robot covers in most
+        frames (`dream.coarse.evidence.held_pixels`)."""
+        return self.source == MOTION_MASKS
 
 
 def search_masks(sequence: Sequence, robot: Robot, settings: SearchSettings) -> SearchMasks:
@@ -228,9 +234,9 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
                  principal: PrincipalSettings | None = None
                  ) -> tuple[SearchOutcome, SearchMasks]:
     """The coarse search of a fixed-camera `sequence` (module doc); `extra`: more hypotheses
-    by source (the keypoint pose of a detector), scored beside the guess's; `focal`, `timing`:
-    whether and how the focal-length scale (`with_focal`) and, first, the lag are fitted;
-    `principal`: whether and how the principal point is checked (`with_principal`)."""
+    by source (the keypoint pose of a detector), scored beside the guess's; `timing`: whether
+    and how the lag is fitted, first; `principal`, `focal`: whether and how the intrinsics
+    the outlines ask for are fitted and adopted (`dream.coarse.intrinsics`)."""
     settings = settings or SearchSettings()
     inputs = search_masks(sequence, robot, settings)
     if progress is not None:
@@ -241,7 +247,7 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
     hypotheses.update(extra or {})
     winner = find_winner(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
                          hypotheses, settings, aimed_only=aimed_only,
-                         held=inputs.source == MOTION_MASKS, progress=progress,
+                         held=inputs.held, progress=progress,
                          search_frames=inputs.search)
     def again(moved: SearchMasks, last: Winner) -> Winner:
         return searched_again(sequence.camera, moved, last, last.best.T_cam_base, TIMING,
@@ -249,33 +255,13 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
     first = (winner, inputs)      # kept where the robot stays unfound even with a lag
     winner, inputs = with_timing(sequence, joints_in_robot_order(sequence, robot), inputs,
                                  winner, settings, timing or TimingSettings(), again,
-                                 inputs.source == MOTION_MASKS, progress)
+                                 inputs.held, progress)
     if not settings.robot_found(winner.best.iou, winner.best.found_iou):
         return first[0].checked(), first[1]
     if settings.find_carried:
         winner, inputs = with_carried(sequence.camera, inputs, winner, settings, progress)
-    outcome, inputs = with_focal(sequence.camera, inputs, winner, settings, focal, progress)
-    return outcome, with_principal(sequence.camera, inputs, outcome, settings, principal,
-                                   progress)
-
-
-def with_principal(camera: CameraIntrinsics, inputs: SearchMasks, outcome: SearchOutcome,
-                   settings: SearchSettings, principal: PrincipalSettings | None = None,
-                   progress: Callable[[str], None] | None = None) -> SearchMasks:
-    """The inputs with the principal point the outlines ask for at the outcome's winner
-    (`dream.coarse.principal`), through the focal length the search adopted where it did; as
-    they were where the robot was found only with the held pixels kept (as `with_focal`)."""
-    principal = principal or PrincipalSettings()
-    if not principal.fit or not settings.robot_found(outcome.best.iou):
-        return inputs
-    if inputs.focal is not None and inputs.focal.adopted:
-        camera = inputs.focal.camera
-    estimate = fit_principal(vertices_in_base(inputs.meshes, inputs.joints), inputs.meshes,
-                             inputs.masks, camera, outcome.best.T_cam_base, settings,
-                             principal, inputs.source == MOTION_MASKS, inputs.region)
-    if progress is not None:
-        progress(f"principal point ({estimate.seconds:.1f} s): {estimate.reason}")
-    return replace(inputs, principal=estimate)
+    return with_asked_intrinsics(sequence.camera, inputs, winner, settings, focal, principal,
+                                 progress)
 
 
 def with_carried(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
@@ -305,57 +291,6 @@ def with_carried(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
     inputs = replace(inputs, region=region)
     return (searched_again(camera, inputs, winner, winner.best.T_cam_base, CARRIED, settings,
                            progress), inputs)
-
-
-def searched_again(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
-                   T_start: np.ndarray, source: str, settings: SearchSettings,
-                   progress: Callable[[str], None] | None = None) -> Winner:
-    """The search again through `camera` from `T_start` and the winner's rival (as `source`),
-    without `inputs.region`'s pixels, its checks still to run; its counts and time include the
-    first winner's."""
-    starts = [T_start] + ([] if winner.rival is None else [winner.rival.T_cam_base])
-    searched = find_winner(inputs.meshes, inputs.joints, inputs.masks, camera,
-                           {source: np.stack(starts)}, settings,
-                           held=inputs.source == MOTION_MASKS, progress=progress,
-                           search_frames=inputs.search, region=inputs.region)
-    return replace(searched, hypotheses={**winner.hypotheses, **searched.hypotheses},
-                   seconds=winner.seconds + searched.seconds)
-
-
-def with_focal(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
-               settings: SearchSettings, focal: FocalSettings | None = None,
-               progress: Callable[[str], None] | None = None
-               ) -> tuple[SearchOutcome, SearchMasks]:
-    """The focal-length scale fitted at the winner (`dream.coarse.focal`) in the inputs; where
-    it is adopted, the search again from its pose and the winner's rival through the camera
-    with that focal length, checked there (the first winner's checks never run); otherwise
-    the winner checked.
-
-    Not fitted where the robot was found only with the pixels its silhouettes cover in most
-    frames kept in them (`SearchSettings.robot_found`): the fit scores the silhouettes without
-    them, as the held-out test does, and a winner found only the other way can still lie far
-    off (on a rendered close-up of a UR5 holding an object, the winner before the fit lay
-    852 mm off at IoU 0.26 without them and 0.48 with them; the fit adopted fx, fy x1.043 there
-    and the pose written ended 19.5 mm off; without the fit the edge alignment's optimum,
-    competing on the masks, won at 1.6 mm)."""
-    focal = focal or FocalSettings()
-    if not focal.fit:
-        return winner.checked(), inputs
-    say = progress or (lambda line: None)
-    if not settings.robot_found(winner.best.iou):
-        say(f"focal length: not fitted, the robot found only with the pixels its silhouettes "
-            f"cover in most frames kept (IoU {winner.best.iou:.2f} without them)")
-        return winner.checked(), inputs
-    P = vertices_in_base(inputs.meshes, inputs.joints)
-    estimate = fit_focal(P, inputs.meshes, inputs.masks, camera, winner.best.T_cam_base,
-                         settings, focal, inputs.source == MOTION_MASKS, inputs.region)
-    inputs = replace(inputs, focal=estimate)
-    say(f"focal length: {estimate.reason}"
-        + (": searching again with it" if estimate.adopted else ""))
-    if not estimate.adopted:
-        return winner.checked(), inputs
-    return (searched_again(estimate.camera, inputs, winner, estimate.T_cam_base, FOCAL,
-                           settings, progress).checked(), inputs)
 
 
 @dataclass(frozen=True)

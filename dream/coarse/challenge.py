@@ -36,7 +36,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from dream.camera import CameraIntrinsics
-from dream.coarse.calibration import MOTION_MASKS, SearchMasks
+from dream.coarse.calibration import SearchMasks
 from dream.coarse.scales import Scales, finish_scale
 from dream.coarse.search import SearchOutcome, search, within
 from dream.coarse.settings import SearchSettings
@@ -103,7 +103,7 @@ def challenged(camera: CameraIntrinsics, inputs: SearchMasks, outcome: SearchOut
     if within(T_other, T_best, settings.basin_return_m, settings.basin_return_rad):
         return outcome, None
     start = time.perf_counter()
-    held = inputs.source == MOTION_MASKS
+    held = inputs.held
     finish = finish_scale(vertices_in_base(inputs.meshes, inputs.joints), inputs.meshes,
                           inputs.masks, camera, settings, held=held, region=inputs.region)
     T_finished = finish.refine(T_other)

@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from dream.coarse.away import AwayPixels, away_at_pose
-from dream.coarse.calibration import MOTION_MASKS, SearchMasks, search_masks
+from dream.coarse.calibration import SearchMasks, search_masks
 from dream.coarse.focal import FocalEstimate, FocalSettings, fit_focal
 from dream.coarse.principal import PrincipalEstimate, PrincipalSettings, fit_principal
 from dream.coarse.search import SearchOutcome, pose_iou, search
@@ -67,14 +67,16 @@ class Crosscheck:
     def intrinsics_covariance(self) -> np.ndarray:
         """(6, 6) what the intrinsics the outlines ask for add to the written pose's covariance:
         the move from the optimum to the pose through them (the asked focal length's, where
-        one is asked for: `FocalEstimate.adopted`; then the flagged principal point's, fitted
-        from there), and the spreads of those poses (`FocalEstimate.pose_covariance`,
-        `PrincipalEstimate.spread`); zero where they agree with the given ones."""
+        one is asked for: `FocalEstimate.adopted`; then the flagged or unresolved principal
+        point's, fitted from there), and the spreads of those poses
+        (`FocalEstimate.pose_covariance`, `PrincipalEstimate.spread`); zero where they agree
+        with the given ones."""
         covariance, T_asked = np.zeros((6, 6)), self.outcome.best.T_cam_base
         if self.focal is not None and self.focal.adopted:
             covariance += self.focal.pose_covariance
             T_asked = self.focal.T_cam_base
-        if self.principal is not None and self.principal.flagged:
+        if self.principal is not None and (self.principal.flagged
+                                           or self.principal.unresolved):
             covariance += self.principal.spread
             T_asked = self.principal.T_cam_base
         move = increment_between(self.outcome.best.T_cam_base, T_asked)
@@ -117,7 +119,7 @@ def silhouette_crosscheck(sequence: Sequence, robot: Robot, T_written: np.ndarra
     """
     settings = settings or SearchSettings()
     inputs = search_masks(sequence, robot, settings)
-    held = inputs.source == MOTION_MASKS
+    held = inputs.held
     local = replace(settings, local_starts=CROSSCHECK_STARTS,
                     fine_starts=min(settings.fine_starts, CROSSCHECK_STARTS),
                     jackknife_groups=0)     # its pose is not written: no 1-sigma of its own
@@ -149,7 +151,7 @@ def intrinsics_at_optimum(sequence: Sequence, inputs: SearchMasks, outcome: Sear
     if not settings.robot_found(outcome.best.iou):
         return None, None
     P = vertices_in_base(inputs.meshes, inputs.joints)
-    held = inputs.source == MOTION_MASKS
+    held = inputs.held
     focal = fit_focal(P, inputs.meshes, inputs.masks, sequence.camera, outcome.best.T_cam_base,
                       settings, FocalSettings(), held, inputs.region)
     camera, T = ((focal.camera, focal.T_cam_base) if focal.adopted

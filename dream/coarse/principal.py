@@ -24,11 +24,18 @@ errors), and their jackknife understates that: on 30 rendered scenes given their
 they asked for turns of a median 0.31 deg, at most 1.22 deg where nothing carried was left
 out, some of them beyond 3 of their 1-sigmas; given cx, cy 12, -8 px off, for 2.2-5.2 deg. So
 the shift is a finding only where it turns the camera by more than `min_angle_rad` and lies
-beyond `min_sigmas` 1-sigmas; it is never adopted: the given intrinsics are the user's to
-check. Where it is a finding, the pose through the asked principal point is how far the
-written pose may lie off, and that move enters its covariance as the image cues' disagreement
-does, with the spread of that pose over the frame groups (`PrincipalEstimate.pose_covariance`):
-with the shift free the outlines fix the pose less well than through the given camera.
+beyond `min_sigmas` 1-sigmas. Where it is a finding, the search adopts it (`adopt`;
+`dream.coarse.intrinsics`): the pose is found again through the asked point, and what that
+point's error leaves uncertain enters the covariance (the spread over the frame groups of the
+pose fitted with the shift free, and the turn of `adopted_floor_rad` per image axis:
+`adopted_covariance`). Kept as given (`adopt` False), the pose through the asked principal
+point is how far the written pose may lie off, and that move enters its covariance as the
+image cues' disagreement does, with the same spread (`PrincipalEstimate.pose_covariance`):
+with the shift free the outlines fix the pose less well than through the given camera. A turn
+beyond the limit within the noise, or not judged, leaves the principal point unresolved
+(`PrincipalEstimate.unresolved`): the outlines then do not tell the camera's intrinsics,
+nothing is adopted, and the move to the pose through the asked point enters the covariance
+as where a finding is kept.
 
     >>> PrincipalSettings().min_sigmas
     3.0
@@ -79,12 +86,13 @@ class PrincipalSettings:
             (atan(shift / f); set on rendered scenes: given their own cx, cy the outlines asked
             for at most 1.22 deg, given them 12, -8 px off at least 2.2 deg).
         derivative_step_px: the central differences' step in du, dv (the finish's pixels).
-        adopted_floor_rad: where a principal point is adopted (`dream.cli.keypoint_pass`),
-            the turn its error leaves, per image axis, at least (`adopted_covariance`): the
-            outlines' jackknife understates it (given 12, -8 px off, rendered scenes' asked
-            points lay 0.7 px from the truth at a 1-sigma of 0.1-0.2 px); given their own cx, cy
-            the outlines asked for turns of a median 0.3 deg (12 rendered scenes, keypoint
-            path).
+        adopt: a finding is adopted (module doc); False keeps the given cx, cy.
+        adopted_floor_rad: where a principal point is adopted (`dream.coarse.intrinsics`,
+            `dream.cli.keypoint_pass`), the turn its error leaves, per image axis, at least
+            (`adopted_covariance`): the outlines' jackknife understates it (given 12, -8 px
+            off, rendered scenes' asked points lay 0.7 px from the truth at a 1-sigma of
+            0.1-0.2 px); given their own cx, cy the outlines asked for turns of a median
+            0.3 deg (12 rendered scenes, keypoint path).
     """
 
     fit: bool = True
@@ -96,6 +104,16 @@ class PrincipalSettings:
     min_angle_rad: float = float(np.deg2rad(1.5))
     derivative_step_px: float = 0.05
     adopted_floor_rad: float = float(np.deg2rad(0.3))
+    adopt: bool = True
+
+    def floor_px(self, camera: CameraIntrinsics) -> np.ndarray:
+        """(2,) the image pixels of `camera` whose turn is `adopted_floor_rad` (du, dv).
+
+        >>> PrincipalSettings().floor_px(CameraIntrinsics(300.0, 300.0, 160.0, 120.0, 320,
+        ...                                               240)).round(2).tolist()
+        [1.57, 1.57]
+        """
+        return np.tan(self.adopted_floor_rad) * np.array([camera.fx, camera.fy])
 
     def __post_init__(self) -> None:
         check_fields(self, "principal point check",
@@ -120,6 +138,9 @@ class PrincipalEstimate:
         spread: (6, 6) the frame-group jackknife covariance of the joint fit's pose (xi at
             `T_cam_base`; zero where it was not judged): how well the outlines fix the pose
             through the asked point, the shift free.
+        unresolved: a turn beyond the limit within the noise, or not judged (module doc).
+        adopted: the search went on through the asked point; floor_px: (2,) the 1-sigma of
+            its error assumed then (`PrincipalSettings.floor_px`; zero where not adopted).
     """
 
     shift_px: np.ndarray
@@ -133,18 +154,40 @@ class PrincipalEstimate:
     xi: np.ndarray
     seconds: float = 0.0
     spread: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
+    unresolved: bool = False
+    adopted: bool = False
+    floor_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+    @property
+    def camera(self) -> CameraIntrinsics:
+        """The given camera with the asked principal point."""
+        return with_principal_shift(self.given, self.shift_px)
+
+    def adopted_with(self, settings: PrincipalSettings) -> PrincipalEstimate:
+        """This estimate adopted, with the floor of `settings` (only a finding is)."""
+        if not self.flagged:
+            raise ValueError("only a flagged principal point is adopted")
+        return replace(self, adopted=True, floor_px=settings.floor_px(self.camera))
 
     @property
     def pose_covariance(self) -> np.ndarray:
-        """(6, 6) what a flagged shift adds to the pose's covariance: the move to the pose
-        through the asked principal point, as a disagreement of two cues, and that pose's own
-        spread (the truth lies near it, and the two free parameters of the shift loosen the
-        pose along more than the move: `spread`); zero unflagged. Added to the search's own
-        jackknife, which measures much of the same frame-to-frame noise, it is on the safe
-        side: given cx, cy 12, -8 px off, the 6 flagged rendered scenes' truths lay at
+        """(6, 6) what a shift that is a finding or unresolved adds to the pose's
+        covariance; zero where the given cx, cy stand. Adopted: the pose's spread with the
+        shift free (`spread`) and the turn of the asked point's error (`adopted_covariance`
+        of `floor_px`). Kept as given: the move to the pose through the asked principal
+        point, as a disagreement of two cues, and the same spread (the truth lies near that
+        pose, and the two free parameters of the shift loosen the pose along more than the
+        move); the same where the shift is unresolved (given cx, cy 12, -8 and 24, -16 px
+        off, the rendered scenes whose outlines left it unresolved lay 2.2-5.0 deg off, their
+        truth at chi-square 7 000-50 000 without it). Added to the search's own jackknife,
+        which measures much of the same frame-to-frame noise, it is on the safe side: given
+        cx, cy 12, -8 px off and kept, the 6 flagged rendered scenes' truths lay at
         chi-square 1.3-4.2 (6 degrees of freedom)."""
-        if not self.flagged:
+        if not (self.flagged or self.unresolved):
             return np.zeros((6, 6))
+        if self.adopted:
+            return self.spread + adopted_covariance(self.camera, self.T_cam_base,
+                                                    self.floor_px)
         return np.outer(self.xi, self.xi) + self.spread
 
     def to_dict(self) -> dict:
@@ -156,7 +199,11 @@ class PrincipalEstimate:
                 "asked": {"cx": given.cx + float(self.shift_px[0]),
                           "cy": given.cy + float(self.shift_px[1])},
                 "T_cam_base_asked": self.T_cam_base.tolist(),
-                "spread_xi": self.spread.tolist(), "seconds": self.seconds}
+                "spread_xi": self.spread.tolist(), "seconds": self.seconds,
+                "unresolved": self.unresolved, "adopted": self.adopted,
+                "used": {"cx": self.camera.cx if self.adopted else given.cx,
+                         "cy": self.camera.cy if self.adopted else given.cy},
+                "sigma_floor_px": self.floor_px.tolist()}
 
 
 def adopted_covariance(camera: CameraIntrinsics, T_cam_base: np.ndarray,
@@ -237,7 +284,7 @@ def fit_principal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
     flagged, reason = _decision(shift, sigma * to_image, angle, carried, settings)
     return PrincipalEstimate(shift, sigma * to_image, angle, rounds, flagged, reason, camera, T,
                              increment_between(T_given, T), time.perf_counter() - start,
-                             spread)
+                             spread, unresolved=angle > settings.min_angle_rad and not flagged)
 
 
 def _jackknife(objective: Objective, scales: Scales, T: np.ndarray,

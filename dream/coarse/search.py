@@ -46,6 +46,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -64,6 +65,9 @@ from dream.errors import InputError
 from dream.metrics import pose_errors
 from dream.polish.objective import scaled_camera, shrink_mask
 from dream.silhouette import RobotMeshes, vertices_in_base
+
+if TYPE_CHECKING:
+    from dream.coarse.calibration import SearchMasks
 
 log = logging.getLogger(__name__)
 
@@ -322,6 +326,21 @@ def find_winner(meshes: RobotMeshes, joints: np.ndarray, masks: np.ndarray,
 
     return Winner(best, rival, tuple(candidates), counts, time.perf_counter() - start,
                   run_checks)
+
+
+def searched_again(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
+                   T_start: np.ndarray, source: str, settings: SearchSettings,
+                   progress: Callable[[str], None] | None = None) -> Winner:
+    """The search again through `camera` from `T_start` and the winner's rival (as `source`),
+    without `inputs.region`'s pixels, its checks still to run; its counts and time include the
+    first winner's."""
+    starts = [T_start] + ([] if winner.rival is None else [winner.rival.T_cam_base])
+    searched = find_winner(inputs.meshes, inputs.joints, inputs.masks, camera,
+                           {source: np.stack(starts)}, settings, held=inputs.held,
+                           progress=progress, search_frames=inputs.search,
+                           region=inputs.region)
+    return replace(searched, hypotheses={**winner.hypotheses, **searched.hypotheses},
+                   seconds=winner.seconds + searched.seconds)
 
 
 def _winner_and_rival(candidates: list[Candidate], finished: Callable[[Candidate], Candidate],

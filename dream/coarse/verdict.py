@@ -307,8 +307,8 @@ def crosscheck_focal_finding(focal: dict | None) -> Finding | None:
 
 
 def adopted_principal_finding(principal: dict) -> Finding:
-    """The finding of a principal point the keypoint path adopted (RESULT.json's `principal`:
-    the cross-check's record with `used`).
+    """The finding of an adopted principal point (RESULT.json's `principal` of the keypoint
+    path, `start.principal` of the search: the record with `used`).
 
     >>> adopted_principal_finding({"shift_px": [12.0, -8.0], "angle_rad": 0.06,
     ...                            "given": {"cx": 160.0, "cy": 120.0},
@@ -333,15 +333,24 @@ def principal_finding(principal: dict | None) -> Finding | None:
     >>> principal_finding({"flagged": True, "shift_px": [12.0, -8.0], "angle_rad": 0.06,
     ...                    "given": {"cx": 160.0, "cy": 120.0}})[0]
     'check'
+    >>> principal_finding({"flagged": False, "unresolved": True, "shift_px": [9.0, 2.0],
+    ...                    "angle_rad": 0.04, "given": {"cx": 160.0, "cy": 120.0}})[1][:60]
+    "the robot's outlines ask for a principal point +9.0, +2.0 px"
     >>> principal_finding({"flagged": False}) is None
     True
     """
-    if principal is None or not principal["flagged"]:
+    if principal is None:
+        return None
+    if principal.get("adopted"):
+        return adopted_principal_finding(principal)
+    if not (principal["flagged"] or principal.get("unresolved")):
         return None
     du, dv = principal["shift_px"]
     given = principal["given"]
+    how = ("" if principal["flagged"] else ", but do not resolve it (within their noise, or "
+           "beside something the arm carries): nothing was adopted")
     return CHECK, (f"the robot's outlines ask for a principal point {du:+.1f}, {dv:+.1f} px "
-                   f"from the given cx, cy {given['cx']:.1f}, {given['cy']:.1f}: the pose "
+                   f"from the given cx, cy {given['cx']:.1f}, {given['cy']:.1f}{how}; the pose "
                    f"rests on the given one, and its rotation may be off by up to "
                    f"{np.rad2deg(principal['angle_rad']):.1f} deg (in the 1-sigma); give the "
                    "camera's calibrated cx, cy (not the image centre, and for this image "

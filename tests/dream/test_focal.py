@@ -14,8 +14,9 @@ import pytest
 
 from dream.camera import CameraIntrinsics
 from dream.cli import main
-from dream.coarse.calibration import MOTION_MASKS, SearchMasks, with_focal
+from dream.coarse.calibration import MOTION_MASKS, SearchMasks
 from dream.coarse.focal import FocalSettings, _decision, _sigma, fit_focal, with_focal_scale
+from dream.coarse.intrinsics import with_asked_intrinsics
 from dream.coarse.scales import finish_scale
 from dream.coarse.search import find_winner
 from dream.coarse.settings import SearchSettings
@@ -146,7 +147,7 @@ def test_calibrate_fits_a_focal_length_given_short_and_fixed_focal_keeps_it(
     code = main(["calibrate", "--data", str(tmp_path / "short"), "--out", str(out)] + guess)
     printed, err = capsys.readouterr()
     assert code == 0, err
-    assert "focal length: fx, fy" in printed and "searching again with it" in err
+    assert "intrinsics: fx, fy, cx, cy" in printed and "searching again with it" in err
     doc = json.loads(out.read_text())
     focal = doc["start"]["focal"]
     assert focal["adopted"] and focal["scale"] * GIVEN_SHORT == pytest.approx(1.0, abs=0.01)
@@ -170,7 +171,8 @@ def test_calibrate_fits_a_focal_length_given_short_and_fixed_focal_keeps_it(
 def test_no_focal_fit_where_the_robot_was_found_only_with_the_held_pixels_kept(panda, meshes):
     """Masks of the whole silhouette read as motion masks hold the pixels the silhouettes cover
     in most frames, which the fit leaves out of them. Where the robot is found only with those
-    pixels kept, the focal length is not fitted; found without them, it is."""
+    pixels kept, neither the focal length nor the principal point is fitted; found without
+    them, both are."""
     T_true, joints, masks = rendered_masks(panda, meshes, frames=FRAMES)
     given = with_focal_scale(CAMERA, GIVEN_SHORT)
     frames = np.arange(len(joints))
@@ -181,7 +183,9 @@ def test_no_focal_fit_where_the_robot_was_found_only_with_the_held_pixels_kept(p
     assert held_kept_only.robot_found(winner.best.iou, winner.best.found_iou)
     assert not held_kept_only.robot_found(winner.best.iou)
     lines: list[str] = []
-    _, unfitted = with_focal(given, inputs, winner, held_kept_only, progress=lines.append)
-    assert unfitted.focal is None and "not fitted" in lines[-1]
-    _, fitted = with_focal(given, inputs, winner, replace(held_kept_only, min_found_iou=0.0))
-    assert fitted.focal is not None
+    _, unfitted = with_asked_intrinsics(given, inputs, winner, held_kept_only,
+                                        progress=lines.append)
+    assert unfitted.focal is None and unfitted.principal is None and "not fitted" in lines[-1]
+    _, fitted = with_asked_intrinsics(given, inputs, winner,
+                                      replace(held_kept_only, min_found_iou=0.0))
+    assert fitted.focal is not None and fitted.principal is not None

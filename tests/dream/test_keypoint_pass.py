@@ -208,9 +208,9 @@ def test_a_flagged_principal_point_is_adopted_first_and_the_focal_length_after_i
     focal = {"asked": True, "adopted": False, "scale": 0.95, "sigma_used": 0.01,
              "xi_per_log_scale": [0.0] * 5 + [1.0], "given": {}, "used": {}, "reason": "r"}
     principal = {"flagged": True, "angle_rad": 0.05, "shift_px": [12.0, -8.0], "given": {},
-                 "spread_xi": np.zeros((6, 6)).tolist()}
-    asks = [(focal, principal), (focal, {**principal, "flagged": False, "angle_rad": 0.001}),
-            (focal, {**principal, "flagged": False, "angle_rad": 0.001})]
+                 "spread_xi": np.zeros((6, 6)).tolist(), "unresolved": False}
+    resolved = {**principal, "flagged": False, "angle_rad": 0.001}
+    asks = [(focal, principal), (focal, resolved), (focal, resolved)]
     cameras = []
 
     def fake_pass(inputs, seq, out):

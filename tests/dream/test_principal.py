@@ -113,8 +113,10 @@ def test_settings_out_of_range_are_refused(field, value):
 def test_calibrate_records_the_check_and_a_flag_reaches_the_verdict_and_1_sigma(
         panda, meshes, tmp_path, capsys, monkeypatch):
     """Images only (motion masks of a few grey frames, too few to resolve the principal
-    point): RESULT.json records the check, nothing flagged; with the check's estimate flagged,
-    the verdict names it and the covariance holds its move."""
+    point): RESULT.json records the check, nothing flagged; with the check's estimate flagged
+    and kept (`--fixed-principal`), the verdict names it and the covariance holds its move;
+    adopted (the default), the pose is found through it, RESULT.json and the verdict say
+    so, and the covariance holds the turn of its error."""
     T_true = image_dataset(panda, meshes, tmp_path)
     position = np.linalg.inv(off_by(T_true, GUESS_M, GUESS_RAD, 3))[:3, 3]
     argv = ["calibrate", "--data", str(tmp_path / "data"), "--camera-guess",
@@ -128,21 +130,38 @@ def test_calibrate_records_the_check_and_a_flag_reaches_the_verdict_and_1_sigma(
     assert not any("principal point" in w for w in doc["quality"]["warnings"])
     capsys.readouterr()
 
-    from dream.coarse import calibration
-
-    fitted = []
+    from dream.coarse import intrinsics
 
     def flagged(*args, **kwargs):
         estimate = fit_principal(*args, **kwargs)
-        fitted.append(replace(estimate, flagged=True, xi=np.array([0.03, 0, 0, 0, 0, 0.0])))
-        return fitted[-1]
+        return replace(estimate, flagged=True, unresolved=False,
+                       shift_px=np.array([3.0, -2.0]), xi=np.array([0.03, 0, 0, 0, 0, 0.0]))
 
-    monkeypatch.setattr(calibration, "fit_principal", flagged)
-    assert main(argv + [str(tmp_path / "f.json")]) == 0, capsys.readouterr()[1]
+    monkeypatch.setattr(intrinsics, "fit_principal", flagged)
+    assert main(argv + [str(tmp_path / "f.json"), "--fixed-principal"]) == 0, \
+        capsys.readouterr()[1]
     doc = json.loads((tmp_path / "f.json").read_text())
-    assert doc["start"]["principal"]["flagged"] and doc["quality"]["verdict"] != "good"
+    principal = doc["start"]["principal"]
+    assert principal["flagged"] and not principal["adopted"]
+    assert principal["used"] == {"cx": CAMERA.cx, "cy": CAMERA.cy}
+    assert doc["quality"]["verdict"] != "good"
     assert any("principal point" in w for w in doc["quality"]["warnings"])
     assert np.asarray(doc["covariance_xi"])[0, 0] >= 0.03 ** 2
+    capsys.readouterr()
+
+    assert main(argv + [str(tmp_path / "a.json")]) == 0, capsys.readouterr()[1]
+    printed = capsys.readouterr()[0]
+    doc = json.loads((tmp_path / "a.json").read_text())
+    principal = doc["start"]["principal"]
+    assert principal["adopted"] and "162.50, 117.50, fitted to the robot" in printed
+    assert principal["used"] == {"cx": CAMERA.cx + 3.0, "cy": CAMERA.cy - 2.0}
+    assert doc["quality"]["verdict"] == "check"
+    assert any("--fixed-principal" in w for w in doc["quality"]["warnings"])
+    floor_rad = PrincipalSettings().adopted_floor_rad
+    assert np.sqrt(np.asarray(doc["covariance_xi"])[1, 1]) >= floor_rad
+    from dream.result import adopted_intrinsics
+
+    assert principal["used"].items() <= adopted_intrinsics(doc).items()
 
 
 def test_the_keypoint_paths_crosscheck_checks_the_principal_point_on_the_outlines(
@@ -238,3 +257,20 @@ def test_an_adopted_principal_point_s_1_sigma_turns_the_pose_about_the_camera_ce
     assert np.sqrt(np.max(np.diag(position))) < 0.01 * np.sqrt(C[3, 3])
     with pytest.raises(ValueError, match="shape"):
         adopted_covariance(CAMERA, T, np.array([1.0, 2.0, 3.0]))
+
+
+def test_an_unresolved_principal_point_leaves_its_turn_in_the_1_sigma_and_the_verdict():
+    """A turn beyond the limit that the outlines do not resolve is neither adopted nor
+    dropped: the move to the pose through the asked point and that pose's spread enter the
+    covariance, and the verdict names it; a turn within the limit adds nothing."""
+    from dream.coarse.principal import PrincipalEstimate
+
+    xi, spread = np.array([0.0, 0.05, 0.0, 0.01, 0.0, 0.0]), np.diag([1e-4] * 6)
+    asked = PrincipalEstimate(np.array([12.0, -8.0]), np.array([6.0, 5.0]), 0.05, 3, False,
+                              "within 3 sigma", CAMERA, np.eye(4), xi, spread=spread,
+                              unresolved=True)
+    np.testing.assert_allclose(asked.pose_covariance, np.outer(xi, xi) + spread)
+    level, warning = principal_finding(asked.to_dict())
+    assert level == "check" and "do not resolve it" in warning and "2.9 deg" in warning
+    standing = replace(asked, unresolved=False, angle_rad=0.01)
+    assert not standing.pose_covariance.any() and principal_finding(standing.to_dict()) is None
