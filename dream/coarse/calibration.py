@@ -105,8 +105,8 @@ class SearchMasks:
     masks), and the joint log's lag read at the winner (`timing`; `dream.coarse.timing`:
     where adopted, `joints` are the readings shifted by it), and the principal point and the
     focal-length scale the outlines ask for (`principal`, `focal`; None where not fitted;
-    `dream.coarse.intrinsics`: where adopted, the search's pose is the one through
-    `focal.camera`, or through `principal.camera` where only that was)."""
+    `dream.coarse.intrinsics`: where either is adopted, the search's pose is the one through
+    `dream.coarse.intrinsics.adopted_camera`)."""
 
     meshes: RobotMeshes
     frames: np.ndarray

@@ -69,15 +69,16 @@ class Crosscheck:
         the move from the optimum to the pose through them (the asked focal length's, where
         one is asked for: `FocalEstimate.adopted`; then the flagged or unresolved principal
         point's, fitted from there), and the spreads of those poses
-        (`FocalEstimate.pose_covariance`, `PrincipalEstimate.spread`); zero where they agree
-        with the given ones."""
+        (`FocalEstimate.pose_covariance`, `PrincipalEstimate.spread`), and an unresolved
+        principal point's turn (`PrincipalEstimate.unresolved_covariance`); zero where they
+        agree with the given ones."""
         covariance, T_asked = np.zeros((6, 6)), self.outcome.best.T_cam_base
         if self.focal is not None and self.focal.adopted:
             covariance += self.focal.pose_covariance
             T_asked = self.focal.T_cam_base
         if self.principal is not None and (self.principal.flagged
                                            or self.principal.unresolved):
-            covariance += self.principal.spread
+            covariance += self.principal.spread + self.principal.unresolved_covariance
             T_asked = self.principal.T_cam_base
         move = increment_between(self.outcome.best.T_cam_base, T_asked)
         return covariance + np.outer(move, move)

@@ -170,6 +170,18 @@ class PrincipalEstimate:
         return replace(self, adopted=True, floor_px=settings.floor_px(self.camera))
 
     @property
+    def unresolved_covariance(self) -> np.ndarray:
+        """(6, 6) where the shift is unresolved, the turn of a principal point as far off as
+        asked in each image axis (`adopted_covariance` of |shift|); zero otherwise. The move
+        to the pose through the asked point alone is one direction, and the outlines did not
+        fix it: given cx, cy 12, -8 and 24, -16 px off, the six rendered scenes whose
+        outlines left it unresolved (something carried beside it) lay 2.2-5.0 deg off, their
+        truth at chi-square 3.5-420 with the move and at 1.2-1.7 with this turn too."""
+        if not self.unresolved:
+            return np.zeros((6, 6))
+        return adopted_covariance(self.given, self.T_cam_base, np.abs(self.shift_px))
+
+    @property
     def pose_covariance(self) -> np.ndarray:
         """(6, 6) what a shift that is a finding or unresolved adds to the pose's
         covariance; zero where the given cx, cy stand. Adopted: the pose's spread with the
@@ -177,18 +189,17 @@ class PrincipalEstimate:
         of `floor_px`). Kept as given: the move to the pose through the asked principal
         point, as a disagreement of two cues, and the same spread (the truth lies near that
         pose, and the two free parameters of the shift loosen the pose along more than the
-        move); the same where the shift is unresolved (given cx, cy 12, -8 and 24, -16 px
-        off, the rendered scenes whose outlines left it unresolved lay 2.2-5.0 deg off, their
-        truth at chi-square 7 000-50 000 without it). Added to the search's own jackknife,
-        which measures much of the same frame-to-frame noise, it is on the safe side: given
-        cx, cy 12, -8 px off and kept, the 6 flagged rendered scenes' truths lay at
-        chi-square 1.3-4.2 (6 degrees of freedom)."""
+        move); unresolved, those and `unresolved_covariance` (without it, the rendered
+        scenes it names lay at chi-square 7 000-50 000 before the move entered). Added to the
+        search's own jackknife, which measures much of the same frame-to-frame noise, it is
+        on the safe side: given cx, cy 12, -8 px off and kept, the 6 flagged rendered scenes'
+        truths lay at chi-square 1.3-4.2 (6 degrees of freedom)."""
         if not (self.flagged or self.unresolved):
             return np.zeros((6, 6))
         if self.adopted:
             return self.spread + adopted_covariance(self.camera, self.T_cam_base,
                                                     self.floor_px)
-        return np.outer(self.xi, self.xi) + self.spread
+        return np.outer(self.xi, self.xi) + self.spread + self.unresolved_covariance
 
     def to_dict(self) -> dict:
         given = self.given

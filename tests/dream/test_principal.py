@@ -261,15 +261,18 @@ def test_an_adopted_principal_point_s_1_sigma_turns_the_pose_about_the_camera_ce
 
 def test_an_unresolved_principal_point_leaves_its_turn_in_the_1_sigma_and_the_verdict():
     """A turn beyond the limit that the outlines do not resolve is neither adopted nor
-    dropped: the move to the pose through the asked point and that pose's spread enter the
-    covariance, and the verdict names it; a turn within the limit adds nothing."""
-    from dream.coarse.principal import PrincipalEstimate
+    dropped: the move to the pose through the asked point, that pose's spread and the turn of
+    a point as far off as asked enter the covariance, and the verdict names it; a turn within
+    the limit adds nothing."""
+    from dream.coarse.principal import PrincipalEstimate, adopted_covariance
 
     xi, spread = np.array([0.0, 0.05, 0.0, 0.01, 0.0, 0.0]), np.diag([1e-4] * 6)
     asked = PrincipalEstimate(np.array([12.0, -8.0]), np.array([6.0, 5.0]), 0.05, 3, False,
                               "within 3 sigma", CAMERA, np.eye(4), xi, spread=spread,
                               unresolved=True)
-    np.testing.assert_allclose(asked.pose_covariance, np.outer(xi, xi) + spread)
+    turn = adopted_covariance(CAMERA, np.eye(4), np.array([12.0, 8.0]))
+    np.testing.assert_allclose(asked.pose_covariance, np.outer(xi, xi) + spread + turn)
+    assert np.sqrt(asked.pose_covariance[1, 1]) > np.arctan(12.0 / CAMERA.fx)
     level, warning = principal_finding(asked.to_dict())
     assert level == "check" and "do not resolve it" in warning and "2.9 deg" in warning
     standing = replace(asked, unresolved=False, angle_rad=0.01)
