@@ -39,8 +39,10 @@ Each finding is (level, one sentence with what to do), as in `dream.quality`:
   pose are wrong (`unreliable`). In the silhouettes' cross-check of a pose found another way,
   the same ask is a `check` whose move enters the 1-sigma (`crosscheck_focal_finding`).
 - **principal**: the robot's outlines ask for a principal point that turns the camera by more
-  than the check's limit (`dream.coarse.principal`): the pose rests on the given cx, cy and
-  its rotation may be off by that much (`check`; the move enters the 1-sigma); the same at the
+  than the check's limit (`dream.coarse.principal`): adopted, the pose was found with it and
+  the user's intrinsics need correcting (`check`); kept as given, or unresolved (within the
+  outlines' noise, or beside something carried), the pose rests on the given cx, cy and its
+  rotation may be off by that much (`check`; the turn enters the 1-sigma); the same at the
   silhouettes' cross-check's optimum.
 
     >>> from dream.coarse.settings import SearchSettings
