@@ -176,16 +176,14 @@ def with_fitted_intrinsics(seq, inputs, out: TextIO):
     """The sequence through the camera whose principal point or focal length the search
     fitted and adopted (`dream.coarse.intrinsics`), so that the refinements after it see what
     it saw; else as given."""
-    from dream.coarse.intrinsics import adopted_camera
+    from dream.coarse.intrinsics import adopted_camera, intrinsics_change
 
     given, camera = seq.camera, adopted_camera(seq.camera, inputs)
     if camera == given:
         return seq
-    print(f"intrinsics: fx, fy, cx, cy {given.fx:.2f}, {given.fy:.2f}, {given.cx:.2f}, "
-          f"{given.cy:.2f} -> {camera.fx:.2f}, {camera.fy:.2f}, {camera.cx:.2f}, "
-          f"{camera.cy:.2f}, fitted to the robot's outlines; the pose and every refinement "
-          "after the search use them (--fixed-focal, --fixed-principal keep the given ones)",
-          file=out)
+    print(f"intrinsics: {intrinsics_change(given, camera)}, fitted to the robot's outlines; "
+          "the pose and every refinement after the search use them (--fixed-focal, "
+          "--fixed-principal keep the given ones)", file=out)
     return seq.with_fixed_camera(camera)
 
 

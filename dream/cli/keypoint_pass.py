@@ -82,6 +82,8 @@ def keypoint_calibration(inputs: PassInputs, seq, out: TextIO) -> KeypointPass:
     `MAX_ADOPTIONS` times; a flagged principal point first, alone, since the focal length
     beside it was fitted through the wrong one (given cx, cy 24, -16 px off, a rendered scene's
     outlines asked for x1.092 with it, and adopted together the pose lay 142 mm off)."""
+    from dream.coarse.intrinsics import intrinsics_change
+
     first = last = run_pass(inputs, seq, out)
     adopted: dict[str, dict] = {}
     for _ in range(MAX_ADOPTIONS):
@@ -95,11 +97,9 @@ def keypoint_calibration(inputs: PassInputs, seq, out: TextIO) -> KeypointPass:
         adopted.update({k: r for k, r in (("focal", focal), ("principal", principal))
                         if r is not None})
         before, camera = last.seq.camera, asked_camera(last.seq.camera, focal, principal)
-        print(f"intrinsics: fx, fy, cx, cy {before.fx:.2f}, {before.fy:.2f}, {before.cx:.2f}, "
-              f"{before.cy:.2f} -> {camera.fx:.2f}, {camera.fy:.2f}, {camera.cx:.2f}, "
-              f"{camera.cy:.2f}, asked for by the robot's outlines at the silhouettes' "
-              "optimum: calibrating again through them (--fixed-focal, --fixed-principal keep "
-              "the given ones)", file=out)
+        print(f"intrinsics: {intrinsics_change(before, camera)}, asked for by the robot's "
+              "outlines at the silhouettes' optimum: calibrating again through them "
+              "(--fixed-focal, --fixed-principal keep the given ones)", file=out)
         last = run_pass(inputs, seq.with_fixed_camera(camera), out)
     if not adopted:
         return first

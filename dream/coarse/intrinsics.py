@@ -37,6 +37,8 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from dream.camera import CameraIntrinsics
 from dream.coarse.focal import FocalEstimate, FocalSettings, fit_focal
 from dream.coarse.principal import PrincipalEstimate, PrincipalSettings, fit_principal
@@ -66,6 +68,7 @@ def with_asked_intrinsics(camera: CameraIntrinsics, inputs: SearchMasks, winner:
     say = progress or (lambda line: None)
     kept: dict[str, FocalEstimate | PrincipalEstimate] = {}
     adopted: dict[str, FocalEstimate | PrincipalEstimate] = {}
+    P = vertices_in_base(inputs.meshes, inputs.joints) if focal.fit or principal.fit else None
     for _ in range(MAX_ADOPTIONS + 1):
         if not settings.robot_found(winner.best.iou):
             if focal.fit or principal.fit:
@@ -73,7 +76,7 @@ def with_asked_intrinsics(camera: CameraIntrinsics, inputs: SearchMasks, winner:
                     f"silhouettes cover in most frames kept (IoU {winner.best.iou:.2f} "
                     "without them)")
             break
-        f, p = _fitted(camera, inputs, winner, settings,
+        f, p = _fitted(camera, inputs, P, winner, settings,
                        focal if FOCAL not in adopted else replace(focal, fit=False),
                        principal if PRINCIPAL not in adopted else replace(principal, fit=False),
                        say)
@@ -81,16 +84,14 @@ def with_asked_intrinsics(camera: CameraIntrinsics, inputs: SearchMasks, winner:
         asked_focal = f is not None and f.adopted
         if p is not None and p.unresolved:
             if asked_focal:
-                kept[FOCAL] = replace(f, adopted=False, reason=(
-                    f"{f.reason}; not adopted: the principal point is unresolved, and the "
-                    "focal length may only make up for it"))
+                kept[FOCAL] = _refused(f, "the principal point is unresolved, and the focal "
+                                          "length may only make up for it")
             break
         if p is not None and p.flagged and principal.adopt:
             estimate = replace(p, given=camera).adopted_with(principal)
             start, source = estimate.T_cam_base, PRINCIPAL
             if asked_focal:
-                kept[FOCAL] = replace(f, adopted=False, reason=(
-                    f"{f.reason}; not adopted: fitted through the principal point given"))
+                kept[FOCAL] = _refused(f, "fitted through the principal point given")
         elif asked_focal:
             estimate, start, source = f, f.T_cam_base, FOCAL
         else:
@@ -103,16 +104,20 @@ def with_asked_intrinsics(camera: CameraIntrinsics, inputs: SearchMasks, winner:
     return winner.checked(), inputs
 
 
-def _fitted(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
-            settings: SearchSettings, focal: FocalSettings, principal: PrincipalSettings,
-            say: Callable[[str], None]
+def _refused(estimate: FocalEstimate, why: str) -> FocalEstimate:
+    """A focal length asked for, not adopted because of `why`."""
+    return replace(estimate, adopted=False, reason=f"{estimate.reason}; not adopted: {why}")
+
+
+def _fitted(camera: CameraIntrinsics, inputs: SearchMasks, P: np.ndarray | None,
+            winner: Winner, settings: SearchSettings, focal: FocalSettings,
+            principal: PrincipalSettings, say: Callable[[str], None]
             ) -> tuple[FocalEstimate | None, PrincipalEstimate | None]:
     """The focal length the outlines ask for at the winner through `camera`, then the
     principal point through the asked focal length where it is asked for (each None where
-    its settings say not to fit it)."""
+    its settings say not to fit it); P (F, V, 3): the inputs' vertices in the base frame."""
     if not (focal.fit or principal.fit):
         return None, None
-    P = vertices_in_base(inputs.meshes, inputs.joints)
     T = winner.best.T_cam_base
     f = None
     if focal.fit:
@@ -127,6 +132,20 @@ def _fitted(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
                       inputs.held, inputs.region)
     say(f"principal point ({p.seconds:.1f} s): {p.reason}")
     return f, p
+
+
+def intrinsics_change(before: CameraIntrinsics, after: CameraIntrinsics) -> str:
+    """How the intrinsics went from `before` to `after`, for the user.
+
+    >>> from dream.coarse.focal import with_focal_scale
+    >>> camera = CameraIntrinsics(300.0, 300.0, 160.0, 120.0, 320, 240)
+    >>> intrinsics_change(camera, with_focal_scale(camera, 1.1))
+    'fx, fy, cx, cy 300.00, 300.00, 160.00, 120.00 -> 330.00, 330.00, 160.00, 120.00'
+    """
+    def values(c: CameraIntrinsics) -> str:
+        return ", ".join(f"{v:.2f}" for v in (c.fx, c.fy, c.cx, c.cy))
+
+    return f"fx, fy, cx, cy {values(before)} -> {values(after)}"
 
 
 def adopted_camera(camera: CameraIntrinsics, inputs: SearchMasks) -> CameraIntrinsics:

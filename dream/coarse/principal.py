@@ -35,7 +35,8 @@ with the shift free the outlines fix the pose less well than through the given c
 beyond the limit within the noise, or not judged, leaves the principal point unresolved
 (`PrincipalEstimate.unresolved`): the outlines then do not tell the camera's intrinsics,
 nothing is adopted, and the move to the pose through the asked point enters the covariance
-as where a finding is kept.
+as where a finding is kept, with the turn of a point as far off as asked
+(`PrincipalEstimate.unresolved_covariance`).
 
     >>> PrincipalSettings().min_sigmas
     3.0

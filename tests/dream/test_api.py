@@ -31,7 +31,7 @@ DOCTEST_MODULES = ("dream.api", "dream.arrays", "dream.readings", "dream.optim.l
                    "dream.refinement_document", "batch.recordings", "dream.cli.app",
                    "dream.io.marks", "dream.focal_check", "dream.readings_check",
                    "dream.io.npz", "dream.coarse.checks",
-                   "dream.coarse.timing", "dream.principal_check",
+                   "dream.coarse.timing", "dream.coarse.intrinsics", "dream.principal_check",
                    "dream.keypoint_camera_fit", "dream.result", "dream.cli.keypoint_pass")
 API = ("read_sequence", "load_robot", "load_keypoint_model", "detect", "labels", "calibrate",
        "polish_result", "refine_edges", "evaluate", "diagnose", "result_document", "read_result",
