@@ -32,6 +32,7 @@ from dream.calibration import CalibrationResult, Observations
 from dream.camera import CameraIntrinsics
 from dream.errors import InputError
 from dream.keypoint_camera_fit import KeypointCameraFit, focal_columns, inlier_keypoints
+from dream.pnp import increment_between
 from dream.quality import CHECK, Finding
 
 POSE_AND_SCALE = 7            # unknowns of the joint fit: the pose increment and log(scale)
@@ -67,17 +68,33 @@ class FocalCheckSettings:
 
 @dataclass(frozen=True)
 class KeypointFocal:
-    """The focal-length scale the keypoints ask for (1: the given one) and its 1-sigma."""
+    """The focal-length scale the keypoints ask for (1: the given one), the 1-sigma of its
+    log, and `xi` (6,): the move (xi of `dream.pnp`) from the result's pose to the pose
+    fitted with the asked scale (None: not known)."""
 
     scale: float
     sigma: float
     sigma_fit: float
     sigma_jackknife: float | None
     keypoints: int
+    xi: np.ndarray | None = None
 
-    def to_dict(self) -> dict[str, Any]:
+    def beyond_limit(self, settings: FocalCheckSettings = FocalCheckSettings()) -> bool:
+        """Whether the asked scale lies more than `tolerance` from 1."""
+        return abs(math.log(self.scale)) > math.log1p(settings.tolerance)
+
+    def unresolved(self, settings: FocalCheckSettings = FocalCheckSettings()) -> bool:
+        """A scale beyond the limit within `z` 1-sigmas of 1: the keypoints can tell neither
+        that the given focal length is wrong nor that it is right."""
+        return self.beyond_limit(settings) and abs(math.log(self.scale)) <= \
+            settings.z * self.sigma
+
+    def to_dict(self, settings: FocalCheckSettings = FocalCheckSettings()) -> dict[str, Any]:
         return {"scale": self.scale, "sigma": self.sigma, "sigma_fit": self.sigma_fit,
-                "sigma_jackknife": self.sigma_jackknife, "keypoints": self.keypoints}
+                "sigma_jackknife": self.sigma_jackknife, "keypoints": self.keypoints,
+                "beyond_limit": self.beyond_limit(settings),
+                "unresolved": self.unresolved(settings),
+                "xi_asked": None if self.xi is None else self.xi.tolist()}
 
 
 def fit_focal_scale(P_base: np.ndarray, uv: np.ndarray, camera: CameraIntrinsics,
@@ -110,11 +127,12 @@ def keypoint_focal(result: CalibrationResult, obs: Observations, camera: CameraI
                                                        settings.min_groups)
     if estimate is None:
         return None
-    log_s, sigma_fit, jackknife = estimate
+    log_s, sigma_fit, jackknife, T_asked = estimate
     sigma_jackknife = None if jackknife is None else float(jackknife[0])
     return KeypointFocal(math.exp(float(log_s[0])), max(float(sigma_fit[0]),
                                                         sigma_jackknife or 0.0),
-                         float(sigma_fit[0]), sigma_jackknife, len(P))
+                         float(sigma_fit[0]), sigma_jackknife, len(P),
+                         increment_between(result.T_cam_base, T_asked))
 
 
 def keypoint_focal_finding(focal: KeypointFocal | None, camera: CameraIntrinsics,
@@ -129,10 +147,7 @@ def keypoint_focal_finding(focal: KeypointFocal | None, camera: CameraIntrinsics
     >>> keypoint_focal_finding(KeypointFocal(0.91, 0.01, 0.005, 0.01, 200), camera)[0]
     'check'
     """
-    if focal is None:
-        return None
-    off = abs(math.log(focal.scale))
-    if off <= math.log1p(settings.tolerance) or off <= settings.z * focal.sigma:
+    if focal is None or not focal.beyond_limit(settings) or focal.unresolved(settings):
         return None
     return CHECK, (f"the keypoints fit best with a focal length x{focal.scale:.3f} the given "
                    f"one (+-{focal.sigma * 100:.1f} %): fx, fy {camera.fx * focal.scale:.1f}, "

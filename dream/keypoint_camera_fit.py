@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -36,6 +37,16 @@ from dream.refined_uncertainty import jackknife_spread
 POSE = 6                      # unknowns of the pose increment
 
 Fitted = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+class Estimate(NamedTuple):
+    """A joint fit's parameters p (k,), the fit's 1-sigma of each (k,), the delete-one-name
+    jackknife's (k,; None with too few names), and the pose fitted with them (4, 4)."""
+
+    p: np.ndarray
+    sigma_fit: np.ndarray
+    sigma_jackknife: np.ndarray | None
+    T_cam_base: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -100,22 +111,21 @@ class KeypointCameraFit:
 
     def estimate(self, P_base: np.ndarray, uv: np.ndarray, names: np.ndarray,
                  camera: CameraIntrinsics, T_cam_base: np.ndarray, min_groups: int
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
-        """(p (k,), the fit's 1-sigma (k,), the delete-one-name jackknife's (k,); None with
-        fewer than `min_groups` names); None where the fit or one of its leave-one-name-out
-        fits has no answer (the fit's own 1-sigma alone would flag a detector's bias on one
-        keypoint)."""
+                 ) -> Estimate | None:
+        """The fit's `Estimate` (its jackknife None with fewer than `min_groups` names); None
+        where the fit or one of its leave-one-name-out fits has no answer (the fit's own
+        1-sigma alone would flag a detector's bias on one keypoint)."""
         fitted = self.fit(P_base, uv, camera, T_cam_base)
         if fitted is None:
             return None
-        p, covariance, _ = fitted
+        p, covariance, T = fitted
         sigma_fit = np.sqrt(np.diag(covariance))
         if len(np.unique(names)) < min_groups:
-            return p, sigma_fit, None
+            return Estimate(p, sigma_fit, None, T)
         spread = self.jackknife(P_base, uv, names, camera, T_cam_base, min_groups)
         if spread is None:
             return None
-        return p, sigma_fit, np.sqrt(np.clip(np.diag(spread), 0.0, None))
+        return Estimate(p, sigma_fit, np.sqrt(np.clip(np.diag(spread), 0.0, None)), T)
 
     def jackknife(self, P_base: np.ndarray, uv: np.ndarray, names: np.ndarray,
                   camera: CameraIntrinsics, T_cam_base: np.ndarray,

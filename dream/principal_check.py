@@ -30,6 +30,7 @@ from dream.calibration import CalibrationResult, Observations
 from dream.camera import CameraIntrinsics
 from dream.errors import InputError
 from dream.keypoint_camera_fit import KeypointCameraFit, inlier_keypoints, principal_columns
+from dream.pnp import increment_between
 from dream.quality import CHECK, Finding
 
 MAX_STEP_PX = 1000.0          # a Gauss-Newton step of the shift beyond this: no answer
@@ -66,8 +67,9 @@ class PrincipalCheckSettings:
 
 @dataclass(frozen=True)
 class KeypointPrincipal:
-    """The principal-point shift (du, dv) the keypoints ask for, in pixels, its 1-sigma, and
-    how far it turns the camera (atan |shift / f|)."""
+    """The principal-point shift (du, dv) the keypoints ask for, in pixels, its 1-sigma, how
+    far it turns the camera (atan |shift / f|), and `xi` (6,): the move (xi of `dream.pnp`)
+    from the result's pose to the pose fitted through the asked point (None: not known)."""
 
     shift_px: np.ndarray
     sigma_px: np.ndarray
@@ -75,13 +77,28 @@ class KeypointPrincipal:
     sigma_jackknife_px: np.ndarray | None
     angle_rad: float
     keypoints: int
+    xi: np.ndarray | None = None
 
-    def to_dict(self) -> dict[str, Any]:
+    def beyond_limit(self, settings: PrincipalCheckSettings = PrincipalCheckSettings()) -> bool:
+        """Whether the asked shift turns the camera by more than `min_angle_rad`."""
+        return self.angle_rad > settings.min_angle_rad
+
+    def unresolved(self, settings: PrincipalCheckSettings = PrincipalCheckSettings()) -> bool:
+        """A turn beyond the limit with no component beyond `z` 1-sigmas: the keypoints can
+        tell neither that the given point is wrong nor that it is right."""
+        return self.beyond_limit(settings) and not bool(
+            np.any(np.abs(self.shift_px) > settings.z * self.sigma_px))
+
+    def to_dict(self, settings: PrincipalCheckSettings = PrincipalCheckSettings()
+                ) -> dict[str, Any]:
         jackknife = self.sigma_jackknife_px
         return {"shift_px": self.shift_px.tolist(), "sigma_px": self.sigma_px.tolist(),
                 "sigma_fit_px": self.sigma_fit_px.tolist(),
                 "sigma_jackknife_px": None if jackknife is None else jackknife.tolist(),
-                "angle_rad": self.angle_rad, "keypoints": self.keypoints}
+                "angle_rad": self.angle_rad, "keypoints": self.keypoints,
+                "beyond_limit": self.beyond_limit(settings),
+                "unresolved": self.unresolved(settings),
+                "xi_asked": None if self.xi is None else self.xi.tolist()}
 
 
 def principal_fit(iterations: int = 20) -> KeypointCameraFit:
@@ -117,10 +134,10 @@ def keypoint_principal(result: CalibrationResult, obs: Observations, camera: Cam
                                                            settings.min_groups)
     if estimate is None:
         return None
-    shift, sigma_fit, jackknife = estimate
+    shift, sigma_fit, jackknife, T_asked = estimate
     sigma = sigma_fit if jackknife is None else np.maximum(sigma_fit, jackknife)
     return KeypointPrincipal(shift, sigma, sigma_fit, jackknife, turn_angle(shift, camera),
-                             len(P))
+                             len(P), increment_between(result.T_cam_base, T_asked))
 
 
 def keypoint_principal_finding(principal: KeypointPrincipal | None, camera: CameraIntrinsics,
@@ -142,9 +159,8 @@ def keypoint_principal_finding(principal: KeypointPrincipal | None, camera: Came
     >>> keypoint_principal_finding(asked(12.0, -8.0, 1.0), camera)[0]
     'check'
     """
-    if principal is None or principal.angle_rad <= settings.min_angle_rad:
-        return None
-    if not np.any(np.abs(principal.shift_px) > settings.z * principal.sigma_px):
+    if principal is None or not principal.beyond_limit(settings) or \
+            principal.unresolved(settings):
         return None
     (du, dv), (su, sv) = principal.shift_px, principal.sigma_px
     return CHECK, (f"the keypoints fit best with the principal point moved by {du:+.1f}, "

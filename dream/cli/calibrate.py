@@ -10,6 +10,7 @@ from typing import Any, TextIO
 
 from dream.cli.calibrate_report import add_polish, add_quality, measure_steadiness
 from dream.cli.calibrate_write import check_outputs, finish
+from dream.cli.intrinsics_records import with_keypoint_intrinsics
 from dream.cli.keypoint_pass import PassInputs, keypoint_calibration
 from dream.cli.observe import observe
 from dream.cli.options import (
@@ -233,7 +234,9 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
         doc = add_polish(seq, kp.imaged, result, obs, model, doc, out, frames=request.frames,
                          mask_head=request.mask_head, motion_masks=request.motion_masks,
                          link_geometry=() if extension is None else extension.link_geometry)
-    doc["quality"] = add_quality(result, obs, doc, out, kp.checked, leading=(kp.readings,))
+    doc, open_intrinsics = with_keypoint_intrinsics(doc, seq.camera)
+    doc["quality"] = add_quality(result, obs, doc, out, [*kp.checked, *open_intrinsics],
+                                 leading=(kp.readings,))
     finish(request, seq, robot, obs, result, doc, paths, out)
     return doc
 

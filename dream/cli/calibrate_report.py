@@ -277,6 +277,10 @@ def print_summary(doc: dict, out: TextIO) -> None:
     if uncertainty.get("cue_disagreement_xi") is not None:
         print("  (with the disagreement of the two image cues' optima, the edges' and the "
               "silhouettes', added)", file=out)
+    if uncertainty.get("keypoint_intrinsics_added"):
+        names = " and ".join(uncertainty["keypoint_intrinsics_added"])
+        print(f"  (with the move through the {names} the keypoints ask for added: nothing "
+              "else checked the given ones)", file=out)
     if doc.get("start") is not None:
         print(f"no keypoints: the pose rests on the robot's silhouettes in "
               f"{len(doc['start']['frames'])} frames ({doc['start']['evidence']})", file=out)

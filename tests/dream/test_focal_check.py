@@ -13,7 +13,7 @@ from dream.coarse.focal import with_focal_scale
 from dream.focal_check import fit_focal_scale, keypoint_focal, keypoint_focal_finding
 from dream.inject import InjectionSettings, make_injected_sequence
 from dream.io import write_dream
-from dream.pipeline import calibrate, observations_from_labels, robot_for
+from dream.pipeline import calibrate, observations_from_labels, robot_for, truth_poses
 
 
 def _scene(scale: float):
@@ -41,29 +41,41 @@ def test_the_joint_fit_needs_points_in_front():
 
 
 def test_calibrate_says_the_focal_length_is_off(tmp_path, capsys):
+    """Keypoints only, the focal length 10 % off: a finding, and the move to the pose through
+    the asked focal length in the 1-sigma, which then holds the truth (96 mm off:
+    `unreliable`); the right one keeps the fit's own 1-sigma and `good`."""
     for name, scale in (("right", 1.0), ("wrong", 1.1)):
-        write_dream(_scene(scale), tmp_path / name)
+        seq = _scene(scale)
+        write_dream(seq, tmp_path / name)
         out = tmp_path / f"{name}.json"
         assert main(["calibrate", "--data", str(tmp_path / name), "--use-labels", "--refine",
                      "none", "--out", str(out)]) == 0
         printed = capsys.readouterr().out
         doc = json.loads(out.read_text())
         assert doc["keypoint_focal"]["agrees"] == (scale == 1.0)
+        error = np.linalg.norm(np.asarray(doc["T_base_cam"])[:3, 3]
+                               - np.linalg.inv(truth_poses(seq)[0])[:3, 3])
+        sigma = np.linalg.norm(doc["sigma_camera_position_base_m"])
         if scale == 1.0:
-            assert "focal length" not in printed
+            assert "focal length" not in printed and doc["quality"]["verdict"] == "good"
+            assert "keypoints ask" not in doc["uncertainty"]["method"]
         else:
-            assert doc["quality"]["verdict"] == "check"
+            assert doc["quality"]["verdict"] == "unreliable" and error > 0.05
             assert "keypoints fit best with a focal length x0.9" in printed
+            assert "the move through the focal length" in doc["uncertainty"]["method"]
+            assert "focal length" in doc["uncertainty"]["keypoint_intrinsics_added"]
+            assert "the keypoints ask for added: nothing else checked" in printed
+            assert error < 2.0 * sigma
 
 
 def test_require_makes_a_verdict_below_it_a_failed_exit_with_the_result_written(tmp_path,
                                                                                  capsys):
-    """A script asks for `good`: the scene with fx, fy 10 % off (verdict `check`) exits 3 and
-    says why on stderr, its RESULT.json written all the same; `--require check` lets it
-    pass, and the right scene passes `--require good`."""
+    """A script asks for `good`: the scene with fx, fy 10 % off (verdict `unreliable`) exits 3
+    and says why on stderr, its RESULT.json written all the same, and so with `--require
+    check`; the right scene passes `--require good`."""
     for name, scale in (("right", 1.0), ("wrong", 1.1)):
         write_dream(_scene(scale), tmp_path / name)
-    runs = (("right", "good", 0), ("wrong", "good", 3), ("wrong", "check", 0))
+    runs = (("right", "good", 0), ("wrong", "good", 3), ("wrong", "check", 3))
     for name, required, expected in runs:
         out = tmp_path / f"{name}_{required}.json"
         code = main(["calibrate", "--data", str(tmp_path / name), "--use-labels", "--refine",
@@ -71,8 +83,9 @@ def test_require_makes_a_verdict_below_it_a_failed_exit_with_the_result_written(
         err = capsys.readouterr().err
         assert code == expected, err
         assert json.loads(out.read_text())["quality"]["verdict"] == ("good" if name == "right"
-                                                                     else "check")
-        assert ("the verdict is check, below --require good" in err) == (expected == 3)
+                                                                     else "unreliable")
+        assert (f"the verdict is unreliable, below --require {required}" in err) == \
+            (expected == 3)
     with pytest.raises(SystemExit):                 # unreliable is nothing to require
         main(["calibrate", "--data", str(tmp_path / "right"), "--use-labels", "--out",
               str(tmp_path / "x.json"), "--require", "unreliable"])

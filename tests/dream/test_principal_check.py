@@ -4,12 +4,14 @@ exact labels calibrated `good` 2.9 deg off; the right principal point passes wit
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from dream.camera import CameraIntrinsics, project
 from dream.cli import main
+from dream.cli.intrinsics_records import intrinsics_checks, with_keypoint_intrinsics
 from dream.coarse.focal import with_focal_scale
 from dream.coarse.principal import with_principal_shift
 from dream.focal_check import focal_fit
@@ -18,11 +20,16 @@ from dream.io import write_dream
 from dream.keypoint_camera_fit import focal_columns, principal_columns
 from dream.metrics import pose_errors
 from dream.pipeline import calibrate, observations_from_labels, robot_for, truth_poses
+from dream.pnp import increment_between
 from dream.principal_check import keypoint_principal, keypoint_principal_finding, principal_fit
 from dream.quality import result_quality
+from dream.refinement_document import written_quality
+from dream.result import result_to_dict
 from dream.transforms import look_at, transform_points
 
 CAMERA = CameraIntrinsics(600.0, 600.0, 319.5, 239.5, 640, 480)
+CHI2_6DOF_95 = 12.592     # 95 % quantile of the chi-square distribution with 6 degrees of freedom
+BIAS, NOISE = 2.0, 0.5    # px: each keypoint name's bias (1-sigma) and each detection's noise
 
 
 def _scene(shift):
@@ -133,3 +140,57 @@ def test_detections_that_fix_nothing_beyond_the_pose_give_no_check(tmp_path):
     for detections in (uv, uv + rng.normal(0.0, 3.0, uv.shape)):    # exact, and scattered
         assert principal_fit().fit(P, detections, CAMERA, T) is None
         assert focal_fit().fit(P, detections, with_focal_scale(CAMERA, 1.05), T) is None
+
+
+def _biased(seq, seed: int):
+    """The labels with a bias of `BIAS` (1-sigma) on each keypoint name and `NOISE` on each
+    detection: a detector whose errors hide a principal point 24, -16 px off."""
+    robot = robot_for(seq, None)
+    obs = observations_from_labels(seq, robot)
+    rng = np.random.default_rng(seed)
+    bias = rng.normal(0.0, BIAS, (obs.uv.shape[1], 2))
+    return replace(obs, uv=obs.uv + bias[None] + rng.normal(0.0, NOISE, obs.uv.shape))
+
+
+def test_a_principal_point_the_keypoints_cannot_tell_enters_the_one_sigma():
+    """Given cx, cy 24, -16 px off and keypoints biased by a few pixels each, the keypoints
+    ask for a turn beyond 1.5 deg within their noise: no finding of a wrong point, but the
+    point is unresolved. The keypoint fit alone was `good` 2.6 deg off with the truth far
+    outside its ellipsoid; with the move to the asked point and the turn of a point as far
+    off in the covariance, `check`, the truth inside."""
+    seq = _scene((24.0, -16.0))
+    obs = _biased(seq, 0)
+    result = calibrate(seq, obs, "all")
+    doc = result_to_dict(result, obs, robot="panda")
+    findings = intrinsics_checks(result, obs, seq, doc)
+    record = doc["keypoint_principal"]
+    assert record["beyond_limit"] and record["unresolved"] and record["agrees"]
+    assert result_quality(result, obs, extra=findings).verdict == "good"
+    T_true = truth_poses(seq)[0]
+    xi = increment_between(result.T_cam_base, T_true)
+    assert np.rad2deg(pose_errors(result.T_cam_base, T_true)[1]) > 2.0
+    assert xi @ np.linalg.pinv(result.covariance) @ xi > CHI2_6DOF_95
+    opened, unresolved = with_keypoint_intrinsics(doc, seq.camera)
+    assert len(unresolved) == 1 and unresolved[0][0] == "check"
+    assert "cannot tell whether cx, cy" in unresolved[0][1]
+    covariance = np.asarray(opened["covariance_xi"])
+    assert opened["uncertainty"]["keypoint_intrinsics_added"] == ["principal point"]
+    assert xi @ np.linalg.pinv(covariance) @ xi < CHI2_6DOF_95
+    assert written_quality(result, obs, opened, [*findings, *unresolved]).verdict == "check"
+    assert doc["covariance_xi"] == result.covariance.tolist()     # the input is kept
+
+
+def test_the_outlines_judge_the_intrinsics_where_they_ran():
+    """Where the silhouettes' cross-check fitted the intrinsics, its own records speak for
+    them, and the keypoints' are left as they are; within the limit nothing is added."""
+    seq = _scene((24.0, -16.0))
+    obs = _biased(seq, 0)
+    result = calibrate(seq, obs, "all")
+    doc = result_to_dict(result, obs, robot="panda")
+    intrinsics_checks(result, obs, seq, doc)
+    judged = {**doc, "silhouette_check": {"ran": True, "focal": {"scale": 1.0}}}
+    assert with_keypoint_intrinsics(judged, seq.camera) == (judged, [])
+    within = {**doc, "keypoint_principal": {**doc["keypoint_principal"],
+                                            "beyond_limit": False, "unresolved": False},
+              "keypoint_focal": {**doc["keypoint_focal"], "beyond_limit": False}}
+    assert with_keypoint_intrinsics(within, seq.camera) == (within, [])
