@@ -147,20 +147,21 @@ def rendered_for(job) -> bool:
 def render_scene(robot: str, out: Path, seed: int, frames: int,
                  scale_to_robot: bool = False, overrides: tuple[str, ...] = (),
                  reuse: bool = False, keypoints: tuple[str, ...] | None = None,
-                 time_offset_s: float = 0.0) -> Path:
+                 time_offset_s: float = 0.0, keep_masks: bool = False) -> Path:
     """A fixed-camera `real_world.yaml` scene of `robot` (a built-in name or a URDF), its robot
-    masks deleted; with `reuse`, a scene already rendered in `out` with the same settings
-    (`rendered_for`) is taken as it is. `time_offset_s`: the written joint readings lag the
-    images by this (a `trajectory` scene, `synth.extension`)."""
+    masks deleted (`keep_masks`: kept); with `reuse`, a scene already rendered in `out` with
+    the same settings (`rendered_for`; with `keep_masks`, with its masks) is taken as it is.
+    `time_offset_s`: the written joint readings lag the images by this (a `trajectory` scene,
+    `synth.extension`)."""
     from dream.extension import ModelExtension
     from synth.generate import generate
 
     job = scene_job(robot, out, seed, frames, scale_to_robot, overrides, keypoints,
                     ModelExtension(time_offset_s=time_offset_s) if time_offset_s else None)
-    if reuse and rendered_for(job):
+    if reuse and rendered_for(job) and (not keep_masks or any(out.glob("*.seg.png"))):
         return out
     generate(job, overwrite=True, on_progress=lambda done: None)
-    for mask in out.glob("*.seg.png"):
+    for mask in [] if keep_masks else out.glob("*.seg.png"):
         mask.unlink()
     return out
 

@@ -17,6 +17,8 @@ cross-check, which checks the focal length and the principal point on the robot'
 its optimum, and calibrates again through those they ask for), through the rendered camera and
 each of `--scales` and `--shifts`; prints the verdict, whether each check flagged and what was
 adopted, the error, and whether the truth lies inside the written 95 % ellipsoid;
+with `--masks` the scenes keep their robot masks (written to their own `--work`), and the
+default refinement is the silhouette polish against them, then the cross-check on them;
 `--refined --refine none` does the same for the keypoint fit alone (`dream calibrate --refine
 none`: its verdict and 1-sigma, with what the keypoints' own intrinsics checks leave open).
 
@@ -24,6 +26,8 @@ none`: its verdict and 1-sigma, with what the keypoints' own intrinsics checks l
         [--scales 1.05 1.1 0.92] [--shifts 6,-4 12,-8 24,-16] [--labels-noise PX] [--work DIR]
     python benchmarks/keypoint_intrinsics.py --refined --scenes 12 --scales 1.05 --shifts 12,-8
     python benchmarks/keypoint_intrinsics.py --refined --refine none --scenes 12
+    python benchmarks/keypoint_intrinsics.py --refined --masks --scenes 12 --scales 1.05
+        --shifts 12,-8 --work DIR
 """
 
 from __future__ import annotations
@@ -256,6 +260,9 @@ def main() -> None:
                         help="the labels plus this much noise (px) instead of the model")
     parser.add_argument("--refined", action="store_true",
                         help="calibrate as `dream calibrate --model` does (module doc)")
+    parser.add_argument("--masks", action="store_true",
+                        help="keep the scenes' robot masks (with --refined: the default "
+                             "refinement is then the silhouette polish against them)")
     parser.add_argument("--refine", choices=("auto", "none"), default="auto",
                         help="with --refined: `dream calibrate --refine` (none: the keypoint "
                              "fit alone, its verdict and 1-sigma)")
@@ -291,7 +298,7 @@ def run_scenes(args, render, rows_of, text_of, summary_of) -> None:
         for k in range(args.scenes):
             start = time.perf_counter()
             data = render("panda", work / f"scene{k}", args.first_seed + k, args.frames,
-                          reuse=True)
+                          reuse=True, keep_masks=args.masks)
             got = rows_of(data, k, work)
             rows += got
             print(f"scene {k} ({time.perf_counter() - start:.0f} s):", flush=True)

@@ -8,7 +8,7 @@ import sys
 from dataclasses import dataclass
 from typing import Any, TextIO
 
-from dream.cli.calibrate_report import add_polish, add_quality, measure_steadiness
+from dream.cli.calibrate_report import add_quality, measure_steadiness
 from dream.cli.calibrate_write import check_outputs, finish
 from dream.cli.intrinsics_records import with_keypoint_intrinsics
 from dream.cli.keypoint_pass import PassInputs, keypoint_calibration
@@ -227,13 +227,9 @@ def run_calibrate(request: CalibrateRequest, out: TextIO | None = None) -> dict:
     if extension is not None:
         seq, robot, obs = _apply_extension(request, extension, seq, robot, obs, out)
     inputs = PassInputs(request, robot, obs, extension, refine, settings, data_doc,
-                        readings_doc, motion)
+                        readings_doc, motion, model)
     kp = keypoint_calibration(inputs, seq, out)
     seq, result, doc = kp.seq, kp.result, kp.doc
-    if refine == POLISH:
-        doc = add_polish(seq, kp.imaged, result, obs, model, doc, out, frames=request.frames,
-                         mask_head=request.mask_head, motion_masks=request.motion_masks,
-                         link_geometry=() if extension is None else extension.link_geometry)
     doc, open_intrinsics = with_keypoint_intrinsics(doc, seq.camera)
     doc["quality"] = add_quality(result, obs, doc, out, [*kp.checked, *open_intrinsics],
                                  leading=(kp.readings,))

@@ -144,7 +144,8 @@ def _links(exclude_links: str | None) -> tuple[str, ...]:
 def add_silhouette_check(seq, robot, result, doc: dict, out: TextIO,
                          doc_keypoints: dict | None = None) -> tuple[dict, list]:
     """The silhouettes' cross-check of the pose written by `--refine edges` (or `auto`) for all
-    frames, the alignment's or, where it was not kept or could not run, the keypoints'
+    frames, the alignment's or, where it was not kept or could not run, the keypoints' (or
+    that of the silhouette polish on the data's masks: `doc_keypoints` None)
     (`dream.coarse.crosscheck`): RESULT.json's `silhouette_check`, the covariance gains the
     disagreement of the two cues (`with_cue_term`), and the verdict's findings on it. Where no
     masks can be made it does not run, and says why. Where the silhouettes side with the
@@ -156,6 +157,7 @@ def add_silhouette_check(seq, robot, result, doc: dict, out: TextIO,
     from dream.coarse.verdict import crosscheck_findings
     from dream.errors import InputError
     from dream.refined_uncertainty import with_cue_term
+    from dream.refinement_document import pose_refined_by
 
     try:
         check = silhouette_crosscheck(seq, robot, np.asarray(doc["T_cam_base"]),
@@ -177,7 +179,8 @@ def add_silhouette_check(seq, robot, result, doc: dict, out: TextIO,
     findings = crosscheck_findings(check.iou_written, o.best.iou, check.distance_m,
                                    check.angle_rad, o.basin_returned, o.basin_starts,
                                    check.source, SearchSettings(), o.basin_m,
-                                   doc["silhouette_check"]["away"])
+                                   doc["silhouette_check"]["away"],
+                                   pose_refined_by(doc) or "the keypoint fit")
     doc, intrinsics = _with_intrinsics(doc, check, out)
     return doc, findings + intrinsics
 
@@ -275,8 +278,8 @@ def print_summary(doc: dict, out: TextIO) -> None:
         print(f"  (1-sigma = the fit's, {np.sqrt(np.trace(fit_c)) * 1e3:.2f} mm in position, "
               f"for independent detection errors, plus the spread over {spread})", file=out)
     if uncertainty.get("cue_disagreement_xi") is not None:
-        print("  (with the disagreement of the two image cues' optima, the edges' and the "
-              "silhouettes', added)", file=out)
+        print("  (with the disagreement of the pose written and the silhouettes' optimum "
+              "added)", file=out)
     if uncertainty.get("keypoint_intrinsics_added"):
         names = " and ".join(uncertainty["keypoint_intrinsics_added"])
         print(f"  (with the move through the {names} the keypoints ask for added: nothing "

@@ -1,9 +1,9 @@
-"""The silhouettes' cross-check of a pose found another way (the keypoint fit and its edge
-alignment): the robot's masks of the recording (`dream.coarse.calibration.search_masks`: the
-data's, or motion masks), a local silhouette search started from that pose and from the
-keypoint pose, and what it found. The verdict on it is `dream.coarse.verdict.crosscheck_findings`:
-a written pose that the silhouettes move by more than a few centimetres is not `good`, however
-well the keypoints agree with it.
+"""The silhouettes' cross-check of a pose found another way (the keypoint fit, its edge
+alignment or its silhouette polish on the data's masks): the robot's masks of the recording
+(`dream.coarse.calibration.search_masks`: the data's, or motion masks), a local silhouette
+search started from that pose and from the keypoint pose, and what it found. The verdict on
+it is `dream.coarse.verdict.crosscheck_findings`: a written pose that the silhouettes move by
+more than a few centimetres is not `good`, however well the keypoints agree with it.
 
 Where the written pose is the edge alignment's, the silhouettes also arbitrate between it and the
 keypoint pose it started from (`undoes_alignment`): an optimum much nearer the keypoint pose

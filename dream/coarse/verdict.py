@@ -124,8 +124,10 @@ def cues_agree(distance_m: float, angle_rad: float) -> bool:
     return distance_m <= POSITION_SIGMA_CHECK_M and angle_rad <= ROTATION_SIGMA_CHECK_RAD
 
 
-def cues_finding(distance_m: float, angle_rad: float) -> Finding | None:
-    """The cues finding (module doc): the edge alignment's pose against the masks' optimum.
+def cues_finding(distance_m: float, angle_rad: float,
+                 written_by: str = "the edge alignment") -> Finding | None:
+    """The cues finding (module doc): the pose written (`written_by`: the edge alignment's,
+    the silhouette polish's, the keypoint fit's) against the masks' optimum.
 
     >>> cues_finding(0.002, 0.001) is None
     True
@@ -134,7 +136,7 @@ def cues_finding(distance_m: float, angle_rad: float) -> Finding | None:
     """
     if cues_agree(distance_m, angle_rad):
         return None
-    return CHECK, (f"the edge alignment and the robot's masks disagree by {distance_m * 1e3:.1f} "
+    return CHECK, (f"{written_by} and the robot's masks disagree by {distance_m * 1e3:.1f} "
                    f"mm and {np.rad2deg(angle_rad):.2f} deg: something the model lacks (a tool, "
                    "a cable, a shadow) pulls one of them; the 1-sigma includes the disagreement; "
                    "check the overlays, or leave the suspect links out (--exclude-links)")
@@ -378,11 +380,12 @@ def mark_finding(click_residuals_px: np.ndarray, max_px: float) -> Finding | Non
 def crosscheck_findings(iou_written: float, iou_silhouettes: float, distance_m: float,
                         angle_rad: float, basin_returned: int, basin_starts: int,
                         evidence: str, settings: SearchSettings,
-                        basin_m: float | None = None, away=None) -> list[Finding]:
+                        basin_m: float | None = None, away=None,
+                        written_by: str = "the edge alignment") -> list[Finding]:
     """The crosscheck findings (module doc) of the silhouettes' optimum near a written pose
     (`basin_m` as in `search_findings`; `away`: RESULT.json's `silhouette_check.away`, whose
     IoU of the optimum without the away pixels the found tests read for `iou_silhouettes`, and
-    whose share the away finding).
+    whose share the away finding; `written_by`: what found the pose written, in words).
 
     >>> s = SearchSettings()
     >>> [f[0] for f in crosscheck_findings(0.6, 0.7, 0.12, 0.02, 4, 4, "motion masks", s)]
@@ -406,11 +409,11 @@ def crosscheck_findings(iou_written: float, iou_silhouettes: float, distance_m: 
         out.append((UNRELIABLE, f"the robot's silhouettes ({evidence}) put the camera "
                     f"{distance_m * 100:.0f} cm and {np.rad2deg(angle_rad):.1f} deg from the "
                     f"pose written (IoU {iou_silhouettes:.2f} there, {iou_written:.2f} at the "
-                    "pose written): the keypoints or the edge alignment were pulled away; "
+                    f"pose written): the keypoints or {written_by} were pulled away; "
                     "check the overlays, or calibrate without keypoints from this result "
                     "(--camera-guess RESULT.json)"))
     else:
-        out.append(cues_finding(distance_m, angle_rad))
+        out.append(cues_finding(distance_m, angle_rad, written_by))
     out += search_findings(iou_silhouettes, None, None, basin_returned, basin_starts, settings,
                            basin_m, silhouettes_found)
     if away is not None:
