@@ -208,12 +208,13 @@ def main() -> None:
     recordings = make_recordings(args.work / "recordings", args.recordings, args.frames,
                                  args.label_noise_px)
     data = str(args.work / "recordings" / "rec*")
-    start = time.perf_counter()
-    single = single_runs(recordings, args.work / "single")
-    print(f"single dream calibrate runs: {sum('T' in s for s in single.values())} results, "
-          f"{sum('error' in s for s in single.values())} errors "
-          f"({time.perf_counter() - start:.0f} s; made once, then reused)")
     engines = args.engines.split(",")
+    if not args.only_throughput:
+        start = time.perf_counter()
+        single = single_runs(recordings, args.work / "single")
+        print(f"single dream calibrate runs: {sum('T' in s for s in single.values())} "
+              f"results, {sum('error' in s for s in single.values())} errors "
+              f"({time.perf_counter() - start:.0f} s; made once, then reused)")
     for engine in [] if args.only_throughput else engines:
         out = args.work / f"batch_{engine}"
         resumed = kill_and_resume(data, out, engine, len(recordings))

@@ -194,8 +194,8 @@ def with_adopted(second: KeypointPass, focal: dict | None, principal: dict | Non
 
 
 def run_pass(inputs: PassInputs, seq, out: TextIO) -> KeypointPass:
-    """The keypoint fit through `seq`'s camera, its checks and its refinement (module doc);
-    the silhouette polish and the verdict come after, on the pass kept."""
+    """The keypoint fit through `seq`'s camera, its checks, its refinement and the
+    silhouettes' cross-check (module doc); the verdict comes after, on the pass kept."""
     from dream.outline_robot import with_logged_joints
     from dream.pipeline import calibrate
     from dream.polish import has_masks
