@@ -38,9 +38,13 @@ TINY = ["--renders", "8", "--scene-renders", "6", "--set",
         "trainer.max_epochs=1", "--set", "data.batch_size=4"]
 
 
+TEACHER_FRAMES = 20     # fewer leave the keypoints unable to tell fx, fy and cx, cy: `unreliable`
+
+
 def calibrated(panda, meshes, folder):
-    """A rendered recording (no masks) and its `--use-labels` RESULT.json."""
-    T_true = image_dataset(panda, meshes, folder)
+    """A rendered recording (no masks) and its `--use-labels` RESULT.json (`check` or
+    `good`: a teacher)."""
+    T_true = image_dataset(panda, meshes, folder, frames=TEACHER_FRAMES)
     code = main(["calibrate", "--data", str(folder / "data"), "--use-labels", "--refine",
                  "none", "--out", str(folder / "r.json")])
     assert code == 0
