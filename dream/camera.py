@@ -107,13 +107,17 @@ def distort_normalized(xy: np.ndarray, coeffs: np.ndarray | None) -> np.ndarray:
     xy = np.asarray(xy, dtype=float)
     if coeffs is None or not np.any(coeffs):
         return xy
+    return np.stack(_distorted(xy[..., 0], xy[..., 1], coeffs), axis=-1)
+
+
+def _distorted(x: np.ndarray, y: np.ndarray, coeffs) -> tuple[np.ndarray, np.ndarray]:
+    """plumb_bob distortion of normalised coordinates x, y (...) given apart."""
     k1, k2, p1, p2, k3 = coeffs
-    x, y = xy[..., 0], xy[..., 1]
     r2 = x * x + y * y
     radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
     xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
     yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-    return np.stack([xd, yd], axis=-1)
+    return xd, yd
 
 
 def undistort_normalized(xy_d: np.ndarray, coeffs: np.ndarray | None) -> np.ndarray:
@@ -143,10 +147,16 @@ def project(camera: CameraIntrinsics, P_cam: np.ndarray) -> np.ndarray:
         raise InputError(f"P_cam has shape {P_cam.shape}, expected (..., 3)")
     z = P_cam[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
-        xy = P_cam[..., :2] / z[..., None]
-    xy = np.where((z > 0)[..., None], xy, np.nan)
-    xy = distort_normalized(xy, None if camera.distortion is None else camera.dist_coeffs)
-    return np.stack([camera.fx * xy[..., 0] + camera.cx, camera.fy * xy[..., 1] + camera.cy], -1)
+        x, y = P_cam[..., 0] / z, P_cam[..., 1] / z
+    front = z > 0
+    if not front.all():
+        x, y = np.where(front, x, np.nan), np.where(front, y, np.nan)
+    if camera.distortion is not None:
+        x, y = _distorted(x, y, camera.distortion)
+    uv = np.empty(z.shape + (2,))
+    uv[..., 0] = camera.fx * x + camera.cx
+    uv[..., 1] = camera.fy * y + camera.cy
+    return uv
 
 
 def pixels_to_normalized(camera: CameraIntrinsics, uv: np.ndarray) -> np.ndarray:

@@ -258,9 +258,12 @@ def load_robot_meshes(robot: Robot, max_triangles: int = DEFAULT_MAX_TRIANGLES) 
 def vertices_in_base(meshes: RobotMeshes, joints: np.ndarray) -> np.ndarray:
     """Mesh vertices in the robot base frame for joint vectors (..., J): shape (..., V, 3)."""
     T = meshes.robot.link_poses(joints, meshes.links)            # (..., L, 4, 4)
-    T_vertex = np.take(T, meshes.vertex_link, axis=-3)            # (..., V, 4, 4)
-    return (np.einsum("...ij,...j->...i", T_vertex[..., :3, :3], meshes.vertices)
-            + T_vertex[..., :3, 3])
+    P = np.empty(T.shape[:-3] + meshes.vertices.shape)
+    for i in range(len(meshes.links)):    # link by link: no (..., V, 4, 4) of every vertex
+        at = np.flatnonzero(meshes.vertex_link == i)
+        P[..., at, :] = (meshes.vertices[at] @ np.swapaxes(T[..., i, :3, :3], -1, -2)
+                         + T[..., i, None, :3, 3])
+    return P
 
 
 def static_links(meshes: RobotMeshes, joints: np.ndarray, min_motion_m: float

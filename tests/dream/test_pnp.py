@@ -197,15 +197,16 @@ def test_confidence_weights_downweight_bad_keypoints(rng):
     assert e_weighted < 0.5 * e_biased
 
 
+@pytest.mark.parametrize("points", [9, 600])      # OpenCV's path, numpy's (many points)
 @pytest.mark.parametrize("camera", [CAMERA, DISTORTED])
-def test_pose_jacobian_matches_finite_differences(camera, rng):
+def test_pose_jacobian_matches_finite_differences(camera, points, rng):
     from scenes import random_extrinsic
 
     from dream.pnp import apply_increment, linearise
 
     T = random_extrinsic(rng)
-    P_base = rng.uniform([-0.4, -0.4, 0.0], [0.4, 0.4, 0.9], (9, 3))
-    uv = rng.uniform([0, 0], [camera.width, camera.height], (9, 2))
+    P_base = rng.uniform([-0.4, -0.4, 0.0], [0.4, 0.4, 0.9], (points, 3))
+    uv = rng.uniform([0, 0], [camera.width, camera.height], (points, 2))
     e, J = linearise(P_base, uv, camera, T)
     eps = 1e-7
     for k in range(6):
@@ -214,6 +215,30 @@ def test_pose_jacobian_matches_finite_differences(camera, rng):
         e_plus, _ = linearise(P_base, uv, camera, apply_increment(T, d))
         e_minus, _ = linearise(P_base, uv, camera, apply_increment(T, -d))
         assert np.allclose(J[:, :, k], (e_plus - e_minus) / (2 * eps), rtol=1e-5, atol=1e-4)
+
+
+@pytest.mark.parametrize("camera", [CAMERA, DISTORTED])
+def test_many_points_linearise_as_opencv_does(camera, rng, monkeypatch):
+    """numpy's chain rule (many points) gives OpenCV's residuals and Jacobian (a few), and
+    `reprojected` its pixels."""
+    from scenes import random_extrinsic
+
+    import dream.pnp.reprojection as reprojection
+
+    T = random_extrinsic(rng)
+    n = reprojection.COMPILED_BELOW_POINTS + 10
+    P_base = rng.uniform([-0.4, -0.4, 0.0], [0.4, 0.4, 0.9], (n, 3))
+    uv = rng.uniform([0, 0], [camera.width, camera.height], (n, 2))
+    e_numpy, J_numpy = reprojection.linearise(P_base, uv, camera, T)
+    monkeypatch.setattr(reprojection, "COMPILED_BELOW_POINTS", n + 1)
+    e_cv, J_cv = reprojection.linearise(P_base, uv, camera, T)
+    assert np.allclose(e_numpy, e_cv, rtol=0, atol=1e-9)
+    assert np.allclose(J_numpy, J_cv, rtol=1e-12, atol=1e-9)
+    assert np.allclose(reprojection.reprojected(P_base, camera, T), e_cv + uv, rtol=0,
+                       atol=1e-9)
+    behind = P_base.copy()
+    behind[0] = T[:3, :3].T @ (np.array([0.0, 0.0, -1.0]) - T[:3, 3])
+    assert reprojection.reprojected(behind, camera, T) is None
 
 
 def _hard_frames(rng, frames: int, keypoints: int = 8):
