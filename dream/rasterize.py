@@ -34,22 +34,28 @@ def rasterize_triangles(uv_triangles: np.ndarray, height: int, width: int) -> np
         raise InputError(f"uv_triangles has shape {tri.shape}, expected (T, 3, 2)")
     if int(height) != height or int(width) != width or height < 1 or width < 1:
         raise InputError(f"image size must be positive integers, got {width}x{height}")
-    x, y = tri.transpose(2, 1, 0)
-    return rasterize_corners(x, y, int(height), int(width))
+    corners = tri.reshape(-1, 2)
+    return rasterize_faces(corners[:, 0], corners[:, 1],
+                           np.arange(len(corners)).reshape(-1, 3), int(height), int(width))
 
 
-def rasterize_corners(x: np.ndarray, y: np.ndarray, height: int, width: int) -> np.ndarray:
-    """`rasterize_triangles` of corners given as x, y (3, T) each (no input checks)."""
-    return _fill(np.ascontiguousarray(x, dtype=np.float64),
-                 np.ascontiguousarray(y, dtype=np.float64), int(height), int(width))
+def rasterize_faces(u: np.ndarray, v: np.ndarray, faces: np.ndarray, height: int,
+                    width: int) -> np.ndarray:
+    """`rasterize_triangles` of triangles `faces` (T, 3) over vertex pixels u, v (V,) each (no
+    input checks): the corners read in the compiled loop, not gathered into (T, 3, 2) first."""
+    return _fill(np.ascontiguousarray(u, dtype=np.float64),
+                 np.ascontiguousarray(v, dtype=np.float64),
+                 np.ascontiguousarray(faces, dtype=np.int64), int(height), int(width))
 
 
 @numba.njit(cache=True, nogil=True)
-def _fill(x: np.ndarray, y: np.ndarray, height: int, width: int) -> np.ndarray:
+def _fill(u: np.ndarray, v: np.ndarray, faces: np.ndarray, height: int, width: int
+          ) -> np.ndarray:
     mask = np.zeros((height, width), dtype=np.bool_)
-    for t in range(x.shape[1]):
-        x0, x1, x2 = x[0, t], x[1, t], x[2, t]
-        y0, y1, y2 = y[0, t], y[1, t], y[2, t]
+    for t in range(faces.shape[0]):
+        a, b, c = faces[t, 0], faces[t, 1], faces[t, 2]
+        x0, x1, x2 = u[a], u[b], u[c]
+        y0, y1, y2 = v[a], v[b], v[c]
         area2 = (x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0)
         if not math.isfinite(area2) or area2 == 0.0:
             continue                       # a corner not finite, or no area
@@ -60,12 +66,12 @@ def _fill(x: np.ndarray, y: np.ndarray, height: int, width: int) -> np.ndarray:
         if hx < lx or hy < ly:
             continue                       # no pixel centre in the box
         sign = 1.0 if area2 > 0.0 else -1.0
-        for v in range(int(ly), int(hy) + 1):
-            pv = float(v)
-            for u in range(int(lx), int(hx) + 1):
-                pu = float(u)
+        for row in range(int(ly), int(hy) + 1):
+            pv = float(row)
+            for col in range(int(lx), int(hx) + 1):
+                pu = float(col)
                 if (sign * ((x1 - x0) * (pv - y0) - (y1 - y0) * (pu - x0)) >= 0.0
                         and sign * ((x2 - x1) * (pv - y1) - (y2 - y1) * (pu - x1)) >= 0.0
                         and sign * ((x0 - x2) * (pv - y2) - (y0 - y2) * (pu - x2)) >= 0.0):
-                    mask[v, u] = True
+                    mask[row, col] = True
     return mask

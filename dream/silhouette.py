@@ -39,7 +39,7 @@ import numpy as np
 from dream.arrays import read_only
 from dream.camera import CameraIntrinsics, project
 from dream.errors import InputError, RobotError
-from dream.rasterize import rasterize_corners, rasterize_triangles  # noqa: F401 (public API)
+from dream.rasterize import rasterize_faces, rasterize_triangles  # noqa: F401 (public API)
 from dream.robot import Robot
 from dream.robot.visuals import BOX, CYLINDER, MESH, LinkVisual, load_mesh_parts, read_link_visuals
 from dream.threads import map_frames
@@ -310,9 +310,7 @@ def render_points(P_base: np.ndarray, faces: np.ndarray, T_cam_base: np.ndarray,
     P_cam = P_base @ T[:3, :3].T + T[:3, 3]
     P_cam[P_cam[:, 2] < MIN_DEPTH_M] = np.nan   # behind: projects to NaN, triangle skipped
     uv = project(camera, P_cam)
-    corners = np.asarray(faces).T                                       # (3, T)
-    return rasterize_corners(uv[:, 0][corners], uv[:, 1][corners], camera.height,
-                             camera.width)
+    return rasterize_faces(uv[:, 0], uv[:, 1], faces, camera.height, camera.width)
 
 
 def render_frames(P_frames: np.ndarray, faces: np.ndarray, T_cam_base: np.ndarray,
