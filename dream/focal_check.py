@@ -44,9 +44,10 @@ class FocalCheckSettings:
     """The focal check's constants (set on renders: `benchmarks/focal_check.py`).
 
     Attributes:
-        tolerance: a scale within this of 1 agrees, however significant (a lens's focal
-            length is known to a few per cent, and a few per cent moves the camera less than
-            the keypoints' own error does).
+        tolerance: a scale within this of 1 is no finding, however significant (a lens's
+            focal length is known to a few per cent); where nothing else checks the focal
+            length, the move through the asked scale enters the 1-sigma all the same
+            (`dream.cli.intrinsics_records.with_keypoint_intrinsics`).
         z: a scale farther from 1 than `tolerance` is a finding only this many 1-sigmas away.
         iterations: Gauss-Newton steps of the joint fit.
         min_keypoints: fewer inlier keypoints: no check.

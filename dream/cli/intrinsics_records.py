@@ -32,14 +32,17 @@ def intrinsics_checks(result, obs, seq, doc: dict) -> list[Finding | None]:
 def with_keypoint_intrinsics(doc: dict, camera) -> tuple[dict, list[Finding]]:
     """Where the pose written is the keypoint fit's and the robot's outlines did not judge the
     intrinsics (no silhouettes' cross-check fits: `--refine none`, a refinement that could not
-    run), the keypoints' checks are all it has. A focal length or principal
+    run), the keypoints' checks are all it has. A focal length they ask for, and a principal
     point they ask for beyond the check's limit (a finding, or within their noise:
-    unresolved) and kept as given moves the pose by as much, so that move (`xi_asked` of
+    unresolved), kept as given move the pose by as much, so that move (`xi_asked` of
     RESULT.json's `keypoint_focal` and `keypoint_principal`), and for the principal point the
     turn of a point as far off as asked in each image axis
     (`dream.coarse.principal.adopted_covariance`), enter the covariance; an unresolved one is
-    a `check` finding of its own. Given fx, fy x1.1 or cx, cy 24, -16 px off, the keypoint fit
-    alone had called rendered scenes 92 mm and 5.1 deg off `good`. Returns the document (the
+    a `check` finding of its own. The focal length's move enters within the limit too: a
+    scale a few per cent off moves the camera along its axis by centimetres, and a network's
+    keypoints ask for one within the limit given fx, fy 5 % long (x0.96-0.98 where the truth
+    is x0.952). Given fx, fy x1.05 or x1.1, or cx, cy 24, -16 px off, the keypoint fit alone
+    had called rendered scenes 81 mm, 92 mm and 5.1 deg off `good`. Returns the document (the
     same where nothing is added) and the unresolved findings. A kept image refinement's pose
     is not the keypoints' to judge: on a rendered scene with masks a biased detector's
     keypoints asked for a turn that the masks did not, and the polish landed within a third of
@@ -55,7 +58,8 @@ def with_keypoint_intrinsics(doc: dict, camera) -> tuple[dict, list[Finding]]:
     for key, name in (("keypoint_focal", "focal length"),
                       ("keypoint_principal", "principal point")):
         record = doc.get(key)
-        if not record or record.get("xi_asked") is None or not record["beyond_limit"]:
+        if not record or record.get("xi_asked") is None or \
+                (key == "keypoint_principal" and not record["beyond_limit"]):
             continue
         xi = np.asarray(record["xi_asked"], dtype=float)
         added += np.outer(xi, xi) + (_turn_as_asked(camera, T, record) if
