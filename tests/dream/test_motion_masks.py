@@ -172,6 +172,9 @@ def test_calibrate_polishes_with_motion_masks(panda, meshes, tmp_path, capsys):
     t_keypoints = pose_errors(np.array(doc["polish"]["T_cam_base_keypoints"]), T_true)[0]
     t_polished = pose_errors(np.array(doc["T_cam_base"]), T_true)[0]
     assert t_polished < 0.003 and t_polished < t_keypoints
+    check = doc["silhouette_check"]            # the motion masks' own search checks the polish
+    assert check["ran"] and check["evidence"] == "motion masks", check
+    assert check["distance_m"] < 0.005 and "cue_disagreement_xi" in doc["uncertainty"]
 
 
 @pytest.mark.parametrize("extra, message", [
