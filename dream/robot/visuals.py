@@ -12,7 +12,9 @@ colour; a textured or per-vertex-coloured part gets its average colour); a file 
 from __future__ import annotations
 
 import functools
+import io
 import logging
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +37,7 @@ CYLINDER = "cylinder"
 SPHERE = "sphere"
 VISUAL_KINDS = (MESH, BOX, CYLINDER, SPHERE)
 METRE_UNITS = ("meters", "meter", "metres", "metre", "m")
+_BIND_MATERIAL = re.compile(r"<bind_material\b.*?</bind_material>", re.DOTALL)
 
 
 
@@ -208,6 +211,24 @@ def _unit_scale(scene, path: Path) -> float:
     return factor
 
 
+def _without_material_bindings(path: Path):
+    """The COLLADA scene read again without its nodes' `<bind_material>`: a node whose
+    material refers to a missing effect or texture (a Blender export whose image was renamed)
+    is dropped whole by the reader, so a file of good triangles reads as empty. Its parts then
+    take the URDF's colour."""
+    import trimesh
+
+    text = path.read_text(encoding="utf-8", errors="replace")
+    stripped = _BIND_MATERIAL.sub("", text)
+    if stripped == text:
+        return trimesh.Scene()
+    scene = trimesh.load(io.BytesIO(stripped.encode("utf-8")), file_type="dae", force="scene")
+    if scene.graph.nodes_geometry:
+        logger.warning("%s: its materials refer to parts the file lacks; its triangles are "
+                       "read without them (the URDF's colour)", path)
+    return scene
+
+
 def _image_mean_rgba(image) -> np.ndarray | None:
     if image is None:
         return None
@@ -267,6 +288,8 @@ def _load_cached(path: Path, mtime_ns: int, size: int,
 
     try:
         scene = trimesh.load(str(path), force="scene")
+        if path.suffix.lower() == ".dae" and not scene.graph.nodes_geometry:
+            scene = _without_material_bindings(path)
     except (ValueError, KeyError, IndexError, TypeError, AttributeError, OSError) as e:
         raise InputError(f"cannot read the mesh ({type(e).__name__}: {e})", path,
                          fix="give a mesh file trimesh reads (DAE, STL, OBJ, PLY, GLB)") from e
