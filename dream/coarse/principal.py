@@ -20,22 +20,26 @@ asked for a turn of 2.5-3.3 deg, beyond 3 of the frame groups' 1-sigmas, and wit
 quadrature still beyond), and the carried finding already says the pose may be off.
 
 The outlines alone can be pulled (something the model lacks beside a link, the masks' own
-errors), and their jackknife understates that: on 30 rendered scenes given their own cx, cy
-they asked for turns of a median 0.31 deg, at most 1.22 deg where nothing carried was left
-out, some of them beyond 3 of their 1-sigmas; given cx, cy 12, -8 px off, for 2.2-5.2 deg. So
-the shift is a finding only where it turns the camera by more than `min_angle_rad` and lies
-beyond `min_sigmas` 1-sigmas. Where it is a finding, the search adopts it (`adopt`;
-`dream.coarse.intrinsics`): the pose is found again through the asked point, and what that
-point's error leaves uncertain enters the covariance (the spread over the frame groups of the
-pose fitted with the shift free, and the turn of `adopted_floor_rad` per image axis:
-`adopted_covariance`). Kept as given (`adopt` False), the pose through the asked principal
-point is how far the written pose may lie off, and that move enters its covariance as the
-image cues' disagreement does, with the same spread (`PrincipalEstimate.pose_covariance`):
-with the shift free the outlines fix the pose less well than through the given camera. A turn
-beyond the limit within the noise, or not judged, leaves the principal point unresolved
-(`PrincipalEstimate.unresolved`): the outlines then do not tell the camera's intrinsics,
-nothing is adopted, and the move to the pose through the asked point enters the covariance
-as where a finding is kept, with the turn of a point as far off as asked
+errors), and their jackknife understates that: on 30 rendered scenes given their own cx, cy they
+asked for turns of a median 0.31 deg, at most 1.22 deg where nothing carried was left out, some
+of them beyond 3 of their 1-sigmas; given cx, cy 12, -8 px off, for 2.2-5.2 deg. So the shift is
+a finding only where it turns the camera by more than `min_angle_rad`, lies beyond `min_sigmas`
+1-sigmas, and the overlap agrees: the finish-scale IoU through the asked point beats the IoU
+through the given one by more than `min_iou_gain` (the focal length's rule,
+`dream.coarse.focal`: a second cue; on a rendered TALOS arm, part of it hidden by the floor, the
+outlines asked for 6.9 px at a 1-sigma of 2.1 px, a turn of 2.4 deg, and adopted it put the
+camera 2.5 deg off; an ask the overlap refuses is unresolved). Where it is a finding, the search
+adopts it (`adopt`; `dream.coarse.intrinsics`): the pose is found again through the asked point,
+and what that point's error leaves uncertain enters the covariance (the spread over the frame
+groups of the pose fitted with the shift free, and the turn of `adopted_floor_rad` per image
+axis: `adopted_covariance`). Kept as given (`adopt` False), the pose through the asked principal
+point is how far the written pose may lie off, and that move enters its covariance as the image
+cues' disagreement does, with the same spread (`PrincipalEstimate.pose_covariance`): with the
+shift free the outlines fix the pose less well than through the given camera. A turn beyond the
+limit within the noise, or not judged, leaves the principal point unresolved
+(`PrincipalEstimate.unresolved`): the outlines then do not tell the camera's intrinsics, nothing
+is adopted, and the move to the pose through the asked point enters the covariance as where a
+finding is kept, with the turn of a point as far off as asked
 (`PrincipalEstimate.unresolved_covariance`).
 
     >>> PrincipalSettings().min_sigmas
@@ -87,6 +91,8 @@ class PrincipalSettings:
             (atan(shift / f); set on rendered scenes: given their own cx, cy the outlines asked
             for at most 1.22 deg, given them 12, -8 px off at least 2.2 deg).
         derivative_step_px: the central differences' step in du, dv (the finish's pixels).
+        min_iou_gain: a finding only where the finish's IoU through the asked point beats
+            that through the given one by more than this (`FocalSettings.min_iou_gain`).
         adopt: a finding is adopted (module doc); False keeps the given cx, cy.
         adopted_floor_rad: where a principal point is adopted (`dream.coarse.intrinsics`,
             `dream.cli.keypoint_pass`), the turn its error leaves, per image axis, at least
@@ -104,6 +110,7 @@ class PrincipalSettings:
     min_sigmas: float = 3.0
     min_angle_rad: float = float(np.deg2rad(1.5))
     derivative_step_px: float = 0.05
+    min_iou_gain: float = 0.001
     adopted_floor_rad: float = float(np.deg2rad(0.3))
     adopt: bool = True
 
@@ -120,7 +127,7 @@ class PrincipalSettings:
         check_fields(self, "principal point check",
                      positive_ints=("rounds", "lm_iterations", "jackknife_groups"),
                      positive=("step_tolerance_px", "min_angle_rad", "derivative_step_px"),
-                     non_negative=("min_sigmas", "adopted_floor_rad"))
+                     non_negative=("min_sigmas", "adopted_floor_rad", "min_iou_gain"))
 
 
 @dataclass(frozen=True)
@@ -142,6 +149,8 @@ class PrincipalEstimate:
         unresolved: a turn beyond the limit within the noise, or not judged (module doc).
         adopted: the search went on through the asked point; floor_px: (2,) the 1-sigma of
             its error assumed then (`PrincipalSettings.floor_px`; zero where not adopted).
+        iou_given, iou_asked: the finish-scale IoU through the given and the asked point (NaN
+            where the shift was not judged).
     """
 
     shift_px: np.ndarray
@@ -158,6 +167,8 @@ class PrincipalEstimate:
     unresolved: bool = False
     adopted: bool = False
     floor_px: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    iou_given: float = float("nan")
+    iou_asked: float = float("nan")
 
     @property
     def camera(self) -> CameraIntrinsics:
@@ -215,7 +226,13 @@ class PrincipalEstimate:
                 "unresolved": self.unresolved, "adopted": self.adopted,
                 "used": {"cx": self.camera.cx if self.adopted else given.cx,
                          "cy": self.camera.cy if self.adopted else given.cy},
-                "sigma_floor_px": self.floor_px.tolist()}
+                "sigma_floor_px": self.floor_px.tolist(),
+                "iou_given": _finite_or_none(self.iou_given),
+                "iou_asked": _finite_or_none(self.iou_asked)}
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if np.isfinite(value) else None
 
 
 def adopted_covariance(camera: CameraIntrinsics, T_cam_base: np.ndarray,
@@ -293,10 +310,13 @@ def fit_principal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
     judged = angle > settings.min_angle_rad and not carried
     sigma, spread = (_jackknife(objective, scales, T, settings, len(P)) if judged
                      else (np.full(2, np.nan), np.zeros((6, 6))))
-    flagged, reason = _decision(shift, sigma * to_image, angle, carried, settings)
+    ious = ((scales_at(np.zeros(2)).iou(T_given), scales.iou(T)) if judged
+            else (float("nan"), float("nan")))
+    flagged, reason = _decision(shift, sigma * to_image, angle, carried, settings, ious)
     return PrincipalEstimate(shift, sigma * to_image, angle, rounds, flagged, reason, camera, T,
                              increment_between(T_given, T), time.perf_counter() - start,
-                             spread, unresolved=angle > settings.min_angle_rad and not flagged)
+                             spread, unresolved=angle > settings.min_angle_rad and not flagged,
+                             iou_given=float(ious[0]), iou_asked=float(ious[1]))
 
 
 def _jackknife(objective: Objective, scales: Scales, T: np.ndarray,
@@ -314,8 +334,10 @@ def _jackknife(objective: Objective, scales: Scales, T: np.ndarray,
 
 
 def _decision(shift: np.ndarray, sigma: np.ndarray, angle_rad: float, carried: bool,
-              settings: PrincipalSettings) -> tuple[bool, str]:
-    """(a finding, why) of an asked shift (module doc); `sigma` NaN where it was not needed.
+              settings: PrincipalSettings, ious: tuple[float, float] | None = None
+              ) -> tuple[bool, str]:
+    """(a finding, why) of an asked shift (module doc); `sigma` NaN where it was not needed;
+    `ious` (through the given point, through the asked one; None: not scored).
 
     >>> _decision(np.array([12.0, -8.0]), np.array([0.3, 0.2]), 0.06, False,
     ...           PrincipalSettings())[0]
@@ -326,6 +348,9 @@ def _decision(shift: np.ndarray, sigma: np.ndarray, angle_rad: float, carried: b
     >>> _decision(np.array([12.0, -8.0]), np.full(2, np.nan), 0.06, True,
     ...           PrincipalSettings())[1][:57]
     'not judged: something the arm carries pulls the outlines '
+    >>> _decision(np.array([12.0, -8.0]), np.array([0.3, 0.2]), 0.06, False,
+    ...           PrincipalSettings(), (0.70, 0.70))[1].endswith("(IoU 0.700 -> 0.700)")
+    True
     """
     spread = (f" (1-sigma {sigma[0]:.1f}, {sigma[1]:.1f})" if np.all(np.isfinite(sigma))
               else "")
@@ -338,4 +363,7 @@ def _decision(shift: np.ndarray, sigma: np.ndarray, angle_rad: float, carried: b
     if not np.any(np.abs(shift) > settings.min_sigmas * np.nan_to_num(sigma, nan=np.inf)):
         return False, (f"the given cx, cy stand: the outlines ask for {told}, within "
                        f"{settings.min_sigmas:g} sigma")
+    if ious is not None and not ious[1] > ious[0] + settings.min_iou_gain:
+        return False, (f"the given cx, cy stand: the outlines ask for {told}, but the overlap "
+                       f"does not agree (IoU {ious[0]:.3f} -> {ious[1]:.3f})")
     return True, f"the outlines ask for the principal point {told}"

@@ -351,8 +351,9 @@ def principal_finding(principal: dict | None) -> Finding | None:
         return None
     du, dv = principal["shift_px"]
     given = principal["given"]
-    how = ("" if principal["flagged"] else ", but do not resolve it (within their noise, or "
-           "beside something the arm carries): nothing was adopted")
+    how = ("" if principal["flagged"] else ", but do not resolve it (within their noise, "
+           "beside something the arm carries, or not confirmed by the overlap): nothing was "
+           "adopted")
     return CHECK, (f"the robot's outlines ask for a principal point {du:+.1f}, {dv:+.1f} px "
                    f"from the given cx, cy {given['cx']:.1f}, {given['cy']:.1f}{how}; the pose "
                    f"rests on the given one, and its rotation may be off by up to "

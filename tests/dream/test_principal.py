@@ -76,6 +76,7 @@ def test_a_principal_point_given_off_is_asked_back_and_flagged(meshes, scene):
     assert np.sqrt(covariance[:3, :3].trace()) > np.deg2rad(2.0)   # the turn, in the 1-sigma
     doc = estimate.to_dict()
     assert doc["asked"]["cx"] == pytest.approx(given.cx + estimate.shift_px[0])
+    assert doc["iou_asked"] > doc["iou_given"]        # the overlap agrees
     level, warning = principal_finding(doc)
     assert level == "check" and "calibrated cx, cy" in warning
 
@@ -101,6 +102,10 @@ def test_the_decision_needs_a_turn_beyond_the_limit_and_the_noise_and_nothing_ca
     assert not _decision(off, np.full(2, np.nan), big, False, settings)[0]
     flagged, reason = _decision(off, tight, big, True, settings)
     assert not flagged and reason.startswith("not judged")     # something carried pulls it
+    assert _decision(off, tight, big, False, settings, (0.60, 0.65))[0]
+    flagged, reason = _decision(off, tight, big, False, settings, (0.469, 0.468))
+    assert not flagged and "the overlap does not agree" in reason   # the second cue refuses
+
 
 
 @pytest.mark.parametrize("field, value", [("rounds", 0), ("min_sigmas", -1.0),
