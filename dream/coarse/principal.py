@@ -291,7 +291,7 @@ def fit_principal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
                             None, held, region)
 
     fit, shift, rounds = camera_fit(settings), np.zeros(2), 0
-    scales = scales_at(shift)
+    scales = scales_given = scales_at(shift)
     T = T_given = scales.refine(np.asarray(T_cam_base, float))
     # the finest level's masks, so their distance fields, are the same at every shift
     objective = finest_objective(scales)
@@ -310,7 +310,7 @@ def fit_principal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
     judged = angle > settings.min_angle_rad and not carried
     sigma, spread = (_jackknife(objective, scales, T, settings, len(P)) if judged
                      else (np.full(2, np.nan), np.zeros((6, 6))))
-    ious = ((scales_at(np.zeros(2)).iou(T_given), scales.iou(T)) if judged
+    ious = ((scales_given.iou(T_given), scales.iou(T)) if judged
             else (float("nan"), float("nan")))
     flagged, reason = _decision(shift, sigma * to_image, angle, carried, settings, ious)
     return PrincipalEstimate(shift, sigma * to_image, angle, rounds, flagged, reason, camera, T,
