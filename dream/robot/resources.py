@@ -9,6 +9,8 @@ through a hard-coded site-packages path.
 from __future__ import annotations
 
 import functools
+import logging
+import os
 import site
 import sys
 from pathlib import Path
@@ -19,6 +21,12 @@ CMEEL_PREFIX = "cmeel.prefix"
 ROBOT_DATA_PACKAGE = "example-robot-data"
 PACKAGE_SCHEME = "package://"
 FILE_SCHEME = "file://"
+ROS_PACKAGE_PATH = "ROS_PACKAGE_PATH"  # ROS 1: roots holding packages, at any depth
+AMENT_PREFIX_PATH = "AMENT_PREFIX_PATH"  # ROS 2: install prefixes, each package in share/<name>
+PACKAGE_MANIFEST = "package.xml"
+MAX_PACKAGE_DEPTH = 4  # how deep under a ROS_PACKAGE_PATH root a package folder is looked for
+
+logger = logging.getLogger(__name__)
 
 
 def _candidate_site_dirs() -> list[Path]:
@@ -58,12 +66,52 @@ def robot_data_dir() -> Path:
     return share_dir() / ROBOT_DATA_PACKAGE
 
 
+def _ros_package_dirs(package: str) -> list[Path]:
+    """Folders named `package` that the ROS environment variables point to (ROS 1 and ROS 2)."""
+    found: list[Path] = []
+    for prefix in os.environ.get(AMENT_PREFIX_PATH, "").split(os.pathsep):
+        if prefix:
+            found.append(Path(prefix) / "share" / package)
+    for root in os.environ.get(ROS_PACKAGE_PATH, "").split(os.pathsep):
+        if not root or not Path(root).is_dir():
+            continue
+        found.append(Path(root) / package)
+        for depth in range(1, MAX_PACKAGE_DEPTH + 1):
+            found += [m.parent for m in Path(root).glob("/".join(["*"] * depth) + "/"
+                                                        + PACKAGE_MANIFEST)
+                      if m.parent.name == package]
+    return found
+
+
+def _package_candidates(uri: str, urdf_path: Path) -> tuple[list[Path], list[Path]]:
+    """Where `package://X/rest` may lie: the folders named X, and the fallbacks.
+
+    Named, most specific first: an ancestor folder of the URDF named X (the usual ROS source
+    layout), the ROS environment's packages, example-robot-data's share folder. The fallbacks:
+    any ancestor of the URDF holding `rest` (a package checked out under another folder name).
+    `package:///X/rest` is read as `package://X/rest`, as pinocchio reads it.
+    """
+    package, _, rest = uri[len(PACKAGE_SCHEME):].lstrip("/").partition("/")
+    if not package or not rest:
+        raise InputError(f"malformed resource URI '{uri}'", urdf_path,
+                         fix="write package://PACKAGE/path/to/file")
+    ancestors = urdf_path.resolve().parents
+    candidates = [parent / rest for parent in ancestors if parent.name == package]
+    candidates += [d / rest for d in _ros_package_dirs(package)]
+    try:
+        candidates.append(share_dir() / package / rest)
+    except InputError:
+        pass  # no example-robot-data: only the URDF's own tree can hold the package
+    return candidates, [parent / rest for parent in ancestors]
+
+
 def resolve_resource(uri: str, urdf_path: str | Path, must_exist: bool = True) -> Path:
     """The file a URDF's resource reference (mesh filename) names.
 
-    `package://X/rest` is looked up in an ancestor folder of the URDF named X (the usual ROS
-    source layout), then in the cmeel share folder (`<share>/X/rest`). `file://` and absolute
-    paths are taken as they are; anything else is relative to the URDF's folder.
+    `package://X/rest` is looked up in an ancestor folder of the URDF named X, then in the
+    packages `ROS_PACKAGE_PATH` and `AMENT_PREFIX_PATH` name, then in the cmeel share folder
+    (`<share>/X/rest`), and last in any ancestor folder of the URDF that holds `rest`. `file://`
+    and absolute paths are taken as they are; anything else is relative to the URDF's folder.
 
     Args:
         uri: the reference as written in the URDF.
@@ -72,32 +120,34 @@ def resolve_resource(uri: str, urdf_path: str | Path, must_exist: bool = True) -
 
     Raises:
         InputError: the file does not exist (when `must_exist`), or the URI is malformed.
+
+    Example:
+        >>> from dream.robot import load_robot
+        >>> urdf = load_robot("panda").urdf_path
+        >>> resolve_resource("package://example-robot-data/robots/panda_description/"
+        ...                  "meshes/visual/link0.dae", urdf).name
+        'link0.dae'
     """
     urdf_path = Path(urdf_path)
     candidates: list[Path] = []
+    fallbacks: list[Path] = []
     if uri.startswith(PACKAGE_SCHEME):
-        package, _, rest = uri[len(PACKAGE_SCHEME):].partition("/")
-        if not package or not rest:
-            raise InputError(f"malformed resource URI '{uri}'", urdf_path,
-                             fix="write package://PACKAGE/path/to/file")
-        candidates += [parent / rest for parent in urdf_path.resolve().parents
-                       if parent.name == package]
-        try:
-            candidates.append(share_dir() / package / rest)
-        except InputError:
-            pass  # no example-robot-data: only the URDF's own tree can hold the package
+        candidates, fallbacks = _package_candidates(uri, urdf_path)
     elif uri.startswith(FILE_SCHEME):
         candidates.append(Path(uri[len(FILE_SCHEME):]))
     else:
         candidates.append(Path(uri) if Path(uri).is_absolute() else urdf_path.parent / uri)
-    for c in candidates:
+    for c in candidates + fallbacks:
         if c.is_file():
+            logger.debug("%s -> %s", uri, c)
             return c
     if must_exist or not candidates:
+        looked = [str(c) for c in candidates] + (["the URDF's parent folders"] if fallbacks else [])
         raise InputError(f"resource '{uri}' not found (looked in: "
-                         f"{', '.join(str(c) for c in candidates) or 'nowhere'})", urdf_path,
-                         fix="install the package that holds it or fix the path in the URDF")
-    return candidates[-1]
+                         f"{', '.join(looked) or 'nowhere'})", urdf_path,
+                         fix="install the package that holds it, name its folder in "
+                             f"{ROS_PACKAGE_PATH}, or fix the path in the URDF")
+    return candidates[0]
 
 
 def filename_handler(urdf_path: str | Path):

@@ -408,3 +408,56 @@ def test_package_uri_resolves_to_example_robot_data() -> None:
         resolve_resource("package://example-robot-data/nothing/here.stl", robot.urdf_path)
     relative = resolve_resource("../meshes/visual/link0.dae", robot.urdf_path)
     assert relative.resolve() == mesh.resolve()
+
+
+def _mesh_tree(root: Path, package_dir: Path) -> Path:
+    """A URDF under `root/robot/urdf` and a mesh file under `package_dir/meshes`."""
+    mesh = package_dir / "meshes" / "link.stl"
+    mesh.parent.mkdir(parents=True)
+    mesh.write_text("solid link\nendsolid link\n")
+    urdf = root / "robot" / "urdf" / "r.urdf"
+    urdf.parent.mkdir(parents=True)
+    urdf.write_text("<robot name='r'/>")
+    return urdf
+
+
+def test_package_uri_with_three_slashes_reads_as_two() -> None:
+    urdf = load_robot("panda").urdf_path
+    mesh = resolve_resource(
+        "package:///example-robot-data/robots/panda_description/meshes/visual/link0.dae", urdf)
+    assert mesh.name == "link0.dae"
+    assert mesh.is_relative_to(robot_data_dir())
+
+
+def test_package_uri_found_through_ros_package_path(tmp_path: Path, monkeypatch) -> None:
+    package = tmp_path / "ws" / "src" / "group" / "my_arm_description"
+    urdf = _mesh_tree(tmp_path, package)
+    (package / "package.xml").write_text("<package><name>my_arm_description</name></package>")
+    uri = "package://my_arm_description/meshes/link.stl"
+    monkeypatch.delenv("ROS_PACKAGE_PATH", raising=False)
+    monkeypatch.delenv("AMENT_PREFIX_PATH", raising=False)
+    with pytest.raises(InputError, match="ROS_PACKAGE_PATH"):
+        resolve_resource(uri, urdf)
+    monkeypatch.setenv("ROS_PACKAGE_PATH", str(tmp_path / "ws" / "src"))
+    assert resolve_resource(uri, urdf) == package / "meshes" / "link.stl"
+
+
+def test_package_uri_found_through_ament_prefix_path(tmp_path: Path, monkeypatch) -> None:
+    package = tmp_path / "install" / "share" / "my_arm_description"
+    urdf = _mesh_tree(tmp_path, package)
+    monkeypatch.delenv("ROS_PACKAGE_PATH", raising=False)
+    monkeypatch.setenv("AMENT_PREFIX_PATH", f"/nonexistent:{tmp_path / 'install'}")
+    assert (resolve_resource("package://my_arm_description/meshes/link.stl", urdf)
+            == package / "meshes" / "link.stl")
+
+
+def test_package_checked_out_under_another_name_is_found_above_the_urdf(tmp_path: Path,
+                                                                         monkeypatch) -> None:
+    # the package `my_arm_description` cloned as folder `robot`: the mesh beside urdf/
+    urdf = _mesh_tree(tmp_path, tmp_path / "robot")
+    monkeypatch.delenv("ROS_PACKAGE_PATH", raising=False)
+    monkeypatch.delenv("AMENT_PREFIX_PATH", raising=False)
+    assert (resolve_resource("package://my_arm_description/meshes/link.stl", urdf)
+            == tmp_path / "robot" / "meshes" / "link.stl")
+    with pytest.raises(InputError, match="parent folders"):
+        resolve_resource("package://my_arm_description/meshes/other.stl", urdf)
