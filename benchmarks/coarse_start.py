@@ -16,7 +16,8 @@ so that its refinements and their verdict are tested from a wrong start;
 with `--given-focal F` the calibration is given fx, fy F times those rendered with (the search
 fits the focal length where the outlines tell it: `dream.coarse.focal`); with
 `--given-principal DU,DV` a principal point DU, DV pixels off (adopted where the outlines
-ask for it; `--fixed-principal` keeps it); with `--video-codec`
+ask for it; `--fixed-principal` keeps it); with `--given-no-distortion` no distortion
+coefficients for a lens rendered with them (raw images given as rectified); with `--video-codec`
 the frames go through a video codec and back first (OpenCV's FFmpeg encoder at its default
 rate: `vp9`, transforms of several sizes with a loop filter, as a modern video file or stream;
 `mpeg4`, MPEG-4 part 2 in 8x8 blocks); `--reuse-scenes` takes scenes already rendered in
@@ -38,6 +39,7 @@ frames that agree.
         [--fooled] [--skip-guess] [--only panda_1003,xarm7_1010] [--work DIR]
         [--robots URDF,... --scale-to-robot] [--set intrinsics.width=960 ...]
         [--given-focal 0.96 [--fixed-focal]] [--given-principal 12,-8 [--fixed-principal]]
+        [--set 'intrinsics.distortion=[-0.2,0.05,0,0,0]' --given-no-distortion]
         [--video-codec vp9]
         [--reuse-scenes]
         [--set sequence.mode=trajectory --frames 150 [--time-offset 0.05]]
@@ -55,6 +57,7 @@ import io
 import json
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -184,6 +187,14 @@ def given_principal(data: Path, shift_px: tuple[float, float], out: Path) -> Pat
 
     seq = read_sequence(data)
     return write_dream(seq.with_fixed_camera(with_principal_shift(seq.camera, shift_px)), out,
+                       overwrite=True)
+
+
+def given_undistorted(data: Path, out: Path) -> Path:
+    """A copy of `data` whose camera carries no distortion coefficients (raw images of a
+    distorted lens given as if rectified), written anew over an earlier one."""
+    seq = read_sequence(data)
+    return write_dream(seq.with_fixed_camera(replace(seq.camera, distortion=None)), out,
                        overwrite=True)
 
 
@@ -322,7 +333,13 @@ def calibrate(data: Path, out: Path, guess: Path | None,
     away = (doc.get("start") or {}).get("away") or {"share": 0.0}
     timing = (doc.get("start") or {}).get("timing") or {"adopted": False}
     principal = (doc.get("start") or {}).get("principal")
-    return {"focal": ("" if focal is None else f", focal x{focal['scale']:.3f} "
+    distortion = (doc.get("start") or {}).get("distortion")
+    return {"focal": ("" if distortion is None else ", radial shift at the corner "
+                      f"{100 * distortion['corner_shift']:+.1f} % (1-sigma "
+                      f"{100 * (distortion['sigma'] or float('nan')):.1f} %, IoU "
+                      f"{distortion['iou_given']:.3f} -> {distortion['iou_fitted']:.3f}) "
+                      f"{'adopted' if distortion['adopted'] else 'kept as given'}")
+            + ("" if focal is None else f", focal x{focal['scale']:.3f} "
                       f"{'adopted' if focal['adopted'] else 'kept as given'}")
             + ("" if principal is None else ", principal point asked {:+.1f}, {:+.1f} px "
                "({:.2f} deg){}".format(*principal["shift_px"],
@@ -404,6 +421,8 @@ def run_renders(args: argparse.Namespace) -> None:
                 if args.given_focal != 1.0:
                     data = given_focal(data, args.given_focal,
                                        tmp / f"{name}_{seed}_focal{args.given_focal:g}")
+                if args.given_no_distortion:
+                    data = given_undistorted(data, tmp / f"{name}_{seed}_undistorted")
                 if args.given_principal is not None:
                     du, dv = args.given_principal
                     data = given_principal(data, (du, dv),
@@ -522,6 +541,9 @@ def main() -> None:
                    "the Panda's (a small arm seen from as near as a user would put the camera)")
     r.add_argument("--given-focal", type=float, default=1.0, help="give the calibration fx, "
                    "fy this many times those rendered with (default 1: as rendered)")
+    r.add_argument("--given-no-distortion", action="store_true",
+                   help="give the calibration no distortion coefficients (the lens rendered "
+                        "with `--set intrinsics.distortion=[...]`)")
     r.add_argument("--given-principal", type=_pixel_pair, default=None, metavar="DU,DV",
                    help="give the calibration a principal point DU, DV pixels from the one "
                    "rendered with")

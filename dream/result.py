@@ -105,20 +105,21 @@ def adopted_intrinsics(doc: dict[str, Any]) -> dict[str, float]:
     """The intrinsics a RESULT.json's pose was calibrated through where the calibration
     adopted those the robot's outlines asked for: `fx`, `fy` of an adopted focal length
     (`start.focal` of the search without keypoints, `focal` of the keypoint path), `cx`, `cy`
-    of an adopted principal point (`start.principal`, `principal`); empty where the data's own
-    were used.
+    of an adopted principal point (`start.principal`, `principal`), `distortion` (a tuple) of
+    an adopted radial distortion (`start.distortion`); empty where the data's own were used.
 
     >>> adopted_intrinsics({"focal": {"adopted": True, "used": {"fx": 510.0, "fy": 512.0}}})
     {'fx': 510.0, 'fy': 512.0}
     >>> adopted_intrinsics({"start": {"focal": {"adopted": False}}})
     {}
     """
-    used: dict[str, float] = {}
+    used: dict[str, Any] = {}
     start = doc.get("start") or {}
-    for record in (start.get("focal"), start.get("principal"), doc.get("focal"),
-                   doc.get("principal")):
+    for record in (start.get("distortion"), start.get("focal"), start.get("principal"),
+                   doc.get("focal"), doc.get("principal")):
         if record and record.get("adopted"):
-            used.update({k: float(v) for k, v in record["used"].items()})
+            used.update({k: tuple(float(c) for c in v) if isinstance(v, list) else float(v)
+                         for k, v in record["used"].items()})
     return used
 
 

@@ -70,6 +70,7 @@ class CalibrateRequest(DataOptions):
     mark_offset: str | None = None
     fixed_focal: bool = False
     fixed_principal: bool = False
+    fixed_distortion: bool = False
     stamped_timing: bool = False
     frame_range: str | None = None
     loaded_model: Any = None
@@ -357,6 +358,11 @@ def add_calibrate_args(p: argparse.ArgumentParser) -> None:
                         "the robot's outlines ask for, turning the camera by more than 1.5 "
                         "deg beyond their noise, is adopted and the calibration made again "
                         "through it; kept, it is reported and its move enters the 1-sigma)")
+    p.add_argument("--fixed-distortion", action="store_true",
+                   help="without keypoints: keep the data's distortion as given (by default "
+                        "a radial distortion the robot's outlines ask for and their overlap "
+                        "agrees with, as of raw images given with a rectified camera, is "
+                        "adopted and the calibration made again through it)")
     p.add_argument("--stamped-timing", action="store_true",
                    help="without keypoints: take the joint readings at their timestamps (by "
                         "default the search reads a lag of the joint log behind the images off "

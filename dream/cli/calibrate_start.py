@@ -129,6 +129,7 @@ def search_start(request, seq, out: TextIO):
     outcome and masks, and the guess."""
     from dream.cli.search_robot import robot_for_search
     from dream.coarse.calibration import coarse_start
+    from dream.coarse.distortion import DistortionSettings
     from dream.coarse.focal import FocalSettings
     from dream.coarse.principal import PrincipalSettings
     from dream.coarse.result import search_covariance, stand_in_result
@@ -160,11 +161,14 @@ def search_start(request, seq, out: TextIO):
                                    focal=FocalSettings(fit=not request.fixed_focal),
                                    principal=PrincipalSettings(
                                        adopt=not request.fixed_principal),
-                                   timing=TimingSettings(fit=not request.stamped_timing))
+                                   timing=TimingSettings(fit=not request.stamped_timing),
+                                   distortion=DistortionSettings(
+                                       fit=not request.fixed_distortion))
     result, obs = stand_in_result(seq, outcome.best.T_cam_base,
                                   search_covariance(outcome, focal=inputs.focal,
                                                     timing=inputs.timing,
-                                                    principal=inputs.principal))
+                                                    principal=inputs.principal,
+                                                    distortion=inputs.distortion))
     print(f"search ({outcome.seconds:.1f} s, {inputs.source} of {len(inputs.frames)} frames): "
           f"best IoU {outcome.best.iou:.3f}, best rival "
           f"{'none' if outcome.rival is None else f'{outcome.rival.iou:.3f}'}, "
@@ -182,8 +186,8 @@ def with_fitted_intrinsics(seq, inputs, out: TextIO):
     if camera == given:
         return seq
     print(f"intrinsics: {intrinsics_change(given, camera)}, fitted to the robot's outlines; "
-          "the pose and every refinement after the search use them (--fixed-focal, "
-          "--fixed-principal keep the given ones)", file=out)
+          "the pose and every refinement after the search use them (--fixed-distortion, "
+          "--fixed-focal, --fixed-principal keep the given ones)", file=out)
     return seq.with_fixed_camera(camera)
 
 
@@ -196,6 +200,7 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
     """The verdict on a pose found without keypoints: the search's findings, the cues', the
     mark's clicks at the pose written (with `--mark`), the condition of the pose written
     (`dream.quality`) and the `extra` findings (a camera that moved)."""
+    from dream.coarse.distortion import distortion_finding
     from dream.coarse.settings import SearchSettings
     from dream.coarse.timing import timing_finding
     from dream.coarse.verdict import (
@@ -222,7 +227,8 @@ def search_quality(doc: dict, cue_move: tuple[float, float] | None, out: TextIO,
     if cue_move is not None:
         findings.append(cues_finding(*cue_move))
     findings.append(ran_off_finding(doc, settings))
-    findings += [f for f in (focal_finding(s.get("focal")), timing_finding(s.get("timing")),
+    findings += [f for f in (distortion_finding(s.get("distortion")),
+                             focal_finding(s.get("focal")), timing_finding(s.get("timing")),
                              principal_finding(s.get("principal"))) if f is not None]
     carried = s.get("carried") or {}
     if carried.get("named"):
@@ -343,7 +349,8 @@ def _challenged(request, data_doc: dict, readings_doc: dict | None, found: tuple
         result, obs = stand_in_result(seq, challenge.T_cam_base_between,
                                       search_covariance(outcome, focal=inputs.focal,
                                                         timing=inputs.timing,
-                                                        principal=inputs.principal))
+                                                        principal=inputs.principal,
+                                                        distortion=inputs.distortion))
         doc = {**search_document(request, data_doc, readings_doc, result, obs,
                                  (seq, outcome, inputs, guess, marked)), "edges": doc["edges"]}
     doc["start"]["challenge"] = challenge.to_dict()

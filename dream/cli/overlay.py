@@ -135,10 +135,16 @@ def _with_result_intrinsics(doc: dict, seq):
     used = adopted_intrinsics(doc)
     if not used:
         return seq
-    data = ", ".join(f"{getattr(seq.camera, k):.2f}" for k in used)
-    print(f"drawn with {', '.join(used)} {', '.join(f'{v:.2f}' for v in used.values())}: "
+    def shown(value) -> str:
+        return (f"({', '.join(f'{c:.3f}' for c in value)})" if isinstance(value, tuple)
+                else f"{value:.2f}")
+
+    camera = seq.camera
+    data = ", ".join(shown(tuple(camera.dist_coeffs)) if k == "distortion"
+                     else shown(getattr(camera, k)) for k in used)
+    print(f"drawn with {', '.join(used)} {', '.join(shown(v) for v in used.values())}: "
           f"fitted by the calibration (the data's {data})")
-    return seq.with_fixed_camera(replace(seq.camera, **used))
+    return seq.with_fixed_camera(replace(camera, **used))
 
 
 def _result_poses(doc: dict, seq) -> np.ndarray:

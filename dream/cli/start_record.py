@@ -23,6 +23,7 @@ def start_doc(outcome, inputs, guess, seq, marked=None) -> dict:
             "left_out_links": list(inputs.left_out), "motion_masks": inputs.motion,
             "carried": carried_doc(inputs.carried, CARRIED in outcome.hypotheses),
             "focal": None if inputs.focal is None else inputs.focal.to_dict(),
+            "distortion": None if inputs.distortion is None else inputs.distortion.to_dict(),
             "timing": None if inputs.timing is None else inputs.timing.to_dict(),
             "principal": None if inputs.principal is None else inputs.principal.to_dict(),
             "T_cam_base": outcome.best.T_cam_base.tolist(), "iou": outcome.best.iou,

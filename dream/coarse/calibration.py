@@ -15,8 +15,9 @@ millimetres). At the winner, in turn: the joint log's lag behind the images is r
 (`dream.coarse.timing`; also where the found test fails, which a late log can fail at the
 right pose), and where the robot was found what the arm carries that the URDF lacks is carved
 (`dream.coarse.carried`) and its pixels left out (the finishes then also leave out the frames
-that pull the pose far harder than the others, `dream.coarse.scales`), and the principal
-point and the focal length the robot's outlines ask for are fitted (`dream.coarse.intrinsics`;
+that pull the pose far harder than the others, `dream.coarse.scales`), and the lens's radial
+distortion, the principal point and the focal length the robot's outlines ask for are fitted
+(`dream.coarse.intrinsics`;
 only where the robot was found with the held pixels left out of its silhouettes, as the fits
 score them); each that is adopted runs the search again from the winner, and the callers go
 on with what it adopted.
@@ -32,6 +33,7 @@ import numpy as np
 
 from dream.camera import CameraIntrinsics
 from dream.coarse.carried import CarriedRegion, carried_geometry, carried_region
+from dream.coarse.distortion import DistortionEstimate, DistortionSettings
 from dream.coarse.focal import FocalEstimate, FocalSettings
 from dream.coarse.hypotheses import around, check_guess_scale, fibonacci_directions, shell
 from dream.coarse.intrinsics import with_asked_intrinsics
@@ -106,7 +108,8 @@ class SearchMasks:
     where adopted, `joints` are the readings shifted by it), and the principal point and the
     focal-length scale the outlines ask for (`principal`, `focal`; None where not fitted;
     `dream.coarse.intrinsics`: where either is adopted, the search's pose is the one through
-    `dream.coarse.intrinsics.adopted_camera`)."""
+    `dream.coarse.intrinsics.adopted_camera`), and so the lens's radial distortion
+    (`distortion`; `dream.coarse.distortion`)."""
 
     meshes: RobotMeshes
     frames: np.ndarray
@@ -121,6 +124,7 @@ class SearchMasks:
     focal: FocalEstimate | None = None
     timing: LagEstimate | None = None
     principal: PrincipalEstimate | None = None
+    distortion: DistortionEstimate | None = None
 
     @property
     def held(self) -> bool:
@@ -231,12 +235,13 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
                  progress: Callable[[str], None] | None = None,
                  extra: dict[str, np.ndarray] | None = None,
                  focal: FocalSettings | None = None, timing: TimingSettings | None = None,
-                 principal: PrincipalSettings | None = None
+                 principal: PrincipalSettings | None = None,
+                 distortion: DistortionSettings | None = None
                  ) -> tuple[SearchOutcome, SearchMasks]:
     """The coarse search of a fixed-camera `sequence` (module doc); `extra`: more hypotheses
     by source (the keypoint pose of a detector), scored beside the guess's; `timing`: whether
-    and how the lag is fitted, first; `principal`, `focal`: whether and how the intrinsics
-    the outlines ask for are fitted and adopted (`dream.coarse.intrinsics`)."""
+    and how the lag is fitted, first; `principal`, `focal`, `distortion`: whether and how the
+    intrinsics the outlines ask for are fitted and adopted (`dream.coarse.intrinsics`)."""
     settings = settings or SearchSettings()
     inputs = search_masks(sequence, robot, settings)
     if progress is not None:
@@ -261,7 +266,7 @@ def coarse_start(sequence: Sequence, robot: Robot, guess: CameraGuess,
     if settings.find_carried:
         winner, inputs = with_carried(sequence.camera, inputs, winner, settings, progress)
     return with_asked_intrinsics(sequence.camera, inputs, winner, settings, focal, principal,
-                                 progress)
+                                 progress, distortion)
 
 
 def with_carried(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,

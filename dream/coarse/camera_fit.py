@@ -8,7 +8,10 @@ rotation C(p) of the camera frame, the pose then C(p) T); `CameraFit.fit` is
 Levenberg-Marquardt over (T, p) on fixed contour points of the finish's objective
 (`dream.polish.objective.Objective`), its derivatives in p by central differences, and
 `CameraFit.jackknife_variance` the delete-one-group jackknife of p over fits that leave groups
-of those points out in turn.
+of those points out in turn. `fit_parameter` fits one parameter so from the search's winner
+(the focal length's scale, the lens's radial distortion): rounds of the finish through the
+camera at the current value, its contour points and the joint fit, then the value's 1-sigma
+(`parameter_sigma`), the IoU before and after, and how the pose moves with it.
 
 A parameter whose first-order effect on the image a turn of the camera repeats (a shift of the
 principal point) leaves the fit a long narrow valley, along which Levenberg-Marquardt crawls: on
@@ -26,21 +29,34 @@ image centre carried by p (`principal_turn`), the valley is gone: 5 linearisatio
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from dream.camera import CameraIntrinsics
-from dream.coarse.scales import Scales
+from dream.coarse.scales import Scales, finish_scale
+from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
 from dream.optim import levenberg_marquardt
 from dream.pnp import apply_increment, increment_between
 from dream.polish.objective import Contour, Objective
-from dream.polish.refine import inner_lm_settings
-from dream.refined_uncertainty import MIN_GROUPS, frame_groups, jackknife_spread
+from dream.polish.refine import JACKKNIFE_MIN_CONTOUR_POINTS, inner_lm_settings
+from dream.refined_uncertainty import (
+    MIN_GROUPS,
+    frame_groups,
+    jackknife_spread,
+    links_with_points,
+)
 from dream.transforms import R_from_rotvec
+
+if TYPE_CHECKING:
+    from dream.coarse.carried import CarriedRegion
+    from dream.silhouette import RobotMeshes
+
+log = logging.getLogger(__name__)
 
 CameraMap = Callable[[CameraIntrinsics, np.ndarray], CameraIntrinsics]
 TurnMap = Callable[[CameraIntrinsics, np.ndarray], np.ndarray]
@@ -195,3 +211,100 @@ class _Problem:
     def retract(self, x: tuple[np.ndarray, np.ndarray], dx: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray]:
         return apply_increment(x[0], dx[:6]), x[1] + dx[6:]
+
+
+@dataclass(frozen=True)
+class ParameterRounds:
+    """How `fit_parameter` runs: at most `rounds` rounds, stopping after a step below
+    `step_tolerance` or a value beyond `stop_beyond`; the 1-sigma over `jackknife_groups`
+    frame groups; the pose's sensitivity by the finishes at the value +- `sensitivity_step`."""
+
+    rounds: int
+    step_tolerance: float
+    stop_beyond: float
+    jackknife_groups: int
+    sensitivity_step: float
+
+
+@dataclass(frozen=True)
+class ParameterFit:
+    """One camera parameter fitted with the pose from the search's winner (`fit_parameter`).
+
+    Attributes:
+        value: the parameter where the outlines fit best (0: the camera as given).
+        sigma: its 1-sigma (`parameter_sigma`; NaN without enough frame groups).
+        iou_given, iou_fitted: the finish's IoU at 0 and at `value` (the pose refined there).
+        rounds: the rounds run. T_cam_base: (4, 4) the finish at `value`.
+        xi_per_unit: (6,) how the finish's pose moves (xi of `dream.pnp`) per unit of it.
+    """
+
+    value: float
+    sigma: float
+    iou_given: float
+    iou_fitted: float
+    rounds: int
+    T_cam_base: np.ndarray
+    xi_per_unit: np.ndarray
+
+
+def fit_parameter(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
+                  camera_of: Callable[[float], CameraIntrinsics], T_cam_base: np.ndarray,
+                  search: SearchSettings, fit: CameraFit, how: ParameterRounds,
+                  held: bool = False, region: CarriedRegion | None = None) -> ParameterFit:
+    """The one parameter (`fit.size` 1) the outlines of the frames P (F, V, 3) in `masks`
+    (F, H, W) ask for, from `T_cam_base` through `camera_of(0)`: rounds of the finish at
+    the current value (`dream.coarse.scales.finish_scale` through `camera_of(value)`), its
+    contour points and the joint fit over (pose, step) on them; `held`, `region`: as the
+    search's `Scales`. With something carried (`region`) the 1-sigma also spans the links."""
+    def scales_at(value: float) -> Scales:
+        return finish_scale(P, meshes, masks, camera_of(value), search, None, held, region)
+
+    value, T, iou_given, done = 0.0, np.asarray(T_cam_base, float), float("nan"), 0
+    objective: Objective | None = None
+    for done in range(1, how.rounds + 1):
+        scales = scales_at(value)
+        T = scales.refine(T)
+        if done == 1:
+            iou_given = scales.iou(T)
+        # the finest level's masks, so their distance fields, are the same at every value
+        objective = (finest_objective(scales) if objective is None
+                     else objective.with_camera(scales.levels[-1][0]))
+        contour = scales.contour(T)
+        T, p = fit.fit(objective, contour, T, scales.params.initial_damping)
+        value += float(p[0])
+        log.debug("camera parameter round %d: %.4f (step %+.4f)", done, value, p[0])
+        if abs(p[0]) < how.step_tolerance or abs(value) > how.stop_beyond:
+            break
+    sigma = parameter_sigma(fit, objective, contour, T, scales.params.initial_damping, len(P),
+                            how.jackknife_groups, meshes, by_links=region is not None)
+    final = scales_at(value)
+    T = final.refine(T)
+    iou_fitted = final.iou(T)
+    h = how.sensitivity_step
+    ends = [scales_at(value + d).refine(T) for d in (h, -h)]
+    xi = (increment_between(T, ends[0]) - increment_between(T, ends[1])) / (2 * h)
+    return ParameterFit(value, sigma, iou_given, iou_fitted, done, T, xi)
+
+
+def parameter_sigma(fit: CameraFit, objective: Objective, contour: Contour, T: np.ndarray,
+                    initial_damping: float, frames: int, groups: int, meshes: RobotMeshes,
+                    by_links: bool) -> float:
+    """The 1-sigma of a one-parameter fit's value: the delete-one-group jackknife over
+    `groups` frame groups of the contour points, with `by_links` in quadrature with that over
+    the links with at least `JACKKNIFE_MIN_CONTOUR_POINTS` of them (NaN with fewer than
+    `MIN_GROUPS` frame groups; the links' left out where fewer than `MIN_GROUPS` links have
+    points). What the arm carries pulls the outline of the link it moves with alike in every
+    frame, which the frame groups do not see."""
+    keeps = frame_group_keeps(contour, frames, groups)
+    if keeps is None:
+        return float("nan")
+    variance = fit.jackknife_variance(objective, contour, T, initial_damping, keeps)
+    if by_links and contour.vertex is not None:
+        link = meshes.vertex_link[contour.vertex]
+        links = links_with_points(meshes.vertex_link, contour.vertex, meshes.links,
+                                  JACKKNIFE_MIN_CONTOUR_POINTS)
+        if len(links) >= MIN_GROUPS:
+            variance = variance + fit.jackknife_variance(
+                objective, contour, T, initial_damping,
+                [link != meshes.links.index(name) for name in links])
+    return float(np.sqrt(variance[0]))

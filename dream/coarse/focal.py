@@ -34,25 +34,18 @@ adopted only where
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from dream.camera import CameraIntrinsics
-from dream.coarse.camera_fit import CameraFit, finest_objective, frame_group_keeps
+from dream.coarse.camera_fit import CameraFit, ParameterRounds, fit_parameter, parameter_sigma
 from dream.coarse.carried import CarriedRegion
-from dream.coarse.scales import Scales, finish_scale
 from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
-from dream.pnp import increment_between
 from dream.polish.objective import Contour, Objective
-from dream.polish.refine import JACKKNIFE_MIN_CONTOUR_POINTS
-from dream.refined_uncertainty import MIN_GROUPS, links_with_points
 from dream.settings_checks import check_fields
 from dream.silhouette import RobotMeshes
-
-log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -184,63 +177,30 @@ def fit_focal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray, camera: Cam
     for, from the search's winner `T_cam_base` at `camera` (module doc); `held`, `region`: as
     the search's `Scales`."""
     settings = settings or FocalSettings()
-    fit = camera_fit(settings)
+    fitted = fit_parameter(P, meshes, masks,
+                           lambda log_s: with_focal_scale(camera, float(np.exp(log_s))),
+                           T_cam_base, search, camera_fit(settings), _rounds(settings), held,
+                           region)
+    log_s, sigma = fitted.value, fitted.sigma
+    adopted, reason = _decision(log_s, sigma, fitted.iou_given, fitted.iou_fitted, settings)
+    return FocalEstimate(float(np.exp(log_s)), sigma, fitted.iou_given, fitted.iou_fitted,
+                         fitted.rounds, adopted, reason,
+                         with_focal_scale(camera, float(np.exp(log_s))), camera,
+                         fitted.T_cam_base, fitted.xi_per_unit,
+                         float(np.hypot(np.nan_to_num(sigma), settings.sigma_floor)))
 
-    def scales_at(s: float) -> Scales:
-        return finish_scale(P, meshes, masks, with_focal_scale(camera, s), search, None, held,
-                            region)
 
-    log_s, T, iou_given, rounds = 0.0, np.asarray(T_cam_base, float), float("nan"), 0
-    objective: Objective | None = None
-    for rounds in range(1, settings.rounds + 1):
-        scales = scales_at(float(np.exp(log_s)))
-        T = scales.refine(T)
-        if rounds == 1:
-            iou_given = scales.iou(T)
-        # the finest level's masks, so their distance fields, are the same at every scale
-        objective = (finest_objective(scales) if objective is None
-                     else objective.with_camera(scales.levels[-1][0]))
-        contour = scales.contour(T)
-        T, p = fit.fit(objective, contour, T, scales.params.initial_damping)
-        step = float(p[0])
-        log_s += step
-        log.debug("focal fit round %d: scale %.4f (step %+.4f)", rounds, np.exp(log_s), step)
-        if abs(step) < settings.step_tolerance or abs(log_s) > 2 * settings.max_change:
-            break
-    sigma = _sigma(objective, contour, T, settings, scales.params.initial_damping, len(P),
-                   meshes, by_links=region is not None)
-    final = scales_at(float(np.exp(log_s)))
-    T = final.refine(T)
-    iou_fitted = final.iou(T)
-    adopted, reason = _decision(log_s, sigma, iou_given, iou_fitted, settings)
-    h = settings.sensitivity_step
-    ends = [scales_at(float(np.exp(log_s + d))).refine(T) for d in (h, -h)]
-    xi = (increment_between(T, ends[0]) - increment_between(T, ends[1])) / (2 * h)
-    return FocalEstimate(float(np.exp(log_s)), sigma, iou_given, iou_fitted, rounds, adopted,
-                         reason, with_focal_scale(camera, float(np.exp(log_s))), camera, T,
-                         xi, float(np.hypot(np.nan_to_num(sigma), settings.sigma_floor)))
+def _rounds(settings: FocalSettings) -> ParameterRounds:
+    """How `fit_parameter` runs for the focal length (its value log s)."""
+    return ParameterRounds(settings.rounds, settings.step_tolerance, 2 * settings.max_change,
+                           settings.jackknife_groups, settings.sensitivity_step)
 
 
 def _sigma(objective: Objective, contour: Contour, T: np.ndarray, settings: FocalSettings,
            initial_damping: float, frames: int, meshes: RobotMeshes, by_links: bool) -> float:
-    """The 1-sigma of log s: the delete-one-group jackknife over frame groups of the last
-    round's contour points, with `by_links` in quadrature with that over the links with at
-    least `JACKKNIFE_MIN_CONTOUR_POINTS` of them (NaN with fewer than `MIN_GROUPS` frame
-    groups; the links' left out where fewer than `MIN_GROUPS` links have points)."""
-    keeps = frame_group_keeps(contour, frames, settings.jackknife_groups)
-    if keeps is None:
-        return float("nan")
-    fit = camera_fit(settings)
-    variance = fit.jackknife_variance(objective, contour, T, initial_damping, keeps)
-    if by_links and contour.vertex is not None:
-        link = meshes.vertex_link[contour.vertex]
-        links = links_with_points(meshes.vertex_link, contour.vertex, meshes.links,
-                                  JACKKNIFE_MIN_CONTOUR_POINTS)
-        if len(links) >= MIN_GROUPS:
-            variance = variance + fit.jackknife_variance(
-                objective, contour, T, initial_damping,
-                [link != meshes.links.index(name) for name in links])
-    return float(np.sqrt(variance[0]))
+    """The 1-sigma of log s (`dream.coarse.camera_fit.parameter_sigma`)."""
+    return parameter_sigma(camera_fit(settings), objective, contour, T, initial_damping, frames,
+                           settings.jackknife_groups, meshes, by_links)
 
 
 def _decision(log_s: float, sigma: float, iou_given: float, iou_fitted: float,

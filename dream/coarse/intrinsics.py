@@ -1,9 +1,14 @@
-"""The camera's intrinsics at the search's winner: the principal point and the focal length
-the robot's outlines ask for (`dream.coarse.principal`, `dream.coarse.focal`), each adopted
-where the outlines tell it, and the search run again through the camera with it.
+"""The camera's intrinsics at the search's winner: the lens's radial distortion, the principal
+point and the focal length the robot's outlines ask for (`dream.coarse.distortion`,
+`dream.coarse.principal`, `dream.coarse.focal`), each adopted where the outlines tell it, and
+the search run again through the camera with it.
 
-At the winner, the focal length is fitted through the given camera, then the principal point
-through the focal length where the outlines ask for it (the search's pose moved to each), and
+The distortion goes first, alone (`with_asked_distortion`): left out of the given intrinsics,
+it bends the outlines in a way a principal point and a focal length partly make up for (on
+rendered scenes given raw images of a lens with k1 -0.2 as rectified, principal points 3-6 deg
+off were adopted). Then, at the winner through it, the focal length is fitted through that
+camera, then the principal point through the focal length where the outlines ask for it (the
+search's pose moved to each), and
 (`with_asked_intrinsics`, the rule of `dream.cli.keypoint_pass.asked_intrinsics` on the
 keypoint path):
 - where the principal point is unresolved (a turn beyond the limit within the noise, or not
@@ -33,6 +38,7 @@ at 1.6 mm).
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import replace
 from typing import TYPE_CHECKING
@@ -40,6 +46,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from dream.camera import CameraIntrinsics
+from dream.coarse.distortion import DistortionSettings, fit_distortion
 from dream.coarse.focal import FocalEstimate, FocalSettings, fit_focal
 from dream.coarse.principal import PrincipalEstimate, PrincipalSettings, fit_principal
 from dream.coarse.search import SearchOutcome, Winner, searched_again
@@ -50,25 +57,61 @@ if TYPE_CHECKING:
     from dream.coarse.calibration import SearchMasks
 
 FOCAL, PRINCIPAL = "focal", "principal"     # the hypotheses' sources of the searches again
+DISTORTION = "distortion"
 MAX_ADOPTIONS = 2       # a principal point and a focal length
-NAMES = {FOCAL: "focal length", PRINCIPAL: "principal point"}
+NAMES = {FOCAL: "focal length", PRINCIPAL: "principal point", DISTORTION: "lens distortion"}
+
+
+def with_asked_distortion(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
+                          settings: SearchSettings, distortion: DistortionSettings | None = None,
+                          progress: Callable[[str], None] | None = None,
+                          P: np.ndarray | None = None
+                          ) -> tuple[Winner, SearchMasks, CameraIntrinsics]:
+    """The radial distortion the outlines ask for at the winner through `camera`, adopted where
+    they tell it (`dream.coarse.distortion`): the winner searched again through the camera
+    with it, the inputs with the estimate (`SearchMasks.distortion`), and the camera the rest
+    goes on with. Not fitted where `distortion.fit` is False or the robot was found only with
+    the held pixels kept (as the focal length). P (F, V, 3): the inputs' vertices in the base
+    frame (computed where not given)."""
+    distortion = distortion or DistortionSettings()
+    if not (distortion.fit and settings.robot_found(winner.best.iou)):
+        return winner, inputs, camera
+    say = progress or (lambda line: None)
+    P = vertices_in_base(inputs.meshes, inputs.joints) if P is None else P
+    start = time.perf_counter()
+    estimate = fit_distortion(P, inputs.meshes, inputs.masks, camera, winner.best.T_cam_base,
+                              settings, distortion, inputs.held, inputs.region)
+    say(f"lens distortion ({time.perf_counter() - start:.1f} s): {estimate.reason}")
+    inputs = replace(inputs, distortion=estimate)
+    if not estimate.adopted:
+        return winner, inputs, camera
+    say(f"{NAMES[DISTORTION]}: adopted, searching again with it")
+    winner = searched_again(estimate.camera, inputs, winner, estimate.T_cam_base, DISTORTION,
+                            settings, progress)
+    return winner, inputs, estimate.camera
 
 
 def with_asked_intrinsics(camera: CameraIntrinsics, inputs: SearchMasks, winner: Winner,
                           settings: SearchSettings, focal: FocalSettings | None = None,
                           principal: PrincipalSettings | None = None,
-                          progress: Callable[[str], None] | None = None
+                          progress: Callable[[str], None] | None = None,
+                          distortion: DistortionSettings | None = None
                           ) -> tuple[SearchOutcome, SearchMasks]:
-    """The focal length and the principal point the outlines ask for at the winner through
-    `camera`, adopted where they tell them (module doc); the outcome checked, and the inputs
-    with the estimates (`SearchMasks.focal`, `principal`: the adopted ones, else the last
-    fitted). `focal.fit`, `principal.fit` False: not fitted; `principal.adopt` False: a
-    finding is reported and kept as given."""
+    """The radial distortion, then the focal length and the principal point the outlines ask
+    for at the winner through `camera`, adopted where they tell them (module doc); the outcome
+    checked, and the inputs with the estimates (`SearchMasks.distortion`, `focal`,
+    `principal`: the adopted ones, else the last fitted). `distortion.fit`, `focal.fit`,
+    `principal.fit` False: not fitted; `principal.adopt` False: a finding is reported and kept
+    as given."""
     focal, principal = focal or FocalSettings(), principal or PrincipalSettings()
+    distortion = distortion or DistortionSettings()
+    P = (vertices_in_base(inputs.meshes, inputs.joints)
+         if focal.fit or principal.fit or distortion.fit else None)
+    winner, inputs, camera = with_asked_distortion(camera, inputs, winner, settings,
+                                                   distortion, progress, P)
     say = progress or (lambda line: None)
     kept: dict[str, FocalEstimate | PrincipalEstimate] = {}
     adopted: dict[str, FocalEstimate | PrincipalEstimate] = {}
-    P = vertices_in_base(inputs.meshes, inputs.joints) if focal.fit or principal.fit else None
     for _ in range(MAX_ADOPTIONS + 1):
         if not settings.robot_found(winner.best.iou):
             if focal.fit or principal.fit:
@@ -141,17 +184,26 @@ def intrinsics_change(before: CameraIntrinsics, after: CameraIntrinsics) -> str:
     >>> camera = CameraIntrinsics(300.0, 300.0, 160.0, 120.0, 320, 240)
     >>> intrinsics_change(camera, with_focal_scale(camera, 1.1))
     'fx, fy, cx, cy 300.00, 300.00, 160.00, 120.00 -> 330.00, 330.00, 160.00, 120.00'
+    >>> intrinsics_change(camera, replace(camera, distortion=(-0.1, 0, 0, 0, 0)))[-31:]
+    '; distortion k1 0.000 -> -0.100'
     """
     def values(c: CameraIntrinsics) -> str:
         return ", ".join(f"{v:.2f}" for v in (c.fx, c.fy, c.cx, c.cy))
 
-    return f"fx, fy, cx, cy {values(before)} -> {values(after)}"
+    change = f"fx, fy, cx, cy {values(before)} -> {values(after)}"
+    if before.distortion != after.distortion:
+        change += (f"; distortion k1 {before.dist_coeffs[0]:.3f} -> "
+                   f"{after.dist_coeffs[0]:.3f}")
+    return change
 
 
 def adopted_camera(camera: CameraIntrinsics, inputs: SearchMasks) -> CameraIntrinsics:
-    """`camera` with fx, fy of an adopted focal length and cx, cy of an adopted principal
-    point (`SearchMasks.focal`, `principal`), each where adopted."""
-    f, p = inputs.focal, inputs.principal
+    """`camera` with the distortion of an adopted radial distortion, fx, fy of an adopted focal
+    length and cx, cy of an adopted principal point (`SearchMasks.distortion`, `focal`,
+    `principal`), each where adopted."""
+    d, f, p = inputs.distortion, inputs.focal, inputs.principal
+    if d is not None and d.adopted:
+        camera = replace(camera, distortion=d.camera.distortion)
     if f is not None and f.adopted:
         camera = replace(camera, fx=f.camera.fx, fy=f.camera.fy)
     if p is not None and p.adopted:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from dream.calibration import CalibrationResult, FrameSolution, Observations
+from dream.coarse.distortion import DistortionEstimate
 from dream.coarse.focal import FocalEstimate
 from dream.coarse.principal import PrincipalEstimate
 from dream.coarse.search import SearchOutcome, within
@@ -26,7 +27,8 @@ JACKKNIFE_SHRINKAGE = 0.25  # of the search's jackknife covariance towards its d
 
 def search_covariance(outcome: SearchOutcome, settings: SearchSettings | None = None,
                       focal: FocalEstimate | None = None, timing: LagEstimate | None = None,
-                      principal: PrincipalEstimate | None = None) -> np.ndarray:
+                      principal: PrincipalEstimate | None = None,
+                      distortion: DistortionEstimate | None = None) -> np.ndarray:
     """(6, 6) the search's own 1-sigma (xi of `dream.pnp` at the winner): the jackknives of
     its finish over frame groups and over links (`SearchOutcome.frames_xi`, `links_xi`;
     `dream.refined_uncertainty.jackknife_covariance`; their sum shrunk towards its diagonal by
@@ -42,7 +44,8 @@ def search_covariance(outcome: SearchOutcome, settings: SearchSettings | None = 
     (`FocalEstimate.pose_covariance`), and so does an adopted lag of the joint log
     (`LagEstimate.pose_covariance`), and a principal point the outlines ask for beyond the
     check's limits its move and the spread of the pose through it
-    (`PrincipalEstimate.pose_covariance`)."""
+    (`PrincipalEstimate.pose_covariance`), and an adopted radial distortion its own
+    (`DistortionEstimate.pose_covariance`)."""
     settings = settings or SearchSettings()
     T_best = outcome.best.T_cam_base
     ends = outcome.basin_ends
@@ -60,7 +63,8 @@ def search_covariance(outcome: SearchOutcome, settings: SearchSettings | None = 
     else:
         precision = np.diag((np.repeat([settings.basin_return_rad, outcome.basin_return_m], 3)
                              * RESOLUTION_FRACTION) ** 2)
-    extras = [extra.pose_covariance for extra in (focal, timing, principal) if extra is not None]
+    extras = [extra.pose_covariance for extra in (focal, timing, principal, distortion)
+              if extra is not None]
     basin = xi.T @ xi / len(xi) if len(xi) else np.zeros((6, 6))
     return basin + precision + sum(extras, np.zeros((6, 6)))
 

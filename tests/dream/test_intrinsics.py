@@ -13,6 +13,7 @@ import pytest
 
 import dream.coarse.intrinsics as intrinsics
 from dream.coarse.calibration import DATA_MASKS, SearchMasks
+from dream.coarse.distortion import DistortionEstimate, with_corner_shift
 from dream.coarse.focal import FocalEstimate, FocalSettings, with_focal_scale
 from dream.coarse.intrinsics import adopted_camera, with_asked_intrinsics
 from dream.coarse.principal import PrincipalEstimate, PrincipalSettings, with_principal_shift
@@ -59,7 +60,14 @@ def fakes(monkeypatch):
     """The two fits answering from queues of (scale, asked) and (shift, flagged,
     unresolved), and the search again recording its source and camera."""
     calls = SimpleNamespace(focal=[], principal=[], searched=[], asks_focal=[],
-                            asks_principal=[])
+                            asks_principal=[], distortion=[], asks_distortion=[])
+
+    def fit_distortion(P, meshes, masks, camera, T, settings, distortion, held, region):
+        calls.distortion.append(camera)
+        shift, asked = calls.asks_distortion.pop(0) if calls.asks_distortion else (0.0, False)
+        return DistortionEstimate(shift, 0.001, 0.5, 0.6, 1, asked, f"{shift}",
+                                  with_corner_shift(camera, shift), camera, np.eye(4),
+                                  np.zeros(6), 0.005)
 
     def fit_focal(P, meshes, masks, camera, T, settings, focal, held, region):
         calls.focal.append(camera)
@@ -78,6 +86,7 @@ def fakes(monkeypatch):
         calls.searched.append((source, camera))
         return winner
 
+    monkeypatch.setattr(intrinsics, "fit_distortion", fit_distortion)
     monkeypatch.setattr(intrinsics, "fit_focal", fit_focal)
     monkeypatch.setattr(intrinsics, "fit_principal", fit_principal)
     monkeypatch.setattr(intrinsics, "searched_again", searched_again)
@@ -95,6 +104,25 @@ def _run(fakes, focal_asks, principal_asks, principal=None):
     inputs = SearchMasks(None, one, None, None, DATA_MASKS, (), one)
     return with_asked_intrinsics(CAMERA, inputs, winner, SMALL, FocalSettings(),
                                  principal or PrincipalSettings())
+
+
+def test_a_distortion_asked_for_goes_first_and_the_rest_is_fitted_through_it(fakes):
+    """The lens's radial distortion is adopted before anything else (left out, it bends the
+    outlines in ways a principal point and a focal length partly make up for): the search
+    runs again through it, and the focal length and the principal point are fitted through
+    the camera with it; the adopted camera carries it."""
+    fakes.asks_distortion[:] = [(-0.15, True)]
+    outcome, inputs = _run(fakes, [(1.0, False)], [((0.0, 0.0), False, False)])
+    assert outcome == "checked" and [s for s, _ in fakes.searched] == ["distortion"]
+    with_lens = with_corner_shift(CAMERA, -0.15)
+    assert fakes.searched[0][1] == with_lens
+    assert fakes.focal == [with_lens] and fakes.principal == [with_lens]
+    assert inputs.distortion.adopted
+    assert adopted_camera(CAMERA, inputs).distortion == with_lens.distortion
+    fakes.searched.clear()
+    fakes.asks_distortion[:] = [(-0.15, False)]                   # asked, not adopted
+    _, kept = _run(fakes, [(1.0, False)], [((0.0, 0.0), False, False)])
+    assert not fakes.searched and adopted_camera(CAMERA, kept) == CAMERA
 
 
 def test_an_unresolved_principal_point_vetoes_the_focal_length(fakes):

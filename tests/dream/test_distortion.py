@@ -1,0 +1,140 @@
+"""The lens's radial distortion the robot's outlines ask for (`dream.coarse.distortion`): fitted
+with the pose on masks rendered through a distorted lens and given without its coefficients,
+adopted where the overlap agrees, kept where they were given right; `dream calibrate` goes on
+through the fitted camera and says so, and `--fixed-distortion` keeps the given one."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from dream.cli import main
+from dream.coarse.distortion import (
+    DistortionSettings,
+    _decision,
+    corner_radius2,
+    distortion_finding,
+    fit_distortion,
+    with_corner_shift,
+)
+from dream.coarse.scales import finish_scale
+from dream.coarse.settings import SearchSettings
+from dream.errors import InputError
+from dream.io import read_sequence, write_dream
+from dream.metrics import pose_errors
+from dream.silhouette import render_silhouette, vertices_in_base
+from tests.dream.test_coarse import GUESS_M, GUESS_RAD, off_by
+from tests.dream.test_edges import CAMERA, TARGET, edge_scene, image_dataset
+
+K1 = -0.25          # a wide lens's barrel distortion (corner of the 320x240 image: -16 %)
+FRAMES = 12
+
+
+@pytest.fixture(scope="module")
+def scene(panda, meshes):
+    """Masks rendered through CAMERA with k1 = K1, the pose, and the vertices in the base."""
+    T_true, joints, _, _ = edge_scene(panda, meshes, frames=FRAMES)
+    lens = replace(CAMERA, distortion=(K1, 0.0, 0.0, 0.0, 0.0))
+    masks = np.stack([render_silhouette(meshes, q, T_true, lens) for q in joints])
+    return T_true, vertices_in_base(meshes, joints), masks
+
+
+def test_a_distortion_left_out_is_fitted_and_the_pose_comes_back(meshes, scene):
+    """Through the camera given without its distortion the finish lands off; the joint fit
+    finds k1 within a tenth and the pose within a few millimetres, and the overlap agrees."""
+    T_true, P, masks = scene
+    T_given = finish_scale(P, meshes, masks, CAMERA, SearchSettings()).refine(T_true)
+    errors_given = pose_errors(T_given, T_true)
+    estimate = fit_distortion(P, meshes, masks, CAMERA, T_given, SearchSettings())
+    assert estimate.adopted and estimate.iou_fitted > estimate.iou_given, estimate.reason
+    assert estimate.shift == pytest.approx(K1 * corner_radius2(CAMERA), rel=0.1), estimate
+    assert estimate.camera.dist_coeffs[0] == pytest.approx(K1, rel=0.1)
+    assert (estimate.camera.fx, estimate.camera.cx) == (CAMERA.fx, CAMERA.cx)
+    errors = pose_errors(estimate.T_cam_base, T_true)
+    assert errors[0] < 0.005 and errors[0] < errors_given[0] / 2, (errors, errors_given)
+    assert 0 < estimate.sigma < abs(estimate.shift) / 3
+    doc = estimate.to_dict()
+    assert doc["used"]["distortion"][0] == estimate.camera.dist_coeffs[0]
+    assert doc["given"]["distortion"] == [0.0] * 5
+    assert distortion_finding(doc)[0] == "check"
+    covariance = estimate.pose_covariance
+    assert covariance.shape == (6, 6) and np.all(np.linalg.eigvalsh(covariance) > -1e-15)
+    assert np.trace(covariance) > 0
+
+
+def test_a_distortion_given_right_is_kept(meshes, scene):
+    T_true, P, masks = scene
+    lens = replace(CAMERA, distortion=(K1, 0.0, 0.0, 0.0, 0.0))
+    estimate = fit_distortion(P, meshes, masks, lens, T_true, SearchSettings())
+    assert abs(estimate.shift) < DistortionSettings().min_change, estimate
+    assert not estimate.adopted and "stands" in estimate.reason
+    assert not estimate.pose_covariance.any()
+    assert distortion_finding(estimate.to_dict()) is None
+
+
+def test_the_decision_needs_the_overlap_and_a_change_within_range():
+    settings = DistortionSettings()
+    assert _decision(-0.1, 0.005, 0.60, 0.62, settings)[0]
+    refused, why = _decision(-0.1, 0.005, 0.60, 0.59, settings)
+    assert not refused and "does not agree" in why
+    assert not _decision(-0.1, 0.005, 0.60, 0.6005, settings)[0]   # a gain within the noise
+    assert not _decision(-0.1, 0.05, 0.60, 0.62, settings)[0]      # within 3 sigma
+    assert not _decision(0.005, 1e-5, 0.60, 0.62, settings)[0]     # below min_change
+    assert not _decision(-0.1, float("nan"), 0.60, 0.62, settings)[0]
+    beyond, why = _decision(-0.6, 0.005, 0.60, 0.70, settings)
+    assert not beyond and why.startswith("beyond")
+    record = {"adopted": False, "corner_shift": -0.6, "reason": why}
+    assert distortion_finding(record)[0] == "unreliable"
+
+
+def test_distortion_settings_and_shifts_are_checked():
+    with pytest.raises(InputError, match="min_change"):
+        DistortionSettings(min_change=0.5)
+    with pytest.raises(InputError, match="rounds"):
+        DistortionSettings(rounds=0)
+    with pytest.raises(InputError, match="finite"):
+        with_corner_shift(CAMERA, float("nan"))
+    moved = with_corner_shift(replace(CAMERA, distortion=(0.1, 0.02, 0.0, 0.0, 0.0)), -0.05)
+    assert moved.dist_coeffs[1] == 0.02                       # k2 and the rest kept
+    assert moved.dist_coeffs[0] == pytest.approx(0.1 - 0.05 / corner_radius2(CAMERA))
+
+
+def test_calibrate_fits_a_distortion_given_wrong_and_fixed_distortion_keeps_it(
+        panda, meshes, tmp_path, capsys):
+    """Images of an undistorted lens given with k1 = K1 (a rectified recording given its raw
+    camera): the search adopts the radial shift that undoes it, RESULT.json and the verdict
+    say so, the overlay draws through it; `--fixed-distortion` keeps the given one and lands
+    farther off."""
+    T_true = image_dataset(panda, meshes, tmp_path)
+    seq = read_sequence(tmp_path / "data")
+    write_dream(replace(seq, camera=replace(seq.camera, distortion=(K1, 0.0, 0.0, 0.0, 0.0))),
+                tmp_path / "raw")
+    position = np.linalg.inv(off_by(T_true, GUESS_M, GUESS_RAD, 3))[:3, 3]
+    guess = ["--camera-guess", ",".join(f"{v:.3f}" for v in position),
+             "--look-at", ",".join(f"{v:.3f}" for v in TARGET)]
+    out = tmp_path / "r.json"
+    code = main(["calibrate", "--data", str(tmp_path / "raw"), "--out", str(out)] + guess)
+    printed, err = capsys.readouterr()
+    assert code == 0, err
+    assert "distortion k1" in printed and "lens distortion: adopted" in err
+    doc = json.loads(out.read_text())
+    record = doc["start"]["distortion"]
+    assert record["adopted"] and abs(record["used"]["distortion"][0]) < abs(K1) / 4, record
+    error = pose_errors(np.asarray(doc["T_cam_base"]), T_true)[0]
+    assert error < 0.01
+    assert doc["quality"]["verdict"] == "check"
+    assert any("lens distortion" in w for w in doc["quality"]["warnings"])
+    assert main(["overlay", str(tmp_path / "raw"), "--extrinsic", str(out),
+                 "--out", str(tmp_path / "overlays"), "--limit", "1"]) == 0
+    assert "fitted by the calibration" in capsys.readouterr()[0]
+    fixed = tmp_path / "fixed.json"
+    code = main(["calibrate", "--data", str(tmp_path / "raw"), "--out", str(fixed),
+                 "--fixed-distortion"] + guess)
+    capsys.readouterr()
+    assert code == 0
+    doc = json.loads(fixed.read_text())
+    assert doc["start"]["distortion"] is None
+    assert pose_errors(np.asarray(doc["T_cam_base"]), T_true)[0] > error
