@@ -32,7 +32,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -50,6 +50,7 @@ from dream.refined_uncertainty import (
     jackknife_spread,
     links_with_points,
 )
+from dream.settings_checks import check_fields
 from dream.transforms import R_from_rotvec
 
 if TYPE_CHECKING:
@@ -211,6 +212,79 @@ class _Problem:
     def retract(self, x: tuple[np.ndarray, np.ndarray], dx: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray]:
         return apply_increment(x[0], dx[:6]), x[1] + dx[6:]
+
+
+WITHIN, REFUTED, BEYOND, ADOPTED = "within", "refuted", "beyond", "adopted"
+
+
+@dataclass(frozen=True)
+class ParameterSettings:
+    """How one camera parameter is fitted with the pose (`fit_parameter`) and when it is
+    adopted (`decide`): the fields `dream.coarse.focal.FocalSettings` and
+    `dream.coarse.distortion.DistortionSettings` share, each with its own defaults and words.
+
+    Attributes:
+        fit: fit it at all (False keeps the given camera and reports nothing).
+        rounds: finish / contour / joint-fit rounds at most; they stop after a step below
+            `step_tolerance` or a value beyond twice `max_change`.
+        lm_iterations: Levenberg-Marquardt linearisations per joint fit.
+        jackknife_groups: frame groups of the 1-sigma.
+        min_sigmas, min_change: adopted only beyond both (|value|).
+        min_iou_gain: adopted only where the finish's IoU through the fitted camera beats the
+            given one's by more than this (the overlap is a second cue).
+        max_change: beyond this |value|, nothing is adopted and the verdict says why.
+        derivative_step: the central difference's step in the value.
+        sensitivity_step: the step of the pose's sensitivity to it (the finishes at +- this).
+        sigma_floor: added in quadrature to the jackknife's 1-sigma where an adopted value's
+            uncertainty enters the pose's.
+    """
+
+    fit: bool = True
+    rounds: int = 6
+    lm_iterations: int = 10
+    step_tolerance: float = 1e-3
+    jackknife_groups: int = 5
+    min_sigmas: float = 3.0
+    min_change: float = 0.002
+    min_iou_gain: float = 0.001
+    max_change: float = 0.15
+    derivative_step: float = 1e-4
+    sensitivity_step: float = 0.01
+    sigma_floor: float = 0.005
+    what: ClassVar[str] = "camera parameter fit"
+
+    def __post_init__(self) -> None:
+        check_fields(self, self.what, positive_ints=("rounds", "lm_iterations",
+                                                     "jackknife_groups"),
+                     positive=("step_tolerance", "max_change", "derivative_step",
+                               "sensitivity_step", "sigma_floor"),
+                     non_negative=("min_sigmas", "min_change", "min_iou_gain"))
+        if self.min_change >= self.max_change:
+            raise InputError(f"{self.what}: min_change must lie below max_change")
+
+    def decide(self, value: float, sigma: float, iou_given: float, iou_fitted: float) -> str:
+        """`ADOPTED`, or why not: `WITHIN` (|value| within `min_sigmas` 1-sigmas or
+        `min_change`, or no 1-sigma), `REFUTED` (the overlap gains no more than
+        `min_iou_gain`), `BEYOND` (both cues ask for more than `max_change`).
+
+        >>> settings = ParameterSettings()
+        >>> [settings.decide(0.04, 0.003, 0.5, iou) for iou in (0.51, 0.5)]
+        ['adopted', 'refuted']
+        >>> settings.decide(0.04, 0.02, 0.5, 0.6), settings.decide(0.3, 0.003, 0.5, 0.6)
+        ('within', 'beyond')
+        """
+        if not np.isfinite(sigma) or abs(value) <= max(self.min_change,
+                                                       self.min_sigmas * sigma):
+            return WITHIN
+        if not iou_fitted > iou_given + self.min_iou_gain:
+            return REFUTED
+        return BEYOND if abs(value) > self.max_change else ADOPTED
+
+    @property
+    def how(self) -> ParameterRounds:
+        """How `fit_parameter` runs under these settings."""
+        return ParameterRounds(self.rounds, self.step_tolerance, 2 * self.max_change,
+                               self.jackknife_groups, self.sensitivity_step)
 
 
 @dataclass(frozen=True)

@@ -29,60 +29,36 @@ image size; k2 and the tangential terms stay as given. The shift is adopted wher
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import ClassVar
 
 import numpy as np
 
 from dream.camera import CameraIntrinsics
-from dream.coarse.camera_fit import CameraFit, ParameterRounds, fit_parameter
+from dream.coarse.camera_fit import (
+    BEYOND,
+    REFUTED,
+    WITHIN,
+    CameraFit,
+    ParameterSettings,
+    fit_parameter,
+)
 from dream.coarse.carried import CarriedRegion
 from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
-from dream.settings_checks import check_fields
 from dream.silhouette import RobotMeshes
 
 
 @dataclass(frozen=True)
-class DistortionSettings:
-    """How the radial distortion is fitted and when it is adopted (module doc).
+class DistortionSettings(ParameterSettings):
+    """How the radial distortion is fitted and when it is adopted (module doc; the fields of
+    `dream.coarse.camera_fit.ParameterSettings`, the value the corner shift): `min_change`
+    0.01 moves the corner of a 640x480 image by 4 px; beyond `max_change` 0.4 the lens is one
+    plumb_bob's k1 does not describe."""
 
-    Attributes:
-        fit: fit it at all (False keeps the given distortion and reports nothing).
-        rounds: finish / contour / joint-fit rounds at most.
-        lm_iterations: Levenberg-Marquardt linearisations per joint fit.
-        step_tolerance: the rounds stop after a step in the corner shift below this.
-        jackknife_groups: frame groups of the 1-sigma.
-        min_sigmas, min_change: adopted only beyond both (|corner shift|; 0.01 moves the
-            corner of a 640x480 image by 4 px).
-        min_iou_gain: adopted only where the finish's IoU through the fitted camera beats the
-            given one's by more than this (`dream.coarse.focal.FocalSettings.min_iou_gain`).
-        max_change: beyond this |corner shift|, nothing is adopted and the verdict says why.
-        derivative_step: the central difference's step in the corner shift.
-        sensitivity_step: the step of the pose's sensitivity to it.
-        sigma_floor: added in quadrature to the jackknife's 1-sigma where an adopted shift's
-            uncertainty enters the pose's (`DistortionEstimate.pose_covariance`).
-    """
-
-    fit: bool = True
-    rounds: int = 6
-    lm_iterations: int = 10
-    step_tolerance: float = 1e-3
-    jackknife_groups: int = 5
-    min_sigmas: float = 3.0
     min_change: float = 0.01
-    min_iou_gain: float = 0.001
     max_change: float = 0.4
     derivative_step: float = 1e-3
-    sensitivity_step: float = 0.01
-    sigma_floor: float = 0.005
-
-    def __post_init__(self) -> None:
-        check_fields(self, "distortion fit", positive_ints=("rounds", "lm_iterations",
-                                                            "jackknife_groups"),
-                     positive=("step_tolerance", "max_change", "derivative_step",
-                               "sensitivity_step", "sigma_floor"),
-                     non_negative=("min_sigmas", "min_change", "min_iou_gain"))
-        if self.min_change >= self.max_change:
-            raise InputError("distortion fit: min_change must lie below max_change")
+    what: ClassVar[str] = "distortion fit"
 
 
 @dataclass(frozen=True)
@@ -163,10 +139,8 @@ def fit_distortion(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
     settings = settings or DistortionSettings()
     fit = CameraFit(lambda c, p: with_corner_shift(c, float(p[0])), 1,
                     settings.derivative_step, settings.lm_iterations)
-    how = ParameterRounds(settings.rounds, settings.step_tolerance, 2 * settings.max_change,
-                          settings.jackknife_groups, settings.sensitivity_step)
     fitted = fit_parameter(P, meshes, masks, lambda v: with_corner_shift(camera, v),
-                           T_cam_base, search, fit, how, held, region)
+                           T_cam_base, search, fit, settings.how, held, region)
     adopted, reason = _decision(fitted.value, fitted.sigma, fitted.iou_given,
                                 fitted.iou_fitted, settings)
     return DistortionEstimate(fitted.value, fitted.sigma, fitted.iou_given, fitted.iou_fitted,
@@ -188,16 +162,16 @@ def _decision(shift: float, sigma: float, iou_given: float, iou_fitted: float,
     False
     """
     told = f"{100 * shift:+.1f} % at the corner (1-sigma {100 * sigma:.1f} %)"
-    if not np.isfinite(sigma) or abs(shift) <= max(settings.min_change,
-                                                   settings.min_sigmas * sigma):
+    decided = settings.decide(shift, sigma, iou_given, iou_fitted)
+    if decided == WITHIN:
         return False, (f"the given distortion stands: the outlines ask for a radial shift of "
                        f"{told}, within {settings.min_sigmas:g} sigma or "
                        f"{100 * settings.min_change:g} %")
-    if not iou_fitted > iou_given + settings.min_iou_gain:
+    if decided == REFUTED:
         return False, (f"the given distortion stands: the outlines ask for a radial shift of "
                        f"{told}, but the overlap does not agree (IoU {iou_given:.3f} -> "
                        f"{iou_fitted:.3f})")
-    if abs(shift) > settings.max_change:
+    if decided == BEYOND:
         return False, (f"beyond {settings.max_change:.0%}: the outlines and the overlap ask "
                        f"for a radial shift of {told}; the given distortion was kept")
     return True, (f"the outlines ask for a radial shift of {told}, and the overlap agrees "

@@ -35,65 +35,40 @@ adopted only where
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import ClassVar
 
 import numpy as np
 
 from dream.camera import CameraIntrinsics
-from dream.coarse.camera_fit import CameraFit, ParameterRounds, fit_parameter, parameter_sigma
+from dream.coarse.camera_fit import (
+    BEYOND,
+    REFUTED,
+    WITHIN,
+    CameraFit,
+    ParameterSettings,
+    fit_parameter,
+    parameter_sigma,
+)
 from dream.coarse.carried import CarriedRegion
 from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
 from dream.polish.objective import Contour, Objective
-from dream.settings_checks import check_fields
 from dream.silhouette import RobotMeshes
 
 
 @dataclass(frozen=True)
-class FocalSettings:
-    """How the focal-length scale is fitted and when it is adopted (module doc).
+class FocalSettings(ParameterSettings):
+    """How the focal-length scale is fitted and when it is adopted (module doc; the fields of
+    `dream.coarse.camera_fit.ParameterSettings`, the value log s).
 
-    Attributes:
-        fit: fit it at all (False keeps the given intrinsics and reports nothing).
-        rounds: finish / contour / joint-fit rounds at most.
-        lm_iterations: Levenberg-Marquardt linearisations per joint fit.
-        step_tolerance: the rounds stop after a step in log s below this.
-        jackknife_groups: frame groups of the 1-sigma.
-        min_sigmas, min_change: adopted only beyond both (|log s|).
-        min_iou_gain: adopted only where the finish's IoU through the fitted camera beats the
-            given one's by more than this (set on rendered scenes: given fx, fy 4 % off, the
-            adopted scales gained 0.0027-0.0225; given them right, the scales beyond 3 sigma
-            gained at most 0.00003, xarm7 seed 1000's automatic search).
-        max_change: beyond this |log s|, nothing is adopted and the verdict says why.
-        derivative_step: the central difference's step in log s.
-        sensitivity_step: the step in log s of the pose's sensitivity to it (the finish at
-            the fitted scale times exp(+-this)).
-        sigma_floor: added in quadrature to the jackknife's 1-sigma of log s where an adopted
-            scale's uncertainty enters the pose's (`FocalEstimate.pose_covariance`; set on
-            rendered scenes given fx, fy 4 % off: the adopted scales lay 0.03-1.6 % from the
-            truth, rms 0.66 %, where the jackknife said 0.05-0.9 %).
+    The defaults were set on rendered scenes: `min_iou_gain`, given fx, fy 4 % off, the
+    adopted scales gained 0.0027-0.0225, and given them right the scales beyond 3 sigma gained
+    at most 0.00003 (xarm7 seed 1000's automatic search); `sigma_floor`, given fx, fy 4 % off,
+    the adopted scales lay 0.03-1.6 % from the truth, rms 0.66 %, where the jackknife said
+    0.05-0.9 %.
     """
 
-    fit: bool = True
-    rounds: int = 6
-    lm_iterations: int = 10
-    step_tolerance: float = 1e-3
-    jackknife_groups: int = 5
-    min_sigmas: float = 3.0
-    min_change: float = 0.002
-    min_iou_gain: float = 0.001
-    max_change: float = 0.15
-    derivative_step: float = 1e-4
-    sensitivity_step: float = 0.01
-    sigma_floor: float = 0.005
-
-    def __post_init__(self) -> None:
-        check_fields(self, "focal fit", positive_ints=("rounds", "lm_iterations",
-                                                       "jackknife_groups"),
-                     positive=("step_tolerance", "max_change", "derivative_step",
-                               "sensitivity_step", "sigma_floor"),
-                     non_negative=("min_sigmas", "min_change", "min_iou_gain"))
-        if self.min_change >= self.max_change:
-            raise InputError("focal fit: min_change must lie below max_change")
+    what: ClassVar[str] = "focal fit"
 
 
 @dataclass(frozen=True)
@@ -179,7 +154,7 @@ def fit_focal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray, camera: Cam
     settings = settings or FocalSettings()
     fitted = fit_parameter(P, meshes, masks,
                            lambda log_s: with_focal_scale(camera, float(np.exp(log_s))),
-                           T_cam_base, search, camera_fit(settings), _rounds(settings), held,
+                           T_cam_base, search, camera_fit(settings), settings.how, held,
                            region)
     log_s, sigma = fitted.value, fitted.sigma
     adopted, reason = _decision(log_s, sigma, fitted.iou_given, fitted.iou_fitted, settings)
@@ -188,12 +163,6 @@ def fit_focal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray, camera: Cam
                          with_focal_scale(camera, float(np.exp(log_s))), camera,
                          fitted.T_cam_base, fitted.xi_per_unit,
                          float(np.hypot(np.nan_to_num(sigma), settings.sigma_floor)))
-
-
-def _rounds(settings: FocalSettings) -> ParameterRounds:
-    """How `fit_parameter` runs for the focal length (its value log s)."""
-    return ParameterRounds(settings.rounds, settings.step_tolerance, 2 * settings.max_change,
-                           settings.jackknife_groups, settings.sensitivity_step)
 
 
 def _sigma(objective: Objective, contour: Contour, T: np.ndarray, settings: FocalSettings,
@@ -215,14 +184,14 @@ def _decision(log_s: float, sigma: float, iou_given: float, iou_fitted: float,
     False
     """
     told = f"x{np.exp(log_s):.3f} (1-sigma {100 * sigma:.1f} %)"
-    if not np.isfinite(sigma) or abs(log_s) <= max(settings.min_change,
-                                                   settings.min_sigmas * sigma):
+    decided = settings.decide(log_s, sigma, iou_given, iou_fitted)
+    if decided == WITHIN:
         return False, (f"the given fx, fy stand: the outlines ask for {told}, within "
                        f"{settings.min_sigmas:g} sigma or {100 * settings.min_change:g} %")
-    if not iou_fitted > iou_given + settings.min_iou_gain:
+    if decided == REFUTED:
         return False, (f"the given fx, fy stand: the outlines ask for {told}, but the overlap "
                        f"does not agree (IoU {iou_given:.3f} -> {iou_fitted:.3f})")
-    if abs(log_s) > settings.max_change:
+    if decided == BEYOND:
         return False, (f"beyond {settings.max_change:.0%}: the outlines and the overlap ask "
                        f"for fx, fy {told}; the given ones were kept")
     return True, (f"the outlines ask for fx, fy {told}, and the overlap agrees (IoU "
