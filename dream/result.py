@@ -101,7 +101,7 @@ def written_poses(doc: dict[str, Any]) -> np.ndarray:
     return out
 
 
-def adopted_intrinsics(doc: dict[str, Any]) -> dict[str, float]:
+def adopted_intrinsics(doc: dict[str, Any]) -> dict[str, Any]:
     """The intrinsics a RESULT.json's pose was calibrated through where the calibration
     adopted those the robot's outlines asked for: `fx`, `fy` of an adopted focal length
     (`start.focal` of the search without keypoints, `focal` of the keypoint path), `cx`, `cy`
