@@ -4,7 +4,7 @@ distortion coefficients left out), bend the arm's outline by a share of its dist
 image centre growing with the square of it: no pose through the given camera matches every
 frame, and the search settles centimetres off with a principal point or a focal length that
 makes up for part of it (on nine rendered scenes of three arms at 640x480 through fx = fy =
-420 px, k1 -0.2, k2 0.05, given without them: 22-56 mm and up to 5.8 deg off, a principal point
+420 px, k1 -0.2, k2 0.05, given without them: 21-79 mm and up to 5.8 deg off, a principal point
 3.4-5.9 deg off adopted in three, the truth outside every 95 % ellipsoid).
 
 Fitted as the focal length is (`dream.coarse.camera_fit.fit_parameter`): from the search's
