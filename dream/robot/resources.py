@@ -66,13 +66,22 @@ def robot_data_dir() -> Path:
     return share_dir() / ROBOT_DATA_PACKAGE
 
 
-def _ros_package_dirs(package: str) -> list[Path]:
+def _ros_package_dirs(package: str) -> tuple[Path, ...]:
     """Folders named `package` that the ROS environment variables point to (ROS 1 and ROS 2)."""
+    return _package_dirs_under(package, os.environ.get(AMENT_PREFIX_PATH, ""),
+                               os.environ.get(ROS_PACKAGE_PATH, ""))
+
+
+@functools.lru_cache(maxsize=64)
+def _package_dirs_under(package: str, ament_prefix_path: str, ros_package_path: str
+                        ) -> tuple[Path, ...]:
+    """`_ros_package_dirs` for these variables' values: the walk of `ROS_PACKAGE_PATH`'s roots
+    runs once per package, not once per mesh of a URDF."""
     found: list[Path] = []
-    for prefix in os.environ.get(AMENT_PREFIX_PATH, "").split(os.pathsep):
+    for prefix in ament_prefix_path.split(os.pathsep):
         if prefix:
             found.append(Path(prefix) / "share" / package)
-    for root in os.environ.get(ROS_PACKAGE_PATH, "").split(os.pathsep):
+    for root in ros_package_path.split(os.pathsep):
         if not root or not Path(root).is_dir():
             continue
         found.append(Path(root) / package)
@@ -80,7 +89,7 @@ def _ros_package_dirs(package: str) -> list[Path]:
             found += [m.parent for m in Path(root).glob("/".join(["*"] * depth) + "/"
                                                         + PACKAGE_MANIFEST)
                       if m.parent.name == package]
-    return found
+    return tuple(found)
 
 
 def _package_candidates(uri: str, urdf_path: Path) -> tuple[list[Path], list[Path]]:
