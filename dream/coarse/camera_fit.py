@@ -276,15 +276,41 @@ class ParameterSettings:
         if not np.isfinite(sigma) or abs(value) <= max(self.min_change,
                                                        self.min_sigmas * sigma):
             return WITHIN
-        if not iou_fitted > iou_given + self.min_iou_gain:
+        if not overlap_agrees(iou_given, iou_fitted, self.min_iou_gain):
             return REFUTED
         return BEYOND if abs(value) > self.max_change else ADOPTED
+
+    def sigma_used(self, sigma: float) -> float:
+        """The 1-sigma an adopted value's uncertainty enters the pose's with: `sigma` (0 where
+        NaN) and `sigma_floor` in quadrature."""
+        return float(np.hypot(np.nan_to_num(sigma), self.sigma_floor))
 
     @property
     def how(self) -> ParameterRounds:
         """How `fit_parameter` runs under these settings."""
         return ParameterRounds(self.rounds, self.step_tolerance, 2 * self.max_change,
                                self.jackknife_groups, self.sensitivity_step)
+
+
+def overlap_agrees(iou_given: float, iou_asked: float, min_gain: float) -> bool:
+    """Whether the finish's IoU through the camera the outlines ask for beats the IoU through
+    the given one by more than `min_gain` (the second cue every intrinsics fit needs; NaN:
+    no).
+
+    >>> overlap_agrees(0.50, 0.52, 0.001), overlap_agrees(0.50, 0.5005, 0.001)
+    (True, False)
+    """
+    return bool(iou_asked > iou_given + min_gain)
+
+
+def adopted_pose_covariance(adopted: bool, sigma_used: float, xi_per_unit: np.ndarray
+                            ) -> np.ndarray:
+    """(6, 6) what an adopted camera parameter's 1-sigma `sigma_used` adds to the pose's
+    covariance through the pose's move per unit of it, `xi_per_unit` (6,); zero where it was
+    not adopted (the given camera is then taken as it is)."""
+    if not adopted:
+        return np.zeros((6, 6))
+    return sigma_used ** 2 * np.outer(xi_per_unit, xi_per_unit)
 
 
 @dataclass(frozen=True)

@@ -40,6 +40,7 @@ from dream.coarse.camera_fit import (
     WITHIN,
     CameraFit,
     ParameterSettings,
+    adopted_pose_covariance,
     fit_parameter,
 )
 from dream.coarse.carried import CarriedRegion
@@ -93,9 +94,7 @@ class DistortionEstimate:
     def pose_covariance(self) -> np.ndarray:
         """(6, 6) what the adopted shift's uncertainty adds to the pose's covariance (zero
         where it was not adopted)."""
-        if not self.adopted:
-            return np.zeros((6, 6))
-        return self.sigma_used ** 2 * np.outer(self.xi_per_shift, self.xi_per_shift)
+        return adopted_pose_covariance(self.adopted, self.sigma_used, self.xi_per_shift)
 
     def to_dict(self) -> dict:
         return {"corner_shift": self.shift,
@@ -147,8 +146,7 @@ def fit_distortion(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
                               fitted.rounds, adopted, reason,
                               with_corner_shift(camera, fitted.value), camera,
                               fitted.T_cam_base, fitted.xi_per_unit,
-                              float(np.hypot(np.nan_to_num(fitted.sigma),
-                                             settings.sigma_floor)))
+                              settings.sigma_used(fitted.sigma))
 
 
 def _decision(shift: float, sigma: float, iou_given: float, iou_fitted: float,

@@ -46,6 +46,7 @@ from dream.coarse.camera_fit import (
     WITHIN,
     CameraFit,
     ParameterSettings,
+    adopted_pose_covariance,
     fit_parameter,
     parameter_sigma,
 )
@@ -106,9 +107,7 @@ class FocalEstimate:
     def pose_covariance(self) -> np.ndarray:
         """(6, 6) what the adopted scale's uncertainty adds to the pose's covariance (zero
         where it was not adopted: the given intrinsics are then taken as they are)."""
-        if not self.adopted:
-            return np.zeros((6, 6))
-        return self.sigma_used ** 2 * np.outer(self.xi_per_log_scale, self.xi_per_log_scale)
+        return adopted_pose_covariance(self.adopted, self.sigma_used, self.xi_per_log_scale)
 
     def to_dict(self) -> dict:
         given = self.given
@@ -162,7 +161,7 @@ def fit_focal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray, camera: Cam
                          fitted.rounds, adopted, reason,
                          with_focal_scale(camera, float(np.exp(log_s))), camera,
                          fitted.T_cam_base, fitted.xi_per_unit,
-                         float(np.hypot(np.nan_to_num(sigma), settings.sigma_floor)))
+                         settings.sigma_used(sigma))
 
 
 def _sigma(objective: Objective, contour: Contour, T: np.ndarray, settings: FocalSettings,

@@ -59,6 +59,7 @@ from dream.coarse.camera_fit import (
     CameraFit,
     finest_objective,
     frame_group_keeps,
+    overlap_agrees,
     principal_turn,
 )
 from dream.coarse.carried import CarriedRegion
@@ -363,7 +364,7 @@ def _decision(shift: np.ndarray, sigma: np.ndarray, angle_rad: float, carried: b
     if not np.any(np.abs(shift) > settings.min_sigmas * np.nan_to_num(sigma, nan=np.inf)):
         return False, (f"the given cx, cy stand: the outlines ask for {told}, within "
                        f"{settings.min_sigmas:g} sigma")
-    if ious is not None and not ious[1] > ious[0] + settings.min_iou_gain:
+    if ious is not None and not overlap_agrees(*ious, settings.min_iou_gain):
         return False, (f"the given cx, cy stand: the outlines ask for {told}, but the overlap "
                        f"does not agree (IoU {ious[0]:.3f} -> {ious[1]:.3f})")
     return True, f"the outlines ask for the principal point {told}"
