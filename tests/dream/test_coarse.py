@@ -343,14 +343,20 @@ def parked_dataset(panda, meshes, folder, parked: int, moving: int) -> np.ndarra
     return T_true
 
 
+def guess_flags(T_true: np.ndarray, offset_m: float, offset_rad: float) -> list[str]:
+    """`--camera-guess X,Y,Z --look-at X,Y,Z` of a camera `offset_m` / `offset_rad` off
+    `T_true` (`off_by`'s direction of seed 3), looking at TARGET."""
+    position = invert_T(off_by(T_true, offset_m, offset_rad, 3))[:3, 3]
+    return ["--camera-guess", ",".join(f"{v:.3f}" for v in position),
+            "--look-at", ",".join(f"{v:.3f}" for v in TARGET)]
+
+
 def calibrated_from_a_guess(T_true: np.ndarray, folder, capsys, *options: str) -> dict:
     """RESULT.json of `dream calibrate` without keypoints of `folder`/data from a guess 10 cm
     / 5 deg off `T_true` (more `options` passed on), checked to exit 0."""
-    position = invert_T(off_by(T_true, 0.1, np.deg2rad(5.0), 3))[:3, 3]
     out = folder / "r.json"
     code = main(["calibrate", "--data", str(folder / "data"), "--out", str(out),
-                 "--camera-guess", ",".join(f"{v:.3f}" for v in position),
-                 "--look-at", ",".join(f"{v:.3f}" for v in TARGET), *options])
+                 *guess_flags(T_true, 0.1, np.deg2rad(5.0)), *options])
     assert code == 0, capsys.readouterr().err
     return json.loads(out.read_text())
 

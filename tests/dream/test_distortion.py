@@ -26,8 +26,8 @@ from dream.errors import InputError
 from dream.io import read_sequence, write_dream
 from dream.metrics import pose_errors
 from dream.silhouette import render_silhouette, vertices_in_base
-from tests.dream.test_coarse import GUESS_M, GUESS_RAD, off_by
-from tests.dream.test_edges import CAMERA, TARGET, edge_scene, image_dataset
+from tests.dream.test_coarse import GUESS_M, GUESS_RAD, guess_flags
+from tests.dream.test_edges import CAMERA, edge_scene, image_dataset
 
 K1 = -0.25          # a wide lens's barrel distortion (corner of the 320x240 image: -16 %)
 FRAMES = 12
@@ -112,9 +112,7 @@ def test_calibrate_fits_a_distortion_given_wrong_and_fixed_distortion_keeps_it(
     seq = read_sequence(tmp_path / "data")
     write_dream(replace(seq, camera=replace(seq.camera, distortion=(K1, 0.0, 0.0, 0.0, 0.0))),
                 tmp_path / "raw")
-    position = np.linalg.inv(off_by(T_true, GUESS_M, GUESS_RAD, 3))[:3, 3]
-    guess = ["--camera-guess", ",".join(f"{v:.3f}" for v in position),
-             "--look-at", ",".join(f"{v:.3f}" for v in TARGET)]
+    guess = guess_flags(T_true, GUESS_M, GUESS_RAD)
     out = tmp_path / "r.json"
     code = main(["calibrate", "--data", str(tmp_path / "raw"), "--out", str(out)] + guess)
     printed, err = capsys.readouterr()

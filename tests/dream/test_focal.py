@@ -27,8 +27,8 @@ from dream.metrics import pose_errors
 from dream.polish.objective import Contour, Objective, signed_distance
 from dream.polish.settings import PolishSettings
 from dream.silhouette import vertices_in_base
-from tests.dream.test_coarse import GUESS_M, GUESS_RAD, SMALL, off_by, rendered_masks
-from tests.dream.test_edges import CAMERA, TARGET, image_dataset
+from tests.dream.test_coarse import GUESS_M, GUESS_RAD, SMALL, guess_flags, rendered_masks
+from tests.dream.test_edges import CAMERA, image_dataset
 
 GIVEN_SHORT = 1 / 1.05      # fx, fy given 5 % short of those the masks were rendered with
 FRAMES = 12
@@ -140,9 +140,7 @@ def test_calibrate_fits_a_focal_length_given_short_and_fixed_focal_keeps_it(
     seq = read_sequence(tmp_path / "data")
     write_dream(replace(seq, camera=with_focal_scale(seq.camera, GIVEN_SHORT)),
                 tmp_path / "short")
-    position = np.linalg.inv(off_by(T_true, GUESS_M, GUESS_RAD, 3))[:3, 3]
-    guess = ["--camera-guess", ",".join(f"{v:.3f}" for v in position),
-             "--look-at", ",".join(f"{v:.3f}" for v in TARGET)]
+    guess = guess_flags(T_true, GUESS_M, GUESS_RAD)
     out = tmp_path / "r.json"
     code = main(["calibrate", "--data", str(tmp_path / "short"), "--out", str(out)] + guess)
     printed, err = capsys.readouterr()
