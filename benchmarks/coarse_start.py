@@ -336,7 +336,10 @@ def calibrate(data: Path, out: Path, guess: Path | None,
     distortion = (doc.get("start") or {}).get("distortion")
     return {"focal": ("" if distortion is None else ", radial shift at the corner "
                       f"{100 * distortion['corner_shift']:+.1f} % (1-sigma "
-                      f"{100 * (distortion['sigma'] or float('nan')):.1f} %, IoU "
+                      f"{100 * (distortion['sigma'] or float('nan')):.1f} %"
+                      + ("" if distortion.get("k2_sigma") is None else
+                         f"; {100 * distortion['k2_share']:+.1f} % through k2")
+                      + ", IoU "
                       f"{distortion['iou_given']:.3f} -> {distortion['iou_fitted']:.3f}) "
                       f"{'adopted' if distortion['adopted'] else 'kept as given'}")
             + ("" if focal is None else f", focal x{focal['scale']:.3f} "
@@ -477,6 +480,9 @@ def _adopted_on_keypoint_path(doc: dict) -> str:
     p = check["principal"]
     text = (", outlines ask x{:.3f}, {:+.1f}, {:+.1f} px ({:.2f} deg)".format(
         check["focal"]["scale"], *p["shift_px"], np.rad2deg(p["angle_rad"])))
+    lens = check.get("distortion")
+    if lens is not None and lens["asked"]:
+        text += f", lens distortion asked ({100 * lens['corner_shift']:+.1f} % at the corner)"
     for key, what in (("focal", "fx, fy {fx:.1f}, {fy:.1f}"), ("principal", "cx, cy {cx:.1f}, "
                                                                           "{cy:.1f}")):
         if doc.get(key):

@@ -189,19 +189,21 @@ def _with_intrinsics(doc: dict, check, out: TextIO) -> tuple[dict, list]:
     """The document whose covariance holds what the intrinsics the outlines ask for at the
     silhouettes' optimum move the pose by (`Crosscheck.intrinsics_covariance`), and their
     findings (none where the robot was not found there: no fits)."""
+    from dream.coarse.distortion import crosscheck_distortion_finding
     from dream.coarse.verdict import crosscheck_focal_finding, principal_finding
     from dream.refined_uncertainty import set_covariance
 
     record = doc["silhouette_check"]
     if record["focal"] is None:
         return doc, []
-    print(f"intrinsics on the outlines: {check.focal.reason}; {check.principal.reason}",
-          file=out)
+    print(f"intrinsics on the outlines: {check.distortion.reason}; {check.focal.reason}; "
+          f"{check.principal.reason}", file=out)
     added = check.intrinsics_covariance
     if np.any(added):
         set_covariance(doc, np.asarray(doc["covariance_xi"]) + added)
         doc["uncertainty"]["method"] += " + the move through the intrinsics the outlines ask for"
-    findings = (crosscheck_focal_finding(record["focal"]), principal_finding(record["principal"]))
+    findings = (crosscheck_distortion_finding(record.get("distortion")),
+                crosscheck_focal_finding(record["focal"]), principal_finding(record["principal"]))
     return doc, [f for f in findings if f is not None]
 
 

@@ -126,7 +126,10 @@ def asked_intrinsics(doc: dict, fixed_focal: bool = False, fixed_principal: bool
     outlines then do not tell the camera's intrinsics, and a focal length they ask for may
     only make up for a principal point given wrong; ten rendered grey frames given cx, cy
     24, -16 px off asked for fx, fy x0.918 beyond 6 of its 1-sigmas, the principal point a
-    turn of 3.8 deg within 3: adopted, the pose went from 17 to 125 mm off).
+    turn of 3.8 deg within 3: adopted, the pose went from 17 to 125 mm off); neither where
+    the outlines ask for a lens distortion the given intrinsics leave out (`distortion.asked`:
+    the focal length and the principal point were fitted through a camera that is not
+    adopted, and without it they make up for part of the distortion).
 
     >>> doc = {"silhouette_check": {"ran": True, "focal": {"asked": True, "scale": 0.95},
     ...                             "principal": {"flagged": False, "unresolved": False}}}
@@ -136,10 +139,14 @@ def asked_intrinsics(doc: dict, fixed_focal: bool = False, fixed_principal: bool
     (None, None)
     >>> asked_intrinsics({"silhouette_check": {"ran": False}})
     (None, None)
+    >>> asked_intrinsics({"silhouette_check": {**doc["silhouette_check"],
+    ...                                        "distortion": {"asked": True}}})
+    (None, None)
     """
     check = doc.get("silhouette_check") or {}
     focal, principal = check.get("focal"), check.get("principal")
-    if principal is None or principal["unresolved"]:
+    if (principal is None or principal["unresolved"]
+            or (check.get("distortion") or {}).get("asked")):
         return None, None
     return (focal if focal and focal.get("asked") and not fixed_focal else None,
             principal if principal.get("flagged") and not fixed_principal else None)

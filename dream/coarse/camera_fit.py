@@ -7,11 +7,11 @@ the camera (`camera_at`) and, optionally, how it turns the camera with it (`turn
 rotation C(p) of the camera frame, the pose then C(p) T); `CameraFit.fit` is
 Levenberg-Marquardt over (T, p) on fixed contour points of the finish's objective
 (`dream.polish.objective.Objective`), its derivatives in p by central differences, and
-`CameraFit.jackknife_variance` the delete-one-group jackknife of p over fits that leave groups
-of those points out in turn. `fit_parameter` fits one parameter so from the search's winner
-(the focal length's scale, the lens's radial distortion): rounds of the finish through the
-camera at the current value, its contour points and the joint fit, then the value's 1-sigma
-(`parameter_sigma`), the IoU before and after, and how the pose moves with it.
+`CameraFit.jackknife_covariance` the delete-one-group jackknife of p over fits that leave
+groups of those points out in turn. `fit_parameter` fits the parameters so from the search's
+winner (the focal length's scale, the lens's radial distortion): rounds of the finish through
+the camera at the current values, its contour points and the joint fit, then their covariance
+(`parameter_covariance`), the IoU before and after, and how the pose moves with each.
 
 A parameter whose first-order effect on the image a turn of the camera repeats (a shift of the
 principal point) leaves the fit a long narrow valley, along which Levenberg-Marquardt crawls: on
@@ -152,12 +152,12 @@ class CameraFit:
         return (np.array([increment_between(T, T_k) for T_k, _ in fits]).reshape(-1, 6),
                 np.array([p for _, p in fits]).reshape(-1, self.size))
 
-    def jackknife_variance(self, objective: Objective, contour: Contour, T: np.ndarray,
-                           initial_damping: float, keeps: list[np.ndarray]) -> np.ndarray:
-        """(size,) the delete-one-group jackknife variance of p over `leave_outs`
+    def jackknife_covariance(self, objective: Objective, contour: Contour, T: np.ndarray,
+                             initial_damping: float, keeps: list[np.ndarray]) -> np.ndarray:
+        """(size, size) the delete-one-group jackknife covariance of p over `leave_outs`
         (`dream.refined_uncertainty.jackknife_spread`)."""
-        return np.diag(jackknife_spread(self.leave_outs(objective, contour, T, initial_damping,
-                                                        keeps)[1]))
+        return jackknife_spread(self.leave_outs(objective, contour, T, initial_damping,
+                                                keeps)[1])
 
 
 class _Problem:
@@ -285,6 +285,12 @@ class ParameterSettings:
         NaN) and `sigma_floor` in quadrature."""
         return float(np.hypot(np.nan_to_num(sigma), self.sigma_floor))
 
+    def covariance_used(self, covariance: np.ndarray) -> np.ndarray:
+        """(k, k) the covariance adopted values' uncertainty enters the pose's with: `covariance`
+        (0 where NaN) with `sigma_floor` squared added to each variance."""
+        covariance = np.nan_to_num(np.atleast_2d(np.asarray(covariance, float)))
+        return covariance + self.sigma_floor ** 2 * np.eye(len(covariance))
+
     @property
     def how(self) -> ParameterRounds:
         """How `fit_parameter` runs under these settings."""
@@ -303,14 +309,20 @@ def overlap_agrees(iou_given: float, iou_asked: float, min_gain: float) -> bool:
     return bool(iou_asked > iou_given + min_gain)
 
 
-def adopted_pose_covariance(adopted: bool, sigma_used: float, xi_per_unit: np.ndarray
-                            ) -> np.ndarray:
-    """(6, 6) what an adopted camera parameter's 1-sigma `sigma_used` adds to the pose's
-    covariance through the pose's move per unit of it, `xi_per_unit` (6,); zero where it was
-    not adopted (the given camera is then taken as it is)."""
+def adopted_pose_covariance(adopted: bool, covariance_used: np.ndarray | float,
+                            xi_per_unit: np.ndarray) -> np.ndarray:
+    """(6, 6) what adopted camera parameters' covariance `covariance_used` (k, k), a variance
+    where k is 1, adds to the pose's covariance through the pose's move per unit of each,
+    `xi_per_unit` (6, k); zero where they were not adopted (the given camera is then taken as
+    it is).
+
+    >>> float(adopted_pose_covariance(True, 0.04, np.array([0.5, 0, 0, 0, 0, 0]))[0, 0])
+    0.01
+    """
     if not adopted:
         return np.zeros((6, 6))
-    return sigma_used ** 2 * np.outer(xi_per_unit, xi_per_unit)
+    X = np.asarray(xi_per_unit, float).reshape(6, -1)
+    return X @ np.atleast_2d(covariance_used) @ X.T
 
 
 @dataclass(frozen=True)
@@ -328,38 +340,44 @@ class ParameterRounds:
 
 @dataclass(frozen=True)
 class ParameterFit:
-    """One camera parameter fitted with the pose from the search's winner (`fit_parameter`).
+    """Camera parameters fitted with the pose from the search's winner (`fit_parameter`).
 
     Attributes:
-        value: the parameter where the outlines fit best (0: the camera as given).
-        sigma: its 1-sigma (`parameter_sigma`; NaN without enough frame groups).
+        value: (size,) the parameters where the outlines fit best (0: the camera as given).
+        covariance: (size, size) their covariance (`parameter_covariance`; NaN without enough
+            frame groups).
         iou_given, iou_fitted: the finish's IoU at 0 and at `value` (the pose refined there).
         rounds: the rounds run. T_cam_base: (4, 4) the finish at `value`.
-        xi_per_unit: (6,) how the finish's pose moves (xi of `dream.pnp`) per unit of it.
+        xi_per_unit: (6, size) how the finish's pose moves (xi of `dream.pnp`) per unit of each.
     """
 
-    value: float
-    sigma: float
+    value: np.ndarray
+    covariance: np.ndarray
     iou_given: float
     iou_fitted: float
     rounds: int
     T_cam_base: np.ndarray
     xi_per_unit: np.ndarray
 
+    @property
+    def sigma(self) -> np.ndarray:
+        """(size,) the parameters' 1-sigmas."""
+        return np.sqrt(np.diag(self.covariance))
+
 
 def fit_parameter(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
-                  camera_of: Callable[[float], CameraIntrinsics], T_cam_base: np.ndarray,
+                  camera_of: Callable[[np.ndarray], CameraIntrinsics], T_cam_base: np.ndarray,
                   search: SearchSettings, fit: CameraFit, how: ParameterRounds,
                   held: bool = False, region: CarriedRegion | None = None) -> ParameterFit:
-    """The one parameter (`fit.size` 1) the outlines of the frames P (F, V, 3) in `masks`
-    (F, H, W) ask for, from `T_cam_base` through `camera_of(0)`: rounds of the finish at
-    the current value (`dream.coarse.scales.finish_scale` through `camera_of(value)`), its
-    contour points and the joint fit over (pose, step) on them; `held`, `region`: as the
-    search's `Scales`. With something carried (`region`) the 1-sigma also spans the links."""
-    def scales_at(value: float) -> Scales:
+    """The `fit.size` parameters the outlines of the frames P (F, V, 3) in `masks` (F, H, W)
+    ask for, from `T_cam_base` through `camera_of(0)`: rounds of the finish at the current
+    values (`dream.coarse.scales.finish_scale` through `camera_of(values)`), its contour points
+    and the joint fit over (pose, step) on them; `held`, `region`: as the search's `Scales`.
+    With something carried (`region`) the covariance also spans the links."""
+    def scales_at(value: np.ndarray) -> Scales:
         return finish_scale(P, meshes, masks, camera_of(value), search, None, held, region)
 
-    value, T, iou_given, done = 0.0, np.asarray(T_cam_base, float), float("nan"), 0
+    value, T, iou_given, done = np.zeros(fit.size), np.asarray(T_cam_base, float), np.nan, 0
     objective: Objective | None = None
     for done in range(1, how.rounds + 1):
         scales = scales_at(value)
@@ -371,40 +389,44 @@ def fit_parameter(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
                      else objective.with_camera(scales.levels[-1][0]))
         contour = scales.contour(T)
         T, p = fit.fit(objective, contour, T, scales.params.initial_damping)
-        value += float(p[0])
-        log.debug("camera parameter round %d: %.4f (step %+.4f)", done, value, p[0])
-        if abs(p[0]) < how.step_tolerance or abs(value) > how.stop_beyond:
+        value = value + p
+        log.debug("camera parameters round %d: %s (step %s)", done, np.round(value, 4),
+                  np.round(p, 4))
+        if np.max(np.abs(p)) < how.step_tolerance or np.max(np.abs(value)) > how.stop_beyond:
             break
-    sigma = parameter_sigma(fit, objective, contour, T, scales.params.initial_damping, len(P),
-                            how.jackknife_groups, meshes, by_links=region is not None)
+    covariance = parameter_covariance(fit, objective, contour, T, scales.params.initial_damping,
+                                      len(P), how.jackknife_groups, meshes,
+                                      by_links=region is not None)
     final = scales_at(value)
     T = final.refine(T)
     iou_fitted = final.iou(T)
     h = how.sensitivity_step
-    ends = [scales_at(value + d).refine(T) for d in (h, -h)]
-    xi = (increment_between(T, ends[0]) - increment_between(T, ends[1])) / (2 * h)
-    return ParameterFit(value, sigma, iou_given, iou_fitted, done, T, xi)
+    xi = np.zeros((6, fit.size))
+    for i, axis in enumerate(np.eye(fit.size) * h):
+        ends = [scales_at(value + d).refine(T) for d in (axis, -axis)]
+        xi[:, i] = (increment_between(T, ends[0]) - increment_between(T, ends[1])) / (2 * h)
+    return ParameterFit(value, covariance, iou_given, iou_fitted, done, T, xi)
 
 
-def parameter_sigma(fit: CameraFit, objective: Objective, contour: Contour, T: np.ndarray,
-                    initial_damping: float, frames: int, groups: int, meshes: RobotMeshes,
-                    by_links: bool) -> float:
-    """The 1-sigma of a one-parameter fit's value: the delete-one-group jackknife over
-    `groups` frame groups of the contour points, with `by_links` in quadrature with that over
-    the links with at least `JACKKNIFE_MIN_CONTOUR_POINTS` of them (NaN with fewer than
-    `MIN_GROUPS` frame groups; the links' left out where fewer than `MIN_GROUPS` links have
-    points). What the arm carries pulls the outline of the link it moves with alike in every
-    frame, which the frame groups do not see."""
+def parameter_covariance(fit: CameraFit, objective: Objective, contour: Contour,
+                         T: np.ndarray, initial_damping: float, frames: int, groups: int,
+                         meshes: RobotMeshes, by_links: bool) -> np.ndarray:
+    """(size, size) the covariance of a fit's parameters: the delete-one-group jackknife over
+    `groups` frame groups of the contour points, with `by_links` that over the links with at
+    least `JACKKNIFE_MIN_CONTOUR_POINTS` of them added (NaN with fewer than `MIN_GROUPS` frame
+    groups; the links' left out where fewer than `MIN_GROUPS` links have points). What the arm
+    carries pulls the outline of the link it moves with alike in every frame, which the frame
+    groups do not see."""
     keeps = frame_group_keeps(contour, frames, groups)
     if keeps is None:
-        return float("nan")
-    variance = fit.jackknife_variance(objective, contour, T, initial_damping, keeps)
+        return np.full((fit.size, fit.size), np.nan)
+    covariance = fit.jackknife_covariance(objective, contour, T, initial_damping, keeps)
     if by_links and contour.vertex is not None:
         link = meshes.vertex_link[contour.vertex]
         links = links_with_points(meshes.vertex_link, contour.vertex, meshes.links,
                                   JACKKNIFE_MIN_CONTOUR_POINTS)
         if len(links) >= MIN_GROUPS:
-            variance = variance + fit.jackknife_variance(
+            covariance = covariance + fit.jackknife_covariance(
                 objective, contour, T, initial_damping,
                 [link != meshes.links.index(name) for name in links])
-    return float(np.sqrt(variance[0]))
+    return covariance

@@ -12,13 +12,18 @@ keypoint pose is written instead; not where their optimum agrees with the aligne
 anyway.
 
 At the silhouettes' optimum the outlines also check the given intrinsics, as after the search:
-the focal length (`dream.coarse.focal`: a scale the outlines ask for and the overlap agrees
-with) and then, through it where it was asked for, the principal point
-(`dream.coarse.principal`). A wrong fx, fy slides the camera along its axis and a wrong cx, cy
-turns it, and the keypoints, the edges and the silhouettes all follow with a pose that their
-1-sigmas do not hold (on rendered scenes given cx, cy 12, -8 px off, `good` up to 4.9 deg
-off). Neither is adopted here: the pose written stays the keypoints' or the edges', and the
-verdict and its 1-sigma say how far the asked intrinsics move it.
+the lens's radial distortion (`dream.coarse.distortion`), the focal length
+(`dream.coarse.focal`: a scale the outlines ask for and the overlap agrees with) through the
+distortion where it was asked for, and then, through both where they were asked for, the
+principal point (`dream.coarse.principal`). A wrong fx, fy slides the camera along its axis
+and a wrong cx, cy turns it, and the keypoints, the edges and the silhouettes all follow with
+a pose that their 1-sigmas do not hold (on rendered scenes given cx, cy 12, -8 px off,
+`good` up to 4.9 deg off). None is adopted here: the pose written stays the keypoints' or the
+edges', and the verdict and its 1-sigma say how far the asked intrinsics move it. A
+distortion left out of the given intrinsics (raw images given a rectified camera) bends the
+outlines in a way a focal length and a principal point partly make up for, so where the
+outlines ask for one, the keypoint path adopts neither of those
+(`dream.cli.keypoint_pass.asked_intrinsics`).
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ import numpy as np
 
 from dream.coarse.away import AwayPixels, away_at_pose
 from dream.coarse.calibration import SearchMasks, search_masks
+from dream.coarse.distortion import DistortionEstimate, DistortionSettings, fit_distortion
 from dream.coarse.focal import FocalEstimate, FocalSettings, fit_focal
 from dream.coarse.principal import PrincipalEstimate, PrincipalSettings, fit_principal
 from dream.coarse.search import SearchOutcome, pose_iou, search
@@ -49,8 +55,8 @@ class Crosscheck:
     written pose's silhouettes (scored as the search scores its optimum), the distance (m,
     rad) from the written pose to the optimum, the masks' source and how many frames, the
     masks' pixels away from the robot at the optimum (`dream.coarse.away`), the keypoint
-    pose's IoU, and the focal length and principal point the outlines ask for at the optimum
-    (None where the robot was not found there)."""
+    pose's IoU, and the focal length, principal point and radial distortion the outlines ask
+    for at the optimum (None where the robot was not found there)."""
 
     outcome: SearchOutcome
     iou_written: float
@@ -62,17 +68,22 @@ class Crosscheck:
     iou_keypoints: float
     focal: FocalEstimate | None = None
     principal: PrincipalEstimate | None = None
+    distortion: DistortionEstimate | None = None
 
     @property
     def intrinsics_covariance(self) -> np.ndarray:
         """(6, 6) what the intrinsics the outlines ask for add to the written pose's covariance:
-        the move from the optimum to the pose through them (the asked focal length's, where
-        one is asked for: `FocalEstimate.adopted`; then the flagged or unresolved principal
-        point's, fitted from there), and the spreads of those poses
-        (`FocalEstimate.pose_covariance`, `PrincipalEstimate.spread`), and an unresolved
-        principal point's turn (`PrincipalEstimate.unresolved_covariance`); zero where they
-        agree with the given ones."""
+        the move from the optimum to the pose through them (the asked distortion's and focal
+        length's, where asked for: `DistortionEstimate.adopted`, `FocalEstimate.adopted`; then
+        the flagged or unresolved principal point's, fitted from there), and the spreads of
+        those poses (`DistortionEstimate.pose_covariance`, `FocalEstimate.pose_covariance`,
+        `PrincipalEstimate.spread`), and an unresolved principal point's turn
+        (`PrincipalEstimate.unresolved_covariance`); zero where they agree with the given
+        ones."""
         covariance, T_asked = np.zeros((6, 6)), self.outcome.best.T_cam_base
+        if self.distortion is not None and self.distortion.adopted:
+            covariance += self.distortion.pose_covariance
+            T_asked = self.distortion.T_cam_base
         if self.focal is not None and self.focal.adopted:
             covariance += self.focal.pose_covariance
             T_asked = self.focal.T_cam_base
@@ -106,6 +117,9 @@ class Crosscheck:
                 "focal": None if self.focal is None else {
                     **replace(self.focal, adopted=False).to_dict(), "asked": self.focal.adopted},
                 "principal": None if self.principal is None else self.principal.to_dict(),
+                "distortion": None if self.distortion is None else {
+                    **replace(self.distortion, adopted=False).to_dict(),
+                    "asked": self.distortion.adopted},
                 "seconds": o.seconds}
 
 
@@ -138,30 +152,35 @@ def silhouette_crosscheck(sequence: Sequence, robot: Robot, T_written: np.ndarra
     m, rad = pose_errors(np.asarray(T_written), outcome.best.T_cam_base)
     away = away_at_pose(inputs.meshes, inputs.joints, inputs.masks, sequence.camera,
                         outcome.best.T_cam_base, settings.away_margin_px)
-    focal, principal = intrinsics_at_optimum(sequence, inputs, outcome, settings, progress)
+    intrinsics = intrinsics_at_optimum(sequence, inputs, outcome, settings, progress)
     return Crosscheck(outcome, iou, float(m), float(rad), inputs.source, len(inputs.frames),
-                      away, iou_keypoints, focal, principal)
+                      away, iou_keypoints, *intrinsics)
 
 
 def intrinsics_at_optimum(sequence: Sequence, inputs: SearchMasks, outcome: SearchOutcome,
                           settings: SearchSettings, progress=None
-                          ) -> tuple[FocalEstimate | None, PrincipalEstimate | None]:
-    """The focal length, then the principal point (through the asked focal length where it is
-    asked for), that the outlines ask for at the local search's optimum (module doc); (None,
-    None) where the robot was not found there."""
+                          ) -> tuple[FocalEstimate | None, PrincipalEstimate | None,
+                                     DistortionEstimate | None]:
+    """The radial distortion, then the focal length through it, then the principal point
+    through both (each where asked for), that the outlines ask for at the local search's
+    optimum (module doc); (None, None, None) where the robot was not found there."""
     if not settings.robot_found(outcome.best.iou):
-        return None, None
+        return None, None, None
     P = vertices_in_base(inputs.meshes, inputs.joints)
-    held = inputs.held
-    focal = fit_focal(P, inputs.meshes, inputs.masks, sequence.camera, outcome.best.T_cam_base,
-                      settings, FocalSettings(), held, inputs.region)
-    camera, T = ((focal.camera, focal.T_cam_base) if focal.adopted
-                 else (sequence.camera, outcome.best.T_cam_base))
+    held, camera, T = inputs.held, sequence.camera, outcome.best.T_cam_base
+    distortion = fit_distortion(P, inputs.meshes, inputs.masks, camera, T, settings,
+                                DistortionSettings(), held, inputs.region)
+    if distortion.adopted:
+        camera, T = distortion.camera, distortion.T_cam_base
+    focal = fit_focal(P, inputs.meshes, inputs.masks, camera, T, settings, FocalSettings(),
+                      held, inputs.region)
+    if focal.adopted:
+        camera, T = focal.camera, focal.T_cam_base
     principal = fit_principal(P, inputs.meshes, inputs.masks, camera, T, settings,
                               PrincipalSettings(), held, inputs.region)
     if progress is not None:
-        progress(f"intrinsics: {focal.reason}; {principal.reason}")
-    return focal, principal
+        progress(f"intrinsics: {distortion.reason}; {focal.reason}; {principal.reason}")
+    return focal, principal, distortion
 
 
 def sides_with_keypoints(T_keypoints: np.ndarray, T_aligned: np.ndarray,

@@ -48,12 +48,10 @@ from dream.coarse.camera_fit import (
     ParameterSettings,
     adopted_pose_covariance,
     fit_parameter,
-    parameter_sigma,
 )
 from dream.coarse.carried import CarriedRegion
 from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
-from dream.polish.objective import Contour, Objective
 from dream.silhouette import RobotMeshes
 
 
@@ -107,7 +105,8 @@ class FocalEstimate:
     def pose_covariance(self) -> np.ndarray:
         """(6, 6) what the adopted scale's uncertainty adds to the pose's covariance (zero
         where it was not adopted: the given intrinsics are then taken as they are)."""
-        return adopted_pose_covariance(self.adopted, self.sigma_used, self.xi_per_log_scale)
+        return adopted_pose_covariance(self.adopted, self.sigma_used ** 2,
+                                       self.xi_per_log_scale)
 
     def to_dict(self) -> dict:
         given = self.given
@@ -151,24 +150,15 @@ def fit_focal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray, camera: Cam
     for, from the search's winner `T_cam_base` at `camera` (module doc); `held`, `region`: as
     the search's `Scales`."""
     settings = settings or FocalSettings()
-    fitted = fit_parameter(P, meshes, masks,
-                           lambda log_s: with_focal_scale(camera, float(np.exp(log_s))),
-                           T_cam_base, search, camera_fit(settings), settings.how, held,
-                           region)
-    log_s, sigma = fitted.value, fitted.sigma
+    fitted = fit_parameter(P, meshes, masks, lambda p: _scaled(camera, p), T_cam_base, search,
+                           camera_fit(settings), settings.how, held, region)
+    log_s, sigma = float(fitted.value[0]), float(fitted.sigma[0])
     adopted, reason = _decision(log_s, sigma, fitted.iou_given, fitted.iou_fitted, settings)
     return FocalEstimate(float(np.exp(log_s)), sigma, fitted.iou_given, fitted.iou_fitted,
                          fitted.rounds, adopted, reason,
                          with_focal_scale(camera, float(np.exp(log_s))), camera,
-                         fitted.T_cam_base, fitted.xi_per_unit,
+                         fitted.T_cam_base, fitted.xi_per_unit[:, 0],
                          settings.sigma_used(sigma))
-
-
-def _sigma(objective: Objective, contour: Contour, T: np.ndarray, settings: FocalSettings,
-           initial_damping: float, frames: int, meshes: RobotMeshes, by_links: bool) -> float:
-    """The 1-sigma of log s (`dream.coarse.camera_fit.parameter_sigma`)."""
-    return parameter_sigma(camera_fit(settings), objective, contour, T, initial_damping, frames,
-                           settings.jackknife_groups, meshes, by_links)
 
 
 def _decision(log_s: float, sigma: float, iou_given: float, iou_fitted: float,

@@ -184,16 +184,17 @@ def intrinsics_change(before: CameraIntrinsics, after: CameraIntrinsics) -> str:
     >>> camera = CameraIntrinsics(300.0, 300.0, 160.0, 120.0, 320, 240)
     >>> intrinsics_change(camera, with_focal_scale(camera, 1.1))
     'fx, fy, cx, cy 300.00, 300.00, 160.00, 120.00 -> 330.00, 330.00, 160.00, 120.00'
-    >>> intrinsics_change(camera, replace(camera, distortion=(-0.1, 0, 0, 0, 0)))[-31:]
-    '; distortion k1 0.000 -> -0.100'
+    >>> intrinsics_change(camera, replace(camera, distortion=(-0.1, 0.02, 0, 0, 0)))[-49:]
+    '; distortion k1, k2 0.000, 0.000 -> -0.100, 0.020'
     """
     def values(c: CameraIntrinsics) -> str:
         return ", ".join(f"{v:.2f}" for v in (c.fx, c.fy, c.cx, c.cy))
 
     change = f"fx, fy, cx, cy {values(before)} -> {values(after)}"
     if before.distortion != after.distortion:
-        change += (f"; distortion k1 {before.dist_coeffs[0]:.3f} -> "
-                   f"{after.dist_coeffs[0]:.3f}")
+        k_before, k_after = before.dist_coeffs[:2], after.dist_coeffs[:2]
+        change += (f"; distortion k1, k2 {k_before[0]:.3f}, {k_before[1]:.3f} -> "
+                   f"{k_after[0]:.3f}, {k_after[1]:.3f}")
     return change
 
 

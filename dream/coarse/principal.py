@@ -54,6 +54,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from dream.arrays import finite_or_none
 from dream.camera import CameraIntrinsics
 from dream.coarse.camera_fit import (
     CameraFit,
@@ -228,12 +229,8 @@ class PrincipalEstimate:
                 "used": {"cx": self.camera.cx if self.adopted else given.cx,
                          "cy": self.camera.cy if self.adopted else given.cy},
                 "sigma_floor_px": self.floor_px.tolist(),
-                "iou_given": _finite_or_none(self.iou_given),
-                "iou_asked": _finite_or_none(self.iou_asked)}
-
-
-def _finite_or_none(value: float) -> float | None:
-    return float(value) if np.isfinite(value) else None
+                "iou_given": finite_or_none(self.iou_given),
+                "iou_asked": finite_or_none(self.iou_asked)}
 
 
 def adopted_covariance(camera: CameraIntrinsics, T_cam_base: np.ndarray,

@@ -58,8 +58,10 @@ def test_an_optimum_nearer_the_aligned_pose_keeps_it():
 def test_the_intrinsics_move_runs_from_the_optimum_to_the_pose_through_all_they_ask():
     """A focal length asked for (the pose through it 3 cm along the axis) and a principal point
     flagged from there (2 cm further): the covariance holds the whole 5 cm move, not the two
-    parts apart; where the outlines agree with the given intrinsics, nothing."""
+    parts apart; where the outlines agree with the given intrinsics, nothing; a distortion
+    asked for alone, its move and its spread."""
     from dream.camera import CameraIntrinsics
+    from dream.coarse.distortion import DistortionEstimate
     from dream.coarse.focal import FocalEstimate
     from dream.coarse.principal import PrincipalEstimate
     from dream.pnp import increment_between
@@ -76,6 +78,13 @@ def test_the_intrinsics_move_runs_from_the_optimum_to_the_pose_through_all_they_
     agreeing = replace(check, focal=replace(focal, adopted=False),
                        principal=replace(principal, flagged=False))
     assert not np.any(agreeing.intrinsics_covariance)
+    # a lens distortion asked for first (2 cm), and nothing after it: its move and spread
+    lens = DistortionEstimate(-0.14, 0.001, 0.0, float("nan"), 0.6, 0.65, 2, True, "asked",
+                              camera, camera, along_depth(0.02), np.eye(6)[:, [5]],
+                              np.full((1, 1), 1e-4))
+    distorted = replace(agreeing, distortion=lens).intrinsics_covariance
+    assert distorted[5, 5] == pytest.approx(0.02 ** 2 + 1e-4)
+    assert replace(agreeing, distortion=lens).to_dict()["distortion"]["asked"]
 
 
 def test_a_focal_1_sigma_without_enough_frame_groups_is_written_as_null():

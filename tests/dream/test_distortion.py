@@ -25,11 +25,14 @@ from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
 from dream.io import read_sequence, write_dream
 from dream.metrics import pose_errors
+from dream.pnp import increment_between
 from dream.silhouette import render_silhouette, vertices_in_base
 from tests.dream.test_coarse import GUESS_M, GUESS_RAD, guess_flags
 from tests.dream.test_edges import CAMERA, edge_scene, image_dataset
+from tests.dream.test_focal_check import CHI2_6DOF_95
 
 K1 = -0.25          # a wide lens's barrel distortion (corner of the 320x240 image: -16 %)
+K2 = 0.1            # with a k2 that straightens the border (+4 % at the corner)
 FRAMES = 12
 
 
@@ -56,6 +59,7 @@ def test_a_distortion_left_out_is_fitted_and_the_pose_comes_back(meshes, scene):
     errors = pose_errors(estimate.T_cam_base, T_true)
     assert errors[0] < 0.005 and errors[0] < errors_given[0] / 2, (errors, errors_given)
     assert 0 < estimate.sigma < abs(estimate.shift) / 3
+    assert estimate.k2_share == 0.0 and "k2 not asked" in estimate.reason   # k1 alone was right
     doc = estimate.to_dict()
     assert doc["used"]["distortion"][0] == estimate.camera.dist_coeffs[0]
     assert doc["given"]["distortion"] == [0.0] * 5
@@ -63,6 +67,32 @@ def test_a_distortion_left_out_is_fitted_and_the_pose_comes_back(meshes, scene):
     covariance = estimate.pose_covariance
     assert covariance.shape == (6, 6) and np.all(np.linalg.eigvalsh(covariance) > -1e-15)
     assert np.trace(covariance) > 0
+
+
+def test_a_lens_with_k2_left_out_is_fitted_with_k2(panda, meshes, scene):
+    """Through a lens with k1 and k2 given neither, k1 alone cannot bend the outlines near the
+    border as k2 does; the fit with k2 finds both and the pose, and the overlap through it
+    beats the overlap through k1 alone."""
+    T_true, P, _ = scene
+    _, joints, _, _ = edge_scene(panda, meshes, frames=FRAMES)
+    lens = replace(CAMERA, distortion=(K1, K2, 0.0, 0.0, 0.0))
+    masks = np.stack([render_silhouette(meshes, q, T_true, lens) for q in joints])
+    T_given = finish_scale(P, meshes, masks, CAMERA, SearchSettings()).refine(T_true)
+    k1_alone = fit_distortion(P, meshes, masks, CAMERA, T_given, SearchSettings(),
+                              DistortionSettings(k2=False))
+    estimate = fit_distortion(P, meshes, masks, CAMERA, T_given, SearchSettings())
+    assert estimate.adopted and "through k2" in estimate.reason, estimate.reason
+    assert estimate.camera.dist_coeffs[:2] == pytest.approx([K1, K2], rel=0.1)
+    assert estimate.k2_share == pytest.approx(K2 * corner_radius2(CAMERA) ** 2, rel=0.1)
+    assert 0 < estimate.k2_sigma < estimate.k2_share / 3
+    assert estimate.iou_fitted > k1_alone.iou_fitted + DistortionSettings().min_iou_gain
+    errors, errors_k1 = (pose_errors(e.T_cam_base, T_true)[0] for e in (estimate, k1_alone))
+    assert errors < 0.002 and errors < errors_k1 / 2, (errors, errors_k1)
+    assert estimate.xi_per_unit.shape == (6, 2) and estimate.covariance_used.shape == (2, 2)
+    assert np.all(np.linalg.eigvalsh(estimate.pose_covariance) > -1e-15)
+    doc = estimate.to_dict()
+    assert doc["k2_share"] == estimate.k2_share and doc["used"]["distortion"][1] != 0.0
+    assert "k1, k2 -0.25" in distortion_finding(doc)[1]
 
 
 def test_a_distortion_given_right_is_kept(meshes, scene):
@@ -84,6 +114,8 @@ def test_the_decision_needs_the_overlap_and_a_change_within_range():
     assert not _decision(-0.1, 0.05, 0.60, 0.62, settings)[0]      # within 3 sigma
     assert not _decision(0.005, 1e-5, 0.60, 0.62, settings)[0]     # below min_change
     assert not _decision(-0.1, float("nan"), 0.60, 0.62, settings)[0]
+    assert "+4.0 % of it through k2" in _decision(-0.1, 0.005, 0.60, 0.62, settings, 0.04,
+                                                  0.002)[1]
     beyond, why = _decision(-0.6, 0.005, 0.60, 0.70, settings)
     assert not beyond and why.startswith("beyond")
     record = {"adopted": False, "corner_shift": -0.6, "reason": why}
@@ -100,6 +132,12 @@ def test_distortion_settings_and_shifts_are_checked():
     moved = with_corner_shift(replace(CAMERA, distortion=(0.1, 0.02, 0.0, 0.0, 0.0)), -0.05)
     assert moved.dist_coeffs[1] == 0.02                       # k2 and the rest kept
     assert moved.dist_coeffs[0] == pytest.approx(0.1 - 0.05 / corner_radius2(CAMERA))
+    both = with_corner_shift(CAMERA, -0.05, 0.02)             # the corner moves as much
+    R = corner_radius2(CAMERA)
+    assert both.dist_coeffs[0] * R + both.dist_coeffs[1] * R ** 2 == pytest.approx(-0.05)
+    assert both.dist_coeffs[1] * R ** 2 == pytest.approx(0.02)
+    with pytest.raises(InputError, match="finite"):
+        with_corner_shift(CAMERA, -0.05, float("inf"))
 
 
 def test_calibrate_fits_a_distortion_given_wrong_and_fixed_distortion_keeps_it(
@@ -117,7 +155,7 @@ def test_calibrate_fits_a_distortion_given_wrong_and_fixed_distortion_keeps_it(
     code = main(["calibrate", "--data", str(tmp_path / "raw"), "--out", str(out)] + guess)
     printed, err = capsys.readouterr()
     assert code == 0, err
-    assert "distortion k1" in printed and "lens distortion: adopted" in err
+    assert "distortion k1, k2" in printed and "lens distortion: adopted" in err
     doc = json.loads(out.read_text())
     record = doc["start"]["distortion"]
     assert record["adopted"] and abs(record["used"]["distortion"][0]) < abs(K1) / 4, record
@@ -136,3 +174,31 @@ def test_calibrate_fits_a_distortion_given_wrong_and_fixed_distortion_keeps_it(
     doc = json.loads(fixed.read_text())
     assert doc["start"]["distortion"] is None
     assert pose_errors(np.asarray(doc["T_cam_base"]), T_true)[0] > error
+
+
+def test_the_keypoint_path_s_cross_check_asks_for_a_distortion_given_wrong(
+        panda, meshes, tmp_path, capsys):
+    """The keypoint path through a camera given with k1 = K1 for undistorted images: the
+    silhouettes' cross-check asks for the shift that undoes it, the verdict says so (never
+    `good`), the move to the pose through it enters the 1-sigma, and no focal length or
+    principal point the outlines ask for through it is adopted."""
+    T_true = image_dataset(panda, meshes, tmp_path)
+    seq = read_sequence(tmp_path / "data")
+    write_dream(replace(seq, camera=replace(seq.camera, distortion=(K1, 0.0, 0.0, 0.0, 0.0))),
+                tmp_path / "raw")
+    out = tmp_path / "r.json"
+    code = main(["calibrate", "--data", str(tmp_path / "raw"), "--use-labels", "--out",
+                 str(out)])
+    printed, err = capsys.readouterr()
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    record = doc["silhouette_check"]["distortion"]
+    assert record["asked"] and not record["adopted"], record
+    assert record["corner_shift"] == pytest.approx(-K1 * corner_radius2(CAMERA), rel=0.25)
+    assert record["used"]["distortion"][0] == K1                  # the given one, kept
+    assert "focal" not in doc and "principal" not in doc
+    assert doc["quality"]["verdict"] != "good"
+    assert any("lens distortion" in w for w in doc["quality"]["warnings"])
+    T = np.asarray(doc["T_cam_base"])
+    xi = increment_between(T, T_true)
+    assert xi @ np.linalg.pinv(np.asarray(doc["covariance_xi"])) @ xi < CHI2_6DOF_95

@@ -15,7 +15,14 @@ import pytest
 from dream.camera import CameraIntrinsics
 from dream.cli import main
 from dream.coarse.calibration import MOTION_MASKS, SearchMasks
-from dream.coarse.focal import FocalSettings, _decision, _sigma, fit_focal, with_focal_scale
+from dream.coarse.camera_fit import parameter_covariance
+from dream.coarse.focal import (
+    FocalSettings,
+    _decision,
+    camera_fit,
+    fit_focal,
+    with_focal_scale,
+)
 from dream.coarse.intrinsics import with_asked_intrinsics
 from dream.coarse.scales import finish_scale
 from dream.coarse.search import find_winner
@@ -108,14 +115,20 @@ def test_a_pull_on_one_link_in_every_frame_widens_the_scale_s_1_sigma(monkeypatc
 
     monkeypatch.setattr("dream.coarse.camera_fit.CameraFit.fit", fit)
     meshes = SimpleNamespace(vertex_link=vertex_link, links=links)
-    sigma = _sigma(None, contour, np.eye(4), FocalSettings(), 1e-3, frames, meshes, True)
+    settings = FocalSettings()
+
+    def sigma(contour: Contour, by_links: bool) -> float:
+        covariance = parameter_covariance(camera_fit(settings), None, contour, np.eye(4), 1e-3,
+                                          frames, settings.jackknife_groups, meshes, by_links)
+        return float(np.sqrt(covariance[0, 0]))
+
+
     # the frame groups' steps are all 0.016 (each keeps 4 of 5 frames); the links' 0.02
     # but without the hand, 0: jackknife variance 3/4 * (3 * 0.005 ** 2 + 0.015 ** 2)
-    assert sigma == pytest.approx(0.015)
+    assert sigma(contour, True) == pytest.approx(0.015)
     without = replace(contour, vertex=None)                   # no vertices: frame groups only
     for args in ((without, True), (contour, False)):          # nothing carried: the same
-        assert _sigma(None, args[0], np.eye(4), FocalSettings(), 1e-3, frames, meshes,
-                      args[1]) == pytest.approx(0.0, abs=1e-12)
+        assert sigma(*args) == pytest.approx(0.0, abs=1e-12)
 
 
 def test_focal_settings_and_scales_are_checked():

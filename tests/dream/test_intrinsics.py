@@ -65,9 +65,9 @@ def fakes(monkeypatch):
     def fit_distortion(P, meshes, masks, camera, T, settings, distortion, held, region):
         calls.distortion.append(camera)
         shift, asked = calls.asks_distortion.pop(0) if calls.asks_distortion else (0.0, False)
-        return DistortionEstimate(shift, 0.001, 0.5, 0.6, 1, asked, f"{shift}",
-                                  with_corner_shift(camera, shift), camera, np.eye(4),
-                                  np.zeros(6), 0.005)
+        return DistortionEstimate(shift, 0.001, 0.0, float("nan"), 0.5, 0.6, 1, asked,
+                                  f"{shift}", with_corner_shift(camera, shift), camera,
+                                  np.eye(4), np.zeros((6, 1)), np.full((1, 1), 0.005 ** 2))
 
     def fit_focal(P, meshes, masks, camera, T, settings, focal, held, region):
         calls.focal.append(camera)

@@ -183,7 +183,8 @@ def test_the_keypoint_paths_crosscheck_checks_the_principal_point_on_the_outline
     assert not principal["flagged"] and principal["given"] == {"cx": CAMERA.cx, "cy": CAMERA.cy}
     assert not any("principal point" in w for w in doc["quality"]["warnings"])
     printed = capsys.readouterr()[0]
-    assert "intrinsics on the outlines: the given fx, fy stand" in printed
+    assert "intrinsics on the outlines: the given distortion stands" in printed
+    assert "; the given fx, fy stand" in printed
     assert "the given cx, cy stand" in printed
 
     from dream.coarse import crosscheck
