@@ -150,6 +150,7 @@ def refined_rows(data: Path, scales, shifts, model, work: Path, refine: str = "a
         chi2 = float(xi @ np.linalg.pinv(np.asarray(doc["covariance_xi"])) @ xi)
         outlines = (doc.get("silhouette_check") or {}).get("principal")
         focal = (doc.get("silhouette_check") or {}).get("focal")
+        lens = (doc.get("silhouette_check") or {}).get("distortion")
         rows.append({
             "given": name, "verdict": doc["quality"]["verdict"],
             "error_mm": float(error_m) * 1e3, "error_deg": float(np.rad2deg(error_rad)),
@@ -158,7 +159,7 @@ def refined_rows(data: Path, scales, shifts, model, work: Path, refine: str = "a
             "keypoints_unresolved": [name for name in ("focal", "principal") if (
                 doc.get(f"keypoint_{name}") or {}).get("unresolved")],
             "outlines_flagged": bool(outlines and outlines["flagged"]),
-            "outlines": outlines, "focal": focal,
+            "outlines": outlines, "focal": focal, "distortion": lens,
             "focal_asked": bool(focal and focal["asked"]),
             "adopted": (doc.get("focal") or {}).get("scale"),
             "shift_adopted": (doc.get("principal") or {}).get("shift_px"),
@@ -180,6 +181,9 @@ def _refined_text(r: dict) -> str:
     f = r["focal"]
     focal = ("" if f is None else
              f"; outlines ask x{f['scale']:.3f}{' (ASKED)' if f['asked'] else ''}")
+    d = r["distortion"]
+    focal += ("" if d is None else f", a radial shift of {100 * d['corner_shift']:+.1f} % at "
+              f"the corner{' (ASKED)' if d['asked'] else ''}")
     again = ([f"x{r['adopted']:.3f}"] if r["adopted"] is not None else []) + (
         ["{:+.1f}, {:+.1f} px".format(*r["shift_adopted"])] if r["shift_adopted"] else [])
     if again:
