@@ -140,16 +140,23 @@ def test_distortion_settings_and_shifts_are_checked():
         with_corner_shift(CAMERA, -0.05, float("inf"))
 
 
+def given_k1(panda, meshes, folder) -> np.ndarray:
+    """Images of an undistorted lens in `folder`/data and the same given with k1 = K1 in
+    `folder`/raw (a rectified recording given its raw camera); returns the true pose."""
+    T_true = image_dataset(panda, meshes, folder)
+    seq = read_sequence(folder / "data")
+    write_dream(replace(seq, camera=replace(seq.camera, distortion=(K1, 0.0, 0.0, 0.0, 0.0))),
+                folder / "raw")
+    return T_true
+
+
 def test_calibrate_fits_a_distortion_given_wrong_and_fixed_distortion_keeps_it(
         panda, meshes, tmp_path, capsys):
     """Images of an undistorted lens given with k1 = K1 (a rectified recording given its raw
     camera): the search adopts the radial shift that undoes it, RESULT.json and the verdict
     say so, the overlay draws through it; `--fixed-distortion` keeps the given one and lands
     farther off."""
-    T_true = image_dataset(panda, meshes, tmp_path)
-    seq = read_sequence(tmp_path / "data")
-    write_dream(replace(seq, camera=replace(seq.camera, distortion=(K1, 0.0, 0.0, 0.0, 0.0))),
-                tmp_path / "raw")
+    T_true = given_k1(panda, meshes, tmp_path)
     guess = guess_flags(T_true, GUESS_M, GUESS_RAD)
     out = tmp_path / "r.json"
     code = main(["calibrate", "--data", str(tmp_path / "raw"), "--out", str(out)] + guess)
@@ -182,10 +189,7 @@ def test_the_keypoint_path_s_cross_check_asks_for_a_distortion_given_wrong(
     silhouettes' cross-check asks for the shift that undoes it, the verdict says so (never
     `good`), the move to the pose through it enters the 1-sigma, and no focal length or
     principal point the outlines ask for through it is adopted."""
-    T_true = image_dataset(panda, meshes, tmp_path)
-    seq = read_sequence(tmp_path / "data")
-    write_dream(replace(seq, camera=replace(seq.camera, distortion=(K1, 0.0, 0.0, 0.0, 0.0))),
-                tmp_path / "raw")
+    T_true = given_k1(panda, meshes, tmp_path)
     out = tmp_path / "r.json"
     code = main(["calibrate", "--data", str(tmp_path / "raw"), "--use-labels", "--out",
                  str(out)])
