@@ -483,6 +483,10 @@ def _adopted_on_keypoint_path(doc: dict) -> str:
     lens = check.get("distortion")
     if lens is not None and lens["asked"]:
         text += f", lens distortion asked ({100 * lens['corner_shift']:+.1f} % at the corner)"
+    lens = doc.get("distortion")
+    if lens:
+        text += ", adopted k1, k2 {:.3f}, {:.3f} ({:+.1f} % at the corner)".format(
+            *lens["used"]["distortion"][:2], 100 * lens["corner_shift"])
     for key, what in (("focal", "fx, fy {fx:.1f}, {fy:.1f}"), ("principal", "cx, cy {cx:.1f}, "
                                                                           "{cy:.1f}")):
         if doc.get(key):

@@ -106,7 +106,8 @@ def adopted_intrinsics(doc: dict[str, Any]) -> dict[str, Any]:
     adopted those the robot's outlines asked for: `fx`, `fy` of an adopted focal length
     (`start.focal` of the search without keypoints, `focal` of the keypoint path), `cx`, `cy`
     of an adopted principal point (`start.principal`, `principal`), `distortion` (a tuple) of
-    an adopted radial distortion (`start.distortion`); empty where the data's own were used.
+    an adopted radial distortion (`start.distortion`, `distortion`); empty where the data's
+    own were used.
 
     >>> adopted_intrinsics({"focal": {"adopted": True, "used": {"fx": 510.0, "fy": 512.0}}})
     {'fx': 510.0, 'fy': 512.0}
@@ -116,7 +117,7 @@ def adopted_intrinsics(doc: dict[str, Any]) -> dict[str, Any]:
     used: dict[str, Any] = {}
     start = doc.get("start") or {}
     for record in (start.get("distortion"), start.get("focal"), start.get("principal"),
-                   doc.get("focal"), doc.get("principal")):
+                   doc.get("distortion"), doc.get("focal"), doc.get("principal")):
         if record and record.get("adopted"):
             used.update({k: tuple(float(c) for c in v) if isinstance(v, list) else float(v)
                          for k, v in record["used"].items()})

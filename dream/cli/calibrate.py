@@ -359,7 +359,7 @@ def add_calibrate_args(p: argparse.ArgumentParser) -> None:
                         "deg beyond their noise, is adopted and the calibration made again "
                         "through it; kept, it is reported and its move enters the 1-sigma)")
     p.add_argument("--fixed-distortion", action="store_true",
-                   help="without keypoints: keep the data's distortion as given (by default "
+                   help="keep the data's distortion as given (by default "
                         "a radial distortion the robot's outlines ask for and their overlap "
                         "agrees with, as of raw images given with a rectified camera, is "
                         "adopted and the calibration made again through it)")

@@ -14,20 +14,23 @@ x1.05, `good` 70 mm off, where its masks ask for -12.1, +8.0 px and x0.952. On `
 the polish against the mask head's masks landed 34 mm and 2.7 deg off, its own 1-sigma 17 mm;
 the motion masks' optimum lies 33 mm from it, and their disagreement enters the 1-sigma.
 
-Where they ask for a focal length (a scale beyond 3 of its 1-sigmas that the overlap agrees
-with: the rule of `dream.coarse.focal`, by which the search without keypoints adopts its own)
-or flag a principal point (a turn of the camera beyond 1.5 deg and 3 of its 1-sigmas:
-`dream.coarse.principal`), the pass runs again through the camera with them
-(`keypoint_calibration`): a wrong focal length slides the keypoint pose, its alignment and the
-silhouettes together along the camera's axis, a wrong principal point turns them, and only
-through the right intrinsics do they land where the camera is. Nothing is adopted where the
-outlines leave the principal point unresolved (`asked_intrinsics`). What the adopted
-intrinsics leave uncertain enters the covariance (the focal scale's 1-sigma through how the
-pose moves with it; the spread over frame groups of the pose fitted with the principal point
-free, and a floor of the point's error), RESULT.json's `focal` and `principal` say what was
-given and used, and the verdict says to correct the intrinsics (at best `check`).
-`--fixed-focal` and `--fixed-principal` keep the given ones; the cross-check's findings then
-say how far the pose may lie off.
+Where they ask for a lens distortion the given intrinsics leave out (`dream.coarse.distortion`:
+raw images given with a rectified camera), a focal length (a scale beyond 3 of its 1-sigmas
+that the overlap agrees with: the rule of `dream.coarse.focal`, by which the search without
+keypoints adopts its own) or flag a principal point (a turn of the camera beyond 1.5 deg and 3
+of its 1-sigmas: `dream.coarse.principal`), the pass runs again through the camera with them
+(`keypoint_calibration`): a left-out distortion bends every outline and pulls the keypoint
+fit, a wrong focal length slides the keypoint pose, its alignment and the silhouettes together
+along the camera's axis, a wrong principal point turns them, and only through the right
+intrinsics do they land where the camera is. No focal length or principal point is adopted
+where the outlines leave the principal point unresolved (`asked_intrinsics`). What the
+adopted intrinsics leave uncertain enters the covariance (the distortion's and the focal
+scale's 1-sigmas through how the pose moves with them; the spread over frame groups of the
+pose fitted with the principal point free, and a floor of the point's error), RESULT.json's
+`distortion`, `focal` and `principal` say what was given and used, and the verdict says to
+correct the intrinsics (at best `check`). `--fixed-distortion`, `--fixed-focal` and
+`--fixed-principal` keep the given ones; the cross-check's findings then say how far the pose
+may lie off.
 """
 
 from __future__ import annotations
@@ -49,7 +52,7 @@ from dream.cli.intrinsics_records import intrinsics_checks
 from dream.cli.options import EDGES, POLISH
 from dream.coarse.principal import PrincipalSettings
 
-MAX_ADOPTIONS = 2       # a principal point, then a focal length fitted through it
+MAX_ADOPTIONS = 3       # a lens distortion, a principal point, a focal length through both
 
 
 @dataclass(frozen=True)
@@ -87,34 +90,63 @@ class KeypointPass:
 
 def keypoint_calibration(inputs: PassInputs, seq, out: TextIO) -> KeypointPass:
     """The pass through the given camera, then, while the silhouettes' cross-check asks for
-    another focal length or principal point that the request does not keep fixed (and not
-    yet adopted), the pass through the camera with them (module doc): at most
-    `MAX_ADOPTIONS` times; a flagged principal point first, alone, since the focal length
-    beside it was fitted through the wrong one (given cx, cy 24, -16 px off, a rendered scene's
-    outlines asked for x1.092 with it, and adopted together the pose lay 142 mm off)."""
+    lens distortion, focal length or principal point that the request does not keep fixed
+    (and not yet adopted), the pass through the camera with it (module doc,
+    `next_adoption`): at most `MAX_ADOPTIONS` times; an asked distortion first, alone, then a
+    flagged principal point alone, since the focal length beside it was fitted through the
+    wrong one (given cx, cy 24, -16 px off, a rendered scene's outlines asked for x1.092 with
+    it, and adopted together the pose lay 142 mm off)."""
     from dream.coarse.intrinsics import intrinsics_change
 
+    request = inputs.request
     first = last = run_pass(inputs, seq, out)
     adopted: dict[str, dict] = {}
     for _ in range(MAX_ADOPTIONS):
-        focal, principal = asked_intrinsics(
-            last.doc, inputs.request.fixed_focal or "focal" in adopted,
-            inputs.request.fixed_principal or "principal" in adopted)
-        if principal is not None:
-            focal = None
-        if focal is None and principal is None:
+        asked = next_adoption(last.doc, request.fixed_distortion or "distortion" in adopted,
+                              request.fixed_focal or "focal" in adopted,
+                              request.fixed_principal or "principal" in adopted)
+        if not asked:
             break
-        adopted.update({k: r for k, r in (("focal", focal), ("principal", principal))
-                        if r is not None})
-        before, camera = last.seq.camera, asked_camera(last.seq.camera, focal, principal)
+        adopted.update(asked)
+        before = last.seq.camera
+        camera = asked_camera(before, asked.get("focal"), asked.get("principal"),
+                              asked.get("distortion"))
         print(f"intrinsics: {intrinsics_change(before, camera)}, asked for by the robot's "
               "outlines at the silhouettes' optimum: calibrating again through them "
-              "(--fixed-focal, --fixed-principal keep the given ones)", file=out)
+              "(--fixed-distortion, --fixed-focal, --fixed-principal keep the given ones)",
+              file=out)
         last = run_pass(inputs, seq.with_fixed_camera(camera), out)
     if not adopted:
         return first
     return with_adopted(last, adopted.get("focal"), adopted.get("principal"), first.doc,
-                        seq.camera)
+                        seq.camera, adopted.get("distortion"))
+
+
+def next_adoption(doc: dict, fixed_distortion: bool, fixed_focal: bool, fixed_principal: bool
+                  ) -> dict[str, dict]:
+    """What the next pass adopts of the pass `doc`'s cross-check (`keypoint_calibration`):
+    an asked lens distortion alone (the focal length and the principal point beside it were
+    fitted through a camera without it), else a flagged principal point alone, else an asked
+    focal length (`asked_intrinsics`); empty where nothing (more) is asked for.
+
+    >>> check = {"ran": True, "focal": {"asked": True, "scale": 0.95},
+    ...          "principal": {"flagged": True, "unresolved": False},
+    ...          "distortion": {"asked": True, "corner_shift": -0.14, "k2_share": 0.04}}
+    >>> sorted(next_adoption({"silhouette_check": check}, False, False, False))
+    ['distortion']
+    >>> sorted(next_adoption({"silhouette_check": check}, True, False, False))
+    []
+    >>> lens_kept = {**check, "distortion": {"asked": False}}
+    >>> sorted(next_adoption({"silhouette_check": lens_kept}, False, False, False))
+    ['principal']
+    """
+    lens = (doc.get("silhouette_check") or {}).get("distortion")
+    if lens is not None and lens.get("asked"):
+        return {} if fixed_distortion else {"distortion": lens}
+    focal, principal = asked_intrinsics(doc, fixed_focal, fixed_principal)
+    if principal is not None:
+        return {"principal": principal}
+    return {} if focal is None else {"focal": focal}
 
 
 def asked_intrinsics(doc: dict, fixed_focal: bool = False, fixed_principal: bool = False
@@ -152,12 +184,18 @@ def asked_intrinsics(doc: dict, fixed_focal: bool = False, fixed_principal: bool
             principal if principal.get("flagged") and not fixed_principal else None)
 
 
-def asked_camera(camera, focal: dict | None, principal: dict | None):
-    """`camera` with fx, fy times the asked scale and cx, cy moved by the asked shift (each
-    where asked for; the shift was fitted through the asked scale)."""
+def asked_camera(camera, focal: dict | None, principal: dict | None,
+                 distortion: dict | None = None):
+    """`camera` with k1, k2 moved by the asked corner shift, fx, fy times the asked scale and
+    cx, cy moved by the asked shift (each where asked for; the scale was fitted through the
+    asked distortion, the shift through both)."""
+    from dream.coarse.distortion import with_corner_shift
     from dream.coarse.focal import with_focal_scale
     from dream.coarse.principal import with_principal_shift
 
+    if distortion is not None:
+        camera = with_corner_shift(camera, float(distortion["corner_shift"]),
+                                   float(distortion["k2_share"]))
     if focal is not None:
         camera = with_focal_scale(camera, focal["scale"])
     if principal is not None:
@@ -166,14 +204,18 @@ def asked_camera(camera, focal: dict | None, principal: dict | None):
 
 
 def with_adopted(second: KeypointPass, focal: dict | None, principal: dict | None,
-                 doc_given: dict, given) -> KeypointPass:
-    """The last pass with RESULT.json's `focal` and `principal` (the cross-check's records of
-    the passes that asked for them, adopted: `given` the camera's as given, `used` those
-    calibrated with, `T_cam_base_given` the first pass's pose), what they leave uncertain in
-    the covariance (`focal`: `sigma_used` times how the pose moves per unit of log scale, as
+                 doc_given: dict, given, distortion: dict | None = None) -> KeypointPass:
+    """The last pass with RESULT.json's `distortion`, `focal` and `principal` (the
+    cross-check's records of the passes that asked for them, adopted: `given` the camera's as
+    given, `used` those calibrated with, `T_cam_base_given` the first pass's pose), what they
+    leave uncertain in the covariance (`distortion`: its `covariance_used` through how the
+    pose moves per unit of the corner shift and k2's share, as
+    `dream.coarse.distortion.DistortionEstimate.pose_covariance`; `focal`: `sigma_used` times
+    how the pose moves per unit of log scale, as
     `dream.coarse.focal.FocalEstimate.pose_covariance`; `principal`: `spread_xi`, the pose's
     spread with the point free, and the turn of an error the outlines' jackknife does not see,
     `sigma_floor_px`: `dream.coarse.principal.adopted_covariance`) and their findings."""
+    from dream.coarse.distortion import distortion_finding
     from dream.coarse.principal import adopted_covariance
     from dream.coarse.verdict import adopted_principal_finding, focal_finding
     from dream.refined_uncertainty import set_covariance
@@ -183,6 +225,13 @@ def with_adopted(second: KeypointPass, focal: dict | None, principal: dict | Non
     added, findings = np.zeros((6, 6)), []
     adopted = {"adopted": True, "asked_by": "silhouette_check",
                "T_cam_base_given": doc_given["T_cam_base"]}
+    if distortion is not None:
+        doc["distortion"] = {**distortion, **adopted,
+                             "given": {"distortion": list(given.dist_coeffs)},
+                             "used": {"distortion": list(camera.dist_coeffs)}}
+        xi = np.asarray(distortion["xi_per_unit"], dtype=float)
+        added += xi @ np.asarray(distortion["covariance_used"], dtype=float) @ xi.T
+        findings.append(distortion_finding(doc["distortion"]))
     if focal is not None:
         doc["focal"] = {**focal, **adopted, "given": {"fx": given.fx, "fy": given.fy},
                         "used": {"fx": camera.fx, "fy": camera.fy}}

@@ -22,8 +22,8 @@ a pose that their 1-sigmas do not hold (on rendered scenes given cx, cy 12, -8 p
 edges', and the verdict and its 1-sigma say how far the asked intrinsics move it. A
 distortion left out of the given intrinsics (raw images given a rectified camera) bends the
 outlines in a way a focal length and a principal point partly make up for, so where the
-outlines ask for one, the keypoint path adopts neither of those
-(`dream.cli.keypoint_pass.asked_intrinsics`).
+outlines ask for one, the keypoint path adopts the distortion alone and fits those again
+through it (`dream.cli.keypoint_pass.next_adoption`).
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
 """The lens's radial distortion the robot's outlines ask for (`dream.coarse.distortion`): fitted
 with the pose on masks rendered through a distorted lens and given without its coefficients,
 adopted where the overlap agrees, kept where they were given right; `dream calibrate` goes on
-through the fitted camera and says so, and `--fixed-distortion` keeps the given one."""
+through the fitted camera and says so, and `--fixed-distortion` keeps the given one; the
+keypoint path adopts the one its silhouettes' cross-check asks for."""
 
 from __future__ import annotations
 
@@ -183,26 +184,52 @@ def test_calibrate_fits_a_distortion_given_wrong_and_fixed_distortion_keeps_it(
     assert pose_errors(np.asarray(doc["T_cam_base"]), T_true)[0] > error
 
 
-def test_the_keypoint_path_s_cross_check_asks_for_a_distortion_given_wrong(
+def test_the_keypoint_path_calibrates_again_through_a_distortion_given_wrong(
         panda, meshes, tmp_path, capsys):
     """The keypoint path through a camera given with k1 = K1 for undistorted images: the
-    silhouettes' cross-check asks for the shift that undoes it, the verdict says so (never
-    `good`), the move to the pose through it enters the 1-sigma, and no focal length or
-    principal point the outlines ask for through it is adopted."""
+    silhouettes' cross-check asks for the shift that undoes it, the keypoint fit and its
+    alignment run again through it, RESULT.json's `distortion` says what was given and used,
+    the verdict says so (never `good`), the overlay draws through it, and the 1-sigma holds
+    the pose. `--fixed-distortion` keeps the given lens: the move to the pose through the
+    asked one then enters the 1-sigma, no focal length or principal point is adopted, and the
+    pose lies farther off."""
     T_true = given_k1(panda, meshes, tmp_path)
-    out = tmp_path / "r.json"
+    out, fixed = tmp_path / "r.json", tmp_path / "fixed.json"
     code = main(["calibrate", "--data", str(tmp_path / "raw"), "--use-labels", "--out",
                  str(out)])
     printed, err = capsys.readouterr()
     assert code == 0, err
+    assert "distortion k1, k2" in printed and "calibrating again through them" in printed
     doc = json.loads(out.read_text())
-    record = doc["silhouette_check"]["distortion"]
-    assert record["asked"] and not record["adopted"], record
+    record = doc["distortion"]
+    assert record["adopted"] and record["asked_by"] == "silhouette_check", record
     assert record["corner_shift"] == pytest.approx(-K1 * corner_radius2(CAMERA), rel=0.25)
-    assert record["used"]["distortion"][0] == K1                  # the given one, kept
-    assert "focal" not in doc and "principal" not in doc
-    assert doc["quality"]["verdict"] != "good"
-    assert any("lens distortion" in w for w in doc["quality"]["warnings"])
+    assert record["given"]["distortion"][0] == K1
+    assert abs(record["used"]["distortion"][0]) < abs(K1) / 4
+    assert not doc["silhouette_check"]["distortion"]["asked"]     # through the adopted one
+    assert doc["quality"]["verdict"] == "check"
+    assert any("lens distortion" in w and "--fixed-distortion" in w
+               for w in doc["quality"]["warnings"])
+    assert "adopted intrinsics" in doc["uncertainty"]["method"]
     T = np.asarray(doc["T_cam_base"])
     xi = increment_between(T, T_true)
     assert xi @ np.linalg.pinv(np.asarray(doc["covariance_xi"])) @ xi < CHI2_6DOF_95
+    assert main(["overlay", str(tmp_path / "raw"), "--extrinsic", str(out),
+                 "--out", str(tmp_path / "overlays"), "--limit", "1"]) == 0
+    assert "fitted by the calibration" in capsys.readouterr()[0]
+
+    code = main(["calibrate", "--data", str(tmp_path / "raw"), "--use-labels", "--out",
+                 str(fixed), "--fixed-distortion"])
+    printed, err = capsys.readouterr()
+    assert code == 0, err
+    kept = json.loads(fixed.read_text())
+    record = kept["silhouette_check"]["distortion"]
+    assert record["asked"] and not record["adopted"], record
+    assert record["used"]["distortion"][0] == K1                  # the given one, kept
+    assert not {"distortion", "focal", "principal"} & set(kept)
+    assert kept["quality"]["verdict"] != "good"
+    assert any("lens distortion" in w for w in kept["quality"]["warnings"])
+    T_kept = np.asarray(kept["T_cam_base"])
+    xi = increment_between(T_kept, T_true)
+    assert xi @ np.linalg.pinv(np.asarray(kept["covariance_xi"])) @ xi < CHI2_6DOF_95
+    assert pose_errors(T_kept, T_true)[0] > pose_errors(T, T_true)[0]

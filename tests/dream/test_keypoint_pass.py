@@ -226,7 +226,8 @@ def test_a_flagged_principal_point_is_adopted_first_and_the_focal_length_after_i
             return Seq(camera=camera)
 
     monkeypatch.setattr(keypoint_pass, "run_pass", fake_pass)
-    request = SimpleNamespace(fixed_focal=False, fixed_principal=False)
+    request = SimpleNamespace(fixed_focal=False, fixed_principal=False,
+                              fixed_distortion=False)
     inputs = SimpleNamespace(request=request)
     given = CameraIntrinsics(300.0, 300.0, 160.0, 120.0, 320, 240)
     kept = keypoint_pass.keypoint_calibration(inputs, Seq(camera=given), io.StringIO())
@@ -236,6 +237,73 @@ def test_a_flagged_principal_point_is_adopted_first_and_the_focal_length_after_i
     assert kept.doc["principal"]["used"] == {"cx": 172.0, "cy": 112.0}
     assert kept.doc["focal"]["used"]["fx"] == pytest.approx(285.0)
     assert kept.doc["focal"]["given"] == {"fx": 300.0, "fy": 300.0}
+
+
+def test_an_asked_distortion_is_adopted_first_alone_and_its_uncertainty_enters(monkeypatch):
+    """Asked for beside a focal length and a flagged principal point (fitted through the lens
+    as given), the distortion is adopted alone; the next pass, through it, asks for the
+    principal point, the one after for nothing more. RESULT.json's `distortion` says what was
+    given and used, and the lens's covariance enters through how the pose moves with it;
+    `--fixed-distortion` adopts nothing (the focal length and the principal point beside an
+    asked lens are not adopted either)."""
+    import dream.cli.keypoint_pass as keypoint_pass
+    from dream.camera import CameraIntrinsics
+    from dream.coarse.distortion import corner_radius2
+
+    xi = np.array([[0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.5, 0.2]])
+    C = np.array([[1e-4, 2e-5], [2e-5, 4e-4]])
+    lens = {"asked": True, "adopted": False, "corner_shift": -0.14, "k2_share": 0.04,
+            "sigma": 0.01, "k2_sigma": 0.02, "xi_per_unit": xi.tolist(),
+            "covariance_used": C.tolist(), "reason": "r"}
+    focal = {"asked": True, "adopted": False, "scale": 0.95, "sigma_used": 0.01,
+             "xi_per_log_scale": [0.0] * 6, "given": {}, "used": {}, "reason": "r"}
+    principal = {"flagged": True, "angle_rad": 0.05, "shift_px": [12.0, -8.0], "given": {},
+                 "spread_xi": np.zeros((6, 6)).tolist(), "unresolved": False}
+    resolved = {**principal, "flagged": False, "angle_rad": 0.001}
+    stands = {**focal, "asked": False}
+    asks = [(lens, focal, principal), ({**lens, "asked": False}, focal, principal),
+            ({**lens, "asked": False}, stands, resolved)]
+    cameras = []
+
+    def fake_pass(inputs, seq, out):
+        cameras.append(seq.camera)
+        d, f, p = asks[len(cameras) - 1]
+        doc = {"T_cam_base": np.eye(4).tolist(), "covariance_xi": np.zeros((6, 6)).tolist(),
+               "uncertainty": {"method": "fit"},
+               "silhouette_check": {"ran": True, "focal": f, "principal": p, "distortion": d}}
+        return KeypointPass(seq, None, doc, [], None, None)
+
+    class Seq(SimpleNamespace):
+        def with_fixed_camera(self, camera):
+            return Seq(camera=camera)
+
+    monkeypatch.setattr(keypoint_pass, "run_pass", fake_pass)
+    given = CameraIntrinsics(300.0, 300.0, 160.0, 120.0, 320, 240)
+    request = SimpleNamespace(fixed_focal=False, fixed_principal=False,
+                              fixed_distortion=False)
+    kept = keypoint_pass.keypoint_calibration(SimpleNamespace(request=request),
+                                              Seq(camera=given), io.StringIO())
+    R = corner_radius2(given)
+    assert len(cameras) == 3
+    assert cameras[1].dist_coeffs[:2] == pytest.approx([-0.18 / R, 0.04 / R ** 2])
+    assert (cameras[1].fx, cameras[1].cx) == (300.0, 160.0)     # the lens alone
+    assert (cameras[2].cx, cameras[2].cy) == (172.0, 112.0)     # then the principal point
+    assert cameras[2].dist_coeffs[:2] == pytest.approx(cameras[1].dist_coeffs[:2])
+    record = kept.doc["distortion"]
+    assert record["adopted"] and record["given"]["distortion"] == [0.0] * 5
+    assert record["used"]["distortion"][:2] == pytest.approx(list(cameras[1].dist_coeffs[:2]))
+    assert "focal" not in kept.doc and kept.doc["principal"]["used"] == {"cx": 172.0,
+                                                                        "cy": 112.0}
+    floor_px = np.array(kept.doc["principal"]["sigma_floor_px"])
+    assert np.allclose(kept.doc["covariance_xi"],
+                       xi @ C @ xi.T + adopted_covariance(cameras[2], np.eye(4), floor_px))
+    assert kept.checked[0][0] == "check" and "lens distortion" in kept.checked[0][1]
+
+    cameras.clear()
+    fixed = SimpleNamespace(fixed_focal=False, fixed_principal=False, fixed_distortion=True)
+    first = keypoint_pass.keypoint_calibration(SimpleNamespace(request=fixed),
+                                               Seq(camera=given), io.StringIO())
+    assert len(cameras) == 1 and "distortion" not in first.doc
 
 
 @pytest.fixture(scope="module")
