@@ -209,7 +209,8 @@ def with_adopted(second: KeypointPass, focal: dict | None, principal: dict | Non
     cross-check's records of the passes that asked for them, adopted: `given` the camera's as
     given, `used` those calibrated with, `T_cam_base_given` the first pass's pose), what they
     leave uncertain in the covariance (`distortion`: its `covariance_used` through how the
-    pose moves per unit of the corner shift and k2's share, as
+    pose moves per unit of the corner shift and k2's share, and the move to the pose through
+    the other lens, `xi_other_lens`, as
     `dream.coarse.distortion.DistortionEstimate.pose_covariance`; `focal`: `sigma_used` times
     how the pose moves per unit of log scale, as
     `dream.coarse.focal.FocalEstimate.pose_covariance`; `principal`: `spread_xi`, the pose's
@@ -230,7 +231,9 @@ def with_adopted(second: KeypointPass, focal: dict | None, principal: dict | Non
                              "given": {"distortion": list(given.dist_coeffs)},
                              "used": {"distortion": list(camera.dist_coeffs)}}
         xi = np.asarray(distortion["xi_per_unit"], dtype=float)
-        added += xi @ np.asarray(distortion["covariance_used"], dtype=float) @ xi.T
+        other = np.asarray(distortion["xi_other_lens"], dtype=float)
+        added += (xi @ np.asarray(distortion["covariance_used"], dtype=float) @ xi.T
+                  + np.outer(other, other))
         findings.append(distortion_finding(doc["distortion"]))
     if focal is not None:
         doc["focal"] = {**focal, **adopted, "given": {"fx": given.fx, "fy": given.fy},

@@ -30,7 +30,10 @@ alone asked -15.6 % at the corner, and the overlap refused it (IoU 0.654 -> 0.64
 22 mm off); with k2, -14.1 % (+4.4 % through k2; the truth -14.0 %, +4.1 %), IoU 0.681 and
 the pose 0.6 mm off. k2 is not fitted where k1 is not asked for: on scenes through a lens
 without distortion the two terms pull against each other (fitted together on five control
-scenes of four arms, k2's share reached -13.8 % at a 1-sigma of 8.2 %).
+scenes of four arms, k2's share reached -13.8 % at a 1-sigma of 8.2 %). Where k2 was fitted
+and not asked for, both lenses match the outlines as well, and the move from the pose through
+k1 alone to the pose through both enters the adopted lens's covariance
+(`DistortionEstimate.xi_other_lens`).
 
     >>> camera = CameraIntrinsics(420.0, 420.0, 319.5, 239.5, 640, 480)
     >>> round(with_corner_shift(camera, -0.1).distortion[0], 4)
@@ -39,7 +42,7 @@ scenes of four arms, k2's share reached -13.8 % at a 1-sigma of 8.2 %).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 import numpy as np
@@ -60,6 +63,7 @@ from dream.coarse.camera_fit import (
 from dream.coarse.carried import CarriedRegion
 from dream.coarse.settings import SearchSettings
 from dream.errors import InputError
+from dream.pnp import increment_between
 from dream.silhouette import RobotMeshes
 
 
@@ -93,6 +97,10 @@ class DistortionEstimate:
         xi_per_unit: (6, k) how the finish's pose moves (xi of `dream.pnp`) per unit of the
             shift (and of k2's share); covariance_used: (k, k) the covariance they are weighed
             with (the fit's and the floor).
+        xi_other_lens: (6,) the move from `T_cam_base` to the finish through the lens with k2
+            where k2 was fitted and not asked for (k1 alone kept: both lenses match the
+            outlines as well, and the pose may lie at either); zeros where k2 was not fitted
+            or was asked for.
     """
 
     shift: float
@@ -109,12 +117,18 @@ class DistortionEstimate:
     T_cam_base: np.ndarray
     xi_per_unit: np.ndarray
     covariance_used: np.ndarray
+    xi_other_lens: np.ndarray = field(default_factory=lambda: np.zeros(6))
 
     @property
     def pose_covariance(self) -> np.ndarray:
-        """(6, 6) what the adopted lens's uncertainty adds to the pose's covariance (zero
-        where it was not adopted)."""
-        return adopted_pose_covariance(self.adopted, self.covariance_used, self.xi_per_unit)
+        """(6, 6) what the adopted lens's uncertainty adds to the pose's covariance: its
+        parameters' through the pose's move per unit of them, and the move to the pose
+        through the other lens that matches the outlines as well (`xi_other_lens`); zero
+        where it was not adopted."""
+        if not self.adopted:
+            return np.zeros((6, 6))
+        return (adopted_pose_covariance(True, self.covariance_used, self.xi_per_unit)
+                + np.outer(self.xi_other_lens, self.xi_other_lens))
 
     def to_dict(self) -> dict:
         return {"corner_shift": self.shift, "sigma": finite_or_none(self.sigma),
@@ -123,6 +137,7 @@ class DistortionEstimate:
                 "rounds": self.rounds, "adopted": self.adopted, "reason": self.reason,
                 "covariance_used": self.covariance_used.tolist(),
                 "xi_per_unit": self.xi_per_unit.tolist(),
+                "xi_other_lens": self.xi_other_lens.tolist(),
                 "given": {"distortion": list(self.given.dist_coeffs)},
                 "used": {"distortion": list((self.camera if self.adopted
                                              else self.given).dist_coeffs)}}
@@ -171,7 +186,7 @@ def fit_distortion(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
         return fit_parameter(P, meshes, masks, lambda p: _moved(camera, p), T_cam_base, search,
                              fit, settings.how, held, region)
 
-    fitted, tried = fitted_with(1), ""
+    fitted, tried, xi_other = fitted_with(1), "", np.zeros(6)
     if settings.k2 and settings.decide(float(fitted.value[0]), float(fitted.sigma[0]),
                                        fitted.iou_given, fitted.iou_fitted) != WITHIN:
         with_k2 = fitted_with(2)
@@ -180,6 +195,8 @@ def fit_distortion(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
         tried = "" if asked else (f"; k2 not asked: {100 * share:+.1f} % at the corner "
                                   f"(1-sigma {100 * sigma:.1f} %, IoU {fitted.iou_fitted:.3f} "
                                   f"-> {with_k2.iou_fitted:.3f})")
+        if not asked:
+            xi_other = increment_between(fitted.T_cam_base, with_k2.T_cam_base)
         fitted = with_k2 if asked else fitted
     shift, sigma = float(fitted.value[0]), float(fitted.sigma[0])
     k2_share = float(fitted.value[1]) if len(fitted.value) > 1 else 0.0
@@ -189,7 +206,8 @@ def fit_distortion(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
     return DistortionEstimate(shift, sigma, k2_share, k2_sigma, fitted.iou_given,
                               fitted.iou_fitted, fitted.rounds, adopted, reason + tried,
                               _moved(camera, fitted.value), camera, fitted.T_cam_base,
-                              fitted.xi_per_unit, settings.covariance_used(fitted.covariance))
+                              fitted.xi_per_unit, settings.covariance_used(fitted.covariance),
+                              xi_other)
 
 
 def _k2_asked(share: float, sigma: float, iou_k1: float, iou_k2: float,

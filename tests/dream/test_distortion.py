@@ -61,6 +61,12 @@ def test_a_distortion_left_out_is_fitted_and_the_pose_comes_back(meshes, scene):
     assert errors[0] < 0.005 and errors[0] < errors_given[0] / 2, (errors, errors_given)
     assert 0 < estimate.sigma < abs(estimate.shift) / 3
     assert estimate.k2_share == 0.0 and "k2 not asked" in estimate.reason   # k1 alone was right
+    # the lens with k2 matched the outlines as well: the move to its pose enters the 1-sigma
+    other_m = np.linalg.norm(estimate.xi_other_lens[3:])
+    assert 0 < other_m < 0.002
+    assert np.linalg.norm(estimate.pose_covariance - replace(
+        estimate, xi_other_lens=np.zeros(6)).pose_covariance) == pytest.approx(
+        np.linalg.norm(estimate.xi_other_lens) ** 2)
     doc = estimate.to_dict()
     assert doc["used"]["distortion"][0] == estimate.camera.dist_coeffs[0]
     assert doc["given"]["distortion"] == [0.0] * 5
@@ -90,6 +96,7 @@ def test_a_lens_with_k2_left_out_is_fitted_with_k2(panda, meshes, scene):
     errors, errors_k1 = (pose_errors(e.T_cam_base, T_true)[0] for e in (estimate, k1_alone))
     assert errors < 0.002 and errors < errors_k1 / 2, (errors, errors_k1)
     assert estimate.xi_per_unit.shape == (6, 2) and estimate.covariance_used.shape == (2, 2)
+    assert not np.any(estimate.xi_other_lens)      # the overlap chose the lens with k2
     assert np.all(np.linalg.eigvalsh(estimate.pose_covariance) > -1e-15)
     doc = estimate.to_dict()
     assert doc["k2_share"] == estimate.k2_share and doc["used"]["distortion"][1] != 0.0

@@ -243,7 +243,8 @@ def test_an_asked_distortion_is_adopted_first_alone_and_its_uncertainty_enters(m
     """Asked for beside a focal length and a flagged principal point (fitted through the lens
     as given), the distortion is adopted alone; the next pass, through it, asks for the
     principal point, the one after for nothing more. RESULT.json's `distortion` says what was
-    given and used, and the lens's covariance enters through how the pose moves with it;
+    given and used, and the lens's covariance enters through how the pose moves with it, the
+    move to the pose through the other lens fitted too;
     `--fixed-distortion` adopts nothing (the focal length and the principal point beside an
     asked lens are not adopted either)."""
     import dream.cli.keypoint_pass as keypoint_pass
@@ -254,7 +255,8 @@ def test_an_asked_distortion_is_adopted_first_alone_and_its_uncertainty_enters(m
     C = np.array([[1e-4, 2e-5], [2e-5, 4e-4]])
     lens = {"asked": True, "adopted": False, "corner_shift": -0.14, "k2_share": 0.04,
             "sigma": 0.01, "k2_sigma": 0.02, "xi_per_unit": xi.tolist(),
-            "covariance_used": C.tolist(), "reason": "r"}
+            "covariance_used": C.tolist(), "xi_other_lens": [0.0] * 5 + [0.003],
+            "reason": "r"}
     focal = {"asked": True, "adopted": False, "scale": 0.95, "sigma_used": 0.01,
              "xi_per_log_scale": [0.0] * 6, "given": {}, "used": {}, "reason": "r"}
     principal = {"flagged": True, "angle_rad": 0.05, "shift_px": [12.0, -8.0], "given": {},
@@ -295,8 +297,9 @@ def test_an_asked_distortion_is_adopted_first_alone_and_its_uncertainty_enters(m
     assert "focal" not in kept.doc and kept.doc["principal"]["used"] == {"cx": 172.0,
                                                                         "cy": 112.0}
     floor_px = np.array(kept.doc["principal"]["sigma_floor_px"])
-    assert np.allclose(kept.doc["covariance_xi"],
-                       xi @ C @ xi.T + adopted_covariance(cameras[2], np.eye(4), floor_px))
+    other = np.outer(np.eye(6)[5], np.eye(6)[5]) * 0.003 ** 2
+    assert np.allclose(kept.doc["covariance_xi"], xi @ C @ xi.T + other
+                       + adopted_covariance(cameras[2], np.eye(4), floor_px))
     assert kept.checked[0][0] == "check" and "lens distortion" in kept.checked[0][1]
 
     cameras.clear()
