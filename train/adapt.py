@@ -35,7 +35,8 @@ from dream.sequence import Sequence
 
 log = logging.getLogger(__name__)
 
-RESULT_OBJECTS = ("quality", "joint_readings", "data", "start", "focal", "principal")
+RESULT_OBJECTS = ("quality", "joint_readings", "data", "start", "distortion", "focal",
+                  "principal")
 CAMERA_RTOL = 1e-6          # the result's record of the camera against the recording's
 HOLDOUT_SHARE = 3           # default: the last 1/3 of the frames by time are held out
 PCK_PX = 5.0                # PCK threshold of the report, pixels

@@ -217,18 +217,24 @@ def test_a_budget_the_renders_overran_still_trains_and_says_so(caplog):
     assert "beyond the budget" in caplog.text and "fewer --renders" in caplog.text
 
 
-def test_the_labels_go_through_the_focal_length_the_search_adopted(panda, meshes, tmp_path):
+def test_the_labels_go_through_the_intrinsics_the_calibration_adopted(panda, meshes, tmp_path):
+    """A focal length the search adopted, and a lens distortion the keypoint path adopted
+    (RESULT.json's `start.focal`, `distortion`): the labels are projected through them."""
     calibrated(panda, meshes, tmp_path)
     doc = json.loads((tmp_path / "r.json").read_text())
     camera = doc["data"]["camera"]
     doc["start"] = {"focal": {"adopted": True, "used": {"fx": 1.04 * camera["fx"],
                                                         "fy": 1.04 * camera["fy"]}}}
-    (tmp_path / "f.json").write_text(json.dumps(doc))
-    request = AdaptRequest(data=str(tmp_path / "data"), result=str(tmp_path / "f.json"),
-                           model=str(BUNDLED_MODEL), out=str(tmp_path / "a.onnx"))
-    seq = teacher(request, io.StringIO())[0]
-    assert seq.camera.fx == pytest.approx(1.04 * camera["fx"])
-    assert (seq.camera.cx, seq.camera.width) == (camera["cx"], camera["width"])
+    lens = [-0.1, 0.01, 0.0, 0.0, 0.0]
+    for name, extra in (("f", {}), ("d", {"distortion": {"adopted": True,
+                                                         "used": {"distortion": lens}}})):
+        (tmp_path / f"{name}.json").write_text(json.dumps({**doc, **extra}))
+        request = AdaptRequest(data=str(tmp_path / "data"), result=str(tmp_path / f"{name}.json"),
+                               model=str(BUNDLED_MODEL), out=str(tmp_path / "a.onnx"))
+        seq = teacher(request, io.StringIO())[0]
+        assert seq.camera.fx == pytest.approx(1.04 * camera["fx"])
+        assert (seq.camera.cx, seq.camera.width) == (camera["cx"], camera["width"])
+        assert list(seq.camera.dist_coeffs) == (lens if extra else [0.0] * 5)
 
 
 def test_a_teacher_calibrated_on_part_of_the_recording_is_accepted(panda, meshes, tmp_path):
