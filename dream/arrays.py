@@ -22,3 +22,13 @@ def finite_or_none(x: float | None) -> float | None:
         return None
     x = float(x)
     return x if np.isfinite(x) else None
+
+
+def finite_list_or_none(a: np.ndarray) -> list | None:
+    """`a` as nested lists, or None where any entry is NaN or infinite (JSON has no NaN).
+
+    >>> finite_list_or_none(np.array([1.0, 2.0])), finite_list_or_none(np.full(2, np.nan))
+    ([1.0, 2.0], None)
+    """
+    a = np.asarray(a, dtype=float)
+    return a.tolist() if np.all(np.isfinite(a)) else None

@@ -11,7 +11,8 @@ Levenberg-Marquardt over (T, p) on fixed contour points of the finish's objectiv
 groups of those points out in turn. `fit_parameter` fits the parameters so from the search's
 winner (the focal length's scale, the lens's radial distortion): rounds of the finish through
 the camera at the current values, its contour points and the joint fit, then their covariance
-(`parameter_covariance`), the IoU before and after, and how the pose moves with each.
+(`parameter_covariance`), the IoU before and after, and how the pose moves with each (made
+where asked for: `ParameterFit.sensitivity`).
 
 A parameter whose first-order effect on the image a turn of the camera repeats (a shift of the
 principal point) leaves the fit a long narrow valley, along which Levenberg-Marquardt crawls: on
@@ -31,7 +32,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -348,7 +349,9 @@ class ParameterFit:
             frame groups).
         iou_given, iou_fitted: the finish's IoU at 0 and at `value` (the pose refined there).
         rounds: the rounds run. T_cam_base: (4, 4) the finish at `value`.
-        xi_per_unit: (6, size) how the finish's pose moves (xi of `dream.pnp`) per unit of each.
+        sensitivity: () -> (6, size) how the finish's pose moves (xi of `dream.pnp`) per unit
+            of each: the finishes at `value` plus and minus a step, two per parameter, made
+            only when called (only an adopted value's enters a covariance).
     """
 
     value: np.ndarray
@@ -357,12 +360,16 @@ class ParameterFit:
     iou_fitted: float
     rounds: int
     T_cam_base: np.ndarray
-    xi_per_unit: np.ndarray
+    sensitivity: Callable[[], np.ndarray] = field(repr=False, compare=False)
 
     @property
     def sigma(self) -> np.ndarray:
         """(size,) the parameters' 1-sigmas."""
         return np.sqrt(np.diag(self.covariance))
+
+    def xi_per_unit(self, wanted: bool) -> np.ndarray:
+        """`sensitivity()` where `wanted`, else (6, size) NaN (written as null)."""
+        return self.sensitivity() if wanted else np.full((6, len(self.value)), np.nan)
 
 
 def fit_parameter(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
@@ -399,13 +406,15 @@ def fit_parameter(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
                                       by_links=region is not None)
     final = scales_at(value)
     T = final.refine(T)
-    iou_fitted = final.iou(T)
-    h = how.sensitivity_step
-    xi = np.zeros((6, fit.size))
-    for i, axis in enumerate(np.eye(fit.size) * h):
-        ends = [scales_at(value + d).refine(T) for d in (axis, -axis)]
-        xi[:, i] = (increment_between(T, ends[0]) - increment_between(T, ends[1])) / (2 * h)
-    return ParameterFit(value, covariance, iou_given, iou_fitted, done, T, xi)
+
+    def sensitivity() -> np.ndarray:
+        h, xi = how.sensitivity_step, np.zeros((6, fit.size))
+        for i, axis in enumerate(np.eye(fit.size) * h):
+            ends = [scales_at(value + d).refine(T) for d in (axis, -axis)]
+            xi[:, i] = (increment_between(T, ends[0]) - increment_between(T, ends[1])) / (2 * h)
+        return xi
+
+    return ParameterFit(value, covariance, iou_given, final.iou(T), done, T, sensitivity)
 
 
 def parameter_covariance(fit: CameraFit, objective: Objective, contour: Contour,

@@ -47,7 +47,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from dream.arrays import finite_or_none
+from dream.arrays import finite_list_or_none, finite_or_none
 from dream.camera import CameraIntrinsics
 from dream.coarse.camera_fit import (
     BEYOND,
@@ -95,8 +95,8 @@ class DistortionEstimate:
         camera: the given camera with k1 (and k2) moved (adopted or not); given: as given.
         T_cam_base: (4, 4) the finish through `camera`.
         xi_per_unit: (6, k) how the finish's pose moves (xi of `dream.pnp`) per unit of the
-            shift (and of k2's share); covariance_used: (k, k) the covariance they are weighed
-            with (the fit's and the floor).
+            shift (and of k2's share; NaN where not adopted: not measured); covariance_used:
+            (k, k) the covariance they are weighed with (the fit's and the floor).
         xi_other_lens: (6,) the move from `T_cam_base` to the finish through the lens with k2
             where k2 was fitted and not asked for (k1 alone kept: both lenses match the
             outlines as well, and the pose may lie at either); zeros where k2 was not fitted
@@ -136,7 +136,7 @@ class DistortionEstimate:
                 "iou_given": self.iou_given, "iou_fitted": self.iou_fitted,
                 "rounds": self.rounds, "adopted": self.adopted, "reason": self.reason,
                 "covariance_used": self.covariance_used.tolist(),
-                "xi_per_unit": self.xi_per_unit.tolist(),
+                "xi_per_unit": finite_list_or_none(self.xi_per_unit),
                 "xi_other_lens": self.xi_other_lens.tolist(),
                 "given": {"distortion": list(self.given.dist_coeffs)},
                 "used": {"distortion": list((self.camera if self.adopted
@@ -206,8 +206,8 @@ def fit_distortion(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
     return DistortionEstimate(shift, sigma, k2_share, k2_sigma, fitted.iou_given,
                               fitted.iou_fitted, fitted.rounds, adopted, reason + tried,
                               _moved(camera, fitted.value), camera, fitted.T_cam_base,
-                              fitted.xi_per_unit, settings.covariance_used(fitted.covariance),
-                              xi_other)
+                              fitted.xi_per_unit(adopted),
+                              settings.covariance_used(fitted.covariance), xi_other)
 
 
 def _k2_asked(share: float, sigma: float, iou_k1: float, iou_k2: float,

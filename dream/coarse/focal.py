@@ -39,6 +39,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from dream.arrays import finite_list_or_none
 from dream.camera import CameraIntrinsics
 from dream.coarse.camera_fit import (
     BEYOND,
@@ -84,8 +85,9 @@ class FocalEstimate:
         camera: the given camera with fx, fy scaled (adopted or not); given: as given.
         T_cam_base: (4, 4) the finish at the fitted scale.
         xi_per_log_scale: (6,) how the finish's pose moves (xi of `dream.pnp`) per unit of
-            log s at the fitted scale; sigma_used: the 1-sigma of log s it is weighed with
-            (`sigma` and `FocalSettings.sigma_floor` in quadrature).
+            log s at the fitted scale (NaN where not adopted: not measured); sigma_used: the
+            1-sigma of log s it is weighed with (`sigma` and `FocalSettings.sigma_floor` in
+            quadrature).
     """
 
     scale: float
@@ -115,7 +117,7 @@ class FocalEstimate:
                 "iou_given": self.iou_given, "iou_fitted": self.iou_fitted,
                 "rounds": self.rounds, "adopted": self.adopted, "reason": self.reason,
                 "sigma_used": self.sigma_used,
-                "xi_per_log_scale": self.xi_per_log_scale.tolist(),
+                "xi_per_log_scale": finite_list_or_none(self.xi_per_log_scale),
                 "given": {"fx": given.fx, "fy": given.fy},
                 "used": {"fx": self.camera.fx if self.adopted else given.fx,
                          "fy": self.camera.fy if self.adopted else given.fy}}
@@ -157,7 +159,7 @@ def fit_focal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray, camera: Cam
     return FocalEstimate(float(np.exp(log_s)), sigma, fitted.iou_given, fitted.iou_fitted,
                          fitted.rounds, adopted, reason,
                          with_focal_scale(camera, float(np.exp(log_s))), camera,
-                         fitted.T_cam_base, fitted.xi_per_unit[:, 0],
+                         fitted.T_cam_base, fitted.xi_per_unit(adopted)[:, 0],
                          settings.sigma_used(sigma))
 
 
