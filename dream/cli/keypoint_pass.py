@@ -216,7 +216,8 @@ def with_adopted(second: KeypointPass, focal: dict | None, principal: dict | Non
     `dream.coarse.focal.FocalEstimate.pose_covariance`; `principal`: `spread_xi`, the pose's
     spread with the point free, and the turn of an error the outlines' jackknife does not see,
     `sigma_floor_px`: `dream.coarse.principal.adopted_covariance`) and their findings."""
-    from dream.coarse.distortion import distortion_finding
+    from dream.coarse.camera_fit import adopted_pose_covariance
+    from dream.coarse.distortion import distortion_finding, lens_pose_covariance
     from dream.coarse.principal import adopted_covariance
     from dream.coarse.verdict import adopted_principal_finding, focal_finding
     from dream.refined_uncertainty import set_covariance
@@ -230,16 +231,14 @@ def with_adopted(second: KeypointPass, focal: dict | None, principal: dict | Non
         doc["distortion"] = {**distortion, **adopted,
                              "given": {"distortion": list(given.dist_coeffs)},
                              "used": {"distortion": list(camera.dist_coeffs)}}
-        xi = np.asarray(distortion["xi_per_unit"], dtype=float)
-        other = np.asarray(distortion["xi_other_lens"], dtype=float)
-        added += (xi @ np.asarray(distortion["covariance_used"], dtype=float) @ xi.T
-                  + np.outer(other, other))
+        added += lens_pose_covariance(distortion["covariance_used"], distortion["xi_per_unit"],
+                                      distortion["xi_other_lens"])
         findings.append(distortion_finding(doc["distortion"]))
     if focal is not None:
         doc["focal"] = {**focal, **adopted, "given": {"fx": given.fx, "fy": given.fy},
                         "used": {"fx": camera.fx, "fy": camera.fy}}
-        xi = np.asarray(focal["xi_per_log_scale"], dtype=float)
-        added += focal["sigma_used"] ** 2 * np.outer(xi, xi)
+        added += adopted_pose_covariance(True, focal["sigma_used"] ** 2,
+                                         focal["xi_per_log_scale"])
         findings.append(focal_finding(doc["focal"]))
     if principal is not None:
         floor_px = PrincipalSettings().floor_px(camera)

@@ -127,8 +127,7 @@ class DistortionEstimate:
         where it was not adopted."""
         if not self.adopted:
             return np.zeros((6, 6))
-        return (adopted_pose_covariance(True, self.covariance_used, self.xi_per_unit)
-                + np.outer(self.xi_other_lens, self.xi_other_lens))
+        return lens_pose_covariance(self.covariance_used, self.xi_per_unit, self.xi_other_lens)
 
     def to_dict(self) -> dict:
         return {"corner_shift": self.shift, "sigma": finite_or_none(self.sigma),
@@ -141,6 +140,21 @@ class DistortionEstimate:
                 "given": {"distortion": list(self.given.dist_coeffs)},
                 "used": {"distortion": list((self.camera if self.adopted
                                              else self.given).dist_coeffs)}}
+
+
+def lens_pose_covariance(covariance_used: np.ndarray, xi_per_unit: np.ndarray,
+                         xi_other_lens: np.ndarray) -> np.ndarray:
+    """(6, 6) what an adopted lens leaves uncertain in the pose (`DistortionEstimate`'s fields
+    or their RESULT.json lists): its parameters' covariance through the pose's move per unit
+    of each (`adopted_pose_covariance`) and the move to the pose through the other lens.
+
+    >>> xi, other = np.zeros((6, 1)), np.array([0.0, 0, 0, 0, 0, 0.003])
+    >>> round(float(lens_pose_covariance([[1e-4]], xi, other)[5, 5]), 9)
+    9e-06
+    """
+    other = np.asarray(xi_other_lens, dtype=float)
+    return adopted_pose_covariance(True, np.asarray(covariance_used, dtype=float),
+                                   xi_per_unit) + np.outer(other, other)
 
 
 def corner_radius2(camera: CameraIntrinsics) -> float:
