@@ -86,7 +86,7 @@ def principal_turn(camera: CameraIntrinsics, p: np.ndarray) -> np.ndarray:
 
 def finest_objective(scales: Scales) -> Objective:
     """The finish's objective at the finest level of `scales` (its camera and masks)."""
-    return Objective(scales.distances(-1), scales.levels[-1][0], scales.params)
+    return scales.objective(-1)
 
 
 def frame_group_keeps(contour: Contour, frames: int, groups: int) -> list[np.ndarray] | None:

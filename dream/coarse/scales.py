@@ -16,6 +16,7 @@ from __future__ import annotations
 import copy
 import logging
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 
@@ -36,6 +37,11 @@ from dream.polish.settings import PolishSettings
 from dream.silhouette import RobotMeshes, render_frames, silhouette_iou
 
 log = logging.getLogger(__name__)
+
+# The silhouettes of the last poses rendered, kept per `Scales`: a finish renders the pose it
+# ends at again to score it (its IoU, the found test's, its contour points), and a refinement
+# renders the pose it starts from after its caller did.
+RENDERS_KEPT = 4
 
 
 class Scales:
@@ -64,6 +70,8 @@ class Scales:
         self.params = replace(PolishSettings(), outer_iterations=settings.local_rounds)
         self.iou_tolerance = settings.round_iou_tolerance
         self._distances: dict[int, np.ndarray] = {}
+        self._objectives: dict[int, Objective] = {}
+        self._renders: dict[tuple[int, bytes], _AtPose] = {}
 
     def distances(self, level: int) -> np.ndarray:
         """(F, h, w) the `signed_distance`s of the masks at `level`, computed once."""
@@ -73,8 +81,28 @@ class Scales:
                                                for m in self.levels[level][1]])
         return self._distances[level]
 
-    def _rendered(self, T: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
-        return render_frames(self.P, self.faces, T, camera)
+    def objective(self, level: int) -> Objective:
+        """The polish's `Objective` on the masks at `level` (its camera), built once."""
+        level = range(len(self.levels))[level]
+        if level not in self._objectives:
+            self._objectives[level] = Objective(self.distances(level), self.levels[level][0],
+                                                self.params)
+        return self._objectives[level]
+
+    def _at_pose(self, T: np.ndarray, level: int) -> _AtPose:
+        """What `level` shows at `T`: kept from one of the last `RENDERS_KEPT` poses asked
+        for, or new."""
+        level = range(len(self.levels))[level]
+        key = (level, np.ascontiguousarray(T, dtype=float).tobytes())
+        at = self._renders.pop(key, None) or _AtPose(self, np.array(T, dtype=float), level)
+        self._renders[key] = at
+        while len(self._renders) > RENDERS_KEPT:
+            del self._renders[next(iter(self._renders))]
+        return at
+
+    def _rendered(self, T: np.ndarray, level: int) -> np.ndarray:
+        """(F, h, w) the silhouettes at `level` from `T`, read-only."""
+        return self._at_pose(T, level).rendered
 
     def refine(self, T: np.ndarray, levels: slice = slice(None)) -> np.ndarray:
         """The silhouette polish at each of `levels` in turn; a round that lowers the IoU at
@@ -89,11 +117,11 @@ class Scales:
         explain all the masks better)."""
         for level in range(len(self.levels))[levels]:
             camera, masks = self.levels[level]
-            rendered = self._rendered(T, camera)
-            usable, ignored = self._usable(T, camera, rendered)
+            at = self._at_pose(T, level)
+            rendered, (usable, ignored) = at.rendered, at.usable
             T = refine_pose(self.P, self.faces, masks, camera, T, self.params, usable, NoWorse(
                 self, level, self.iou_of(rendered, level, T, ignored), self.iou_tolerance),
-                self.distances(level))[0]
+                self.objective(level), partial(self._rendered, level=level))[0]
         return (T, np.zeros(0, int)) if self.outliers is None \
             else self._without_outlying_frames(T)
 
@@ -104,8 +132,7 @@ class Scales:
         not (a frame that pulls hard can also be right: on a rendered scene with a held
         object, without this guard, the search ended 13.5 mm off at an IoU of 0.5345 where it
         had ended 7.7 mm off at 0.5355); with the frames left out (empty where none)."""
-        objective = Objective(self.distances(-1), self.levels[-1][0], self.params)
-        influence = frame_influence(objective, self.contour(T), T, len(self.P))
+        influence = frame_influence(self.objective(-1), self.contour(T), T, len(self.P))
         drop = outlying_frames(influence, *self.outliers)
         if not len(drop):
             return T, drop
@@ -123,6 +150,7 @@ class Scales:
         out.P = self.P[keep]
         out.levels = [(camera, masks[keep]) for camera, masks in self.levels]
         out._distances = {level: d[keep] for level, d in self._distances.items()}
+        out._objectives, out._renders = {}, {}
         out.region = None if self.region is None else self.region.frames(keep)
         if self.usable is not None and self.usable.ndim == 2:
             out.usable = self.usable[keep]
@@ -146,13 +174,12 @@ class Scales:
 
     def contour(self, T: np.ndarray) -> Contour:
         """The finest level's contour points at T, as its refinement selects them."""
-        camera, _ = self.levels[-1]
-        rendered = self._rendered(T, camera)
-        return select_contour(self.P, self.faces, T, camera, self.params,
-                              self._usable(T, camera, rendered)[0], rendered)
+        at = self._at_pose(T, -1)
+        return select_contour(self.P, self.faces, T, self.levels[-1][0], self.params,
+                              at.usable[0], at.rendered)
 
     def iou_at(self, T: np.ndarray, level: int) -> float:
-        return self.iou_of(self._rendered(T, self.levels[level][0]), level, T)
+        return self.iou_of(self._rendered(T, level), level, T)
 
     def iou_of(self, rendered: np.ndarray, level: int, T: np.ndarray,
                ignored: np.ndarray | None = None, keep_held: bool = False) -> float:
@@ -180,7 +207,25 @@ class Scales:
         in 11 of 16), and scored against silhouettes without them, the right pose's IoU falls
         below the found test (a PR2 3 m away: 0.30; with them, 0.66). Kept in the silhouettes
         and not left out of the masks, they count against a pose whose masks miss them."""
-        return self.iou_of(self._rendered(T, self.levels[-1][0]), -1, T, keep_held=True)
+        return self.iou_of(self._rendered(T, -1), -1, T, keep_held=True)
+
+
+class _AtPose:
+    """The silhouettes of a `Scales` level at one pose and, once asked for, the vertices that
+    may be contour points there (`Scales._usable`)."""
+
+    def __init__(self, scales: Scales, T: np.ndarray, level: int):
+        self.scales, self.T, self.level = scales, T, level
+        self.camera = scales.levels[level][0]
+        self.rendered = render_frames(scales.P, scales.faces, T, self.camera)
+        self.rendered.flags.writeable = False
+        self._usable: tuple[np.ndarray | None, np.ndarray | None] | None = None
+
+    @property
+    def usable(self) -> tuple[np.ndarray | None, np.ndarray | None]:
+        if self._usable is None:
+            self._usable = self.scales._usable(self.T, self.camera, self.rendered)
+        return self._usable
 
 
 class NoWorse:

@@ -196,7 +196,9 @@ def refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
                 camera: CameraIntrinsics, T_cam_base: np.ndarray,
                 params: PolishSettings, usable: np.ndarray | None = None,
                 keep: Callable[[np.ndarray, np.ndarray], bool] | None = None,
-                distances: np.ndarray | None = None) -> tuple[np.ndarray, int, int]:
+                objective: Objective | None = None,
+                render: Callable[[np.ndarray], np.ndarray] | None = None
+                ) -> tuple[np.ndarray, int, int]:
     """The silhouette optimum near `T_cam_base` (search resolution already applied).
 
     Args:
@@ -210,17 +212,22 @@ def refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
             each round, so a round may lower its own cost and still move the outline off the
             masks: a held object as large as the hand drags the contour inside it outwards,
             round after round).
-        distances: (F, H, W) the masks' `signed_distance`s, where already computed.
+        objective: the masks' `Objective` at `camera` with `params`, where already built.
+        render: the frames' silhouettes (F, H, W) at a pose, as `render_frames` of
+            `P_frames`, `faces` and `camera` gives them (the default); a caller that renders
+            the same poses itself passes its own, which may return them again unrendered.
     Returns:
         (T (4, 4), rounds run, contour points of the last round).
     """
-    if distances is None:
-        distances = np.stack([signed_distance(m) for m in masks])
-    objective = Objective(distances, camera, params)
+    if objective is None:
+        objective = Objective(np.stack([signed_distance(m) for m in masks]), camera, params)
+    if render is None:
+        def render(T: np.ndarray) -> np.ndarray:
+            return render_frames(P_frames, faces, T, camera)
     T = kept = np.array(T_cam_base, dtype=float)
     rounds, points = 0, 0
     for rounds in range(1, params.outer_iterations + 1):
-        silhouettes = render_frames(P_frames, faces, T, camera)
+        silhouettes = render(T)
         if keep is not None and T is not kept:
             if not keep(T, silhouettes):
                 log.debug("silhouette polish round %d refused by its check", rounds - 1)
@@ -238,8 +245,7 @@ def refine_pose(P_frames: np.ndarray, faces: np.ndarray, masks: np.ndarray,
         log.debug("silhouette polish round %d: %d points, moved %.3g px", rounds, points, moved)
         if moved < params.step_tolerance_px:
             break
-    if keep is not None and T is not kept and not keep(T, render_frames(P_frames, faces, T,
-                                                                          camera)):
+    if keep is not None and T is not kept and not keep(T, render(T)):
         log.debug("silhouette polish round %d refused by its check", rounds)
         T = kept
     return T, rounds, points

@@ -33,6 +33,7 @@ from dream.coarse.hypotheses import (
     shell,
 )
 from dream.coarse.result import RESOLUTION_FRACTION, search_covariance
+from dream.coarse.scales import Scales
 from dream.coarse.search import pose_iou, search
 from dream.coarse.settings import SearchSettings
 from dream.coarse.verdict import search_findings
@@ -232,6 +233,27 @@ def test_the_searchs_refinement_never_lowers_the_iou(panda, meshes):
                          aimed_only=("guess",))
         assert pose_iou(meshes, joints, held, CAMERA, outcome.best.T_cam_base,
                         settings) > before - settings.round_iou_tolerance, seed
+
+
+def test_the_scales_keep_renders_that_match_fresh_ones(panda, meshes):
+    """A pose asked for again is not rendered again, its silhouettes are read-only, and a
+    subset of the frames (`Scales.frames`) renders its own: every IoU as a new `Scales` on
+    the same frames gives it."""
+    T_true, joints, masks = rendered_masks(panda, meshes)
+    settings = replace(SMALL, local_widths_px=SMALL.local_widths_px[-1:])
+    P = vertices_in_base(meshes, joints)
+    scales = Scales(P, meshes, masks, CAMERA, settings, None, True)
+    T = off_by(T_true, 0.02, np.deg2rad(1.0), 0)
+    first = scales.iou(T)
+    assert scales._rendered(T, -1) is scales._rendered(T.copy(), -1)
+    assert not scales._rendered(T, -1).flags.writeable
+    keep = np.arange(0, len(P), 2)
+    subset = Scales(P[keep], meshes, masks[keep], CAMERA, settings, None, True)
+    assert scales.frames(keep).iou(T) == subset.iou(T) != first
+    assert scales.iou(T) == first == Scales(P, meshes, masks, CAMERA, settings, None,
+                                            True).iou(T)
+    assert np.array_equal(scales.refine(T), Scales(P, meshes, masks, CAMERA, settings, None,
+                                                   True).refine(T))
 
 
 def test_a_refused_round_leaves_the_pose_as_it_was(panda, meshes):
