@@ -53,7 +53,9 @@ def test_random_pose_project_and_fit_asks_for_the_shift_back(seed):
     assert fitted == pytest.approx(shift, abs=1e-6)
     assert np.all(np.diag(covariance) < 1e-12)
     m, rad = pose_errors(T_fit, T)
-    assert m < 1e-8 and rad < 1e-8
+    # the fit stops at its step tolerance: 1e-7 rad turns a pixel by 6e-5 px at fx 600 (the
+    # last steps' rounding differs between CPUs' vector units: 2.1e-8 rad on one of them)
+    assert m < 1e-8 and rad < 1e-7
 
 
 @pytest.mark.parametrize("fit, columns, p", [
