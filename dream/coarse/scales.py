@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import copy
 import logging
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from functools import partial
 
 import numpy as np
@@ -94,7 +94,10 @@ class Scales:
         for, or new."""
         level = range(len(self.levels))[level]
         key = (level, np.ascontiguousarray(T, dtype=float).tobytes())
-        at = self._renders.pop(key, None) or _AtPose(self, np.array(T, dtype=float), level)
+        at = self._renders.pop(key, None)
+        if at is None:
+            at = _AtPose(render_frames(self.P, self.faces, T, self.levels[level][0]))
+            at.rendered.flags.writeable = False
         self._renders[key] = at
         while len(self._renders) > RENDERS_KEPT:
             del self._renders[next(iter(self._renders))]
@@ -103,6 +106,14 @@ class Scales:
     def _rendered(self, T: np.ndarray, level: int) -> np.ndarray:
         """(F, h, w) the silhouettes at `level` from `T`, read-only."""
         return self._at_pose(T, level).rendered
+
+    def _usable_at(self, T: np.ndarray, level: int
+                   ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """`_usable` at `level` from `T`, worked out once for the silhouettes kept there."""
+        at = self._at_pose(T, level)
+        if at.usable is None:
+            at.usable = self._usable(T, self.levels[level][0], at.rendered)
+        return at.usable
 
     def refine(self, T: np.ndarray, levels: slice = slice(None)) -> np.ndarray:
         """The silhouette polish at each of `levels` in turn; a round that lowers the IoU at
@@ -117,8 +128,8 @@ class Scales:
         explain all the masks better)."""
         for level in range(len(self.levels))[levels]:
             camera, masks = self.levels[level]
-            at = self._at_pose(T, level)
-            rendered, (usable, ignored) = at.rendered, at.usable
+            rendered = self._rendered(T, level)
+            usable, ignored = self._usable_at(T, level)
             T = refine_pose(self.P, self.faces, masks, camera, T, self.params, usable, NoWorse(
                 self, level, self.iou_of(rendered, level, T, ignored), self.iou_tolerance),
                 self.objective(level), partial(self._rendered, level=level))[0]
@@ -174,9 +185,8 @@ class Scales:
 
     def contour(self, T: np.ndarray) -> Contour:
         """The finest level's contour points at T, as its refinement selects them."""
-        at = self._at_pose(T, -1)
         return select_contour(self.P, self.faces, T, self.levels[-1][0], self.params,
-                              at.usable[0], at.rendered)
+                              self._usable_at(T, -1)[0], self._rendered(T, -1))
 
     def iou_at(self, T: np.ndarray, level: int) -> float:
         return self.iou_of(self._rendered(T, level), level, T)
@@ -210,22 +220,13 @@ class Scales:
         return self.iou_of(self._rendered(T, -1), -1, T, keep_held=True)
 
 
+@dataclass(eq=False)
 class _AtPose:
-    """The silhouettes of a `Scales` level at one pose and, once asked for, the vertices that
-    may be contour points there (`Scales._usable`)."""
+    """The silhouettes of a `Scales` level at one pose (read-only) and, once asked for, the
+    vertices that may be contour points there (`Scales._usable_at`)."""
 
-    def __init__(self, scales: Scales, T: np.ndarray, level: int):
-        self.scales, self.T, self.level = scales, T, level
-        self.camera = scales.levels[level][0]
-        self.rendered = render_frames(scales.P, scales.faces, T, self.camera)
-        self.rendered.flags.writeable = False
-        self._usable: tuple[np.ndarray | None, np.ndarray | None] | None = None
-
-    @property
-    def usable(self) -> tuple[np.ndarray | None, np.ndarray | None]:
-        if self._usable is None:
-            self._usable = self.scales._usable(self.T, self.camera, self.rendered)
-        return self._usable
+    rendered: np.ndarray
+    usable: tuple[np.ndarray | None, np.ndarray | None] | None = None
 
 
 class NoWorse:
