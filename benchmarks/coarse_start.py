@@ -17,7 +17,11 @@ with `--given-focal F` the calibration is given fx, fy F times those rendered wi
 fits the focal length where the outlines tell it: `dream.coarse.focal`); with
 `--given-principal DU,DV` a principal point DU, DV pixels off (adopted where the outlines
 ask for it; `--fixed-principal` keeps it); with `--given-no-distortion` no distortion
-coefficients for a lens rendered with them (raw images given as rectified); with `--video-codec`
+coefficients for a lens rendered with them (raw images given as rectified); with
+`--joint-offsets-deg S` every revolute joint's readings but the first's off by a constant
+drawn from N(0, S) per joint and scene (an arm whose encoders' zeros or URDF differ from the
+real one's); with
+`--video-codec`
 the frames go through a video codec and back first (OpenCV's FFmpeg encoder at its default
 rate: `vp9`, transforms of several sizes with a loop filter, as a modern video file or stream;
 `mpeg4`, MPEG-4 part 2 in 8x8 blocks); `--reuse-scenes` takes scenes already rendered in
@@ -40,7 +44,7 @@ frames that agree.
         [--robots URDF,... --scale-to-robot] [--set intrinsics.width=960 ...]
         [--given-focal 0.96 [--fixed-focal]] [--given-principal 12,-8 [--fixed-principal]]
         [--set 'intrinsics.distortion=[-0.2,0.05,0,0,0]' --given-no-distortion]
-        [--video-codec vp9]
+        [--video-codec vp9] [--joint-offsets-deg 0.2]
         [--reuse-scenes]
         [--set sequence.mode=trajectory --frames 150 [--time-offset 0.05]]
     python benchmarks/coarse_start.py real --data ../shared/realdata/panda_teleop [--guesses 10]
@@ -83,6 +87,7 @@ SCALED_KEYS = (("camera", "radius_m"), ("camera", "target_m"), ("camera", "targe
                ("distractors", "loose_distance_m"), ("distractors", "loose_height_m"))
 VIDEO_CODECS = {"vp9": ("VP90", ".mkv"), "mpeg4": ("mp4v", ".mp4")}   # FourCC, container
 VIDEO_FPS = 10.0          # the rate written in the file; the encoder's default bit rate is kept
+JOINT_OFFSET_STREAM = 7     # the joint offsets' random stream beside the scene's seed
 
 
 def robot_keypoints(robot: str, given: tuple[str, ...] | None = None
@@ -206,6 +211,28 @@ def given_focal(data: Path, scale: float, out: Path) -> Path:
     seq = read_sequence(data)
     return write_dream(seq.with_fixed_camera(with_focal_scale(seq.camera, scale)), out,
                        overwrite=True)
+
+
+def given_joint_offsets(data: Path, sigma_rad: float, seed: int, out: Path
+                        ) -> tuple[Path, np.ndarray]:
+    """A copy of `data` (written anew) whose revolute and continuous joints but the first read
+    a constant offset from the rendered angle, drawn from N(0, `sigma_rad`) per joint (seeded
+    by the scene's `seed`, so that a run with and one without draw the same guesses), and the
+    offsets (J,) in the order of its joints (0 for the others). The first joint's offset turns
+    everything beyond it about its axis, as a turn of the camera about that axis would: the
+    extrinsic in the robot's own kinematics holds it, and only the base link's outline could
+    tell (the joints in URDF order, the first nearest the base)."""
+    from dream.robot.registry import load_robot
+    from dream.robot.tree import CONTINUOUS, REVOLUTE
+
+    seq = read_sequence(data)
+    tree = load_robot(seq.robot, seq.keypoint_names).tree
+    rotating = np.array([tree.joints[tree.joint_index[name]].type in (REVOLUTE, CONTINUOUS)
+                         for name in seq.joint_names])
+    rotating[np.argmax(rotating)] = False     # the first: turns the whole arm (doc above)
+    offsets = np.random.default_rng([seed, JOINT_OFFSET_STREAM]).normal(
+        0.0, sigma_rad, len(rotating)) * rotating
+    return write_dream(seq.with_joints(seq.joints + offsets), out, overwrite=True), offsets
 
 
 def video_coded(data: Path, codec: str, out: Path) -> Path:
@@ -426,6 +453,12 @@ def run_renders(args: argparse.Namespace) -> None:
                                        tmp / f"{name}_{seed}_focal{args.given_focal:g}")
                 if args.given_no_distortion:
                     data = given_undistorted(data, tmp / f"{name}_{seed}_undistorted")
+                if args.joint_offsets_deg:
+                    data, offsets = given_joint_offsets(
+                        data, np.deg2rad(args.joint_offsets_deg), seed,
+                        tmp / f"{name}_{seed}_joints{args.joint_offsets_deg:g}")
+                    print(f"{name} {seed}: joint offsets "
+                          f"{np.round(np.rad2deg(offsets), 2).tolist()} deg", flush=True)
                 if args.given_principal is not None:
                     du, dv = args.given_principal
                     data = given_principal(data, (du, dv),
@@ -563,6 +596,9 @@ def main() -> None:
                    "rendered in --work as it is (the same seed and settings render the same)")
     r.add_argument("--time-offset", type=float, default=0.0, metavar="S", help="the joint "
                    "readings lag the images by S seconds (with --set sequence.mode=trajectory)")
+    r.add_argument("--joint-offsets-deg", type=float, default=0.0, metavar="S",
+                   help="give the calibration each revolute joint's readings but the first's "
+                   "off by a constant drawn from N(0, S deg) per joint and scene")
     r.add_argument("--scenes", type=int, default=3)
     r.add_argument("--first-seed", type=int, default=1000)
     r.add_argument("--frames", type=int, default=30)

@@ -119,6 +119,33 @@ def test_a_scene_through_a_video_codec_keeps_its_frames_and_truth(bench, tmp_pat
             np.testing.assert_allclose(after.T_cam_base_true, before.T_cam_base_true)
 
 
+def test_a_scene_given_joint_offsets_reads_every_joint_but_the_first_off(bench, tmp_path):
+    """`--joint-offsets-deg`: a copy whose readings of each revolute joint beyond the first
+    lie a constant off the rendered ones, the same for a scene's seed; the first and the
+    prismatic ones (the fingers) as rendered, the images and the truth as rendered."""
+    from dream.robot import load_robot
+    from dream.robot.tree import PRISMATIC
+
+    data = bench.render_scene("panda", tmp_path / "panda", 7, 2)
+    rendered = read_sequence(data)
+    given, offsets = bench.given_joint_offsets(data, np.deg2rad(0.3), 7, tmp_path / "off")
+    again, same = bench.given_joint_offsets(data, np.deg2rad(0.3), 7, tmp_path / "again")
+    other = bench.given_joint_offsets(data, np.deg2rad(0.3), 8, tmp_path / "other")[1]
+    moved = read_sequence(given)
+    np.testing.assert_allclose(moved.joints - rendered.joints,
+                               np.broadcast_to(offsets, rendered.joints.shape), atol=1e-9)
+    np.testing.assert_array_equal(offsets, same)
+    assert not np.allclose(offsets, other)
+    tree = load_robot("panda").tree
+    kinds = [tree.joints[tree.joint_index[n]].type for n in rendered.joint_names]
+    assert offsets[0] == 0.0 and all(o == 0.0 for o, k in zip(offsets, kinds, strict=True)
+                                 if k == PRISMATIC)
+    assert np.count_nonzero(offsets) == sum(k != PRISMATIC for k in kinds) - 1
+    assert np.all(np.abs(offsets) < np.deg2rad(2.0))
+    np.testing.assert_allclose(moved.frames[1].T_cam_base_true,
+                               rendered.frames[1].T_cam_base_true, atol=1e-12)
+
+
 def test_marks_are_where_the_images_show_the_end_effector_also_with_a_late_log(bench,
                                                                                 tmp_path):
     """`--mark-frames` with `--time-offset`: the marks are the end effector's labels (where the
