@@ -13,6 +13,7 @@ from tests.benchmark_scripts import load_benchmark
 
 SO101 = "robots/so_arm_description/urdf/so101.urdf"     # a small arm (about 0.4 of a Panda)
 TIAGO_DUAL = "robots/tiago_description/robots/tiago_dual.urdf"      # two arms on a torso
+TIAGO = "robots/tiago_description/robots/tiago.urdf"     # an arm above a prismatic torso lift
 
 
 @pytest.fixture(scope="module")
@@ -121,27 +122,25 @@ def test_a_scene_through_a_video_codec_keeps_its_frames_and_truth(bench, tmp_pat
 
 def test_a_scene_given_joint_offsets_reads_every_joint_but_the_first_off(bench, tmp_path):
     """`--joint-offsets-deg`: a copy whose readings of each revolute joint beyond the first
-    lie a constant off the rendered ones, the same for a scene's seed; the first and the
-    prismatic ones (the fingers) as rendered, the images and the truth as rendered."""
+    lie a constant off the rendered ones, the same for a scene's seed; the first revolute one
+    and the prismatic ones (TIAGo's torso lift) as rendered, the truth as rendered."""
     from dream.robot import load_robot
     from dream.robot.tree import PRISMATIC
 
-    data = bench.render_scene("panda", tmp_path / "panda", 7, 2)
+    data = bench.render_scene(str(robot_data_dir() / TIAGO), tmp_path / "tiago", 7, 2, True)
     rendered = read_sequence(data)
     given, offsets = bench.given_joint_offsets(data, np.deg2rad(0.3), 7, tmp_path / "off")
-    again, same = bench.given_joint_offsets(data, np.deg2rad(0.3), 7, tmp_path / "again")
+    same = bench.given_joint_offsets(data, np.deg2rad(0.3), 7, tmp_path / "again")[1]
     other = bench.given_joint_offsets(data, np.deg2rad(0.3), 8, tmp_path / "other")[1]
     moved = read_sequence(given)
     np.testing.assert_allclose(moved.joints - rendered.joints,
                                np.broadcast_to(offsets, rendered.joints.shape), atol=1e-9)
     np.testing.assert_array_equal(offsets, same)
     assert not np.allclose(offsets, other)
-    tree = load_robot("panda").tree
+    tree = load_robot(rendered.robot, rendered.keypoint_names).tree
     kinds = [tree.joints[tree.joint_index[n]].type for n in rendered.joint_names]
-    assert offsets[0] == 0.0 and all(o == 0.0 for o, k in zip(offsets, kinds, strict=True)
-                                 if k == PRISMATIC)
-    assert np.count_nonzero(offsets) == sum(k != PRISMATIC for k in kinds) - 1
-    assert np.all(np.abs(offsets) < np.deg2rad(2.0))
+    assert kinds[:2] == [PRISMATIC, "revolute"] and offsets[0] == offsets[1] == 0.0
+    assert np.all(offsets[2:] != 0.0) and np.all(np.abs(offsets) < np.deg2rad(2.0))
     np.testing.assert_allclose(moved.frames[1].T_cam_base_true,
                                rendered.frames[1].T_cam_base_true, atol=1e-12)
 
