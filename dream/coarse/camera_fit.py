@@ -281,14 +281,13 @@ class ParameterSettings:
             return REFUTED
         return BEYOND if abs(value) > self.max_change else ADOPTED
 
-    def sigma_used(self, sigma: float) -> float:
-        """The 1-sigma an adopted value's uncertainty enters the pose's with: `sigma` (0 where
-        NaN) and `sigma_floor` in quadrature."""
-        return float(np.hypot(np.nan_to_num(sigma), self.sigma_floor))
-
     def covariance_used(self, covariance: np.ndarray) -> np.ndarray:
         """(k, k) the covariance adopted values' uncertainty enters the pose's with: `covariance`
-        (0 where NaN) with `sigma_floor` squared added to each variance."""
+        (0 where NaN) with `sigma_floor` squared added to each variance.
+
+        >>> ParameterSettings(sigma_floor=0.004).covariance_used([[np.nan]]).tolist()
+        [[1.6e-05]]
+        """
         covariance = np.nan_to_num(np.atleast_2d(np.asarray(covariance, float)))
         return covariance + self.sigma_floor ** 2 * np.eye(len(covariance))
 

@@ -160,7 +160,7 @@ def fit_focal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray, camera: Cam
                          fitted.rounds, adopted, reason,
                          with_focal_scale(camera, float(np.exp(log_s))), camera,
                          fitted.T_cam_base, fitted.xi_per_unit(adopted)[:, 0],
-                         settings.sigma_used(sigma))
+                         float(np.sqrt(settings.covariance_used(fitted.covariance)[0, 0])))
 
 
 def _decision(log_s: float, sigma: float, iou_given: float, iou_fitted: float,
