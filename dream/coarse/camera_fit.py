@@ -106,6 +106,22 @@ def frame_group_keeps(contour: Contour, frames: int, groups: int) -> list[np.nda
     return [~np.isin(contour.frame, group) for group in found]
 
 
+def link_keeps(contour: Contour, meshes: RobotMeshes) -> list[np.ndarray] | None:
+    """For each link with at least `JACKKNIFE_MIN_CONTOUR_POINTS` of the contour points, (N,)
+    which points lie off it (the points a fit leaving that link out keeps); None where
+    `contour` names no vertices or fewer than `MIN_GROUPS` links have points. Something the
+    arm carries, or a joint whose reading is off, pulls one link's outline alike in every
+    frame, which no frame group sees."""
+    if contour.vertex is None:
+        return None
+    link = meshes.vertex_link[contour.vertex]
+    links = links_with_points(meshes.vertex_link, contour.vertex, meshes.links,
+                              JACKKNIFE_MIN_CONTOUR_POINTS)
+    if len(links) < MIN_GROUPS:
+        return None
+    return [link != meshes.links.index(name) for name in links]
+
+
 @dataclass(frozen=True)
 class CameraFit:
     """The joint fit of the pose and the camera parameters p (module doc).
@@ -420,21 +436,14 @@ def parameter_covariance(fit: CameraFit, objective: Objective, contour: Contour,
                          T: np.ndarray, initial_damping: float, frames: int, groups: int,
                          meshes: RobotMeshes, by_links: bool) -> np.ndarray:
     """(size, size) the covariance of a fit's parameters: the delete-one-group jackknife over
-    `groups` frame groups of the contour points, with `by_links` that over the links with at
-    least `JACKKNIFE_MIN_CONTOUR_POINTS` of them added (NaN with fewer than `MIN_GROUPS` frame
-    groups; the links' left out where fewer than `MIN_GROUPS` links have points). What the arm
-    carries pulls the outline of the link it moves with alike in every frame, which the frame
-    groups do not see."""
+    `groups` frame groups of the contour points, with `by_links` that over the links
+    (`link_keeps`) added; NaN with fewer than `MIN_GROUPS` frame groups."""
     keeps = frame_group_keeps(contour, frames, groups)
     if keeps is None:
         return np.full((fit.size, fit.size), np.nan)
     covariance = fit.jackknife_covariance(objective, contour, T, initial_damping, keeps)
-    if by_links and contour.vertex is not None:
-        link = meshes.vertex_link[contour.vertex]
-        links = links_with_points(meshes.vertex_link, contour.vertex, meshes.links,
-                                  JACKKNIFE_MIN_CONTOUR_POINTS)
-        if len(links) >= MIN_GROUPS:
-            covariance = covariance + fit.jackknife_covariance(
-                objective, contour, T, initial_damping,
-                [link != meshes.links.index(name) for name in links])
+    by_link = link_keeps(contour, meshes) if by_links else None
+    if by_link is not None:
+        covariance = covariance + fit.jackknife_covariance(objective, contour, T,
+                                                           initial_damping, by_link)
     return covariance

@@ -12,12 +12,17 @@ principal point (`dream.coarse.scales.finish_scale`), its contour points there
 (`Scales.contour`), and Levenberg-Marquardt over (pose, du, dv) on those points
 (`dream.coarse.camera_fit.CameraFit` on the finish's objective), until the step falls below
 `step_tolerance_px`. Where the shift could be a finding, its 1-sigma: the same fit with each of
-`jackknife_groups` frame groups left out in turn. Where the search left out something the arm
-carries that the model lacks (`region`), the shift is reported and not judged: what the arm
-carries pulls the outline of the link it moves with alike in every frame, which no leave-out of
-frames or links bounds (on a rendered UR5 holding an object, given its own cx, cy, the outlines
-asked for a turn of 2.5-3.3 deg, beyond 3 of the frame groups' 1-sigmas, and with the links' in
-quadrature still beyond), and the carried finding already says the pose may be off.
+`jackknife_groups` frame groups left out in turn, and with each link left out (a shifted
+principal point moves every link's outline alike; a joint whose reading is off pulls the links
+beyond it alike in every frame, which the frame groups do not see: on a rendered xArm7 whose
+readings were off by up to 1.35 deg, the frame groups alone let a turn of 2.3 deg through, and
+the camera lay 2.1 deg off, where with the links it stays 0.5 deg off). Where the search left
+out something the arm carries that the model lacks (`region`), the shift is reported and not
+judged: what the arm carries pulls the outline of the link it moves with alike in every frame,
+which no leave-out of frames or links bounds (on a rendered UR5 holding an object, given its
+own cx, cy, the outlines asked for a turn of 2.5-3.3 deg, beyond 3 of the frame groups'
+1-sigmas, and with the links' in quadrature still beyond), and the carried finding already says
+the pose may be off.
 
 The outlines alone can be pulled (something the model lacks beside a link, the masks' own
 errors), and their jackknife understates that: on 30 rendered scenes given their own cx, cy they
@@ -60,6 +65,7 @@ from dream.coarse.camera_fit import (
     CameraFit,
     finest_objective,
     frame_group_keeps,
+    link_keeps,
     overlap_agrees,
     principal_turn,
 )
@@ -306,7 +312,7 @@ def fit_principal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
     angle = float(np.arctan(np.hypot(shift[0] / camera.fx, shift[1] / camera.fy)))
     carried = region is not None
     judged = angle > settings.min_angle_rad and not carried
-    sigma, spread = (_jackknife(objective, scales, T, settings, len(P)) if judged
+    sigma, spread = (_jackknife(objective, scales, T, settings, len(P), meshes) if judged
                      else (np.full(2, np.nan), np.zeros((6, 6))))
     ious = ((scales_given.iou(T_given), scales.iou(T)) if judged
             else (float("nan"), float("nan")))
@@ -318,17 +324,26 @@ def fit_principal(P: np.ndarray, meshes: RobotMeshes, masks: np.ndarray,
 
 
 def _jackknife(objective: Objective, scales: Scales, T: np.ndarray,
-               settings: PrincipalSettings, frames: int) -> tuple[np.ndarray, np.ndarray]:
+               settings: PrincipalSettings, frames: int, meshes: RobotMeshes
+               ) -> tuple[np.ndarray, np.ndarray]:
     """(the 1-sigma (2,) of the shift in `objective`'s pixels, the covariance (6, 6) of the
     pose): the delete-one-group jackknife over frame groups of the contour points of `scales`
-    at T (NaN and zero with fewer than `MIN_GROUPS` groups)."""
+    at T, and that over the links with enough of them added (`link_keeps`: a shifted
+    principal point moves every link's outline alike, a joint reading that is off moves those
+    beyond it only); NaN and zero with fewer than `MIN_GROUPS` frame groups."""
     contour = scales.contour(T)
     keeps = frame_group_keeps(contour, frames, settings.jackknife_groups)
     if keeps is None:
         return np.full(2, np.nan), np.zeros((6, 6))
-    xis, shifts = camera_fit(settings).leave_outs(objective, contour, T,
-                                                 scales.params.initial_damping, keeps)
-    return np.sqrt(np.diag(jackknife_spread(shifts))), jackknife_covariance(xis)
+    shifts_covariance, pose_covariance = np.zeros((2, 2)), np.zeros((6, 6))
+    for groups in (keeps, link_keeps(contour, meshes)):
+        if groups is None:
+            continue
+        xis, shifts = camera_fit(settings).leave_outs(objective, contour, T,
+                                                     scales.params.initial_damping, groups)
+        shifts_covariance += jackknife_spread(shifts)
+        pose_covariance += jackknife_covariance(xis)
+    return np.sqrt(np.diag(shifts_covariance)), pose_covariance
 
 
 def _decision(shift: np.ndarray, sigma: np.ndarray, angle_rad: float, carried: bool,

@@ -14,6 +14,7 @@ from dream.coarse.camera_fit import (
     _Problem,
     finest_objective,
     frame_group_keeps,
+    link_keeps,
     principal_turn,
 )
 from dream.coarse.focal import with_focal_scale
@@ -158,3 +159,24 @@ def test_the_principal_turn_moves_the_image_centre_back():
 def test_camera_fit_settings_are_checked(size, step, iterations):
     with pytest.raises(InputError, match="camera fit"):
         CameraFit(_scaled_and_shifted, size, step, iterations)
+
+
+def test_link_keeps_leave_out_each_link_with_enough_contour_points(meshes):
+    """One keep per link with at least `JACKKNIFE_MIN_CONTOUR_POINTS` contour points, False
+    exactly on that link's points; None without vertices or with too few such links."""
+    from dream.polish.objective import Contour
+    from dream.polish.refine import JACKKNIFE_MIN_CONTOUR_POINTS as ENOUGH
+
+    on_link = [np.flatnonzero(meshes.vertex_link == k) for k in range(len(meshes.links))]
+    shown = [k for k, v in enumerate(on_link) if len(v)][:4]
+    vertex = np.concatenate([on_link[k][:1].repeat(ENOUGH) for k in shown[:3]]
+                            + [on_link[shown[3]][:1].repeat(ENOUGH - 1)])   # one link short
+    contour = Contour(np.zeros((len(vertex), 3)), np.zeros(len(vertex), int),
+                      np.zeros(len(vertex)), vertex)
+    keeps = link_keeps(contour, meshes)
+    assert len(keeps) == 3
+    for keep, k in zip(keeps, shown[:3], strict=True):
+        np.testing.assert_array_equal(keep, meshes.vertex_link[vertex] != k)
+    assert link_keeps(Contour(contour.P_base, contour.frame, contour.s, None), meshes) is None
+    assert link_keeps(Contour(contour.P_base[:2 * ENOUGH], contour.frame[:2 * ENOUGH],
+                              contour.s[:2 * ENOUGH], vertex[:2 * ENOUGH]), meshes) is None

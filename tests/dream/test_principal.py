@@ -81,6 +81,27 @@ def test_a_principal_point_given_off_is_asked_back_and_flagged(meshes, scene):
     assert level == "check" and "calibrated cx, cy" in warning
 
 
+def test_the_shift_s_1_sigma_holds_the_links_spread_besides_the_frames(meshes, scene):
+    """A principal point moves every link's outline alike, a joint reading that is off only
+    those beyond it: the shift's 1-sigma and the pose's spread hold the jackknife over the
+    links on top of that over the frame groups."""
+    from unittest import mock
+
+    from dream.coarse import principal
+
+    T_true, P, masks = scene
+    given = with_principal_shift(CAMERA, GIVEN_OFF_PX)
+    scales = finish_scale(P, meshes, masks, given, SearchSettings())
+    T = scales.refine(turned(T_true, GIVEN_OFF_PX, CAMERA))
+    objective = principal.finest_objective(scales)
+    both = principal._jackknife(objective, scales, T, PrincipalSettings(), FRAMES, meshes)
+    with mock.patch.object(principal, "link_keeps", lambda contour, meshes: None):
+        frames = principal._jackknife(objective, scales, T, PrincipalSettings(), FRAMES, meshes)
+    assert np.all(both[0] > frames[0]) and np.all(np.isfinite(both[0]))
+    assert np.all(np.linalg.eigvalsh(both[1] - frames[1]) > -1e-12)
+    assert both[1].trace() > frames[1].trace()
+
+
 def test_a_principal_point_given_right_stands(meshes, scene):
     T_true, P, masks = scene
     estimate = fit_principal(P, meshes, masks, CAMERA, T_true, SearchSettings())
