@@ -16,16 +16,14 @@ so that its refinements and their verdict are tested from a wrong start;
 with `--given-focal F` the calibration is given fx, fy F times those rendered with (the search
 fits the focal length where the outlines tell it: `dream.coarse.focal`); with
 `--given-principal DU,DV` a principal point DU, DV pixels off (adopted where the outlines
-ask for it; `--fixed-principal` keeps it); with `--given-no-distortion` no distortion
-coefficients for a lens rendered with them (raw images given as rectified); with
-`--joint-offsets-deg S` every revolute joint's readings but the first's off by a constant
-drawn from N(0, S) per joint and scene (an arm whose encoders' zeros or URDF differ from the
-real one's); with
-`--video-codec`
-the frames go through a video codec and back first (OpenCV's FFmpeg encoder at its default
-rate: `vp9`, transforms of several sizes with a loop filter, as a modern video file or stream;
-`mpeg4`, MPEG-4 part 2 in 8x8 blocks); `--reuse-scenes` takes scenes already rendered in
-`--work`.
+ask for it; `--fixed-principal` keeps it, `--fixed-distortion` the given lens); with
+`--given-no-distortion` no distortion coefficients for a lens rendered with them (raw images
+given as rectified); with `--joint-offsets-deg S` every revolute joint's readings but the
+first's off by a constant drawn from N(0, S) per joint and scene (an arm whose encoders' zeros
+or URDF differ from the real one's); with `--video-codec` the frames go through a video codec
+and back first (OpenCV's FFmpeg encoder at its default rate: `vp9`, transforms of several sizes
+with a loop filter, as a modern video file or stream; `mpeg4`, MPEG-4 part 2 in 8x8 blocks);
+`--reuse-scenes` takes scenes already rendered in `--work`.
 Printed per scene: error, verdict, 1-sigma, time; then the share within `--right-mm` /
 `--right-deg`, the wrong results called `good`, the right ones called `good` or `check`, and
 how often the truth lies inside the written 95 % ellipsoid (each scene's chi-square of the
@@ -334,7 +332,8 @@ def fooled_labels(data: Path, T_true: np.ndarray, offset_m: float, offset_rad: f
 
 def calibrate(data: Path, out: Path, guess: Path | None,
               T_true: np.ndarray | None = None, mark: tuple[Path, str, str] | None = None,
-              fixed_focal: bool = False, fixed_principal: bool = False) -> dict:
+              fixed_focal: bool = False, fixed_principal: bool = False,
+              fixed_distortion: bool = False) -> dict:
     """One `dream calibrate` without keypoints (from `guess`, or from `mark`: the marks file,
     its link and offset): its error against `T_true` (default the data's reference), time,
     verdict, 1-sigma and IoUs."""
@@ -347,6 +346,7 @@ def calibrate(data: Path, out: Path, guess: Path | None,
         doc = run_calibrate(CalibrateRequest(data=str(data), out=str(out),
                                              fixed_focal=fixed_focal,
                                              fixed_principal=fixed_principal,
+                                             fixed_distortion=fixed_distortion,
                                              camera_guess=None if guess is None else str(guess),
                                              **marks))
     seconds = time.perf_counter() - start
@@ -487,7 +487,8 @@ def run_renders(args: argparse.Namespace) -> None:
                     try:
                         row = calibrate(source, tmp / f"{name}_{seed}_{mode}.json", guess,
                                         T_true, mark=mark, fixed_focal=args.fixed_focal,
-                                        fixed_principal=args.fixed_principal)
+                                        fixed_principal=args.fixed_principal,
+                                        fixed_distortion=args.fixed_distortion)
                     except DreamError as exc:
                         print(f"{name} {seed} {mode}: failed: {exc}", flush=True)
                         continue
@@ -542,7 +543,7 @@ def run_real(args: argparse.Namespace) -> None:
             guesses = [None]
         for k, guess in enumerate(guesses):
             row = calibrate(data, tmp / f"r{k}.json", guess, T_true, mark, args.fixed_focal,
-                            args.fixed_principal)
+                            args.fixed_principal, args.fixed_distortion)
             rows.append(row)
             polish = ("" if row["polish_iou"] is None else
                       f", polish IoU {row['polish_iou']:.3f}")
@@ -568,6 +569,8 @@ def main() -> None:
                        "fx, fy as given (no focal-length fit)")
         s.add_argument("--fixed-principal", action="store_true", help="keep the data's cx, "
                        "cy as given (a principal point the outlines ask for is reported)")
+        s.add_argument("--fixed-distortion", action="store_true", help="keep the data's "
+                       "distortion as given (a lens the outlines ask for is reported)")
         s.add_argument("--right-mm", type=float, default=10.0 if name == "renders" else 10.0)
         s.add_argument("--right-deg", type=float, default=0.5 if name == "renders" else 1.0)
     r = sub.choices["renders"]
