@@ -7,8 +7,8 @@ the camera (`camera_at`) and, optionally, how it turns the camera with it (`turn
 rotation C(p) of the camera frame, the pose then C(p) T); `CameraFit.fit` is
 Levenberg-Marquardt over (T, p) on fixed contour points of the finish's objective
 (`dream.polish.objective.Objective`), its derivatives in p by central differences, and
-`CameraFit.jackknife_covariance` the delete-one-group jackknife of p over fits that leave
-groups of those points out in turn. `fit_parameter` fits the parameters so from the search's
+`CameraFit.jackknife_spreads` the delete-one-group jackknife of p and the pose over fits that
+leave groups of those points out in turn. `fit_parameter` fits the parameters so from the search's
 winner (the focal length's scale, the lens's radial distortion): rounds of the finish through
 the camera at the current values, its contour points and the joint fit, then their covariance
 (`parameter_covariance`), the IoU before and after, and how the pose moves with each (made
@@ -169,12 +169,17 @@ class CameraFit:
         return (np.array([increment_between(T, T_k) for T_k, _ in fits]).reshape(-1, 6),
                 np.array([p for _, p in fits]).reshape(-1, self.size))
 
-    def jackknife_covariance(self, objective: Objective, contour: Contour, T: np.ndarray,
-                             initial_damping: float, keeps: list[np.ndarray]) -> np.ndarray:
-        """(size, size) the delete-one-group jackknife covariance of p over `leave_outs`
-        (`dream.refined_uncertainty.jackknife_spread`)."""
-        return jackknife_spread(self.leave_outs(objective, contour, T, initial_damping,
-                                                keeps)[1])
+    def jackknife_spreads(self, objective: Objective, contour: Contour, T: np.ndarray,
+                          initial_damping: float, keep_sets: list[list[np.ndarray] | None]
+                          ) -> tuple[np.ndarray, np.ndarray]:
+        """((size, size), (6, 6)) the delete-one-group jackknife covariances of p and of the
+        pose over `leave_outs` (`dream.refined_uncertainty.jackknife_spread`), summed over
+        `keep_sets` (each the keeps of one way to split the points, as `frame_group_keeps`
+        and `link_keeps` give them; None: skipped)."""
+        spreads = [self.leave_outs(objective, contour, T, initial_damping, keeps)
+                   for keeps in keep_sets if keeps is not None]
+        return (sum((jackknife_spread(ps) for _, ps in spreads), np.zeros((self.size,) * 2)),
+                sum((jackknife_spread(xis) for xis, _ in spreads), np.zeros((6, 6))))
 
 
 class _Problem:
@@ -441,9 +446,5 @@ def parameter_covariance(fit: CameraFit, objective: Objective, contour: Contour,
     keeps = frame_group_keeps(contour, frames, groups)
     if keeps is None:
         return np.full((fit.size, fit.size), np.nan)
-    covariance = fit.jackknife_covariance(objective, contour, T, initial_damping, keeps)
     by_link = link_keeps(contour, meshes) if by_links else None
-    if by_link is not None:
-        covariance = covariance + fit.jackknife_covariance(objective, contour, T,
-                                                           initial_damping, by_link)
-    return covariance
+    return fit.jackknife_spreads(objective, contour, T, initial_damping, [keeps, by_link])[0]

@@ -74,7 +74,6 @@ from dream.coarse.scales import Scales, finish_scale
 from dream.coarse.settings import SearchSettings
 from dream.pnp import increment_between
 from dream.polish.objective import Objective
-from dream.refined_uncertainty import jackknife_covariance, jackknife_spread
 from dream.settings_checks import check_fields
 from dream.silhouette import RobotMeshes
 
@@ -335,14 +334,9 @@ def _jackknife(objective: Objective, scales: Scales, T: np.ndarray,
     keeps = frame_group_keeps(contour, frames, settings.jackknife_groups)
     if keeps is None:
         return np.full(2, np.nan), np.zeros((6, 6))
-    shifts_covariance, pose_covariance = np.zeros((2, 2)), np.zeros((6, 6))
-    for groups in (keeps, link_keeps(contour, meshes)):
-        if groups is None:
-            continue
-        xis, shifts = camera_fit(settings).leave_outs(objective, contour, T,
-                                                     scales.params.initial_damping, groups)
-        shifts_covariance += jackknife_spread(shifts)
-        pose_covariance += jackknife_covariance(xis)
+    shifts_covariance, pose_covariance = camera_fit(settings).jackknife_spreads(
+        objective, contour, T, scales.params.initial_damping,
+        [keeps, link_keeps(contour, meshes)])
     return np.sqrt(np.diag(shifts_covariance)), pose_covariance
 
 

@@ -65,8 +65,8 @@ def test_the_fit_asks_back_the_focal_length_and_the_principal_point_at_once(mesh
     distance, angle = pose_errors(T, T_true)
     assert distance < 0.005 and np.rad2deg(angle) < 0.3, (distance, np.rad2deg(angle))
     contour = scales.contour(T)
-    covariance = fit.jackknife_covariance(objective, contour, T, scales.params.initial_damping,
-                                          frame_group_keeps(contour, FRAMES, 5))
+    covariance = fit.jackknife_spreads(objective, contour, T, scales.params.initial_damping,
+                                       [frame_group_keeps(contour, FRAMES, 5)])[0]
     assert covariance.shape == (3, 3) and np.allclose(covariance, covariance.T)
     sigma = np.sqrt(np.diag(covariance))
     assert np.all(sigma > 0)
